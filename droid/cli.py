@@ -1,0 +1,111 @@
+"""Command-line conventions shared by every DROID program (DESIGN §6).
+
+Exit codes:
+  0  success
+  2  bad arguments, bad input, an unreachable or out-of-limit target
+     (a one-line reason on stderr; nothing moves)
+  1  runtime failure (cell not up, subunit stale, timeout)
+  130 interrupted by SIGINT
+
+Every program's ``main(argv=None) -> int`` is wrapped with :func:`run`, so a
+:class:`BadInput` or :class:`RuntimeFailure` raised anywhere becomes a one-line
+message ``prog: reason`` and the right exit code, never a traceback.
+"""
+from __future__ import annotations
+
+import argparse
+import functools
+import math
+import os
+import sys
+from typing import Callable, Sequence
+
+EXIT_OK = 0
+EXIT_RUNTIME = 1
+EXIT_BAD_INPUT = 2
+EXIT_INTERRUPTED = 130
+
+
+class DroidError(Exception):
+    """Base of errors that end a program with a one-line message."""
+
+    exit_code = EXIT_RUNTIME
+
+
+class BadInput(DroidError):
+    """Bad arguments, malformed files or frames, unreachable or out-of-limit targets."""
+
+    exit_code = EXIT_BAD_INPUT
+
+
+class RuntimeFailure(DroidError):
+    """The cell is not up, a subunit is stale, a wait timed out."""
+
+    exit_code = EXIT_RUNTIME
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse with a one-line error and exit code 2 (never the usage block)."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see --help)\n")
+
+
+def finite_float(text: str) -> float:
+    """argparse type: a finite float (rejects nan, inf and malformed numbers)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"not a finite number: {text!r}")
+    return value
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a finite float > 0."""
+    value = finite_float(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be > 0: {text!r}")
+    return value
+
+
+def positive_int(text: str) -> int:
+    """argparse type: an integer > 0."""
+    try:
+        value = int(text, 10)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be > 0: {text!r}")
+    return value
+
+
+def run(main: Callable[[Sequence[str] | None], int | None]) -> Callable[..., int]:
+    """Wrap a ``main(argv)`` so DroidErrors become one-line messages and exit codes."""
+
+    @functools.wraps(main)
+    def wrapper(argv: Sequence[str] | None = None) -> int:
+        prog = os.path.basename(sys.argv[0]) if argv is None else main.__module__
+        try:
+            code = main(argv)
+        except DroidError as exc:
+            print(f"{prog}: {exc}", file=sys.stderr)
+            return exc.exit_code
+        except KeyboardInterrupt:
+            return EXIT_INTERRUPTED
+        except BrokenPipeError:
+            # stdout closed by a pipeline consumer (e.g. `| head`): not an error.
+            try:
+                sys.stdout = open(os.devnull, "w")
+            except OSError:
+                pass
+            return EXIT_OK
+        return EXIT_OK if code is None else int(code)
+
+    return wrapper
+
+
+def entry(main: Callable[..., int]) -> None:
+    """Console-script entry: run ``main`` and exit with its code."""
+    sys.exit(main())

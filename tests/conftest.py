@@ -1,0 +1,79 @@
+"""Shared fixtures.
+
+Every test is checked for leaks (STYLE.md, python-can's autouse fixture): a
+test that leaves a ``droid.*`` shared-memory object or semaphore in /dev/shm,
+or a child process running, fails.  Tests that create such objects use a cell
+name from :func:`cell_name`, unique per test.
+"""
+from __future__ import annotations
+
+import os
+import time
+import uuid
+
+import pytest
+
+SHM_DIR = "/dev/shm"
+
+
+def droid_shm_entries() -> set[str]:
+    """Names in /dev/shm that belong to DROID (shm objects and named semaphores)."""
+    try:
+        names = os.listdir(SHM_DIR)
+    except FileNotFoundError:
+        return set()
+    return {n for n in names if n.startswith("droid.") or n.startswith("sem.droid.")}
+
+
+def child_pids() -> set[int]:
+    """PIDs of live (non-zombie) children of this test process."""
+    me = os.getpid()
+    pids = set()
+    try:
+        with open(f"/proc/{me}/task/{me}/children") as f:
+            pids = {int(p) for p in f.read().split()}
+    except OSError:
+        return set()
+    live = set()
+    for pid in pids:
+        try:
+            with open(f"/proc/{pid}/stat") as f:
+                state = f.read().rsplit(")", 1)[1].split()[0]
+        except OSError:
+            continue
+        if state != "Z":
+            live.add(pid)
+    return live
+
+
+@pytest.fixture(autouse=True)
+def no_leaks():
+    """Fail a test that leaves droid shm objects, semaphores or child processes."""
+    shm_before = droid_shm_entries()
+    kids_before = child_pids()
+    yield
+    deadline = time.monotonic() + 5.0
+    while True:
+        leaked_shm = droid_shm_entries() - shm_before
+        leaked_kids = child_pids() - kids_before
+        if not (leaked_shm or leaked_kids) or time.monotonic() > deadline:
+            break
+        time.sleep(0.05)
+    for pid in leaked_kids:  # do not let one leak cascade into later tests
+        try:
+            os.kill(pid, 9)
+        except OSError:
+            pass
+    for name in leaked_shm:
+        try:
+            os.unlink(os.path.join(SHM_DIR, name))
+        except OSError:
+            pass
+    assert not leaked_shm, f"test left shared-memory objects behind: {sorted(leaked_shm)}"
+    assert not leaked_kids, f"test left child processes running: {sorted(leaked_kids)}"
+
+
+@pytest.fixture
+def cell_name(request) -> str:
+    """A cell name unique to this test (so shm names never collide)."""
+    return f"t{uuid.uuid4().hex[:10]}"
