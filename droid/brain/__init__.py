@@ -1,0 +1,1 @@
+"""droid.brain — see DESIGN §7."""

@@ -1,0 +1,1 @@
+"""droid.sim — see DESIGN §7."""

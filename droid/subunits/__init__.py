@@ -1,0 +1,1 @@
+"""droid.subunits — see DESIGN §7."""

@@ -1,0 +1,1 @@
+"""droid.subunits.gmf1 — programs and drivers of subunit class gmf1."""

@@ -1,0 +1,1 @@
+"""droid.subunits.mvs — programs and drivers of subunit class mvs."""

@@ -1,0 +1,1 @@
+"""droid.subunits.reis — programs and drivers of subunit class reis."""

@@ -1,0 +1,1 @@
+"""droid.tasks — see DESIGN §7."""
