@@ -1,0 +1,247 @@
+"""Cell files (DESIGN §5): one TOML file describes a cell.
+
+A cell is one Brain plus subunits.  The file names the subunits, their class
+(``arm6r``, ``line_laser``), robot model, base pose in the global frame, the
+programs each subunit runs, endpoints, rates and driver URLs.  ``{run}`` and
+``{cell}`` in any string expand to the cell's run directory and name.
+
+``--cell FILE`` everywhere; the default comes from ``$DROID_CELL``, else the
+built-in simulated cell ``cells/sim.toml`` shipped inside the package.
+
+Validation is strict: an unknown key, a wrong type or a missing section is a
+:class:`~droid.cli.BadInput` with the file and the key in the message.
+"""
+from __future__ import annotations
+
+import math
+import os
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from droid.cli import BadInput
+from droid.brain.shmdb import check_name_part
+
+SUBUNIT_CLASSES = ("arm6r", "line_laser")
+DEFAULT_RUN_ROOT = "/tmp/droid"
+ENV_CELL = "DROID_CELL"
+ENV_RUN_ROOT = "DROID_RUN_ROOT"
+
+
+def builtin_cell_path() -> Path:
+    """The default simulated cell shipped with the package."""
+    return Path(__file__).resolve().parent.parent / "cells" / "sim.toml"
+
+
+def default_cell_path() -> Path:
+    env = os.environ.get(ENV_CELL)
+    return Path(env) if env else builtin_cell_path()
+
+
+@dataclass
+class Subunit:
+    """One subunit of the cell (thesis §3.2)."""
+
+    name: str
+    cls: str  # arm6r | line_laser
+    host: str
+    agent: str  # ZeroMQ endpoint the agent binds
+    relay: str  # ZeroMQ endpoint where the agent relays ticks to its local programs
+    programs: list[str]
+    robot: str | None = None  # robot model name (arm6r)
+    base: list[float] = field(default_factory=lambda: [0.0] * 6)  # x y z mm, ZYZ deg
+    description: str = ""
+    options: dict[str, Any] = field(default_factory=dict)  # class-specific tables
+
+    @property
+    def is_arm(self) -> bool:
+        return self.cls == "arm6r"
+
+
+@dataclass
+class Cell:
+    """A parsed, validated cell file."""
+
+    path: Path
+    name: str
+    heartbeat_hz: float
+    stale_ticks: int
+    sched_fifo: bool
+    run_dir: Path
+    brain_host: str
+    heartbeat: str
+    names: str
+    world: dict[str, Any]
+    subunits: dict[str, Subunit]
+    curve: dict[str, Any]
+    raw: dict[str, Any]
+
+    @property
+    def period_ns(self) -> int:
+        return int(round(1e9 / self.heartbeat_hz))
+
+    def subunit(self, name: str) -> Subunit:
+        try:
+            return self.subunits[name]
+        except KeyError:
+            known = ", ".join(sorted(self.subunits)) or "none"
+            raise BadInput(f"unknown subunit {name!r} in cell {self.name!r} (known: {known})") from None
+
+    def hosts(self) -> list[str]:
+        hs = {self.brain_host, str(self.world.get("host", self.brain_host))}
+        hs.update(s.host for s in self.subunits.values())
+        return sorted(hs)
+
+
+def _expand(value: Any, run: str, cell: str) -> Any:
+    if isinstance(value, str):
+        return value.replace("{run}", run).replace("{cell}", cell)
+    if isinstance(value, list):
+        return [_expand(v, run, cell) for v in value]
+    if isinstance(value, dict):
+        return {k: _expand(v, run, cell) for k, v in value.items()}
+    return value
+
+
+class _Reader:
+    """Typed, key-checked access to one TOML table."""
+
+    def __init__(self, path: Path, where: str, table: Any) -> None:
+        if not isinstance(table, dict):
+            raise BadInput(f"{path}: [{where}] must be a table")
+        self.path, self.where, self.table = path, where, table
+        self.used: set[str] = set()
+
+    def get(self, key: str, typ: type | tuple, default: Any = ..., *, check=None) -> Any:
+        self.used.add(key)
+        if key not in self.table:
+            if default is ...:
+                raise BadInput(f"{self.path}: [{self.where}] is missing '{key}'")
+            return default
+        val = self.table[key]
+        if typ is float and isinstance(val, int) and not isinstance(val, bool):
+            val = float(val)
+        if not isinstance(val, typ) or (typ is int and isinstance(val, bool)):
+            tname = typ.__name__ if isinstance(typ, type) else "/".join(t.__name__ for t in typ)
+            raise BadInput(f"{self.path}: [{self.where}] {key} must be {tname}, got {val!r}")
+        if check is not None:
+            msg = check(val)
+            if msg:
+                raise BadInput(f"{self.path}: [{self.where}] {key}: {msg}")
+        return val
+
+    def done(self, allow_extra: bool = False) -> dict[str, Any]:
+        extra = {k: v for k, v in self.table.items() if k not in self.used}
+        if extra and not allow_extra:
+            raise BadInput(f"{self.path}: [{self.where}] unknown key(s): {', '.join(sorted(extra))}")
+        return extra
+
+
+def _positive(v) -> str | None:
+    return None if (math.isfinite(v) and v > 0) else "must be a finite number > 0"
+
+
+def _endpoint(v: str) -> str | None:
+    return None if v.startswith(("ipc://", "tcp://", "inproc://")) else "must be an ipc://, tcp:// or inproc:// endpoint"
+
+
+def _pose(v: list) -> str | None:
+    if len(v) != 6 or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v):
+        return "must be 6 finite numbers: x y z [mm] A B C [ZYZ deg]"
+    return None
+
+
+def load_cell(path: str | os.PathLike | None = None) -> Cell:
+    """Read and validate a cell file (default: $DROID_CELL or the built-in sim cell)."""
+    p = Path(path) if path is not None else default_cell_path()
+    try:
+        text = p.read_text()
+    except FileNotFoundError:
+        raise BadInput(f"cell file {p} not found") from None
+    except IsADirectoryError:
+        raise BadInput(f"cell file {p} is a directory") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise BadInput(f"cell file {p}: cannot read ({exc})") from None
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise BadInput(f"cell file {p}: not valid TOML ({exc})") from None
+    return parse_cell(raw, p)
+
+
+def parse_cell(raw: dict[str, Any], p: Path) -> Cell:
+    top = _Reader(p, "top level", raw)
+    c = _Reader(p, "cell", top.get("cell", dict))
+    name = c.get("name", str)
+    try:
+        check_name_part(name, "cell")
+    except BadInput as exc:
+        raise BadInput(f"{p}: [cell] {exc}") from None
+    hb_hz = c.get("heartbeat_hz", float, 60.0, check=_positive)
+    if hb_hz > 1000:
+        raise BadInput(f"{p}: [cell] heartbeat_hz {hb_hz:g} is above 1000 Hz")
+    stale = c.get("stale_ticks", int, 3, check=lambda v: None if v >= 1 else "must be >= 1")
+    fifo = c.get("sched_fifo", bool, False)
+    run_root = os.environ.get(ENV_RUN_ROOT, DEFAULT_RUN_ROOT)
+    run_dir = c.get("run_dir", str, f"{run_root}/{name}")
+    c.done()
+    run = run_dir
+
+    b = _Reader(p, "brain", top.get("brain", dict, {}))
+    brain_host = b.get("host", str, "localhost")
+    heartbeat = _expand(b.get("heartbeat", str, "ipc://{run}/heartbeat", check=_endpoint), run, name)
+    names = _expand(b.get("names", str, "ipc://{run}/names", check=_endpoint), run, name)
+    b.done()
+
+    w = _Reader(p, "world", top.get("world", dict, {}))
+    world = {"enabled": w.get("enabled", bool, True), "host": w.get("host", str, brain_host)}
+    world.update(_expand(w.done(allow_extra=True), run, name))
+
+    curve = _expand(top.get("curve", dict, {}), run, name)
+
+    subs_raw = top.get("subunits", dict)
+    if not subs_raw:
+        raise BadInput(f"{p}: [subunits] names no subunit")
+    subunits: dict[str, Subunit] = {}
+    for sname, table in subs_raw.items():
+        try:
+            check_name_part(sname, "subunit")
+        except BadInput as exc:
+            raise BadInput(f"{p}: [subunits] {exc}") from None
+        r = _Reader(p, f"subunits.{sname}", table)
+        cls = r.get("class", str, check=lambda v: None if v in SUBUNIT_CLASSES else
+                    f"unknown class {v!r} (known: {', '.join(SUBUNIT_CLASSES)})")
+        sub = Subunit(
+            name=sname,
+            cls=cls,
+            host=r.get("host", str, brain_host),
+            agent=_expand(r.get("agent", str, f"ipc://{{run}}/{sname}.agent", check=_endpoint), run, name),
+            relay=_expand(r.get("relay", str, f"ipc://{{run}}/{sname}.relay", check=_endpoint), run, name),
+            programs=r.get("programs", list, []),
+            robot=r.get("robot", str, None),
+            base=[float(v) for v in r.get("base", list, [0.0] * 6, check=_pose)],
+            description=r.get("description", str, ""),
+        )
+        for prog in sub.programs:
+            if not isinstance(prog, str):
+                raise BadInput(f"{p}: [subunits.{sname}] programs must be a list of program names")
+        if sub.is_arm and not sub.robot:
+            raise BadInput(f"{p}: [subunits.{sname}] an arm6r subunit needs 'robot'")
+        sub.options = _expand(r.done(allow_extra=True), run, name)
+        subunits[sname] = sub
+    top.done(allow_extra=False)
+    _check_programs(p, subunits)
+    return Cell(path=p.resolve(), name=name, heartbeat_hz=hb_hz, stale_ticks=stale,
+                sched_fifo=fifo, run_dir=Path(run_dir), brain_host=brain_host,
+                heartbeat=heartbeat, names=names, world=world, subunits=subunits,
+                curve=curve, raw=raw)
+
+
+def _check_programs(p: Path, subunits: dict[str, Subunit]) -> None:
+    from droid.programs import PROGRAMS
+
+    for s in subunits.values():
+        for prog in s.programs:
+            if prog not in PROGRAMS:
+                raise BadInput(f"{p}: [subunits.{s.name}] unknown program {prog!r}")

@@ -1,0 +1,60 @@
+"""Which databases a cell has, and their names (thesis §3.2–3.3, §4.1.3).
+
+Brain (one per subunit):
+  ``/droid.<cell>.<sub>.status``   ARM_STATUS (arm6r, Table 3.1) or SENSOR_STATUS (Table 3.3)
+  ``/droid.<cell>.<sub>.command``  ARM_COMMAND (arm6r only, Table 3.2)
+Subunit side (the motion controller's own, Tables 4.2–4.3; arm6r only):
+  ``/droid.<cell>.<sub>.ctrl_status``   CTRL_STATUS
+  ``/droid.<cell>.<sub>.ctrl_command``  CTRL_COMMAND
+Subunit side for sensors: ``/droid.<cell>.<sub>.ctrl_status`` SENSOR_STATUS.
+"""
+from __future__ import annotations
+
+from droid.brain.cellfile import Cell, Subunit
+from droid.brain.layouts import (
+    ARM_COMMAND_LAYOUT,
+    ARM_STATUS_LAYOUT,
+    CTRL_COMMAND_LAYOUT,
+    CTRL_STATUS_LAYOUT,
+    SENSOR_STATUS_LAYOUT,
+    Layout,
+)
+from droid.brain.shmdb import Database, db_name
+
+
+def brain_layouts(sub: Subunit) -> dict[str, Layout]:
+    if sub.is_arm:
+        return {"status": ARM_STATUS_LAYOUT, "command": ARM_COMMAND_LAYOUT}
+    return {"status": SENSOR_STATUS_LAYOUT}
+
+
+def local_layouts(sub: Subunit) -> dict[str, Layout]:
+    if sub.is_arm:
+        return {"ctrl_status": CTRL_STATUS_LAYOUT, "ctrl_command": CTRL_COMMAND_LAYOUT}
+    return {"ctrl_status": SENSOR_STATUS_LAYOUT}
+
+
+def create_databases(cell: Cell, hosts: set[str] | None = None) -> list[Database]:
+    """Create (fresh) every database of the cell for ``hosts`` (default all)."""
+    made: list[Database] = []
+    try:
+        for sub in cell.subunits.values():
+            if hosts is None or cell.brain_host in hosts:
+                for area, lay in brain_layouts(sub).items():
+                    made.append(Database(db_name(cell.name, sub.name, area), lay, create=True))
+            if hosts is None or sub.host in hosts:
+                for area, lay in local_layouts(sub).items():
+                    made.append(Database(db_name(cell.name, sub.name, area), lay, create=True))
+    except Exception:
+        for db in made:
+            db.unlink()
+        raise
+    return made
+
+
+def open_brain(cell: Cell, sub: Subunit, area: str, **kw) -> Database:
+    return Database(db_name(cell.name, sub.name, area), brain_layouts(sub)[area], **kw)
+
+
+def open_local(cell: Cell, sub: Subunit, area: str, **kw) -> Database:
+    return Database(db_name(cell.name, sub.name, area), local_layouts(sub)[area], **kw)

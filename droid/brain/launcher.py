@@ -1,0 +1,328 @@
+"""droid-cell: bring a cell up, report on it, bring it down (thesis §3.2 "initialization software").
+
+``droid-cell up [--cell FILE] [--host H]...``
+    creates the cell's databases, then starts the name space, then in
+    parallel the heartbeat, one ``droid-remote`` per subunit, every
+    subunit's programs and the ``droid-sim`` world; waits for each program's
+    readiness handshake (``--ready-fd``) and returns.  If any program fails
+    to come up, everything started is stopped and removed again.
+``droid-cell status [--json]``
+    every program with its pid, state, liveness and last tick.
+``droid-cell down``
+    stops every program (SIGTERM, then SIGKILL after a grace period) and
+    removes every shared-memory object and semaphore of the cell.
+
+Exit codes: 0 ok; 2 bad cell file or arguments; 1 runtime failure (already up,
+not up, a program failed to start).  Programs run in their own sessions and
+log to ``<run_dir>/logs/<key>.log``; the launcher records them in
+``<run_dir>/cell.json``.
+"""
+from __future__ import annotations
+
+import json
+import os
+import select
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+
+from droid.brain.cellfile import Cell, load_cell
+from droid.brain.databases import create_databases
+from droid.brain.layouts import PROC_STATE_NAMES, PROC_STATUS_LAYOUT
+from droid.brain.program import presence_key
+from droid.brain.shmdb import Database, NoDatabase, cell_objects, db_name, pid_alive, remove_cell_objects
+from droid.cli import ArgumentParser, BadInput, RuntimeFailure, positive_float, run
+from droid.programs import PROGRAMS
+
+PROG = "droid-cell"
+READY_TIMEOUT_S = 30.0
+STOP_GRACE_S = 5.0
+LIVE_AGE_S = 2.0  # a presence record older than this counts as stalled
+
+
+@dataclass
+class Spec:
+    """One program of the cell."""
+
+    key: str
+    prog: str
+    args: list[str]
+    host: str
+    pid: int = 0
+    argv: list[str] = field(default_factory=list)
+
+
+def cell_programs(cell: Cell, hosts: set[str] | None = None) -> tuple[list[Spec], list[Spec]]:
+    """(first, rest): the name space first, everything else in parallel after it."""
+    want = (lambda h: True) if hosts is None else (lambda h: h in hosts)
+    first, rest = [], []
+    if want(cell.brain_host):
+        first.append(Spec(presence_key("droid-names"), "droid-names", [], cell.brain_host))
+        rest.append(Spec(presence_key("droid-heartbeat"), "droid-heartbeat", [], cell.brain_host))
+        for sub in cell.subunits.values():
+            rest.append(Spec(presence_key("droid-remote", sub.name), "droid-remote", [sub.name],
+                             cell.brain_host))
+    if cell.world.get("enabled", True) and want(cell.world.get("host", cell.brain_host)):
+        rest.append(Spec(presence_key("droid-sim"), "droid-sim", [], cell.world["host"]))
+    for sub in cell.subunits.values():
+        if want(sub.host):
+            for prog in sub.programs:
+                rest.append(Spec(presence_key(prog, sub.name), prog, [sub.name], sub.host))
+    return first, rest
+
+
+def state_path(cell: Cell) -> str:
+    return str(cell.run_dir / "cell.json")
+
+
+def read_state(cell: Cell) -> dict | None:
+    try:
+        with open(state_path(cell)) as f:
+            return json.load(f)
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError):
+        return {"programs": []}
+
+
+def _start(cell: Cell, specs: list[Spec], log_dir: str) -> dict[int, tuple[Spec, subprocess.Popen]]:
+    started = {}
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    for spec in specs:
+        r, w = os.pipe()
+        spec.argv = [sys.executable, "-m", PROGRAMS[spec.prog], "--cell", str(cell.path),
+                     *spec.args, "--ready-fd", str(w)]
+        with open(os.path.join(log_dir, f"{spec.key}.log"), "ab") as log:
+            proc = subprocess.Popen(spec.argv, pass_fds=(w,), stdin=subprocess.DEVNULL,
+                                    stdout=log, stderr=subprocess.STDOUT,
+                                    start_new_session=True, env=env)
+        os.close(w)
+        spec.pid = proc.pid
+        started[r] = (spec, proc)
+    return started
+
+
+def _await_ready(started: dict, timeout_s: float, log_dir: str) -> None:
+    pending = dict(started)
+    deadline = time.monotonic() + timeout_s
+    try:
+        while pending:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                names = ", ".join(s.key for s, _ in pending.values())
+                raise RuntimeFailure(f"not ready within {timeout_s:g} s: {names}")
+            ready, _, _ = select.select(list(pending), [], [], min(left, 0.5))
+            for fd in ready:
+                data = os.read(fd, 16)
+                spec, proc = pending.pop(fd)
+                os.close(fd)
+                if not data:
+                    code = proc.wait(timeout=2) if proc.poll() is None else proc.returncode
+                    raise RuntimeFailure(f"{spec.prog} {' '.join(spec.args)} exited (code {code}) "
+                                         f"before it was ready: {_last_line(log_dir, spec.key)}")
+    finally:
+        for fd in pending:
+            os.close(fd)
+
+
+def _last_line(log_dir: str, key: str) -> str:
+    try:
+        with open(os.path.join(log_dir, f"{key}.log"), "rb") as f:
+            lines = [ln for ln in f.read().decode(errors="replace").splitlines() if ln.strip()]
+        return lines[-1] if lines else "(no output)"
+    except OSError:
+        return "(no log)"
+
+
+def _write_state(cell: Cell, specs: list[Spec], hosts) -> None:
+    state = {"cell": cell.name, "cell_file": str(cell.path), "hosts": sorted(hosts) if hosts else None,
+             "started_at": time.time(), "launcher_pid": os.getpid(),
+             "programs": [asdict(s) for s in specs]}
+    tmp = state_path(cell) + ".tmp"
+    with open(tmp, "w") as f:
+        json.dump(state, f, indent=1)
+    os.replace(tmp, state_path(cell))
+
+
+def up(cell: Cell, hosts: set[str] | None, timeout_s: float) -> list[Spec]:
+    state = read_state(cell)
+    if state is not None:
+        alive = [p for p in state.get("programs", []) if pid_alive(p.get("pid", 0))]
+        if alive:
+            raise RuntimeFailure(f"cell {cell.name!r} is already up ({len(alive)} programs running); "
+                                 f"run 'droid-cell down' first")
+        _cleanup(cell)  # leftovers of a crashed cell
+    log_dir = str(cell.run_dir / "logs")
+    os.makedirs(log_dir, exist_ok=True)
+    dbs = create_databases(cell, hosts)
+    for db in dbs:
+        db.close()
+    first, rest = cell_programs(cell, hosts)
+    specs: list[Spec] = []
+    try:
+        for group in (first, rest):
+            started = _start(cell, group, log_dir)
+            specs.extend(s for s, _ in started.values())
+            _write_state(cell, specs, hosts)
+            _await_ready(started, timeout_s, log_dir)
+    except BaseException:
+        _stop_pids([s.pid for s in specs], STOP_GRACE_S)
+        _cleanup(cell)
+        raise
+    return specs
+
+
+def _stop_pids(pids: list[int], grace_s: float) -> list[int]:
+    """SIGTERM every process group, wait, SIGKILL survivors; returns those killed hard."""
+    for pid in pids:
+        _signal(pid, signal.SIGTERM)
+    deadline = time.monotonic() + grace_s
+    while time.monotonic() < deadline and any(pid_alive(p) for p in pids):
+        _reap()
+        time.sleep(0.02)
+    hard = [p for p in pids if pid_alive(p)]
+    for pid in hard:
+        _signal(pid, signal.SIGKILL)
+    deadline = time.monotonic() + 2.0
+    while time.monotonic() < deadline and any(pid_alive(p) for p in hard):
+        _reap()
+        time.sleep(0.02)
+    _reap()
+    return hard
+
+
+def _signal(pid: int, sig: int) -> None:
+    if pid <= 0:
+        return
+    try:
+        os.killpg(pid, sig)  # programs lead their own session/group
+    except (ProcessLookupError, PermissionError):
+        try:
+            os.kill(pid, sig)
+        except (ProcessLookupError, PermissionError):
+            pass
+
+
+def _reap() -> None:
+    while True:
+        try:
+            pid, _ = os.waitpid(-1, os.WNOHANG)
+        except ChildProcessError:
+            return
+        if pid == 0:
+            return
+
+
+def _cleanup(cell: Cell) -> list[str]:
+    removed = remove_cell_objects(cell.name)
+    for name in os.listdir(cell.run_dir) if cell.run_dir.is_dir() else []:
+        path = cell.run_dir / name
+        if name != "logs" and not path.is_dir():
+            try:
+                path.unlink()
+            except OSError:
+                pass
+    return removed
+
+
+def down(cell: Cell, grace_s: float) -> tuple[int, list[int], list[str]]:
+    state = read_state(cell)
+    pids = [p.get("pid", 0) for p in (state or {}).get("programs", [])]
+    hard = _stop_pids(pids, grace_s) if pids else []
+    removed = _cleanup(cell)
+    return len(pids), hard, removed
+
+
+def status(cell: Cell) -> list[dict]:
+    state = read_state(cell)
+    if state is None:
+        raise RuntimeFailure(f"cell {cell.name!r} is not up (no {state_path(cell)})")
+    rows = []
+    now = time.monotonic_ns()
+    for p in state.get("programs", []):
+        row = {"name": " ".join([p["prog"], *p["args"]]), "key": p["key"], "host": p["host"],
+               "pid": p["pid"], "alive": pid_alive(p["pid"]), "state": "dead", "live": False,
+               "last_tick": None, "age_s": None, "overruns": None}
+        try:
+            db = Database(db_name(cell.name, "proc", p["key"]), PROC_STATUS_LAYOUT, timeout_s=0.2)
+        except (NoDatabase, BadInput):
+            db = None
+        if db is not None:
+            try:
+                rec = db.read()
+                row["state"] = PROC_STATE_NAMES.get(int(rec["state"]), "?")
+                row["last_tick"] = int(rec["last_tick"])
+                row["age_s"] = round((now - int(rec["updated_ns"])) / 1e9, 3)
+                row["overruns"] = int(rec["overruns"])
+            finally:
+                db.close()
+        if not row["alive"]:
+            row["state"] = "dead"
+        row["live"] = bool(row["alive"] and row["state"] == "ready" and row["age_s"] is not None
+                           and row["age_s"] < LIVE_AGE_S)
+        rows.append(row)
+    return rows
+
+
+@run
+def main(argv=None) -> int:
+    ap = ArgumentParser(prog=PROG, description="Bring a DROID cell up, report on it, or bring it down.")
+    ap.add_argument("--cell", metavar="FILE", default=None,
+                    help="cell file (default: $DROID_CELL, else the built-in simulated cell)")
+    sp = ap.add_subparsers(dest="cmd", required=True, metavar="{up,status,down}")
+    p_up = sp.add_parser("up", help="create the databases and start every program")
+    p_up.add_argument("--host", action="append", metavar="HOST",
+                      help="start only this host's programs (repeatable; default: all hosts)")
+    p_up.add_argument("--timeout", type=positive_float, default=READY_TIMEOUT_S, metavar="S",
+                      help=f"readiness timeout [s] (default {READY_TIMEOUT_S:g})")
+    p_st = sp.add_parser("status", help="list every program with its pid and liveness")
+    p_st.add_argument("--json", action="store_true", help="one JSON object per program, a line each")
+    p_dn = sp.add_parser("down", help="stop every program and remove the shared memory")
+    p_dn.add_argument("--timeout", type=positive_float, default=STOP_GRACE_S, metavar="S",
+                      help=f"grace period before SIGKILL [s] (default {STOP_GRACE_S:g})")
+    for p in (p_up, p_st, p_dn):
+        p.add_argument("--cell", metavar="FILE", default=argparse_default(),
+                       help="cell file (default: $DROID_CELL, else the built-in simulated cell)")
+    args = ap.parse_args(argv)
+    cell = load_cell(args.cell)
+    if args.cmd == "up":
+        hosts = set(args.host) if args.host else None
+        if hosts:
+            unknown = hosts - set(cell.hosts())
+            if unknown:
+                raise BadInput(f"unknown host(s) {', '.join(sorted(unknown))} "
+                               f"(cell hosts: {', '.join(cell.hosts())})")
+        specs = up(cell, hosts, args.timeout)
+        print(f"cell {cell.name} up: {len(specs)} programs ready (run dir {cell.run_dir})")
+        return 0
+    if args.cmd == "status":
+        rows = status(cell)
+        for r in rows:
+            if args.json:
+                print(json.dumps(r))
+            else:
+                live = "live" if r["live"] else ("STALLED" if r["alive"] else "DEAD")
+                tick = "-" if r["last_tick"] is None else r["last_tick"]
+                print(f"{r['name']:<28} pid {r['pid']:>7}  {r['state']:<9} {live:<8} tick {tick}")
+        return 0 if all(r["live"] for r in rows) else 1
+    n, hard, removed = down(cell, args.timeout)
+    msg = f"cell {cell.name} down: {n} programs stopped"
+    if hard:
+        msg += f" ({len(hard)} needed SIGKILL)"
+    print(msg + f", {len(removed)} shared-memory objects removed")
+    left = cell_objects(cell.name)
+    if left:
+        raise RuntimeFailure(f"could not remove {', '.join(left)}")
+    return 0
+
+
+def argparse_default():
+    import argparse
+
+    return argparse.SUPPRESS
+
+
+if __name__ == "__main__":
+    sys.exit(main())

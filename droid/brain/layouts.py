@@ -1,0 +1,270 @@
+"""Fixed-layout records of the DROID databases (thesis Tables 3.1–3.3, 4.2–4.3).
+
+Every database is one record in its own POSIX shared-memory object.  Records
+are numpy structured dtypes with explicit offsets and little-endian fixed-width
+fields, so the byte layout is the same on every host and a C program can attach
+to it through the generated header (:mod:`droid.brain.cheader`).
+
+Each record starts with the same 32-byte :data:`HEADER`:
+
+======  ===========  ==================================================
+offset  field        meaning
+======  ===========  ==================================================
+0       magic        ``DRDB`` (0x42445244 little-endian)
+4       version      layout version of this kind (bumped on any change)
+6       kind         which layout (``KIND_*`` below)
+8       size         record size in bytes, header included
+12      writer_pid   pid of the last writer
+16      holder_pid   pid holding the semaphore, 0 when free
+20      flags        ``FLAG_*`` bits (e.g. recovered after a dead holder)
+24      seq          write sequence counter, +1 per locked write
+======  ===========  ==================================================
+
+Payload field names follow the thesis tables (x, y, z, R, encoder_pos,
+encoder_cmd, busy, homed, cart_time_count, joint_time_count, coord, cmd_mode,
+sent, encoder_cmd_ext, encoder_cmd_int); additions are documented per field.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from droid.cli import BadInput
+
+MAGIC = 0x42445244  # b"DRDB" read as little-endian u32
+HEADER_SIZE = 32
+
+# Layout kinds
+KIND_ARM_STATUS = 1  # Brain, Table 3.1
+KIND_ARM_COMMAND = 2  # Brain, Table 3.2
+KIND_SENSOR_STATUS = 3  # Brain, Table 3.3
+KIND_CTRL_STATUS = 4  # motion controller, Table 4.2
+KIND_CTRL_COMMAND = 5  # motion controller, Table 4.3
+KIND_PROC_STATUS = 6  # one per running program (droid-cell status)
+
+# Header flags
+FLAG_RECOVERED = 1  # the semaphore was taken over from a dead holder at least once
+
+# Enumerations (thesis §3.3)
+JSPACE = 0  # coord: joint space
+CARTSPACE = 1  # coord: cartesian space
+OFF = 0  # cmd_mode
+JOG_MODE = 1
+HOME_MODE = 2
+NORMAL_MODE = 3
+CMD_MODE_NAMES = {OFF: "OFF", JOG_MODE: "JOG", HOME_MODE: "HOME", NORMAL_MODE: "NORMAL"}
+COORD_NAMES = {JSPACE: "JOINT", CARTSPACE: "CARTESIAN"}
+FALSE = 0
+HOMED = 1  # Status.homed (arms); for sensors homed==1 means INVALID data (Table 3.3)
+
+# Proc states
+PROC_STARTING = 0
+PROC_READY = 1
+PROC_STOPPING = 2
+PROC_FAILED = 3
+PROC_STATE_NAMES = {0: "starting", 1: "ready", 2: "stopping", 3: "failed"}
+
+
+def _dtype(fields: list[tuple[str, str, tuple | None]], itemsize: int) -> np.dtype:
+    """Build a packed, explicitly-offset little-endian dtype; checks alignment."""
+    names, formats, offsets = [], [], []
+    off = 0
+    for name, fmt, shape in fields:
+        base = np.dtype(fmt)
+        align = base.itemsize
+        if off % align:
+            raise AssertionError(f"field {name} at {off} is not {align}-aligned")
+        names.append(name)
+        formats.append((base, shape) if shape else base)
+        offsets.append(off)
+        off += base.itemsize * (int(np.prod(shape)) if shape else 1)
+    if off > itemsize:
+        raise AssertionError(f"fields need {off} bytes > itemsize {itemsize}")
+    return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": itemsize})
+
+
+HEADER_FIELDS = [
+    ("magic", "<u4", None),
+    ("version", "<u2", None),
+    ("kind", "<u2", None),
+    ("size", "<u4", None),
+    ("writer_pid", "<i4", None),
+    ("holder_pid", "<i4", None),
+    ("flags", "<u4", None),
+    ("seq", "<u8", None),
+]
+HEADER = _dtype(HEADER_FIELDS, HEADER_SIZE)
+HOLDER_PID_OFFSET = 16
+WRITER_PID_OFFSET = 12
+SEQ_OFFSET = 24
+
+_POSE = [
+    ("x", "<f8", None),  # mm, wrt global frame
+    ("y", "<f8", None),  # mm
+    ("z", "<f8", None),  # mm
+    ("R", "<f8", (3, 3)),  # rotation matrix wrt global frame
+]
+
+_STATUS = HEADER_FIELDS + _POSE + [
+    ("encoder_pos", "<i4", (6,)),  # joint encoder positions wrt home [counts]
+    ("encoder_cmd", "<i4", (6,)),  # current joint encoder commands wrt home [counts]
+    ("busy", "<i4", None),  # heartbeat ticks left for the current command
+    ("homed", "<i4", None),  # HOMED/FALSE (arms); sensors: 1 = data invalid
+    ("tick", "<u8", None),  # addition: heartbeat tick of the last refresh
+    ("updated_ns", "<i8", None),  # addition: CLOCK_MONOTONIC of the last refresh [ns]
+    ("stale", "<u4", None),  # addition: 1 when the link missed >= stale_ticks ticks
+    ("fault", "<u4", None),  # addition: fault bits (FAULT_*)
+    ("cmd_mode", "<i4", None),  # addition: command mode in force
+    ("coord", "<i4", None),  # addition: coordinate mode in force
+]
+
+# Fault bits in Status.fault
+FAULT_LINK = 1  # Brain link silent (agent side) / agent silent (remote side)
+FAULT_WATCHDOG = 2  # amplifiers latched off by the watchdog
+FAULT_SERVO = 4  # servo program silent
+FAULT_LIMIT = 8  # a target was clamped at a joint limit
+FAULT_BRAKING = 16  # the servo ran out of commands and braked
+FAULT_DEVICE = 32  # device driver error (serial port, encoder card)
+FAULT_NAMES = {
+    FAULT_LINK: "link",
+    FAULT_WATCHDOG: "watchdog",
+    FAULT_SERVO: "servo",
+    FAULT_LIMIT: "limit",
+    FAULT_BRAKING: "braking",
+    FAULT_DEVICE: "device",
+}
+
+ARM_STATUS = _dtype(_STATUS, 216)
+
+SENSOR_STATUS = _dtype(
+    _STATUS
+    + [
+        ("valid_count", "<u4", None),  # addition: valid readings received
+        ("invalid_count", "<u4", None),  # addition: readings flagged invalid by the sensor
+        ("garbled_count", "<u4", None),  # addition: lines that did not parse
+    ],
+    232,
+)
+
+ARM_COMMAND = _dtype(
+    HEADER_FIELDS
+    + _POSE
+    + [
+        ("cart_time_count", "<i4", None),  # heartbeat ticks for the cartesian command
+        ("joint_time_count", "<i4", None),  # heartbeat ticks for the joint command
+        ("encoder_pos", "<i4", (6,)),  # joint encoder commands wrt home [counts]
+        ("coord", "<i4", None),  # JSPACE / CARTSPACE
+        ("cmd_mode", "<i4", None),  # OFF / JOG_MODE / HOME_MODE / NORMAL_MODE
+        ("sent", "<i4", None),  # 1 = written by a task, not yet delivered; 0 = delivered
+        ("cmd_id", "<u4", None),  # addition: incremented by a task for every new command
+    ],
+    176,
+)
+
+CTRL_STATUS = _dtype(_STATUS, 216)  # Table 4.2: identical to the Brain's Table 3.1
+
+CTRL_COMMAND = _dtype(
+    HEADER_FIELDS
+    + _POSE
+    + [
+        ("cart_time_count", "<i4", None),
+        ("joint_time_count", "<i4", None),
+        ("encoder_cmd_ext", "<i4", (6,)),  # gross joint command [counts], external
+        ("encoder_cmd_int", "<i4", (6,)),  # interpolated way-point [counts], internal
+        ("coord", "<i4", None),
+        ("cmd_mode", "<i4", None),
+        ("sent", "<i4", None),
+        ("cmd_id", "<u4", None),  # addition: id of the Brain command copied in
+        ("brain_tick", "<u8", None),  # addition: last heartbeat tick relayed by the agent
+        ("link_alive", "<u4", None),  # addition: 0 once the Brain link missed >= 3 ticks
+        ("plan_id", "<u4", None),  # addition: cmd_id the planner last accepted
+    ],
+    216,
+)
+
+PROC_STATUS = _dtype(
+    HEADER_FIELDS
+    + [
+        ("name", "S32", None),  # program name, e.g. b"droid-remote arm1"
+        ("pid", "<i4", None),
+        ("state", "<i4", None),  # PROC_* above
+        ("last_tick", "<u8", None),  # last heartbeat tick seen (0 if not tick-driven)
+        ("updated_ns", "<i8", None),  # CLOCK_MONOTONIC of last update [ns]
+        ("cycles", "<u8", None),  # loop cycles run
+        ("overruns", "<u8", None),  # missed deadlines
+        ("lateness_max_ns", "<i8", None),  # worst wake-up lateness [ns]
+    ],
+    112,
+)
+
+
+@dataclass(frozen=True)
+class Layout:
+    """A versioned record layout: kind, version and dtype."""
+
+    name: str
+    kind: int
+    version: int
+    dtype: np.dtype
+    c_name: str
+
+    @property
+    def size(self) -> int:
+        return self.dtype.itemsize
+
+
+ARM_STATUS_LAYOUT = Layout("arm_status", KIND_ARM_STATUS, 1, ARM_STATUS, "droid_arm_status")
+ARM_COMMAND_LAYOUT = Layout("arm_command", KIND_ARM_COMMAND, 1, ARM_COMMAND, "droid_arm_command")
+SENSOR_STATUS_LAYOUT = Layout("sensor_status", KIND_SENSOR_STATUS, 1, SENSOR_STATUS, "droid_sensor_status")
+CTRL_STATUS_LAYOUT = Layout("ctrl_status", KIND_CTRL_STATUS, 1, CTRL_STATUS, "droid_ctrl_status")
+CTRL_COMMAND_LAYOUT = Layout("ctrl_command", KIND_CTRL_COMMAND, 1, CTRL_COMMAND, "droid_ctrl_command")
+PROC_STATUS_LAYOUT = Layout("proc_status", KIND_PROC_STATUS, 1, PROC_STATUS, "droid_proc_status")
+
+LAYOUTS = {
+    lay.kind: lay
+    for lay in (
+        ARM_STATUS_LAYOUT,
+        ARM_COMMAND_LAYOUT,
+        SENSOR_STATUS_LAYOUT,
+        CTRL_STATUS_LAYOUT,
+        CTRL_COMMAND_LAYOUT,
+        PROC_STATUS_LAYOUT,
+    )
+}
+
+
+def new_record(layout: Layout) -> np.ndarray:
+    """A zeroed 0-d record of ``layout`` with its header filled in and R = identity."""
+    rec = np.zeros((), dtype=layout.dtype)
+    rec["magic"] = MAGIC
+    rec["version"] = layout.version
+    rec["kind"] = layout.kind
+    rec["size"] = layout.size
+    if "R" in layout.dtype.names:
+        rec["R"] = np.eye(3)
+    return rec
+
+
+def check_header(buf, layout: Layout, what: str) -> None:
+    """Raise :class:`LayoutError` unless ``buf`` starts with ``layout``'s header."""
+    if len(buf) < HEADER_SIZE:
+        raise LayoutError(f"{what}: {len(buf)} bytes is too short for a DROID record")
+    hdr = np.frombuffer(buf, dtype=HEADER, count=1)[0]
+    if int(hdr["magic"]) != MAGIC:
+        raise LayoutError(f"{what}: bad magic 0x{int(hdr['magic']):08x} (not a DROID record)")
+    if int(hdr["kind"]) != layout.kind:
+        other = LAYOUTS.get(int(hdr["kind"]))
+        found = other.name if other else f"kind {int(hdr['kind'])}"
+        raise LayoutError(f"{what}: holds a {found} record, expected {layout.name}")
+    if int(hdr["version"]) != layout.version:
+        raise LayoutError(
+            f"{what}: layout version {int(hdr['version'])} of {layout.name}, "
+            f"this program speaks version {layout.version}"
+        )
+    if int(hdr["size"]) != layout.size or len(buf) < layout.size:
+        raise LayoutError(f"{what}: record size {int(hdr['size'])} bytes, expected {layout.size}")
+
+
+class LayoutError(BadInput):
+    """A record's magic, kind, version or size does not match this program's layout."""

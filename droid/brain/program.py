@@ -1,0 +1,110 @@
+"""What every DROID program shell shares: common options, readiness, presence, stop.
+
+* ``--cell FILE`` (default ``$DROID_CELL``, else the built-in simulated cell);
+* ``--ready-fd N`` (set by ``droid-cell up``): the program writes one byte to
+  fd N once it is ready to serve, then closes it — the launcher waits for that
+  handshake instead of sleeping (DESIGN §9);
+* a :class:`Presence` record ``/droid.<cell>.proc.<key>`` that the program keeps
+  fresh (state, pid, last tick, cycles, overruns), read by ``droid-cell status``;
+* SIGTERM/SIGINT set :data:`Stop.requested`; loops check it and exit cleanly.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import time
+
+from droid.brain.cellfile import Cell, load_cell
+from droid.brain.layouts import PROC_FAILED, PROC_READY, PROC_STARTING, PROC_STATUS_LAYOUT, PROC_STOPPING
+from droid.brain.shmdb import Database, db_name, unlink_database
+from droid.cli import ArgumentParser
+
+
+def parser(prog: str, description: str) -> ArgumentParser:
+    p = ArgumentParser(prog=prog, description=description)
+    p.add_argument("--cell", metavar="FILE", default=None,
+                   help="cell file (default: $DROID_CELL, else the built-in simulated cell)")
+    p.add_argument("--ready-fd", type=int, default=None, help=argparse_suppress())
+    return p
+
+
+def argparse_suppress():
+    import argparse
+
+    return argparse.SUPPRESS
+
+
+def open_cell(args) -> Cell:
+    return load_cell(args.cell)
+
+
+def notify_ready(fd: int | None) -> None:
+    """Complete the readiness handshake with the launcher (if any)."""
+    if fd is None:
+        return
+    try:
+        os.write(fd, b"R")
+    except OSError:
+        pass
+    try:
+        os.close(fd)
+    except OSError:
+        pass
+
+
+class Stop:
+    """SIGTERM/SIGINT -> ``requested`` (checked by loops)."""
+
+    requested = False
+
+    @classmethod
+    def install(cls) -> None:
+        def handler(signum, frame):
+            cls.requested = True
+
+        signal.signal(signal.SIGTERM, handler)
+        signal.signal(signal.SIGINT, handler)
+
+
+def presence_key(prog: str, subunit: str | None = None) -> str:
+    """Name part of a program's presence record, e.g. ``remote-arm1``."""
+    key = prog.removeprefix("droid-")
+    return f"{key}-{subunit}" if subunit else key
+
+
+class Presence:
+    """A program's own record in ``/droid.<cell>.proc.<key>`` (for droid-cell status)."""
+
+    UPDATE_NS = 100_000_000  # refresh at most every 100 ms
+
+    def __init__(self, cell: str, key: str, display: str) -> None:
+        self.name = db_name(cell, "proc", key)
+        self.db = Database(self.name, PROC_STATUS_LAYOUT, create=True)
+        self.db.update(name=display.encode()[:31], pid=os.getpid(), state=PROC_STARTING,
+                       updated_ns=time.monotonic_ns())
+        self._last = 0
+
+    def beat(self, last_tick: int = 0, cycles: int = 0, overruns: int = 0,
+             lateness_max_ns: int = 0, *, force: bool = False) -> None:
+        now = time.monotonic_ns()
+        if not force and now - self._last < self.UPDATE_NS:
+            return
+        self._last = now
+        self.db.update(last_tick=last_tick, updated_ns=now, cycles=cycles, overruns=overruns,
+                       lateness_max_ns=lateness_max_ns)
+
+    def set_state(self, state: int) -> None:
+        self.db.update(state=state, updated_ns=time.monotonic_ns())
+
+    def ready(self) -> None:
+        self.set_state(PROC_READY)
+
+    def close(self, failed: bool = False) -> None:
+        """Clean exit removes the record; a failure leaves it marked for status."""
+        if failed:
+            self.set_state(PROC_FAILED)
+            self.db.close()
+        else:
+            self.set_state(PROC_STOPPING)
+            self.db.close()
+            unlink_database(self.name)

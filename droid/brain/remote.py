@@ -1,0 +1,182 @@
+"""droid-remote NAME: the Brain-side remote client of one subunit (thesis §3.2, §4.1.8, §4.2.3).
+
+Each heartbeat tick it copies the subunit's Command record from the Brain's
+database into a message for the subunit's agent (located through the name
+space), and writes the agent's reply into the Brain's Status record.  For an
+arm it computes the wrist-centre pose by forward kinematics from the encoder
+positions (§4.1.8: "it uses the forward kinematic model ... to calculate the
+current cartesian position and orientation matrix of the wrist-center point").
+
+Liveness (:class:`~droid.brain.link.RemoteLinkCore`): ``stale_ticks`` ticks
+without a reply set ``stale = 1`` in the Status record; the remote then
+reconnects with back-off and clears ``stale`` on the next reply.
+"""
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+import zmq
+
+from droid.brain import wire
+from droid.brain.cellfile import Subunit
+from droid.brain.databases import brain_layouts, local_layouts, open_brain
+from droid.brain.heartbeat import TickSubscriber
+from droid.brain.layouts import ARM_COMMAND_LAYOUT, FAULT_LINK, LayoutError, check_header
+from droid.brain.link import RemoteLinkCore
+from droid.brain.names import NameClient
+from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
+from droid.cli import RuntimeFailure, run
+
+PROG = "droid-remote"
+COPY_FIELDS_ARM = ("encoder_pos", "encoder_cmd", "busy", "homed", "fault", "cmd_mode", "coord")
+COPY_FIELDS_SENSOR = ("x", "y", "z", "R", "homed", "fault", "valid_count", "invalid_count",
+                      "garbled_count")
+
+
+class ArmPose:
+    """Forward kinematics of an arm subunit: encoder counts -> WCP pose in the global frame."""
+
+    def __init__(self, sub: Subunit) -> None:
+        from droid.kinematics import load_robot
+        from droid.kinematics.transforms import pose_to_T
+
+        self.model = load_robot(sub.robot).with_base(pose_to_T(*sub.base))
+
+    def __call__(self, encoder_pos_counts) -> np.ndarray:
+        q = self.model.gearing.counts_to_joints(np.asarray(encoder_pos_counts, float))
+        return self.model.fk(q)
+
+
+class StatusTranslator:
+    """Agent reply (motion-controller or sensor status record) -> Brain Status fields."""
+
+    def __init__(self, sub: Subunit, fk=None) -> None:
+        self.sub = sub
+        self.reply_layout = local_layouts(sub)["ctrl_status"]
+        self.fields = COPY_FIELDS_ARM if sub.is_arm else COPY_FIELDS_SENSOR
+        self.fk = fk
+
+    def __call__(self, payload: bytes) -> dict:
+        check_header(payload, self.reply_layout, f"reply from {self.sub.name}")
+        rec = np.frombuffer(payload, dtype=self.reply_layout.dtype, count=1)[0]
+        out = {f: rec[f] for f in self.fields}
+        if self.fk is not None and int(rec["homed"]):
+            T = self.fk(rec["encoder_pos"])
+            out.update(x=T[0, 3], y=T[1, 3], z=T[2, 3], R=T[:3, :3])
+        return out
+
+
+@run
+def main(argv=None) -> int:
+    ap = parser(PROG, "Keep one subunit's Brain database in step with its agent, once per heartbeat.")
+    ap.add_argument("subunit", help="subunit name, e.g. arm1")
+    args = ap.parse_args(argv)
+    cell = open_cell(args)
+    sub = cell.subunit(args.subunit)
+    Stop.install()
+    status = open_brain(cell, sub, "status")
+    command = open_brain(cell, sub, "command") if "command" in brain_layouts(sub) else None
+    fk = ArmPose(sub) if sub.is_arm else None
+    translate = StatusTranslator(sub, fk)
+    ctx = zmq.Context()
+    presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
+    names = NameClient(ctx, cell.names)
+    ticks = TickSubscriber(ctx, cell.heartbeat)
+    core = RemoteLinkCore(cell.stale_ticks)
+    dealer = None
+    endpoint = None
+    bad_frames = 0
+    sent_cmd_id = None
+
+    def connect() -> None:
+        nonlocal dealer, endpoint
+        if dealer is not None:
+            dealer.close(0)
+            dealer = None
+        endpoint = names.locate(sub.name, timeout_s=0.05)
+        if endpoint:
+            dealer = ctx.socket(zmq.DEALER)
+            dealer.setsockopt(zmq.LINGER, 0)
+            dealer.setsockopt(zmq.SNDHWM, 2)
+            dealer.setsockopt(zmq.RCVHWM, 8)
+            dealer.connect(endpoint)
+
+    try:
+        status.update(stale=1, fault=FAULT_LINK)
+        connect()
+        presence.ready()
+        notify_ready(args.ready_fd)
+        last_tick = 0
+        while not Stop.requested:
+            socks = [ticks.sock] + ([dealer] if dealer is not None else [])
+            poller = zmq.Poller()
+            for s in socks:
+                poller.register(s, zmq.POLLIN)
+            events = dict(poller.poll(500))
+            if ticks.sock in events:
+                t = ticks.recv_latest()
+                if t is not None:
+                    last_tick = t.tick
+                    act = core.on_tick(t.tick)
+                    if act.became_stale:
+                        status.update(stale=1, fault=int(status.read()["fault"]) | FAULT_LINK)
+                    if act.reconnect or dealer is None:
+                        connect()
+                    if dealer is not None:
+                        payload = command.raw_bytes() if command is not None else b""
+                        sent_cmd_id = _cmd_id(payload)
+                        try:
+                            dealer.send_multipart(wire.pack_link(wire.KIND_CMD, t.tick, payload),
+                                                  zmq.NOBLOCK)
+                        except zmq.Again:
+                            pass
+            if dealer is not None and dealer in events:
+                while True:
+                    try:
+                        frames = dealer.recv_multipart(zmq.NOBLOCK)
+                    except zmq.Again:
+                        break
+                    try:
+                        tick, payload = wire.unpack_link(frames, wire.KIND_STA)
+                        fields = translate(payload)
+                    except (wire.BadFrame, LayoutError):
+                        bad_frames += 1
+                        continue
+                    if core.on_reply(tick):
+                        status.update(tick=tick, updated_ns=time.monotonic_ns(), stale=0, **fields)
+                        if command is not None:
+                            _ack_sent(command, sent_cmd_id)
+            presence.beat(last_tick, core.replies, core.reconnects)
+    finally:
+        names.close()
+        ticks.close()
+        if dealer is not None:
+            dealer.close(0)
+        ctx.term()
+        status.close()
+        if command is not None:
+            command.close()
+        presence.close()
+    return 0
+
+
+def _cmd_id(payload: bytes) -> int | None:
+    if len(payload) < ARM_COMMAND_LAYOUT.size:
+        return None
+    return int(np.frombuffer(payload, dtype=ARM_COMMAND_LAYOUT.dtype, count=1)[0]["cmd_id"])
+
+
+def _ack_sent(command, delivered_cmd_id: int | None) -> None:
+    """Clear Command.sent once the agent acknowledged that very command (Table 3.2 'sent')."""
+    if delivered_cmd_id is None:
+        return
+    with command.locked() as rec:
+        if int(rec["sent"]) and int(rec["cmd_id"]) == delivered_cmd_id:
+            rec["sent"] = 0
+            command.mark_written()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

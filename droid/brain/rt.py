@@ -1,0 +1,140 @@
+"""Periodic loops on absolute deadlines (DESIGN §9).
+
+Never ``sleep(period)``: it drifts.  :class:`PeriodicTimer` arms a Linux
+timerfd on CLOCK_MONOTONIC with absolute expirations, so wake-ups stay on the
+grid ``t0 + k * period`` whatever the loop body costs.  The fd can be waited on
+directly (:meth:`wait`) or put in a ``zmq.Poller`` beside sockets.  Reading it
+returns how many periods elapsed; more than one is an overrun, counted.
+
+:func:`try_sched_fifo` asks for SCHED_FIFO when the cell file wants it and the
+OS permits; it never fails the program.
+"""
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import os
+import select
+import struct
+import sys
+import time
+
+CLOCK_MONOTONIC = 1
+TFD_CLOEXEC = 0o2000000
+TFD_NONBLOCK = 0o4000
+TFD_TIMER_ABSTIME = 1
+
+
+class _Timespec(ctypes.Structure):
+    _fields_ = [("tv_sec", ctypes.c_long), ("tv_nsec", ctypes.c_long)]
+
+
+class _Itimerspec(ctypes.Structure):
+    _fields_ = [("it_interval", _Timespec), ("it_value", _Timespec)]
+
+
+_libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+_libc.timerfd_create.argtypes = [ctypes.c_int, ctypes.c_int]
+_libc.timerfd_settime.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.POINTER(_Itimerspec),
+                                  ctypes.POINTER(_Itimerspec)]
+
+
+def _ts(ns: int) -> _Timespec:
+    return _Timespec(ns // 1_000_000_000, ns % 1_000_000_000)
+
+
+def now_ns() -> int:
+    """CLOCK_MONOTONIC [ns] (the clock every DROID timestamp uses)."""
+    return time.monotonic_ns()
+
+
+class PeriodicTimer:
+    """Absolute-deadline periodic timer (timerfd).
+
+    ``period_ns`` [ns]; the first expiry is at ``start_ns`` (default: now + one
+    period).  Statistics: ``cycles``, ``overruns`` (periods missed),
+    ``lateness_ns`` of the last wake-up and ``lateness_max_ns``.
+    """
+
+    def __init__(self, period_ns: int, start_ns: int | None = None) -> None:
+        if period_ns <= 0:
+            raise ValueError("period must be > 0 ns")
+        self.period_ns = int(period_ns)
+        fd = _libc.timerfd_create(CLOCK_MONOTONIC, TFD_CLOEXEC | TFD_NONBLOCK)
+        if fd < 0:
+            err = ctypes.get_errno()
+            raise OSError(err, os.strerror(err))
+        self.fd = fd
+        self.start_ns = start_ns if start_ns is not None else now_ns() + self.period_ns
+        spec = _Itimerspec(_ts(self.period_ns), _ts(self.start_ns))
+        if _libc.timerfd_settime(fd, TFD_TIMER_ABSTIME, ctypes.byref(spec), None) != 0:
+            err = ctypes.get_errno()
+            os.close(fd)
+            raise OSError(err, os.strerror(err))
+        self.expirations = 0  # total periods elapsed since start
+        self.cycles = 0
+        self.overruns = 0
+        self.lateness_ns = 0
+        self.lateness_max_ns = 0
+
+    def fileno(self) -> int:
+        return self.fd
+
+    def consume(self) -> int:
+        """After the fd polled readable: account for the expirations; returns how many.
+
+        Returns 0 if nothing expired (spurious wake-up)."""
+        try:
+            data = os.read(self.fd, 8)
+        except BlockingIOError:
+            return 0
+        n = struct.unpack("<Q", data)[0]
+        t = now_ns()
+        self.expirations += n
+        self.cycles += 1
+        if n > 1:
+            self.overruns += n - 1
+        deadline = self.start_ns + (self.expirations - 1) * self.period_ns
+        self.lateness_ns = t - deadline
+        if self.lateness_ns > self.lateness_max_ns:
+            self.lateness_max_ns = self.lateness_ns
+        return n
+
+    def wait(self, timeout_s: float | None = None) -> int:
+        """Block until the next expiry; returns the number of periods elapsed (0 on timeout)."""
+        while True:
+            r, _, _ = select.select([self.fd], [], [], timeout_s)
+            if not r:
+                return 0
+            n = self.consume()
+            if n:
+                return n
+
+    @property
+    def deadline_ns(self) -> int:
+        """The deadline of the most recent expiry [ns]."""
+        return self.start_ns + max(self.expirations - 1, 0) * self.period_ns
+
+    def close(self) -> None:
+        if self.fd >= 0:
+            os.close(self.fd)
+            self.fd = -1
+
+    def __enter__(self) -> "PeriodicTimer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def try_sched_fifo(priority: int = 50, *, wanted: bool = True, prog: str = "droid") -> bool:
+    """Switch this process to SCHED_FIFO at ``priority`` if wanted and permitted."""
+    if not wanted:
+        return False
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        return True
+    except (PermissionError, OSError, AttributeError) as exc:
+        print(f"{prog}: SCHED_FIFO not available ({exc}); running on the normal scheduler",
+              file=sys.stderr)
+        return False

@@ -1,0 +1,25 @@
+"""Every DROID program: console-script name -> module with ``main(argv=None) -> int``.
+
+The launcher starts programs as ``python -m MODULE`` with this interpreter, so a
+cell runs the same whether or not the console scripts are on PATH; the console
+scripts in pyproject.toml point at the same modules.
+"""
+from __future__ import annotations
+
+# name -> (module, where it runs)
+PROGRAMS: dict[str, str] = {
+    # Brain
+    "droid-cell": "droid.brain.launcher",
+    "droid-heartbeat": "droid.brain.heartbeat",
+    "droid-names": "droid.brain.names",
+    "droid-remote": "droid.brain.remote",
+    "droid-cheader": "droid.brain.cheader",
+    # subunit agents
+    "droid-agent": "droid.subunits.agent",
+    "droid-reis-agent": "droid.subunits.reis.agent",
+    "droid-gmf1-agent": "droid.subunits.gmf1.agent",
+    # tasks
+    "droid-snoop": "droid.tasks.snoop",
+    # the world
+    "droid-sim": "droid.sim.world",
+}

@@ -1,0 +1,96 @@
+"""droid-snoop SUBUNIT: print a subunit's Status (thesis §3.4 "The Snoop program").
+
+"It accepts a subunit identifier and echos all status information at a rate of
+1Hz via the Standard Output port."  With ``--json`` each sample is one JSON
+object on its own line, with the thesis's field names (x, y, z, R,
+encoder_pos, encoder_cmd, busy, homed) plus ``tick`` and ``stale``; sensors
+also carry ``invalid`` (Table 3.3 uses ``homed`` as the invalid flag).
+Reads the Brain's database only (a task never touches a device, §3.4).
+
+Exit: 0 after ``--count`` samples or on SIGINT; 1 if the cell is not up.
+"""
+from __future__ import annotations
+
+import json
+import signal
+import sys
+import time
+
+from droid.brain.databases import open_brain
+from droid.brain.layouts import CMD_MODE_NAMES, FAULT_NAMES
+from droid.brain.program import open_cell, parser
+from droid.brain.rt import PeriodicTimer
+from droid.cli import positive_float, positive_int, run
+
+PROG = "droid-snoop"
+
+
+def status_dict(sub, rec) -> dict:
+    """The JSON object of one Status sample."""
+    d = {
+        "subunit": sub.name,
+        "tick": int(rec["tick"]),
+        "stale": bool(rec["stale"]),
+        "x": round(float(rec["x"]), 4),
+        "y": round(float(rec["y"]), 4),
+        "z": round(float(rec["z"]), 4),
+        "R": [[round(float(v), 6) for v in row] for row in rec["R"]],
+        "encoder_pos": [int(v) for v in rec["encoder_pos"]],
+        "encoder_cmd": [int(v) for v in rec["encoder_cmd"]],
+        "busy": int(rec["busy"]),
+        "homed": int(rec["homed"]),
+        "cmd_mode": CMD_MODE_NAMES.get(int(rec["cmd_mode"]), str(int(rec["cmd_mode"]))),
+        "fault": [name for bit, name in FAULT_NAMES.items() if int(rec["fault"]) & bit],
+    }
+    if not sub.is_arm:
+        d["invalid"] = bool(rec["homed"])
+        for k in ("valid_count", "invalid_count", "garbled_count"):
+            d[k] = int(rec[k])
+    return d
+
+
+def status_text(d: dict) -> str:
+    flags = " STALE" if d["stale"] else ""
+    if "invalid" in d:
+        state = "INVALID" if d["invalid"] else "valid"
+        return (f"{d['subunit']} tick {d['tick']}{flags}  x {d['x']:.3f}  y {d['y']:.3f}  "
+                f"z {d['z']:.3f} mm  {state}")
+    homed = "homed" if d["homed"] else "not homed"
+    fault = f"  fault {','.join(d['fault'])}" if d["fault"] else ""
+    enc = " ".join(f"{v}" for v in d["encoder_pos"])
+    return (f"{d['subunit']} tick {d['tick']}{flags}  x {d['x']:.2f} y {d['y']:.2f} z {d['z']:.2f} mm  "
+            f"enc [{enc}]  busy {d['busy']}  {homed}  {d['cmd_mode']}{fault}")
+
+
+@run
+def main(argv=None) -> int:
+    ap = parser(PROG, "Print a subunit's Status record (default once a second).")
+    ap.add_argument("subunit", help="subunit name, e.g. arm1")
+    ap.add_argument("--rate", type=positive_float, default=1.0, metavar="HZ",
+                    help="samples per second (default 1)")
+    ap.add_argument("--count", type=positive_int, default=None, metavar="N",
+                    help="stop after N samples (default: until interrupted)")
+    ap.add_argument("--json", action="store_true", help="one JSON object a line")
+    args = ap.parse_args(argv)
+    if args.rate > 1000:
+        ap.error(f"--rate {args.rate:g} is above 1000 Hz")
+    cell = open_cell(args)
+    sub = cell.subunit(args.subunit)
+    db = open_brain(cell, sub, "status")
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    timer = PeriodicTimer(int(round(1e9 / args.rate)), start_ns=time.monotonic_ns())
+    n = 0
+    try:
+        while args.count is None or n < args.count:
+            timer.wait()
+            d = status_dict(sub, db.read())
+            print(json.dumps(d) if args.json else status_text(d), flush=True)
+            n += 1
+    finally:
+        timer.close()
+        db.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
