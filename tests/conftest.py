@@ -46,16 +46,42 @@ def child_pids() -> set[int]:
     return live
 
 
+LEAK_TAG_ENV = "DROID_TEST_LEAK_TAG"
+
+
+def tagged_pids(tag: str) -> set[int]:
+    """Live processes whose environment carries this test's tag (cell programs started
+    by droid-cell run in their own sessions, so they are not our children)."""
+    needle = f"{LEAK_TAG_ENV}={tag}".encode()
+    found = set()
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit() or int(entry) == os.getpid():
+            continue
+        try:
+            with open(f"/proc/{entry}/environ", "rb") as f:
+                if needle not in f.read():
+                    continue
+            with open(f"/proc/{entry}/stat") as f:
+                if f.read().rsplit(")", 1)[1].split()[0] == "Z":
+                    continue
+        except OSError:
+            continue
+        found.add(int(entry))
+    return found
+
+
 @pytest.fixture(autouse=True)
-def no_leaks():
-    """Fail a test that leaves droid shm objects, semaphores or child processes."""
+def no_leaks(monkeypatch):
+    """Fail a test that leaves droid shm objects, semaphores or processes behind."""
+    tag = uuid.uuid4().hex
+    monkeypatch.setenv(LEAK_TAG_ENV, tag)
     shm_before = droid_shm_entries()
     kids_before = child_pids()
     yield
     deadline = time.monotonic() + 5.0
     while True:
         leaked_shm = droid_shm_entries() - shm_before
-        leaked_kids = child_pids() - kids_before
+        leaked_kids = (child_pids() - kids_before) | tagged_pids(tag)
         if not (leaked_shm or leaked_kids) or time.monotonic() > deadline:
             break
         time.sleep(0.05)

@@ -1,0 +1,49 @@
+"""Helpers for tests that bring a real cell of processes up on loopback."""
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from droid.brain.cellfile import builtin_cell_path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def make_cell_file(tmp_path: Path, name: str, source: Path | None = None, extra: str = "") -> Path:
+    """A copy of a cell file (default: the built-in sim cell) renamed to ``name``, run dir in tmp."""
+    text = (source or builtin_cell_path()).read_text()
+    text = re.sub(r'(?m)^name = "[^"]*"', f'name = "{name}"\nrun_dir = "{tmp_path}/run"', text, count=1)
+    path = tmp_path / f"{name}.toml"
+    path.write_text(text + extra)
+    return path
+
+
+def droid(prog_module: str, *args: str, timeout: float = 60, check: bool = False) -> subprocess.CompletedProcess:
+    """Run a DROID program as ``python -m MODULE ARGS``."""
+    out = subprocess.run([sys.executable, "-m", prog_module, *args], capture_output=True, text=True,
+                         timeout=timeout, cwd=ROOT)
+    if check and out.returncode != 0:
+        raise AssertionError(f"{prog_module} {args} -> {out.returncode}\n{out.stdout}\n{out.stderr}")
+    return out
+
+
+def cell_status(cell_file: Path) -> list[dict]:
+    out = droid("droid.brain.launcher", "status", "--json", "--cell", str(cell_file))
+    return [json.loads(line) for line in out.stdout.splitlines() if line.strip()]
+
+
+def wait_for(pred, timeout: float = 20.0, interval: float = 0.1, what: str = "condition"):
+    """Poll ``pred()`` until truthy; returns its value (a wait, not a timing verdict)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        val = pred()
+        if val:
+            return val
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting for {what}")
+        time.sleep(interval)
