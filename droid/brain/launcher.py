@@ -6,6 +6,8 @@
     subunit's programs and the ``droid-sim`` world; waits for each program's
     readiness handshake (``--ready-fd``) and returns.  If any program fails
     to come up, everything started is stopped and removed again.
+``droid-cell init``
+    only creates the databases, for a cell started by hand (scripts/start-cell.sh).
 ``droid-cell status [--json]``
     every program with its pid, state, liveness and last tick.
 ``droid-cell down``
@@ -228,20 +230,43 @@ def _cleanup(cell: Cell) -> list[str]:
 
 
 def down(cell: Cell, grace_s: float) -> tuple[int, list[int], list[str]]:
-    state = read_state(cell)
-    pids = [p.get("pid", 0) for p in (state or {}).get("programs", [])]
+    pids = [p.get("pid", 0) for p in _programs_known(cell)]
     hard = _stop_pids(pids, grace_s) if pids else []
     removed = _cleanup(cell)
     return len(pids), hard, removed
 
 
+def _programs_known(cell: Cell) -> list[dict]:
+    """Programs of the cell: those droid-cell started plus any started by hand
+    (found through their presence records in /dev/shm)."""
+    state = read_state(cell) or {}
+    progs = list(state.get("programs", []))
+    known = {p["key"] for p in progs}
+    prefix = f"droid.{cell.name}.proc."
+    for entry in cell_objects(cell.name):
+        if entry.startswith(prefix) and entry[len(prefix):] not in known:
+            key = entry[len(prefix):]
+            try:
+                db = Database(db_name(cell.name, "proc", key), PROC_STATUS_LAYOUT, timeout_s=0.2)
+            except (NoDatabase, BadInput, RuntimeFailure):
+                continue
+            try:
+                rec = db.read()
+            finally:
+                db.close()
+            words = rec["name"].decode(errors="replace").split()
+            progs.append({"key": key, "prog": words[0] if words else key, "args": words[1:],
+                          "host": "?", "pid": int(rec["pid"])})
+    return progs
+
+
 def status(cell: Cell) -> list[dict]:
-    state = read_state(cell)
-    if state is None:
-        raise RuntimeFailure(f"cell {cell.name!r} is not up (no {state_path(cell)})")
+    progs = _programs_known(cell)
+    if not progs:
+        raise RuntimeFailure(f"cell {cell.name!r} is not up (no programs found)")
     rows = []
     now = time.monotonic_ns()
-    for p in state.get("programs", []):
+    for p in progs:
         row = {"name": " ".join([p["prog"], *p["args"]]), "key": p["key"], "host": p["host"],
                "pid": p["pid"], "alive": pid_alive(p["pid"]), "state": "dead", "live": False,
                "last_tick": None, "age_s": None, "overruns": None}
@@ -277,12 +302,13 @@ def main(argv=None) -> int:
                       help="start only this host's programs (repeatable; default: all hosts)")
     p_up.add_argument("--timeout", type=positive_float, default=READY_TIMEOUT_S, metavar="S",
                       help=f"readiness timeout [s] (default {READY_TIMEOUT_S:g})")
+    sp.add_parser("init", help="only create the databases (to start programs by hand)")
     p_st = sp.add_parser("status", help="list every program with its pid and liveness")
     p_st.add_argument("--json", action="store_true", help="one JSON object per program, a line each")
     p_dn = sp.add_parser("down", help="stop every program and remove the shared memory")
     p_dn.add_argument("--timeout", type=positive_float, default=STOP_GRACE_S, metavar="S",
                       help=f"grace period before SIGKILL [s] (default {STOP_GRACE_S:g})")
-    for p in (p_up, p_st, p_dn):
+    for p in sp.choices.values():
         p.add_argument("--cell", metavar="FILE", default=argparse_default(),
                        help="cell file (default: $DROID_CELL, else the built-in simulated cell)")
     args = ap.parse_args(argv)
@@ -296,6 +322,11 @@ def main(argv=None) -> int:
                                f"(cell hosts: {', '.join(cell.hosts())})")
         specs = up(cell, hosts, args.timeout)
         print(f"cell {cell.name} up: {len(specs)} programs ready (run dir {cell.run_dir})")
+        return 0
+    if args.cmd == "init":
+        for db in create_databases(cell):
+            db.close()
+        print(f"cell {cell.name}: databases created")
         return 0
     if args.cmd == "status":
         rows = status(cell)

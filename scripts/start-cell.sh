@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# Bring the default simulated cell up by hand, program by program, as a UNIX
+# user would.  `droid-cell up` does the same in parallel with a readiness
+# handshake; this script shows the pieces.  Stop it all with `droid-cell down`.
+#
+#   scripts/start-cell.sh [CELL_FILE]     (default: $DROID_CELL or the built-in cell)
+#   droid-cell status
+#   droid-snoop arm1 --count 3
+#   droid-cell down
+set -euo pipefail
+if [ $# -gt 0 ]; then export DROID_CELL=$1; fi
+LOGS=${LOGS:-/tmp/droid-logs}
+mkdir -p "$LOGS"
+
+bg() {  # bg LOGNAME PROGRAM ARGS...: start one program in the background
+    local log=$1; shift
+    "$@" >"$LOGS/$log.log" 2>&1 &
+    echo "started $* (pid $!)"
+}
+
+# 1. The Brain's initialization software builds the databases (thesis §3.2) ...
+droid-cell init
+# 2. ... the name space, where subunits and the heartbeat register ...
+bg names droid-names
+sleep 0.5
+# 3. ... the simulated hardware (on a real cell: power the robots and sensors on) ...
+bg sim droid-sim
+# 4. ... each subunit identifies itself in the name space through its agent ...
+bg agent-arm1 droid-reis-agent arm1
+bg agent-gmf1 droid-gmf1-agent gmf1
+bg agent-mvs droid-agent mvs
+bg agent-tool droid-agent tool
+# 5. ... one remote client per subunit on the Brain ...
+for sub in arm1 gmf1 mvs tool; do bg "remote-$sub" droid-remote "$sub"; done
+# 6. ... and the heartbeat that paces them all (60 Hz).
+bg heartbeat droid-heartbeat
+sleep 2
+droid-cell status
