@@ -1,0 +1,138 @@
+"""Integration: a real cell of processes on loopback, driven through the CLIs.
+
+Each test brings its own uniquely named cell up and always brings it down; the
+autouse leak fixture then proves no process, shm object or semaphore is left.
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+
+import pytest
+
+from droid.brain.shmdb import cell_objects
+from tests.brain.cellutil import ROOT, cell_status, droid, make_cell_file, wait_for
+
+pytestmark = pytest.mark.integration
+CELL = "droid.brain.launcher"
+SNOOP = "droid.tasks.snoop"
+
+
+@pytest.fixture
+def cell(tmp_path, cell_name):
+    path = make_cell_file(tmp_path, cell_name)
+    yield path
+    out = droid(CELL, "down", "--cell", str(path))
+    assert out.returncode == 0, out.stderr
+    assert cell_objects(cell_name) == []
+
+
+def up(path):
+    out = droid(CELL, "up", "--cell", str(path), timeout=90)
+    assert out.returncode == 0, out.stdout + out.stderr
+    return out
+
+
+def snoop_json(path, sub, count=1, rate=20):
+    out = droid(SNOOP, sub, "--json", "--count", str(count), "--rate", str(rate), "--cell", str(path))
+    assert out.returncode == 0, out.stderr
+    return [json.loads(line) for line in out.stdout.splitlines()]
+
+
+def test_default_cell_up_snoop_down(cell, cell_name):
+    up(cell)
+    rows = cell_status(cell)
+    names = {r["name"] for r in rows}
+    assert {"droid-names", "droid-heartbeat", "droid-sim", "droid-remote arm1", "droid-remote gmf1",
+            "droid-remote mvs", "droid-remote tool", "droid-reis-agent arm1", "droid-gmf1-agent gmf1",
+            "droid-agent mvs", "droid-agent tool"} <= names
+    assert all(r["pid"] > 0 for r in rows)
+    wait_for(lambda: all(r["live"] for r in cell_status(cell)), what="every program live")
+    for sub in ("arm1", "gmf1", "mvs", "tool"):
+        # the remote refreshes each subunit's Status from its agent every tick
+        recs = wait_for(lambda: [r for r in snoop_json(cell, sub, 2) if not r["stale"]] or None,
+                        what=f"{sub} fresh")
+        for key in ("x", "y", "z", "R", "encoder_pos", "encoder_cmd", "busy", "homed", "tick", "stale"):
+            assert key in recs[0]
+        assert recs[-1]["tick"] > 0
+    ticks = [r["tick"] for r in snoop_json(cell, "arm1", 3, rate=10)]
+    assert ticks == sorted(ticks) and ticks[-1] > ticks[0]
+    assert len(cell_objects(cell_name)) > 0
+    plain = droid(SNOOP, "gmf1", "--count", "1", "--cell", str(cell))
+    assert plain.returncode == 0 and plain.stdout.startswith("gmf1 tick ")
+
+
+def test_agent_death_marks_stale_and_link_recovers(cell):
+    up(cell)
+    wait_for(lambda: not snoop_json(cell, "mvs")[0]["stale"], what="mvs fresh")
+    agent = next(r for r in cell_status(cell) if r["name"] == "droid-agent mvs")
+    os.kill(agent["pid"], signal.SIGKILL)
+    wait_for(lambda: snoop_json(cell, "mvs")[0]["stale"], what="mvs stale after its agent died")
+    # the other subunits are unaffected
+    assert not snoop_json(cell, "tool")[0]["stale"]
+    # the agent comes back (by hand, as a user would restart it): the remote reconnects
+    proc = subprocess.Popen([sys.executable, "-m", "droid.subunits.agent", "mvs", "--cell", str(cell)],
+                            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        wait_for(lambda: not snoop_json(cell, "mvs")[0]["stale"], what="mvs fresh again")
+    finally:
+        proc.terminate()
+        proc.wait(10)
+
+
+def test_heartbeat_death_marks_everything_stale_no_crash(cell):
+    up(cell)
+    wait_for(lambda: not snoop_json(cell, "arm1")[0]["stale"], what="arm1 fresh")
+    hb = next(r for r in cell_status(cell) if r["name"] == "droid-heartbeat")
+    os.kill(hb["pid"], signal.SIGSTOP)  # a paused heartbeat: no ticks, no exchange
+    try:
+        t0 = snoop_json(cell, "arm1")[0]["tick"]
+        rows = snoop_json(cell, "arm1", 3, rate=10)
+        assert all(r["tick"] == t0 for r in rows)  # nothing refreshed without ticks
+    finally:
+        os.kill(hb["pid"], signal.SIGCONT)
+    wait_for(lambda: snoop_json(cell, "arm1")[0]["tick"] > t0, what="ticks again")
+    assert all(r["alive"] for r in cell_status(cell))
+
+
+def test_second_up_refused_and_status_json(cell):
+    up(cell)
+    again = droid(CELL, "up", "--cell", str(cell))
+    assert again.returncode == 1
+    assert "already up" in again.stderr and len(again.stderr.strip().splitlines()) == 1
+    rows = cell_status(cell)
+    for r in rows:
+        assert set(r) >= {"name", "pid", "alive", "live", "last_tick", "state"}
+
+
+def test_status_and_snoop_of_a_cell_that_is_not_up(tmp_path, cell_name):
+    path = make_cell_file(tmp_path, cell_name)
+    st = droid(CELL, "status", "--cell", str(path))
+    assert st.returncode == 1 and "not up" in st.stderr
+    sn = droid(SNOOP, "arm1", "--count", "1", "--cell", str(path))
+    assert sn.returncode == 1 and "is the cell up" in sn.stderr
+    dn = droid(CELL, "down", "--cell", str(path))
+    assert dn.returncode == 0
+
+
+def test_failed_start_leaves_nothing(tmp_path, cell_name):
+    # the agent endpoint of arm1 is a tcp port that is already taken: its agent cannot bind
+    import socket
+
+    s = socket.socket()
+    s.bind(("127.0.0.1", 0))
+    s.listen()
+    port = s.getsockname()[1]
+    try:
+        path = make_cell_file(tmp_path, cell_name)
+        text = path.read_text().replace('agent = "ipc://{run}/arm1.agent"', f'agent = "tcp://127.0.0.1:{port}"')
+        path.write_text(text)
+        out = droid(CELL, "up", "--cell", str(path), timeout=90)
+        assert out.returncode == 1
+        assert "arm1" in out.stderr and "before it was ready" in out.stderr
+        assert cell_objects(cell_name) == []
+    finally:
+        s.close()
