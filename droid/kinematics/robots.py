@@ -1,0 +1,238 @@
+"""Robot models as data: load a TOML robot file into a :class:`RobotModel`.
+
+A robot of the OPW class (6R, spherical wrist — thesis §3, "most industrial
+arms share the same kinematic model") is a file, not code.  Bundled files live
+in ``droid/kinematics/robots/``; ``load_robot`` takes a bundled name
+(``"reis_v15"``) or a path to a ``.toml`` file.  The file format is described
+in docs/kinematics.md; every table and key is checked, unknown keys are
+rejected (a typo must not silently become a default), and if a ``[dh]`` table
+is present the ``[opw]`` parameters must reproduce its forward kinematics.
+"""
+from __future__ import annotations
+
+import functools
+import math
+import os
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+from .dh import DhTable, fk_dh
+from .gearing import Gearing
+from .model import RobotModel
+from .opw import OpwParams
+from .opw import fk as opw_fk
+
+BUNDLED_DIR = Path(__file__).resolve().parent / "robots"
+
+#: tolerance [mm, and unitless for rotation entries] of the [dh] vs [opw] check.
+DH_CHECK_TOL = 1e-6
+#: joint vectors used for the check (seeded, plus the zero pose).
+DH_CHECK_SAMPLES = 32
+
+_TOP_KEYS = {"name", "description", "assumed", "source", "dh", "opw", "gearing", "limits", "home", "planner"}
+_KEYS = {
+    "dh": {"convention", "theta_offset_deg", "d_mm", "a_mm", "alpha_deg"},
+    "opw": {"a1_mm", "a2_mm", "b_mm", "c1_mm", "c2_mm", "c3_mm", "c4_mm", "offsets_deg", "signs"},
+    "gearing": {"reduction", "encoder_counts_per_rev", "direction", "coupling", "encoder_bits"},
+    "limits": {"joint_min_deg", "joint_max_deg", "counts_min", "counts_max", "vmax_deg_s"},
+    "home": {"switch_deg", "search_dir"},
+    "planner": {"weights"},
+}
+_REQUIRED = {
+    "opw": {"c1_mm", "c2_mm", "c3_mm"},
+    "gearing": {"reduction", "encoder_counts_per_rev"},
+    "limits": {"joint_min_deg", "joint_max_deg", "vmax_deg_s"},
+    "home": {"switch_deg"},
+    "planner": {"weights"},
+}
+
+
+class RobotFileError(ValueError):
+    """A robot name that is not bundled, or a robot file that is missing or malformed."""
+
+
+def list_robots() -> list[str]:
+    """Names of the bundled robot files."""
+    return sorted(p.stem for p in BUNDLED_DIR.glob("*.toml"))
+
+
+def _resolve(name_or_path) -> Path:
+    text = os.fspath(name_or_path)
+    looks_like_path = text.endswith(".toml") or os.sep in text or (os.altsep and os.altsep in text)
+    if looks_like_path:
+        path = Path(text)
+        if not path.is_file():
+            raise RobotFileError(f"robot file not found: {text}")
+        return path
+    if not text or not all(ch.isalnum() or ch in "_-" for ch in text):
+        raise RobotFileError(f"bad robot name {text!r}")
+    path = BUNDLED_DIR / f"{text}.toml"
+    if not path.is_file():
+        raise RobotFileError(f"unknown robot {text!r} (bundled: {', '.join(list_robots())}; or give a .toml path)")
+    return path
+
+
+def load_robot(name_or_path) -> RobotModel:
+    """Load a robot model from a bundled name or a ``.toml`` path.  Raises :class:`RobotFileError`."""
+    path = _resolve(name_or_path)
+    if path.parent.resolve() == BUNDLED_DIR:
+        return _load_bundled(str(path))
+    return _load_path(path)
+
+
+@functools.lru_cache(maxsize=None)
+def _load_bundled(path: str) -> RobotModel:
+    return _load_path(Path(path))
+
+
+def _load_path(path: Path) -> RobotModel:
+    try:
+        with open(path, "rb") as f:
+            data = tomllib.load(f)
+    except OSError as exc:
+        raise RobotFileError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise RobotFileError(f"{path}: not valid TOML: {exc}") from None
+    try:
+        return model_from_dict(data, source=str(path))
+    except RobotFileError:
+        raise
+    except (ValueError, TypeError, KeyError) as exc:
+        raise RobotFileError(f"{path}: {exc}") from None
+
+
+def _table(data: dict, name: str) -> dict:
+    t = data.get(name)
+    if t is None:
+        if name == "dh":
+            return {}
+        raise ValueError(f"missing table [{name}]")
+    if not isinstance(t, dict):
+        raise ValueError(f"[{name}] must be a table")
+    unknown = set(t) - _KEYS[name]
+    if unknown:
+        raise ValueError(f"[{name}]: unknown key(s) {', '.join(sorted(unknown))}")
+    missing = _REQUIRED.get(name, set()) - set(t)
+    if missing:
+        raise ValueError(f"[{name}]: missing key(s) {', '.join(sorted(missing))}")
+    return t
+
+
+def _num(table: str, key: str, value) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ValueError(f"[{table}] {key}: expected a finite number")
+    return float(value)
+
+
+def _six(table: str, key: str, value) -> list[float]:
+    if not isinstance(value, list) or len(value) != 6:
+        raise ValueError(f"[{table}] {key}: expected a list of 6 numbers")
+    return [_num(table, key, v) for v in value]
+
+
+def model_from_dict(data: dict, source: str = "") -> RobotModel:
+    """Build a model from a parsed robot file (see docs/kinematics.md for the format)."""
+    unknown = set(data) - _TOP_KEYS
+    if unknown:
+        raise ValueError(f"unknown key(s)/table(s) {', '.join(sorted(unknown))}")
+    name = data.get("name")
+    if not isinstance(name, str) or not name:
+        raise ValueError("'name' must be a non-empty string")
+    description = data.get("description", "")
+    assumed = data.get("assumed", False)
+    if not isinstance(description, str) or not isinstance(assumed, bool):
+        raise ValueError("'description' must be a string and 'assumed' true/false")
+
+    o = _table(data, "opw")
+    params = OpwParams(
+        a1=_num("opw", "a1_mm", o.get("a1_mm", 0.0)),
+        a2=_num("opw", "a2_mm", o.get("a2_mm", 0.0)),
+        b=_num("opw", "b_mm", o.get("b_mm", 0.0)),
+        c1=_num("opw", "c1_mm", o["c1_mm"]),
+        c2=_num("opw", "c2_mm", o["c2_mm"]),
+        c3=_num("opw", "c3_mm", o["c3_mm"]),
+        c4=_num("opw", "c4_mm", o.get("c4_mm", 0.0)),
+        offsets_deg=tuple(_six("opw", "offsets_deg", o.get("offsets_deg", [0.0] * 6))),
+        signs=tuple(_six("opw", "signs", o.get("signs", [1] * 6))),
+    )
+
+    d = _table(data, "dh")
+    dh = None
+    if d:
+        convention = d.get("convention", "standard")
+        if convention != "standard":
+            raise ValueError("[dh] convention: only 'standard' (Rz Tz Tx Rx, thesis eq. 4.1) is supported")
+        for key in ("theta_offset_deg", "d_mm", "a_mm", "alpha_deg"):
+            if key not in d:
+                raise ValueError(f"[dh]: missing key {key}")
+        dh = DhTable(
+            theta_offset_deg=tuple(_six("dh", "theta_offset_deg", d["theta_offset_deg"])),
+            d_mm=tuple(_six("dh", "d_mm", d["d_mm"])),
+            a_mm=tuple(_six("dh", "a_mm", d["a_mm"])),
+            alpha_deg=tuple(_six("dh", "alpha_deg", d["alpha_deg"])),
+        )
+        check_dh_matches_opw(dh, params)
+
+    g = _table(data, "gearing")
+    gearing = Gearing.from_table(g)
+
+    lim = _table(data, "limits")
+    qmin = np.array(_six("limits", "joint_min_deg", lim["joint_min_deg"]))
+    qmax = np.array(_six("limits", "joint_max_deg", lim["joint_max_deg"]))
+    if np.any(qmin >= qmax):
+        raise ValueError("[limits]: joint_min_deg must be < joint_max_deg for every joint")
+    if ("counts_min" in lim) != ("counts_max" in lim):
+        raise ValueError("[limits]: give both counts_min and counts_max, or neither")
+    if "counts_min" in lim:
+        cmin = np.array(_six("limits", "counts_min", lim["counts_min"]))
+        cmax = np.array(_six("limits", "counts_max", lim["counts_max"]))
+    else:
+        cmin, cmax = counts_box(gearing, qmin, qmax)
+
+    home = _table(data, "home")
+    planner = _table(data, "planner")
+    return RobotModel(
+        name=name,
+        description=description,
+        assumed=assumed,
+        opw=params,
+        gearing=gearing,
+        joint_min_deg=qmin,
+        joint_max_deg=qmax,
+        counts_min=cmin,
+        counts_max=cmax,
+        home_switch_deg=_six("home", "switch_deg", home["switch_deg"]),
+        home_search_dir=_six("home", "search_dir", home.get("search_dir", [1] * 6)),
+        vmax_deg_s=_six("limits", "vmax_deg_s", lim["vmax_deg_s"]),
+        weights=_six("planner", "weights", planner["weights"]),
+        dh=dh,
+        source=source,
+    )
+
+
+def counts_box(gearing: Gearing, qmin_deg, qmax_deg) -> tuple[np.ndarray, np.ndarray]:
+    """Encoder limits [counts] of the joint-limit box: its image's bounding box, rounded outward."""
+    m = gearing.joint_to_counts_matrix
+    lo = np.minimum(m * qmin_deg, m * qmax_deg).sum(axis=1)
+    hi = np.maximum(m * qmin_deg, m * qmax_deg).sum(axis=1)
+    return np.floor(lo) - 1.0, np.ceil(hi) + 1.0
+
+
+def check_dh_matches_opw(dh: DhTable, params: OpwParams) -> None:
+    """Raise ValueError unless the OPW parameters reproduce the D-H forward kinematics."""
+    rng = np.random.default_rng(0)
+    samples = [np.zeros(6)] + list(rng.uniform(-180.0, 180.0, (DH_CHECK_SAMPLES, 6)))
+    worst, at = 0.0, None
+    for q in samples:
+        a = fk_dh(dh, q)[:3]
+        b = np.array(opw_fk(params, q.tolist()))
+        err = float(np.max(np.abs(a - b)))
+        if err > worst:
+            worst, at = err, q
+    if worst > DH_CHECK_TOL:
+        qs = " ".join(f"{v:.1f}" for v in at)
+        raise ValueError(
+            f"[dh] and [opw] disagree: forward kinematics differ by {worst:.3g} (mm or rotation) at q = [{qs}] deg"
+        )
