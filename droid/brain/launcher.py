@@ -34,7 +34,8 @@ from droid.brain.cellfile import Cell, load_cell
 from droid.brain.databases import create_databases
 from droid.brain.layouts import PROC_STATE_NAMES, PROC_STATUS_LAYOUT
 from droid.brain.program import presence_key
-from droid.brain.shmdb import Database, NoDatabase, cell_objects, db_name, pid_alive, remove_cell_objects
+from droid.brain.shmdb import (Database, NoDatabase, cell_objects, db_name, pid_alive,
+                               remove_cell_objects, unlink_database)
 from droid.cli import ArgumentParser, BadInput, RuntimeFailure, positive_float, run
 from droid.programs import PROGRAMS
 
@@ -75,18 +76,27 @@ def cell_programs(cell: Cell, hosts: set[str] | None = None) -> tuple[list[Spec]
     return first, rest
 
 
-def state_path(cell: Cell) -> str:
-    return str(cell.run_dir / "cell.json")
+def state_path(cell: Cell, hosts: set[str] | None = None) -> str:
+    """``cell.json`` for a whole cell, ``cell@h1,h2.json`` for the programs of some hosts."""
+    suffix = "" if not hosts else "@" + ",".join(sorted(hosts))
+    return str(cell.run_dir / f"cell{suffix}.json")
 
 
 def read_state(cell: Cell) -> dict | None:
-    try:
-        with open(state_path(cell)) as f:
-            return json.load(f)
-    except FileNotFoundError:
+    """The merged records of every ``droid-cell up`` of this cell (None if there is none)."""
+    if not cell.run_dir.is_dir():
         return None
-    except (OSError, ValueError):
-        return {"programs": []}
+    files = sorted(f for f in os.listdir(cell.run_dir) if f.startswith("cell") and f.endswith(".json"))
+    if not files:
+        return None
+    merged: dict = {"programs": []}
+    for name in files:
+        try:
+            with open(cell.run_dir / name) as f:
+                merged["programs"].extend(json.load(f).get("programs", []))
+        except (OSError, ValueError):
+            continue
+    return merged
 
 
 def _start(cell: Cell, specs: list[Spec], log_dir: str) -> dict[int, tuple[Spec, subprocess.Popen]]:
@@ -142,20 +152,22 @@ def _write_state(cell: Cell, specs: list[Spec], hosts) -> None:
     state = {"cell": cell.name, "cell_file": str(cell.path), "hosts": sorted(hosts) if hosts else None,
              "started_at": time.time(), "launcher_pid": os.getpid(),
              "programs": [asdict(s) for s in specs]}
-    tmp = state_path(cell) + ".tmp"
-    with open(tmp, "w") as f:
+    path = state_path(cell, hosts)
+    with open(path + ".tmp", "w") as f:
         json.dump(state, f, indent=1)
-    os.replace(tmp, state_path(cell))
+    os.replace(path + ".tmp", path)
 
 
 def up(cell: Cell, hosts: set[str] | None, timeout_s: float) -> list[Spec]:
     state = read_state(cell)
     if state is not None:
-        alive = [p for p in state.get("programs", []) if pid_alive(p.get("pid", 0))]
-        if alive:
-            raise RuntimeFailure(f"cell {cell.name!r} is already up ({len(alive)} programs running); "
+        running = [p for p in state.get("programs", []) if pid_alive(p.get("pid", 0))]
+        mine = [p for p in running if hosts is None or p.get("host") in hosts]
+        if mine:
+            raise RuntimeFailure(f"cell {cell.name!r} is already up ({len(mine)} programs running); "
                                  f"run 'droid-cell down' first")
-        _cleanup(cell)  # leftovers of a crashed cell
+        if not running:
+            _cleanup(cell)  # leftovers of a crashed cell
     log_dir = str(cell.run_dir / "logs")
     os.makedirs(log_dir, exist_ok=True)
     dbs = create_databases(cell, hosts)
@@ -171,7 +183,17 @@ def up(cell: Cell, hosts: set[str] | None, timeout_s: float) -> list[Spec]:
             _await_ready(started, timeout_s, log_dir)
     except BaseException:
         _stop_pids([s.pid for s in specs], STOP_GRACE_S)
-        _cleanup(cell)
+        if hosts is None:
+            _cleanup(cell)
+        else:  # other hosts of this cell may be running here: remove only what we made
+            for db in dbs:
+                unlink_database(db.name)
+            for spec in specs:
+                unlink_database(db_name(cell.name, "proc", spec.key))
+            try:
+                os.unlink(state_path(cell, hosts))
+            except OSError:
+                pass
         raise
     return specs
 
@@ -221,7 +243,7 @@ def _cleanup(cell: Cell) -> list[str]:
     removed = remove_cell_objects(cell.name)
     for name in os.listdir(cell.run_dir) if cell.run_dir.is_dir() else []:
         path = cell.run_dir / name
-        if name != "logs" and not path.is_dir():
+        if name != "logs" and not path.is_dir():  # sockets, cell*.json
             try:
                 path.unlink()
             except OSError:

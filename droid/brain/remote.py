@@ -148,7 +148,7 @@ def main(argv=None) -> int:
                         status.update(tick=tick, updated_ns=time.monotonic_ns(), stale=0, **fields)
                         if command is not None:
                             _ack_sent(command, sent_cmd_id)
-            presence.beat(last_tick, core.replies, core.reconnects)
+            presence.beat(last_tick, core.replies, ticks.monitor.missed)
     finally:
         names.close()
         ticks.close()

@@ -136,3 +136,43 @@ def test_failed_start_leaves_nothing(tmp_path, cell_name):
         assert cell_objects(cell_name) == []
     finally:
         s.close()
+
+
+def _free_port():
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_cell_over_tcp_started_host_by_host(tmp_path, cell_name):
+    """Every link over tcp:// on loopback, and each host's programs started by its own
+    `droid-cell up --host`, subunits before the Brain (thesis §3.2: a subunit should be
+    powered and identified before the Brain's initialization software runs)."""
+    import re
+
+    path = make_cell_file(tmp_path, cell_name)
+    text = re.sub(r'"ipc://\{run\}/[a-z0-9.]+"', lambda m: f'"tcp://127.0.0.1:{_free_port()}"',
+                  path.read_text())
+    assert "ipc://" not in text
+    path.write_text(text)
+    try:
+        for hosts in (["arm1", "gmf1"], ["mvs"], ["brain"]):
+            args = [a for h in hosts for a in ("--host", h)]
+            out = droid(CELL, "up", *args, "--cell", str(path), timeout=90)
+            assert out.returncode == 0, out.stderr
+        again = droid(CELL, "up", "--host", "mvs", "--cell", str(path))
+        assert again.returncode == 1 and "already up" in again.stderr
+        rows = cell_status(path)
+        assert len(rows) == 11
+        for sub in ("arm1", "gmf1", "mvs", "tool"):
+            wait_for(lambda: not snoop_json(path, sub)[0]["stale"], what=f"{sub} fresh over tcp")
+        names = droid("droid.brain.names", "--list", "--json", "--cell", str(path))
+        eps = {json.loads(l)["name"]: json.loads(l)["endpoint"] for l in names.stdout.splitlines()}
+        assert set(eps) == {"heartbeat", "arm1", "gmf1", "mvs", "tool"}
+        assert all(e.startswith("tcp://127.0.0.1:") for e in eps.values())
+    finally:
+        out = droid(CELL, "down", "--cell", str(path))
+        assert out.returncode == 0, out.stderr
+        assert cell_objects(cell_name) == []
