@@ -5,19 +5,32 @@ absolute deadlines at ``[world] rate_hz``.  DROID programs never import this
 package: they reach the twins only through their device drivers (a shared-memory
 register map, a pseudo-terminal, ...), by the URLs in the cell file.
 
-Each twin is a :class:`Device` with ``advance(dt_s)``; the world builds them
-from the cell file (:func:`build_devices`) and steps them in order.
+Devices are declared in the cell file, in stepping order::
+
+    [world.devices.arm1]          # the device's name
+    type = "reis_vme"             # a key of DEVICE_TYPES
+    ...                           # options of that type
+
+:data:`DEVICE_TYPES` maps a type to ``(module, factory)``, imported only when a
+cell asks for it (python-can's lazy backend table).  A factory is called as
+``factory(world, name, options)`` and returns a :class:`Device`; it may look up
+devices declared before it in ``world.devices`` (the camera needs both arms).
 """
 from __future__ import annotations
 
+import importlib
 import sys
+from typing import Any
 
 from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
-from droid.cli import run
+from droid.cli import BadInput, run
 
 PROG = "droid-sim"
 DEFAULT_RATE_HZ = 1000.0
+
+# type -> (module, factory function)
+DEVICE_TYPES: dict[str, tuple[str, str]] = {}
 
 
 class Device:
@@ -32,23 +45,71 @@ class Device:
         pass
 
 
-def build_devices(cell) -> list[Device]:
-    """The twins this cell file asks for (none are defined yet in this version)."""
-    return []
+class World:
+    """The simulated devices of one cell, stepped in declaration order."""
+
+    def __init__(self, cell, seed: int = 0) -> None:
+        self.cell = cell
+        self.seed = seed
+        self.devices: dict[str, Device] = {}
+        self.t_s = 0.0
+
+    def add(self, name: str, dev: Device) -> None:
+        self.devices[name] = dev
+
+    def advance(self, dt_s: float) -> None:
+        for dev in self.devices.values():
+            dev.advance(dt_s)
+        self.t_s += dt_s
+
+    def close(self) -> None:
+        for dev in reversed(list(self.devices.values())):
+            try:
+                dev.close()
+            except Exception as exc:  # keep closing the others
+                print(f"{PROG}: closing {dev.name}: {exc}", file=sys.stderr)
+
+
+def build_world(cell, seed: int | None = None) -> World:
+    """Build the devices the cell file declares under ``[world.devices]``."""
+    w = World(cell, int(cell.world.get("seed", 0) if seed is None else seed))
+    devices: dict[str, Any] = cell.world.get("devices", {})
+    if not isinstance(devices, dict):
+        raise BadInput(f"{cell.path}: [world.devices] must be a table of device tables")
+    try:
+        for name, opts in devices.items():
+            if not isinstance(opts, dict) or "type" not in opts:
+                raise BadInput(f"{cell.path}: [world.devices.{name}] needs a 'type'")
+            typ = opts["type"]
+            if typ not in DEVICE_TYPES:
+                known = ", ".join(sorted(DEVICE_TYPES)) or "none"
+                raise BadInput(f"{cell.path}: [world.devices.{name}] unknown type {typ!r} (known: {known})")
+            module, factory = DEVICE_TYPES[typ]
+            fn = getattr(importlib.import_module(module), factory)
+            w.add(name, fn(w, name, {k: v for k, v in opts.items() if k != "type"}))
+    except BaseException:
+        w.close()
+        raise
+    return w
 
 
 @run
 def main(argv=None) -> int:
     ap = parser(PROG, "Run the simulated hardware of a cell (robots, controllers, sensors).")
+    ap.add_argument("--seed", type=int, default=None, help="random seed (default: the cell file's)")
     args = ap.parse_args(argv)
     cell = open_cell(args)
     rate = float(cell.world.get("rate_hz", DEFAULT_RATE_HZ))
+    if not 1.0 <= rate <= 10000.0:
+        raise BadInput(f"{cell.path}: [world] rate_hz {rate:g} outside 1..10000 Hz")
     Stop.install()
     try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     presence = Presence(cell.name, presence_key(PROG), PROG)
-    devices = build_devices(cell)
-    timer = PeriodicTimer(int(round(1e9 / rate)))
+    world = None
+    timer = None
     try:
+        world = build_world(cell, args.seed)
+        timer = PeriodicTimer(int(round(1e9 / rate)))
         presence.ready()
         notify_ready(args.ready_fd)
         dt = 1.0 / rate
@@ -56,13 +117,15 @@ def main(argv=None) -> int:
             n = timer.wait(0.5)
             if not n:
                 continue
-            for dev in devices:
-                dev.advance(dt * n)
+            # after an overrun the world catches up in whole steps (bounded)
+            for _ in range(min(n, 20)):
+                world.advance(dt)
             presence.beat(0, timer.cycles, timer.overruns, timer.lateness_max_ns)
     finally:
-        timer.close()
-        for dev in devices:
-            dev.close()
+        if timer is not None:
+            timer.close()
+        if world is not None:
+            world.close()
         presence.close()
     return 0
 
