@@ -86,7 +86,7 @@ def run(main: Callable[[Sequence[str] | None], int | None]) -> Callable[..., int
 
     @functools.wraps(main)
     def wrapper(argv: Sequence[str] | None = None) -> int:
-        prog = os.path.basename(sys.argv[0]) if argv is None else main.__module__
+        prog = getattr(sys.modules.get(main.__module__), "PROG", None) or os.path.basename(sys.argv[0])
         try:
             code = main(argv)
         except DroidError as exc:

@@ -20,6 +20,8 @@ PROGRAMS: dict[str, str] = {
     "droid-gmf1-agent": "droid.subunits.gmf1.agent",
     # tasks
     "droid-snoop": "droid.tasks.snoop",
+    "droid-move": "droid.tasks.move",
+    "droid-home": "droid.tasks.home",
     # the world
     "droid-sim": "droid.sim.world",
 }

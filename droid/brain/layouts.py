@@ -117,7 +117,14 @@ _STATUS = HEADER_FIELDS + _POSE + [
     ("fault", "<u4", None),  # addition: fault bits (FAULT_*)
     ("cmd_mode", "<i4", None),  # addition: command mode in force
     ("coord", "<i4", None),  # addition: coordinate mode in force
+    ("cmd_id", "<u4", None),  # addition: cmd_id of the command in progress or last finished
+    ("cmd_result", "<i4", None),  # addition: CMD_* outcome of that command
 ]
+
+# Status.cmd_result
+CMD_OK = 0  # accepted / in progress / done
+CMD_REFUSED = 2  # refused before anything moved (out of limits, unreachable, not homed)
+CMD_FAILED = 1  # failed while executing (device fault, timeout)
 
 # Fault bits in Status.fault
 FAULT_LINK = 1  # Brain link silent (agent side) / agent silent (remote side)
@@ -135,7 +142,7 @@ FAULT_NAMES = {
     FAULT_DEVICE: "device",
 }
 
-ARM_STATUS = _dtype(_STATUS, 216)
+ARM_STATUS = _dtype(_STATUS, 224)
 
 SENSOR_STATUS = _dtype(
     _STATUS
@@ -144,7 +151,7 @@ SENSOR_STATUS = _dtype(
         ("invalid_count", "<u4", None),  # addition: readings flagged invalid by the sensor
         ("garbled_count", "<u4", None),  # addition: lines that did not parse
     ],
-    232,
+    240,
 )
 
 ARM_COMMAND = _dtype(
@@ -162,7 +169,7 @@ ARM_COMMAND = _dtype(
     176,
 )
 
-CTRL_STATUS = _dtype(_STATUS, 216)  # Table 4.2: identical to the Brain's Table 3.1
+CTRL_STATUS = _dtype(_STATUS, 224)  # Table 4.2: identical to the Brain's Table 3.1
 
 CTRL_COMMAND = _dtype(
     HEADER_FIELDS

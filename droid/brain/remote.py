@@ -30,7 +30,8 @@ from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser,
 from droid.cli import RuntimeFailure, run
 
 PROG = "droid-remote"
-COPY_FIELDS_ARM = ("encoder_pos", "encoder_cmd", "busy", "homed", "fault", "cmd_mode", "coord")
+COPY_FIELDS_ARM = ("encoder_pos", "encoder_cmd", "busy", "homed", "fault", "cmd_mode", "coord",
+                   "cmd_id", "cmd_result")
 COPY_FIELDS_SENSOR = ("x", "y", "z", "R", "homed", "fault", "valid_count", "invalid_count",
                       "garbled_count")
 

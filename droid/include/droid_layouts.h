@@ -27,10 +27,13 @@
 #define DROID_FAULT_LIMIT 8
 #define DROID_FAULT_BRAKING 16
 #define DROID_FAULT_DEVICE 32
+#define DROID_CMD_OK 0
+#define DROID_CMD_REFUSED 2
+#define DROID_CMD_FAILED 1
 
 #define DROID_ARM_STATUS_KIND 1
 #define DROID_ARM_STATUS_VERSION 1
-#define DROID_ARM_STATUS_SIZE 216
+#define DROID_ARM_STATUS_SIZE 224
 #pragma pack(push, 1)
 typedef struct droid_arm_status {
     uint32_t magic;
@@ -55,6 +58,8 @@ typedef struct droid_arm_status {
     uint32_t fault;
     int32_t cmd_mode;
     int32_t coord;
+    uint32_t cmd_id;
+    int32_t cmd_result;
 } droid_arm_status_t;
 #pragma pack(pop)
 _Static_assert(offsetof(droid_arm_status_t, magic) == 0, "droid_arm_status.magic offset");
@@ -79,7 +84,9 @@ _Static_assert(offsetof(droid_arm_status_t, stale) == 200, "droid_arm_status.sta
 _Static_assert(offsetof(droid_arm_status_t, fault) == 204, "droid_arm_status.fault offset");
 _Static_assert(offsetof(droid_arm_status_t, cmd_mode) == 208, "droid_arm_status.cmd_mode offset");
 _Static_assert(offsetof(droid_arm_status_t, coord) == 212, "droid_arm_status.coord offset");
-_Static_assert(sizeof(droid_arm_status_t) == 216, "droid_arm_status size");
+_Static_assert(offsetof(droid_arm_status_t, cmd_id) == 216, "droid_arm_status.cmd_id offset");
+_Static_assert(offsetof(droid_arm_status_t, cmd_result) == 220, "droid_arm_status.cmd_result offset");
+_Static_assert(sizeof(droid_arm_status_t) == 224, "droid_arm_status size");
 
 #define DROID_ARM_COMMAND_KIND 2
 #define DROID_ARM_COMMAND_VERSION 1
@@ -130,7 +137,7 @@ _Static_assert(sizeof(droid_arm_command_t) == 176, "droid_arm_command size");
 
 #define DROID_SENSOR_STATUS_KIND 3
 #define DROID_SENSOR_STATUS_VERSION 1
-#define DROID_SENSOR_STATUS_SIZE 232
+#define DROID_SENSOR_STATUS_SIZE 240
 #pragma pack(push, 1)
 typedef struct droid_sensor_status {
     uint32_t magic;
@@ -155,6 +162,8 @@ typedef struct droid_sensor_status {
     uint32_t fault;
     int32_t cmd_mode;
     int32_t coord;
+    uint32_t cmd_id;
+    int32_t cmd_result;
     uint32_t valid_count;
     uint32_t invalid_count;
     uint32_t garbled_count;
@@ -183,14 +192,16 @@ _Static_assert(offsetof(droid_sensor_status_t, stale) == 200, "droid_sensor_stat
 _Static_assert(offsetof(droid_sensor_status_t, fault) == 204, "droid_sensor_status.fault offset");
 _Static_assert(offsetof(droid_sensor_status_t, cmd_mode) == 208, "droid_sensor_status.cmd_mode offset");
 _Static_assert(offsetof(droid_sensor_status_t, coord) == 212, "droid_sensor_status.coord offset");
-_Static_assert(offsetof(droid_sensor_status_t, valid_count) == 216, "droid_sensor_status.valid_count offset");
-_Static_assert(offsetof(droid_sensor_status_t, invalid_count) == 220, "droid_sensor_status.invalid_count offset");
-_Static_assert(offsetof(droid_sensor_status_t, garbled_count) == 224, "droid_sensor_status.garbled_count offset");
-_Static_assert(sizeof(droid_sensor_status_t) == 232, "droid_sensor_status size");
+_Static_assert(offsetof(droid_sensor_status_t, cmd_id) == 216, "droid_sensor_status.cmd_id offset");
+_Static_assert(offsetof(droid_sensor_status_t, cmd_result) == 220, "droid_sensor_status.cmd_result offset");
+_Static_assert(offsetof(droid_sensor_status_t, valid_count) == 224, "droid_sensor_status.valid_count offset");
+_Static_assert(offsetof(droid_sensor_status_t, invalid_count) == 228, "droid_sensor_status.invalid_count offset");
+_Static_assert(offsetof(droid_sensor_status_t, garbled_count) == 232, "droid_sensor_status.garbled_count offset");
+_Static_assert(sizeof(droid_sensor_status_t) == 240, "droid_sensor_status size");
 
 #define DROID_CTRL_STATUS_KIND 4
 #define DROID_CTRL_STATUS_VERSION 1
-#define DROID_CTRL_STATUS_SIZE 216
+#define DROID_CTRL_STATUS_SIZE 224
 #pragma pack(push, 1)
 typedef struct droid_ctrl_status {
     uint32_t magic;
@@ -215,6 +226,8 @@ typedef struct droid_ctrl_status {
     uint32_t fault;
     int32_t cmd_mode;
     int32_t coord;
+    uint32_t cmd_id;
+    int32_t cmd_result;
 } droid_ctrl_status_t;
 #pragma pack(pop)
 _Static_assert(offsetof(droid_ctrl_status_t, magic) == 0, "droid_ctrl_status.magic offset");
@@ -239,7 +252,9 @@ _Static_assert(offsetof(droid_ctrl_status_t, stale) == 200, "droid_ctrl_status.s
 _Static_assert(offsetof(droid_ctrl_status_t, fault) == 204, "droid_ctrl_status.fault offset");
 _Static_assert(offsetof(droid_ctrl_status_t, cmd_mode) == 208, "droid_ctrl_status.cmd_mode offset");
 _Static_assert(offsetof(droid_ctrl_status_t, coord) == 212, "droid_ctrl_status.coord offset");
-_Static_assert(sizeof(droid_ctrl_status_t) == 216, "droid_ctrl_status size");
+_Static_assert(offsetof(droid_ctrl_status_t, cmd_id) == 216, "droid_ctrl_status.cmd_id offset");
+_Static_assert(offsetof(droid_ctrl_status_t, cmd_result) == 220, "droid_ctrl_status.cmd_result offset");
+_Static_assert(sizeof(droid_ctrl_status_t) == 224, "droid_ctrl_status size");
 
 #define DROID_CTRL_COMMAND_KIND 5
 #define DROID_CTRL_COMMAND_VERSION 1

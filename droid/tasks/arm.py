@@ -1,0 +1,216 @@
+"""What the arm task programs share: the Brain's databases of one arm (thesis §3.4).
+
+"In its essence, a Task program does the following: i) sets up shared memory
+access to the required subunit databases, ii) reads these databases and iii)
+modifies the command databases of the subunit to be commanded."  A task sees
+the Brain's databases and the kinematics, never a device.
+
+:class:`BrainArm` opens an arm's Status and Command records, validates targets
+against the robot model *before* anything is written (so a bad target never
+moves the robot), writes commands with a fresh ``cmd_id`` and ``sent = 1``,
+and waits on ``busy`` / ``cmd_id`` / ``homed``.
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from droid.brain.cellfile import Cell
+from droid.brain.databases import open_brain
+from droid.brain.layouts import (CARTSPACE, CMD_FAILED, CMD_OK, CMD_REFUSED, FAULT_NAMES, HOME_MODE,
+                                 JOG_MODE, JSPACE, NORMAL_MODE)
+from droid.cli import BadInput, RuntimeFailure
+from droid.kinematics import Unreachable, load_robot
+from droid.kinematics.transforms import pose_to_T
+
+POLL_S = 1.0 / 120  # twice per heartbeat tick
+
+
+class BrainArm:
+    """One arm subunit as a task program sees it."""
+
+    def __init__(self, cell: Cell, name: str) -> None:
+        self.cell = cell
+        self.sub = cell.subunit(name)
+        if not self.sub.is_arm:
+            raise BadInput(f"{name} is a {self.sub.cls} subunit, not an arm")
+        self.model = load_robot(self.sub.robot).with_base(pose_to_T(*self.sub.base))
+        self.hb_hz = cell.heartbeat_hz
+        self.status = self.command = None
+
+    def connect(self) -> "BrainArm":
+        """Attach to the Brain's Status and Command records (RuntimeFailure if the cell is not up)."""
+        self.status = open_brain(self.cell, self.sub, "status")
+        try:
+            self.command = open_brain(self.cell, self.sub, "command")
+        except BaseException:
+            self.status.close()
+            raise
+        return self
+
+    def close(self) -> None:
+        for db in (self.status, self.command):
+            if db is not None:
+                db.close()
+
+    def __enter__(self) -> "BrainArm":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- reading ---------------------------------------------------------
+    def read(self):
+        return self.status.read()
+
+    def joints_deg(self, rec=None) -> np.ndarray:
+        """Current joint angles [deg] from the Status encoder positions [counts]."""
+        rec = self.read() if rec is None else rec
+        return self.model.gearing.counts_to_joints(np.asarray(rec["encoder_pos"], float))
+
+    def check_fresh(self, rec=None) -> None:
+        rec = self.read() if rec is None else rec
+        if int(rec["stale"]):
+            raise RuntimeFailure(f"{self.sub.name} is stale (its agent does not answer)")
+
+    # -- validating (before anything moves) -------------------------------
+    def ticks_for(self, seconds: float) -> int:
+        if not (math.isfinite(seconds) and seconds > 0):
+            raise BadInput(f"move time must be a finite number of seconds > 0, got {seconds!r}")
+        ticks = int(round(seconds * self.hb_hz))
+        if ticks < 1:
+            raise BadInput(f"move time {seconds:g} s is shorter than one heartbeat tick")
+        return ticks
+
+    def check_joint_target(self, counts, seconds: float, q_from_deg) -> np.ndarray:
+        """Validate a joint target [counts]; returns it as int32 or raises BadInput."""
+        counts = np.asarray(counts, float)
+        if counts.shape != (6,) or not np.all(np.isfinite(counts)):
+            raise BadInput("a joint target is 6 finite encoder counts")
+        if np.any(counts != np.round(counts)):
+            raise BadInput("encoder counts must be whole numbers")
+        lo, hi = np.asarray(self.model.counts_min), np.asarray(self.model.counts_max)
+        for i in range(6):
+            if not lo[i] <= counts[i] <= hi[i]:
+                raise BadInput(f"joint {i + 1} target {int(counts[i])} counts is outside "
+                               f"[{int(lo[i])}, {int(hi[i])}]")
+        q = self.model.gearing.counts_to_joints(counts)
+        why = self.model.limit_violation(q)
+        if why:
+            raise BadInput(f"target outside the joint limits: {why}")
+        self.check_speed(q_from_deg, q, seconds)
+        return counts.astype(np.int32)
+
+    def check_cart_target(self, pose, seconds: float, q_from_deg) -> tuple[np.ndarray, np.ndarray]:
+        """Validate a cartesian target (x y z mm, A B C ZYZ deg, global frame).
+
+        Returns (T, q_pick_deg) or raises BadInput (unreachable / out of limits / too fast)."""
+        pose = np.asarray(pose, float)
+        if pose.shape != (6,) or not np.all(np.isfinite(pose)):
+            raise BadInput("a cartesian target is x y z [mm] A B C [ZYZ deg], all finite")
+        T = pose_to_T(*pose)
+        try:
+            q = self.model.ik(T, np.zeros(6) if q_from_deg is None else q_from_deg)
+        except Unreachable as exc:
+            raise BadInput(f"target unreachable for {self.sub.name}: {exc}") from None
+        self.check_speed(q_from_deg, q, seconds)
+        return T, q
+
+    def check_speed(self, q_from_deg, q_to_deg, seconds: float) -> None:
+        if q_from_deg is None:  # static check only (no current position known yet)
+            return
+        dq = np.abs(np.asarray(q_to_deg, float) - np.asarray(q_from_deg, float))
+        need = dq / seconds
+        vmax = np.asarray(self.model.vmax_deg_s, float)
+        for i in range(6):
+            if need[i] > vmax[i] * 1.0000001:
+                raise BadInput(f"too fast: joint {i + 1} would need {need[i]:.1f} deg/s "
+                               f"(limit {vmax[i]:g} deg/s); allow at least "
+                               f"{float(np.max(dq / vmax)):.2f} s")
+
+    # -- commanding --------------------------------------------------------
+    def _write(self, **fields) -> int:
+        with self.command.locked() as c:
+            cmd_id = (int(c["cmd_id"]) + 1) & 0xFFFFFFFF or 1
+            for k, v in fields.items():
+                c[k] = v
+            c["cmd_id"] = cmd_id
+            c["sent"] = 1
+            self.command.mark_written()
+        return cmd_id
+
+    def command_joint(self, counts, ticks: int, mode: int = NORMAL_MODE) -> int:
+        return self._write(encoder_pos=np.asarray(counts, np.int32), joint_time_count=int(ticks),
+                           coord=JSPACE, cmd_mode=mode)
+
+    def command_cart(self, T, ticks: int) -> int:
+        T = np.asarray(T, float)
+        return self._write(x=T[0, 3], y=T[1, 3], z=T[2, 3], R=T[:3, :3], cart_time_count=int(ticks),
+                           coord=CARTSPACE, cmd_mode=NORMAL_MODE)
+
+    def command_jog(self, delta_counts, ticks: int = 1) -> int:
+        return self.command_joint(delta_counts, ticks, mode=JOG_MODE)
+
+    def command_home(self) -> int:
+        return self._write(cmd_mode=HOME_MODE, coord=JSPACE)
+
+    def set_normal(self) -> None:
+        """After homing the command mode becomes NORMAL (thesis §3.3); no new command."""
+        with self.command.locked() as c:
+            c["cmd_mode"] = NORMAL_MODE
+            self.command.mark_written()
+
+    # -- waiting -----------------------------------------------------------
+    def wait(self, pred, timeout_s: float, what: str):
+        """Poll Status until ``pred(rec)`` is true; RuntimeFailure on stale or timeout."""
+        deadline = time.monotonic() + timeout_s
+        stale_since = None
+        while True:
+            rec = self.read()
+            if int(rec["stale"]):
+                stale_since = stale_since or time.monotonic()
+                if time.monotonic() - stale_since > 3 * 3 / self.hb_hz + 0.5:
+                    raise RuntimeFailure(f"{self.sub.name} went stale while waiting for {what}")
+            else:
+                stale_since = None
+                if pred(rec):
+                    return rec
+            if time.monotonic() > deadline:
+                raise RuntimeFailure(f"timed out after {timeout_s:g} s waiting for {what}")
+            time.sleep(POLL_S)
+
+    def wait_idle(self, timeout_s: float):
+        """Wait until the arm is not busy (thesis §3.4: the Move program waits on busy)."""
+        return self.wait(lambda r: int(r["busy"]) == 0, timeout_s, f"{self.sub.name} to be idle")
+
+    def wait_done(self, cmd_id: int, timeout_s: float):
+        """Wait until command ``cmd_id`` finished; raises if it was refused or failed."""
+        rec = self.wait(lambda r: int(r["cmd_id"]) == cmd_id and int(r["busy"]) == 0,
+                        timeout_s, f"{self.sub.name} to finish command {cmd_id}")
+        self.check_result(rec, cmd_id)
+        return rec
+
+    def wait_delivered(self, cmd_id: int, timeout_s: float):
+        """Wait until the agent acknowledged ``cmd_id`` (Command.sent cleared)."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            c = self.command.read()
+            if int(c["cmd_id"]) != cmd_id or not int(c["sent"]):
+                return
+            self.check_fresh()
+            if time.monotonic() > deadline:
+                raise RuntimeFailure(f"command {cmd_id} not delivered to {self.sub.name} "
+                                     f"within {timeout_s:g} s")
+            time.sleep(POLL_S)
+
+    def check_result(self, rec, cmd_id: int) -> None:
+        result = int(rec["cmd_result"])
+        if result == CMD_OK:
+            return
+        faults = [n for b, n in FAULT_NAMES.items() if int(rec["fault"]) & b]
+        why = f" (faults: {', '.join(faults)})" if faults else ""
+        if result == CMD_REFUSED:
+            raise BadInput(f"{self.sub.name} refused command {cmd_id}{why}")
+        raise RuntimeFailure(f"{self.sub.name} failed command {cmd_id}{why}")

@@ -1,0 +1,51 @@
+"""droid-home ROBOT: home an arm (thesis §3.4 "The Home program", §4.1.5.3).
+
+"The Home program is a generic robot program which initiates the homing
+routine by changing the Command Mode to the HOME value.  Once the home signal
+has been sent to the robot, the robot takes care of the homing itself with no
+further control from the Home program."  This program then waits until the
+Status record says HOMED and sets the command mode to NORMAL (§3.3: "the
+robot's command mode is placed in HOME mode until it has completed its homing
+procedure at which point its command mode becomes NORMAL").
+
+What homing means is the robot's business: the Reis servo searches each
+joint's limit switch; the Fanuc bridge sends its controller home and zeroes
+the encoder cards (docs/gmf1.md).
+
+Exit 0 when homed; 1 on failure (stale, fault, timeout) with the reason.
+"""
+from __future__ import annotations
+
+import sys
+
+from droid.brain.program import open_cell, parser
+from droid.cli import positive_float, run
+from droid.tasks.arm import BrainArm
+
+PROG = "droid-home"
+DEFAULT_TIMEOUT_S = 180.0
+
+
+@run
+def main(argv=None) -> int:
+    ap = parser(PROG, "Home an arm and wait until it reports HOMED.")
+    ap.add_argument("robot", help="arm subunit, e.g. arm1")
+    ap.add_argument("--timeout", type=positive_float, default=DEFAULT_TIMEOUT_S, metavar="S",
+                    help=f"give up after S seconds (default {DEFAULT_TIMEOUT_S:g})")
+    args = ap.parse_args(argv)
+    cell = open_cell(args)
+    with BrainArm(cell, args.robot) as arm:
+        arm.connect()
+        arm.check_fresh()
+        arm.wait_idle(args.timeout)
+        cmd_id = arm.command_home()
+        arm.wait_delivered(cmd_id, args.timeout)
+        rec = arm.wait(lambda r: int(r["cmd_id"]) == cmd_id and int(r["homed"]) and int(r["busy"]) == 0,
+                       args.timeout, f"{args.robot} to report HOMED")
+        arm.check_result(rec, cmd_id)
+        arm.set_normal()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
