@@ -18,6 +18,7 @@ PROGRAMS: dict[str, str] = {
     "droid-agent": "droid.subunits.agent",
     "droid-reis-agent": "droid.subunits.reis.agent",
     "droid-gmf1-agent": "droid.subunits.gmf1.agent",
+    "droid-planner": "droid.subunits.reis.planner",
     # tasks
     "droid-snoop": "droid.tasks.snoop",
     "droid-move": "droid.tasks.move",
