@@ -9,13 +9,14 @@ The steps, as sensor.exe does them (thesis §5.4), with the robustness the
 simulated noise asks for:
 
 1. *Histogram bound.*  A histogram of the column values shows where the
-   stripe concentrates; the run of well-filled bins around the peak (gaps up
-   to the largest accepted step) bounds the data, and rows outside it
-   (spurious DSP detections) are dropped.
+   stripe concentrates; the run of filled bins around the peak (gaps up to
+   the largest accepted step), with one bin of margin, bounds the data, and
+   rows outside it (spurious DSP detections) are dropped.
 2. *Discontinuity.*  The first derivative over a fixed interval of k rows --
    here the difference of the medians of the k points after and the k points
    before each position, less the profile's overall (median) slope -- is
-   largest at the step.
+   largest at the step.  If the lines fitted about the largest jump fail the
+   checks below, the next largest (up to three) is tried.
 3. *Two lines.*  A straight line is fitted to each side, leaving out a guard
    band around the step: a robust start (median of long-baseline slopes),
    then least squares with iterative rejection of residuals beyond
@@ -23,8 +24,9 @@ simulated noise asks for:
    fraction and a small residual; the two slopes must agree (a lap joint's
    surfaces are parallel); the common slope is their variance-weighted mean
    and gives the roll.
-4. *Position.*  The step's row is where the profile crosses the midline
-   between the two lines.  The feature is the foot of the step on the
+4. *Position.*  The step's row is where the profile crosses from one line
+   to the other (rows next to it must fit the right line, or the frame is
+   invalid), at the midline between them.  The feature is the foot of the step on the
    *lower* (farther) surface: the point where the step's square edge meets
    the lower line -- through the crossing when the laser sees the edge face,
    through the upper surface's visible edge when the edge overhangs it.  For
@@ -50,11 +52,11 @@ class FeatureParams:
     """Tuning of :func:`extract` (pixels are rows or columns as named)."""
 
     hist_bin_px: int = 16  # histogram bin width [columns]
-    hist_min_count: int = 3  # a bin needs this many rows to extend the bound ...
-    hist_peak_fraction: float = 0.05  # ... and this fraction of the peak bin's count
+    hist_min_count: int = 3  # a bin needs this many rows to extend the bound
     min_step_mm: float = 0.8  # smallest step accepted as the lap joint [mm]
     max_step_mm: float = 6.0  # largest step accepted [mm]
     derivative_rows: int = 8  # interval k of the first derivative [rows]
+    prefilter_rows: int = 5  # running median before the derivative [rows, odd]
     guard_rows: float = 4.0  # rows either side of the step left out of the line fits
     min_side_rows: int = 12  # inliers needed on each side
     min_inlier_fraction: float = 0.7  # of each side's rows within the histogram bound
@@ -62,6 +64,10 @@ class FeatureParams:
     residual_sigmas: float = 3.0  # reject residuals beyond this many sigma_MAD
     max_rms_px: float = 2.5  # largest inlier residual RMS accepted [columns]
     max_roll_disagreement_rad: float = 0.1  # slopes of the two sides must agree
+    min_support_rows: int = 4  # rows on each line next to the step
+    max_misfit_rows: int = 2  # rows of the wrong line on the wrong side of the step
+    max_gap_rows: float = 3.0  # unexplained rows allowed between the two lines' last rows
+    max_candidates: int = 3  # jumps tried, largest first
     fit_iterations: int = 6
 
 
@@ -135,7 +141,7 @@ def _histogram_bound(c: np.ndarray, calib: MvsCalibration, p: FeatureParams) -> 
     bins = -(-COLUMNS // p.hist_bin_px)
     counts = np.bincount((c // p.hist_bin_px).astype(int), minlength=bins)
     peak = int(np.argmax(counts))
-    threshold = max(p.hist_min_count, p.hist_peak_fraction * counts[peak])
+    threshold = p.hist_min_count
     max_gap = math.ceil(p.max_step_mm / calib.depth_mm_per_column / p.hist_bin_px)
     bounds = []
     for step in (-1, 1):
@@ -147,54 +153,92 @@ def _histogram_bound(c: np.ndarray, calib: MvsCalibration, p: FeatureParams) -> 
                 misses += 1
             k += step
         bounds.append(edge)
-    lo, hi = bounds[0] * p.hist_bin_px, (bounds[1] + 1) * p.hist_bin_px
+    # One bin of margin keeps the sparse ends of the stripe itself.
+    lo, hi = (bounds[0] - 1) * p.hist_bin_px, (bounds[1] + 2) * p.hist_bin_px
     return (c >= lo) & (c < hi)
 
 
-def _discontinuity(r: np.ndarray, c: np.ndarray, p: FeatureParams) -> tuple[int, float]:
-    """Index j of the first point after the step, and the detrended jump [columns] (step 2)."""
+def _discontinuities(r: np.ndarray, c: np.ndarray, min_jump_px: float, max_jump_px: float,
+                     p: FeatureParams) -> list[tuple[int, float]]:
+    """Candidate steps, largest first: (index j of the first point after, jump [columns]) (step 2).
+
+    The jump at each position is the median of the k points after less the
+    median of the k points before (of the profile after a short running
+    median), less the profile's median slope over k.
+    The median keeps the jump flat for a few positions around a step; a
+    candidate is the middle of that plateau.  Candidates are separated by at
+    least k points and must exceed ``min_jump_px``.
+    """
     k = p.derivative_rows
     trend = float(np.median((c[k:] - c[:-k]) / (r[k:] - r[:-k])))
+    half = p.prefilter_rows // 2  # a running median first removes isolated spurious rows
+    c = np.median(sliding_window_view(np.pad(c, half, mode="edge"), 2 * half + 1), axis=1)
     med_c = np.median(sliding_window_view(c, k), axis=1)
     med_r = np.median(sliding_window_view(r, k), axis=1)
     jump = (med_c[k:] - med_c[:-k]) - trend * (med_r[k:] - med_r[:-k])  # split at j = i + k
     size = np.abs(jump)
-    best = int(np.argmax(size))
-    # The median keeps the jump flat for a few positions around the true step:
-    # take the middle of that plateau.
-    plateau = (size >= 0.8 * size[best]) & (np.sign(jump) == np.sign(jump[best]))
-    lo = hi = best
-    while lo > 0 and plateau[lo - 1]:
-        lo -= 1
-    while hi < len(jump) - 1 and plateau[hi + 1]:
-        hi += 1
-    return (lo + hi) // 2 + k, float(jump[best])
+    candidates = []
+    size[size > max_jump_px] = 0.0  # more than any step: spurious rows
+    while len(candidates) < p.max_candidates:
+        best = int(np.argmax(size))
+        if size[best] < min_jump_px:
+            break
+        plateau = (size >= 0.8 * size[best]) & (np.sign(jump) == np.sign(jump[best]))
+        lo = hi = best
+        while lo > 0 and plateau[lo - 1]:
+            lo -= 1
+        while hi < len(jump) - 1 and plateau[hi + 1]:
+            hi += 1
+        candidates.append(((lo + hi) // 2 + k, float(jump[best])))
+        size[max(0, lo - k):hi + k + 1] = 0.0
+    return candidates
 
 
-def _crossing_row(r, c, line_a: _Line, line_b: _Line, slope: float, split_row: float,
-                  window: float) -> float:
-    """Row where the profile crosses the midline between the two lines (step 4)."""
+def _locate_step(r: np.ndarray, c: np.ndarray, a0: float, b0: float, slope: float,
+                 tol: tuple[float, float], split_row: float, edge_visible: bool,
+                 max_gap_rows: float, p: FeatureParams) -> float | str:
+    """Fractional row where the profile crosses from line A to line B (step 4).
+
+    Rows within ``tol`` of exactly one line are classified A or B; the split
+    agreeing best with "A before, B after" (near the coarse split) gives the
+    last A row and the first B row.  Between them the crossing of the
+    midline is interpolated over the edge-face rows when the laser sees the
+    edge; otherwise (edge hidden or seen edge-on) it is their midpoint.
+    A split without clean support on both sides is no step.
+    """
+    window = p.derivative_rows + p.guard_rows
     near = np.abs(r - split_row) <= window
     rw, cw = r[near], c[near]
-    ca, cb = line_a.mean_c + slope * (rw - line_a.mean_r), line_b.mean_c + slope * (rw - line_b.mean_r)
-    tol = max(line_a.threshold, line_b.threshold)
-    between = (cw >= np.minimum(ca, cb) - tol) & (cw <= np.maximum(ca, cb) + tol)
-    rw, g = rw[between], (cw - (ca + cb) / 2)[between]
-    side_a = np.sign(np.mean(ca - cb))
-    if len(rw) < 2 or side_a == 0:
-        return split_row
-    # Split position m agreeing best with "side A before, side B after".
-    before = np.concatenate([[0], np.cumsum(np.sign(g) == side_a)])
-    after = np.concatenate([np.cumsum((np.sign(g) == -side_a)[::-1])[::-1], [0]])
-    score = before + after
+    ca, cb = a0 + slope * rw, b0 + slope * rw
+    on_a, on_b = np.abs(cw - ca) <= tol[0], np.abs(cw - cb) <= tol[1]
+    cls = on_a ^ on_b
+    ra, is_a = rw[cls], on_a[cls]
+    if len(ra) < 2:
+        return "step not located (no rows near it fit the lines)"
+    before_a = np.concatenate([[0], np.cumsum(is_a)])
+    after_b = np.concatenate([np.cumsum(~is_a[::-1])[::-1], [0]])
+    score = before_a + after_b
     ties = np.flatnonzero(score == score.max())
     m = int(ties[len(ties) // 2])
-    if m == 0 or m == len(rw):
-        return split_row
-    r1, g1, r2, g2 = rw[m - 1], g[m - 1], rw[m], g[m]
-    if g1 * side_a > 0 and g2 * side_a < 0:
-        return float(r1 + g1 / (g1 - g2) * (r2 - r1))
-    return float((r1 + r2) / 2)
+    if m == 0 or m == len(ra):
+        return "step not located (one side has no rows near it)"
+    wrong = len(ra) - int(score[m])
+    if before_a[m] < p.min_support_rows or after_b[m] < p.min_support_rows or wrong > p.max_misfit_rows:
+        return "step not located (the lines do not meet there)"
+    r_a, r_b = ra[m - 1], ra[m]
+    if r_b - r_a > max_gap_rows:
+        return f"step not located (a gap of {r_b - r_a:.0f} rows)"
+    if not edge_visible:
+        return float((r_a + r_b) / 2)
+    inside = (cw > np.minimum(ca, cb)) & (cw < np.maximum(ca, cb))  # spurious rows lie outside
+    face = (rw >= r_a) & (rw <= r_b) & ((rw == r_a) | (rw == r_b) | (inside & ~(on_a | on_b)))
+    rf = rw[face]
+    g = (cw - (ca + cb) / 2)[face]
+    sign_a = math.copysign(1.0, a0 - b0)
+    for k in range(1, len(rf)):
+        if g[k] * sign_a <= 0 < g[k - 1] * sign_a:
+            return float(rf[k - 1] + g[k - 1] / (g[k - 1] - g[k]) * (rf[k] - rf[k - 1]))
+    return float((r_a + r_b) / 2)
 
 
 def analyse(rows, calib: MvsCalibration, params: FeatureParams = FeatureParams()) -> Feature | str:
@@ -213,18 +257,31 @@ def analyse(rows, calib: MvsCalibration, params: FeatureParams = FeatureParams()
     if len(c) < 2 * p.min_side_rows:
         return f"only {len(c)} rows inside the histogram bound"
 
-    j, jump = _discontinuity(r, c, p)
     min_step_px = p.min_step_mm / calib.depth_mm_per_column
-    if abs(jump) < min_step_px:
-        return f"no step (largest jump {abs(jump):.1f} px < {min_step_px:.1f} px)"
-    split_row = (r[j - 1] + r[j]) / 2
+    # A rolled step shows a vertical jump of step / cos(roll); allow rolls to 60 deg.
+    candidates = _discontinuities(r, c, min_step_px, 2.0 * p.max_step_mm / calib.depth_mm_per_column, p)
+    if not candidates:
+        return f"no step (no jump of {min_step_px:.1f} px or more)"
+    # The largest jump is the step unless the lines say otherwise; then the
+    # next largest is tried (spurious rows can make a jump of their own).
+    first_reason = ""
+    for j, _ in candidates:
+        result = _feature_at((r[j - 1] + r[j]) / 2, r, c, calib, p)
+        if isinstance(result, Feature):
+            return result
+        first_reason = first_reason or result
+    return first_reason
+
+
+def _feature_at(split_row: float, r: np.ndarray, c: np.ndarray, calib: MvsCalibration,
+                p: FeatureParams) -> Feature | str:
+    """Steps 3 and 4 for the step near ``split_row``: the feature, or why there is none."""
     line_a = _fit_robust(r[r < split_row - p.guard_rows], c[r < split_row - p.guard_rows], p)
     if isinstance(line_a, str):
         return line_a
     line_b = _fit_robust(r[r > split_row + p.guard_rows], c[r > split_row + p.guard_rows], p)
     if isinstance(line_b, str):
         return line_b
-
     roll_a, roll_b = calib.slope_to_roll(line_a.b), calib.slope_to_roll(line_b.b)
     ratio = calib.depth_mm_per_column / calib.lateral_mm_per_row
     sigma = ratio * math.hypot(line_a.rms / math.sqrt(line_a.sxx), line_b.rms / math.sqrt(line_b.sxx))
@@ -239,15 +296,19 @@ def analyse(rows, calib: MvsCalibration, params: FeatureParams = FeatureParams()
     if not p.min_step_mm <= step_mm <= p.max_step_mm:
         return f"step {step_mm:.2f} mm outside [{p.min_step_mm}, {p.max_step_mm}] mm"
 
-    row_x = _crossing_row(r, c, line_a, line_b, slope, split_row, p.derivative_rows + p.guard_rows)
     lower0, upper0 = (a0, b0) if a0 > b0 else (b0, a0)  # larger column = farther = lower
     upper_toward_plus_y = 1.0 if a0 > b0 else -1.0  # side A has the smaller rows
+    edge_visible = upper_toward_plus_y * math.sin(roll) < 0
+    face_rows = step_mm * abs(math.sin(roll)) / calib.lateral_mm_per_row
+    row_x = _locate_step(r, c, a0, b0, slope, (line_a.threshold, line_b.threshold), split_row,
+                         edge_visible, 1.0 + face_rows + p.max_gap_rows, p)
+    if isinstance(row_x, str):
+        return row_x
     # Work in mm: lower line x = alpha + beta * y, surface normal n (away from the sensor).
     beta = -math.tan(roll)
     x_low_at_row0 = (lower0 - calib.column_at_origin) * calib.depth_mm_per_column
     alpha = x_low_at_row0 - beta * calib.lateral_of(0.0)
     y_c = float(calib.lateral_of(row_x))
-    edge_visible = upper_toward_plus_y * math.sin(roll) < 0
     column_p = (lower0 + upper0) / 2 if edge_visible else upper0
     px = (column_p + slope * row_x - calib.column_at_origin) * calib.depth_mm_per_column
     t = (alpha + beta * y_c - px) * math.cos(roll)
