@@ -49,7 +49,7 @@ class DspFrame:
 
     frame: int  # the board's frame counter (frames written since it started)
     rows: np.ndarray  # int16 (240,) stripe columns, -1 = no stripe (a private copy)
-    missed: int  # frames the board wrote since the previous read that this reader skipped
+    missed: int  # frames the board wrote since the previous read (or the opening) that were skipped
 
 
 def parse_dsp_url(url: str) -> tuple[str, str]:
@@ -70,10 +70,10 @@ class DspBoard(ABC):
 
     def __init__(self, url: str):
         self.url = url
-        self._last: int | None = None
+        self._last = 0  # frame counter of the last frame read (or at opening)
 
     def _frame(self, counter: int, rows: np.ndarray) -> DspFrame:
-        missed = 0 if self._last is None else max(0, counter - self._last - 1)
+        missed = max(0, counter - self._last - 1)
         self._last = counter
         return DspFrame(counter, rows, missed)
 
@@ -120,6 +120,7 @@ class ShmDspBoard(DspBoard):
         except posix_ipc.ExistentialError:
             self.close()
             raise RuntimeFailure(f"DSP board {url}: no retrace semaphore /{name}{RETRACE_SUFFIX}") from None
+        self._last = int(self._rec["frames"])
 
     @property
     def writer_pid(self) -> int:
@@ -210,9 +211,10 @@ class InprocDspBoard(DspBoard):
     def __init__(self, url: str, name: str):
         super().__init__(url)
         self._channel = inproc_channel(name)
+        self._last = self._channel.frames
 
     def wait_frame(self, timeout_s: float) -> DspFrame | None:
-        got = self._channel._latest_after(self._last or 0, timeout_s)
+        got = self._channel._latest_after(self._last, timeout_s)
         return None if got is None else self._frame(*got)
 
     def close(self) -> None:

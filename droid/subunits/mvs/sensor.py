@@ -117,8 +117,9 @@ def format_frame_line(rows: np.ndarray) -> str:
     return " ".join(str(int(v)) for v in rows)
 
 
-def replay(source: str, core: SensorCore, pixels: bool, out=sys.stdout) -> None:
-    """Process recorded frames from a file (or '-' for stdin), one result a line."""
+def replay(source: str, core: SensorCore, pixels: bool, out=None) -> None:
+    """Process recorded frames from a file (or '-' for stdin), one result a line to ``out``."""
+    out = out or sys.stdout
     name = "<stdin>" if source == "-" else source
     try:
         stream = sys.stdin if source == "-" else open(source, encoding="ascii", errors="replace")
@@ -221,20 +222,19 @@ def build_parser() -> ArgumentParser:
 
 @run
 def main(argv=None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    args = build_parser().parse_args(argv)
     core = SensorCore(load_calibration(args.calib))
     if args.replay is not None:
         if args.dsp or args.serial or args.record or args.count:
-            parser.error("--replay takes no --dsp, --serial, --record or --count")
+            raise BadInput("--replay takes no --dsp, --serial, --record or --count")
         replay(args.replay, core, args.pixels)
         return 0
     if args.pixels:
-        parser.error("--pixels needs --replay")
+        raise BadInput("--pixels needs --replay")
     if not args.dsp or not args.serial:
-        parser.error("live mode needs --dsp URL and --serial URL (or --replay FILE)")
+        raise BadInput("live mode needs --dsp URL and --serial URL (or --replay FILE)")
     if args.baud < MIN_BAUD:
-        parser.error(f"--baud {args.baud} cannot carry {FRAME_RATE_HZ:g} lines/s (needs >= {MIN_BAUD})")
+        raise BadInput(f"--baud {args.baud} cannot carry {FRAME_RATE_HZ:g} lines/s (needs >= {MIN_BAUD})")
     return live(args, core)
 
 
