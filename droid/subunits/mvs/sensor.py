@@ -46,8 +46,9 @@ from droid.subunits.mvs.protocol import format_line
 from droid.subunits.mvs.wire import COLUMNS, DEFAULT_BAUD, FRAME_RATE_HZ, MIN_BAUD, NO_STRIPE, ROWS
 
 PROG = "droid-mvs"
-#: Give up on one serial write after this long [s] (the Brain is not reading).
-WRITE_TIMEOUT_S = 0.5
+#: Give up on one serial write after a frame period [s]: when the line is
+#: congested (the Brain is not reading) lines are dropped, the loop keeps pace.
+WRITE_TIMEOUT_S = 1.0 / FRAME_RATE_HZ
 _INTEGER = re.compile(r"[+-]?[0-9]+")
 
 
@@ -164,7 +165,11 @@ def live(args, core: SensorCore) -> int:
     t0 = time.monotonic()
     try:
         port = _open_serial(args.serial, args.baud)
-        record = open(args.record, "w") if args.record else None
+        if args.record:
+            try:
+                record = open(args.record, "w")
+            except OSError as exc:
+                raise BadInput(f"cannot write {args.record}: {exc.strerror}") from None
         t0 = time.monotonic()
         while not stop.is_set() and (args.count is None or core.frames < args.count):
             frame = board.wait_frame(args.retrace_timeout)
@@ -177,15 +182,16 @@ def live(args, core: SensorCore) -> int:
                 missed += frame.missed
                 line = core.step(frame.rows)
                 if record is not None:
-                    record.write(format_frame_line(frame.rows) + "\n")
+                    try:
+                        record.write(format_frame_line(frame.rows) + "\n")
+                    except OSError as exc:
+                        raise RuntimeFailure(f"cannot write {args.record}: {exc.strerror}") from None
             try:
                 port.write(line)
             except serial.SerialTimeoutException:
                 overruns += 1
             except serial.SerialException as exc:
                 raise RuntimeFailure(f"serial {args.serial}: {exc}") from None
-    except OSError as exc:
-        raise RuntimeFailure(f"{exc.filename or 'I/O'}: {exc.strerror}") from None
     finally:
         elapsed = max(time.monotonic() - t0, 1e-9)
         for sig, old in handlers.items():
