@@ -184,3 +184,22 @@ def test_board_in_another_process(board_name):
     assert proc.returncode == 0, err
     assert "frames" in err
     assert not os.path.exists(f"/dev/shm/{board_name}")
+
+
+def test_reader_follows_a_recreated_board(board_name):
+    first = ShmDspWriter(board_name)
+    try:
+        with open_dsp(f"shm://{board_name}") as reader:
+            first.publish(frame(1))
+            assert (reader.wait_frame(1.0).rows == 1).all()
+            first.close()  # droid-sim exits ...
+            second = ShmDspWriter(board_name)  # ... and starts again
+            try:
+                assert reader.wait_frame(0.01) is None  # the timeout notices the new board
+                second.publish(frame(2))
+                got = reader.wait_frame(1.0)
+                assert (got.rows == 2).all() and got.frame == 1
+            finally:
+                second.close()
+    finally:
+        first.close()
