@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 import serial
 
-from droid.cli import ArgumentParser, BadInput, RuntimeFailure, positive_float, positive_int, run
+from droid.cli import ArgumentParser, BadInput, RuntimeFailure, finite_float, positive_float, positive_int, run
 from droid.subunits.mvs.calibration import MvsCalibration
 from droid.subunits.mvs.dsp import open_dsp
 from droid.subunits.mvs.feature import Feature, FeatureParams, extract
@@ -217,7 +217,7 @@ def build_parser() -> ArgumentParser:
     parser.add_argument("--count", type=positive_int, help="stop after N frames")
     parser.add_argument("--retrace-timeout", type=positive_float, default=6 / FRAME_RATE_HZ, metavar="S",
                         help="send 'invalid' when no retrace comes within S seconds (default 0.1)")
-    parser.add_argument("--board-wait", type=float, default=5.0, metavar="S",
+    parser.add_argument("--board-wait", type=finite_float, default=5.0, metavar="S",
                         help="wait up to S seconds for the DSP board to appear (default 5)")
     parser.add_argument("--record", metavar="FILE", help="also write each frame to FILE (replay format)")
     parser.add_argument("--replay", metavar="FILE", help="process recorded frames from FILE ('-' = stdin)")
