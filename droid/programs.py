@@ -19,6 +19,8 @@ PROGRAMS: dict[str, str] = {
     "droid-reis-agent": "droid.subunits.reis.agent",
     "droid-gmf1-agent": "droid.subunits.gmf1.agent",
     "droid-planner": "droid.subunits.reis.planner",
+    "droid-mvs": "droid.subunits.mvs.sensor",
+    "droid-mvs-board": "droid.sim.mvs_dsp",
     # tasks
     "droid-snoop": "droid.tasks.snoop",
     "droid-move": "droid.tasks.move",
