@@ -194,8 +194,12 @@ class RobotModel:
         h1, h4 = _hints(q_hint_deg)
         return np.array(opw.ik(self.opw, rows, h1, h4))
 
-    def ik_all_batch(self, Ts, q_hint_deg=None) -> np.ndarray:
-        """All 8 solutions of N poses (N, 4, 4) -> (N, 8, 6) [deg], NaN where none (vectorised)."""
+    def ik_all_batch(self, Ts, q_hint_deg=None, hint_used=None) -> np.ndarray:
+        """All 8 solutions of N poses (N, 4, 4) -> (N, 8, 6) [deg], NaN where none (vectorised).
+
+        ``q_hint_deg`` (6,) or (N, 6) as for :meth:`ik_all`; a bool array
+        ``hint_used`` (N,) is set True where a singular configuration used it.
+        """
         t = np.asarray(Ts, float)
         if t.ndim != 3 or t.shape[1:] != (4, 4):
             raise ValueError(f"ik_all_batch: expected (N, 4, 4) transforms, got shape {t.shape}")
@@ -205,7 +209,9 @@ class RobotModel:
             h = np.asarray(q_hint_deg, float)
             if h.shape not in ((6,), (t.shape[0], 6)):
                 raise ValueError("q_hint_deg: expected (6,) or (N, 6)")
-        return opw.ik_batch(self.opw, t, q_hint_deg)
+        if not np.all(np.isfinite(t)):
+            raise ValueError("ik_all_batch: transforms must be finite")
+        return opw.ik_batch(self.opw, t, q_hint_deg, hint_used)
 
     def ik(self, T, q_prev_deg) -> np.ndarray:
         """The planner's pick (eq. 4.15) for pose T (4x4, mm): 6 joint angles [deg].

@@ -341,26 +341,32 @@ def _wrap_inplace(y: np.ndarray) -> np.ndarray:
 BATCH_CHUNK = 1024
 
 
-def ik_batch(p: OpwParams, t, hint_deg=None) -> np.ndarray:
+def ik_batch(p: OpwParams, t, hint_deg=None, hint_used=None) -> np.ndarray:
     """All 8 inverse solutions of N poses (N, 4, 4) [mm] -> (N, 8, 6) [deg], NaN where none.
 
     ``hint_deg`` (6,) or (N, 6): joint angles [deg] whose joint 1 and joint 4
-    are used at the shoulder and wrist singularities (default 0).
-    Same numbering and policy as :func:`ik`.
+    are used at the shoulder and wrist singularities (default 0).  If
+    ``hint_used`` is a bool array (N,), it is set True for the poses where a
+    hint was used (a singular configuration).  Same numbering and policy as
+    :func:`ik`.
     """
     t = np.asarray(t, float)
     n = t.shape[0]
-    if n <= BATCH_CHUNK:
-        return _ik_chunk(p, t, hint_deg)
-    out = np.empty((n, 8, 6))
     hint = None if hint_deg is None else np.broadcast_to(np.asarray(hint_deg, float), (n, 6))
+    if hint_used is not None:
+        hint_used[:] = False
+    if n <= BATCH_CHUNK:
+        return _ik_chunk(p, t, hint, hint_used)
+    out = np.empty((n, 8, 6))
     for i in range(0, n, BATCH_CHUNK):
         j = min(n, i + BATCH_CHUNK)
-        out[i:j] = _ik_chunk(p, t[i:j], None if hint is None else hint[i:j])
+        out[i:j] = _ik_chunk(
+            p, t[i:j], None if hint is None else hint[i:j], None if hint_used is None else hint_used[i:j]
+        )
     return out
 
 
-def _ik_chunk(p: OpwParams, t, hint_deg=None) -> np.ndarray:
+def _ik_chunk(p: OpwParams, t, hint_deg=None, hint_used=None) -> np.ndarray:
     """All 8 inverse solutions of N poses (N, 4, 4) [mm] -> (N, 8, 6) [deg], NaN where none.
 
     ``hint_deg`` (6,) or (N, 6): joint angles [deg] whose joint 1 and joint 4
@@ -405,6 +411,8 @@ def _ik_chunk(p: OpwParams, t, hint_deg=None) -> np.ndarray:
                 ph = (sg[0] * hint[on_axis, 0] - of[0]) * RAD
                 phi[on_axis] = ph
                 zphi[on_axis] = np.exp(1j * ph)
+                if hint_used is not None:
+                    hint_used |= on_axis
         # ---- shoulder level (N, 2): front, back
         x = np.empty((n, 2))
         x[:, 0] = nx
@@ -473,6 +481,8 @@ def _ik_chunk(p: OpwParams, t, hint_deg=None) -> np.ndarray:
                 np.zeros(6) if hint_deg is None else np.asarray(hint_deg, float), (n, 6)
             )
             h4 = np.broadcast_to(((sg[3] * hint[:, 3] - of[3]) * RAD)[:, None, None], sb.shape)
+            if hint_used is not None:
+                hint_used |= singular.reshape(n, 4).any(axis=1)
             alpha[singular] = h4[singular]
             ca[singular] = np.cos(h4[singular])
             sa_[singular] = np.sin(h4[singular])
