@@ -46,7 +46,7 @@ from typing import Iterator, Sequence
 import numpy as np
 
 from droid.cli import ArgumentParser, BadInput, finite_float, run
-from droid.kinematics import RobotFileError, Unreachable, list_robots, load_robot
+from droid.kinematics import RobotFileError, list_robots, load_robot
 from droid.kinematics.transforms import T_to_pose, pose_to_T
 
 PROG = "droid-kin"

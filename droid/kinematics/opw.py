@@ -106,6 +106,12 @@ class OpwParams:
         return self.c2 + self._k
 
 
+def wrap_scalar(angle_deg: float) -> float:
+    """Wrap one angle [deg] into (-180, 180] exactly."""
+    w = math.remainder(angle_deg, 360.0)
+    return 180.0 if w == -180.0 else w
+
+
 # --------------------------------------------------------------------------
 # scalar forms (math module): one pose
 # --------------------------------------------------------------------------
@@ -171,9 +177,9 @@ def ik(p: OpwParams, t, hint1_deg: float = 0.0, hint4_deg: float = 0.0) -> list:
     robot's joint-1/joint-4 angles used at the shoulder/wrist singularities.
     """
     r0, r1, r2 = t[0], t[1], t[2]
-    r00, r01, r02, px = r0[0], r0[1], r0[2], r0[3]
-    r10, r11, r12, py = r1[0], r1[1], r1[2], r1[3]
-    r20, r21, r22, pz = r2[0], r2[1], r2[2], r2[3]
+    r00, r02, px = r0[0], r0[2], r0[3]  # the middle column follows from the other two
+    r10, r12, py = r1[0], r1[2], r1[3]
+    r20, r22, pz = r2[0], r2[2], r2[3]
     c4m = p.c4
     cx = px - c4m * r02
     cy = py - c4m * r12
@@ -283,13 +289,6 @@ def ik(p: OpwParams, t, hint1_deg: float = 0.0, hint4_deg: float = 0.0) -> list:
 # --------------------------------------------------------------------------
 # batched forms (numpy): N poses, no Python loop per pose
 # --------------------------------------------------------------------------
-
-
-def _wrap_deg_array(a: np.ndarray) -> np.ndarray:
-    w = np.remainder(a + 180.0, 360.0)
-    w -= 180.0
-    w[w <= -180.0] = 180.0
-    return w
 
 
 def fk_batch(p: OpwParams, q_deg) -> np.ndarray:
@@ -524,9 +523,3 @@ def _ik_chunk(p: OpwParams, t, hint_deg=None, hint_used=None) -> np.ndarray:
         if bad.any():
             out[bad] = np.nan
     return out
-
-
-def wrap_scalar(angle_deg: float) -> float:
-    """Wrap one angle [deg] into (-180, 180] exactly."""
-    w = math.remainder(angle_deg, 360.0)
-    return 180.0 if w == -180.0 else w

@@ -200,3 +200,16 @@ def test_folded_arm(reis):
     assert not np.isnan(sols).all()
     for s in sols[~np.isnan(sols).any(axis=1)]:
         assert np.max(np.abs(reis.fk(s) - t)) <= TOL
+
+
+def test_ik_rejects_a_target_that_is_not_a_rotation(reis):
+    t = pose_to_T(300.0, 0.0, 1000.0, 10.0, 90.0, 20.0)
+    for bad in (np.diag([1.0, 1.0, -1.0, 1.0]) @ t, t * np.array([[1.01], [1], [1], [1]])):
+        with pytest.raises(ValueError, match="rotation"):
+            reis.ik_all(bad)
+        with pytest.raises(ValueError, match="rotation"):
+            reis.ik(bad, np.zeros(6))
+        with pytest.raises(ValueError, match="pose 1: rotation"):
+            reis.ik_all_batch(np.stack([t, bad]))
+    # float32 round-off is accepted
+    assert not np.isnan(reis.ik_all(t.astype(np.float32).astype(float))).all()
