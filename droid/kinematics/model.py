@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import opw
+from . import opw, opw_batch
 from .dh import DhTable, fk_dh
 from .gearing import Gearing
 from .transforms import inv_homo, is_rigid
@@ -155,7 +155,7 @@ class RobotModel:
         q = np.asarray(q_deg, float)
         if q.ndim != 2 or q.shape[1] != 6:
             raise ValueError(f"fk_batch: expected (N, 6) joint angles, got shape {q.shape}")
-        t = opw.fk_batch(self.opw, q)
+        t = opw_batch.fk_batch(self.opw, q)
         if self._base_rows is not None:
             t = self.base @ t
         return t
@@ -216,7 +216,7 @@ class RobotModel:
         if bad.any():
             i = int(np.argmax(bad))
             raise ValueError(f"ik_all_batch: pose {i}: rotation is not orthonormal and right-handed")
-        return opw.ik_batch(self.opw, t, q_hint_deg, hint_used)
+        return opw_batch.ik_batch(self.opw, t, q_hint_deg, hint_used)
 
     def ik(self, T, q_prev_deg) -> np.ndarray:
         """The planner's pick (eq. 4.15) for pose T (4x4, mm): 6 joint angles [deg].
