@@ -276,7 +276,7 @@ def _programs_known(cell: Cell) -> list[dict]:
                 rec = db.read()
             finally:
                 db.close()
-            words = rec["name"].decode(errors="replace").split()
+            words = rec["name"].item().decode(errors="replace").split()
             progs.append({"key": key, "prog": words[0] if words else key, "args": words[1:],
                           "host": "?", "pid": int(rec["pid"])})
     return progs

@@ -176,3 +176,22 @@ def test_cell_over_tcp_started_host_by_host(tmp_path, cell_name):
         out = droid(CELL, "down", "--cell", str(path))
         assert out.returncode == 0, out.stderr
         assert cell_objects(cell_name) == []
+
+
+def test_start_cell_script_by_hand(tmp_path, cell_name):
+    """scripts/start-cell.sh starts the cell program by program; droid-cell sees and stops it."""
+    path = make_cell_file(tmp_path, cell_name)
+    env = dict(os.environ, DROID_CELL=str(path), LOGS=str(tmp_path / "logs"),
+               PATH=os.path.dirname(sys.executable) + os.pathsep + os.environ["PATH"])
+    try:
+        out = subprocess.run(["bash", str(ROOT / "scripts" / "start-cell.sh")], env=env, cwd=ROOT,
+                             capture_output=True, text=True, timeout=120)
+        assert out.returncode == 0, out.stdout + out.stderr
+        rows = wait_for(lambda: (lambda r: r if len(r) == 11 and all(x["live"] for x in r) else None)(
+            cell_status(path)), what="11 hand-started programs live")
+        assert {r["name"] for r in rows} >= {"droid-remote arm1", "droid-heartbeat", "droid-names"}
+        wait_for(lambda: not snoop_json(path, "arm1")[0]["stale"], what="arm1 fresh")
+    finally:
+        out = droid(CELL, "down", "--cell", str(path))
+        assert out.returncode == 0, out.stderr
+    assert cell_objects(cell_name) == []
