@@ -11,27 +11,19 @@ and, whenever a 60 Hz command message arrives from the servo agent::
 
 Per tick (:meth:`ServoCore.step`, figure 4.8): extend the 16-bit counters to
 unbounded counts (roll-over, :func:`droid.kinematics.gearing.extend_counter`);
-pick the tick's target — from the homing state machine while homing, else the
-next entry of the 8-step position queue; when the queue is empty the cache
-(the next command's 8 way-points) is copied in, and when the cache is empty
-too the emergency braking profile is loaded; clamp the target to the
-min/max counts (once homed); run the PID with output limits; check faults.
+pick the tick's target -- from the homing state machine while homing
+(:mod:`homing`), else the next way-point of the position queue; when the queue
+is used up the cache (the next command's ramp) is copied in, and when the
+cache is empty too the emergency braking profile is loaded
+(:mod:`command_queue`); clamp the target to the min/max counts (once homed);
+run the PID with output limits and anti-windup (:mod:`pid`); check faults.
 
 Per command (:meth:`ServoCore.command`, the servo planner, figure 4.9): the
 target is the last command plus the jog delta (JOG) or the absolute command
 (NORMAL, home-relative), clipped to the target limits and to the joint's
-maximum speed, and turned into an 8-step linear ramp placed in the cache.
-
-Two DROID additions, both documented in docs/reis.md:
-
-* A 60 Hz command fills 8 ticks but arrives every 8.33 ticks, so the queue
-  runs dry about once every three commands.  Instead of braking at once, the
-  servo *coasts* up to ``starve_grace_ticks`` ticks at the commanded velocity;
-  a cache that arrives during the coast is entered that many way-points late,
-  so the motion stays smooth and on time.  Only a longer gap loads the braking
-  profile (this also rides through a host stall of a few ms).
-* A command that arrives while the previous cache is still unread replaces it
-  (newest command wins), ramping from the same origin.
+maximum speed, and planned as a linear ramp over one command period
+(:mod:`servo_planner`: 8 or 9 way-points on an exact time line, since
+500 Hz / 60 Hz = 8.33 -- see :mod:`command_queue` for why not a fixed 8).
 
 Frames: internally every position is an *extended* count (the unbounded
 encoder count).  Before homing, commands and status are in that frame
@@ -46,10 +38,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from droid.kinematics.gearing import extend_counter
+from droid.subunits.reis.command_queue import CommandQueue
 from droid.subunits.reis.homing import HomePhase, Homing, zero_from_edges
 from droid.subunits.reis.pid import Pid
 from droid.subunits.reis.servo_params import Fault, Mode, ServoParams
-from droid.subunits.reis.servo_planner import braking_profile, limit_target, linear_ramp
 
 N = 6
 
@@ -76,10 +68,7 @@ class ServoCore:
 
     def __init__(self, params: ServoParams | None = None):
         p = self.params = params if params is not None else ServoParams()
-        self._steps = p.queue_steps
         self._m = np.asarray(p.joint_to_counts, float)
-        self._max_speed = np.asarray(p.max_speed_counts_per_tick, np.int64)
-        self._decel = np.asarray(p.brake_decel_counts_per_tick2, float)
         self._tmin = np.asarray(p.target_min_counts, np.int64)
         self._tmax = np.asarray(p.target_max_counts, np.int64)
         self._fe_max = np.asarray(p.max_following_error_counts, float)
@@ -101,16 +90,7 @@ class ServoCore:
         self._target = np.zeros(N, np.int64)
         self._vel = np.zeros(N, np.int64)  # target increment of the last tick [counts/tick]
         self._dac = (0,) * N
-        self._queue = np.zeros((self._steps, N), np.int64)
-        self._qi = self._qn = 0
-        self._tail = np.zeros(N, np.int64)  # where the queue (or the last ramp) ends
-        self._cache = np.zeros((self._steps, N), np.int64)
-        self._cache_full = False
-        self._cache_origin = np.zeros(N, np.int64)
-        self._coast = 0
-        self._starved = True
-        self._brake_pos = np.zeros(N)
-        self._brake_vel = np.zeros(N)
+        self._queue = CommandQueue(p)
 
     # -- status ------------------------------------------------------------------
     @property
@@ -141,11 +121,13 @@ class ServoCore:
 
     @property
     def starved(self) -> bool:
-        return self._starved
+        """The command stream ran dry: braking (or holding after braking)."""
+        return self._queue.starved
 
     @property
     def braking(self) -> bool:
-        return self._starved and bool(np.any(self._vel != 0))
+        """Starved and still decelerating."""
+        return self._queue.braking
 
     @property
     def zero_counts(self) -> tuple[int, ...] | None:
@@ -191,7 +173,7 @@ class ServoCore:
             mode=self._mode,
             homed=self.homed,
             homing_joint=-1 if self.homing_joint is None else self.homing_joint,
-            starved=self._starved,
+            starved=self.starved,
             braking=self.braking,
             fault=self._fault,
             encoder_pos=self.encoder_pos,
@@ -236,15 +218,10 @@ class ServoCore:
         if self._mode == Mode.OFF:
             self._hold_here()
         self._mode = mode
-        origin = self._cache_origin if self._cache_full else self._tail
-        last = self._cache[-1] if self._cache_full else self._tail
-        goal = last + cmd if mode == Mode.JOG else cmd + self._zero
+        goal = self._queue.last_goal + cmd if mode == Mode.JOG else cmd + self._zero
         if self._zero is not None:
             goal = np.clip(goal, self._zero + self._tmin, self._zero + self._tmax)
-        goal = limit_target(origin, goal, self._max_speed, self._steps)
-        self._cache = linear_ramp(origin, goal, self._steps)
-        self._cache_origin = origin.copy()
-        self._cache_full = True
+        self._queue.submit(goal)
         return True
 
     # -- the 500 Hz tick -------------------------------------------------------------
@@ -266,7 +243,7 @@ class ServoCore:
             elif phase == HomePhase.FAILED:
                 self._fault = Fault.HOME_SWITCH_NOT_FOUND
         else:
-            self._next_target()
+            self._target = self._queue.next_target(self._tick, self._target, self._vel)
         if self._zero is not None:
             np.clip(self._target, self._zero + self._tmin, self._zero + self._tmax, out=self._target)
         self._vel = self._target - previous
@@ -298,46 +275,8 @@ class ServoCore:
     def _hold_here(self) -> None:
         """Targets := measured positions; queue and cache emptied (bumpless)."""
         self._target = self._pos.copy()
-        self._tail = self._pos.copy()
         self._vel = np.zeros(N, np.int64)
-        self._qi = self._qn = 0
-        self._cache_full = False
-        self._coast = 0
-        self._starved = True
-        self._brake_pos = self._pos.astype(float)
-        self._brake_vel = np.zeros(N)
-
-    def _next_target(self) -> None:
-        if self._qi < self._qn:
-            self._target = self._queue[self._qi].copy()
-            self._qi += 1
-            return
-        if self._cache_full:
-            skip = min(self._coast, self._steps - 1)  # way-points the coast already covered
-            self._queue, self._cache_full = self._cache, False
-            self._cache = np.zeros_like(self._queue)
-            self._qi, self._qn = skip, self._steps
-            self._tail = self._queue[-1].copy()
-            self._coast = 0
-            self._starved = False
-            self._target = self._queue[self._qi].copy()
-            self._qi += 1
-            return
-        if not self._starved and self._coast < self.params.starve_grace_ticks:
-            self._coast += 1
-            self._target = self._target + self._vel
-            return
-        if not self._starved:
-            self._starved = True
-            self._brake_pos = self._target.astype(float)
-            self._brake_vel = self._vel.astype(float)
-        self._coast = 0
-        self._queue, self._brake_pos, self._brake_vel = braking_profile(
-            self._brake_pos, self._brake_vel, self._decel, self._steps
-        )
-        self._qi, self._qn = 1, self._steps
-        self._tail = self._queue[-1].copy()
-        self._target = self._queue[0].copy()
+        self._queue.reset(self._pos, self._tick)
 
     # -- homing --------------------------------------------------------------------------
     def _start_homing(self) -> None:
@@ -351,10 +290,4 @@ class ServoCore:
         p = self.params
         self._zero = zero_from_edges(self._homing.edges, p.home_switch_deg, p.joint_to_counts)
         self._mode = Mode.NORMAL
-        self._tail = self._target.copy()
-        self._qi = self._qn = 0
-        self._cache_full = False
-        self._coast = 0
-        self._starved = True
-        self._brake_pos = self._target.astype(float)
-        self._brake_vel = np.zeros(N)
+        self._queue.reset(self._target, self._tick)

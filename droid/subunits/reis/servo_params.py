@@ -58,6 +58,7 @@ class ServoParams:
     servo_rate_hz: float = 500.0
     command_rate_hz: float = 60.0
     queue_steps: int = 8  # way-points per command (500 Hz / 60 Hz ~ 8), thesis §4.1.4
+    queue_steps_max: int = 9  # ramps span the measured command period, up to this many ticks
 
     # PID, per tick (§4.1.5.1): dac = kp*e + sum(ki*e) + kd*(e - e_prev), e in counts
     kp_dac_per_count: Six = (14.0, 12.0, 5.0, 2.0, 2.0, 1.0)
@@ -96,8 +97,10 @@ class ServoParams:
             raise ValueError("joint_to_counts must be an invertible 6x6 matrix")
         if sorted(self.home_order) != list(range(6)):
             raise ValueError("home_order must list each joint 0..5 once")
-        if self.queue_steps < 1 or not 0 <= self.starve_grace_ticks < self.queue_steps:
-            raise ValueError("need queue_steps >= 1 and 0 <= starve_grace_ticks < queue_steps")
+        if self.queue_steps < 1 or self.queue_steps_max < self.queue_steps:
+            raise ValueError("need 1 <= queue_steps <= queue_steps_max")
+        if not 0 <= self.starve_grace_ticks < self.queue_steps:
+            raise ValueError("need 0 <= starve_grace_ticks < queue_steps")
         if any(d not in (-1, 1) for d in self.home_search_dir):
             raise ValueError("home_search_dir entries must be +1 or -1")
         if any(lo >= hi for lo, hi in zip(self.target_min_counts, self.target_max_counts)):
