@@ -41,6 +41,9 @@ class CommandQueue:
         self.brake_steps = params.queue_steps
         self.grace_ticks = params.starve_grace_ticks
         self._max_speed = np.asarray(params.max_speed_counts_per_tick, np.int64)
+        # velocity change allowed per command period for JOG: a * P^2 [counts per period]
+        period = self.period_num / self.period_den
+        self._jog_dv = np.floor(np.asarray(params.jog_accel_counts_per_tick2, float) * period * period)
         self._decel = np.asarray(params.brake_decel_counts_per_tick2, float)
         self.reset(np.zeros(N, np.int64), 0)
 
@@ -57,6 +60,8 @@ class CommandQueue:
         self._starved = True  # braking profile (or its hold) in use
         self._brake_pos = self._tail.astype(float)
         self._brake_vel = np.zeros(N)
+        self._disp = np.zeros(N, np.int64)  # displacement of the last ramp [counts per period]
+        self._disp_before_cache = self._disp.copy()
 
     # -- status ----------------------------------------------------------------
     @property
@@ -80,11 +85,20 @@ class CommandQueue:
         return (self._cache_origin if self._cache_full else self._tail).copy()
 
     # -- the planner side (command rate) ------------------------------------------
-    def submit(self, goal) -> np.ndarray:
+    def submit(self, goal, accel_limit: bool = False) -> np.ndarray:
         """Put a ramp to ``goal`` [counts] in the cache, limited to the joints'
-        maximum speed; returns the goal actually planned."""
+        maximum speed and, with ``accel_limit`` (JOG), to a velocity change of
+        ``jog_accel_counts_per_tick2``; returns the goal actually planned."""
         origin = self.origin
+        if not self._cache_full:
+            self._disp_before_cache = self._disp
+        goal = np.asarray(goal, np.int64)
+        if accel_limit:
+            prev = self._disp_before_cache
+            disp = np.clip(goal - origin, prev - self._jog_dv, prev + self._jog_dv).astype(np.int64)
+            goal = origin + disp
         goal = limit_target(origin, goal, self._max_speed, self.period_num, self.period_den)
+        self._disp = goal - origin
         self._cache_origin = origin
         self._cache_goal = goal
         self._cache_full = True
@@ -108,6 +122,7 @@ class CommandQueue:
             self._brake_pos = target.astype(float)
             self._brake_vel = velocity.astype(float)
         self._coast = 0
+        self._disp = np.rint(self._brake_vel * self.period_num / self.period_den).astype(np.int64)
         self._queue, self._brake_pos, self._brake_vel = braking_profile(
             self._brake_pos, self._brake_vel, self._decel, self.brake_steps
         )
@@ -117,12 +132,20 @@ class CommandQueue:
         return self._queue[0].copy()
 
     def _load_cache(self, tick: int) -> np.ndarray:
-        start = (tick - 1) * self.period_den if self._starved else self._seg_end_sub
-        ramp = linear_ramp(
-            self._cache_origin, self._cache_goal, self.period_num, self.period_den, start, first_tick=tick
-        )
-        if len(ramp) == 0:  # the whole period was coasted through: jump to its end
-            ramp = self._cache_goal[None, :].copy()
+        if self._starved:
+            # a fresh start: the command came in since the last tick; its period
+            # starts now (this tick still holds the origin), so it ends just after
+            # the next command is due and the stream runs with up to a tick of lag
+            start = tick * self.period_den
+            ramp = linear_ramp(self._cache_origin, self._cache_goal, self.period_num, self.period_den, start)
+            ramp = np.vstack([self._cache_origin[None, :], ramp])
+        else:
+            start = self._seg_end_sub
+            ramp = linear_ramp(
+                self._cache_origin, self._cache_goal, self.period_num, self.period_den, start, first_tick=tick
+            )
+            if len(ramp) == 0:  # the whole period was coasted through: jump to its end
+                ramp = self._cache_goal[None, :].copy()
         self._queue = ramp
         self._qi = 1
         self._tail = self._cache_goal.copy()

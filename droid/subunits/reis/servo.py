@@ -221,7 +221,7 @@ class ServoCore:
         goal = self._queue.last_goal + cmd if mode == Mode.JOG else cmd + self._zero
         if self._zero is not None:
             goal = np.clip(goal, self._zero + self._tmin, self._zero + self._tmax)
-        self._queue.submit(goal)
+        self._queue.submit(goal, accel_limit=mode == Mode.JOG)
         return True
 
     # -- the 500 Hz tick -------------------------------------------------------------

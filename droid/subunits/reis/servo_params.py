@@ -70,6 +70,9 @@ class ServoParams:
 
     # planner (§4.1.5.2) and limits
     max_speed_counts_per_tick: SixInt = (222, 222, 222, 444, 444, 444)  # 100/100/100/200/200/200 deg/s
+    # JOG targets also change speed by at most this (NORMAL way-points are the
+    # planner's business): 5e5 / 1e6 counts/s^2, 450 / 900 joint deg/s^2
+    jog_accel_counts_per_tick2: Six = (2.0, 2.0, 2.0, 4.0, 4.0, 4.0)
     target_min_counts: SixInt = _deg((-160, -100, -120, -260, -120, -340))  # home-relative
     target_max_counts: SixInt = _deg((160, 100, 120, 260, 120, 340))
 
