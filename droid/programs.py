@@ -20,6 +20,9 @@ PROGRAMS: dict[str, str] = {
     "droid-reis-agent": "droid.subunits.reis.agent",
     "droid-gmf1-agent": "droid.subunits.gmf1.agent",
     "droid-planner": "droid.subunits.reis.planner",
+    "droid-servo": "droid.subunits.reis.servo_prog",
+    "droid-servo-agent": "droid.subunits.reis.servo_agent",
+    "droid-watchdog": "droid.subunits.reis.watchdog_prog",
     "droid-mvs": "droid.subunits.mvs.sensor",
     "droid-mvs-board": "droid.sim.mvs_dsp",
     # tasks

@@ -58,7 +58,7 @@ class Spec:
 
 
 def cell_programs(cell: Cell, hosts: set[str] | None = None) -> tuple[list[Spec], list[Spec]]:
-    """(first, rest): the name space first, everything else in parallel after it."""
+    """(first, rest): the name space and the world first, everything else in parallel after them."""
     want = (lambda h: True) if hosts is None else (lambda h: h in hosts)
     first, rest = [], []
     if want(cell.brain_host):
@@ -68,7 +68,8 @@ def cell_programs(cell: Cell, hosts: set[str] | None = None) -> tuple[list[Spec]
             rest.append(Spec(presence_key("droid-remote", sub.name), "droid-remote", [sub.name],
                              cell.brain_host))
     if cell.world.get("enabled", True) and want(cell.world.get("host", cell.brain_host)):
-        rest.append(Spec(presence_key("droid-sim"), "droid-sim", [], cell.world["host"]))
+        # the hardware is powered before the programs that drive it (§4.1.4)
+        first.append(Spec(presence_key("droid-sim"), "droid-sim", [], cell.world["host"]))
     for sub in cell.subunits.values():
         if want(sub.host):
             for prog in sub.programs:

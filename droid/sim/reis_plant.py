@@ -141,7 +141,12 @@ class ReisPlant:
             encoder_counts = self._rng.integers(0, vm.ENCODER_MODULUS, vm.N_JOINTS)
         counts = np.floor(self._theta * self._counts_per_rad).astype(np.int64)
         self._enc_offset = (np.asarray(encoder_counts, np.int64) - counts) % vm.ENCODER_MODULUS
-        self._amps_on = True
+        # The amplifiers come up off; the first write of both watchdog registers
+        # arms the timers and powers them (a watchdog that is not running yet
+        # cannot have expired).  From then on a register not rewritten within
+        # the timeout latches them off until power_cycle().
+        self._amps_on = False
+        self._wd_armed = [False, False]
         self._wd_fault = False
         self._wd_age_s = [0.0, 0.0]
         struct.pack_into(vm.DACS_FORMAT, self._view, vm.DAC_OFFSET, *([0] * vm.N_JOINTS))
@@ -253,8 +258,11 @@ class ReisPlant:
             if value != self._wd_last[i]:
                 self._wd_last[i] = value
                 self._wd_age_s[i] = 0.0
+                self._wd_armed[i] = True
             else:
                 self._wd_age_s[i] += dt_s
+        if not self._wd_fault and not self._amps_on and all(self._wd_armed):
+            self._amps_on = True
         if self._amps_on and max(self._wd_age_s) > self.params.watchdog_timeout_s:
             self._amps_on = False
             self._wd_fault = True

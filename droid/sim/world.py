@@ -30,7 +30,9 @@ PROG = "droid-sim"
 DEFAULT_RATE_HZ = 1000.0
 
 # type -> (module, factory function)
-DEVICE_TYPES: dict[str, tuple[str, str]] = {}
+DEVICE_TYPES: dict[str, tuple[str, str]] = {
+    "reis_vme": ("droid.sim.reis_world", "make_reis"),
+}
 
 
 class Device:
@@ -109,6 +111,7 @@ def main(argv=None) -> int:
     timer = None
     try:
         world = build_world(cell, args.seed)
+        world.advance(1.0 / rate)  # power up: every register holds a real value before anyone reads
         timer = PeriodicTimer(int(round(1e9 / rate)))
         presence.ready()
         notify_ready(args.ready_fd)

@@ -30,6 +30,14 @@ def cell(tmp_path, cell_name):
     assert cell_objects(cell_name) == []
 
 
+def n_programs(path) -> int:
+    from droid.brain.cellfile import load_cell
+    from droid.brain.launcher import cell_programs
+
+    first, rest = cell_programs(load_cell(path))
+    return len(first) + len(rest)
+
+
 def up(path):
     out = droid(CELL, "up", "--cell", str(path), timeout=90)
     assert out.returncode == 0, out.stdout + out.stderr
@@ -48,7 +56,9 @@ def test_default_cell_up_snoop_down(cell, cell_name):
     names = {r["name"] for r in rows}
     assert {"droid-names", "droid-heartbeat", "droid-sim", "droid-remote arm1", "droid-remote gmf1",
             "droid-remote mvs", "droid-remote tool", "droid-reis-agent arm1", "droid-gmf1-agent gmf1",
-            "droid-agent mvs", "droid-agent tool"} <= names
+            "droid-agent mvs", "droid-agent tool", "droid-servo arm1", "droid-servo-agent arm1",
+            "droid-watchdog arm1", "droid-planner arm1"} <= names
+    assert len(rows) == n_programs(cell)
     assert all(r["pid"] > 0 for r in rows)
     wait_for(lambda: all(r["live"] for r in cell_status(cell)), what="every program live")
     for sub in ("arm1", "gmf1", "mvs", "tool"):
@@ -148,8 +158,9 @@ def _free_port():
 
 def test_cell_over_tcp_started_host_by_host(tmp_path, cell_name):
     """Every link over tcp:// on loopback, and each host's programs started by its own
-    `droid-cell up --host`, subunits before the Brain (thesis §3.2: a subunit should be
-    powered and identified before the Brain's initialization software runs)."""
+    `droid-cell up --host`: the hardware first, then the subunits, then the Brain (thesis
+    §3.2: a subunit should be powered and identified before the Brain's initialization
+    software runs)."""
     import re
 
     path = make_cell_file(tmp_path, cell_name)
@@ -158,14 +169,14 @@ def test_cell_over_tcp_started_host_by_host(tmp_path, cell_name):
     assert "ipc://" not in text
     path.write_text(text)
     try:
-        for hosts in (["arm1", "gmf1"], ["mvs"], ["brain"]):
+        for hosts in (["world"], ["arm1", "gmf1"], ["mvs"], ["brain"]):
             args = [a for h in hosts for a in ("--host", h)]
             out = droid(CELL, "up", *args, "--cell", str(path), timeout=90)
             assert out.returncode == 0, out.stderr
         again = droid(CELL, "up", "--host", "mvs", "--cell", str(path))
         assert again.returncode == 1 and "already up" in again.stderr
         rows = cell_status(path)
-        assert len(rows) == 11
+        assert len(rows) == n_programs(path)
         for sub in ("arm1", "gmf1", "mvs", "tool"):
             wait_for(lambda: not snoop_json(path, sub)[0]["stale"], what=f"{sub} fresh over tcp")
         names = droid("droid.brain.names", "--list", "--json", "--cell", str(path))
@@ -187,8 +198,8 @@ def test_start_cell_script_by_hand(tmp_path, cell_name):
         out = subprocess.run(["bash", str(ROOT / "scripts" / "start-cell.sh")], env=env, cwd=ROOT,
                              capture_output=True, text=True, timeout=120)
         assert out.returncode == 0, out.stdout + out.stderr
-        rows = wait_for(lambda: (lambda r: r if len(r) == 11 and all(x["live"] for x in r) else None)(
-            cell_status(path)), what="11 hand-started programs live")
+        rows = wait_for(lambda: (lambda r: r if len(r) == n_programs(path) and all(x["live"] for x in r)
+                                 else None)(cell_status(path)), what="every hand-started program live")
         assert {r["name"] for r in rows} >= {"droid-remote arm1", "droid-heartbeat", "droid-names"}
         wait_for(lambda: not snoop_json(path, "arm1")[0]["stale"], what="arm1 fresh")
     finally:

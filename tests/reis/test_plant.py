@@ -41,7 +41,22 @@ def test_registers_mirror_the_state(rig):
     plant, bus = rig
     assert bus.read_encoders_raw() == plant.encoder_raw
     assert bus.read_limit_switches() == plant.limit_switches
+    assert bus.read_amp_status() == 0  # amplifiers off until the watchdog runs
+    bus.kick_watchdog()
+    plant.advance(DT)
     assert bus.read_amp_status() == vm.AMP_STATUS_POWERED
+
+
+def test_amplifiers_power_up_only_once_both_watchdogs_are_written(rig):
+    plant, bus = rig
+    run_open_loop(plant, bus, [2047] * 6, 0.5, kick=False)  # no watchdog program yet
+    assert not plant.amps_on and np.all(plant.motor_speed_counts_per_s == 0)
+    bus.write_watchdog(1, 0)  # only register 0 changed
+    plant.advance(DT)
+    assert not plant.amps_on
+    bus.write_watchdog(2, 1)
+    plant.advance(DT)
+    assert plant.amps_on
 
 
 def test_encoder_counts_motor_side_4000_per_rev_through_the_gearing():
@@ -142,6 +157,8 @@ def test_watchdog_latch_cuts_the_amplifiers_until_power_cycle(rig):
     assert np.allclose(plant.joint_deg, q)  # brake holds, DACs ignored
     raw_before = bus.read_encoders_raw()
     plant.power_cycle()
+    assert not plant.amps_on  # powered again once the watchdog is kicked
+    run_open_loop(plant, bus, [0] * 6, 0.004)
     assert plant.amps_on
     assert bus.read_amp_status() == vm.AMP_STATUS_POWERED
     assert bus.read_dacs() == (0,) * 6

@@ -151,6 +151,9 @@ def test_shm_url_reaches_the_simulated_robot(cell_name):
         plant = ReisPlant(seed=7, regs=shared.buf)
         with open_vme(shared.url) as bus:
             assert bus.read_encoders_raw() == plant.encoder_raw
+            assert not bus.amps_powered  # until the watchdog runs
+            bus.kick_watchdog()
+            plant.advance(0.001)
             assert bus.amps_powered
             bus.write_dacs([2047, 0, 0, 0, 0, 0])
             for _ in range(20):

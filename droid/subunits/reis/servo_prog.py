@@ -1,0 +1,121 @@
+"""droid-servo NAME: the 500 Hz servo program of the Reis motion controller (thesis §4.1.5, fig. 4.7).
+
+Each 2 ms, on absolute deadlines: apply the command messages that arrived
+from the servo agent (the servo planner, §4.1.5.2), read the six encoder
+counters and the limit switches through the VME driver, run the servo core
+(queue/cache, braking, PID, homing: :class:`~droid.subunits.reis.servo.ServoCore`),
+write the six DACs.  Every few ticks it publishes its status for the servo
+agent and the watchdog.  It never takes a shared-database semaphore (§4.1.6).
+
+On exit, and on any error in read/write (ros2_control's ``on_error``), the
+DACs are zeroed.  The watchdog notices a dead servo and latches the amplifiers
+off.
+"""
+from __future__ import annotations
+
+import sys
+import time
+
+import zmq
+
+from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
+from droid.brain.rt import PeriodicTimer, try_sched_fifo
+from droid.cli import BadInput, RuntimeFailure, run
+from droid.subunits.reis import servo_wire as sw
+from droid.subunits.reis.endpoints import reis_endpoints
+from droid.subunits.reis.servo import ServoCore
+from droid.subunits.reis.servo_params import ServoParams
+from droid.subunits.reis.vme import VmeOpenError, open_vme
+
+PROG = "droid-servo"
+SERVO_HZ = 500.0
+OPEN_WAIT_S = 20.0  # droid-sim creates the register map in parallel at cell start
+
+
+def open_vme_waiting(url: str, wait_s: float):
+    deadline = time.monotonic() + wait_s
+    while True:
+        try:
+            return open_vme(url)
+        except VmeOpenError:
+            if time.monotonic() > deadline or Stop.requested:
+                raise
+            time.sleep(0.05)
+
+
+@run
+def main(argv=None) -> int:
+    ap = parser(PROG, "Run the 500 Hz servo loop of a Reis arm on its VME interface cards.")
+    ap.add_argument("subunit", help="arm subunit, e.g. arm1")
+    args = ap.parse_args(argv)
+    cell = open_cell(args)
+    sub = cell.subunit(args.subunit)
+    if not sub.is_arm:
+        raise BadInput(f"{sub.name} is not an arm")
+    ep = reis_endpoints(cell, sub)
+    Stop.install()
+    try_sched_fifo(priority=60, wanted=cell.sched_fifo, prog=PROG)
+    presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
+    ctx = zmq.Context()
+    pull = ctx.socket(zmq.PULL)
+    pull.setsockopt(zmq.LINGER, 0)
+    pull.setsockopt(zmq.RCVHWM, 8)
+    pub = ctx.socket(zmq.PUB)
+    pub.setsockopt(zmq.LINGER, 0)
+    pub.setsockopt(zmq.SNDHWM, 4)
+    bus = None
+    timer = None
+    failed = False
+    try:
+        try:
+            pull.bind(ep.servo)
+            pub.bind(ep.servo_status)
+        except zmq.ZMQError as exc:
+            raise RuntimeFailure(f"cannot bind {ep.servo} / {ep.servo_status}: {exc}") from None
+        bus = open_vme_waiting(ep.vme, OPEN_WAIT_S)
+        bus.zero_dacs()
+        core = ServoCore(ServoParams())
+        timer = PeriodicTimer(int(round(1e9 / SERVO_HZ)))
+        presence.ready()
+        notify_ready(args.ready_fd)
+        bad = 0
+        while not Stop.requested:
+            if not timer.wait(0.5):
+                continue
+            while True:  # every 60 Hz command, in order
+                try:
+                    msg = pull.recv(zmq.NOBLOCK)
+                except zmq.Again:
+                    break
+                try:
+                    c = sw.unpack_command(msg)
+                    core.command(c.mode, c.counts)
+                except (sw.BadServoMessage, ValueError):
+                    bad += 1
+            try:
+                dacs = core.step(bus.read_encoders_raw(), bus.read_limit_switches())
+                bus.write_dacs(dacs)
+            except (OSError, ValueError) as exc:
+                failed = True
+                raise RuntimeFailure(f"VME access failed: {exc}") from None
+            if core.tick % sw.STATUS_EVERY_TICKS == 0:
+                pub.send(sw.pack_status(core.status(), bus.amps_powered), zmq.NOBLOCK)
+            presence.beat(0, timer.cycles, timer.overruns, timer.lateness_max_ns)
+    finally:
+        if bus is not None:
+            try:
+                bus.zero_dacs()
+            except (OSError, ValueError):
+                pass
+            bus.close()
+        if timer is not None:
+            timer.close()
+        pull.close(0)
+        pub.close(0)
+        ctx.term()
+        presence.close(failed=failed)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,89 @@
+"""droid-watchdog NAME: keeps the Reis interface cards' watchdog timers alive (thesis §2.3, §4.1.4).
+
+"A Watchdog module is executed at startup to trigger these timers
+periodically. If a system failure occurs, this module would be delayed and the
+timers would expire and cause a shutdown."  At 50 Hz it writes both watchdog
+registers — but only while the servo is alive: it follows the servo's status
+messages, and when the servo's tick stops advancing (or the servo reports a
+fault) it stops kicking for good, and the hardware latches the amplifiers off
+until the power is cycled (:class:`~droid.subunits.reis.watchdog.WatchdogCore`).
+"""
+from __future__ import annotations
+
+import sys
+
+import zmq
+
+from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
+from droid.brain.rt import PeriodicTimer, try_sched_fifo
+from droid.cli import BadInput, run
+from droid.subunits.reis import servo_wire as sw
+from droid.subunits.reis.endpoints import reis_endpoints
+from droid.subunits.reis.servo_prog import OPEN_WAIT_S, open_vme_waiting
+from droid.subunits.reis.watchdog import WatchdogCore, WatchdogParams
+
+PROG = "droid-watchdog"
+
+
+@run
+def main(argv=None) -> int:
+    ap = parser(PROG, "Kick a Reis arm's watchdog timers while its servo is alive.")
+    ap.add_argument("subunit", help="arm subunit, e.g. arm1")
+    args = ap.parse_args(argv)
+    cell = open_cell(args)
+    sub = cell.subunit(args.subunit)
+    if not sub.is_arm:
+        raise BadInput(f"{sub.name} is not an arm")
+    ep = reis_endpoints(cell, sub)
+    Stop.install()
+    try_sched_fifo(priority=55, wanted=cell.sched_fifo, prog=PROG)
+    presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
+    ctx = zmq.Context()
+    sub_sock = ctx.socket(zmq.SUB)
+    sub_sock.setsockopt(zmq.SUBSCRIBE, b"")
+    sub_sock.setsockopt(zmq.LINGER, 0)
+    sub_sock.connect(ep.servo_status)
+    params = WatchdogParams()
+    core = WatchdogCore(params)
+    bus = None
+    timer = None
+    try:
+        bus = open_vme_waiting(ep.vme, OPEN_WAIT_S)
+        timer = PeriodicTimer(int(round(1e9 / params.rate_hz)))
+        presence.ready()
+        notify_ready(args.ready_fd)
+        heartbeat = None
+        fault = False
+        reported = False
+        while not Stop.requested:
+            if not timer.wait(0.5):
+                continue
+            while True:
+                try:
+                    rep = sw.unpack_status(sub_sock.recv(zmq.NOBLOCK))
+                except zmq.Again:
+                    break
+                except sw.BadServoMessage:
+                    continue
+                heartbeat, fault = rep.tick, bool(rep.fault)
+            kick = core.step(heartbeat, fault)
+            if kick is not None:
+                bus.write_watchdog(*kick)
+            elif not reported:
+                reported = True
+                print(f"{PROG} {sub.name}: servo dead or faulted: stopped kicking; the amplifiers "
+                      f"will latch off until the controller's power is cycled", file=sys.stderr, flush=True)
+            presence.beat(0, timer.cycles, timer.overruns, timer.lateness_max_ns)
+    finally:
+        if bus is not None:
+            bus.close()
+        if timer is not None:
+            timer.close()
+        sub_sock.close(0)
+        ctx.term()
+        presence.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
