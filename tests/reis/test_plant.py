@@ -189,3 +189,17 @@ def test_same_seed_same_trajectory():
 
     assert trace(9) == trace(9)
     assert trace(9) != trace(10)
+
+
+def test_hard_stop_holds_a_joint_driven_into_it():
+    params = ReisPlantParams()
+    q0 = np.zeros(6)
+    q0[0] = params.hard_stop_min_deg[0] + 2.0
+    plant = ReisPlant(params, seed=1, initial_joint_deg=q0)
+    bus = VmeBus.from_buffer(plant.regs)
+    run_open_loop(plant, bus, [1500, 0, 0, 0, 0, 0], 0.5)  # joint 1 counts run opposite to q1
+    assert params.hard_stop_min_deg[0] - 0.5 <= plant.joint_deg[0] <= params.hard_stop_min_deg[0]
+    assert plant.motor_speed_counts_per_s[0] == 0
+    run_open_loop(plant, bus, [-1500, 0, 0, 0, 0, 0], 0.1)  # and it can drive away again
+    assert plant.joint_deg[0] > params.hard_stop_min_deg[0] + 0.5
+    bus.close()
