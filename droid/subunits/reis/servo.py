@@ -68,7 +68,6 @@ class ServoCore:
 
     def __init__(self, params: ServoParams | None = None):
         p = self.params = params if params is not None else ServoParams()
-        self._m = np.asarray(p.joint_to_counts, float)
         self._tmin = np.asarray(p.target_min_counts, np.int64)
         self._tmax = np.asarray(p.target_max_counts, np.int64)
         self._fe_max = [float(x) for x in p.max_following_error_counts]
