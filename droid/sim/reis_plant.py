@@ -40,6 +40,7 @@ from droid.subunits.reis import vme_map as vm
 from droid.subunits.reis.robot_file import joint_to_counts_tuple, load_gearing
 
 Six = tuple[float, float, float, float, float, float]
+MAX_JOINT_SPEED_DEG_PER_S = 360.0  # bound used to skip hard-stop checks far from the stops
 
 
 def _reis_joint_to_counts() -> tuple[tuple[float, ...], ...]:
@@ -108,19 +109,24 @@ class ReisPlant:
         self._minv = np.linalg.inv(m)  # deg per count
         self._counts_per_rad = p.encoder_counts_per_rev / (2.0 * math.pi)
         a = math.radians(1.0) * self._counts_per_rad * self._minv  # q_rad = A @ theta_rad
-        self._a_rows_grav = a[1:3]  # rows for joints 2 and 3
-        self._a_diag = np.diag(a).copy()
         j_link = np.asarray(p.link_inertia_kgm2, float)
-        self._j_eff = np.asarray(p.motor_inertia_kgm2, float) + (a * a * j_link[:, None]).sum(axis=0)
-        self._b = np.asarray(p.viscous_friction_nm_s_per_rad, float)
-        self._tau_c = np.asarray(p.coulomb_friction_nm, float)
-        self._tau_brake = np.asarray(p.brake_torque_nm, float)
-        self._tau_per_dac = np.asarray(p.torque_per_volt_nm_per_v, float) * vm.DAC_FULL_SCALE_V / (vm.DAC_MAX + 1)
-        self._tau_max = np.asarray(p.amp_torque_limit_nm, float)
-        self._sw = np.asarray(p.switch_joint_deg, float)
-        self._side = np.asarray(p.switch_active_side, float)
-        self._stop_min = np.asarray(p.hard_stop_min_deg, float)
-        self._stop_max = np.asarray(p.hard_stop_max_deg, float)
+        j_eff = np.asarray(p.motor_inertia_kgm2, float) + (a * a * j_link[:, None]).sum(axis=0)
+        # the integrator works on plain Python floats (6 joints: faster than numpy)
+        self._j_eff = [float(x) for x in j_eff]
+        self._minv_rows = [tuple(float(c) for c in row) for row in self._minv * self._counts_per_rad]  # deg/rad
+        self._a_grav2 = [float(x) for x in a[1]]  # tau_motor += A[1, i] * tau_joint2
+        self._a_grav3 = [float(x) for x in a[2]]
+        self._a_diag = [float(x) for x in np.diag(a)]
+        self._b = [float(x) for x in p.viscous_friction_nm_s_per_rad]
+        self._tau_c = [float(x) for x in p.coulomb_friction_nm]
+        self._tau_brake = [float(x) for x in p.brake_torque_nm]
+        scale = vm.DAC_FULL_SCALE_V / (vm.DAC_MAX + 1)
+        self._tau_per_dac = [float(x) * scale for x in p.torque_per_volt_nm_per_v]
+        self._tau_max = [float(x) for x in p.amp_torque_limit_nm]
+        self._sw = [float(x) for x in p.switch_joint_deg]
+        self._side = [float(x) for x in p.switch_active_side]
+        self._stop_min = [float(x) for x in p.hard_stop_min_deg]
+        self._stop_max = [float(x) for x in p.hard_stop_max_deg]
         g = p.gravity_mps2
         self._g_sin2 = g * (p.upper_arm_mass_kg * p.upper_arm_com_m + p.forearm_mass_kg * p.upper_arm_length_m)
         self._g_cos23 = g * p.forearm_mass_kg * p.forearm_com_m
@@ -129,9 +135,9 @@ class ReisPlant:
             spread = self._rng.uniform(-p.initial_spread_deg, p.initial_spread_deg, vm.N_JOINTS)
             initial_joint_deg = np.asarray(p.initial_joint_deg, float) + spread
         q0 = np.asarray(initial_joint_deg, float)
-        self._theta = (m @ q0) / self._counts_per_rad  # motor angles [rad], 0 at home
-        self._omega = np.zeros(vm.N_JOINTS)  # motor speeds [rad/s]
-        self._jammed = np.zeros(vm.N_JOINTS, bool)
+        self._theta = [float(x) for x in (m @ q0) / self._counts_per_rad]  # motor angles [rad], 0 at home
+        self._omega = [0.0] * vm.N_JOINTS  # motor speeds [rad/s]
+        self._jammed = [False] * vm.N_JOINTS
         self.time_s = 0.0
         self._power_up(encoder_power_up_counts)
 
@@ -139,8 +145,8 @@ class ReisPlant:
     def _power_up(self, encoder_counts=None) -> None:
         if encoder_counts is None:
             encoder_counts = self._rng.integers(0, vm.ENCODER_MODULUS, vm.N_JOINTS)
-        counts = np.floor(self._theta * self._counts_per_rad).astype(np.int64)
-        self._enc_offset = (np.asarray(encoder_counts, np.int64) - counts) % vm.ENCODER_MODULUS
+        counts = self._floor_counts()
+        self._enc_offset = [(int(e) - c) % vm.ENCODER_MODULUS for e, c in zip(encoder_counts, counts)]
         # The amplifiers come up off; the first write of both watchdog registers
         # arms the timers and powers them (a watchdog that is not running yet
         # cannot have expired).  From then on a register not rewritten within
@@ -156,7 +162,7 @@ class ReisPlant:
     def power_cycle(self) -> None:
         """Switch the controller off and on: clears the watchdog latch, DACs to 0,
         encoder counters to new arbitrary values (homing is lost); the arm stays put."""
-        self._omega[:] = 0.0
+        self._omega = [0.0] * vm.N_JOINTS
         self._power_up()
 
     @property
@@ -165,15 +171,19 @@ class ReisPlant:
         return self._amps_on
 
     # -- state -------------------------------------------------------------------
+    def _floor_counts(self) -> list[int]:
+        cpr = self._counts_per_rad
+        return [math.floor(th * cpr) for th in self._theta]
+
     @property
     def motor_counts(self) -> np.ndarray:
         """True motor positions [counts, float], 0 at the home pose (q = 0)."""
-        return self._theta * self._counts_per_rad
+        return np.array(self._theta) * self._counts_per_rad
 
     @property
     def motor_speed_counts_per_s(self) -> np.ndarray:
         """Motor speeds [counts/s]."""
-        return self._omega * self._counts_per_rad
+        return np.array(self._omega) * self._counts_per_rad
 
     @property
     def joint_deg(self) -> np.ndarray:
@@ -183,31 +193,29 @@ class ReisPlant:
     @property
     def limit_switches(self) -> tuple[bool, ...]:
         """Limit switch states, joint 1 first (cam: active on the ``switch_active_side``)."""
-        active = self._side * (self.joint_deg - self._sw) > 0.0
-        return tuple(bool(x) for x in active)
+        t0, t1, t2, t3, t4, t5 = self._theta
+        q = [r0 * t0 + r1 * t1 + r2 * t2 + r3 * t3 + r4 * t4 + r5 * t5 for r0, r1, r2, r3, r4, r5 in self._minv_rows]
+        return tuple(side * (qi - sw) > 0.0 for side, qi, sw in zip(self._side, q, self._sw))
 
     @property
     def encoder_raw(self) -> tuple[int, ...]:
         """The six 16-bit counter values as the hardware shows them [counts]."""
-        counts = np.floor(self._theta * self._counts_per_rad).astype(np.int64)
-        return tuple(int(x) for x in (counts + self._enc_offset) % vm.ENCODER_MODULUS)
+        return tuple((c + o) % vm.ENCODER_MODULUS for c, o in zip(self._floor_counts(), self._enc_offset))
 
     def jam(self, joint: int, jammed: bool = True) -> None:
         """Fault injection: block motor ``joint`` (0-based) mechanically, or release it."""
-        self._jammed[joint] = jammed
+        self._jammed[joint] = bool(jammed)
         if jammed:
             self._omega[joint] = 0.0
 
     # -- simulation -------------------------------------------------------------
-    def gravity_joint_torque_nm(self, q_deg: np.ndarray) -> tuple[float, float]:
+    def gravity_joint_torque_nm(self, q_deg) -> tuple[float, float]:
         """Net gravity torques on joints 2 and 3 [N m] after the balancer."""
         q2 = math.radians(q_deg[1])
-        q23 = q2 + math.radians(q_deg[2])
-        cos23 = self._g_cos23 * math.cos(q23)
-        tau3 = cos23
-        tau2 = self._g_sin2 * math.sin(q2) + cos23
-        tau2 -= self.params.balancer_fraction * (self._g_sin2 * math.sin(q2) + self._g_cos23 * math.cos(q2))
-        return tau2, tau3
+        cos23 = self._g_cos23 * math.cos(q2 + math.radians(q_deg[2]))
+        sin2 = self._g_sin2 * math.sin(q2)
+        tau2 = sin2 + cos23 - self.params.balancer_fraction * (sin2 + self._g_cos23 * math.cos(q2))
+        return tau2, cos23
 
     def advance(self, dt_s: float) -> None:
         """Read DACs/watchdogs from ``regs``, integrate ``dt_s`` (a whole number of
@@ -217,39 +225,70 @@ class ReisPlant:
         if n < 1 or abs(n * p.substep_s - dt_s) > 1e-9:
             raise ValueError(f"advance({dt_s}) is not a whole number of {p.substep_s} s substeps")
         self._read_inputs(dt_s)
-        dacs = np.asarray(struct.unpack_from(vm.DACS_FORMAT, self._view, vm.DAC_OFFSET), float)
-        dacs = np.clip(dacs, vm.DAC_MIN, vm.DAC_MAX)
+        dacs = struct.unpack_from(vm.DACS_FORMAT, self._view, vm.DAC_OFFSET)
+        joints = range(vm.N_JOINTS)
         if self._amps_on:
-            tau_drive = np.clip(dacs * self._tau_per_dac, -self._tau_max, self._tau_max)
+            drive = []
+            for i in joints:
+                tau = min(vm.DAC_MAX, max(vm.DAC_MIN, dacs[i])) * self._tau_per_dac[i]
+                drive.append(min(self._tau_max[i], max(-self._tau_max[i], tau)))
             tau_c = self._tau_c
         else:
-            tau_drive = np.zeros(vm.N_JOINTS)
-            tau_c = self._tau_c + self._tau_brake
+            drive = [0.0] * vm.N_JOINTS
+            tau_c = [c + b for c, b in zip(self._tau_c, self._tau_brake)]
         h = p.substep_s
-        h_over_j = h / self._j_eff
-        damp = 1.0 / (1.0 + self._b * h_over_j)
-        dw_c = tau_c * h_over_j
+        h_over_j = [h / j for j in self._j_eff]
+        damp = [1.0 / (1.0 + b * hj) for b, hj in zip(self._b, h_over_j)]
+        dw_c = [c * hj for c, hj in zip(tau_c, h_over_j)]
         theta, omega = self._theta, self._omega
+        rows = self._minv_rows
+        stops_active = any(self._jammed) or self._near_stop(theta, n * h)
+        g_sin2, g_cos23, bal = self._g_sin2, self._g_cos23, self.params.balancer_fraction
+        deg = math.pi / 180.0
+        per_joint = list(zip(range(vm.N_JOINTS), drive, h_over_j, damp, dw_c, self._a_grav2, self._a_grav3))
         for _ in range(n):
-            q = self._minv @ (theta * self._counts_per_rad)
-            tau2, tau3 = self.gravity_joint_torque_nm(q)
-            tau = tau_drive + self._a_rows_grav[0] * tau2 + self._a_rows_grav[1] * tau3
-            w_free = (omega + h_over_j * tau) * damp
-            omega = np.where(np.abs(w_free) <= dw_c, 0.0, w_free - np.sign(w_free) * dw_c)
-            dq = self._a_diag * omega
-            blocked = self._jammed | ((q >= self._stop_max) & (dq > 0)) | ((q <= self._stop_min) & (dq < 0))
-            if blocked.any():
-                omega = np.where(blocked, 0.0, omega)
-            theta = theta + h * omega
-        self._theta, self._omega = theta, omega
+            t0, t1, t2, t3, t4, t5 = theta
+            r1, r2 = rows[1], rows[2]
+            q2 = deg * (r1[0] * t0 + r1[1] * t1 + r1[2] * t2 + r1[3] * t3 + r1[4] * t4 + r1[5] * t5)
+            q3 = deg * (r2[0] * t0 + r2[1] * t1 + r2[2] * t2 + r2[3] * t3 + r2[4] * t4 + r2[5] * t5)
+            cos23 = g_cos23 * math.cos(q2 + q3)  # gravity (see gravity_joint_torque_nm)
+            sin2 = g_sin2 * math.sin(q2)
+            tau2 = sin2 + cos23 - bal * (sin2 + g_cos23 * math.cos(q2))
+            for i, drv, hj, dmp, dwc, a2, a3 in per_joint:
+                w = (omega[i] + hj * (drv + a2 * tau2 + a3 * cos23)) * dmp
+                w = w - dwc if w > dwc else (w + dwc if w < -dwc else 0.0)  # Coulomb + stiction
+                omega[i] = w
+            if stops_active:
+                self._apply_stops(theta, omega)
+            for i in range(vm.N_JOINTS):
+                theta[i] += h * omega[i]
         self.time_s += n * h
         self._write_outputs()
+
+    def _near_stop(self, theta, dt_s: float) -> bool:
+        """Could a hard stop engage within ``dt_s``?  (No joint outruns 360 deg/s.)"""
+        margin = 1.0 + MAX_JOINT_SPEED_DEG_PER_S * dt_s
+        t0, t1, t2, t3, t4, t5 = theta
+        for r, lo, hi in zip(self._minv_rows, self._stop_min, self._stop_max):
+            q = r[0] * t0 + r[1] * t1 + r[2] * t2 + r[3] * t3 + r[4] * t4 + r[5] * t5
+            if q <= lo + margin or q >= hi - margin:
+                return True
+        return False
+
+    def _apply_stops(self, theta, omega) -> None:
+        """Jammed motors and joints at a hard stop moving outward stop dead."""
+        t0, t1, t2, t3, t4, t5 = theta
+        for i, (r, lo, hi) in enumerate(zip(self._minv_rows, self._stop_min, self._stop_max)):
+            q = r[0] * t0 + r[1] * t1 + r[2] * t2 + r[3] * t3 + r[4] * t4 + r[5] * t5
+            dq = self._a_diag[i] * omega[i]
+            if self._jammed[i] or (q >= hi and dq > 0.0) or (q <= lo and dq < 0.0):
+                omega[i] = 0.0
 
     def _read_inputs(self, dt_s: float) -> None:
         # encoder write -> counter reset to 0 (thesis §4.1.2; DROID's servo never does it)
         regs = struct.unpack_from(vm.ENCODERS_FORMAT, self._view, vm.ENCODER_OFFSET)
         if regs != self._enc_written:
-            counts = np.floor(self._theta * self._counts_per_rad).astype(np.int64)
+            counts = self._floor_counts()
             for j in range(vm.N_JOINTS):
                 if regs[j] != self._enc_written[j]:
                     self._enc_offset[j] = (-counts[j]) % vm.ENCODER_MODULUS

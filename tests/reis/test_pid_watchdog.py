@@ -26,10 +26,10 @@ def test_saturated_output_does_not_wind_up_the_integral():
     pid = make_pid(integral_limit=[5000.0] * 6)
     for _ in range(1000):
         out = pid.step(np.full(6, 2000.0))  # kp*e alone saturates
-    assert np.all(out == 2047)
+    assert np.all(np.asarray(out) == 2047)
     assert np.all(pid.integral == 0)  # nothing accumulated while saturated
     out = pid.step(np.full(6, -10.0))
-    assert np.all(out < 0)  # recovers at once when the error reverses
+    assert np.all(np.asarray(out) < 0)  # recovers at once when the error reverses
 
 
 def test_integral_is_bounded_by_its_limit():

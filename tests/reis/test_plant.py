@@ -73,12 +73,12 @@ def test_encoder_counts_motor_side_4000_per_rev_through_the_gearing():
 def test_encoders_wrap_at_16_bits():
     plant = ReisPlant(seed=3, encoder_power_up_counts=[65000] * 6)
     bus = VmeBus.from_buffer(plant.regs)
+    assert bus.read_encoders_raw() == (65000,) * 6
+    start = np.floor(plant.motor_counts[5])
     run_open_loop(plant, bus, [0, 0, 0, 0, 0, 2047], 0.3)
-    moved = plant.motor_counts[5] - ReisPlant(seed=3).motor_counts[5]
+    moved = np.floor(plant.motor_counts[5]) - start
     assert moved > 1000  # more than the 536 counts left below 65536
-    assert bus.read_encoders_raw()[5] == (65000 + int(np.floor(moved))) % 65536 or abs(
-        bus.read_encoders_raw()[5] - (65000 + moved) % 65536
-    ) <= 1
+    assert bus.read_encoders_raw()[5] == (65000 + int(moved)) % 65536
     assert bus.read_encoders_raw()[5] < 65000
     bus.close()
 
@@ -206,3 +206,17 @@ def test_same_seed_same_trajectory():
 
     assert trace(9) == trace(9)
     assert trace(9) != trace(10)
+
+
+def test_hard_stop_holds_a_joint_driven_into_it():
+    params = ReisPlantParams()
+    q0 = np.zeros(6)
+    q0[0] = params.hard_stop_min_deg[0] + 2.0
+    plant = ReisPlant(params, seed=1, initial_joint_deg=q0)
+    bus = VmeBus.from_buffer(plant.regs)
+    run_open_loop(plant, bus, [1500, 0, 0, 0, 0, 0], 0.5)  # joint 1 counts run opposite to q1
+    assert params.hard_stop_min_deg[0] - 0.5 <= plant.joint_deg[0] <= params.hard_stop_min_deg[0]
+    assert plant.motor_speed_counts_per_s[0] == 0
+    run_open_loop(plant, bus, [-1500, 0, 0, 0, 0, 0], 0.1)  # and it can drive away again
+    assert plant.joint_deg[0] > params.hard_stop_min_deg[0] + 0.5
+    bus.close()

@@ -68,10 +68,9 @@ class ServoCore:
 
     def __init__(self, params: ServoParams | None = None):
         p = self.params = params if params is not None else ServoParams()
-        self._m = np.asarray(p.joint_to_counts, float)
         self._tmin = np.asarray(p.target_min_counts, np.int64)
         self._tmax = np.asarray(p.target_max_counts, np.int64)
-        self._fe_max = np.asarray(p.max_following_error_counts, float)
+        self._fe_max = [float(x) for x in p.max_following_error_counts]
         self._pid = Pid(
             p.kp_dac_per_count,
             p.ki_dac_per_count_tick,
@@ -247,15 +246,14 @@ class ServoCore:
         if self._zero is not None:
             np.clip(self._target, self._zero + self._tmin, self._zero + self._tmax, out=self._target)
         self._vel = self._target - previous
-        error = self._target - self._pos
-        if np.any(np.abs(error) > self._fe_max):
+        error = (self._target - self._pos).tolist()
+        if any(abs(e) > limit for e, limit in zip(error, self._fe_max)):
             self._fault = Fault.FOLLOWING_ERROR
         if self._fault != Fault.NONE:
             self._pid.reset()
             self._dac = (0,) * N
             return self._dac
-        out = self._pid.step(error)
-        self._dac = tuple(int(x) for x in np.rint(out))
+        self._dac = tuple(round(x) for x in self._pid.step(error))
         return self._dac
 
     def _read_encoders(self, encoders_raw) -> None:
@@ -266,11 +264,12 @@ class ServoCore:
             self._pos = np.asarray(raw, np.int64)
             self._hold_here()
             return
-        bits = self.params.encoder_bits
-        new = np.array([extend_counter(int(p), r, bits) for p, r in zip(self._pos, raw)], np.int64)
-        if np.any(np.abs(new - self._pos) > self.params.max_encoder_step_counts):
+        bits, jump = self.params.encoder_bits, self.params.max_encoder_step_counts
+        old = self._pos.tolist()
+        new = [extend_counter(p, r, bits) for p, r in zip(old, raw)]
+        if any(abs(n - p) > jump for n, p in zip(new, old)):
             self._fault = Fault.ENCODER_JUMP
-        self._pos = new
+        self._pos = np.array(new, np.int64)
 
     def _hold_here(self) -> None:
         """Targets := measured positions; queue and cache emptied (bumpless)."""

@@ -57,8 +57,10 @@ class ServoParams:
     encoder_bits: int = 16
     servo_rate_hz: float = 500.0
     command_rate_hz: float = 60.0
-    queue_steps: int = 8  # way-points per command (500 Hz / 60 Hz ~ 8), thesis §4.1.4
-    queue_steps_max: int = 9  # ramps span the measured command period, up to this many ticks
+    # thesis §4.1.4: 8 way-points per command ("500Hz/60Hz ~ 8"); DROID's ramps span
+    # the exact command period (8 or 9 ticks, droid.subunits.reis.command_queue), and
+    # queue_steps is the length of one braking-profile load
+    queue_steps: int = 8
 
     # PID, per tick (§4.1.5.1): dac = kp*e + sum(ki*e) + kd*(e - e_prev), e in counts
     kp_dac_per_count: Six = (14.0, 12.0, 5.0, 2.0, 2.0, 1.0)
@@ -100,8 +102,10 @@ class ServoParams:
             raise ValueError("joint_to_counts must be an invertible 6x6 matrix")
         if sorted(self.home_order) != list(range(6)):
             raise ValueError("home_order must list each joint 0..5 once")
-        if self.queue_steps < 1 or self.queue_steps_max < self.queue_steps:
-            raise ValueError("need 1 <= queue_steps <= queue_steps_max")
+        if self.queue_steps < 1:
+            raise ValueError("need queue_steps >= 1")
+        if self.servo_rate_hz <= 0 or self.command_rate_hz <= 0 or self.command_rate_hz > self.servo_rate_hz:
+            raise ValueError("need 0 < command_rate_hz <= servo_rate_hz")
         if not 0 <= self.starve_grace_ticks < self.queue_steps:
             raise ValueError("need 0 <= starve_grace_ticks < queue_steps")
         if any(d not in (-1, 1) for d in self.home_search_dir):
