@@ -42,7 +42,7 @@ from droid.subunits.reis.servo_params import Fault, Mode
 
 PROG = "droid-servo-agent"
 COMMAND_HZ = 60.0
-MY_FAULTS = FAULT_BRAKING | FAULT_SERVO | FAULT_WATCHDOG
+MY_FAULTS = FAULT_BRAKING | FAULT_SERVO  # FAULT_WATCHDOG is droid-watchdog's
 BRAIN_TO_SERVO_MODE = {OFF: Mode.OFF, JOG_MODE: Mode.JOG, HOME_MODE: Mode.HOME, NORMAL_MODE: Mode.NORMAL}
 
 
@@ -75,8 +75,6 @@ class ServoAgentCore:
                 faults |= FAULT_BRAKING
             if report.fault:
                 faults |= FAULT_SERVO
-            if not report.amps_on:
-                faults |= FAULT_WATCHDOG
         if not report_fresh:
             faults |= FAULT_SERVO
         mode = int(cmd["cmd_mode"])

@@ -93,8 +93,16 @@ def main(argv=None) -> int:
                 except (sw.BadServoMessage, ValueError):
                     bad += 1
             try:
-                dacs = core.step(bus.read_encoders_raw(), bus.read_limit_switches())
+                raw = bus.read_encoders_raw()
+                fault_before = core.fault
+                dacs = core.step(raw, bus.read_limit_switches())
                 bus.write_dacs(dacs)
+                if core.fault != fault_before:
+                    s = core.status()
+                    print(f"{PROG} {sub.name}: fault {s.fault.name} at servo tick {s.tick}: raw encoders "
+                          f"{raw}, positions {s.encoder_pos}, following error {s.following_error}, "
+                          f"{timer.overruns} overruns so far; registers re-read now: "
+                          f"{bus.read_encoders_raw()}", file=sys.stderr, flush=True)
             except (OSError, ValueError) as exc:
                 failed = True
                 raise RuntimeFailure(f"VME access failed: {exc}") from None
