@@ -110,3 +110,18 @@ def test_servo_side_never_imports_the_simulator():
             elif isinstance(node, ast.ImportFrom) and node.module:
                 names = [node.module]
             assert not any(n == "droid.sim" or n.startswith("droid.sim.") for n in names), path
+
+
+def test_encoder_jump_threshold_scales_with_a_stalled_loop():
+    """DESIGN §9: a host stall of several servo periods is ridden through, a glitch is not."""
+    from droid.subunits.reis.servo import ServoCore
+    from droid.subunits.reis.servo_params import Fault, ServoParams
+
+    p = ServoParams()
+    core = ServoCore(p)
+    sw = (False,) * 6
+    core.step([1000] * 6, sw)
+    core.step([1000 + 2 * p.max_encoder_step_counts] + [1000] * 5, sw, periods=3)  # 3 periods late
+    assert core.fault == Fault.NONE
+    core.step([1000 + 4 * p.max_encoder_step_counts] + [1000] * 5, sw)  # 1 period: a glitch
+    assert core.fault == Fault.ENCODER_JUMP

@@ -150,3 +150,29 @@ def _local_still(path):
     finally:
         db.close()
     return bool(np.all(np.abs(a - b) <= 2))
+
+
+def test_realtime_trial_agrees_with_lockstep(cell):
+    """DESIGN §2: the same short trial in both modes agrees within a stated tolerance:
+    after homing and the same joint move, the encoder positions agree within 5 counts
+    per joint and the wrist centres within 0.1 mm."""
+    from droid.sim.lockstep import Scheduler
+    from droid.sim.reis_cell import LockstepArm
+
+    target = [20000, -15000, 12000, 30000, 25000, -40000]
+    assert droid("droid.tasks.home", "arm1", "--cell", str(cell), timeout=200).returncode == 0
+    out = droid("droid.tasks.move", "arm1", "joint", *map(str, target), "2", "--cell", str(cell), timeout=60)
+    assert out.returncode == 0, out.stderr
+    wait_for(lambda: (lambda a, b: bool(np.all(np.abs(a - b) <= 1)) and a.tolist())(
+        np.asarray(snoop(cell)["encoder_pos"]), np.asarray(snoop(cell)["encoder_pos"])), what="settled")
+    rt = np.asarray(snoop(cell)["encoder_pos"])
+
+    sched = Scheduler(60.0)
+    arm = LockstepArm(sched, seed=1)  # the sim cell's world seed
+    assert arm.home()
+    assert arm.move_done(arm.command_joint(target, 2.0), 6)
+    sched.run_for(1.0)
+    ls = np.asarray(arm.status["encoder_pos"])
+    assert np.all(np.abs(rt - ls) <= 5), (rt, ls)
+    d = np.linalg.norm(arm.wcp_from_counts(rt)[:3, 3] - arm.wcp_from_counts(ls)[:3, 3])
+    assert d <= 0.1

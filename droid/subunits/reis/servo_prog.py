@@ -80,7 +80,8 @@ def main(argv=None) -> int:
         notify_ready(args.ready_fd)
         bad = 0
         while not Stop.requested:
-            if not timer.wait(0.5):
+            periods = timer.wait(0.5)
+            if not periods:
                 continue
             while True:  # every 60 Hz command, in order
                 try:
@@ -95,7 +96,7 @@ def main(argv=None) -> int:
             try:
                 raw = bus.read_encoders_raw()
                 fault_before = core.fault
-                dacs = core.step(raw, bus.read_limit_switches())
+                dacs = core.step(raw, bus.read_limit_switches(), periods)
                 bus.write_dacs(dacs)
                 if core.fault != fault_before:
                     s = core.status()
