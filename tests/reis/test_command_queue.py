@@ -118,10 +118,12 @@ def test_encoder_jump_threshold_scales_with_a_stalled_loop():
     from droid.subunits.reis.servo_params import Fault, ServoParams
 
     p = ServoParams()
-    core = ServoCore(p)
     sw = (False,) * 6
-    core.step([1000] * 6, sw)
-    core.step([1000 + 2 * p.max_encoder_step_counts] + [1000] * 5, sw, periods=3)  # 3 periods late
-    assert core.fault == Fault.NONE
-    core.step([1000 + 4 * p.max_encoder_step_counts] + [1000] * 5, sw)  # 1 period: a glitch
-    assert core.fault == Fault.ENCODER_JUMP
+    moved = [1000 + 2 * p.max_encoder_step_counts] + [1000] * 5
+    stalled, glitch = ServoCore(p), ServoCore(p)
+    for core in (stalled, glitch):
+        core.step([1000] * 6, sw)
+    stalled.step(moved, sw, periods=3)  # the loop woke 3 periods late
+    glitch.step(moved, sw)  # the same change within one period
+    assert stalled.fault != Fault.ENCODER_JUMP
+    assert glitch.fault == Fault.ENCODER_JUMP
