@@ -106,6 +106,8 @@ def format_line(feature) -> bytes:
     if not all(math.isfinite(v) for v in (x, y, roll)) or max(abs(x), abs(y)) >= _MM_LIMIT - 0.0005 \
             or abs(round(roll, ROLL_DECIMALS)) > _ROLL_LIMIT:
         return INVALID_LINE + LINE_END
+    # + 0.0 turns a -0.0 after rounding into 0.0: no "-0.000" on the line
+    x, y, roll = round(x, X_DECIMALS) + 0.0, round(y, X_DECIMALS) + 0.0, round(roll, ROLL_DECIMALS) + 0.0
     return f"{x:.{X_DECIMALS}f},{y:.{X_DECIMALS}f},{roll:.{ROLL_DECIMALS}f}".encode() + LINE_END
 
 
@@ -138,6 +140,8 @@ class LineSplitter:
     def __init__(self, max_line_bytes: int = MAX_LINE_BYTES):
         self.max_line_bytes = max_line_bytes
         self.overlong = 0
+        self.skipped = 0  # bytes dropped by resync()
+        self._resync = False
         self._buffer = bytearray()
 
     def _add(self, piece: bytes) -> None:
@@ -147,7 +151,16 @@ class LineSplitter:
 
     def feed(self, chunk: bytes) -> list[bytes]:
         """Add a chunk; return the lines it completed, oldest first."""
-        *complete, tail = bytes(chunk).split(LINE_END)
+        chunk = bytes(chunk)
+        if self._resync:
+            end = chunk.find(LINE_END)
+            if end < 0:
+                self.skipped += len(chunk)
+                return []
+            self.skipped += end + 1
+            chunk = chunk[end + 1:]
+            self._resync = False
+        *complete, tail = chunk.split(LINE_END)
         lines = []
         for piece in complete:
             self._add(piece)
@@ -158,11 +171,16 @@ class LineSplitter:
         self._add(tail)
         return lines
 
-    def discard_partial(self) -> int:
-        """Drop an incomplete line (e.g. after the port was reopened); returns its length."""
-        n = len(self._buffer)
+    def resync(self) -> None:
+        """Drop the incomplete line and skip up to the next line end.
+
+        For a port just (re)opened: it may have been opened in the middle of a
+        line, whose tail would otherwise count as a garbled line.  The bytes
+        skipped are counted in ``skipped``.
+        """
+        self.skipped += len(self._buffer)
         self._buffer.clear()
-        return n
+        self._resync = True
 
 
 class SensorClientCore:
@@ -207,6 +225,6 @@ class SensorClientCore:
         self.feeds_since_line = 0 if lines else self.feeds_since_line + 1
         return INVALID if self.stale else self.latest
 
-    def discard_partial(self) -> None:
-        """Forget a line cut off by a lost port, so it does not join the next one."""
-        self.splitter.discard_partial()
+    def resync(self) -> None:
+        """After the port was (re)opened: ignore everything up to the next line end."""
+        self.splitter.resync()

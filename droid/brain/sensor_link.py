@@ -24,6 +24,8 @@ blocks) and :class:`SensorStatusCore` turns the bytes into Status fields:
   which the newest line arrived;
 * ``stale = 1`` and the LINK fault after ``stale_ticks`` ticks without any
   line (and until the first line); cleared when lines flow again;
+* after the port is (re)opened, bytes up to the first line end are skipped
+  (the port may open in the middle of a line);
 * a port that cannot be opened, or vanishes (the other end hung up, the
   device went away): ``stale = 1`` and the DEVICE fault at once; it is
   reopened with exponential back-off in ticks (``stale_ticks`` .. 120); the
@@ -126,7 +128,7 @@ class SensorStatusCore:
     def on_tick(self, tick: int, data: bytes, now_ns: int, port_ok: bool = True) -> dict:
         """Feed this tick's bytes; return the Status fields to write."""
         if port_ok and not self._port_ok:
-            self.client.discard_partial()  # a line cut by the outage must not join the next
+            self.client.resync()  # the port may open mid-line: start at the next line end
             self._fresh = False
         self._port_ok = port_ok
         before = self.client.lines

@@ -36,6 +36,8 @@ line win.  It waits up to ``board_wait`` seconds (default 20) for the DSP
 board and the serial port to appear -- droid-sim creates both, started in
 parallel by ``droid-cell up`` -- then completes the readiness handshake and
 keeps a presence record ``/droid.<cell>.proc.mvs-<name>`` like every program.
+A serial port that fails in a cell (droid-sim restarted) is reopened, one try
+a frame, instead of ending the program.
 """
 from __future__ import annotations
 
@@ -61,8 +63,8 @@ from droid.subunits.mvs.wire import COLUMNS, DEFAULT_BAUD, FRAME_RATE_HZ, MIN_BA
 PROG = "droid-mvs"
 #: How long a sensor in a cell waits for its board and serial port by default [s].
 CELL_WAIT_S = 20.0
-#: Poll period while waiting for the serial port to appear [s].
-PORT_POLL_S = 0.05
+#: Poll period while waiting for the board or the serial port to appear [s].
+APPEAR_POLL_S = 0.05
 #: Give up on one serial write after a frame period [s]: when the line is
 #: congested (the Brain is not reading) lines are dropped, the loop keeps pace.
 WRITE_TIMEOUT_S = 1.0 / FRAME_RATE_HZ
@@ -169,10 +171,10 @@ def _open_serial(url: str, baud: int):
         raise RuntimeFailure(f"cannot open serial {url}: {exc}") from None
 
 
-def _open_serial_waiting(url: str, baud: int, wait_s: float):
-    """Open the port, retrying for up to ``wait_s`` [s] while it is not there yet."""
+def _open_serial_waiting(url: str, baud: int, wait_s: float, stop: threading.Event):
+    """Open the port, retrying for up to ``wait_s`` [s] while it is not there yet (None if stopped)."""
     deadline = time.monotonic() + wait_s
-    while True:
+    while not stop.is_set():
         try:
             return _open_serial(url, baud)
         except RuntimeFailure as exc:
@@ -180,43 +182,51 @@ def _open_serial_waiting(url: str, baud: int, wait_s: float):
                 if wait_s > 0:
                     raise RuntimeFailure(f"{exc} (waited {wait_s:g} s; is droid-sim running?)") from None
                 raise
-            time.sleep(PORT_POLL_S)
+            stop.wait(APPEAR_POLL_S)
+    return None
 
 
-def _open_board(url: str, wait_s: float):
-    try:
-        return open_dsp(url, wait_s=wait_s)
-    except RuntimeFailure as exc:
-        if wait_s > 0 and "not present" in str(exc):
-            raise RuntimeFailure(f"{exc} after waiting {wait_s:g} s (is droid-sim running?)") from None
-        raise
+def _open_board(url: str, wait_s: float, stop: threading.Event):
+    """Open the DSP board, waiting for up to ``wait_s`` [s] for it to appear (None if stopped)."""
+    deadline = time.monotonic() + wait_s
+    while not stop.is_set():
+        try:
+            return open_dsp(url)
+        except RuntimeFailure as exc:
+            if time.monotonic() >= deadline:
+                if wait_s > 0 and "not present" in str(exc):
+                    raise RuntimeFailure(f"{exc} after waiting {wait_s:g} s (is droid-sim running?)") from None
+                raise
+            stop.wait(APPEAR_POLL_S)
+    return None
 
 
-def live(args, core: SensorCore, ready=None, beat=None) -> int:
+def live(args, core: SensorCore, ready=None, beat=None, reopen: bool = False) -> int:
     """The sensor loop: retrace -> copy -> extract -> serial line (see the module docstring).
 
     ``ready()`` is called once the board and the port are open; ``beat(frames,
     overruns)`` once a frame (both optional: the cell's handshake and presence).
+    With ``reopen`` a serial port that fails is closed and reopened (one try a
+    frame, the lines meanwhile dropped and counted) instead of ending the run.
     """
     wait_s = max(0.0, args.board_wait)
-    t_start = time.monotonic()
-    board = _open_board(args.dsp, wait_s)
+    deadline = time.monotonic() + wait_s
     stop = threading.Event()
     handlers = {}
     if threading.current_thread() is threading.main_thread():
         handlers = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
-    record = None
-    timeouts = missed = overruns = 0
-    port = None
+    record = board = port = None
+    timeouts = missed = overruns = lost = reopened = 0
     t0 = time.monotonic()
     try:
-        port = _open_serial_waiting(args.serial, args.baud, max(0.0, wait_s - (time.monotonic() - t_start)))
+        board = _open_board(args.dsp, wait_s, stop)
+        port = _open_serial_waiting(args.serial, args.baud, max(0.0, deadline - time.monotonic()), stop)
         if args.record:
             try:
                 record = open(args.record, "w")
             except OSError as exc:
                 raise BadInput(f"cannot write {args.record}: {exc.strerror}") from None
-        if ready is not None:
+        if ready is not None and not stop.is_set():
             ready()
         t0 = time.monotonic()
         while not stop.is_set() and (args.count is None or core.frames < args.count):
@@ -234,14 +244,26 @@ def live(args, core: SensorCore, ready=None, beat=None) -> int:
                         record.write(format_frame_line(frame.rows) + "\n")
                     except OSError as exc:
                         raise RuntimeFailure(f"cannot write {args.record}: {exc.strerror}") from None
-            try:
-                port.write(line)
-            except serial.SerialTimeoutException:
-                overruns += 1
-            except serial.SerialException as exc:
-                raise RuntimeFailure(f"serial {args.serial}: {exc}") from None
+            if port is None:
+                try:
+                    port = _open_serial(args.serial, args.baud)
+                    reopened += 1
+                except RuntimeFailure:
+                    lost += 1
+            if port is not None:
+                try:
+                    port.write(line)
+                except serial.SerialTimeoutException:
+                    overruns += 1
+                except serial.SerialException as exc:
+                    if not reopen:
+                        raise RuntimeFailure(f"serial {args.serial}: {exc}") from None
+                    print(f"{PROG}: serial {args.serial}: {exc}; reopening", file=sys.stderr, flush=True)
+                    port.close()
+                    port = None
+                    lost += 1
             if beat is not None:
-                beat(core.frames, overruns + timeouts)
+                beat(core.frames, overruns + timeouts + lost)
     finally:
         elapsed = max(time.monotonic() - t0, 1e-9)
         for sig, old in handlers.items():
@@ -250,10 +272,12 @@ def live(args, core: SensorCore, ready=None, beat=None) -> int:
             record.close()
         if port is not None:
             port.close()
-        board.close()
+        if board is not None:
+            board.close()
+    reopen_note = f", {lost} lines lost with the port, {reopened} reopens" if reopen else ""
     print(f"{PROG}: {core.frames} frames in {elapsed:.2f} s = {core.frames / elapsed:.1f} frames/s "
           f"({core.valid} valid, {core.invalid} invalid, {missed} missed, {timeouts} retrace timeouts, "
-          f"{overruns} serial overruns)", file=sys.stderr)
+          f"{overruns} serial overruns{reopen_note})", file=sys.stderr)
     return 0
 
 
@@ -366,7 +390,7 @@ def live_in_cell(args, core: SensorCore, cell, sub) -> int:
         presence.beat(0, frames, overruns)
 
     try:
-        code = live(args, core, ready, beat)
+        code = live(args, core, ready, beat, reopen=True)
         failed = False
         return code
     finally:
