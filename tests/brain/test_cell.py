@@ -48,7 +48,7 @@ def test_default_cell_up_snoop_down(cell, cell_name):
     names = {r["name"] for r in rows}
     assert {"droid-names", "droid-heartbeat", "droid-sim", "droid-remote arm1", "droid-remote gmf1",
             "droid-remote mvs", "droid-remote tool", "droid-reis-agent arm1", "droid-gmf1-agent gmf1",
-            "droid-agent mvs", "droid-agent tool"} <= names
+            "droid-mvs mvs"} <= names
     assert all(r["pid"] > 0 for r in rows)
     wait_for(lambda: all(r["live"] for r in cell_status(cell)), what="every program live")
     for sub in ("arm1", "gmf1", "mvs", "tool"):
@@ -67,17 +67,17 @@ def test_default_cell_up_snoop_down(cell, cell_name):
 
 def test_agent_death_marks_stale_and_link_recovers(cell):
     up(cell)
-    wait_for(lambda: not snoop_json(cell, "mvs")[0]["stale"], what="mvs fresh")
-    agent = next(r for r in cell_status(cell) if r["name"] == "droid-agent mvs")
+    wait_for(lambda: not snoop_json(cell, "gmf1")[0]["stale"], what="gmf1 fresh")
+    agent = next(r for r in cell_status(cell) if r["name"] == "droid-gmf1-agent gmf1")
     os.kill(agent["pid"], signal.SIGKILL)
-    wait_for(lambda: snoop_json(cell, "mvs")[0]["stale"], what="mvs stale after its agent died")
+    wait_for(lambda: snoop_json(cell, "gmf1")[0]["stale"], what="gmf1 stale after its agent died")
     # the other subunits are unaffected
-    assert not snoop_json(cell, "tool")[0]["stale"]
+    assert not snoop_json(cell, "arm1")[0]["stale"]
     # the agent comes back (by hand, as a user would restart it): the remote reconnects
-    proc = subprocess.Popen([sys.executable, "-m", "droid.subunits.agent", "mvs", "--cell", str(cell)],
+    proc = subprocess.Popen([sys.executable, "-m", "droid.subunits.gmf1.agent", "gmf1", "--cell", str(cell)],
                             cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        wait_for(lambda: not snoop_json(cell, "mvs")[0]["stale"], what="mvs fresh again")
+        wait_for(lambda: not snoop_json(cell, "gmf1")[0]["stale"], what="gmf1 fresh again")
     finally:
         proc.terminate()
         proc.wait(10)
@@ -149,28 +149,31 @@ def _free_port():
 def test_cell_over_tcp_started_host_by_host(tmp_path, cell_name):
     """Every link over tcp:// on loopback, and each host's programs started by its own
     `droid-cell up --host`, subunits before the Brain (thesis §3.2: a subunit should be
-    powered and identified before the Brain's initialization software runs)."""
+    powered and identified before the Brain's initialization software runs).  The
+    world -- the hardware the subunits drive -- runs on its own host and comes first."""
     import re
 
     path = make_cell_file(tmp_path, cell_name)
     text = re.sub(r'"ipc://\{run\}/[a-z0-9.]+"', lambda m: f'"tcp://127.0.0.1:{_free_port()}"',
                   path.read_text())
     assert "ipc://" not in text
-    path.write_text(text)
+    world = '[world]\nenabled = true\nhost = "brain"'
+    assert world in text
+    path.write_text(text.replace(world, '[world]\nenabled = true\nhost = "world"'))
     try:
-        for hosts in (["arm1", "gmf1"], ["mvs"], ["brain"]):
+        for hosts in (["world"], ["arm1", "gmf1"], ["mvs"], ["brain"]):
             args = [a for h in hosts for a in ("--host", h)]
             out = droid(CELL, "up", *args, "--cell", str(path), timeout=90)
             assert out.returncode == 0, out.stderr
         again = droid(CELL, "up", "--host", "mvs", "--cell", str(path))
         assert again.returncode == 1 and "already up" in again.stderr
         rows = cell_status(path)
-        assert len(rows) == 11
+        assert len(rows) == 10
         for sub in ("arm1", "gmf1", "mvs", "tool"):
             wait_for(lambda: not snoop_json(path, sub)[0]["stale"], what=f"{sub} fresh over tcp")
         names = droid("droid.brain.names", "--list", "--json", "--cell", str(path))
         eps = {json.loads(l)["name"]: json.loads(l)["endpoint"] for l in names.stdout.splitlines()}
-        assert set(eps) == {"heartbeat", "arm1", "gmf1", "mvs", "tool"}
+        assert set(eps) == {"heartbeat", "arm1", "gmf1"}  # the sensors have serial links, no agents
         assert all(e.startswith("tcp://127.0.0.1:") for e in eps.values())
     finally:
         out = droid(CELL, "down", "--cell", str(path))

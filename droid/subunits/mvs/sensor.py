@@ -314,7 +314,7 @@ def apply_cell(args):
     sub = cell.subunit(args.subunit)
     where = f"{cell.path}: [subunits.{sub.name}]"
     if sub.cls != "line_laser":
-        raise BadInput(f"{where} is a {sub.cls} subunit, not a line_laser sensor")
+        raise BadInput(f"{where} is class {sub.cls!r}, not a line_laser sensor")
     opts = sub.options
 
     def option(key, typ, default=None):
