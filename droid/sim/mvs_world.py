@@ -71,7 +71,7 @@ from droid.sim.tool_sensor import ToolReading, measure
 from droid.sim.workpiece import Workpiece, load_workpiece
 from droid.sim.world import Device
 from droid.subunits.mvs.calibration import MvsCalibration
-from droid.subunits.mvs.wire import FRAME_RATE_HZ
+from droid.subunits.mvs.wire import COLUMNS, FRAME_RATE_HZ, ROWS
 
 DEFAULT_STANDOFF_MM = 150.0
 
@@ -204,6 +204,28 @@ class ToolSensorCore:
         return line
 
 
+class IdealSensorCore(ToolSensorCore):
+    """The lead sensor as exact geometry (lockstep's ``ideal_sensor``): what a perfect MVS reports.
+
+    Like the tool-tip sensor, plus the field of view of ``calib``: a seam
+    point outside the 240 rows x 512 columns reads ``invalid``.
+    """
+
+    def __init__(self, workpiece: Workpiece, calib: MvsCalibration) -> None:
+        super().__init__(workpiece)
+        ys = calib.lateral_of(np.array([0.0, ROWS - 1.0]))
+        xs = (np.array([0.0, COLUMNS - 1.0]) - calib.column_at_origin) * calib.depth_mm_per_column
+        self.y_range_mm = (float(ys.min()), float(ys.max()))
+        self.x_range_mm = (float(xs.min()), float(xs.max()))
+
+    def reading(self, T_W_S: np.ndarray) -> ToolReading | None:
+        m = super().reading(T_W_S)
+        if m is None or not (self.y_range_mm[0] <= m.lateral_mm <= self.y_range_mm[1]
+                             and self.x_range_mm[0] <= m.height_mm <= self.x_range_mm[1]):
+            return None
+        return m
+
+
 class ToolSensorDevice(Device):
     """The tool-tip sensor in the world: core + mount + a paced serial output."""
 
@@ -328,7 +350,8 @@ class MvsLockstep:
 def mvs_lockstep(scheduler, devices: Mapping[str, Any], camera: dict[str, Any],
                  tool: dict[str, Any] | None = None, *, seed: int = 0, stale_ticks: int = 3,
                  baud: int = DEFAULT_BAUD, sensor_calibration: dict | None = None,
-                 retrace_timeout_s: float = 0.1, name: str = "lockstep") -> MvsLockstep:
+                 retrace_timeout_s: float = 0.1, ideal_sensor: bool = False,
+                 name: str = "lockstep") -> MvsLockstep:
     """Put the MVS chain (and the tool-tip sensor) on a lockstep :class:`~droid.sim.lockstep.Scheduler`.
 
     ``devices`` maps names to world devices (the arm twins, with
@@ -350,6 +373,12 @@ def mvs_lockstep(scheduler, devices: Mapping[str, Any], camera: dict[str, Any],
     The lines travel through :class:`PacedPipe` at ``baud``, so a reading
     reaches the Status about one tick after its frame, as in the real-time
     cell.  Call ``close()`` at the end (it releases the inproc board).
+
+    ``ideal_sensor=True`` skips the camera and the feature extraction (most of
+    the cost: ~1 ms a frame): the lead sensor's line is the exact geometry
+    (:func:`~droid.sim.tool_sensor.measure` at S, as the tool-tip sensor
+    reports it), ``invalid`` outside the sensor calibration's field of view.
+    No pixels, no noise; use it where only the geometry matters.
     """
     from droid.sim.lockstep import ORDER_DEVICE, ORDER_WORLD
     from droid.subunits.mvs.dsp import open_dsp
@@ -383,6 +412,12 @@ def mvs_lockstep(scheduler, devices: Mapping[str, Any], camera: dict[str, Any],
     def camera_task(t_ns: int) -> None:
         cam.frame(t_ns)
 
+    ideal = IdealSensorCore(cam.twin.camera.workpiece, calib) if ideal_sensor else None
+
+    def ideal_task(t_ns: int) -> None:
+        sensor.frames += 1
+        run.mvs.pipe.write(ideal.step(cam.mount.T_W()), t_ns)
+
     def sensor_task(t_ns: int) -> None:
         got = board.wait_frame(0)
         if got is not None:
@@ -401,8 +436,11 @@ def mvs_lockstep(scheduler, devices: Mapping[str, Any], camera: dict[str, Any],
             ch.status.update(**ch.link.on_tick(tick, ch.pipe.read(t_ns), t_ns))
         return on_tick
 
-    scheduler.every(cam.clock.rate_hz, camera_task, f"{name}.mvs_camera", order=ORDER_WORLD)
-    scheduler.every(cam.clock.rate_hz, sensor_task, f"{name}.mvs_sensor", order=ORDER_DEVICE)
+    if ideal is None:
+        scheduler.every(cam.clock.rate_hz, camera_task, f"{name}.mvs_camera", order=ORDER_WORLD)
+        scheduler.every(cam.clock.rate_hz, sensor_task, f"{name}.mvs_sensor", order=ORDER_DEVICE)
+    else:
+        scheduler.every(cam.clock.rate_hz, ideal_task, f"{name}.mvs_sensor", order=ORDER_DEVICE)
     scheduler.on_tick(link_task(run.mvs), f"{name}.mvs_link")
     if run.tool is not None:
         tool_dev, tool_chain = run.tool, run.tool_chain

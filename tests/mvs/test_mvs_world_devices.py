@@ -264,3 +264,28 @@ def test_lockstep_sensor_follows_a_moving_holder():
     assert run.mvs.status.read()["y"] == pytest.approx(4.0, abs=0.5)
     assert run.tool_chain.status.read()["y"] == pytest.approx(4.0, abs=0.2)
     assert math.isfinite(run.tool_chain.status.read()["x"])
+
+
+def test_lockstep_ideal_sensor_reads_the_exact_geometry_and_agrees_with_the_camera():
+    arm, holder, _ = rig(holder_shifted(3.0, 1.0))
+    sched = Scheduler(60.0)
+    run = mvs_lockstep(sched, {"arm1": arm, "gmf1": holder}, CAMERA, seed=1, ideal_sensor=True)
+    try:
+        sched.run_for(1.0)
+    finally:
+        run.close()
+    st = run.mvs.status.read()
+    assert (st["x"], st["y"], st["homed"], st["stale"]) == (1.0, 3.0, 0, 0)
+    assert run.camera.frames == 0 and run.sensor.frames == 61  # nothing rendered
+    camera_run, _ = run_lockstep(1.0, seed=1)  # the same layout through pixels and extraction
+    cam = camera_run.mvs.status.read()
+    assert (cam["x"], cam["y"]) == pytest.approx((1.0, 3.0), abs=0.6)
+
+
+def test_ideal_sensor_is_invalid_outside_the_field_of_view():
+    from droid.sim.mvs_world import IdealSensorCore
+
+    core = IdealSensorCore(STEP, MvsCalibration())
+    assert core.step(pose_for_reading(STEP, 70.0, 2.0, 23.0)) == b"2.000,23.000,0.00000\n"
+    assert core.step(pose_for_reading(STEP, 70.0, 0.0, 24.5)) == b"invalid\n"  # beyond +-23.9 mm
+    assert core.step(pose_for_reading(STEP, 70.0, -26.0, 0.0)) == b"invalid\n"  # beyond +-25.55 mm
