@@ -8,10 +8,12 @@ lines into the Brain's Status records, droid-snoop shows them.
 """
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -50,8 +52,6 @@ def up(path):
 
 
 def snoop(path, sub, count=1, rate=20):
-    import json
-
     out = droid(SNOOP, sub, "--json", "--count", str(count), "--rate", str(rate), "--cell", str(path))
     assert out.returncode == 0, out.stderr
     return [json.loads(line) for line in out.stdout.splitlines()]
@@ -175,7 +175,6 @@ def test_sensor_in_a_cell_takes_board_port_and_calibration_from_the_cell(tmp_pat
         assert os.read(r, 4) == b"R"
         client = SensorClientCore()
         data = b""
-        import time
         deadline = time.monotonic() + 10
         while data.count(b"\n") < 12 and time.monotonic() < deadline:
             data += end.read()

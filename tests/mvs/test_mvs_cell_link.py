@@ -3,11 +3,13 @@ from __future__ import annotations
 
 import math
 import os
+import time
 import tty
 from pathlib import Path
 
 import numpy as np
 import pytest
+import serial
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -176,7 +178,6 @@ def poll_until(reader, pred, limit=200):
         got += data
         if pred(got, ok):
             return got
-        import time
         time.sleep(0.002)
     raise AssertionError(f"condition not met; got {got!r}")
 
@@ -201,7 +202,6 @@ def test_reader_survives_a_vanishing_port_and_reopens_with_back_off(pty_link):
 
     def opener(url, baud):
         opens.append(url)
-        import serial
         return serial.serial_for_url(url, baudrate=baud, timeout=0)
 
     reader = SerialPortReader(str(link), 19200, min_backoff_ticks=2, max_backoff_ticks=8, opener=opener)

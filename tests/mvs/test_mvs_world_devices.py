@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import os
 import time
 
 import numpy as np
@@ -132,7 +133,7 @@ def test_tool_sensor_device_writes_height_lateral_roll_lines(world_cell):
         if port is not None:
             port.close()
         world.close()
-    assert not any(p.endswith(".tty") for p in __import__("os").listdir(world_cell.run_dir))
+    assert not any(p.endswith(".tty") for p in os.listdir(world_cell.run_dir))
 
 
 def test_tool_sensor_is_invalid_off_the_workpiece(world_cell):
@@ -145,10 +146,6 @@ def test_tool_sensor_is_invalid_off_the_workpiece(world_cell):
     assert core.step(pose_for_reading(STEP, 20.0) @ pose_to_T(0, 0, 0, 0, 90, 0) @ pose_to_T(0, 0, 5, 0, 0, 0)) \
         == b"invalid\n"
     assert (core.lines, core.valid) == (3, 1)
-
-
-def device_table(world_cell, name):
-    return dict(world_cell.world["devices"][name])
 
 
 @pytest.mark.parametrize("device,change,message", [
