@@ -31,9 +31,10 @@ from droid.brain.heartbeat import TickSubscriber
 from droid.brain.layouts import ARM_COMMAND_LAYOUT, FAULT_LINK, LayoutError, check_header
 from droid.brain.link import RemoteLinkCore
 from droid.brain.names import NameClient
-from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
+from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
+from droid.brain.rt import try_sched_fifo
 from droid.brain.sensor_link import LINK_SERIAL, link_kind, serve_serial
-from droid.cli import RuntimeFailure, run
+from droid.cli import run
 
 PROG = "droid-remote"
 COPY_FIELDS_ARM = ("encoder_pos", "encoder_cmd", "busy", "homed", "fault", "cmd_mode", "coord",
@@ -77,14 +78,11 @@ class StatusTranslator:
 
 @run
 def main(argv=None) -> int:
-    ap = parser(PROG, "Keep one subunit's Brain database in step with its agent, once per heartbeat.")
-    ap.add_argument("subunit", help="subunit name, e.g. arm1")
-    args = ap.parse_args(argv)
-    cell = open_cell(args)
-    sub = cell.subunit(args.subunit)
+    args, cell, sub = subunit_program(
+        PROG, "Keep one subunit's Brain database in step with its agent, once per heartbeat.", argv)
+    try_sched_fifo(priority=50, wanted=cell.sched_fifo, prog=PROG)
     if link_kind(cell, sub) == LINK_SERIAL:
         return serve_serial(cell, sub, args.ready_fd, PROG)
-    Stop.install()
     status = open_brain(cell, sub, "status")
     command = open_brain(cell, sub, "command") if "command" in brain_layouts(sub) else None
     fk = ArmPose(sub) if sub.is_arm else None

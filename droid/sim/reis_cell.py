@@ -35,6 +35,7 @@ from droid.sim.reis_plant import ReisPlant, ReisPlantParams
 from droid.subunits.agent import COMMAND_MAP
 from droid.subunits.reis import servo_wire as sw
 from droid.subunits.reis.planner import PlannerCore
+from droid.subunits.reis.planner import apply as apply_plan
 from droid.subunits.reis.servo import ServoCore
 from droid.subunits.reis.servo_agent import MY_FAULTS, ServoAgentCore
 from droid.subunits.reis.servo_params import ServoParams
@@ -132,17 +133,7 @@ class LockstepArm:
             self.ctrl_command.update(link_alive=0, brain_tick=tick)
         if self.alive["planner"]:
             out = self.planner.step(self.ctrl_command.read(), self.ctrl_status.read())
-            with self.ctrl_command.locked() as c:
-                if out.encoder_cmd_int is not None:
-                    c["encoder_cmd_int"] = out.encoder_cmd_int
-                    c["encoder_cmd_ext"] = out.encoder_cmd_ext
-                    c["joint_time_count"] = out.joint_time_count
-                if out.plan_id is not None:
-                    c["plan_id"] = out.plan_id
-                c["planner_tick"] = tick
-            fields = {k: getattr(out, k) for k in ("busy", "cmd_id", "cmd_result") if getattr(out, k) is not None}
-            if fields:
-                self.ctrl_status.update(**fields)
+            apply_plan(out, self.ctrl_command, self.ctrl_status, tick)
         if self.alive["link"]:
             # the reply: controller Status -> Brain Status, with forward kinematics (§4.1.8)
             st = self.ctrl_status.read()

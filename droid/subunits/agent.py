@@ -34,7 +34,7 @@ from droid.brain.layouts import ARM_COMMAND_LAYOUT, FAULT_LINK, LayoutError, che
 from droid.brain.link import AgentLinkCore
 from droid.brain.names import NameClient
 from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
-from droid.brain.rt import PeriodicTimer
+from droid.brain.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import RuntimeFailure, run
 
 # Brain Command (Table 3.2) -> controller Command (Table 4.3)
@@ -74,6 +74,7 @@ def agent_main(prog: str, argv=None) -> int:
     cell = open_cell(args)
     sub = cell.subunit(args.subunit)
     Stop.install()
+    try_sched_fifo(priority=51, wanted=cell.sched_fifo, prog=prog)
     layouts = local_layouts(sub)
     status = open_local(cell, sub, "ctrl_status")
     ctrl_cmd = open_local(cell, sub, "ctrl_command") if "ctrl_command" in layouts else None

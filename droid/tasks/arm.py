@@ -19,7 +19,7 @@ import numpy as np
 
 from droid.brain.cellfile import Cell
 from droid.brain.databases import open_brain
-from droid.brain.layouts import (CARTSPACE, CMD_FAILED, CMD_OK, CMD_REFUSED, FAULT_DEVICE, FAULT_NAMES,
+from droid.brain.layouts import (CARTSPACE, CMD_OK, CMD_REFUSED, FAULT_DEVICE, FAULT_NAMES,
                                  FAULT_SERVO, FAULT_WATCHDOG, HOME_MODE,
                                  JOG_MODE, JSPACE, NORMAL_MODE)
 from droid.cli import BadInput, RuntimeFailure

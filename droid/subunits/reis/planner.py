@@ -32,11 +32,12 @@ import zmq
 
 from droid.brain.databases import open_local
 from droid.brain.heartbeat import TickSubscriber
-from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
-from droid.cli import BadInput, run
+from droid.brain.rt import try_sched_fifo
+from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
+from droid.cli import run
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T
-from droid.brain.layouts import (CARTSPACE, CMD_FAILED, CMD_OK, CMD_REFUSED, FAULT_BRAKING, FAULT_SERVO,
+from droid.brain.layouts import (CMD_FAILED, CMD_OK, CMD_REFUSED, FAULT_BRAKING, FAULT_SERVO,
                                  FAULT_WATCHDOG, JSPACE, NORMAL_MODE)
 from droid.kinematics import RobotModel, Unreachable
 
@@ -181,15 +182,9 @@ PROG = "droid-planner"
 
 @run
 def main(argv=None) -> int:
-    ap = parser(PROG, "Plan an arm's joint and cartesian commands into per-tick way-points (thesis §4.1.7).")
-    ap.add_argument("subunit", help="arm subunit, e.g. arm1")
-    args = ap.parse_args(argv)
-    cell = open_cell(args)
-    sub = cell.subunit(args.subunit)
-    if not sub.is_arm:
-        raise BadInput(f"{sub.name} is not an arm")
+    args, cell, sub = subunit_program(PROG, "Plan an arm's joint and cartesian commands into per-tick way-points (thesis §4.1.7).", argv, arm=True)
     model = load_robot(sub.robot).with_base(pose_to_T(*sub.base))
-    Stop.install()
+    try_sched_fifo(priority=51, wanted=cell.sched_fifo, prog=PROG)
     ctrl_command = open_local(cell, sub, "ctrl_command")
     ctrl_status = open_local(cell, sub, "ctrl_status")
     ctx = zmq.Context()

@@ -31,11 +31,11 @@ import numpy as np
 import zmq
 
 from droid.brain.databases import open_local
-from droid.brain.layouts import (CMD_FAILED, CMD_OK, FAULT_BRAKING, FAULT_SERVO, FAULT_WATCHDOG, HOME_MODE,
+from droid.brain.layouts import (CMD_FAILED, CMD_OK, FAULT_BRAKING, FAULT_SERVO, HOME_MODE,
                                  HOMED, JOG_MODE, NORMAL_MODE, OFF)
-from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
-from droid.brain.rt import PeriodicTimer
-from droid.cli import BadInput, RuntimeFailure, run
+from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
+from droid.brain.rt import PeriodicTimer, try_sched_fifo
+from droid.cli import run
 from droid.subunits.reis import servo_wire as sw
 from droid.subunits.reis.endpoints import reis_endpoints
 from droid.subunits.reis.servo_params import Fault, Mode
@@ -129,15 +129,9 @@ class ServoAgentCore:
 
 @run
 def main(argv=None) -> int:
-    ap = parser(PROG, "Relay an arm's controller database to its servo at 60 Hz, and the servo's status back.")
-    ap.add_argument("subunit", help="arm subunit, e.g. arm1")
-    args = ap.parse_args(argv)
-    cell = open_cell(args)
-    sub = cell.subunit(args.subunit)
-    if not sub.is_arm:
-        raise BadInput(f"{sub.name} is not an arm")
+    args, cell, sub = subunit_program(PROG, "Relay an arm's controller database to its servo at 60 Hz, and the servo's status back.", argv, arm=True)
     ep = reis_endpoints(cell, sub)
-    Stop.install()
+    try_sched_fifo(priority=54, wanted=cell.sched_fifo, prog=PROG)
     ctrl_command = open_local(cell, sub, "ctrl_command")
     ctrl_status = open_local(cell, sub, "ctrl_status")
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")

@@ -19,9 +19,9 @@ import time
 import numpy as np
 import zmq
 
-from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
+from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
-from droid.cli import BadInput, RuntimeFailure, run
+from droid.cli import RuntimeFailure, run
 from droid.subunits.reis import servo_wire as sw
 from droid.subunits.reis.endpoints import reis_endpoints
 from droid.subunits.reis.servo import ServoCore
@@ -47,15 +47,8 @@ def open_vme_waiting(url: str, wait_s: float):
 
 @run
 def main(argv=None) -> int:
-    ap = parser(PROG, "Run the 500 Hz servo loop of a Reis arm on its VME interface cards.")
-    ap.add_argument("subunit", help="arm subunit, e.g. arm1")
-    args = ap.parse_args(argv)
-    cell = open_cell(args)
-    sub = cell.subunit(args.subunit)
-    if not sub.is_arm:
-        raise BadInput(f"{sub.name} is not an arm")
+    args, cell, sub = subunit_program(PROG, "Run the 500 Hz servo loop of a Reis arm on its VME interface cards.", argv, arm=True)
     ep = reis_endpoints(cell, sub)
-    Stop.install()
     try_sched_fifo(priority=60, wanted=cell.sched_fifo, prog=PROG)
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
     ctx = zmq.Context()

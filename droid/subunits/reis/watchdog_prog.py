@@ -18,9 +18,9 @@ import zmq
 
 from droid.brain.databases import open_local
 from droid.brain.layouts import FAULT_WATCHDOG
-from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
+from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
-from droid.cli import BadInput, run
+from droid.cli import run
 from droid.subunits.reis import servo_wire as sw
 from droid.subunits.reis import vme_map as vm
 from droid.subunits.reis.endpoints import reis_endpoints
@@ -32,15 +32,8 @@ PROG = "droid-watchdog"
 
 @run
 def main(argv=None) -> int:
-    ap = parser(PROG, "Kick a Reis arm's watchdog timers while its servo is alive.")
-    ap.add_argument("subunit", help="arm subunit, e.g. arm1")
-    args = ap.parse_args(argv)
-    cell = open_cell(args)
-    sub = cell.subunit(args.subunit)
-    if not sub.is_arm:
-        raise BadInput(f"{sub.name} is not an arm")
+    args, cell, sub = subunit_program(PROG, "Kick a Reis arm's watchdog timers while its servo is alive.", argv, arm=True)
     ep = reis_endpoints(cell, sub)
-    Stop.install()
     try_sched_fifo(priority=55, wanted=cell.sched_fifo, prog=PROG)
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
     ctx = zmq.Context()
@@ -73,7 +66,10 @@ def main(argv=None) -> int:
                 except sw.BadServoMessage:
                     continue
                 heartbeat, fault = rep.tick, bool(rep.fault)
-            kick = core.step(heartbeat, fault)
+            # The amplifiers are powered only once the servo runs and holds the arm
+            # (§4.1.4: "the operator can safely enable the servo motors without
+            # having unwanted motion"): no kick before its first status message.
+            kick = core.step(heartbeat, fault) if heartbeat is not None else None
             if kick is not None:
                 bus.write_watchdog(*kick)
             latched = bool(bus.read_amp_status() & vm.AMP_STATUS_WATCHDOG_FAULT)
@@ -83,7 +79,7 @@ def main(argv=None) -> int:
                     f = int(st["fault"])
                     st["fault"] = (f | FAULT_WATCHDOG) if latched else (f & ~FAULT_WATCHDOG)
                     status.mark_written()
-            elif not reported:
+            elif heartbeat is not None and not reported:
                 reported = True
                 print(f"{PROG} {sub.name}: servo dead or faulted: stopped kicking; the amplifiers "
                       f"will latch off until the controller's power is cycled", file=sys.stderr, flush=True)
