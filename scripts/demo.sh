@@ -11,7 +11,7 @@ trap 'droid-cell down' EXIT
 droid-cell status
 droid-home arm1
 droid-move arm1 joint 0 0 0 0 0 0 2
-droid-move arm1 cart 300 100 1340 0 90 0 3
+droid-move arm1 cart 300 100 1340 0 180 0 3   # sensor over the seam (docs/mvs.md)
 for sub in arm1 gmf1 mvs tool; do
     droid-snoop "$sub" --count 1
 done
