@@ -32,6 +32,7 @@ DEFAULT_RATE_HZ = 1000.0
 # type -> (module, factory function)
 DEVICE_TYPES: dict[str, tuple[str, str]] = {
     "reis_vme": ("droid.sim.reis_world", "make_reis"),
+    "karel_s400": ("droid.sim.karel", "make_karel"),
 }
 
 
