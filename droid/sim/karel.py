@@ -62,12 +62,16 @@ class KarelDevice(Device):
         self.t_s = 0.0
         self.bytes_in = 0
         self.bytes_out = 0
+        self.halted = False  # fault injection: the KAREL program hangs (reads nothing, answers nothing)
 
     def advance(self, dt_s: float) -> None:
         t0 = self.t_s
         self.t_s = t1 = t0 + dt_s
         c = self.controller
         data = self.transport.read_available()
+        if self.halted:
+            self.twin.update(None)
+            return
         if data:
             self.bytes_in += len(data)
             c.receive(data, t0)

@@ -11,8 +11,8 @@ at a time, bytes out at a time, joint angles at a time; no I/O, no clock.
   9600 baud.
 * The interpreter: a request line is read when its terminator arrives.  Each
   line read costs one interpreter cycle (``1 / cycle_hz`` s); a line arriving
-  while the cycle of the previous one is still running is rejected at once
-  with ``BUSY id`` (the front end reads nothing more than the id).  A motion
+  while the cycle of the previous one is still running is rejected with
+  ``BUSY id`` (the front end reads nothing more than the id).  A motion
   request (MOVE/JMOVE/HOME) while a motion is in progress is rejected with
   ``BUSY id`` too.  The reply is queued ``reply_delay_s`` after the line ended.
 * Motion: MOVE is solved with the robot model's inverse kinematics and the
@@ -207,7 +207,8 @@ class KarelController:
             # the interpreter is still in the previous cycle: the front end only reads the id
             self.busy_rejects += 1
             rid = _peek_id(line)
-            self._queue_reply(t_line, kw.Reply(kw.BUSY, rid) if rid else kw.Reply(kw.ERR, 0, code=kw.ERR_SYNTAX))
+            self._queue_reply(t_line + self.p.reply_delay_s,
+                              kw.Reply(kw.BUSY, rid) if rid else kw.Reply(kw.ERR, 0, code=kw.ERR_SYNTAX))
             return
         self._interp_free_s = t_line + 1.0 / self.p.cycle_hz
         t_reply = t_line + self.p.reply_delay_s

@@ -50,8 +50,9 @@ class Quad04Card:
                  identity=None, opened_as=None) -> None:
         mv = memoryview(buf)
         if mv.nbytes < qm.MAP_SIZE:
+            n = mv.nbytes
             mv.release()
-            raise BadInput(f"{name}: {mv.nbytes} bytes is too small for an encoder card ({qm.MAP_SIZE})")
+            raise BadInput(f"{name}: {n} bytes is too small for an encoder card ({qm.MAP_SIZE})")
         self._mv = mv[: qm.MAP_SIZE]
         mv.release()
         self.name = name
