@@ -53,6 +53,8 @@ class Quad04Twin:
         for card in range(qm.CARDS):
             mv = self._mvs[card]
             w = qm.CHANNEL_BLOCK.unpack_from(mv, qm.OFF_CHANNEL0)
+            if motor_counts is None and not (w[2] or w[6] or w[10] or w[14]):
+                continue  # nothing moved, no command: the registers are up to date
             for ch in range(qm.CHANNELS):
                 slot = card * qm.CHANNELS + ch
                 count = (self._motor[slot] + self.offset[slot]) & qm.COUNTER_MASK

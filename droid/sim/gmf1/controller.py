@@ -131,6 +131,7 @@ class KarelController:
         self._vlim = model.vmax_deg_s * self.p.joint_speed_fraction
         self.motion: Motion | None = None
         self.last_motion_id = 0
+        self.last_duration_s = 0.0  # planned duration of the last accepted motion [s]
         self._interp_free_s = 0.0  # the interpreter can read the next line from this time on
         self._replies: list[tuple[float, bytes]] = []  # (due time [s], bytes), in time order
         self.t_s = 0.0
@@ -241,6 +242,7 @@ class KarelController:
             self.completed += 1
         self.motion = Motion(q_now, q_goal, t_reply, duration, self.p.ramp_s, req.cmd_id)
         self.last_motion_id = req.cmd_id
+        self.last_duration_s = duration
         self.accepted += 1
         self._queue_reply(t_reply, kw.Reply(kw.ACK, req.cmd_id, seconds=duration))
         self._queue_reply(t_reply + duration, kw.Reply(kw.DONE, req.cmd_id))

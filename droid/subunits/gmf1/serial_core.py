@@ -34,8 +34,9 @@ Drop policy: while a command is in flight (sent, not DONE) newer commands wait
 as one *pending* command; a newer one replaces it and the replaced one is
 counted in ``dropped`` (as are cmd_ids skipped between two ticks).  The pending
 command is sent once the previous move is DONE and the interpreter's cycle has
-passed (no two lines closer than one cycle + the previous line's time on the
-wire), so the controller never sees more than ``cycle_hz`` lines a second.
+passed: a line is written only if its last byte reaches the controller at
+least one cycle (+ ``cycle_margin_s``) after the last byte of the previous
+line, so the controller never sees more than ``cycle_hz`` lines a second.
 
 Busy (Status.busy, heartbeat ticks): while a command is waiting or in flight,
 the ticks left of its planned duration (the controller's ``ACK`` seconds; the
@@ -88,6 +89,7 @@ class SerialParams:
     done_margin_s: float = 1.0
     done_margin_frac: float = 0.25
     probe_interval_s: float = 1.0
+    cycle_margin_s: float = 0.01  # slack on the interpreter's cycle (wake-up jitter, world step)
     reopen_min_s: float = 0.1
     reopen_max_s: float = 2.0
 
@@ -164,7 +166,8 @@ class SerialCore:
         self.pending: CommandSnapshot | None = None
         self.last_seen: int | None = None
         self.fault = True  # no port yet
-        self.next_tx_tick = 0
+        self.next_tx_tick = 0  # hold-off after a BUSY answer
+        self._cycle_free_s = -1e9  # our last line's end + the interpreter's cycle [s, tick clock]
         self.probe_id = 0
         self.probe_tick = 0
         self.probe_due = 0  # when to send the next probe (PROBING)
@@ -387,10 +390,13 @@ class SerialCore:
     def _send(self, tick: int, st: StatusView, out: SerialOut) -> None:
         if self.state == PROBING:
             if not self.probe_id and tick >= max(self.probe_due, self.next_tx_tick):
-                self.probes += 1
-                self.probe_id = PROBE_ID_BASE + (self.probes % 0x0FFFFFFF)
-                self.probe_tick = tick
-                self._write(tick, kw.format_stat(self.probe_id), out)
+                probe_id = PROBE_ID_BASE + ((self.probes + 1) % 0x0FFFFFFF)
+                line = kw.format_stat(probe_id)
+                if self._may_send(tick, line):
+                    self.probes += 1
+                    self.probe_id = probe_id
+                    self.probe_tick = tick
+                    self._write(tick, line, out)
             return
         if self.state != IDLE or tick < self.next_tx_tick:
             return
@@ -411,6 +417,10 @@ class SerialCore:
             self.status.update(cmd_id=cmd.cmd_id, cmd_result=CMD_REFUSED, busy=0, cmd_mode=cmd.cmd_mode,
                                coord=cmd.coord)
             return
+        if not self._may_send(tick, line):  # the interpreter is still in the cycle of our last line
+            self.pending = cmd
+            self._retries_of_pending = retries
+            return
         rt = self.p.ticks(self.p.reply_timeout_s)
         self.flight = _Flight(cmd, verb, tick, want, deadline=tick + rt + self._margin(want), retries=retries)
         self.state = WAIT_ACK
@@ -423,10 +433,17 @@ class SerialCore:
             self.status["encoder_cmd"] = np.zeros(6, np.int32)
         self._write(tick, line, out)
 
+    def _wire_s(self, line: bytes) -> float:
+        return len(line) * kw.BITS_PER_BYTE / self.p.baud
+
+    def _may_send(self, tick: int, line: bytes) -> bool:
+        """True if ``line`` written now would end after the interpreter's cycle of our previous line."""
+        return tick * self.p.period_s + self._wire_s(line) >= self._cycle_free_s
+
     def _write(self, tick: int, line: bytes, out: SerialOut) -> None:
         out.tx += line
-        wire_s = len(line) * kw.BITS_PER_BYTE / self.p.baud
-        self.next_tx_tick = tick + self.p.ticks(1.0 / self.p.cycle_hz + wire_s)
+        end_s = tick * self.p.period_s + self._wire_s(line)
+        self._cycle_free_s = end_s + 1.0 / self.p.cycle_hz + self.p.cycle_margin_s
 
     def _request(self, cmd: CommandSnapshot, st: StatusView):
         """(verb, line, requested ticks, target counts or None) for a command, or raise _Refused."""

@@ -75,6 +75,7 @@ def main(argv=None) -> int:
         presence.ready()
         notify_ready(args.ready_fd)
         last_error = ""
+        opens = link.opens
         while not Stop.requested:
             t = ticks.wait(POLL_MS / 1000.0)
             if t is None:
@@ -84,6 +85,9 @@ def main(argv=None) -> int:
                 last_error = link.last_error
                 if last_error:
                     print(f"{PROG}: serial {url}: {last_error}", file=sys.stderr)
+            if link.opens != opens:
+                opens = link.opens
+                print(f"{PROG}: serial {url} open", file=sys.stderr)
             presence.beat(t.tick, core.sent, core.timeouts, 0)
         print(f"{PROG}: sent {core.sent}, completed {core.completed}, dropped {core.dropped}, refused "
               f"{core.refused}, failed {core.failed}, garbled {core.garbled}, timeouts {core.timeouts}, "
