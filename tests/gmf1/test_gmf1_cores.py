@@ -185,3 +185,19 @@ def test_no_pose_before_homing():
     core = EncoderCore(MODEL)
     out = core.step(np.full(6, 123), np.zeros(6), HomeView(OFF, 0, CMD_OK, 0))
     assert "x" not in out.fields and np.all(out.fields["encoder_pos"] == 123)
+
+
+def test_a_garbled_line_is_a_visible_fault_even_when_good_lines_follow():
+    c = opened_core()
+    out = c.step(10, cmd(0), HOMED_VIEW, b"ST@T ??\r\nBUSY 99\r\n", True)
+    assert out.fault and c.garbled == 1
+    out = c.step(11, cmd(0), HOMED_VIEW, b"", True)
+    assert out.fault  # until the next well-formed reply (a probe is on its way)
+    pid = kw.parse_request(out.tx[:-1]).cmd_id if out.tx else None
+    tick = 11
+    while pid is None:
+        tick += 1
+        out = c.step(tick, cmd(0), HOMED_VIEW, b"", True)
+        pid = kw.parse_request(out.tx[:-1]).cmd_id if out.tx else None
+    out = c.step(tick + 5, cmd(0), HOMED_VIEW, kw.format_reply(kw.Reply(kw.STAT, pid, state=kw.IDLE)), True)
+    assert not out.fault and c.state == IDLE

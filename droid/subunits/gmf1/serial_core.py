@@ -200,8 +200,11 @@ class SerialCore:
         else:
             if self.state == CLOSED:
                 self._opened(tick)
+            garbled = self.garbled
             for line in self.rx.feed(rx or b""):
                 self._reply(tick, line, st)
+            if self.garbled != garbled:
+                self.fault = True  # shown for at least this tick, even if good lines followed
             self._timeouts(tick, out)
         if cmd is not None:
             self._take_command(cmd)
