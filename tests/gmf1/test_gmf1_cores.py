@@ -95,7 +95,7 @@ def test_home_clears_homed():
     assert out.tx == b"HOME 1\r" and out.fields["homed"] == 0 and out.fields["cmd_mode"] == HOME_MODE
 
 
-def test_a_late_done_after_a_timeout_does_not_resend():
+def test_a_late_done_after_a_timeout_turns_the_result_back_to_ok():
     c = opened_core()
     c.step(20, cmd(1), HOMED_VIEW, b"", True)
     c.step(25, cmd(1), HOMED_VIEW, b"ACK 1 0.500\r\n", True)
@@ -106,6 +106,48 @@ def test_a_late_done_after_a_timeout_does_not_resend():
     assert out.fields["cmd_result"] == CMD_FAILED and c.state == PROBING
     out = c.step(tick + 1, cmd(1), HOMED_VIEW, b"DONE 1\r\n", True)
     assert c.flight is None and c.state == IDLE and not out.fault and b"MOVE" not in out.tx
+    assert out.fields["cmd_result"] == CMD_OK and out.fields["busy"] == 0 and c.late == 1
+
+
+def test_a_failed_command_that_never_arrived_is_not_sent_late():
+    c = opened_core()
+    c.step(20, cmd(1), HOMED_VIEW, b"", True)
+    tick = 20
+    while c.flight is None or not c.flight.failed:
+        tick += 1
+        out = c.step(tick, cmd(1), HOMED_VIEW, b"", tick < 400)
+        if tick > 2000:
+            raise AssertionError("never failed")
+    # reopen and answer the probe: the controller never saw command 1
+    while True:
+        tick += 1
+        out = c.step(tick, cmd(1), HOMED_VIEW, b"", True)
+        if out.tx.startswith(b"STAT"):
+            pid = kw.parse_request(out.tx[:-1]).cmd_id
+            break
+    out = c.step(tick + 3, cmd(1), HOMED_VIEW,
+                 kw.format_reply(kw.Reply(kw.STAT, pid, state=kw.IDLE, motion_id=0)), True)
+    assert c.state == IDLE and c.flight is None and c.pending is None
+    for t in range(tick + 4, tick + 100):
+        assert c.step(t, cmd(1), HOMED_VIEW, b"", True).tx == b""
+
+
+def test_busy_answers_widen_the_gap_between_lines():
+    c = opened_core()
+    c.step(20, cmd(1), HOMED_VIEW, b"", True)
+    sends = [20]
+    tick = 20
+    for _ in range(4):  # the controller answers BUSY four times
+        c.step(tick + 3, cmd(1), HOMED_VIEW, b"BUSY 1\r\n", True)
+        tick += 3
+        while True:
+            tick += 1
+            if c.step(tick, cmd(1), HOMED_VIEW, b"", True).tx:
+                sends.append(tick)
+                break
+    gaps = [b - a for a, b in zip(sends, sends[1:])]
+    assert gaps == sorted(gaps) and gaps[-1] > gaps[0]
+    assert c.busy_rejects == 4 and c.sent == 5
 
 
 @settings(max_examples=200, deadline=None)

@@ -49,8 +49,13 @@ line.  The program then sends ``STAT`` probes; the fault clears at the first
 good reply.  Three unanswered probes in a row close the port, which is
 reopened with exponential back-off.  While the controller's state is unknown
 no new motion is sent; a probe that says IDLE resolves an in-flight command
-(its DONE was lost: OK; it never arrived: sent again), one that says MOVING
-waits for it.
+(its DONE was lost: OK; it never arrived: sent again — never if it was already
+reported failed), one that says MOVING waits for it.  A command reported
+failed that the controller finishes after all (a late DONE, or a probe naming
+it) turns back to CMD_OK: Status says what the arm did.
+
+Each BUSY answer widens the gap kept between lines by 50 ms (up to 1 s; every
+ACK halves it), so a controller slower than its nominal cycle is not flooded.
 """
 from __future__ import annotations
 
@@ -76,6 +81,8 @@ PROBE_ID_BASE = 0xF0000000  # STAT probes use ids far above any cmd_id a task wi
 MAX_ID_GAP = 1_000_000  # larger cmd_id jumps are a restart, not dropped commands
 MAX_RETRIES = 60  # BUSY/ERR answers to one command before it fails (~10 s at 6 Hz)
 PROBES_BEFORE_REOPEN = 3
+BUSY_BACKOFF_S = 0.05  # each BUSY answer widens the gap kept between lines by this much ...
+BUSY_BACKOFF_MAX_S = 1.0  # ... up to this; every ACK halves the extra gap again
 
 
 @dataclass(frozen=True)
@@ -168,6 +175,7 @@ class SerialCore:
         self.fault = True  # no port yet
         self.next_tx_tick = 0  # hold-off after a BUSY answer
         self._cycle_free_s = -1e9  # our last line's end + the interpreter's cycle [s, tick clock]
+        self._extra_gap_s = 0.0  # learnt from BUSY answers: the controller is slower than its nominal cycle
         self.probe_id = 0
         self.probe_tick = 0
         self.probe_due = 0  # when to send the next probe (PROBING)
@@ -189,6 +197,7 @@ class SerialCore:
         self.opens = 0
         self.unexpected = 0
         self.probes = 0
+        self.late = 0  # commands reported failed that the controller finished after all
 
     # ------------------------------------------------------------------ step
     def step(self, tick: int, cmd: CommandSnapshot | None, st: StatusView, rx: bytes | None,
@@ -278,13 +287,16 @@ class SerialCore:
             if self.state in (WAIT_ACK, PROBING):
                 self.state = MOVING
                 f.ack_tick = tick
+                self._extra_gap_s *= 0.5
                 f.planned_ticks = int(math.ceil(r.seconds / self.p.period_s - 1e-9))
                 f.deadline = tick + self._margin(f.planned_ticks)
         elif r.kind == kw.DONE:
             self._done(f)
             self.state = IDLE
         elif r.kind == kw.BUSY or (r.kind == kw.ERR and r.code != kw.ERR_RANGE):
-            self.busy_rejects += r.kind == kw.BUSY
+            if r.kind == kw.BUSY:
+                self.busy_rejects += 1
+                self._extra_gap_s = min(self._extra_gap_s + BUSY_BACKOFF_S, BUSY_BACKOFF_MAX_S)
             self._retry(tick, f)
         elif r.kind == kw.ERR:  # RANGE: the controller cannot reach it
             self.refused += 1
@@ -299,9 +311,10 @@ class SerialCore:
     def _done(self, f: _Flight) -> None:
         self.flight = None
         self.completed += 1
+        self.status["busy"] = 0
         if f.failed:
-            return  # the Brain was told it failed; the controller is free again
-        self.status.update(busy=0, cmd_result=CMD_OK)
+            self.late += 1  # reported failed (too late), but it did complete: say so
+        self.status["cmd_result"] = CMD_OK
 
     def _fail(self, f: _Flight) -> None:
         f.failed = True
@@ -446,7 +459,7 @@ class SerialCore:
     def _write(self, tick: int, line: bytes, out: SerialOut) -> None:
         out.tx += line
         end_s = tick * self.p.period_s + self._wire_s(line)
-        self._cycle_free_s = end_s + 1.0 / self.p.cycle_hz + self.p.cycle_margin_s
+        self._cycle_free_s = end_s + 1.0 / self.p.cycle_hz + self.p.cycle_margin_s + self._extra_gap_s
 
     def _request(self, cmd: CommandSnapshot, st: StatusView):
         """(verb, line, requested ticks, target counts or None) for a command, or raise _Refused."""

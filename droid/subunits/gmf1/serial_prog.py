@@ -76,11 +76,13 @@ def main(argv=None) -> int:
         notify_ready(args.ready_fd)
         last_error = ""
         opens = link.opens
+        cycles = 0
         while not Stop.requested:
             t = ticks.wait(POLL_MS / 1000.0)
             if t is None:
                 continue
             station.cycle(t.tick)
+            cycles += 1
             if link.last_error != last_error:
                 last_error = link.last_error
                 if last_error:
@@ -88,7 +90,7 @@ def main(argv=None) -> int:
             if link.opens != opens:
                 opens = link.opens
                 print(f"{PROG}: serial {url} open", file=sys.stderr)
-            presence.beat(t.tick, core.sent, core.timeouts, 0)
+            presence.beat(t.tick, cycles, ticks.monitor.missed, 0)
         print(f"{PROG}: sent {core.sent}, completed {core.completed}, dropped {core.dropped}, refused "
               f"{core.refused}, failed {core.failed}, garbled {core.garbled}, timeouts {core.timeouts}, "
               f"busy rejects {core.busy_rejects}, port opens {link.opens}", file=sys.stderr)
