@@ -31,6 +31,7 @@ PROGRAMS: dict[str, str] = {
     "droid-snoop": "droid.tasks.snoop",
     "droid-move": "droid.tasks.move",
     "droid-home": "droid.tasks.home",
+    "droid-jog": "droid.tasks.jog",
     # the world
     "droid-sim": "droid.sim.world",
 }

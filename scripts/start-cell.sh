@@ -32,8 +32,8 @@ bg servo-agent-arm1 droid-servo-agent arm1
 # 5. ... each subunit identifies itself in the name space through its agent ...
 bg agent-arm1 droid-reis-agent arm1
 bg agent-gmf1 droid-gmf1-agent gmf1
-bg agent-mvs droid-agent mvs
-bg agent-tool droid-agent tool
+# the MVS sensor PC runs the sensor program; its lines reach the Brain by a serial cable
+bg mvs-mvs droid-mvs mvs
 bg planner-arm1 droid-planner arm1
 # 6. ... one remote client per subunit on the Brain ...
 for sub in arm1 gmf1 mvs tool; do bg "remote-$sub" droid-remote "$sub"; done

@@ -7,6 +7,11 @@ arm it computes the wrist-centre pose by forward kinematics from the encoder
 positions (§4.1.8: "it uses the forward kinematic model ... to calculate the
 current cartesian position and orientation matrix of the wrist-center point").
 
+A ``line_laser`` subunit with ``link = "serial"`` (the MVS sensor, the
+tool-tip sensor) has no agent: the sensor writes its lines over a serial
+cable straight to the Brain (§2.5, §5.4) and this program reads that port
+instead (:mod:`droid.brain.sensor_link`).
+
 Liveness (:class:`~droid.brain.link.RemoteLinkCore`): ``stale_ticks`` ticks
 without a reply set ``stale = 1`` in the Status record; the remote then
 reconnects with back-off and clears ``stale`` on the next reply.
@@ -27,6 +32,7 @@ from droid.brain.layouts import ARM_COMMAND_LAYOUT, FAULT_LINK, LayoutError, che
 from droid.brain.link import RemoteLinkCore
 from droid.brain.names import NameClient
 from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
+from droid.brain.sensor_link import LINK_SERIAL, link_kind, serve_serial
 from droid.cli import RuntimeFailure, run
 
 PROG = "droid-remote"
@@ -76,6 +82,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     cell = open_cell(args)
     sub = cell.subunit(args.subunit)
+    if link_kind(cell, sub) == LINK_SERIAL:
+        return serve_serial(cell, sub, args.ready_fd, PROG)
     Stop.install()
     status = open_brain(cell, sub, "status")
     command = open_brain(cell, sub, "command") if "command" in brain_layouts(sub) else None

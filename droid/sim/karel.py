@@ -7,7 +7,9 @@ Device type ``karel_s400`` (cell file)::
     subunit = "gmf1"                  # whose [subunits.gmf1] serial, encoders, robot and base to use
                                       # (default: the device's name)
     seed = 3                          # power-up counter values (default: the world seed)
-    start_deg = [10, 15, 5, 0, 30, 0] # joint angles at power-up [deg] (not the home pose)
+    start_deg = [10, 15, 5, 0, 30, 0] # joint angles at power-up [deg] (not the home pose), or
+    # wcp = [x, y, z, A, B, C]        # the power-up wrist-centre pose in the global frame
+                                      # (mm, ZYZ deg; joints by IK and the pick nearest zero)
     cycle_hz = 6.0                    # KAREL interpreter cycle (thesis §4.2.4)
     speed_mm_s = 300.0                # wrist-centre speed cap
     joint_speed_fraction = 0.5        # of the robot model's joint velocity limits
@@ -33,7 +35,7 @@ import math
 import numpy as np
 
 from droid.cli import BadInput, RuntimeFailure
-from droid.kinematics import load_robot
+from droid.kinematics import Unreachable, load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.sim.gmf1.cards import Quad04Twin, SharedCard
 from droid.sim.gmf1.controller import KarelController, KarelParams
@@ -42,7 +44,7 @@ from droid.sim.world import Device
 from droid.subunits.gmf1.config import gmf1_config
 
 DEFAULT_START_DEG = (10.0, 15.0, 5.0, 0.0, 30.0, 0.0)
-OPTIONS = ("subunit", "seed", "start_deg", "cycle_hz", "speed_mm_s", "joint_speed_fraction", "ramp_s",
+OPTIONS = ("subunit", "seed", "start_deg", "wcp", "cycle_hz", "speed_mm_s", "joint_speed_fraction", "ramp_s",
            "reply_delay_s")
 PARAM_OPTIONS = ("cycle_hz", "speed_mm_s", "joint_speed_fraction", "ramp_s", "reply_delay_s")
 
@@ -114,10 +116,25 @@ def karel_params(options: dict, where: str) -> KarelParams:
         raise BadInput(f"{where} {exc}") from None
 
 
-def start_joints(options: dict, model, where: str) -> np.ndarray:
+def _six_numbers(v) -> bool:
+    return isinstance(v, list) and len(v) == 6 and all(
+        isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)
+
+
+def start_joints(options: dict, model, model_global, where: str) -> np.ndarray:
+    """Power-up joint angles [deg] from ``start_deg`` or ``wcp`` (global pose, by IK)."""
+    if "wcp" in options:
+        if "start_deg" in options:
+            raise BadInput(f"{where} give start_deg or wcp, not both")
+        wcp = options["wcp"]
+        if not _six_numbers(wcp):
+            raise BadInput(f"{where} wcp must be 6 finite numbers: x y z [mm] A B C [ZYZ deg]")
+        try:
+            return model_global.ik(pose_to_T(*wcp), np.zeros(6))
+        except Unreachable as exc:
+            raise BadInput(f"{where} wcp {wcp} is out of reach of {model.name}: {exc}") from None
     q = options.get("start_deg", list(DEFAULT_START_DEG))
-    if not isinstance(q, list) or len(q) != 6 or not all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in q):
+    if not _six_numbers(q):
         raise BadInput(f"{where} start_deg must be 6 joint angles [deg]")
     q = np.array(q, float)
     why = model.limit_violation(q)
@@ -141,7 +158,8 @@ def make_karel(world, name: str, options: dict) -> KarelDevice:
     params = karel_params(options, where)
     if cfg.baud != params.baud:
         params = dataclasses.replace(params, baud=cfg.baud)
-    q0 = start_joints(options, model, where)
+    model_global = model.with_base(pose_to_T(*sub.base))
+    q0 = start_joints(options, model, model_global, where)
     seed = options.get("seed", world.seed)
     if not isinstance(seed, int) or isinstance(seed, bool):
         raise BadInput(f"{where} seed must be an integer")
@@ -178,5 +196,4 @@ def make_karel(world, name: str, options: dict) -> KarelDevice:
         for c in cards:
             c.close()
         raise
-    model_global = model.with_base(pose_to_T(*sub.base))
     return KarelDevice(name, controller, twin, transport, model_global, cards)

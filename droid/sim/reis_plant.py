@@ -155,7 +155,7 @@ class ReisPlant:
         self._wd_armed = [False, False]
         self._wd_fault = False
         self._wd_age_s = [0.0, 0.0]
-        struct.pack_into(vm.DACS_FORMAT, self._view, vm.DAC_OFFSET, *([0] * vm.N_JOINTS))
+        vm.store(self._view, vm.DAC_OFFSET, vm.DACS_FORMAT, *([0] * vm.N_JOINTS))
         self._wd_last = [struct.unpack_from(vm.U16_FORMAT, self._view, o)[0] for o in vm.WATCHDOG_OFFSETS]
         self._write_outputs()
 
@@ -308,15 +308,15 @@ class ReisPlant:
 
     def _write_outputs(self) -> None:
         self._enc_written = self.encoder_raw
-        struct.pack_into(vm.ENCODERS_FORMAT, self._view, vm.ENCODER_OFFSET, *self._enc_written)
+        vm.store(self._view, vm.ENCODER_OFFSET, vm.ENCODERS_FORMAT, *self._enc_written)
         bits = 0
         for j, active in enumerate(self.limit_switches):
             bits |= int(active) << j
-        struct.pack_into(vm.U16_FORMAT, self._view, vm.LIMIT_SWITCH_OFFSET, bits)
+        vm.store(self._view, vm.LIMIT_SWITCH_OFFSET, vm.U16_FORMAT, bits)
         status = (vm.AMP_STATUS_POWERED if self._amps_on else 0) | (
             vm.AMP_STATUS_WATCHDOG_FAULT if self._wd_fault else 0
         )
-        struct.pack_into(vm.U16_FORMAT, self._view, vm.AMP_STATUS_OFFSET, status)
+        vm.store(self._view, vm.AMP_STATUS_OFFSET, vm.U16_FORMAT, status)
 
     def close(self) -> None:
         """Release the view on ``regs`` (needed before closing an mmap behind it)."""

@@ -33,6 +33,10 @@ DEFAULT_RATE_HZ = 1000.0
 DEVICE_TYPES: dict[str, tuple[str, str]] = {
     "reis_vme": ("droid.sim.reis_world", "make_reis"),
     "karel_s400": ("droid.sim.karel", "make_karel"),
+    "fixed_arm": ("droid.sim.mvs_world", "fixed_arm"),
+    "mvs_camera": ("droid.sim.mvs_world", "mvs_camera"),
+    "tool_sensor": ("droid.sim.mvs_world", "tool_sensor"),
+    "serial_cable": ("droid.sim.serial_cable", "serial_cable"),
 }
 
 

@@ -56,7 +56,7 @@ def test_default_cell_up_snoop_down(cell, cell_name):
     names = {r["name"] for r in rows}
     assert {"droid-names", "droid-heartbeat", "droid-sim", "droid-remote arm1", "droid-remote gmf1",
             "droid-remote mvs", "droid-remote tool", "droid-reis-agent arm1", "droid-gmf1-agent gmf1",
-            "droid-agent mvs", "droid-agent tool", "droid-servo arm1", "droid-servo-agent arm1",
+            "droid-mvs mvs", "droid-servo arm1", "droid-servo-agent arm1",
             "droid-watchdog arm1", "droid-planner arm1"} <= names
     assert len(rows) == n_programs(cell)
     assert all(r["pid"] > 0 for r in rows)
@@ -77,17 +77,17 @@ def test_default_cell_up_snoop_down(cell, cell_name):
 
 def test_agent_death_marks_stale_and_link_recovers(cell):
     up(cell)
-    wait_for(lambda: not snoop_json(cell, "mvs")[0]["stale"], what="mvs fresh")
-    agent = next(r for r in cell_status(cell) if r["name"] == "droid-agent mvs")
+    wait_for(lambda: not snoop_json(cell, "gmf1")[0]["stale"], what="gmf1 fresh")
+    agent = next(r for r in cell_status(cell) if r["name"] == "droid-gmf1-agent gmf1")
     os.kill(agent["pid"], signal.SIGKILL)
-    wait_for(lambda: snoop_json(cell, "mvs")[0]["stale"], what="mvs stale after its agent died")
+    wait_for(lambda: snoop_json(cell, "gmf1")[0]["stale"], what="gmf1 stale after its agent died")
     # the other subunits are unaffected
-    assert not snoop_json(cell, "tool")[0]["stale"]
+    assert not snoop_json(cell, "arm1")[0]["stale"]
     # the agent comes back (by hand, as a user would restart it): the remote reconnects
-    proc = subprocess.Popen([sys.executable, "-m", "droid.subunits.agent", "mvs", "--cell", str(cell)],
+    proc = subprocess.Popen([sys.executable, "-m", "droid.subunits.gmf1.agent", "gmf1", "--cell", str(cell)],
                             cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        wait_for(lambda: not snoop_json(cell, "mvs")[0]["stale"], what="mvs fresh again")
+        wait_for(lambda: not snoop_json(cell, "gmf1")[0]["stale"], what="gmf1 fresh again")
     finally:
         proc.terminate()
         proc.wait(10)
@@ -167,6 +167,7 @@ def test_cell_over_tcp_started_host_by_host(tmp_path, cell_name):
     text = re.sub(r'"ipc://\{run\}/[a-z0-9.]+"', lambda m: f'"tcp://127.0.0.1:{_free_port()}"',
                   path.read_text())
     assert "ipc://" not in text
+    assert '[world]\nenabled = true\nhost = "world"' in text  # the hardware on its own host
     path.write_text(text)
     try:
         for hosts in (["world"], ["arm1", "gmf1"], ["mvs"], ["brain"]):
@@ -181,7 +182,7 @@ def test_cell_over_tcp_started_host_by_host(tmp_path, cell_name):
             wait_for(lambda: not snoop_json(path, sub)[0]["stale"], what=f"{sub} fresh over tcp")
         names = droid("droid.brain.names", "--list", "--json", "--cell", str(path))
         eps = {json.loads(l)["name"]: json.loads(l)["endpoint"] for l in names.stdout.splitlines()}
-        assert set(eps) == {"heartbeat", "arm1", "gmf1", "mvs", "tool"}
+        assert set(eps) == {"heartbeat", "arm1", "gmf1"}  # the sensors have serial links, no agents
         assert all(e.startswith("tcp://127.0.0.1:") for e in eps.values())
     finally:
         out = droid(CELL, "down", "--cell", str(path))

@@ -116,6 +116,8 @@ def test_socket_url(tmp_path, cell_name):
     ('colour = "red"', "", "unknown option"),
     ("start_deg = [0, 0, 0, 0, 170, 0]", "", "joint limits"),
     ("start_deg = [1, 2]", "", "start_deg"),
+    ("wcp = [800, 0, 1000, 0, 0, 0]", "", "out of reach"),
+    ("wcp = [800, 0, 1200, 0, 0, 0]\nstart_deg = [0, 0, 0, 0, 0, 0]", "", "not both"),
     ("cycle_hz = -1", "", "cycle_hz"),
     ("", 'encoders = ["mem:///tmp/x", "shm://a"]', "shm://"),
     ("", 'encoders = ["shm://a"]', "encoders"),
@@ -132,7 +134,8 @@ def test_bad_device_options_are_refused(tmp_path, cell_name, device, sub, msg):
 
 def test_the_shipped_cell_declares_the_device_and_programs(tmp_path, cell_name):
     cell = load_cell(make_cell_file(tmp_path, cell_name))
-    assert cell.world["devices"]["gmf1"]["type"] == "karel_s400"
+    devices = cell.world["devices"]
+    assert [d["subunit"] for d in devices.values() if d["type"] == "karel_s400"] == ["gmf1"]
     progs = cell.subunit("gmf1").programs
     assert {"droid-gmf1-agent", "droid-gmf1-serial", "droid-gmf1-encoder"} <= set(progs)
 
@@ -146,3 +149,16 @@ def test_missing_pty_is_not_fatal(tmp_path):
     link = PortLink(serial_opener(str(tmp_path / "none.tty"), 9600))
     assert not link.open() and "No such file" in link.last_error
     assert link.read() == b"" and link.write(b"x") is False
+
+
+def test_power_up_wrist_centre_pose(tmp_path, cell_name):
+    """``wcp`` puts the arm at a global wrist-centre pose at power-up (as the fixed stand-in does)."""
+    from droid.kinematics.transforms import pose_to_T
+
+    cell = cell_file(tmp_path, cell_name, device="wcp = [800.0, 0.0, 1200.0, 0.0, 0.0, 0.0]")
+    world = build_world(cell)
+    try:
+        np.testing.assert_allclose(world.devices["gmf1"].wcp_global(), pose_to_T(800, 0, 1200, 0, 0, 0),
+                                   atol=1e-9)
+    finally:
+        world.close()

@@ -110,3 +110,20 @@ def test_servo_side_never_imports_the_simulator():
             elif isinstance(node, ast.ImportFrom) and node.module:
                 names = [node.module]
             assert not any(n == "droid.sim" or n.startswith("droid.sim.") for n in names), path
+
+
+def test_encoder_jump_threshold_scales_with_a_stalled_loop():
+    """DESIGN §9: a host stall of several servo periods is ridden through, a glitch is not."""
+    from droid.subunits.reis.servo import ServoCore
+    from droid.subunits.reis.servo_params import Fault, ServoParams
+
+    p = ServoParams()
+    sw = (False,) * 6
+    moved = [1000 + 2 * p.max_encoder_step_counts] + [1000] * 5
+    stalled, glitch = ServoCore(p), ServoCore(p)
+    for core in (stalled, glitch):
+        core.step([1000] * 6, sw)
+    stalled.step(moved, sw, periods=3)  # the loop woke 3 periods late
+    glitch.step(moved, sw)  # the same change within one period
+    assert stalled.fault != Fault.ENCODER_JUMP
+    assert glitch.fault == Fault.ENCODER_JUMP

@@ -13,6 +13,7 @@ MODEL = load_robot("reis_v15")
 def records(homed=True, pos=(0,) * 6):
     cmd = L.new_record(L.CTRL_COMMAND_LAYOUT)
     cmd["link_alive"] = 1
+    cmd["cmd_mode"] = L.NORMAL_MODE
     st = L.new_record(L.CTRL_STATUS_LAYOUT)
     st["homed"] = int(homed)
     st["encoder_pos"] = pos
@@ -104,3 +105,27 @@ def test_lost_stream_cancels_and_holds_until_a_new_command(how):
     core.step(cmd, st)
     out = core.step(cmd, st)
     assert list(out.encoder_cmd_int) == [800] * 6
+
+
+def test_follows_the_arm_outside_normal_mode():
+    core = PlannerCore(MODEL)
+    cmd, st = records(pos=(0,) * 6)
+    core.step(cmd, st)
+    cmd["cmd_mode"] = L.JOG_MODE  # droid-jog moves the arm through the servo agent
+    st["encoder_pos"] = (500, -400, 300, 0, 0, 7)
+    out = core.step(cmd, st)
+    assert list(out.encoder_cmd_int) == [500, -400, 300, 0, 0, 7]
+    joint_cmd(cmd, [600, -400, 300, 0, 0, 7], 2, 9)  # back to NORMAL: starts from there
+    out = core.step(cmd, st)
+    assert list(out.encoder_cmd_int) == [550, -400, 300, 0, 0, 7]
+
+
+def test_commands_fail_while_the_servo_is_down():
+    core = PlannerCore(MODEL)
+    cmd, st = records()
+    core.step(cmd, st)
+    st["fault"] = L.FAULT_WATCHDOG
+    joint_cmd(cmd, [900] * 6, 5, 3)
+    out = core.step(cmd, st)
+    assert out.cmd_result == L.CMD_FAILED and out.cmd_id == 3
+    assert list(out.encoder_cmd_int) == [0] * 6 and out.busy == 0

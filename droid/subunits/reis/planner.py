@@ -16,6 +16,8 @@ controller's Command and Status records and
 * every tick ``plan_joint_cmd()``: the next way-point
   ``int + (ext - int) / joint_time_count``, ``joint_time_count -= 1``,
   ``busy = joint_time_count`` (the thesis listing);
+* in JOG, HOME or OFF mode follows the arm (the next NORMAL move starts from
+  where the arm is, e.g. after droid-jog);
 * cancels the move and holds where the arm is if the Brain link is lost
   (``link_alive = 0``) or the servo ran out of commands and braked
   (FAULT_BRAKING): the arm stays stopped until a new command.
@@ -34,8 +36,8 @@ from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser,
 from droid.cli import BadInput, run
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T
-from droid.brain.layouts import (CARTSPACE, CMD_FAILED, CMD_OK, CMD_REFUSED, FAULT_BRAKING, JSPACE,
-                                 NORMAL_MODE)
+from droid.brain.layouts import (CARTSPACE, CMD_FAILED, CMD_OK, CMD_REFUSED, FAULT_BRAKING, FAULT_SERVO,
+                                 FAULT_WATCHDOG, JSPACE, NORMAL_MODE)
 from droid.kinematics import RobotModel, Unreachable
 
 N = 6
@@ -100,7 +102,18 @@ class PlannerCore:
             self.time_count = 0
             self.plan_id = int(cmd["cmd_id"])  # whatever was pending before homing is not replayed
             out.plan_id = self.plan_id
-        stop = not int(cmd["link_alive"]) or int(status["fault"]) & FAULT_BRAKING
+        if int(cmd["cmd_mode"]) != NORMAL_MODE:
+            # JOG/HOME/OFF move the arm without the planner: follow it, so that the
+            # next NORMAL command is planned from where the arm really is
+            self.int_counts = pos.copy()
+            self.ext_counts = pos.copy()
+            self.time_count = 0
+            out.encoder_cmd_int = np.rint(pos).astype(np.int32)
+            out.encoder_cmd_ext = out.encoder_cmd_int
+            out.joint_time_count = 0
+            return out
+        dead = int(status["fault"]) & (FAULT_SERVO | FAULT_WATCHDOG)  # nothing can move
+        stop = not int(cmd["link_alive"]) or int(status["fault"]) & FAULT_BRAKING or dead
         if stop and (self.time_count > 0 or np.any(np.abs(self.int_counts - pos) > 0)):
             cancelled = self.time_count > 0
             self.int_counts = pos.copy()
@@ -109,8 +122,13 @@ class PlannerCore:
             if cancelled:
                 out.cmd_result = CMD_FAILED
                 out.cmd_id = self.active_id
-            out.note = "cancelled: command stream lost" if cancelled else "holding"
+            out.note = "cancelled: command stream lost" if cancelled else ""
         new_id = int(cmd["cmd_id"])
+        if dead and new_id != self.plan_id:
+            self.plan_id = new_id
+            out.plan_id = out.cmd_id = new_id
+            out.cmd_result = CMD_FAILED
+            out.note = f"command {new_id} failed: the servo or its amplifiers are down"
         if not stop and new_id != self.plan_id and int(cmd["cmd_mode"]) == NORMAL_MODE:
             self.plan_id = new_id
             out.plan_id = new_id

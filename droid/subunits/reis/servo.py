@@ -224,11 +224,13 @@ class ServoCore:
         return True
 
     # -- the 500 Hz tick -------------------------------------------------------------
-    def step(self, encoders_raw, limit_switches) -> tuple[int, ...]:
+    def step(self, encoders_raw, limit_switches, periods: int = 1) -> tuple[int, ...]:
         """One servo tick: six raw 16-bit counters [counts] and six switch states
-        -> six DAC values [DAC counts, -2048..2047]."""
+        -> six DAC values [DAC counts, -2048..2047].  ``periods`` > 1 after the host
+        stalled the loop (timer overrun): the encoders may then legitimately have
+        moved ``periods`` times farther (DESIGN §9: ride through a stall)."""
         self._tick += 1
-        self._read_encoders(encoders_raw)
+        self._read_encoders(encoders_raw, max(1, int(periods)))
         if self._mode == Mode.OFF or self._fault != Fault.NONE:
             self._hold_here()
             self._pid.reset()
@@ -256,7 +258,7 @@ class ServoCore:
         self._dac = tuple(round(x) for x in self._pid.step(error))
         return self._dac
 
-    def _read_encoders(self, encoders_raw) -> None:
+    def _read_encoders(self, encoders_raw, periods: int = 1) -> None:
         raw = [int(x) for x in encoders_raw]
         if len(raw) != N:
             raise ValueError(f"need {N} encoder values, got {len(raw)}")
@@ -264,7 +266,7 @@ class ServoCore:
             self._pos = np.asarray(raw, np.int64)
             self._hold_here()
             return
-        bits, jump = self.params.encoder_bits, self.params.max_encoder_step_counts
+        bits, jump = self.params.encoder_bits, self.params.max_encoder_step_counts * periods
         old = self._pos.tolist()
         new = [extend_counter(p, r, bits) for p, r in zip(old, raw)]
         if any(abs(n - p) > jump for n, p in zip(new, old)):

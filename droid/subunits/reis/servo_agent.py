@@ -42,7 +42,8 @@ from droid.subunits.reis.servo_params import Fault, Mode
 
 PROG = "droid-servo-agent"
 COMMAND_HZ = 60.0
-MY_FAULTS = FAULT_BRAKING | FAULT_SERVO | FAULT_WATCHDOG
+STARTUP_GRACE_PERIODS = 120  # 2 s for the servo's first status message
+MY_FAULTS = FAULT_BRAKING | FAULT_SERVO  # FAULT_WATCHDOG is droid-watchdog's
 BRAIN_TO_SERVO_MODE = {OFF: Mode.OFF, JOG_MODE: Mode.JOG, HOME_MODE: Mode.HOME, NORMAL_MODE: Mode.NORMAL}
 
 
@@ -63,10 +64,12 @@ class ServoAgentCore:
         self.seq = 0
         self.jog_id: int | None = None  # last JOG cmd_id applied
         self.home_id: int | None = None
+        self.periods = 0
 
     def step(self, cmd, report: sw.ServoReport | None, report_fresh: bool) -> AgentDecision:
         status: dict = {}
         faults = 0
+        self.periods += 1
         if report is not None:
             status.update(encoder_pos=np.asarray(report.encoder_pos, np.int32),
                           encoder_cmd=np.asarray(report.encoder_cmd, np.int32),
@@ -75,10 +78,8 @@ class ServoAgentCore:
                 faults |= FAULT_BRAKING
             if report.fault:
                 faults |= FAULT_SERVO
-            if not report.amps_on:
-                faults |= FAULT_WATCHDOG
-        if not report_fresh:
-            faults |= FAULT_SERVO
+        if not report_fresh and (report is not None or self.periods > STARTUP_GRACE_PERIODS):
+            faults |= FAULT_SERVO  # silent (a servo still starting up gets a grace period)
         mode = int(cmd["cmd_mode"])
         cmd_id = int(cmd["cmd_id"])
         status["cmd_mode"] = mode

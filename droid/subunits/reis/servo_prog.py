@@ -16,6 +16,7 @@ from __future__ import annotations
 import sys
 import time
 
+import numpy as np
 import zmq
 
 from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
@@ -29,7 +30,8 @@ from droid.subunits.reis.vme import VmeOpenError, open_vme
 
 PROG = "droid-servo"
 SERVO_HZ = 500.0
-OPEN_WAIT_S = 20.0  # droid-sim creates the register map in parallel at cell start
+OPEN_WAIT_S = 20.0
+LATENESS_WINDOW = 30000  # wake-ups kept for the exit report (60 s at 500 Hz)  # droid-sim creates the register map in parallel at cell start
 
 
 def open_vme_waiting(url: str, wait_s: float):
@@ -79,9 +81,14 @@ def main(argv=None) -> int:
         presence.ready()
         notify_ready(args.ready_fd)
         bad = 0
+        lateness_us = np.zeros(LATENESS_WINDOW, np.float32)  # the last minute of wake-ups
+        n_late = 0
         while not Stop.requested:
-            if not timer.wait(0.5):
+            periods = timer.wait(0.5)
+            if not periods:
                 continue
+            lateness_us[n_late % LATENESS_WINDOW] = timer.lateness_ns / 1e3
+            n_late += 1
             while True:  # every 60 Hz command, in order
                 try:
                     msg = pull.recv(zmq.NOBLOCK)
@@ -93,14 +100,28 @@ def main(argv=None) -> int:
                 except (sw.BadServoMessage, ValueError):
                     bad += 1
             try:
-                dacs = core.step(bus.read_encoders_raw(), bus.read_limit_switches())
+                raw = bus.read_encoders_raw()
+                fault_before = core.fault
+                dacs = core.step(raw, bus.read_limit_switches(), periods)
                 bus.write_dacs(dacs)
+                if core.fault != fault_before:
+                    s = core.status()
+                    print(f"{PROG} {sub.name}: fault {s.fault.name} at servo tick {s.tick}: raw encoders "
+                          f"{raw}, positions {s.encoder_pos}, following error {s.following_error}, "
+                          f"{timer.overruns} overruns so far; registers re-read now: "
+                          f"{bus.read_encoders_raw()}", file=sys.stderr, flush=True)
             except (OSError, ValueError) as exc:
                 failed = True
                 raise RuntimeFailure(f"VME access failed: {exc}") from None
             if core.tick % sw.STATUS_EVERY_TICKS == 0:
                 pub.send(sw.pack_status(core.status(), bus.amps_powered), zmq.NOBLOCK)
             presence.beat(0, timer.cycles, timer.overruns, timer.lateness_max_ns)
+        if n_late:
+            w = lateness_us[: min(n_late, LATENESS_WINDOW)]
+            print(f"{PROG} {sub.name}: {timer.cycles} cycles, {timer.overruns} overruns "
+                  f"({100.0 * timer.overruns / max(1, timer.cycles + timer.overruns):.3f} %); wake-up "
+                  f"lateness over the last {len(w)} cycles: median {np.median(w):.0f} us, p99 "
+                  f"{np.percentile(w, 99):.0f} us, max {w.max():.0f} us", file=sys.stderr, flush=True)
     finally:
         if bus is not None:
             try:

@@ -83,7 +83,7 @@ class VmeBus:
     def write_u16(self, offset: int, value: int) -> None:
         """Write unsigned 16-bit ``value`` (0..65535) at byte ``offset``."""
         self._check(offset)
-        _U16.pack_into(self._view, offset, value)
+        vm.store(self._view, offset, vm.U16_FORMAT, value)
 
     def read_i16(self, offset: int) -> int:
         """Signed 16-bit register at byte ``offset``."""
@@ -93,7 +93,7 @@ class VmeBus:
     def write_i16(self, offset: int, value: int) -> None:
         """Write signed 16-bit ``value`` (-32768..32767) at byte ``offset``."""
         self._check(offset)
-        _I16.pack_into(self._view, offset, value)
+        vm.store(self._view, offset, vm.I16_FORMAT, value)
 
     # -- devices ---------------------------------------------------------
     def read_encoders_raw(self) -> tuple[int, ...]:
@@ -105,7 +105,7 @@ class VmeBus:
         if len(values) != vm.N_JOINTS:
             raise ValueError(f"write_dacs needs {vm.N_JOINTS} values, got {len(values)}")
         clamped = tuple(min(vm.DAC_MAX, max(vm.DAC_MIN, int(round(v)))) for v in values)
-        _DACS.pack_into(self._view, vm.DAC_OFFSET, *clamped)
+        vm.store(self._view, vm.DAC_OFFSET, vm.DACS_FORMAT, *clamped)
         return clamped
 
     def read_dacs(self) -> tuple[int, ...]:
@@ -114,7 +114,7 @@ class VmeBus:
 
     def zero_dacs(self) -> None:
         """Command zero torque on every axis (the shell's on-error action)."""
-        _DACS.pack_into(self._view, vm.DAC_OFFSET, *([0] * vm.N_JOINTS))
+        vm.store(self._view, vm.DAC_OFFSET, vm.DACS_FORMAT, *([0] * vm.N_JOINTS))
 
     def read_limit_bits(self) -> int:
         """The limit-switch register: bit j set = joint j+1 switch active."""
@@ -127,8 +127,8 @@ class VmeBus:
 
     def write_watchdog(self, value0: int, value1: int) -> None:
         """Write both watchdog timer registers (each must change within the timeout)."""
-        _U16.pack_into(self._view, vm.WATCHDOG_OFFSETS[0], value0 & 0xFFFF)
-        _U16.pack_into(self._view, vm.WATCHDOG_OFFSETS[1], value1 & 0xFFFF)
+        vm.store(self._view, vm.WATCHDOG_OFFSETS[0], vm.U16_FORMAT, value0 & 0xFFFF)
+        vm.store(self._view, vm.WATCHDOG_OFFSETS[1], vm.U16_FORMAT, value1 & 0xFFFF)
 
     def kick_watchdog(self) -> tuple[int, int]:
         """Write new, different values to both watchdog registers; returns them."""

@@ -27,6 +27,8 @@ thesis).
 """
 from __future__ import annotations
 
+import struct
+
 N_JOINTS = 6
 
 ENCODER_OFFSET = 0x00  # 6 x u16
@@ -53,3 +55,21 @@ ENCODERS_FORMAT = "<6H"
 DACS_FORMAT = "<6h"
 U16_FORMAT = "<H"
 I16_FORMAT = "<h"
+
+
+_STRUCTS: dict[str, "struct.Struct"] = {}
+
+
+def store(view, offset: int, fmt: str, *values) -> None:
+    """Write registers as ONE copy of pre-packed bytes.
+
+    Never ``struct.pack_into`` on a shared map: CPython's pack_into first
+    memsets the destination to zero and then fills it in, so a reader in
+    another process can see a register read 0 for an instant (seen in the
+    real-time cell as a spurious ENCODER_JUMP fault).  A slice assignment is
+    one memcpy: a concurrent reader sees each 16-bit register old or new.
+    """
+    s = _STRUCTS.get(fmt)
+    if s is None:
+        s = _STRUCTS[fmt] = struct.Struct(fmt)
+    view[offset:offset + s.size] = s.pack(*values)

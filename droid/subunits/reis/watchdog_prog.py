@@ -7,6 +7,8 @@ registers — but only while the servo is alive: it follows the servo's status
 messages, and when the servo's tick stops advancing (or the servo reports a
 fault) it stops kicking for good, and the hardware latches the amplifiers off
 until the power is cycled (:class:`~droid.subunits.reis.watchdog.WatchdogCore`).
+It reports the amplifiers' state (AMP_STATUS) as the WATCHDOG fault bit of the
+controller's Status record.
 """
 from __future__ import annotations
 
@@ -14,10 +16,13 @@ import sys
 
 import zmq
 
+from droid.brain.databases import open_local
+from droid.brain.layouts import FAULT_WATCHDOG
 from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import BadInput, run
 from droid.subunits.reis import servo_wire as sw
+from droid.subunits.reis import vme_map as vm
 from droid.subunits.reis.endpoints import reis_endpoints
 from droid.subunits.reis.servo_prog import OPEN_WAIT_S, open_vme_waiting
 from droid.subunits.reis.watchdog import WatchdogCore, WatchdogParams
@@ -47,6 +52,8 @@ def main(argv=None) -> int:
     core = WatchdogCore(params)
     bus = None
     timer = None
+    status = open_local(cell, sub, "ctrl_status")
+    amps_reported = None
     try:
         bus = open_vme_waiting(ep.vme, OPEN_WAIT_S)
         timer = PeriodicTimer(int(round(1e9 / params.rate_hz)))
@@ -69,6 +76,13 @@ def main(argv=None) -> int:
             kick = core.step(heartbeat, fault)
             if kick is not None:
                 bus.write_watchdog(*kick)
+            latched = bool(bus.read_amp_status() & vm.AMP_STATUS_WATCHDOG_FAULT)
+            if latched != amps_reported:
+                amps_reported = latched
+                with status.locked() as st:
+                    f = int(st["fault"])
+                    st["fault"] = (f | FAULT_WATCHDOG) if latched else (f & ~FAULT_WATCHDOG)
+                    status.mark_written()
             elif not reported:
                 reported = True
                 print(f"{PROG} {sub.name}: servo dead or faulted: stopped kicking; the amplifiers "
@@ -77,6 +91,7 @@ def main(argv=None) -> int:
     finally:
         if bus is not None:
             bus.close()
+        status.close()
         if timer is not None:
             timer.close()
         sub_sock.close(0)
