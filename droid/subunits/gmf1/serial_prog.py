@@ -22,7 +22,6 @@ import zmq
 from droid.brain.databases import open_local
 from droid.brain.heartbeat import TickSubscriber
 from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
-from droid.brain.rt import try_sched_fifo
 from droid.cli import BadInput, positive_int, run
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T
@@ -58,8 +57,7 @@ def main(argv=None) -> int:
     baud = args.baud or cfg.baud
     link = PortLink(serial_opener(url, baud))
     core = build_core(cell, sub, cfg, baud)
-    Stop.install()
-    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
+    Stop.install()  # tick-driven like the agent (no SCHED_FIFO): the 9600-baud line sets its pace
     ctrl_command = open_local(cell, sub, "ctrl_command")
     ctrl_status = None
     ctx = None
