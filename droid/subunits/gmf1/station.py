@@ -44,6 +44,7 @@ class SerialStation:
         self.ctrl_command = ctrl_command
         self.ctrl_status = ctrl_status
         self._fault_was = False
+        self._busy_written: int | None = None  # the last busy-only write (skipped when it repeats)
         self.last: SerialOut | None = None
 
     def cycle(self, tick: int) -> SerialOut:
@@ -58,11 +59,15 @@ class SerialStation:
             self.link.write(out.tx)
         if out.open_port:
             self.link.open()
-        with self.ctrl_status.locked() as v:
-            for k, val in out.fields.items():
-                v[k] = val
-            _fault_bits(v, out.fault, self._fault_was)
-            self.ctrl_status.mark_written()
+        busy_only = set(out.fields) == {"busy"}
+        repeat = busy_only and out.fields["busy"] == self._busy_written and not out.fault and not self._fault_was
+        if not repeat:  # an idle tick with nothing new costs no lock
+            with self.ctrl_status.locked() as v:
+                for k, val in out.fields.items():
+                    v[k] = val
+                _fault_bits(v, out.fault, self._fault_was)
+                self.ctrl_status.mark_written()
+            self._busy_written = out.fields["busy"] if busy_only else None
         self._fault_was = out.fault
         self.last = out
         return out
