@@ -20,6 +20,7 @@ import argparse
 import os
 import platform
 import random
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -160,6 +161,7 @@ def bench_realtime(moves: int) -> None:
             db.close()
     finally:
         run("droid.brain.launcher", "down", check=False)
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def main() -> None:
