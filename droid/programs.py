@@ -19,6 +19,8 @@ PROGRAMS: dict[str, str] = {
     "droid-agent": "droid.subunits.agent",
     "droid-reis-agent": "droid.subunits.reis.agent",
     "droid-gmf1-agent": "droid.subunits.gmf1.agent",
+    "droid-gmf1-serial": "droid.subunits.gmf1.serial_prog",
+    "droid-gmf1-encoder": "droid.subunits.gmf1.encoder_prog",
     "droid-planner": "droid.subunits.reis.planner",
     "droid-servo": "droid.subunits.reis.servo_prog",
     "droid-servo-agent": "droid.subunits.reis.servo_agent",

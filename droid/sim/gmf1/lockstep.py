@@ -1,0 +1,168 @@
+"""Lockstep GMF1: the Fanuc twin and the GMF1 programs' cores in one process on virtual time (DESIGN §2).
+
+Stepped by :class:`droid.sim.lockstep.Scheduler`:
+
+* ``world`` (ORDER_WORLD, ``world_hz``): the ``karel_s400`` device — KAREL
+  controller at 9600 baud on an in-memory serial pair, encoder cards in
+  bytearrays;
+* ``encoder`` (ORDER_DEVICE, 120 Hz): :class:`~droid.subunits.gmf1.station.EncoderStation`
+  reading the cards through the same :class:`~droid.subunits.gmf1.quad04.Quad04Bank`;
+* on every heartbeat tick: the agent's copy of the Brain Command record into
+  the controller's Command record (:class:`~droid.subunits.agent.CommandCopier`),
+  then :class:`~droid.subunits.gmf1.station.SerialStation` (the relayed tick).
+
+Exactly the code of the real-time programs runs between the records, the port
+and the cards; only the transports differ.  Commands are written into the
+Brain Command record as droid-move / droid-home write them.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from droid.brain.cellfile import Cell, load_cell
+from droid.brain.layouts import (ARM_COMMAND_LAYOUT, CARTSPACE, CTRL_COMMAND_LAYOUT, CTRL_STATUS_LAYOUT,
+                                 HOME_MODE, JOG_MODE, JSPACE, NORMAL_MODE)
+from droid.brain.shmdb import MemoryDatabase
+from droid.kinematics import load_robot
+from droid.kinematics.transforms import pose_to_T
+from droid.sim.gmf1.cards import Quad04Twin
+from droid.sim.gmf1.controller import KarelController, KarelParams
+from droid.sim.gmf1.transport import MemorySerialPair
+from droid.sim.karel import DEFAULT_START_DEG, KarelDevice
+from droid.sim.lockstep import ORDER_DEVICE, ORDER_HEARTBEAT, ORDER_WORLD, Scheduler
+from droid.subunits.agent import CommandCopier
+from droid.subunits.gmf1.config import gmf1_config
+from droid.subunits.gmf1.encoder_core import EncoderCore
+from droid.subunits.gmf1.port import PortLink
+from droid.subunits.gmf1.quad04 import Quad04Bank, Quad04Card
+from droid.subunits.gmf1.quad04_map import MAP_SIZE
+from droid.subunits.gmf1.serial_core import SerialCore, SerialParams
+from droid.subunits.gmf1.station import EncoderStation, SerialStation
+
+
+class Gmf1Lockstep:
+    """The GMF1 subunit and its Fanuc twin on virtual time; see the module docstring."""
+
+    def __init__(self, cell: Cell | None = None, subunit: str = "gmf1", *, world_hz: float = 1000.0,
+                 seed: int = 1, start_deg=DEFAULT_START_DEG, params: KarelParams | None = None) -> None:
+        self.cell = cell if cell is not None else load_cell(None)
+        self.sub = self.cell.subunit(subunit)
+        cfg = gmf1_config(self.cell, self.sub)
+        self.cfg = cfg
+        model_base = load_robot(self.sub.robot)
+        self.model = model_base.with_base(pose_to_T(*self.sub.base))
+        self.sched = Scheduler(self.cell.heartbeat_hz)
+        self.world_hz = float(world_hz)
+        # the world: controller + serial pair + cards
+        self.pair = MemorySerialPair()
+        self.card_bufs = [bytearray(MAP_SIZE), bytearray(MAP_SIZE)]
+        twin = Quad04Twin(self.card_bufs, np.random.default_rng(seed))
+        controller = KarelController(model_base, params or KarelParams(baud=cfg.baud), np.asarray(start_deg, float))
+        twin.update(model_base.gearing.joints_to_counts(controller.q_deg))
+        self.device = KarelDevice(self.sub.name, controller, twin, self.pair.device, self.model)
+        self.controller = controller
+        # the databases
+        self.brain_command = MemoryDatabase("brain.command", ARM_COMMAND_LAYOUT)
+        self.ctrl_command = MemoryDatabase("ctrl_command", CTRL_COMMAND_LAYOUT)
+        self.ctrl_status = MemoryDatabase("ctrl_status", CTRL_STATUS_LAYOUT)
+        for db in (self.brain_command, self.ctrl_command):
+            db.update(cmd_mode=JOG_MODE, coord=JSPACE)  # safe start values, as create_databases
+        self.copier = CommandCopier(self.ctrl_command)
+        # the programs
+        self.bank = Quad04Bank([Quad04Card(b, f"lockstep card {i}") for i, b in enumerate(self.card_bufs)])
+        self.serial_core = SerialCore(self.model, SerialParams(
+            period_s=1.0 / self.cell.heartbeat_hz, baud=cfg.baud, reply_timeout_s=cfg.reply_timeout_s,
+            done_margin_s=cfg.done_margin_s))
+        self.link = PortLink(self.pair.open_host)
+        self.serial = SerialStation(self.serial_core, self.link, self.ctrl_command, self.ctrl_status)
+        self.encoder_core = EncoderCore(self.model, cfg.encoder_hz)
+        self.encoder = EncoderStation(self.encoder_core, self.ctrl_status)
+        self.encoder_running = True
+        self.serial_running = True
+        self._dt = 1.0 / self.world_hz
+        self.sched.every(self.world_hz, self._world, "world", order=ORDER_WORLD)
+        self.sched.every(cfg.encoder_hz, self._encoder, "encoder", order=ORDER_DEVICE)
+        self.sched.on_tick(self._agent, "agent", order=ORDER_HEARTBEAT)
+        self.sched.on_tick(self._serial, "serial", order=ORDER_HEARTBEAT + 1)
+
+    # -- tasks -----------------------------------------------------------------------
+    def _world(self, t_ns: int) -> None:
+        self.device.advance(self._dt)
+
+    def _encoder(self, t_ns: int) -> None:
+        if self.encoder_running:
+            self.encoder.cycle(self.bank, t_ns)
+
+    def _agent(self, tick: int) -> None:
+        self.copier(self.brain_command.raw_bytes(), tick)
+        with self.brain_command.locked() as c:  # the remote's acknowledgement of 'sent'
+            c["sent"] = 0
+
+    def _serial(self, tick: int) -> None:
+        if self.serial_running:
+            self.serial.cycle(tick)
+
+    # -- the Brain side (what droid-move / droid-home write) ------------------------
+    def _write(self, **fields) -> int:
+        with self.brain_command.locked() as c:
+            cmd_id = (int(c["cmd_id"]) + 1) & 0xFFFFFFFF or 1
+            for k, v in fields.items():
+                c[k] = v
+            c["cmd_id"] = cmd_id
+            c["sent"] = 1
+            self.brain_command.mark_written()
+        return cmd_id
+
+    def command_cart(self, pose_global, seconds: float) -> int:
+        """A cartesian move: x y z [mm], ZYZ A B C [deg] in the global frame, in ``seconds``."""
+        T = pose_to_T(*pose_global)
+        return self._write(x=T[0, 3], y=T[1, 3], z=T[2, 3], R=T[:3, :3],
+                           cart_time_count=int(round(seconds * self.cell.heartbeat_hz)),
+                           coord=CARTSPACE, cmd_mode=NORMAL_MODE)
+
+    def command_joint(self, counts, seconds: float) -> int:
+        """A joint move: encoder counts wrt home, in ``seconds``."""
+        return self._write(encoder_pos=np.asarray(counts, np.int32),
+                           joint_time_count=int(round(seconds * self.cell.heartbeat_hz)),
+                           coord=JSPACE, cmd_mode=NORMAL_MODE)
+
+    def command_home(self) -> int:
+        return self._write(cmd_mode=HOME_MODE, coord=JSPACE)
+
+    # -- running ------------------------------------------------------------------------
+    def status(self):
+        return self.ctrl_status.read()
+
+    def done(self, cmd_id: int) -> bool:
+        s = self.ctrl_status.read()
+        return int(s["cmd_id"]) == cmd_id and int(s["busy"]) == 0
+
+    def run_ticks(self, n: int) -> None:
+        self.sched.run_ticks(n)
+
+    def run_until(self, pred, timeout_s: float) -> bool:
+        """Advance tick by tick until ``pred()`` holds (True) or ``timeout_s`` virtual seconds pass (False)."""
+        end = self.sched.t_ns + int(timeout_s * 1e9)
+        while self.sched.t_ns < end:
+            self.sched.run_ticks(1)
+            if pred():
+                return True
+        return False
+
+    def home(self, timeout_s: float = 30.0) -> int:
+        """droid-home: command HOME and run until homed and idle; returns the cmd_id."""
+        cmd_id = self.command_home()
+        ok = self.run_until(lambda: self.done(cmd_id) and int(self.ctrl_status.read()["homed"]) == 1, timeout_s)
+        if not ok:
+            raise RuntimeError("lockstep gmf1 did not home")
+        with self.brain_command.locked() as c:
+            c["cmd_mode"] = NORMAL_MODE
+        return cmd_id
+
+    @property
+    def t_s(self) -> float:
+        return self.sched.t_s
+
+    def true_pose_global(self) -> np.ndarray:
+        """The twin's true wrist-centre pose (4x4, mm, global frame)."""
+        return self.device.wcp_global()

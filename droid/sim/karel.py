@@ -1,0 +1,199 @@
+"""The GM Fanuc S400 in droid-sim: KAREL controller on a serial port + two encoder cards (thesis §2.4, §4.2).
+
+Device type ``karel_s400`` (cell file)::
+
+    [world.devices.gmf1]
+    type = "karel_s400"
+    subunit = "gmf1"                  # whose [subunits.gmf1] serial, encoders, robot and base to use
+                                      # (default: the device's name)
+    seed = 3                          # power-up counter values (default: the world seed)
+    start_deg = [10, 15, 5, 0, 30, 0] # joint angles at power-up [deg] (not the home pose), or
+    # wcp = [x, y, z, A, B, C]        # the power-up wrist-centre pose in the global frame
+                                      # (mm, ZYZ deg; joints by IK and the pick nearest zero)
+    cycle_hz = 6.0                    # KAREL interpreter cycle (thesis §4.2.4)
+    speed_mm_s = 300.0                # wrist-centre speed cap
+    joint_speed_fraction = 0.5        # of the robot model's joint velocity limits
+    ramp_s = 0.3                      # trapezoid ramps
+    reply_delay_s = 0.03              # line read -> reply
+
+The serial port is the subunit's ``serial`` key: a path (default
+``{run}/NAME.tty``) becomes a symlink to a fresh pseudo-terminal's slave;
+``socket://HOST:PORT`` makes the controller listen there.  The encoder cards are
+the subunit's ``encoders`` URLs, which must be ``shm://`` for the twin.
+
+Each world step: read what the program wrote, run the controller to the step's
+end (bytes in and out at 9600 baud, interpreter, motion), write the reply bytes
+that are due, and update the cards' counters from the joint angles.
+The device also offers ``wcp_global()`` — the true wrist-centre pose [4x4, mm]
+in the global frame — for other twins (the arm-twin interface of the world).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from droid.cli import BadInput, RuntimeFailure
+from droid.kinematics import Unreachable, load_robot
+from droid.kinematics.transforms import pose_to_T
+from droid.sim.gmf1.cards import Quad04Twin, SharedCard
+from droid.sim.gmf1.controller import KarelController, KarelParams
+from droid.sim.gmf1.transport import PtyTransport, TcpTransport
+from droid.sim.world import Device
+from droid.subunits.gmf1.config import gmf1_config
+
+DEFAULT_START_DEG = (10.0, 15.0, 5.0, 0.0, 30.0, 0.0)
+OPTIONS = ("subunit", "seed", "start_deg", "wcp", "cycle_hz", "speed_mm_s", "joint_speed_fraction", "ramp_s",
+           "reply_delay_s")
+PARAM_OPTIONS = ("cycle_hz", "speed_mm_s", "joint_speed_fraction", "ramp_s", "reply_delay_s")
+
+
+class KarelDevice(Device):
+    """Controller core + transport + card twin, stepped by the world."""
+
+    def __init__(self, name: str, controller: KarelController, twin: Quad04Twin, transport,
+                 model_global, cards: list | None = None) -> None:
+        self.name = name
+        self.controller = controller
+        self.twin = twin
+        self.transport = transport
+        self.model_global = model_global
+        self._cards = cards or []
+        self._gearing = controller.model.gearing
+        self.t_s = 0.0
+        self.bytes_in = 0
+        self.bytes_out = 0
+        self.halted = False  # fault injection: the KAREL program hangs (reads nothing, answers nothing)
+
+    def advance(self, dt_s: float) -> None:
+        t0 = self.t_s
+        self.t_s = t1 = t0 + dt_s
+        c = self.controller
+        data = self.transport.read_available()
+        if self.halted:
+            self.twin.update(None)
+            return
+        if data:
+            self.bytes_in += len(data)
+            c.receive(data, t0)
+        c.advance(t1)
+        out = c.transmit(t1)
+        if out:
+            self.bytes_out += len(out)
+            self.transport.write(out)
+        if c.moved:
+            c.moved = False
+            self.twin.update(self._gearing.joints_to_counts(c.q_deg))
+        else:
+            self.twin.update(None)
+
+    def wcp_global(self) -> np.ndarray:
+        """True wrist-centre pose (4x4, mm) in the global frame."""
+        return self.model_global.fk(self.controller.q_deg)
+
+    def close(self) -> None:
+        self.twin.release()
+        for card in self._cards:
+            card.close()
+        self._cards = []
+        if self.transport is not None:
+            self.transport.close()
+            self.transport = None
+
+
+def karel_params(options: dict, where: str) -> KarelParams:
+    kw = {}
+    for key in PARAM_OPTIONS:
+        if key in options:
+            v = options[key]
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise BadInput(f"{where} {key} must be a number, got {v!r}")
+            kw[key] = float(v)
+    try:
+        return KarelParams(**kw)
+    except ValueError as exc:
+        raise BadInput(f"{where} {exc}") from None
+
+
+def _six_numbers(v) -> bool:
+    return isinstance(v, list) and len(v) == 6 and all(
+        isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)
+
+
+def start_joints(options: dict, model, model_global, where: str) -> np.ndarray:
+    """Power-up joint angles [deg] from ``start_deg`` or ``wcp`` (global pose, by IK)."""
+    if "wcp" in options:
+        if "start_deg" in options:
+            raise BadInput(f"{where} give start_deg or wcp, not both")
+        wcp = options["wcp"]
+        if not _six_numbers(wcp):
+            raise BadInput(f"{where} wcp must be 6 finite numbers: x y z [mm] A B C [ZYZ deg]")
+        try:
+            return model_global.ik(pose_to_T(*wcp), np.zeros(6))
+        except Unreachable as exc:
+            raise BadInput(f"{where} wcp {wcp} is out of reach of {model.name}: {exc}") from None
+    q = options.get("start_deg", list(DEFAULT_START_DEG))
+    if not _six_numbers(q):
+        raise BadInput(f"{where} start_deg must be 6 joint angles [deg]")
+    q = np.array(q, float)
+    why = model.limit_violation(q)
+    if why:
+        raise BadInput(f"{where} start_deg outside the joint limits: {why}")
+    return q
+
+
+def make_karel(world, name: str, options: dict) -> KarelDevice:
+    """Factory of the ``karel_s400`` device type (see the module docstring)."""
+    cell = world.cell
+    where = f"{cell.path}: [world.devices.{name}]"
+    unknown = sorted(set(options) - set(OPTIONS))
+    if unknown:
+        raise BadInput(f"{where} unknown option(s) {', '.join(unknown)} (known: type, {', '.join(OPTIONS)})")
+    sub = cell.subunit(options.get("subunit", name))
+    if not sub.is_arm:
+        raise BadInput(f"{where} subunit {sub.name} is not an arm")
+    cfg = gmf1_config(cell, sub)
+    model = load_robot(sub.robot)
+    params = karel_params(options, where)
+    if cfg.baud != params.baud:
+        params = dataclasses.replace(params, baud=cfg.baud)
+    model_global = model.with_base(pose_to_T(*sub.base))
+    q0 = start_joints(options, model, model_global, where)
+    seed = options.get("seed", world.seed)
+    if not isinstance(seed, int) or isinstance(seed, bool):
+        raise BadInput(f"{where} seed must be an integer")
+    for url in cfg.encoders:
+        if not url.startswith("shm://"):
+            raise BadInput(f"{where} the simulated encoder cards need shm:// URLs, got {url!r}")
+    cards: list[SharedCard] = []
+    twin = None
+    try:
+        for url in cfg.encoders:
+            cards.append(SharedCard(url[len("shm://"):]))
+        twin = Quad04Twin([c.buf for c in cards], np.random.default_rng(seed))
+        controller = KarelController(model, params, q0)
+        twin.update(model.gearing.joints_to_counts(controller.q_deg))
+        if cfg.serial.startswith("socket://"):
+            try:
+                transport = TcpTransport(cfg.serial)
+            except ValueError as exc:
+                raise BadInput(f"{where} {exc}") from None
+            except OSError as exc:
+                raise RuntimeFailure(f"{where} cannot listen on {cfg.serial}: {exc.strerror}") from None
+        elif "://" in cfg.serial:
+            raise BadInput(f"{where} the simulated controller serves a pty path or socket://HOST:PORT, "
+                           f"not {cfg.serial!r}")
+        else:
+            try:
+                transport = PtyTransport(cfg.serial)
+            except OSError as exc:
+                raise RuntimeFailure(f"{where} cannot publish the serial port at {cfg.serial}: "
+                                     f"{exc.strerror}") from None
+    except BaseException:
+        if twin is not None:
+            twin.release()
+        for c in cards:
+            c.close()
+        raise
+    return KarelDevice(name, controller, twin, transport, model_global, cards)

@@ -1,0 +1,73 @@
+"""The GMF1 subunit's own keys in the cell file's ``[subunits.NAME]`` table (thesis §4.2).
+
+Keys (with defaults)::
+
+    serial = "{run}/NAME.tty"     # the KAREL server's port: a device path (/dev/ttyS0),
+                                  # a pty link made by droid-sim, or any pyserial URL
+                                  # (socket://host:port, loop://, ...)
+    baud = 9600                   # thesis §4.2.4
+    encoders = ["shm://droid.{cell}.NAME.quad0", "shm://droid.{cell}.NAME.quad1"]
+                                  # the two CIO-QUAD04 cards (droid.subunits.gmf1.quad04 URLs)
+    encoder_hz = 120.0            # thesis §4.2.5: "at a rate of 120Hz"
+    reply_timeout_s = 1.0         # a request unanswered this long is a device fault
+    done_margin_s = 1.0           # a move not DONE by its planned end + this margin (and +25 %) is a fault
+
+Unknown keys are refused with the file and key named.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from droid.brain.cellfile import Cell, Subunit
+from droid.cli import BadInput
+from droid.subunits.gmf1.karel_wire import BAUD
+from droid.subunits.gmf1.quad04 import check_url
+
+KEYS = ("serial", "baud", "encoders", "encoder_hz", "reply_timeout_s", "done_margin_s")
+
+
+@dataclass(frozen=True)
+class Gmf1Config:
+    serial: str
+    baud: int
+    encoders: tuple[str, str]
+    encoder_hz: float
+    reply_timeout_s: float
+    done_margin_s: float
+
+
+def default_encoder_urls(cell_name: str, sub_name: str) -> list[str]:
+    return [f"shm://droid.{cell_name}.{sub_name}.quad{i}" for i in range(2)]
+
+
+def gmf1_config(cell: Cell, sub: Subunit) -> Gmf1Config:
+    """Read and validate the subunit's GMF1 keys (BadInput naming file and key)."""
+    o = dict(sub.options)
+    where = f"{cell.path}: [subunits.{sub.name}]"
+    unknown = sorted(set(o) - set(KEYS))
+    if unknown:
+        raise BadInput(f"{where} unknown key(s) for a GMF1 subunit: {', '.join(unknown)} "
+                       f"(known: {', '.join(KEYS)})")
+    serial = o.get("serial", f"{cell.run_dir}/{sub.name}.tty")
+    if not isinstance(serial, str) or not serial:
+        raise BadInput(f"{where} serial must be a non-empty string (a device path or pyserial URL)")
+    baud = o.get("baud", BAUD)
+    if not isinstance(baud, int) or isinstance(baud, bool) or not 50 <= baud <= 4_000_000:
+        raise BadInput(f"{where} baud must be an integer in 50..4000000, got {baud!r}")
+    encoders = o.get("encoders", default_encoder_urls(cell.name, sub.name))
+    if not isinstance(encoders, list) or len(encoders) != 2 or not all(isinstance(u, str) for u in encoders):
+        raise BadInput(f"{where} encoders must be a list of 2 card URLs (shm://NAME or mem://PATH?offset=N)")
+    try:
+        for u in encoders:
+            check_url(u)
+    except BadInput as exc:
+        raise BadInput(f"{where} encoders: {exc}") from None
+    vals = {}
+    for key, default, lo, hi in (("encoder_hz", 120.0, 1.0, 2000.0), ("reply_timeout_s", 1.0, 0.05, 60.0),
+                                 ("done_margin_s", 1.0, 0.0, 600.0)):
+        v = o.get(key, default)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi:
+            raise BadInput(f"{where} {key} must be a number in {lo:g}..{hi:g}, got {v!r}")
+        vals[key] = float(v)
+    return Gmf1Config(serial=serial, baud=baud, encoders=(encoders[0], encoders[1]), **vals)

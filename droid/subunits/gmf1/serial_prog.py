@@ -1,0 +1,110 @@
+"""droid-gmf1-serial NAME: the GMF1 serial program (thesis §4.2.4), the shell of :class:`SerialCore`.
+
+It subscribes to the agent's tick relay (``relay`` endpoint of the subunit);
+on each relayed tick it reads the controller's Command record, runs
+:class:`~droid.subunits.gmf1.serial_core.SerialCore` (newest command only,
+once the previous move is DONE) and writes the Status record's busy, cmd_id,
+cmd_result, ... fields.  The port is the subunit's ``serial`` key (a device
+path, droid-sim's pty link, or a pyserial URL such as ``socket://host:port``)
+at ``baud`` (9600), opened with ``serial.serial_for_url``; a port that is
+missing or vanishes is a device fault and is reopened with back-off — the
+program never exits for it.  Grammar, drop policy and faults: docs/gmf1.md.
+
+Options: ``--serial URL`` / ``--baud N`` override the cell file.
+Exit: 0 on SIGTERM/SIGINT; 2 on a bad cell file or URL; 1 if the databases are missing.
+"""
+from __future__ import annotations
+
+import sys
+
+import zmq
+
+from droid.brain.databases import open_local
+from droid.brain.heartbeat import TickSubscriber
+from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
+from droid.cli import BadInput, positive_int, run
+from droid.kinematics import load_robot
+from droid.kinematics.transforms import pose_to_T
+from droid.subunits.gmf1.config import gmf1_config
+from droid.subunits.gmf1.port import PortLink, serial_opener
+from droid.subunits.gmf1.serial_core import SerialCore, SerialParams
+from droid.subunits.gmf1.station import SerialStation
+
+PROG = "droid-gmf1-serial"
+POLL_MS = 500
+
+
+def build_core(cell, sub, cfg, baud: int) -> SerialCore:
+    model = load_robot(sub.robot).with_base(pose_to_T(*sub.base))
+    params = SerialParams(period_s=1.0 / cell.heartbeat_hz, baud=baud, reply_timeout_s=cfg.reply_timeout_s,
+                          done_margin_s=cfg.done_margin_s)
+    return SerialCore(model, params)
+
+
+@run
+def main(argv=None) -> int:
+    ap = parser(PROG, "Send the newest GMF1 command to the Fanuc KAREL server over its serial line.")
+    ap.add_argument("subunit", help="the GMF1 subunit, e.g. gmf1")
+    ap.add_argument("--serial", metavar="URL", default=None, help="serial port (default: the cell file's)")
+    ap.add_argument("--baud", type=positive_int, default=None, help="baud rate (default: the cell file's, 9600)")
+    args = ap.parse_args(argv)
+    cell = open_cell(args)
+    sub = cell.subunit(args.subunit)
+    if not sub.is_arm:
+        raise BadInput(f"{sub.name} is not an arm subunit")
+    cfg = gmf1_config(cell, sub)
+    url = args.serial or cfg.serial
+    baud = args.baud or cfg.baud
+    link = PortLink(serial_opener(url, baud))
+    core = build_core(cell, sub, cfg, baud)
+    Stop.install()  # tick-driven like the agent (no SCHED_FIFO): the 9600-baud line sets its pace
+    ctrl_command = open_local(cell, sub, "ctrl_command")
+    ctrl_status = None
+    ctx = None
+    ticks = None
+    presence = None
+    try:
+        ctrl_status = open_local(cell, sub, "ctrl_status")
+        station = SerialStation(core, link, ctrl_command, ctrl_status)
+        presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
+        ctx = zmq.Context()
+        ticks = TickSubscriber(ctx, sub.relay)
+        link.open()  # a missing port is a fault, not a start-up failure
+        presence.ready()
+        notify_ready(args.ready_fd)
+        last_error = ""
+        opens = link.opens
+        cycles = 0
+        while not Stop.requested:
+            t = ticks.wait(POLL_MS / 1000.0)
+            if t is None:
+                continue
+            station.cycle(t.tick)
+            cycles += 1
+            if link.last_error != last_error:
+                last_error = link.last_error
+                if last_error:
+                    print(f"{PROG}: serial {url}: {last_error}", file=sys.stderr)
+            if link.opens != opens:
+                opens = link.opens
+                print(f"{PROG}: serial {url} open", file=sys.stderr)
+            presence.beat(t.tick, cycles, ticks.monitor.missed, 0)
+        print(f"{PROG}: sent {core.sent}, completed {core.completed}, dropped {core.dropped}, refused "
+              f"{core.refused}, failed {core.failed}, garbled {core.garbled}, timeouts {core.timeouts}, "
+              f"busy rejects {core.busy_rejects}, port opens {link.opens}", file=sys.stderr)
+    finally:
+        link.close()
+        if ticks is not None:
+            ticks.close()
+        if ctx is not None:
+            ctx.term()
+        ctrl_command.close()
+        if ctrl_status is not None:
+            ctrl_status.close()
+        if presence is not None:
+            presence.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,108 @@
+"""One cycle of each GMF1 program around its core: read -> core.step -> write (ros2_control style).
+
+Shared by the real-time shells (droid-gmf1-serial, droid-gmf1-encoder) and the
+lockstep runner, so both modes run exactly the same code between the records,
+the port or the cards, and the cores.  The records may be shared-memory
+:class:`~droid.brain.shmdb.Database` objects or lockstep
+:class:`~droid.brain.shmdb.MemoryDatabase` objects.
+
+Both programs write the controller's Status record (Table 4.2); each owns its
+fields:
+
+* serial: busy, cmd_id, cmd_result, cmd_mode, coord, encoder_cmd, and homed := 0
+  when it sends HOME;
+* encoder: encoder_pos, x, y, z, R, updated_ns, and homed := 1 after zeroing.
+
+FAULT_DEVICE is shared: each program asserts it every cycle while its fault
+lasts and clears it only when its own fault ends, so one program's recovery
+hides the other's fault for at most one cycle of the other.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from droid.brain.layouts import FAULT_DEVICE
+from droid.subunits.gmf1.encoder_core import EncoderCore, EncoderOut, HomeView
+from droid.subunits.gmf1.port import PortLink
+from droid.subunits.gmf1.serial_core import SerialCore, SerialOut, StatusView, snapshot_command
+
+
+def _fault_bits(v, on: bool, was_on: bool) -> None:
+    f = int(v["fault"])
+    if on:
+        v["fault"] = f | FAULT_DEVICE
+    elif was_on:
+        v["fault"] = f & ~FAULT_DEVICE
+
+
+class SerialStation:
+    """droid-gmf1-serial's cycle, once per relayed heartbeat tick."""
+
+    def __init__(self, core: SerialCore, link: PortLink, ctrl_command, ctrl_status) -> None:
+        self.core = core
+        self.link = link
+        self.ctrl_command = ctrl_command
+        self.ctrl_status = ctrl_status
+        self._fault_was = False
+        self._busy_written: int | None = None  # the last busy-only write (skipped when it repeats)
+        self.last: SerialOut | None = None
+
+    def cycle(self, tick: int) -> SerialOut:
+        cmd = snapshot_command(self.ctrl_command.read())
+        st = self.ctrl_status.read()
+        view = StatusView(bool(int(st["homed"])), np.array(st["encoder_pos"], np.int64))
+        rx = self.link.read()
+        out = self.core.step(tick, cmd, view, rx, self.link.is_open)
+        if out.close_port:
+            self.link.close()
+        if out.tx:
+            self.link.write(out.tx)
+        if out.open_port:
+            self.link.open()
+        busy_only = set(out.fields) == {"busy"}
+        repeat = busy_only and out.fields["busy"] == self._busy_written and not out.fault and not self._fault_was
+        if not repeat:  # an idle tick with nothing new costs no lock
+            with self.ctrl_status.locked() as v:
+                for k, val in out.fields.items():
+                    v[k] = val
+                _fault_bits(v, out.fault, self._fault_was)
+                self.ctrl_status.mark_written()
+            self._busy_written = out.fields["busy"] if busy_only else None
+        self._fault_was = out.fault
+        self.last = out
+        return out
+
+
+class EncoderStation:
+    """droid-gmf1-encoder's cycle at 120 Hz; ``bank`` is a Quad04Bank (or None while the cards are missing)."""
+
+    def __init__(self, core: EncoderCore, ctrl_status) -> None:
+        self.core = core
+        self.ctrl_status = ctrl_status
+        self._fault_was = False
+        self.refreshes = 0
+
+    def cycle(self, bank, now_ns: int) -> EncoderOut | None:
+        """Read the cards, step the core, write Status.  Exceptions of ``bank`` propagate (the shell
+        reopens); call :meth:`fault` instead while there is no bank."""
+        raw, done = bank.read_joints()
+        with self.ctrl_status.locked() as v:
+            home = HomeView(int(v["cmd_mode"]), int(v["busy"]), int(v["cmd_result"]), int(v["homed"]))
+            out = self.core.step(raw, done, home)
+            for k, val in out.fields.items():
+                v[k] = val
+            v["updated_ns"] = now_ns
+            _fault_bits(v, out.fault, self._fault_was)
+            self.ctrl_status.mark_written()
+        self._fault_was = out.fault
+        self.refreshes += 1
+        if out.reset:
+            bank.reset_joints()
+        return out
+
+    def fault(self) -> None:
+        """No readable cards this cycle: assert FAULT_DEVICE; the pose goes stale (updated_ns stops)."""
+        with self.ctrl_status.locked() as v:
+            _fault_bits(v, True, self._fault_was)
+            self.ctrl_status.mark_written()
+        self._fault_was = True

@@ -1,0 +1,90 @@
+"""Integration: the real process cell with the GMF1 programs, driven by droid-home / droid-move.
+
+Generous waits, no timing verdicts.  Each test brings its own uniquely named cell up and always
+brings it down.
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+
+import numpy as np
+import pytest
+
+from droid.brain.shmdb import cell_objects
+from droid.kinematics import load_robot
+from droid.kinematics.transforms import pose_to_T, T_to_pose
+from tests.brain.cellutil import cell_status, droid, make_cell_file, wait_for
+
+pytestmark = pytest.mark.integration
+CELL = "droid.brain.launcher"
+SNOOP = "droid.tasks.snoop"
+MODEL = load_robot("fanuc_s400").with_base(pose_to_T(2000, 0, 0, 180, 0, 0))
+TARGET = [round(v, 3) for v in T_to_pose(MODEL.fk([0, 10, 10, 0, 40, 20]))]
+
+
+@pytest.fixture
+def cell(tmp_path, cell_name):
+    path = make_cell_file(tmp_path, cell_name)
+    yield path
+    out = droid(CELL, "down", "--cell", str(path))
+    assert out.returncode == 0, out.stderr
+    assert cell_objects(cell_name) == []
+
+
+def snoop(path):
+    out = droid(SNOOP, "gmf1", "--json", "--count", "1", "--cell", str(path))
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout.splitlines()[0])
+
+
+def test_home_and_cartesian_move_in_the_real_cell(cell):
+    out = droid(CELL, "up", "--cell", str(cell), timeout=120)
+    assert out.returncode == 0, out.stdout + out.stderr
+    names = {r["name"] for r in cell_status(cell)}
+    assert {"droid-gmf1-agent gmf1", "droid-gmf1-serial gmf1", "droid-gmf1-encoder gmf1"} <= names
+    first = wait_for(lambda: (lambda s: s if not s["stale"] and not s["fault"] else None)(snoop(cell)),
+                     timeout=30, what="gmf1 fresh and without faults")
+    assert first["homed"] == 0
+    # a cartesian move before homing is refused by droid-move (exit 1), nothing moves
+    before = snoop(cell)["encoder_pos"]
+    out = droid("droid.tasks.move", "gmf1", "cart", *map(str, TARGET), "2", "--cell", str(cell))
+    assert out.returncode == 1 and "not homed" in out.stderr
+    assert snoop(cell)["encoder_pos"] == before
+    out = droid("droid.tasks.home", "gmf1", "--timeout", "60", "--cell", str(cell), timeout=90)
+    assert out.returncode == 0, out.stderr
+    s = snoop(cell)
+    assert s["homed"] == 1 and all(abs(v) <= 1 for v in s["encoder_pos"])
+    out = droid("droid.tasks.move", "gmf1", "cart", *map(str, TARGET), "2", "--cell", str(cell), timeout=90)
+    assert out.returncode == 0, out.stderr
+    s = wait_for(lambda: (lambda r: r if abs(r["x"] - TARGET[0]) < 0.5 and abs(r["y"] - TARGET[1]) < 0.5
+                          and abs(r["z"] - TARGET[2]) < 0.5 else None)(snoop(cell)),
+                 timeout=30, what="gmf1 Status at the target")
+    assert s["busy"] == 0 and s["fault"] == [] and s["cmd_mode"] == "NORMAL"
+    R = np.array(s["R"])
+    np.testing.assert_allclose(R, pose_to_T(*TARGET)[:3, :3], atol=1e-3)
+    # the world going away is a device fault on gmf1, not a crash of its programs
+    sim = next(r for r in cell_status(cell) if r["name"] == "droid-sim")
+    os.kill(sim["pid"], signal.SIGTERM)
+    wait_for(lambda: "device" in snoop(cell)["fault"], timeout=30, what="gmf1 device fault")
+    rows = {r["name"]: r for r in cell_status(cell)}
+    assert rows["droid-gmf1-serial gmf1"]["live"] and rows["droid-gmf1-encoder gmf1"]["live"]
+
+
+@pytest.mark.parametrize("prog", ["droid.subunits.gmf1.serial_prog", "droid.subunits.gmf1.encoder_prog"])
+def test_programs_refuse_bad_cell_keys_in_one_line(tmp_path, cell_name, prog):
+    path = make_cell_file(tmp_path, cell_name)
+    text = path.read_text().replace('encoder_hz = 120.0', 'encoder_hz = 120.0\nencoders_typo = 1')
+    path.write_text(text)
+    out = droid(prog, "gmf1", "--cell", str(path))
+    assert out.returncode == 2
+    assert out.stderr.count("\n") == 1 and "encoders_typo" in out.stderr
+
+
+def test_programs_without_a_cell_fail_cleanly(tmp_path, cell_name):
+    path = make_cell_file(tmp_path, cell_name)
+    for prog in ("droid.subunits.gmf1.serial_prog", "droid.subunits.gmf1.encoder_prog"):
+        out = droid(prog, "gmf1", "--cell", str(path))
+        assert out.returncode == 1 and "is the cell up" in out.stderr
+        assert "Traceback" not in out.stderr
