@@ -32,6 +32,8 @@ bg servo-agent-arm1 droid-servo-agent arm1
 # 5. ... each subunit identifies itself in the name space through its agent ...
 bg agent-arm1 droid-reis-agent arm1
 bg agent-gmf1 droid-gmf1-agent gmf1
+bg gmf1-serial-gmf1 droid-gmf1-serial gmf1     # the KAREL controller's serial line (§4.2.4)
+bg gmf1-encoder-gmf1 droid-gmf1-encoder gmf1   # the encoder cards, 120 Hz (§4.2.5)
 # the MVS sensor PC runs the sensor program; its lines reach the Brain by a serial cable
 bg mvs-mvs droid-mvs mvs
 bg planner-arm1 droid-planner arm1
@@ -39,5 +41,9 @@ bg planner-arm1 droid-planner arm1
 for sub in arm1 gmf1 mvs tool; do bg "remote-$sub" droid-remote "$sub"; done
 # 7. ... and the heartbeat that paces them all (60 Hz).
 bg heartbeat droid-heartbeat
-sleep 2
+# wait (bounded) until every program says it is live, then show them
+for _ in $(seq 60); do
+    droid-cell status >/dev/null 2>&1 && break
+    sleep 0.5
+done
 droid-cell status

@@ -19,6 +19,7 @@ from __future__ import annotations
 import sys
 
 from droid.brain.program import open_cell, parser
+from droid.brain.layouts import CMD_OK
 from droid.cli import positive_float, run
 from droid.tasks.arm import BrainArm
 
@@ -40,7 +41,8 @@ def main(argv=None) -> int:
         arm.wait_idle(args.timeout)
         cmd_id = arm.command_home()
         arm.wait_delivered(cmd_id, args.timeout)
-        rec = arm.wait(lambda r: int(r["cmd_id"]) == cmd_id and int(r["homed"]) and int(r["busy"]) == 0,
+        rec = arm.wait(lambda r: int(r["cmd_id"]) == cmd_id and int(r["busy"]) == 0
+                       and (int(r["homed"]) or int(r["cmd_result"]) != CMD_OK),
                        args.timeout, f"{args.robot} to report HOMED")
         arm.check_result(rec, cmd_id)
         arm.set_normal()

@@ -87,8 +87,10 @@ def test_property_batch_equals_single(seed, n):
     hint = rng.uniform(-180.0, 180.0, (2 * n, 6))
     batch = model.ik_all_batch(ts, hint)
     assert batch.shape == (2 * n, 8, 6)
+    # 1e-7 deg: near the wrist singularity joints 4 and 6 are individually
+    # ill-conditioned (~1e-16 / sin q5), and random poses come within 1e-6 of it
     for t, h, b in zip(ts, hint, batch):
-        assert_same_solutions(model.ik_all(t, h), b, 1e-9)
+        assert_same_solutions(model.ik_all(t, h), b, 1e-7)
 
 
 def test_batch_large_chunked(reis):
