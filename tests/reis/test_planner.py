@@ -129,3 +129,24 @@ def test_commands_fail_while_the_servo_is_down():
     out = core.step(cmd, st)
     assert out.cmd_result == L.CMD_FAILED and out.cmd_id == 3
     assert list(out.encoder_cmd_int) == [0] * 6 and out.busy == 0
+
+
+def test_servo_agent_never_sends_a_stale_far_way_point():
+    """A way-point more than two command periods of travel from the servo's target is
+    stale (e.g. the planner kept interpolating while the servo agent was stalled): the
+    agent sends nothing and flags BRAKING so the planner re-anchors."""
+    from droid.subunits.reis import servo_wire as sw
+    from droid.subunits.reis.servo_agent import ServoAgentCore
+
+    agent = ServoAgentCore()
+    cmd = L.new_record(L.CTRL_COMMAND_LAYOUT)
+    cmd["link_alive"], cmd["cmd_mode"], cmd["brain_tick"], cmd["planner_tick"] = 1, L.NORMAL_MODE, 100, 100
+    rep = sw.ServoReport(tick=1, mode=3, homed=True, homing_joint=-1, starved=False, braking=False, fault=0,
+                         amps_on=True, encoder_pos=(1000,) * 6, encoder_cmd=(1000,) * 6,
+                         following_error=(0,) * 6, dac=(0,) * 6)
+    cmd["encoder_cmd_int"] = [1100] * 6  # a normal next way-point
+    d = agent.step(cmd, rep, True)
+    assert d.message is not None and d.message.counts == (1100,) * 6
+    cmd["encoder_cmd_int"] = [9000, 1000, 1000, 1000, 1000, 1000]  # 8000 counts ahead: stale
+    d = agent.step(cmd, rep, True)
+    assert d.message is None and d.fault_bits & L.FAULT_BRAKING

@@ -38,7 +38,7 @@ from droid.brain.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import run
 from droid.subunits.reis import servo_wire as sw
 from droid.subunits.reis.endpoints import reis_endpoints
-from droid.subunits.reis.servo_params import Fault, Mode
+from droid.subunits.reis.servo_params import Fault, Mode, ServoParams
 
 PROG = "droid-servo-agent"
 COMMAND_HZ = 60.0
@@ -58,9 +58,16 @@ class AgentDecision:
 class ServoAgentCore:
     """Decides the servo's command for one 60 Hz period.  Pure."""
 
-    def __init__(self, stale_ticks: int = 3, resume_window_counts: int = 20) -> None:
+    def __init__(self, stale_ticks: int = 3, resume_window_counts: int = 20,
+                 params: ServoParams | None = None) -> None:
         self.stale_ticks = stale_ticks
         self.resume_window = resume_window_counts
+        p = params or ServoParams()
+        # A planner way-point is never farther from the servo's target than the joint
+        # can travel in two command periods; a farther one is stale (the planner has
+        # not re-anchored yet after the servo braked) and is not sent.
+        self.max_step = (np.asarray(p.max_speed_counts_per_tick, float) * p.servo_rate_hz / p.command_rate_hz
+                         * 2.0 + resume_window_counts)
         self.seq = 0
         self.jog_id: int | None = None  # last JOG cmd_id applied
         self.home_id: int | None = None
@@ -122,6 +129,9 @@ class ServoAgentCore:
                 target = np.asarray(cmd["encoder_cmd_int"], np.int64)
                 if report.starved and np.any(np.abs(target - np.asarray(report.encoder_pos)) > self.resume_window):
                     return AgentDecision(None, status, faults, "waiting for the planner to re-anchor")
+                if np.any(np.abs(target - np.asarray(report.encoder_cmd)) > self.max_step):
+                    faults |= FAULT_BRAKING  # tells the planner to re-anchor where the arm is
+                    return AgentDecision(None, status, faults, "way-point too far from the servo's target")
                 counts = tuple(int(v) for v in target)
         self.seq += 1
         return AgentDecision(sw.ServoCommand(self.seq, int(servo_mode), counts), status, faults)
