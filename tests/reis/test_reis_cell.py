@@ -14,23 +14,16 @@ import sys
 import numpy as np
 import pytest
 
-from droid.brain.shmdb import cell_objects
 from droid.kinematics import load_robot
-from tests.brain.cellutil import ROOT, cell_status, droid, make_cell_file, wait_for
+from tests.brain.cellutil import ROOT, cell_status, droid, wait_for
 
 pytestmark = pytest.mark.integration
 REIS = load_robot("reis_v15")
 
 
 @pytest.fixture
-def cell(tmp_path, cell_name):
-    path = make_cell_file(tmp_path, cell_name)
-    out = droid("droid.brain.launcher", "up", "--cell", str(path), timeout=90)
-    assert out.returncode == 0, out.stderr
-    yield path
-    out = droid("droid.brain.launcher", "down", "--cell", str(path))
-    assert out.returncode == 0, out.stderr
-    assert cell_objects(cell_name) == []
+def cell(sim_cell):
+    return sim_cell
 
 
 def snoop(path, sub="arm1"):
