@@ -10,6 +10,7 @@ droid-cell up
 trap 'droid-cell down' EXIT
 droid-cell status
 droid-home arm1
+droid-home gmf1     # the Fanuc: its KAREL controller goes home, the encoder cards are zeroed
 droid-move arm1 joint 0 0 0 0 0 0 2
 droid-move arm1 cart 300 100 1340 0 180 0 3   # sensor over the seam (docs/mvs.md)
 for sub in arm1 gmf1 mvs tool; do
