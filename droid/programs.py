@@ -14,14 +14,22 @@ PROGRAMS: dict[str, str] = {
     "droid-names": "droid.brain.names",
     "droid-remote": "droid.brain.remote",
     "droid-cheader": "droid.brain.cheader",
+    "droid-kin": "droid.kinematics.cli",
     # subunit agents
     "droid-agent": "droid.subunits.agent",
     "droid-reis-agent": "droid.subunits.reis.agent",
     "droid-gmf1-agent": "droid.subunits.gmf1.agent",
+    "droid-planner": "droid.subunits.reis.planner",
+    "droid-servo": "droid.subunits.reis.servo_prog",
+    "droid-servo-agent": "droid.subunits.reis.servo_agent",
+    "droid-watchdog": "droid.subunits.reis.watchdog_prog",
+    "droid-mvs": "droid.subunits.mvs.sensor",
+    "droid-mvs-board": "droid.sim.mvs_dsp",
     # tasks
     "droid-snoop": "droid.tasks.snoop",
     "droid-move": "droid.tasks.move",
     "droid-home": "droid.tasks.home",
+    "droid-jog": "droid.tasks.jog",
     # the world
     "droid-sim": "droid.sim.world",
 }

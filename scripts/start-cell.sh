@@ -25,14 +25,19 @@ bg names droid-names
 sleep 0.5
 # 3. ... the simulated hardware (on a real cell: power the robots and sensors on) ...
 bg sim droid-sim
-# 4. ... each subunit identifies itself in the name space through its agent ...
+# 4. ... the Reis motion controller (thesis §4.1.4: watchdog, servo, servo agent) ...
+bg watchdog-arm1 droid-watchdog arm1
+bg servo-arm1 droid-servo arm1
+bg servo-agent-arm1 droid-servo-agent arm1
+# 5. ... each subunit identifies itself in the name space through its agent ...
 bg agent-arm1 droid-reis-agent arm1
 bg agent-gmf1 droid-gmf1-agent gmf1
-bg agent-mvs droid-agent mvs
-bg agent-tool droid-agent tool
-# 5. ... one remote client per subunit on the Brain ...
+# the MVS sensor PC runs the sensor program; its lines reach the Brain by a serial cable
+bg mvs-mvs droid-mvs mvs
+bg planner-arm1 droid-planner arm1
+# 6. ... one remote client per subunit on the Brain ...
 for sub in arm1 gmf1 mvs tool; do bg "remote-$sub" droid-remote "$sub"; done
-# 6. ... and the heartbeat that paces them all (60 Hz).
+# 7. ... and the heartbeat that paces them all (60 Hz).
 bg heartbeat droid-heartbeat
 sleep 2
 droid-cell status

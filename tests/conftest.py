@@ -16,13 +16,24 @@ import pytest
 SHM_DIR = "/dev/shm"
 
 
+_MY_CELLS: set[str] = set()  # cell names handed out by this pytest process
+
+
 def droid_shm_entries() -> set[str]:
-    """Names in /dev/shm that belong to DROID (shm objects and named semaphores)."""
+    """Names in /dev/shm that belong to cells of this test run (shm objects and semaphores).
+
+    Only cells named through the ``cell_name`` fixture count, so two test runs on
+    one machine (developers, CI) do not see each other's objects as leaks."""
     try:
         names = os.listdir(SHM_DIR)
     except FileNotFoundError:
         return set()
-    return {n for n in names if n.startswith("droid.") or n.startswith("sem.droid.")}
+    out = set()
+    for n in names:
+        rest = n[4:] if n.startswith("sem.") else n
+        if rest.startswith("droid.") and rest.split(".")[1] in _MY_CELLS:
+            out.add(n)
+    return out
 
 
 def child_pids() -> set[int]:
@@ -102,4 +113,6 @@ def no_leaks(monkeypatch):
 @pytest.fixture
 def cell_name(request) -> str:
     """A cell name unique to this test (so shm names never collide)."""
-    return f"t{uuid.uuid4().hex[:10]}"
+    name = f"t{uuid.uuid4().hex[:10]}"
+    _MY_CELLS.add(name)
+    return name

@@ -16,6 +16,8 @@ from droid.brain.layouts import (
     ARM_STATUS_LAYOUT,
     CTRL_COMMAND_LAYOUT,
     CTRL_STATUS_LAYOUT,
+    JOG_MODE,
+    JSPACE,
     SENSOR_STATUS_LAYOUT,
     Layout,
 )
@@ -35,16 +37,23 @@ def local_layouts(sub: Subunit) -> dict[str, Layout]:
 
 
 def create_databases(cell: Cell, hosts: set[str] | None = None) -> list[Database]:
-    """Create (fresh) every database of the cell for ``hosts`` (default all)."""
+    """Create (fresh) every database of the cell for ``hosts`` (default all).
+
+    Command records start "with safe values so that unwanted sudden motion is
+    eliminated" (§4.1.4): JOG mode and JOINT coordinates (§3.3), no command."""
     made: list[Database] = []
     try:
         for sub in cell.subunits.values():
+            areas = []
             if hosts is None or cell.brain_host in hosts:
-                for area, lay in brain_layouts(sub).items():
-                    made.append(Database(db_name(cell.name, sub.name, area), lay, create=True))
+                areas += list(brain_layouts(sub).items())
             if hosts is None or sub.host in hosts:
-                for area, lay in local_layouts(sub).items():
-                    made.append(Database(db_name(cell.name, sub.name, area), lay, create=True))
+                areas += list(local_layouts(sub).items())
+            for area, lay in areas:
+                db = Database(db_name(cell.name, sub.name, area), lay, create=True)
+                made.append(db)
+                if area in ("command", "ctrl_command"):
+                    db.update(cmd_mode=JOG_MODE, coord=JSPACE)
     except Exception:
         for db in made:
             db.unlink()

@@ -58,7 +58,7 @@ class Spec:
 
 
 def cell_programs(cell: Cell, hosts: set[str] | None = None) -> tuple[list[Spec], list[Spec]]:
-    """(first, rest): the name space first, everything else in parallel after it."""
+    """(first, rest): the name space and the world first, everything else in parallel after them."""
     want = (lambda h: True) if hosts is None else (lambda h: h in hosts)
     first, rest = [], []
     if want(cell.brain_host):
@@ -68,7 +68,8 @@ def cell_programs(cell: Cell, hosts: set[str] | None = None) -> tuple[list[Spec]
             rest.append(Spec(presence_key("droid-remote", sub.name), "droid-remote", [sub.name],
                              cell.brain_host))
     if cell.world.get("enabled", True) and want(cell.world.get("host", cell.brain_host)):
-        rest.append(Spec(presence_key("droid-sim"), "droid-sim", [], cell.world["host"]))
+        # the hardware is powered before the programs that drive it (§4.1.4)
+        first.append(Spec(presence_key("droid-sim"), "droid-sim", [], cell.world["host"]))
     for sub in cell.subunits.values():
         if want(sub.host):
             for prog in sub.programs:
@@ -276,7 +277,7 @@ def _programs_known(cell: Cell) -> list[dict]:
                 rec = db.read()
             finally:
                 db.close()
-            words = rec["name"].decode(errors="replace").split()
+            words = rec["name"].item().decode(errors="replace").split()
             progs.append({"key": key, "prog": words[0] if words else key, "args": words[1:],
                           "host": "?", "pid": int(rec["pid"])})
     return progs

@@ -186,8 +186,9 @@ CTRL_COMMAND = _dtype(
         ("brain_tick", "<u8", None),  # addition: last heartbeat tick relayed by the agent
         ("link_alive", "<u4", None),  # addition: 0 once the Brain link missed >= 3 ticks
         ("plan_id", "<u4", None),  # addition: cmd_id the planner last accepted
+        ("planner_tick", "<u8", None),  # addition: last relayed tick the planner processed
     ],
-    216,
+    224,
 )
 
 PROC_STATUS = _dtype(

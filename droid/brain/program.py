@@ -108,3 +108,21 @@ class Presence:
             self.set_state(PROC_STOPPING)
             self.db.close()
             unlink_database(self.name)
+
+
+def subunit_program(prog: str, description: str, argv=None, *, arm: bool = False):
+    """Common start of a program serving one subunit: parse ``[--cell FILE] SUBUNIT``,
+    load the cell, check the subunit (an arm if ``arm``), install the stop handler.
+
+    Returns ``(args, cell, sub)``; bad input raises BadInput (exit 2)."""
+    from droid.cli import BadInput
+
+    ap = parser(prog, description)
+    ap.add_argument("subunit", help="arm subunit, e.g. arm1" if arm else "subunit name, e.g. arm1")
+    args = ap.parse_args(argv)
+    cell = open_cell(args)
+    sub = cell.subunit(args.subunit)
+    if arm and not sub.is_arm:
+        raise BadInput(f"{sub.name} is a {sub.cls} subunit, not an arm")
+    Stop.install()
+    return args, cell, sub

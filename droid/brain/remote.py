@@ -7,6 +7,11 @@ arm it computes the wrist-centre pose by forward kinematics from the encoder
 positions (§4.1.8: "it uses the forward kinematic model ... to calculate the
 current cartesian position and orientation matrix of the wrist-center point").
 
+A ``line_laser`` subunit with ``link = "serial"`` (the MVS sensor, the
+tool-tip sensor) has no agent: the sensor writes its lines over a serial
+cable straight to the Brain (§2.5, §5.4) and this program reads that port
+instead (:mod:`droid.brain.sensor_link`).
+
 Liveness (:class:`~droid.brain.link.RemoteLinkCore`): ``stale_ticks`` ticks
 without a reply set ``stale = 1`` in the Status record; the remote then
 reconnects with back-off and clears ``stale`` on the next reply.
@@ -26,8 +31,10 @@ from droid.brain.heartbeat import TickSubscriber
 from droid.brain.layouts import ARM_COMMAND_LAYOUT, FAULT_LINK, LayoutError, check_header
 from droid.brain.link import RemoteLinkCore
 from droid.brain.names import NameClient
-from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
-from droid.cli import RuntimeFailure, run
+from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
+from droid.brain.rt import try_sched_fifo
+from droid.brain.sensor_link import LINK_SERIAL, link_kind, serve_serial
+from droid.cli import run
 
 PROG = "droid-remote"
 COPY_FIELDS_ARM = ("encoder_pos", "encoder_cmd", "busy", "homed", "fault", "cmd_mode", "coord",
@@ -71,12 +78,11 @@ class StatusTranslator:
 
 @run
 def main(argv=None) -> int:
-    ap = parser(PROG, "Keep one subunit's Brain database in step with its agent, once per heartbeat.")
-    ap.add_argument("subunit", help="subunit name, e.g. arm1")
-    args = ap.parse_args(argv)
-    cell = open_cell(args)
-    sub = cell.subunit(args.subunit)
-    Stop.install()
+    args, cell, sub = subunit_program(
+        PROG, "Keep one subunit's Brain database in step with its agent, once per heartbeat.", argv)
+    try_sched_fifo(priority=50, wanted=cell.sched_fifo, prog=PROG)
+    if link_kind(cell, sub) == LINK_SERIAL:
+        return serve_serial(cell, sub, args.ready_fd, PROG)
     status = open_brain(cell, sub, "status")
     command = open_brain(cell, sub, "command") if "command" in brain_layouts(sub) else None
     fk = ArmPose(sub) if sub.is_arm else None

@@ -258,7 +258,7 @@ _Static_assert(sizeof(droid_ctrl_status_t) == 224, "droid_ctrl_status size");
 
 #define DROID_CTRL_COMMAND_KIND 5
 #define DROID_CTRL_COMMAND_VERSION 1
-#define DROID_CTRL_COMMAND_SIZE 216
+#define DROID_CTRL_COMMAND_SIZE 224
 #pragma pack(push, 1)
 typedef struct droid_ctrl_command {
     uint32_t magic;
@@ -284,6 +284,7 @@ typedef struct droid_ctrl_command {
     uint64_t brain_tick;
     uint32_t link_alive;
     uint32_t plan_id;
+    uint64_t planner_tick;
 } droid_ctrl_command_t;
 #pragma pack(pop)
 _Static_assert(offsetof(droid_ctrl_command_t, magic) == 0, "droid_ctrl_command.magic offset");
@@ -309,7 +310,8 @@ _Static_assert(offsetof(droid_ctrl_command_t, cmd_id) == 196, "droid_ctrl_comman
 _Static_assert(offsetof(droid_ctrl_command_t, brain_tick) == 200, "droid_ctrl_command.brain_tick offset");
 _Static_assert(offsetof(droid_ctrl_command_t, link_alive) == 208, "droid_ctrl_command.link_alive offset");
 _Static_assert(offsetof(droid_ctrl_command_t, plan_id) == 212, "droid_ctrl_command.plan_id offset");
-_Static_assert(sizeof(droid_ctrl_command_t) == 216, "droid_ctrl_command size");
+_Static_assert(offsetof(droid_ctrl_command_t, planner_tick) == 216, "droid_ctrl_command.planner_tick offset");
+_Static_assert(sizeof(droid_ctrl_command_t) == 224, "droid_ctrl_command size");
 
 #define DROID_PROC_STATUS_KIND 6
 #define DROID_PROC_STATUS_VERSION 1

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import opw
+from . import opw, opw_batch
 from .dh import DhTable, fk_dh
 from .gearing import Gearing
 from .transforms import inv_homo, is_rigid
@@ -155,7 +155,7 @@ class RobotModel:
         q = np.asarray(q_deg, float)
         if q.ndim != 2 or q.shape[1] != 6:
             raise ValueError(f"fk_batch: expected (N, 6) joint angles, got shape {q.shape}")
-        t = opw.fk_batch(self.opw, q)
+        t = opw_batch.fk_batch(self.opw, q)
         if self._base_rows is not None:
             t = self.base @ t
         return t
@@ -179,6 +179,7 @@ class RobotModel:
         r0, r1, r2 = rows[0], rows[1], rows[2]
         if not math.isfinite(sum(r0) + sum(r1) + sum(r2)):
             raise ValueError("target: transform must be finite")
+        _check_rotation(r0, r1, r2)
         if self._base_inv_rows is not None:
             return _affine_mul(self._base_inv_rows, [r0, r1, r2])
         return rows
@@ -194,8 +195,12 @@ class RobotModel:
         h1, h4 = _hints(q_hint_deg)
         return np.array(opw.ik(self.opw, rows, h1, h4))
 
-    def ik_all_batch(self, Ts, q_hint_deg=None) -> np.ndarray:
-        """All 8 solutions of N poses (N, 4, 4) -> (N, 8, 6) [deg], NaN where none (vectorised)."""
+    def ik_all_batch(self, Ts, q_hint_deg=None, hint_used=None) -> np.ndarray:
+        """All 8 solutions of N poses (N, 4, 4) -> (N, 8, 6) [deg], NaN where none (vectorised).
+
+        ``q_hint_deg`` (6,) or (N, 6) as for :meth:`ik_all`; a bool array
+        ``hint_used`` (N,) is set True where a singular configuration used it.
+        """
         t = np.asarray(Ts, float)
         if t.ndim != 3 or t.shape[1:] != (4, 4):
             raise ValueError(f"ik_all_batch: expected (N, 4, 4) transforms, got shape {t.shape}")
@@ -205,7 +210,13 @@ class RobotModel:
             h = np.asarray(q_hint_deg, float)
             if h.shape not in ((6,), (t.shape[0], 6)):
                 raise ValueError("q_hint_deg: expected (6,) or (N, 6)")
-        return opw.ik_batch(self.opw, t, q_hint_deg)
+        if not np.all(np.isfinite(t)):
+            raise ValueError("ik_all_batch: transforms must be finite")
+        bad = ~(_rotation_error(t) <= ROTATION_TOL)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise ValueError(f"ik_all_batch: pose {i}: rotation is not orthonormal and right-handed")
+        return opw_batch.ik_batch(self.opw, t, q_hint_deg, hint_used)
 
     def ik(self, T, q_prev_deg) -> np.ndarray:
         """The planner's pick (eq. 4.15) for pose T (4x4, mm): 6 joint angles [deg].
@@ -317,6 +328,41 @@ class RobotModel:
         idx = np.argmin(score, axis=1)  # first minimum: lowest index on ties
         idx[~valid.any(axis=1)] = -1
         return idx
+
+
+#: tolerance on R^T R = I (and R's middle column = z x x) of a target.
+ROTATION_TOL = 1e-6
+
+
+def _check_rotation(r0: list, r1: list, r2: list) -> None:
+    """Raise ValueError unless the 3x3 part of a target is a rotation (orthonormal, right-handed)."""
+    x0, x1, x2 = r0[0], r1[0], r2[0]
+    y0, y1, y2 = r0[1], r1[1], r2[1]
+    z0, z1, z2 = r0[2], r1[2], r2[2]
+    err = max(
+        abs(x0 * x0 + x1 * x1 + x2 * x2 - 1.0),
+        abs(z0 * z0 + z1 * z1 + z2 * z2 - 1.0),
+        abs(x0 * z0 + x1 * z1 + x2 * z2),
+        abs(z1 * x2 - z2 * x1 - y0),
+        abs(z2 * x0 - z0 * x2 - y1),
+        abs(z0 * x1 - z1 * x0 - y2),
+    )
+    if not err <= ROTATION_TOL:
+        raise ValueError(f"target: rotation is not orthonormal and right-handed (error {err:.2g})")
+
+
+def _rotation_error(t: np.ndarray) -> np.ndarray:
+    """Vector form of :func:`_check_rotation`'s error for (N, 4, 4) targets."""
+    x0, x1, x2 = t[:, 0, 0], t[:, 1, 0], t[:, 2, 0]
+    y0, y1, y2 = t[:, 0, 1], t[:, 1, 1], t[:, 2, 1]
+    z0, z1, z2 = t[:, 0, 2], t[:, 1, 2], t[:, 2, 2]
+    err = np.abs(x0 * x0 + x1 * x1 + x2 * x2 - 1.0)
+    np.maximum(err, np.abs(z0 * z0 + z1 * z1 + z2 * z2 - 1.0), out=err)
+    np.maximum(err, np.abs(x0 * z0 + x1 * z1 + x2 * z2), out=err)
+    np.maximum(err, np.abs(z1 * x2 - z2 * x1 - y0), out=err)
+    np.maximum(err, np.abs(z2 * x0 - z0 * x2 - y1), out=err)
+    np.maximum(err, np.abs(z0 * x1 - z1 * x0 - y2), out=err)
+    return err
 
 
 def _hints(q_hint_deg) -> tuple[float, float]:

@@ -87,14 +87,15 @@ def zyz_to_R(a_deg, b_deg, c_deg) -> np.ndarray:
 def R_to_zyz(R) -> np.ndarray:
     """ZYZ Euler angles (a, b, c) [deg] of a rotation matrix (..., 3, 3) -> (..., 3).
 
-    ``b`` is in [0, 180].  Gimbal lock (``sin b`` < :data:`GIMBAL_EPS`): ``a = 0``
-    and ``c`` carries the whole rotation about z (thesis §4.1.7 policy).
+    ``b`` is in [0, 180].  Gimbal lock (``sin b`` < :data:`GIMBAL_EPS`): ``b`` is
+    snapped to 0 or 180, ``a = 0`` and ``c`` carries the whole rotation about z
+    (thesis §4.1.7 policy).
     """
     r = np.asarray(R, float)
     r02, r12, r22 = r[..., 0, 2], r[..., 1, 2], r[..., 2, 2]
     sb = np.hypot(r02, r12)
-    b = np.arctan2(sb, r22)
     locked = sb < GIMBAL_EPS
+    b = np.where(locked, np.where(r22 > 0, 0.0, np.pi), np.arctan2(sb, r22))
     a = np.where(locked, 0.0, np.arctan2(r12, r02))
     # c from the residual Rz(c) = Ry(-b) Rz(-a) R: exact for any a, robust near lock
     ca, sa, cb, sbb = np.cos(a), np.sin(a), np.cos(b), np.sin(b)

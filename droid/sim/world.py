@@ -30,7 +30,13 @@ PROG = "droid-sim"
 DEFAULT_RATE_HZ = 1000.0
 
 # type -> (module, factory function)
-DEVICE_TYPES: dict[str, tuple[str, str]] = {}
+DEVICE_TYPES: dict[str, tuple[str, str]] = {
+    "reis_vme": ("droid.sim.reis_world", "make_reis"),
+    "fixed_arm": ("droid.sim.mvs_world", "fixed_arm"),
+    "mvs_camera": ("droid.sim.mvs_world", "mvs_camera"),
+    "tool_sensor": ("droid.sim.mvs_world", "tool_sensor"),
+    "serial_cable": ("droid.sim.serial_cable", "serial_cable"),
+}
 
 
 class Device:
@@ -103,12 +109,13 @@ def main(argv=None) -> int:
     if not 1.0 <= rate <= 10000.0:
         raise BadInput(f"{cell.path}: [world] rate_hz {rate:g} outside 1..10000 Hz")
     Stop.install()
-    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
+    try_sched_fifo(priority=52, wanted=cell.sched_fifo, prog=PROG)
     presence = Presence(cell.name, presence_key(PROG), PROG)
     world = None
     timer = None
     try:
         world = build_world(cell, args.seed)
+        world.advance(1.0 / rate)  # power up: every register holds a real value before anyone reads
         timer = PeriodicTimer(int(round(1e9 / rate)))
         presence.ready()
         notify_ready(args.ready_fd)

@@ -13,7 +13,9 @@ subunit's own tick-driven programs (planner, serial program) subscribe.
 
 If the Brain stays silent for ``stale_ticks`` periods the agent sets
 ``link_alive = 0`` in the local Command record and the LINK fault in the local
-Status record: the motion controller brakes and waits for a new command.
+Status record, and from then on relays ticks of its own clock, so the
+subunit's tick-driven programs see it: the motion controller brakes and waits
+for a new command.
 
 ``droid-reis-agent`` and ``droid-gmf1-agent`` are this program under the
 names of the thesis; sensors use it as ``droid-agent``.
@@ -32,7 +34,7 @@ from droid.brain.layouts import ARM_COMMAND_LAYOUT, FAULT_LINK, LayoutError, che
 from droid.brain.link import AgentLinkCore
 from droid.brain.names import NameClient
 from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
-from droid.brain.rt import PeriodicTimer
+from droid.brain.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import RuntimeFailure, run
 
 # Brain Command (Table 3.2) -> controller Command (Table 4.3)
@@ -72,6 +74,7 @@ def agent_main(prog: str, argv=None) -> int:
     cell = open_cell(args)
     sub = cell.subunit(args.subunit)
     Stop.install()
+    try_sched_fifo(priority=51, wanted=cell.sched_fifo, prog=prog)
     layouts = local_layouts(sub)
     status = open_local(cell, sub, "ctrl_status")
     ctrl_cmd = open_local(cell, sub, "ctrl_command") if "ctrl_command" in layouts else None
@@ -137,6 +140,14 @@ def agent_main(prog: str, argv=None) -> int:
                     if ctrl_cmd is not None:
                         ctrl_cmd.update(link_alive=0)
                     _set_fault(status, FAULT_LINK, True)
+                if not was_alive and link.last_cmd_ns is not None:
+                    # The Brain is silent: keep ticking the local programs so that the
+                    # planner sees link_alive = 0 and cancels its move (the arm brakes
+                    # and stays stopped).  Tick numbers follow time, like the heartbeat's.
+                    local = link.last_tick + (now - link.last_cmd_ns) // cell.period_ns
+                    if ctrl_cmd is not None:
+                        ctrl_cmd.update(brain_tick=local)
+                    relay.send(wire.pack_tick(wire.Tick(local, now, cell.period_ns)))
             presence.beat(link.last_tick, link.commands, bad_frames)
     finally:
         if names is not None:

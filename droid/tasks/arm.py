@@ -19,7 +19,8 @@ import numpy as np
 
 from droid.brain.cellfile import Cell
 from droid.brain.databases import open_brain
-from droid.brain.layouts import (CARTSPACE, CMD_FAILED, CMD_OK, CMD_REFUSED, FAULT_NAMES, HOME_MODE,
+from droid.brain.layouts import (CARTSPACE, CMD_OK, CMD_REFUSED, FAULT_DEVICE, FAULT_NAMES,
+                                 FAULT_SERVO, FAULT_WATCHDOG, HOME_MODE,
                                  JOG_MODE, JSPACE, NORMAL_MODE)
 from droid.cli import BadInput, RuntimeFailure
 from droid.kinematics import Unreachable, load_robot
@@ -71,9 +72,14 @@ class BrainArm:
         return self.model.gearing.counts_to_joints(np.asarray(rec["encoder_pos"], float))
 
     def check_fresh(self, rec=None) -> None:
+        """RuntimeFailure if the arm is stale or cannot move (servo down, amplifiers latched off)."""
         rec = self.read() if rec is None else rec
         if int(rec["stale"]):
             raise RuntimeFailure(f"{self.sub.name} is stale (its agent does not answer)")
+        down = int(rec["fault"]) & (FAULT_SERVO | FAULT_WATCHDOG | FAULT_DEVICE)
+        if down:
+            names = ", ".join(n for b, n in FAULT_NAMES.items() if down & b)
+            raise RuntimeFailure(f"{self.sub.name} cannot move: fault {names}")
 
     # -- validating (before anything moves) -------------------------------
     def ticks_for(self, seconds: float) -> int:

@@ -25,7 +25,7 @@ from __future__ import annotations
 import sys
 
 from droid.brain.program import open_cell, parser
-from droid.cli import BadInput, RuntimeFailure, finite_float, positive_float, run
+from droid.cli import RuntimeFailure, finite_float, positive_float, run
 from droid.tasks.arm import BrainArm
 
 PROG = "droid-move"

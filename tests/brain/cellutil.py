@@ -47,3 +47,16 @@ def wait_for(pred, timeout: float = 20.0, interval: float = 0.1, what: str = "co
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out waiting for {what}")
         time.sleep(interval)
+
+
+def stationary_reis(text: str, wcp=(300.0, 100.0, 1340.0, 0.0, 180.0, 0.0)) -> str:
+    """A cell file text whose Reis is a fixed wrist-centre twin (at ``wcp``: x y z mm,
+    ZYZ deg) run by its agent alone (no servo to drive it): a stationary arm."""
+    reis = '[world.devices.arm1]\ntype = "reis_vme"\nsubunit = "arm1"\n'
+    assert text.count(reis) == 1
+    text = text.replace(reis, '[world.devices.arm1]\ntype = "fixed_arm"\n'
+                              f'wcp = [{", ".join(str(float(v)) for v in wcp)}]\n')
+    progs = ('programs = ["droid-watchdog", "droid-servo", "droid-servo-agent", "droid-reis-agent", '
+             '"droid-planner"]')
+    assert text.count(progs) == 1
+    return text.replace(progs, 'programs = ["droid-reis-agent"]')

@@ -30,6 +30,14 @@ def cell(tmp_path, cell_name):
     assert cell_objects(cell_name) == []
 
 
+def n_programs(path) -> int:
+    from droid.brain.cellfile import load_cell
+    from droid.brain.launcher import cell_programs
+
+    first, rest = cell_programs(load_cell(path))
+    return len(first) + len(rest)
+
+
 def up(path):
     out = droid(CELL, "up", "--cell", str(path), timeout=90)
     assert out.returncode == 0, out.stdout + out.stderr
@@ -48,7 +56,9 @@ def test_default_cell_up_snoop_down(cell, cell_name):
     names = {r["name"] for r in rows}
     assert {"droid-names", "droid-heartbeat", "droid-sim", "droid-remote arm1", "droid-remote gmf1",
             "droid-remote mvs", "droid-remote tool", "droid-reis-agent arm1", "droid-gmf1-agent gmf1",
-            "droid-agent mvs", "droid-agent tool"} <= names
+            "droid-mvs mvs", "droid-servo arm1", "droid-servo-agent arm1",
+            "droid-watchdog arm1", "droid-planner arm1"} <= names
+    assert len(rows) == n_programs(cell)
     assert all(r["pid"] > 0 for r in rows)
     wait_for(lambda: all(r["live"] for r in cell_status(cell)), what="every program live")
     for sub in ("arm1", "gmf1", "mvs", "tool"):
@@ -67,17 +77,17 @@ def test_default_cell_up_snoop_down(cell, cell_name):
 
 def test_agent_death_marks_stale_and_link_recovers(cell):
     up(cell)
-    wait_for(lambda: not snoop_json(cell, "mvs")[0]["stale"], what="mvs fresh")
-    agent = next(r for r in cell_status(cell) if r["name"] == "droid-agent mvs")
+    wait_for(lambda: not snoop_json(cell, "gmf1")[0]["stale"], what="gmf1 fresh")
+    agent = next(r for r in cell_status(cell) if r["name"] == "droid-gmf1-agent gmf1")
     os.kill(agent["pid"], signal.SIGKILL)
-    wait_for(lambda: snoop_json(cell, "mvs")[0]["stale"], what="mvs stale after its agent died")
+    wait_for(lambda: snoop_json(cell, "gmf1")[0]["stale"], what="gmf1 stale after its agent died")
     # the other subunits are unaffected
-    assert not snoop_json(cell, "tool")[0]["stale"]
+    assert not snoop_json(cell, "arm1")[0]["stale"]
     # the agent comes back (by hand, as a user would restart it): the remote reconnects
-    proc = subprocess.Popen([sys.executable, "-m", "droid.subunits.agent", "mvs", "--cell", str(cell)],
+    proc = subprocess.Popen([sys.executable, "-m", "droid.subunits.gmf1.agent", "gmf1", "--cell", str(cell)],
                             cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        wait_for(lambda: not snoop_json(cell, "mvs")[0]["stale"], what="mvs fresh again")
+        wait_for(lambda: not snoop_json(cell, "gmf1")[0]["stale"], what="gmf1 fresh again")
     finally:
         proc.terminate()
         proc.wait(10)
@@ -148,31 +158,52 @@ def _free_port():
 
 def test_cell_over_tcp_started_host_by_host(tmp_path, cell_name):
     """Every link over tcp:// on loopback, and each host's programs started by its own
-    `droid-cell up --host`, subunits before the Brain (thesis §3.2: a subunit should be
-    powered and identified before the Brain's initialization software runs)."""
+    `droid-cell up --host`: the hardware first, then the subunits, then the Brain (thesis
+    §3.2: a subunit should be powered and identified before the Brain's initialization
+    software runs)."""
     import re
 
     path = make_cell_file(tmp_path, cell_name)
     text = re.sub(r'"ipc://\{run\}/[a-z0-9.]+"', lambda m: f'"tcp://127.0.0.1:{_free_port()}"',
                   path.read_text())
     assert "ipc://" not in text
+    assert '[world]\nenabled = true\nhost = "world"' in text  # the hardware on its own host
     path.write_text(text)
     try:
-        for hosts in (["arm1", "gmf1"], ["mvs"], ["brain"]):
+        for hosts in (["world"], ["arm1", "gmf1"], ["mvs"], ["brain"]):
             args = [a for h in hosts for a in ("--host", h)]
             out = droid(CELL, "up", *args, "--cell", str(path), timeout=90)
             assert out.returncode == 0, out.stderr
         again = droid(CELL, "up", "--host", "mvs", "--cell", str(path))
         assert again.returncode == 1 and "already up" in again.stderr
         rows = cell_status(path)
-        assert len(rows) == 11
+        assert len(rows) == n_programs(path)
         for sub in ("arm1", "gmf1", "mvs", "tool"):
             wait_for(lambda: not snoop_json(path, sub)[0]["stale"], what=f"{sub} fresh over tcp")
         names = droid("droid.brain.names", "--list", "--json", "--cell", str(path))
         eps = {json.loads(l)["name"]: json.loads(l)["endpoint"] for l in names.stdout.splitlines()}
-        assert set(eps) == {"heartbeat", "arm1", "gmf1", "mvs", "tool"}
+        assert set(eps) == {"heartbeat", "arm1", "gmf1"}  # the sensors have serial links, no agents
         assert all(e.startswith("tcp://127.0.0.1:") for e in eps.values())
     finally:
         out = droid(CELL, "down", "--cell", str(path))
         assert out.returncode == 0, out.stderr
         assert cell_objects(cell_name) == []
+
+
+def test_start_cell_script_by_hand(tmp_path, cell_name):
+    """scripts/start-cell.sh starts the cell program by program; droid-cell sees and stops it."""
+    path = make_cell_file(tmp_path, cell_name)
+    env = dict(os.environ, DROID_CELL=str(path), LOGS=str(tmp_path / "logs"),
+               PATH=os.path.dirname(sys.executable) + os.pathsep + os.environ["PATH"])
+    try:
+        out = subprocess.run(["bash", str(ROOT / "scripts" / "start-cell.sh")], env=env, cwd=ROOT,
+                             capture_output=True, text=True, timeout=120)
+        assert out.returncode == 0, out.stdout + out.stderr
+        rows = wait_for(lambda: (lambda r: r if len(r) == n_programs(path) and all(x["live"] for x in r)
+                                 else None)(cell_status(path)), what="every hand-started program live")
+        assert {r["name"] for r in rows} >= {"droid-remote arm1", "droid-heartbeat", "droid-names"}
+        wait_for(lambda: not snoop_json(path, "arm1")[0]["stale"], what="arm1 fresh")
+    finally:
+        out = droid(CELL, "down", "--cell", str(path))
+        assert out.returncode == 0, out.stderr
+    assert cell_objects(cell_name) == []

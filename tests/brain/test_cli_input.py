@@ -58,11 +58,18 @@ def test_snoop_bad_args(args, msg, tmp_path, cell_name):
 
 
 def test_help_everywhere():
-    from droid.programs import PROGRAMS
+    import subprocess
+    import sys
 
-    for prog, module in PROGRAMS.items():
-        out = droid(module, "--help")
-        assert out.returncode == 0 and "usage:" in out.stdout, prog
+    from droid.programs import PROGRAMS
+    from tests.brain.cellutil import ROOT
+
+    procs = {prog: subprocess.Popen([sys.executable, "-m", module, "--help"], cwd=ROOT, text=True,
+                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+             for prog, module in PROGRAMS.items()}
+    for prog, p in procs.items():
+        out, err = p.communicate(timeout=120)
+        assert p.returncode == 0 and "usage:" in out, (prog, err)
 
 
 def test_pyproject_scripts_match_program_table():

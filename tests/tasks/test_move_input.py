@@ -55,3 +55,22 @@ def test_move_when_cell_is_down_is_a_runtime_failure(cellfile):
 def test_bad_home(args, msg, cellfile):
     out = droid("droid.tasks.home", *args, "--cell", str(cellfile))
     assert out.returncode == 2 and msg in out.stderr and len(out.stderr.strip().splitlines()) == 1
+
+
+def test_jog_trapezoid_steps_sum_exactly_and_respect_limits():
+    from hypothesis import given, settings, strategies as st
+
+    from droid.tasks.jog import trapezoid_steps
+
+    @settings(deadline=None, max_examples=60)
+    @given(st.integers(-200000, 200000), st.floats(2000, 1e5), st.floats(1000, 1e6))
+    def check(distance, vmax, accel):
+        dt = 1 / 60
+        steps = trapezoid_steps(distance, vmax, accel, dt)
+        assert sum(steps) == distance
+        assert all(abs(s) <= max(1, vmax * dt) for s in steps)
+        assert all((s > 0) == (distance > 0) for s in steps)
+        speeds = [0] + [abs(s) / dt for s in steps]
+        assert all(b - a <= accel * dt + 1 / dt for a, b in zip(speeds, speeds[1:]))
+
+    check()

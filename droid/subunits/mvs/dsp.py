@@ -21,6 +21,7 @@ is chosen by URL (as pyserial chooses a port):
 from __future__ import annotations
 
 import mmap
+import os
 import re
 import threading
 import time
@@ -49,7 +50,7 @@ class DspFrame:
 
     frame: int  # the board's frame counter (frames written since it started)
     rows: np.ndarray  # int16 (240,) stripe columns, -1 = no stripe (a private copy)
-    missed: int  # frames the board wrote since the previous read that this reader skipped
+    missed: int  # frames the board wrote since the previous read (or the opening) that were skipped
 
 
 def parse_dsp_url(url: str) -> tuple[str, str]:
@@ -70,10 +71,10 @@ class DspBoard(ABC):
 
     def __init__(self, url: str):
         self.url = url
-        self._last: int | None = None
+        self._last = 0  # frame counter of the last frame read (or at opening)
 
     def _frame(self, counter: int, rows: np.ndarray) -> DspFrame:
-        missed = 0 if self._last is None else max(0, counter - self._last - 1)
+        missed = max(0, counter - self._last - 1)
         self._last = counter
         return DspFrame(counter, rows, missed)
 
@@ -92,42 +93,95 @@ class DspBoard(ABC):
         self.close()
 
 
+@dataclass
+class _ShmAttachment:
+    """One mapping of a board: the record, its semaphore, and the object's identity."""
+
+    map: mmap.mmap
+    rec: np.ndarray
+    sem: posix_ipc.Semaphore
+    inode: int
+
+    def close(self) -> None:
+        self.rec = None
+        self.map.close()
+        self.sem.close()
+
+
+def _shm_inode(name: str) -> int | None:
+    """Identity of the shared-memory object /name now (None if absent)."""
+    try:
+        shm = posix_ipc.SharedMemory("/" + name)
+    except posix_ipc.ExistentialError:
+        return None
+    try:
+        return os.fstat(shm.fd).st_ino
+    finally:
+        shm.close_fd()
+
+
+def _attach(url: str, name: str) -> _ShmAttachment:
+    """Map the board /name and open its retrace semaphore; RuntimeFailure if it is not a board."""
+    try:
+        shm = posix_ipc.SharedMemory("/" + name)
+    except posix_ipc.ExistentialError:
+        raise RuntimeFailure(f"DSP board {url}: not present (no shared memory /{name})") from None
+    try:
+        if shm.size < DSP_RECORD.itemsize:
+            raise RuntimeFailure(f"DSP board {url}: /{name} is {shm.size} bytes, "
+                                 f"an MVS frame buffer needs {DSP_RECORD.itemsize}")
+        inode = os.fstat(shm.fd).st_ino
+        mapping = mmap.mmap(shm.fd, DSP_RECORD.itemsize)
+    finally:
+        shm.close_fd()
+    rec = np.ndarray((), DSP_RECORD, buffer=mapping)
+    header = (int(rec["magic"]), int(rec["version"]), int(rec["rows"]), int(rec["columns"]))
+    if header != (DSP_MAGIC, DSP_LAYOUT_VERSION, ROWS, COLUMNS):
+        del rec
+        mapping.close()
+        raise RuntimeFailure(f"DSP board {url}: /{name} is not an MVS frame buffer "
+                             f"(magic/version/rows/columns {header})")
+    try:
+        sem = posix_ipc.Semaphore("/" + name + RETRACE_SUFFIX)
+    except posix_ipc.ExistentialError:
+        del rec
+        mapping.close()
+        raise RuntimeFailure(f"DSP board {url}: no retrace semaphore /{name}{RETRACE_SUFFIX}") from None
+    return _ShmAttachment(mapping, rec, sem, inode)
+
+
 class ShmDspBoard(DspBoard):
-    """Reader of a shared-memory DSP board (see the module docstring)."""
+    """Reader of a shared-memory DSP board (see the module docstring).
+
+    When a wait times out and the board has been recreated meanwhile (droid-sim
+    restarted), the reader attaches to the new one.
+    """
 
     def __init__(self, url: str, name: str):
         super().__init__(url)
-        try:
-            shm = posix_ipc.SharedMemory("/" + name)
-        except posix_ipc.ExistentialError:
-            raise RuntimeFailure(f"DSP board {url}: not present (no shared memory /{name})") from None
-        try:
-            if shm.size < DSP_RECORD.itemsize:
-                raise RuntimeFailure(f"DSP board {url}: /{name} is {shm.size} bytes, "
-                                     f"an MVS frame buffer needs {DSP_RECORD.itemsize}")
-            self._map = mmap.mmap(shm.fd, DSP_RECORD.itemsize)
-        finally:
-            shm.close_fd()
-        self._rec = np.ndarray((), DSP_RECORD, buffer=self._map)
-        header = (int(self._rec["magic"]), int(self._rec["version"]),
-                  int(self._rec["rows"]), int(self._rec["columns"]))
-        if header != (DSP_MAGIC, DSP_LAYOUT_VERSION, ROWS, COLUMNS):
-            self.close()
-            raise RuntimeFailure(f"DSP board {url}: /{name} is not an MVS frame buffer "
-                                 f"(magic/version/rows/columns {header})")
-        try:
-            self._sem = posix_ipc.Semaphore("/" + name + RETRACE_SUFFIX)
-        except posix_ipc.ExistentialError:
-            self.close()
-            raise RuntimeFailure(f"DSP board {url}: no retrace semaphore /{name}{RETRACE_SUFFIX}") from None
+        self.name = name
+        self._board: _ShmAttachment | None = _attach(url, name)
+        self._last = int(self._board.rec["frames"])
 
     @property
     def writer_pid(self) -> int:
         """PID of the process that created the board."""
-        return int(self._rec["writer_pid"])
+        return int(self._board.rec["writer_pid"])
+
+    def _reattach_if_replaced(self) -> None:
+        inode = _shm_inode(self.name)
+        if inode is None or inode == self._board.inode:
+            return
+        try:
+            fresh = _attach(self.url, self.name)
+        except RuntimeFailure:
+            return  # being created: try again at the next timeout
+        self._board.close()
+        self._board = fresh
+        self._last = 0
 
     def _copy(self) -> tuple[int, np.ndarray] | None:
-        rec = self._rec
+        rec = self._board.rec
         for _ in range(COPY_RETRIES):
             before = int(rec["sequence"])
             if before & 1:
@@ -139,13 +193,17 @@ class ShmDspBoard(DspBoard):
         return None
 
     def wait_frame(self, timeout_s: float) -> DspFrame | None:
+        sem = self._board.sem
         try:
-            self._sem.acquire(max(0.0, timeout_s))
-        except (posix_ipc.BusyError, posix_ipc.SignalError):
+            sem.acquire(max(0.0, timeout_s))
+        except posix_ipc.SignalError:
+            return None
+        except posix_ipc.BusyError:
+            self._reattach_if_replaced()
             return None
         while True:  # swallow retraces we were too slow for; the counter says how many
             try:
-                self._sem.acquire(0)
+                sem.acquire(0)
             except (posix_ipc.BusyError, posix_ipc.SignalError):
                 break
         copied = self._copy()
@@ -154,15 +212,9 @@ class ShmDspBoard(DspBoard):
         return self._frame(*copied)
 
     def close(self) -> None:
-        self._rec = None
-        m = getattr(self, "_map", None)
-        if m is not None:
-            m.close()
-            self._map = None
-        sem = getattr(self, "_sem", None)
-        if sem is not None:
-            sem.close()
-            self._sem = None
+        if self._board is not None:
+            self._board.close()
+            self._board = None
 
 
 class InprocChannel:
@@ -210,9 +262,10 @@ class InprocDspBoard(DspBoard):
     def __init__(self, url: str, name: str):
         super().__init__(url)
         self._channel = inproc_channel(name)
+        self._last = self._channel.frames
 
     def wait_frame(self, timeout_s: float) -> DspFrame | None:
-        got = self._channel._latest_after(self._last or 0, timeout_s)
+        got = self._channel._latest_after(self._last, timeout_s)
         return None if got is None else self._frame(*got)
 
     def close(self) -> None:

@@ -26,8 +26,8 @@ simulated noise asks for:
    and gives the roll.
 4. *Position.*  The step's row is where the profile crosses from one line
    to the other (rows next to it must fit the right line, or the frame is
-   invalid), at the midline between them.  The feature is the foot of the step on the
-   *lower* (farther) surface: the point where the step's square edge meets
+   invalid), at the midline between them.  The feature is the foot of the
+   step on the *lower* (farther) surface: the point where the step's square edge meets
    the lower line -- through the crossing when the laser sees the edge face,
    through the upper surface's visible edge when the edge overhangs it.  For
    an unrolled surface that is simply the lower line at the crossing row.
@@ -86,7 +86,6 @@ class Feature:
 
 @dataclass(frozen=True)
 class _Line:
-    a: float  # column at row 0
     b: float  # columns per row
     sxx: float  # sum of squared row deviations of the inliers
     rms: float  # inlier residual RMS [columns]
@@ -132,8 +131,7 @@ def _fit_robust(r: np.ndarray, c: np.ndarray, p: FeatureParams) -> _Line | str:
     if rms > p.max_rms_px:
         return f"line residual {rms:.2f} px > {p.max_rms_px} px"
     mean_r = float(rm.mean())
-    return _Line(intercept, slope, float(((rm - mean_r) ** 2).sum()), rms, mean_r,
-                 float(cm.mean()), inliers, threshold)
+    return _Line(slope, float(((rm - mean_r) ** 2).sum()), rms, mean_r, float(cm.mean()), inliers, threshold)
 
 
 def _histogram_bound(c: np.ndarray, calib: MvsCalibration, p: FeatureParams) -> np.ndarray:

@@ -24,9 +24,24 @@ the frames in that format.
 
 The calibration defaults to :class:`MvsCalibration`'s; ``--calib FILE`` reads
 a TOML file whose keys (top level or under ``[calibration]``) are its fields.
+
+In a cell::
+
+    droid-mvs [--cell FILE] mvs
+
+takes the board, the serial port, the baud rate and the calibration from the
+cell file's ``[subunits.mvs]`` (``dsp``, ``sensor_serial``, ``baud``,
+``[subunits.mvs.calibration]``, ``board_wait``); options given on the command
+line win.  It waits up to ``board_wait`` seconds (default 20) for the DSP
+board and the serial port to appear -- droid-sim creates both, started in
+parallel by ``droid-cell up`` -- then completes the readiness handshake and
+keeps a presence record ``/droid.<cell>.proc.mvs-<name>`` like every program.
+A serial port that fails in a cell (droid-sim restarted) is reopened, one try
+a frame, instead of ending the program.
 """
 from __future__ import annotations
 
+import argparse
 import re
 import signal
 import sys
@@ -38,7 +53,7 @@ from dataclasses import dataclass
 import numpy as np
 import serial
 
-from droid.cli import ArgumentParser, BadInput, RuntimeFailure, positive_float, positive_int, run
+from droid.cli import ArgumentParser, BadInput, RuntimeFailure, finite_float, positive_float, positive_int, run
 from droid.subunits.mvs.calibration import MvsCalibration
 from droid.subunits.mvs.dsp import open_dsp
 from droid.subunits.mvs.feature import Feature, FeatureParams, extract
@@ -46,8 +61,13 @@ from droid.subunits.mvs.protocol import format_line
 from droid.subunits.mvs.wire import COLUMNS, DEFAULT_BAUD, FRAME_RATE_HZ, MIN_BAUD, NO_STRIPE, ROWS
 
 PROG = "droid-mvs"
-#: Give up on one serial write after this long [s] (the Brain is not reading).
-WRITE_TIMEOUT_S = 0.5
+#: How long a sensor in a cell waits for its board and serial port by default [s].
+CELL_WAIT_S = 20.0
+#: Poll period while waiting for the board or the serial port to appear [s].
+APPEAR_POLL_S = 0.05
+#: Give up on one serial write after a frame period [s]: when the line is
+#: congested (the Brain is not reading) lines are dropped, the loop keeps pace.
+WRITE_TIMEOUT_S = 1.0 / FRAME_RATE_HZ
 _INTEGER = re.compile(r"[+-]?[0-9]+")
 
 
@@ -117,8 +137,9 @@ def format_frame_line(rows: np.ndarray) -> str:
     return " ".join(str(int(v)) for v in rows)
 
 
-def replay(source: str, core: SensorCore, pixels: bool, out=sys.stdout) -> None:
-    """Process recorded frames from a file (or '-' for stdin), one result a line."""
+def replay(source: str, core: SensorCore, pixels: bool, out=None) -> None:
+    """Process recorded frames from a file (or '-' for stdin), one result a line to ``out``."""
+    out = out or sys.stdout
     name = "<stdin>" if source == "-" else source
     try:
         stream = sys.stdin if source == "-" else open(source, encoding="ascii", errors="replace")
@@ -150,20 +171,63 @@ def _open_serial(url: str, baud: int):
         raise RuntimeFailure(f"cannot open serial {url}: {exc}") from None
 
 
-def live(args, core: SensorCore) -> int:
-    """The sensor loop: retrace -> copy -> extract -> serial line (see the module docstring)."""
-    board = open_dsp(args.dsp, wait_s=args.board_wait)
+def _open_serial_waiting(url: str, baud: int, wait_s: float, stop: threading.Event):
+    """Open the port, retrying for up to ``wait_s`` [s] while it is not there yet (None if stopped)."""
+    deadline = time.monotonic() + wait_s
+    while not stop.is_set():
+        try:
+            return _open_serial(url, baud)
+        except RuntimeFailure as exc:
+            if time.monotonic() >= deadline:
+                if wait_s > 0:
+                    raise RuntimeFailure(f"{exc} (waited {wait_s:g} s; is droid-sim running?)") from None
+                raise
+            stop.wait(APPEAR_POLL_S)
+    return None
+
+
+def _open_board(url: str, wait_s: float, stop: threading.Event):
+    """Open the DSP board, waiting for up to ``wait_s`` [s] for it to appear (None if stopped)."""
+    deadline = time.monotonic() + wait_s
+    while not stop.is_set():
+        try:
+            return open_dsp(url)
+        except RuntimeFailure as exc:
+            if time.monotonic() >= deadline:
+                if wait_s > 0 and "not present" in str(exc):
+                    raise RuntimeFailure(f"{exc} after waiting {wait_s:g} s (is droid-sim running?)") from None
+                raise
+            stop.wait(APPEAR_POLL_S)
+    return None
+
+
+def live(args, core: SensorCore, ready=None, beat=None, reopen: bool = False) -> int:
+    """The sensor loop: retrace -> copy -> extract -> serial line (see the module docstring).
+
+    ``ready()`` is called once the board and the port are open; ``beat(frames,
+    overruns)`` once a frame (both optional: the cell's handshake and presence).
+    With ``reopen`` a serial port that fails is closed and reopened (one try a
+    frame, the lines meanwhile dropped and counted) instead of ending the run.
+    """
+    wait_s = max(0.0, args.board_wait)
+    deadline = time.monotonic() + wait_s
     stop = threading.Event()
     handlers = {}
     if threading.current_thread() is threading.main_thread():
         handlers = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
-    record = None
-    timeouts = missed = overruns = 0
-    port = None
+    record = board = port = None
+    timeouts = missed = overruns = lost = reopened = 0
     t0 = time.monotonic()
     try:
-        port = _open_serial(args.serial, args.baud)
-        record = open(args.record, "w") if args.record else None
+        board = _open_board(args.dsp, wait_s, stop)
+        port = _open_serial_waiting(args.serial, args.baud, max(0.0, deadline - time.monotonic()), stop)
+        if args.record:
+            try:
+                record = open(args.record, "w")
+            except OSError as exc:
+                raise BadInput(f"cannot write {args.record}: {exc.strerror}") from None
+        if ready is not None and not stop.is_set():
+            ready()
         t0 = time.monotonic()
         while not stop.is_set() and (args.count is None or core.frames < args.count):
             frame = board.wait_frame(args.retrace_timeout)
@@ -176,15 +240,30 @@ def live(args, core: SensorCore) -> int:
                 missed += frame.missed
                 line = core.step(frame.rows)
                 if record is not None:
-                    record.write(format_frame_line(frame.rows) + "\n")
-            try:
-                port.write(line)
-            except serial.SerialTimeoutException:
-                overruns += 1
-            except serial.SerialException as exc:
-                raise RuntimeFailure(f"serial {args.serial}: {exc}") from None
-    except OSError as exc:
-        raise RuntimeFailure(f"{exc.filename or 'I/O'}: {exc.strerror}") from None
+                    try:
+                        record.write(format_frame_line(frame.rows) + "\n")
+                    except OSError as exc:
+                        raise RuntimeFailure(f"cannot write {args.record}: {exc.strerror}") from None
+            if port is None:
+                try:
+                    port = _open_serial(args.serial, args.baud)
+                    reopened += 1
+                except RuntimeFailure:
+                    lost += 1
+            if port is not None:
+                try:
+                    port.write(line)
+                except serial.SerialTimeoutException:
+                    overruns += 1
+                except serial.SerialException as exc:
+                    if not reopen:
+                        raise RuntimeFailure(f"serial {args.serial}: {exc}") from None
+                    print(f"{PROG}: serial {args.serial}: {exc}; reopening", file=sys.stderr, flush=True)
+                    port.close()
+                    port = None
+                    lost += 1
+            if beat is not None:
+                beat(core.frames, overruns + timeouts + lost)
     finally:
         elapsed = max(time.monotonic() - t0, 1e-9)
         for sig, old in handlers.items():
@@ -193,25 +272,33 @@ def live(args, core: SensorCore) -> int:
             record.close()
         if port is not None:
             port.close()
-        board.close()
+        if board is not None:
+            board.close()
+    reopen_note = f", {lost} lines lost with the port, {reopened} reopens" if reopen else ""
     print(f"{PROG}: {core.frames} frames in {elapsed:.2f} s = {core.frames / elapsed:.1f} frames/s "
           f"({core.valid} valid, {core.invalid} invalid, {missed} missed, {timeouts} retrace timeouts, "
-          f"{overruns} serial overruns)", file=sys.stderr)
+          f"{overruns} serial overruns{reopen_note})", file=sys.stderr)
     return 0
 
 
 def build_parser() -> ArgumentParser:
     parser = ArgumentParser(prog=PROG, description="MVS line-laser sensor program (thesis 5.4): "
                             "DSP frames -> lap-joint feature -> 'x,y,roll' lines over serial.")
+    parser.add_argument("subunit", nargs="?", help="run as this subunit of the cell (e.g. mvs): "
+                        "board, port, baud and calibration from [subunits.NAME]")
+    parser.add_argument("--cell", metavar="FILE", default=None,
+                        help="cell file (with a subunit; default: $DROID_CELL, else the built-in simulated cell)")
+    parser.add_argument("--ready-fd", type=int, default=None, help=argparse.SUPPRESS)
     parser.add_argument("--dsp", metavar="URL", help="DSP board: shm://NAME or inproc://NAME")
     parser.add_argument("--serial", metavar="URL", help="serial port URL or device (pyserial serial_for_url)")
-    parser.add_argument("--baud", type=positive_int, default=DEFAULT_BAUD,
+    parser.add_argument("--baud", type=positive_int, default=None,
                         help=f"baud rate, >= {MIN_BAUD} (default {DEFAULT_BAUD})")
     parser.add_argument("--count", type=positive_int, help="stop after N frames")
     parser.add_argument("--retrace-timeout", type=positive_float, default=6 / FRAME_RATE_HZ, metavar="S",
                         help="send 'invalid' when no retrace comes within S seconds (default 0.1)")
-    parser.add_argument("--board-wait", type=float, default=5.0, metavar="S",
-                        help="wait up to S seconds for the DSP board to appear (default 5)")
+    parser.add_argument("--board-wait", type=finite_float, default=None, metavar="S",
+                        help="wait up to S seconds for the DSP board (and in a cell the serial port) "
+                        f"to appear (default 5; in a cell {CELL_WAIT_S:g})")
     parser.add_argument("--record", metavar="FILE", help="also write each frame to FILE (replay format)")
     parser.add_argument("--replay", metavar="FILE", help="process recorded frames from FILE ('-' = stdin)")
     parser.add_argument("--pixels", action="store_true", help="with --replay: print 'row,col' of the step")
@@ -219,23 +306,95 @@ def build_parser() -> ArgumentParser:
     return parser
 
 
+def apply_cell(args):
+    """Fill unset live options from the cell file's ``[subunits.NAME]``; returns (cell, subunit)."""
+    from droid.brain.cellfile import load_cell
+
+    cell = load_cell(args.cell)
+    sub = cell.subunit(args.subunit)
+    where = f"{cell.path}: [subunits.{sub.name}]"
+    if sub.cls != "line_laser":
+        raise BadInput(f"{where} is class {sub.cls!r}, not a line_laser sensor")
+    opts = sub.options
+
+    def option(key, typ, default=None):
+        val = opts.get(key, default)
+        if typ is float and isinstance(val, int) and not isinstance(val, bool):
+            val = float(val)
+        if val is not None and (not isinstance(val, typ) or isinstance(val, bool)):
+            raise BadInput(f"{where} {key} must be {typ.__name__}, got {val!r}")
+        return val
+
+    args.dsp = args.dsp or option("dsp", str)
+    args.serial = args.serial or option("sensor_serial", str)
+    if args.baud is None:
+        args.baud = option("baud", int, DEFAULT_BAUD)
+    if args.board_wait is None:
+        args.board_wait = option("board_wait", float, CELL_WAIT_S)
+    if not args.dsp or not args.serial:
+        raise BadInput(f"{where} needs dsp = \"<board URL>\" and sensor_serial = \"<port>\" for droid-mvs")
+    return cell, sub
+
+
+def cell_calibration(sub, where: str) -> MvsCalibration:
+    table = sub.options.get("calibration", {})
+    if not isinstance(table, dict):
+        raise BadInput(f"{where} calibration must be a table")
+    return MvsCalibration.from_table(table, source=f"{where} calibration")
+
+
 @run
 def main(argv=None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    core = SensorCore(load_calibration(args.calib))
+    args = build_parser().parse_args(argv)
     if args.replay is not None:
-        if args.dsp or args.serial or args.record or args.count:
-            parser.error("--replay takes no --dsp, --serial, --record or --count")
-        replay(args.replay, core, args.pixels)
+        if args.dsp or args.serial or args.record or args.count or args.subunit or args.cell:
+            raise BadInput("--replay takes no --dsp, --serial, --record, --count, --cell or subunit")
+        replay(args.replay, SensorCore(load_calibration(args.calib)), args.pixels)
         return 0
     if args.pixels:
-        parser.error("--pixels needs --replay")
+        raise BadInput("--pixels needs --replay")
+    cell = sub = None
+    if args.subunit is not None or args.cell is not None:
+        args.subunit = args.subunit or "mvs"
+        cell, sub = apply_cell(args)
+        calib = load_calibration(args.calib) if args.calib else \
+            cell_calibration(sub, f"{cell.path}: [subunits.{sub.name}]")
+    else:
+        calib = load_calibration(args.calib)
+        if args.baud is None:
+            args.baud = DEFAULT_BAUD
+        if args.board_wait is None:
+            args.board_wait = 5.0
     if not args.dsp or not args.serial:
-        parser.error("live mode needs --dsp URL and --serial URL (or --replay FILE)")
+        raise BadInput("live mode needs --dsp URL and --serial URL (or --replay FILE, or a cell subunit)")
     if args.baud < MIN_BAUD:
-        parser.error(f"--baud {args.baud} cannot carry {FRAME_RATE_HZ:g} lines/s (needs >= {MIN_BAUD})")
-    return live(args, core)
+        raise BadInput(f"--baud {args.baud} cannot carry {FRAME_RATE_HZ:g} lines/s (needs >= {MIN_BAUD})")
+    core = SensorCore(calib)
+    if cell is None:
+        return live(args, core)
+    return live_in_cell(args, core, cell, sub)
+
+
+def live_in_cell(args, core: SensorCore, cell, sub) -> int:
+    """:func:`live` with the cell's readiness handshake and presence record."""
+    from droid.brain.program import Presence, notify_ready, presence_key
+
+    presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
+    failed = True
+
+    def ready() -> None:
+        presence.ready()
+        notify_ready(args.ready_fd)
+
+    def beat(frames: int, overruns: int) -> None:
+        presence.beat(0, frames, overruns)
+
+    try:
+        code = live(args, core, ready, beat, reopen=True)
+        failed = False
+        return code
+    finally:
+        presence.close(failed=failed)
 
 
 if __name__ == "__main__":

@@ -43,17 +43,6 @@ DSP_RECORD = np.dtype(
 )
 
 # -- the serial line to the Brain (thesis §5.4: comma-delimited ASCII) ------------
-#: A valid line: "x,y,roll\n" with x, y in mm (3 decimals) and roll in rad (5 decimals).
-X_DECIMALS = 3
-ROLL_DECIMALS = 5
-#: The line sent for a frame without a feature.
-INVALID_LINE = b"invalid"
-LINE_END = b"\n"
-#: Longest line the grammar allows ("-9999.999,-9999.999,-3.14159" + "\r").
-MAX_LINE_BYTES = 32
-#: Lowest baud rate accepted.  A line for a feature inside the default field of
-#: view is at most 25 bytes ("-25.600,-24.000,-1.57080\n"): 60 lines/s x 25 bytes
-#: x 10 bits = 15 000 bit/s, which 9600 baud cannot carry and 19200 can.
-MIN_BAUD = 19200
-DEFAULT_BAUD = 19200
-BITS_PER_BYTE = 10
+# Defined once in droid.brain.sensor_line (the Brain parses what the sensor writes).
+from droid.brain.sensor_line import (BITS_PER_BYTE, DEFAULT_BAUD, INVALID_LINE, LINE_END,  # noqa: E402,F401
+                                     MAX_LINE_BYTES, MIN_BAUD, ROLL_DECIMALS, X_DECIMALS)

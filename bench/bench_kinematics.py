@@ -1,0 +1,254 @@
+#!/usr/bin/env python3
+"""Benchmark droid.kinematics against a straightforward numpy version and roboticstoolbox-python.
+
+Prints figures only (timing never decides a test).  Measures, per pose:
+
+* ``ik``            one pose: all 8 solutions + the planner's pick (target <= 15 us)
+* ``ik_all``        one pose: all 8 solutions
+* ``ik_all_batch``  N poses vectorised (target <= 1 us per pose)
+* ``fk``            one joint vector; ``fk_batch`` N vectors
+
+side by side with a straightforward numpy implementation written here (the
+thesis's cart_to_joint()/pick_soln() structure: one solution at a time, D-H
+A-matrix products, numpy small-array ops) and, when installed,
+roboticstoolbox-python (numerical IK only: one solution per call, no
+analytic 8-solution IK for a D-H robot of this kind).
+
+Usage: python bench/bench_kinematics.py [--batch N] [--repeat R]
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import math
+import os
+import platform
+import statistics
+import sys
+import timeit
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from droid.kinematics import load_robot  # noqa: E402
+from droid.kinematics.transforms import pose_to_T  # noqa: E402
+
+TARGET_IK_US = 15.0
+TARGET_BATCH_US = 1.0
+
+# ---------------------------------------------------------------- naive numpy reference
+
+REIS_DH = [(0.0, 725.0, 0.0, 90.0), (90.0, 0.0, 600.0, 0.0), (0.0, 0.0, 0.0, 90.0),
+           (0.0, 540.0, 0.0, -90.0), (0.0, 0.0, 0.0, 90.0), (0.0, 0.0, 0.0, 0.0)]
+L0, L1, L2 = 725.0, 600.0, 540.0
+
+
+def naive_a(theta_deg, d, a, alpha_deg):
+    th, al = np.radians(theta_deg), np.radians(alpha_deg)
+    return np.array([[np.cos(th), -np.sin(th) * np.cos(al), np.sin(th) * np.sin(al), a * np.cos(th)],
+                     [np.sin(th), np.cos(th) * np.cos(al), -np.cos(th) * np.sin(al), a * np.sin(th)],
+                     [0.0, np.sin(al), np.cos(al), d],
+                     [0.0, 0.0, 0.0, 1.0]])
+
+
+def naive_fk(q_deg):
+    t = np.eye(4)
+    for (off, d, a, alpha), q in zip(REIS_DH, q_deg):
+        t = t @ naive_a(q + off, d, a, alpha)
+    return t
+
+
+def naive_wrap(x):
+    return (x + 180.0) % 360.0 - 180.0 if (x + 180.0) % 360.0 != 0.0 else 180.0
+
+
+def naive_cart_to_joint(t, solution):
+    """One solution, thesis cart_to_joint() structure (with the back-reach fixed: theta1 + 180)."""
+    x, y, z = t[0, 3], t[1, 3], t[2, 3]
+    r = t[:3, :3]
+    back = solution >= 4
+    theta1 = np.arctan2(y, x) + (np.pi if back else 0.0)
+    d1 = z - L0
+    d2 = -np.hypot(x, y) if back else np.hypot(x, y)
+    dd = (d1 * d1 + d2 * d2 - L1 * L1 - L2 * L2) / (2 * L1 * L2)
+    if abs(dd) > 1.0:
+        return None
+    ds = np.sqrt(1 - dd * dd) if solution in (0, 1, 4, 5) else -np.sqrt(1 - dd * dd)
+    theta3 = np.arctan2(dd, ds)
+    alpha = np.arctan2(L2 * np.cos(theta3), L1 + L2 * np.sin(theta3))
+    beta = np.arctan2(d1, d2)
+    theta2 = alpha + beta - np.pi / 2
+    t03 = naive_a(np.degrees(theta1), *REIS_DH[0][1:]) @ naive_a(np.degrees(theta2) + 90.0, *REIS_DH[1][1:]) \
+        @ naive_a(np.degrees(theta3), *REIS_DH[2][1:])
+    o = t03[:3, :3].T @ r
+    rr = np.hypot(o[2, 0], o[2, 1]) * (1 if solution % 2 == 0 else -1)
+    b = np.arctan2(rr, o[2, 2])
+    if abs(np.sin(b)) > 1e-12:
+        sb = np.sin(b)
+        a = np.arctan2(o[1, 2] / sb, o[0, 2] / sb)
+        g = np.arctan2(o[2, 1] / sb, -o[2, 0] / sb)
+    else:
+        a = 0.0
+        g = np.arctan2(-o[0, 1], o[0, 0])
+    return np.array([naive_wrap(v) for v in np.degrees([theta1, theta2, theta3, a, b, g])])
+
+
+def naive_ik_all(t):
+    out = np.full((8, 6), np.nan)
+    for i in range(8):
+        s = naive_cart_to_joint(t, i)
+        if s is not None:
+            out[i] = s
+    return out
+
+
+def naive_pick(model, t, prev):
+    sols = naive_ik_all(t)
+    m = model.gearing.joint_to_counts_matrix
+    best, best_score = -1, np.inf
+    for i in range(8):
+        s = sols[i]
+        if np.isnan(s).any() or np.any(s < model.joint_min_deg) or np.any(s > model.joint_max_deg):
+            continue
+        c = m @ s
+        if np.any(c < model.counts_min) or np.any(c > model.counts_max):
+            continue
+        score = np.sum(model.weights * np.abs(s - prev))
+        if score < best_score:
+            best, best_score = i, score
+    return sols[best] if best >= 0 else None
+
+
+# ---------------------------------------------------------------- timing
+
+
+def per_call_us(fn, number: int, repeat: int) -> tuple[float, float]:
+    """(best, median) microseconds per call over `repeat` runs of `number` calls."""
+    times = [t / number * 1e6 for t in timeit.repeat(fn, number=number, repeat=repeat)]
+    return min(times), statistics.median(times)
+
+
+def machine() -> str:
+    model = platform.processor() or "?"
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    model = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    return f"{model}, {os.cpu_count()} CPU(s), {platform.system()} {platform.release()}"
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--batch", type=int, default=20000, help="poses in the batched measurements")
+    ap.add_argument("--repeat", type=int, default=7, help="timing repeats (best and median reported)")
+    args = ap.parse_args()
+
+    reis = load_robot("reis_v15")
+    rng = np.random.default_rng(0)
+    q_in = rng.uniform(reis.joint_min_deg * 0.8, reis.joint_max_deg * 0.8, (max(args.batch, 200), 6))
+    ts = reis.fk_batch(q_in)
+    t_one = pose_to_T(300.0, 100.0, 1340.0, 0.0, 180.0, 0.0)  # thesis start position (i)
+    prev = np.zeros(6)
+    q_one = q_in[0].copy()
+
+    # correctness cross-checks before timing
+    for t in ts[:200]:
+        a, b = reis.ik_all(t), naive_ik_all(t)
+        assert np.array_equal(np.isnan(a), np.isnan(b)) and np.allclose(a, b, atol=1e-7, equal_nan=True)
+    for q in q_in[:200]:
+        assert np.allclose(naive_fk(q), reis.fk(q), atol=1e-9)
+    assert np.allclose(naive_pick(reis, t_one, prev), reis.ik(t_one, prev))
+
+    try:
+        import roboticstoolbox as rtb  # noqa: F401
+        from roboticstoolbox import DHRobot, RevoluteDH
+
+        rtb_version = getattr(rtb, "__version__", "?")
+        links = [RevoluteDH(d=d, a=a, alpha=math.radians(al), offset=math.radians(off)) for off, d, a, al in REIS_DH]
+        robot = DHRobot(links, name="reis_v15")
+        ets = robot.ets()
+        assert np.allclose(robot.fkine(np.radians(q_one)).A, reis.fk(q_one), atol=1e-9)
+    except Exception as exc:  # noqa: BLE001 - optional dependency: report, do not fail
+        robot = None
+        rtb_version = f"not installed ({type(exc).__name__}: {exc})"
+
+    nb = args.batch
+    rep = args.repeat
+    rows = []  # (name, ours (best, med), naive (best, med) | None, rtb (best, med, label) | None, target)
+
+    ours_ik = per_call_us(lambda: reis.ik(t_one, prev), 5000, rep)
+    naive_ik = per_call_us(lambda: naive_pick(reis, t_one, prev), 200, rep)
+    rtb_ik = None
+    if robot is not None:
+        q0 = np.radians([0.0, 0.0, 0.0, 0.0, 45.0, 0.0])  # off the wrist singularity of q = 0
+        sol = robot.ik_LM(t_one, q0=q0)
+        rtb_err = float(np.max(np.abs(robot.fkine(sol.q).A - t_one)))
+        rtb_ok = bool(sol.success) and rtb_err < 1e-3
+        state = f"converged to {rtb_err:.0e} mm or rot." if rtb_ok else "did NOT converge"
+        label = f"ik_LM (C, numerical, 1 solution, {state})"
+        rtb_ik = per_call_us(lambda: robot.ik_LM(t_one, q0=q0), 50, rep) + (label,)
+    rows.append(("ik: 8 solutions + pick, 1 pose", ours_ik, naive_ik, rtb_ik, TARGET_IK_US))
+
+    ours_all = per_call_us(lambda: reis.ik_all(t_one), 5000, rep)
+    naive_all = per_call_us(lambda: naive_ik_all(t_one), 200, rep)
+    rows.append(("ik_all: 8 solutions, 1 pose", ours_all, naive_all, None, None))
+
+    batch_ts = ts[:nb]
+    ours_b = per_call_us(lambda: reis.ik_all_batch(batch_ts), 1, rep)
+    ours_b = (ours_b[0] / nb, ours_b[1] / nb)
+    sub = ts[:500]
+    naive_b = per_call_us(lambda: [naive_ik_all(t) for t in sub], 1, max(3, rep // 2))
+    naive_b = (naive_b[0] / len(sub), naive_b[1] / len(sub))
+    rows.append((f"ik_all_batch: per pose (N={nb})", ours_b, naive_b, None, TARGET_BATCH_US))
+
+    ours_fk = per_call_us(lambda: reis.fk(q_one), 10000, rep)
+    naive_fk_t = per_call_us(lambda: naive_fk(q_one), 1000, rep)
+    rtb_fk = None
+    if robot is not None:
+        qr = np.radians(q_one)
+        rtb_fk = per_call_us(lambda: ets.eval(qr), 5000, rep) + ("ETS.eval (C)",)
+        rtb_fk_dh = per_call_us(lambda: robot.fkine(qr), 1000, rep)
+    rows.append(("fk: 1 joint vector", ours_fk, naive_fk_t, rtb_fk, None))
+
+    qb = q_in[:nb]
+    ours_fkb = per_call_us(lambda: reis.fk_batch(qb), 1, rep)
+    ours_fkb = (ours_fkb[0] / nb, ours_fkb[1] / nb)
+    rtb_fkb = None
+    if robot is not None:
+        qrb = np.radians(qb[:2000])
+        rtb_fkb = per_call_us(lambda: robot.fkine(qrb), 1, max(3, rep // 2))
+        rtb_fkb = (rtb_fkb[0] / 2000, rtb_fkb[1] / 2000, "DHRobot.fkine(N x 6)")
+    rows.append((f"fk_batch: per vector (N={nb})", ours_fkb, None, rtb_fkb, None))
+
+    print("# droid.kinematics benchmark")
+    print(f"date: {datetime.datetime.now().isoformat(timespec='seconds')}")
+    print(f"machine: {machine()}")
+    print(f"python {platform.python_version()}, numpy {np.__version__}, roboticstoolbox-python {rtb_version}")
+    print("figures: microseconds per pose, best / median of repeats; ratio = other / ours (median)")
+    print()
+    print("| measurement | ours [us] | naive numpy [us] | ratio | roboticstoolbox [us] | ratio | target |")
+    print("|---|---|---|---|---|---|---|")
+    for name, ours, naive, rt, target in rows:
+        o = f"{ours[0]:.2f} / {ours[1]:.2f}"
+        n = f"{naive[0]:.1f} / {naive[1]:.1f}" if naive else "-"
+        nr = f"{naive[1] / ours[1]:.0f}x" if naive else "-"
+        r = f"{rt[0]:.1f} / {rt[1]:.1f} ({rt[2]})" if rt else ("not installed" if robot is None else "-")
+        rr = f"{rt[1] / ours[1]:.1f}x" if rt else "-"
+        tg = "-" if target is None else f"<= {target:g}: {'met' if ours[1] <= target else 'MISSED'}"
+        print(f"| {name} | {o} | {n} | {nr} | {r} | {rr} | {tg} |")
+    if robot is not None:
+        print()
+        print(f"roboticstoolbox DHRobot.fkine (SE3 object) per call: {rtb_fk_dh[0]:.1f} / {rtb_fk_dh[1]:.1f} us")
+        print("roboticstoolbox has no analytic IK for this arm; ik_LM is a numerical solver returning one")
+        print("solution per call (from q0 = (0, 0, 0, 0, 45, 0) deg), so its ratio compares different work.")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

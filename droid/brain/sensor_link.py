@@ -1,0 +1,283 @@
+"""The Brain's serial link to a line-laser sensor (thesis §2.5, §3.3 Table 3.3, §5.4, §6.1).
+
+The MVS PC "exports the processed feature location to the Brain Computer"
+over a serial port, 60 lines a second (§2.5, §5.4); the Brain keeps the
+newest one in the sensor's Status record, whose ``homed`` field is the
+*invalid* flag (Table 3.3).  So for a ``line_laser`` subunit with
+``link = "serial"`` the Brain-side ``droid-remote NAME`` reads a serial port
+instead of talking to a ZeroMQ agent::
+
+    [subunits.mvs]
+    class = "line_laser"
+    link = "serial"                      # "agent" (default): the ZeroMQ agent link
+    serial = "{run}/mvs.brain.tty"       # the Brain's end of the cable (any pyserial URL)
+    baud = 19200                         # >= 19200 (60 lines/s of <= 25 bytes)
+
+Each heartbeat tick :class:`SerialPortReader` reads ``read(in_waiting)`` (never
+blocks) and :class:`SensorStatusCore` turns the bytes into Status fields:
+
+* ``x, y`` [mm] of the newest reading, ``z = 0``, ``R = Rz(roll)``
+  (T_S_seam, docs/mvs.md); ``homed = 1`` when the reading is invalid (then
+  x = y = 0, R = I); ``valid_count``, ``invalid_count``, ``garbled_count``
+  (a garbled line counts as invalid *and* as garbled);
+* ``tick``, ``updated_ns``: the heartbeat tick and CLOCK_MONOTONIC [ns] at
+  which the newest line arrived;
+* ``stale = 1`` and the LINK fault after ``stale_ticks`` ticks without any
+  line (and until the first line); cleared when lines flow again;
+* after the port is (re)opened, bytes up to the first line end are skipped
+  (the port may open in the middle of a line);
+* a port that cannot be opened, or vanishes (the other end hung up, the
+  device went away): ``stale = 1`` and the DEVICE fault at once; it is
+  reopened with exponential back-off in ticks (``stale_ticks`` .. 120); the
+  program never stops for it.
+
+The ZeroMQ agent path of :mod:`droid.brain.remote` is unchanged; arms always
+use it.
+"""
+from __future__ import annotations
+
+import math
+import select
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from droid.brain.cellfile import Cell, Subunit
+from droid.brain.layouts import FAULT_DEVICE, FAULT_LINK
+from droid.brain.sensor_line import DEFAULT_BAUD, INVALID, MIN_BAUD, Reading, SensorClientCore
+from droid.cli import BadInput
+
+LINK_AGENT = "agent"
+LINK_SERIAL = "serial"
+LINKS = (LINK_AGENT, LINK_SERIAL)
+#: Keys a line_laser subunit's table may carry besides the common ones: the
+#: Brain's link (here) and the sensor program's (droid-mvs: dsp, sensor_serial,
+#: calibration, board_wait).
+LINE_LASER_KEYS = ("link", "serial", "baud", "dsp", "sensor_serial", "calibration", "board_wait")
+#: Most bytes taken from the port in one tick (the splitter bounds lines anyway).
+MAX_READ_BYTES = 4096
+#: Reopen back-off cap [ticks] (2 s at 60 Hz).
+MAX_BACKOFF_TICKS = 120
+_U32 = 0xFFFFFFFF
+
+
+@dataclass(frozen=True)
+class SerialLinkOptions:
+    """The Brain end of a sensor's serial link, from ``[subunits.NAME]``."""
+
+    url: str
+    baud: int
+
+
+def link_kind(cell: Cell, sub: Subunit) -> str:
+    """``"agent"`` or ``"serial"``: how the Brain reaches this subunit."""
+    link = sub.options.get("link", LINK_AGENT)
+    if link not in LINKS:
+        raise BadInput(f"{cell.path}: [subunits.{sub.name}] link must be one of {', '.join(LINKS)}, got {link!r}")
+    if link == LINK_SERIAL and sub.is_arm:
+        raise BadInput(f"{cell.path}: [subunits.{sub.name}] link = \"serial\" is for line_laser subunits")
+    return link
+
+
+def serial_link_options(cell: Cell, sub: Subunit) -> SerialLinkOptions:
+    """Check a serial-linked line_laser subunit's table; BadInput names the key."""
+    where = f"{cell.path}: [subunits.{sub.name}]"
+    extra = sorted(k for k in sub.options if k not in LINE_LASER_KEYS)
+    if extra:
+        raise BadInput(f"{where} unknown key(s): {', '.join(extra)}")
+    url = sub.options.get("serial")
+    if not isinstance(url, str) or not url:
+        raise BadInput(f"{where} link = \"serial\" needs serial = \"<port or pyserial URL>\"")
+    baud = sub.options.get("baud", DEFAULT_BAUD)
+    if not isinstance(baud, int) or isinstance(baud, bool) or baud < MIN_BAUD:
+        raise BadInput(f"{where} baud must be an integer >= {MIN_BAUD} (60 lines/s), got {baud!r}")
+    return SerialLinkOptions(url, baud)
+
+
+def seam_status_fields(reading: Reading) -> dict:
+    """x, y, z, R, homed of Table 3.3 for one reading (R = Rz(roll); homed = invalid flag)."""
+    if not reading.valid:
+        return {"x": 0.0, "y": 0.0, "z": 0.0, "R": np.eye(3), "homed": 1}
+    c, s = math.cos(reading.roll_rad), math.sin(reading.roll_rad)
+    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return {"x": reading.x_mm, "y": reading.y_mm, "z": 0.0, "R": R, "homed": 0}
+
+
+class SensorStatusCore:
+    """Per heartbeat tick: bytes read + port state -> the sensor's Status fields.  Pure.
+
+    See the module docstring for the fields.  ``stale_ticks`` ticks without a
+    complete line make the link stale; so does a port that is not open, and
+    after a (re)open the link stays stale until the first new line.
+    """
+
+    def __init__(self, stale_ticks: int = 3) -> None:
+        if stale_ticks < 1:
+            raise ValueError("stale_ticks must be >= 1")
+        self.client = SensorClientCore(stale_after_feeds=stale_ticks - 1)
+        self._port_ok = False
+        self._fresh = False  # a line arrived since the port was (re)opened
+        self.last_line_tick = 0
+        self.last_line_ns = 0
+
+    @property
+    def stale(self) -> bool:
+        return not (self._port_ok and self._fresh) or self.client.stale
+
+    def on_tick(self, tick: int, data: bytes, now_ns: int, port_ok: bool = True) -> dict:
+        """Feed this tick's bytes; return the Status fields to write."""
+        if port_ok and not self._port_ok:
+            self.client.resync()  # the port may open mid-line: start at the next line end
+            self._fresh = False
+        self._port_ok = port_ok
+        before = self.client.lines
+        reading = self.client.feed(data if port_ok else b"")
+        if self.client.lines > before:
+            self._fresh = True
+            self.last_line_tick, self.last_line_ns = tick, now_ns
+        stale = self.stale
+        if stale:
+            reading = INVALID
+        fields = seam_status_fields(reading)
+        fields.update(
+            stale=int(stale),
+            fault=(FAULT_LINK if stale else 0) | (0 if port_ok else FAULT_DEVICE),
+            valid_count=self.client.valid & _U32,
+            invalid_count=self.client.invalid & _U32,
+            garbled_count=self.client.garbled & _U32,
+            tick=self.last_line_tick,
+            updated_ns=self.last_line_ns,
+        )
+        return fields
+
+
+def _default_opener(url: str, baud: int):
+    import serial
+
+    return serial.serial_for_url(url, baudrate=baud, timeout=0, write_timeout=0)
+
+
+class SerialPortReader:
+    """The Brain's serial port: opened by URL, read without blocking, reopened with back-off.
+
+    :meth:`poll` once a tick returns ``(bytes, port_ok)``.  A port that cannot
+    be opened or fails while reading (EIO, hang-up) is closed and tried again
+    after ``min_backoff_ticks`` ticks, doubling up to ``max_backoff_ticks``.
+    A URL pyserial rejects as malformed is a :class:`BadInput`.
+    """
+
+    def __init__(self, url: str, baud: int, *, min_backoff_ticks: int = 3,
+                 max_backoff_ticks: int = MAX_BACKOFF_TICKS, opener=None) -> None:
+        self.url = url
+        self.baud = baud
+        self.min_backoff = max(1, min_backoff_ticks)
+        self.max_backoff = max(self.min_backoff, max_backoff_ticks)
+        self.opener = opener or _default_opener
+        self.port = None
+        self._backoff = self.min_backoff
+        self._wait = 0
+        self.opens = 0
+        self.failures = 0  # failed opens and lost ports
+        self.last_error = ""
+
+    def _fail(self, exc: Exception) -> None:
+        self.failures += 1
+        self.last_error = str(exc)
+        self._wait = self._backoff
+        self._backoff = min(self._backoff * 2, self.max_backoff)
+
+    def _try_open(self) -> bool:
+        import serial
+
+        try:
+            self.port = self.opener(self.url, self.baud)
+        except ValueError as exc:  # pyserial: malformed URL or settings
+            raise BadInput(f"serial {self.url}: {exc}") from None
+        except (serial.SerialException, OSError) as exc:
+            self._fail(exc)
+            return False
+        self.opens += 1
+        return True
+
+    def _hung_up(self) -> bool:
+        try:
+            fd = self.port.fileno()
+        except Exception:  # URL handlers without a descriptor (loop://, socket://)
+            return False
+        p = select.poll()
+        p.register(fd, select.POLLIN)
+        return any(ev & (select.POLLHUP | select.POLLERR | select.POLLNVAL) for _, ev in p.poll(0))
+
+    def close(self) -> None:
+        if self.port is not None:
+            try:
+                self.port.close()
+            except Exception:
+                pass
+            self.port = None
+
+    def start(self) -> bool:
+        """Try to open the port now (a malformed URL raises BadInput); True if open."""
+        return self.port is not None or self._try_open()
+
+    def poll(self) -> tuple[bytes, bool]:
+        """This tick's bytes and whether the port is open (never blocks)."""
+        import serial
+
+        if self.port is None:
+            if self._wait > 0:
+                self._wait -= 1
+                return b"", False
+            if not self._try_open():
+                return b"", False
+        try:
+            n = self.port.in_waiting
+            data = self.port.read(min(n, MAX_READ_BYTES)) if n else b""
+            if not data and self._hung_up():
+                raise serial.SerialException("the port hung up")
+        except (serial.SerialException, OSError) as exc:
+            self.close()
+            self._fail(exc)
+            return b"", False
+        self._backoff = self.min_backoff
+        return data, True
+
+
+def serve_serial(cell: Cell, sub: Subunit, ready_fd: int | None, prog: str) -> int:
+    """The loop of ``droid-remote NAME`` for a serial-linked sensor (see the module docstring)."""
+    import zmq
+
+    from droid.brain.databases import open_brain
+    from droid.brain.heartbeat import TickSubscriber
+    from droid.brain.program import Presence, Stop, notify_ready, presence_key
+
+    opts = serial_link_options(cell, sub)
+    Stop.install()
+    status = open_brain(cell, sub, "status")
+    ctx = zmq.Context()
+    ticks = TickSubscriber(ctx, cell.heartbeat)
+    presence = Presence(cell.name, presence_key(prog, sub.name), f"{prog} {sub.name}")
+    core = SensorStatusCore(cell.stale_ticks)
+    port = SerialPortReader(opts.url, opts.baud, min_backoff_ticks=cell.stale_ticks)
+    try:
+        status.update(stale=1, fault=FAULT_LINK | FAULT_DEVICE, homed=1)
+        port.start()  # a malformed URL stops here, before the handshake (exit 2)
+        presence.ready()
+        notify_ready(ready_fd)
+        last_tick = 0
+        while not Stop.requested:
+            if ticks.sock.poll(500):
+                t = ticks.recv_latest()
+                if t is not None:
+                    last_tick = t.tick
+                    data, ok = port.poll()
+                    status.update(**core.on_tick(t.tick, data, time.monotonic_ns(), ok))
+            presence.beat(last_tick, core.client.lines, ticks.monitor.missed)
+    finally:
+        port.close()
+        ticks.close()
+        ctx.term()
+        status.close()
+        presence.close()
+    return 0

@@ -1,0 +1,59 @@
+"""Six-channel discrete PID with output limits and anti-windup (thesis §4.1.5.1).
+
+Per servo tick, with e = target - position [counts]::
+
+    I  <- clip(I + ki*e, +-integral_limit)            (not when it would deepen saturation)
+    u   = kp*e + I + kd*(e - e_prev)                    [DAC counts]
+    out = clip(u, dac_min, dac_max)
+
+The thesis limits servo_cmd to its maximum and minimum "to avoid the integral
+error accumulation"; here the integral is frozen while the output is saturated
+in the direction of the error (conditional integration) and is also bounded by
+``integral_limit``.  Six joints in plain Python floats: at this size that is
+several times faster than numpy, and the servo tick is the hot loop.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+class Pid:
+    """Six (or n) independent PID channels; gains per tick (see module docstring)."""
+
+    def __init__(self, kp, ki, kd, integral_limit, out_min: float, out_max: float):
+        self.kp = [float(x) for x in kp]
+        self.ki = [float(x) for x in ki]
+        self.kd = [float(x) for x in kd]
+        self.integral_limit = [float(x) for x in integral_limit]
+        self.out_min = float(out_min)
+        self.out_max = float(out_max)
+        self._integral = [0.0] * len(self.kp)  # [DAC counts]
+        self._prev_error: list[float] | None = None
+
+    @property
+    def integral(self) -> np.ndarray:
+        """Integral terms [DAC counts]."""
+        return np.array(self._integral)
+
+    def reset(self) -> None:
+        """Zero the integral and forget the previous error (no derivative kick)."""
+        self._integral = [0.0] * len(self.kp)
+        self._prev_error = None
+
+    def step(self, error_counts) -> list[float]:
+        """One tick: errors [counts] -> limited outputs [DAC counts, float]."""
+        e_now = [float(x) for x in error_counts]
+        prev = self._prev_error if self._prev_error is not None else e_now
+        self._prev_error = e_now
+        lo, hi = self.out_min, self.out_max
+        out = []
+        integral = self._integral
+        for j, e in enumerate(e_now):
+            pd = self.kp[j] * e + self.kd[j] * (e - prev[j])
+            lim = self.integral_limit[j]
+            candidate = min(lim, max(-lim, integral[j] + self.ki[j] * e))
+            u = pd + candidate
+            if not ((u > hi and e > 0.0) or (u < lo and e < 0.0)):  # conditional integration
+                integral[j] = candidate
+            out.append(min(hi, max(lo, pd + integral[j])))
+        return out

@@ -1,0 +1,219 @@
+"""droid-planner NAME: the motion controller's planner (thesis §4.1.7, figure 4.12).
+
+"Its main purpose is to convert both cartesian and joint space move commands
+into smaller joint space moves."  Per relayed heartbeat tick it reads the
+controller's Command and Status records and
+
+* does nothing before the robot is homed ("the Planner program ... suspends
+  its execution until the robot has been homed"), except to hold the current
+  position once homing finishes;
+* on a new command (``cmd_id`` it has not planned yet) in NORMAL mode:
+  JOINT — six encoder targets [counts]; CARTESIAN — x, y, z, R of the wrist
+  centre in the global frame -> the 8 inverse solutions -> the pick
+  (eq. 4.15) -> encoder counts (``joint_to_act``).  A target outside the
+  limits or unreachable is *refused* (``cmd_result = CMD_REFUSED``) and
+  nothing moves;
+* every tick ``plan_joint_cmd()``: the next way-point
+  ``int + (ext - int) / joint_time_count``, ``joint_time_count -= 1``,
+  ``busy = joint_time_count`` (the thesis listing);
+* in JOG, HOME or OFF mode follows the arm (the next NORMAL move starts from
+  where the arm is, e.g. after droid-jog);
+* cancels the move and holds where the arm is if the Brain link is lost
+  (``link_alive = 0``) or the servo ran out of commands and braked
+  (FAULT_BRAKING): the arm stays stopped until a new command.
+"""
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass, field
+
+import numpy as np
+import zmq
+
+from droid.brain.databases import open_local
+from droid.brain.heartbeat import TickSubscriber
+from droid.brain.rt import try_sched_fifo
+from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
+from droid.cli import run
+from droid.kinematics import load_robot
+from droid.kinematics.transforms import pose_to_T
+from droid.brain.layouts import (CMD_FAILED, CMD_OK, CMD_REFUSED, FAULT_BRAKING, FAULT_SERVO,
+                                 FAULT_WATCHDOG, JSPACE, NORMAL_MODE)
+from droid.kinematics import RobotModel, Unreachable
+
+N = 6
+
+
+@dataclass
+class PlanOutput:
+    """What the planner writes after a tick (None = leave the field alone)."""
+
+    encoder_cmd_int: np.ndarray | None = None  # ctrl_command, [counts]
+    encoder_cmd_ext: np.ndarray | None = None  # ctrl_command, [counts] (the resolved target)
+    joint_time_count: int | None = None  # ctrl_command, ticks left
+    plan_id: int | None = None  # ctrl_command
+    busy: int | None = None  # ctrl_status, ticks left
+    cmd_id: int | None = None  # ctrl_status
+    cmd_result: int | None = None  # ctrl_status
+    note: str = ""
+
+
+@dataclass
+class PlannerCore:
+    """The planner of one arm.  Pure: records in, fields out."""
+
+    model: RobotModel  # with its base transform: commands are in the global frame
+    int_counts: np.ndarray | None = None  # the current way-point [counts]; None until homed
+    ext_counts: np.ndarray = field(default_factory=lambda: np.zeros(N))
+    time_count: int = 0
+    plan_id: int = 0
+    active_id: int = 0
+    refused: int = 0
+
+    def _joints_from_counts(self, counts) -> np.ndarray:
+        return self.model.gearing.counts_to_joints(np.asarray(counts, float))
+
+    def _resolve(self, cmd) -> np.ndarray:
+        """The command's target in encoder counts; raises Unreachable with a reason."""
+        if int(cmd["coord"]) == JSPACE:
+            counts = np.asarray(cmd["encoder_cmd_ext"], float)
+            why = self.model.limit_violation(self._joints_from_counts(counts))
+            lo, hi = np.asarray(self.model.counts_min), np.asarray(self.model.counts_max)
+            if np.any(counts < lo) or np.any(counts > hi):
+                why = why or "encoder target outside the encoder limits"
+            if why:
+                raise Unreachable(why)
+            return counts
+        T = np.eye(4)
+        T[:3, :3] = cmd["R"]
+        T[:3, 3] = [float(cmd["x"]), float(cmd["y"]), float(cmd["z"])]
+        q = self.model.ik(T, self._joints_from_counts(self.int_counts))
+        return np.rint(self.model.gearing.joints_to_counts(q))
+
+    def step(self, cmd, status) -> PlanOutput:
+        """One heartbeat tick: ``cmd`` the controller Command record, ``status`` its Status."""
+        out = PlanOutput()
+        if not int(status["homed"]):
+            self.int_counts = None
+            return out
+        pos = np.asarray(status["encoder_pos"], float)
+        if self.int_counts is None:  # just homed: hold where the arm is
+            self.int_counts = pos.copy()
+            self.ext_counts = pos.copy()
+            self.time_count = 0
+            self.plan_id = int(cmd["cmd_id"])  # whatever was pending before homing is not replayed
+            out.plan_id = self.plan_id
+        if int(cmd["cmd_mode"]) != NORMAL_MODE:
+            # JOG/HOME/OFF move the arm without the planner: follow it, so that the
+            # next NORMAL command is planned from where the arm really is
+            self.int_counts = pos.copy()
+            self.ext_counts = pos.copy()
+            self.time_count = 0
+            out.encoder_cmd_int = np.rint(pos).astype(np.int32)
+            out.encoder_cmd_ext = out.encoder_cmd_int
+            out.joint_time_count = 0
+            return out
+        dead = int(status["fault"]) & (FAULT_SERVO | FAULT_WATCHDOG)  # nothing can move
+        stop = not int(cmd["link_alive"]) or int(status["fault"]) & FAULT_BRAKING or dead
+        if stop and (self.time_count > 0 or np.any(np.abs(self.int_counts - pos) > 0)):
+            cancelled = self.time_count > 0
+            self.int_counts = pos.copy()
+            self.ext_counts = pos.copy()
+            self.time_count = 0
+            if cancelled:
+                out.cmd_result = CMD_FAILED
+                out.cmd_id = self.active_id
+            out.note = "cancelled: command stream lost" if cancelled else ""
+        new_id = int(cmd["cmd_id"])
+        if dead and new_id != self.plan_id:
+            self.plan_id = new_id
+            out.plan_id = out.cmd_id = new_id
+            out.cmd_result = CMD_FAILED
+            out.note = f"command {new_id} failed: the servo or its amplifiers are down"
+        if not stop and new_id != self.plan_id and int(cmd["cmd_mode"]) == NORMAL_MODE:
+            self.plan_id = new_id
+            out.plan_id = new_id
+            out.cmd_id = new_id
+            try:
+                target = self._resolve(cmd)
+            except Unreachable as exc:
+                self.refused += 1
+                out.cmd_result = CMD_REFUSED
+                out.note = f"refused command {new_id}: {exc}"
+            else:
+                ticks = int(cmd["joint_time_count"] if int(cmd["coord"]) == JSPACE else cmd["cart_time_count"])
+                self.ext_counts = target
+                self.time_count = max(ticks, 1)
+                self.active_id = new_id
+                out.cmd_result = CMD_OK
+        # plan_joint_cmd(): the next interpolated way-point (thesis §4.1.7 listing)
+        if self.time_count > 1:
+            step = (self.ext_counts - self.int_counts) / self.time_count
+            self.int_counts = self.int_counts + step
+        else:
+            self.int_counts = self.ext_counts.copy()
+        if self.time_count > 0:
+            self.time_count -= 1
+        out.encoder_cmd_int = np.rint(self.int_counts).astype(np.int32)
+        out.encoder_cmd_ext = np.rint(self.ext_counts).astype(np.int32)
+        out.joint_time_count = self.time_count
+        out.busy = self.time_count
+        return out
+
+
+def apply(out: PlanOutput, ctrl_command, ctrl_status, tick: int) -> None:
+    """Write a tick's plan into the controller's records (two short locked writes)."""
+    with ctrl_command.locked() as c:
+        if out.encoder_cmd_int is not None:
+            c["encoder_cmd_int"] = out.encoder_cmd_int
+            c["encoder_cmd_ext"] = out.encoder_cmd_ext
+            c["joint_time_count"] = out.joint_time_count
+        if out.plan_id is not None:
+            c["plan_id"] = out.plan_id
+        c["planner_tick"] = tick
+        ctrl_command.mark_written()
+    fields = {k: getattr(out, k) for k in ("busy", "cmd_id", "cmd_result") if getattr(out, k) is not None}
+    if fields:
+        ctrl_status.update(**fields)
+
+
+PROG = "droid-planner"
+
+
+@run
+def main(argv=None) -> int:
+    args, cell, sub = subunit_program(PROG, "Plan an arm's joint and cartesian commands into per-tick way-points (thesis §4.1.7).", argv, arm=True)
+    model = load_robot(sub.robot).with_base(pose_to_T(*sub.base))
+    try_sched_fifo(priority=51, wanted=cell.sched_fifo, prog=PROG)
+    ctrl_command = open_local(cell, sub, "ctrl_command")
+    ctrl_status = open_local(cell, sub, "ctrl_status")
+    ctx = zmq.Context()
+    ticks = TickSubscriber(ctx, sub.relay)
+    presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
+    core = PlannerCore(model)
+    try:
+        presence.ready()
+        notify_ready(args.ready_fd)
+        last = 0
+        while not Stop.requested:
+            t = ticks.wait(0.5)
+            if t is None:
+                presence.beat(last, core.refused, ticks.monitor.missed)
+                continue
+            last = t.tick
+            out = core.step(ctrl_command.read(), ctrl_status.read())
+            apply(out, ctrl_command, ctrl_status, t.tick)
+            if out.note:
+                print(f"{PROG} {sub.name}: {out.note}", file=sys.stderr, flush=True)
+            presence.beat(last, core.refused, ticks.monitor.missed)
+    finally:
+        ticks.close()
+        ctx.term()
+        ctrl_command.close()
+        ctrl_status.close()
+        presence.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,294 @@
+"""The 500 Hz servo core of the Reis motion controller (thesis §4.1.5, figures 4.7-4.10).
+
+A shell does, every 2 ms::
+
+    dacs = core.step(bus.read_encoders_raw(), bus.read_limit_switches())
+    bus.write_dacs(dacs)
+
+and, whenever a 60 Hz command message arrives from the servo agent::
+
+    core.command(mode, encoder_cmd_counts)
+
+Per tick (:meth:`ServoCore.step`, figure 4.8): extend the 16-bit counters to
+unbounded counts (roll-over, :func:`droid.kinematics.gearing.extend_counter`);
+pick the tick's target -- from the homing state machine while homing
+(:mod:`homing`), else the next way-point of the position queue; when the queue
+is used up the cache (the next command's ramp) is copied in, and when the
+cache is empty too the emergency braking profile is loaded
+(:mod:`command_queue`); clamp the target to the min/max counts (once homed);
+run the PID with output limits and anti-windup (:mod:`pid`); check faults.
+
+Per command (:meth:`ServoCore.command`, the servo planner, figure 4.9): the
+target is the last command plus the jog delta (JOG) or the absolute command
+(NORMAL, home-relative), clipped to the target limits and to the joint's
+maximum speed, and planned as a linear ramp over one command period
+(:mod:`servo_planner`: 8 or 9 way-points on an exact time line, since
+500 Hz / 60 Hz = 8.33 -- see :mod:`command_queue` for why not a fixed 8).
+
+Frames: internally every position is an *extended* count (the unbounded
+encoder count).  Before homing, commands and status are in that frame
+(thesis: "the non-homed situation copies the relative encoder commands to
+the target values"); once homed they are relative to the zero found by
+homing.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from droid.kinematics.gearing import extend_counter
+from droid.subunits.reis.command_queue import CommandQueue
+from droid.subunits.reis.homing import HomePhase, Homing, zero_from_edges
+from droid.subunits.reis.pid import Pid
+from droid.subunits.reis.servo_params import Fault, Mode, ServoParams
+
+N = 6
+
+
+@dataclass(frozen=True)
+class ServoStatus:
+    """A snapshot for the servo agent (thesis Table 4.2 fields the servo owns)."""
+
+    tick: int  # servo ticks since start (also the liveness heartbeat)
+    mode: Mode
+    homed: bool
+    homing_joint: int  # 0-based joint being homed, -1 when not homing
+    starved: bool  # the queue ran dry: braking profile (or its final hold) in use
+    braking: bool  # starved and the commanded velocity is not yet zero
+    fault: Fault
+    encoder_pos: tuple[int, ...]  # [counts] home-relative once homed
+    encoder_cmd: tuple[int, ...]  # [counts] this tick's target, same frame
+    following_error: tuple[int, ...]  # target - position [counts]
+    dac: tuple[int, ...]  # last output [DAC counts]
+
+
+class ServoCore:
+    """Six-joint servo: queue + cache, planner, braking, PID, homing.  No I/O."""
+
+    def __init__(self, params: ServoParams | None = None):
+        p = self.params = params if params is not None else ServoParams()
+        self._tmin = np.asarray(p.target_min_counts, np.int64)
+        self._tmax = np.asarray(p.target_max_counts, np.int64)
+        self._fe_max = [float(x) for x in p.max_following_error_counts]
+        self._pid = Pid(
+            p.kp_dac_per_count,
+            p.ki_dac_per_count_tick,
+            p.kd_dac_per_count_per_tick,
+            p.integral_limit_dac,
+            p.dac_min_counts,
+            p.dac_max_counts,
+        )
+        self._homing = Homing(p)
+        self._mode = Mode.NORMAL  # hold position until told otherwise (thesis: waits for HOME)
+        self._fault = Fault.NONE
+        self._last_command_mode: Mode | None = None
+        self._zero: np.ndarray | None = None
+        self._tick = 0
+        self._pos: np.ndarray | None = None  # extended counts
+        self._target = np.zeros(N, np.int64)
+        self._vel = np.zeros(N, np.int64)  # target increment of the last tick [counts/tick]
+        self._dac = (0,) * N
+        self._queue = CommandQueue(p)
+
+    # -- status ------------------------------------------------------------------
+    @property
+    def tick(self) -> int:
+        """Servo ticks executed (the heartbeat a watchdog shell can supervise)."""
+        return self._tick
+
+    @property
+    def mode(self) -> Mode:
+        return self._mode
+
+    @property
+    def homed(self) -> bool:
+        return self._zero is not None
+
+    @property
+    def homing(self) -> bool:
+        return self._homing.active
+
+    @property
+    def homing_joint(self) -> int | None:
+        """0-based joint being homed, or None."""
+        return self._homing.joint
+
+    @property
+    def fault(self) -> Fault:
+        return self._fault
+
+    @property
+    def starved(self) -> bool:
+        """The command stream ran dry: braking (or holding after braking)."""
+        return self._queue.starved
+
+    @property
+    def braking(self) -> bool:
+        """Starved and still decelerating."""
+        return self._queue.braking
+
+    @property
+    def zero_counts(self) -> tuple[int, ...] | None:
+        """Encoder zero [extended counts] found by homing, or None."""
+        return None if self._zero is None else tuple(int(x) for x in self._zero)
+
+    def _frame(self, counts: np.ndarray) -> tuple[int, ...]:
+        rel = counts - self._zero if self._zero is not None else counts
+        return tuple(int(x) for x in rel)
+
+    @property
+    def encoder_pos(self) -> tuple[int, ...]:
+        """Measured positions [counts]: relative to home once homed, else extended raw."""
+        if self._pos is None:
+            return (0,) * N
+        return self._frame(self._pos)
+
+    @property
+    def encoder_cmd(self) -> tuple[int, ...]:
+        """This tick's target [counts], same frame as :attr:`encoder_pos`."""
+        return self._frame(self._target)
+
+    @property
+    def following_error(self) -> tuple[int, ...]:
+        """target - position [counts]."""
+        if self._pos is None:
+            return (0,) * N
+        return tuple(int(x) for x in self._target - self._pos)
+
+    @property
+    def dac(self) -> tuple[int, ...]:
+        """Last output [DAC counts]."""
+        return self._dac
+
+    @property
+    def integral_dac(self) -> tuple[float, ...]:
+        """PID integral terms [DAC counts] (for anti-windup checks)."""
+        return tuple(float(x) for x in self._pid.integral)
+
+    def status(self) -> ServoStatus:
+        return ServoStatus(
+            tick=self._tick,
+            mode=self._mode,
+            homed=self.homed,
+            homing_joint=-1 if self.homing_joint is None else self.homing_joint,
+            starved=self.starved,
+            braking=self.braking,
+            fault=self._fault,
+            encoder_pos=self.encoder_pos,
+            encoder_cmd=self.encoder_cmd,
+            following_error=self.following_error,
+            dac=self._dac,
+        )
+
+    # -- commands (60 Hz, the servo planner) ---------------------------------------
+    def command(self, mode: Mode | int, encoder_cmd_counts=(0, 0, 0, 0, 0, 0)) -> bool:
+        """A command message from the servo agent; returns False if it was ignored.
+
+        OFF disables (and clears a fault); HOME starts homing when the command
+        mode changes to HOME (the agent repeats it every period; repeats are
+        ignored, also after homing has finished); JOG adds
+        ``encoder_cmd_counts`` to the last command; NORMAL takes them as
+        absolute home-relative counts (only once homed).  JOG/NORMAL are
+        ignored while homing; everything but OFF is ignored after a fault and
+        before the first :meth:`step`.
+        """
+        mode = Mode(mode)
+        if mode == Mode.OFF:
+            self._last_command_mode = mode
+            self._mode = Mode.OFF
+            self._fault = Fault.NONE
+            self._homing.abort()
+            return True
+        if self._pos is None or self._fault != Fault.NONE:
+            return False
+        previous, self._last_command_mode = self._last_command_mode, mode
+        if mode == Mode.HOME:
+            # edge-triggered: the agent repeats HOME every period until the brain
+            # changes cmd_mode; only a change into HOME (re)starts homing
+            if previous != Mode.HOME and not self._homing.active:
+                self._start_homing()
+            return True
+        if self._homing.active or (mode == Mode.NORMAL and self._zero is None):
+            return False
+        cmd = np.asarray(encoder_cmd_counts, np.int64)
+        if cmd.shape != (N,):
+            raise ValueError(f"encoder command needs {N} counts, got shape {cmd.shape}")
+        if self._mode == Mode.OFF:
+            self._hold_here()
+        self._mode = mode
+        goal = self._queue.last_goal + cmd if mode == Mode.JOG else cmd + self._zero
+        if self._zero is not None:
+            goal = np.clip(goal, self._zero + self._tmin, self._zero + self._tmax)
+        self._queue.submit(goal, accel_limit=mode == Mode.JOG)
+        return True
+
+    # -- the 500 Hz tick -------------------------------------------------------------
+    def step(self, encoders_raw, limit_switches, periods: int = 1) -> tuple[int, ...]:
+        """One servo tick: six raw 16-bit counters [counts] and six switch states
+        -> six DAC values [DAC counts, -2048..2047].  ``periods`` > 1 after the host
+        stalled the loop (timer overrun): the encoders may then legitimately have
+        moved ``periods`` times farther (DESIGN §9: ride through a stall)."""
+        self._tick += 1
+        self._read_encoders(encoders_raw, max(1, int(periods)))
+        if self._mode == Mode.OFF or self._fault != Fault.NONE:
+            self._hold_here()
+            self._pid.reset()
+            self._dac = (0,) * N
+            return self._dac
+        previous = self._target.copy()
+        if self._homing.active:
+            phase = self._homing.step(self._pos, limit_switches, self._target)
+            if phase == HomePhase.DONE:
+                self._finish_homing()
+            elif phase == HomePhase.FAILED:
+                self._fault = Fault.HOME_SWITCH_NOT_FOUND
+        else:
+            self._target = self._queue.next_target(self._tick, self._target, self._vel)
+        if self._zero is not None:
+            np.clip(self._target, self._zero + self._tmin, self._zero + self._tmax, out=self._target)
+        self._vel = self._target - previous
+        error = (self._target - self._pos).tolist()
+        if any(abs(e) > limit for e, limit in zip(error, self._fe_max)):
+            self._fault = Fault.FOLLOWING_ERROR
+        if self._fault != Fault.NONE:
+            self._pid.reset()
+            self._dac = (0,) * N
+            return self._dac
+        self._dac = tuple(round(x) for x in self._pid.step(error))
+        return self._dac
+
+    def _read_encoders(self, encoders_raw, periods: int = 1) -> None:
+        raw = [int(x) for x in encoders_raw]
+        if len(raw) != N:
+            raise ValueError(f"need {N} encoder values, got {len(raw)}")
+        if self._pos is None:
+            self._pos = np.asarray(raw, np.int64)
+            self._hold_here()
+            return
+        bits, jump = self.params.encoder_bits, self.params.max_encoder_step_counts * periods
+        old = self._pos.tolist()
+        new = [extend_counter(p, r, bits) for p, r in zip(old, raw)]
+        if any(abs(n - p) > jump for n, p in zip(new, old)):
+            self._fault = Fault.ENCODER_JUMP
+        self._pos = np.array(new, np.int64)
+
+    def _hold_here(self) -> None:
+        """Targets := measured positions; queue and cache emptied (bumpless)."""
+        self._target = self._pos.copy()
+        self._vel = np.zeros(N, np.int64)
+        self._queue.reset(self._pos, self._tick)
+
+    # -- homing --------------------------------------------------------------------------
+    def _start_homing(self) -> None:
+        self._zero = None
+        self._mode = Mode.HOME
+        self._hold_here()
+        self._pid.reset()
+        self._homing.start()
+
+    def _finish_homing(self) -> None:
+        p = self.params
+        self._zero = zero_from_edges(self._homing.edges, p.home_switch_deg, p.joint_to_counts)
+        self._mode = Mode.NORMAL
+        self._queue.reset(self._target, self._tick)

@@ -1,0 +1,125 @@
+"""Parameters, modes and faults of the Reis servo core (thesis §4.1.5).
+
+Every constant of the servo, planner, braking and homing logic is a field of
+:class:`ServoParams`, with its unit in the name.  Per-joint values are
+6-tuples, joint 1 first.  Counts are motor encoder counts; "tick" is one servo
+period (1/500 s).  The defaults are DROID's choices for the Reis V15 (the
+thesis prints no gains or limits); docs/reis.md explains them.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from enum import IntEnum
+from pathlib import Path
+
+import numpy as np
+
+from droid.subunits.reis.robot_file import joint_to_counts_tuple, load_gearing
+
+Six = tuple[float, float, float, float, float, float]
+SixInt = tuple[int, int, int, int, int, int]
+
+COUNTS_PER_DEG = 100 * 4000 / 360  # nominal, for the defaults below only
+
+
+def _deg(values) -> SixInt:
+    return tuple(int(round(v * COUNTS_PER_DEG)) for v in values)  # type: ignore[return-value]
+
+
+class Mode(IntEnum):
+    """Command modes (thesis Table 4.3 cmd_mode, plus NORMAL for absolute moves)."""
+
+    OFF = 0  # servo disabled: DACs 0, targets follow the encoders (bumpless restart)
+    HOME = 1  # run the homing state machine (§4.1.5.3)
+    JOG = 2  # encoder command is relative to the last command (§4.1.5.2)
+    NORMAL = 3  # encoder command is absolute, relative to home (needs homed)
+
+
+class Fault(IntEnum):
+    """Latched servo faults; cleared by a Mode.OFF command."""
+
+    NONE = 0
+    FOLLOWING_ERROR = 1  # |target - position| above max_following_error_counts
+    ENCODER_JUMP = 2  # a counter moved more than max_encoder_step_counts in one tick
+    HOME_SWITCH_NOT_FOUND = 3  # homing travelled home_search_limit_counts without a switch edge
+
+
+def _reis_joint_to_counts() -> tuple[tuple[float, ...], ...]:
+    return joint_to_counts_tuple(load_gearing())
+
+
+@dataclass(frozen=True)
+class ServoParams:
+    """Constants of :class:`droid.subunits.reis.servo.ServoCore`."""
+
+    joint_to_counts: tuple[tuple[float, ...], ...] = field(default_factory=_reis_joint_to_counts)
+    """M [counts per joint degree], counts = M @ q_deg (droid.kinematics.gearing)."""
+    encoder_bits: int = 16
+    servo_rate_hz: float = 500.0
+    command_rate_hz: float = 60.0
+    # thesis §4.1.4: 8 way-points per command ("500Hz/60Hz ~ 8"); DROID's ramps span
+    # the exact command period (8 or 9 ticks, droid.subunits.reis.command_queue), and
+    # queue_steps is the length of one braking-profile load
+    queue_steps: int = 8
+
+    # PID, per tick (§4.1.5.1): dac = kp*e + sum(ki*e) + kd*(e - e_prev), e in counts
+    kp_dac_per_count: Six = (14.0, 12.0, 5.0, 2.0, 2.0, 1.0)
+    ki_dac_per_count_tick: Six = (0.45, 0.40, 0.18, 0.07, 0.07, 0.035)
+    kd_dac_per_count_per_tick: Six = (120.0, 105.0, 42.0, 16.0, 16.0, 8.0)
+    integral_limit_dac: Six = (800.0, 800.0, 800.0, 400.0, 400.0, 400.0)
+    dac_min_counts: int = -2048  # servo_cmd limits (anti-windup, §4.1.5.1)
+    dac_max_counts: int = 2047
+
+    # planner (§4.1.5.2) and limits
+    max_speed_counts_per_tick: SixInt = (222, 222, 222, 444, 444, 444)  # 100/100/100/200/200/200 deg/s
+    # JOG targets also change speed by at most this (NORMAL way-points are the
+    # planner's business): 5e5 / 1e6 counts/s^2, 450 / 900 joint deg/s^2
+    jog_accel_counts_per_tick2: Six = (2.0, 2.0, 2.0, 4.0, 4.0, 4.0)
+    target_min_counts: SixInt = _deg((-160, -100, -120, -260, -120, -340))  # home-relative
+    target_max_counts: SixInt = _deg((160, 100, 120, 260, 120, 340))
+
+    # starved queue (§4.1.5.1): coast this many ticks at the commanded velocity
+    # waiting for a late command, then brake at brake_decel to zero and hold
+    starve_grace_ticks: int = 3
+    brake_decel_counts_per_tick2: Six = (2.0, 2.0, 2.0, 4.0, 4.0, 4.0)  # 5e5 / 1e6 counts/s^2
+
+    # supervision
+    max_following_error_counts: Six = (4000.0, 4000.0, 4000.0, 4000.0, 4000.0, 4000.0)
+    max_encoder_step_counts: int = 3000  # per tick; more is a glitch (or a counter reset)
+
+    # homing (§4.1.5.3)
+    home_order: tuple[int, ...] = (5, 4, 3, 2, 1, 0)  # wrist first, 0-based joints
+    home_switch_deg: Six = (2.0, -3.0, 4.0, -2.5, 3.5, -5.0)  # known switch positions (calibration)
+    home_search_dir: tuple[int, ...] = (-1, 1, 1, -1, 1, 1)  # count direction that activates the switch
+    home_speed_counts_per_tick: int = 20  # "moderate speed"
+    home_settle_ticks: int = 100  # rest after the switch is found, before the fine approach
+    home_fine_counts_per_tick: int = 1  # the final single-count approach
+    home_search_limit_counts: int = 400_000  # ~360 joint degrees per phase
+
+    def __post_init__(self) -> None:
+        m = np.asarray(self.joint_to_counts, float)
+        if m.shape != (6, 6) or not np.all(np.isfinite(m)) or abs(np.linalg.det(m)) < 1e-9:
+            raise ValueError("joint_to_counts must be an invertible 6x6 matrix")
+        if sorted(self.home_order) != list(range(6)):
+            raise ValueError("home_order must list each joint 0..5 once")
+        if self.queue_steps < 1:
+            raise ValueError("need queue_steps >= 1")
+        if self.servo_rate_hz <= 0 or self.command_rate_hz <= 0 or self.command_rate_hz > self.servo_rate_hz:
+            raise ValueError("need 0 < command_rate_hz <= servo_rate_hz")
+        if not 0 <= self.starve_grace_ticks < self.queue_steps:
+            raise ValueError("need 0 <= starve_grace_ticks < queue_steps")
+        if any(d not in (-1, 1) for d in self.home_search_dir):
+            raise ValueError("home_search_dir entries must be +1 or -1")
+        if any(lo >= hi for lo, hi in zip(self.target_min_counts, self.target_max_counts)):
+            raise ValueError("target_min_counts must be below target_max_counts")
+
+    @property
+    def servo_period_s(self) -> float:
+        return 1.0 / self.servo_rate_hz
+
+    @classmethod
+    def for_robot_file(cls, path: str | Path, **overrides) -> "ServoParams":
+        """Defaults with the gearing (and search directions) of a robot data file."""
+        gearing = load_gearing(path)
+        dirs = tuple(int(np.sign(d)) for d in np.diag(gearing.joint_to_counts_matrix))
+        return replace(cls(), joint_to_counts=joint_to_counts_tuple(gearing), home_search_dir=dirs, **overrides)

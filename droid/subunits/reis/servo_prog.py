@@ -1,0 +1,135 @@
+"""droid-servo NAME: the 500 Hz servo program of the Reis motion controller (thesis §4.1.5, fig. 4.7).
+
+Each 2 ms, on absolute deadlines: apply the command messages that arrived
+from the servo agent (the servo planner, §4.1.5.2), read the six encoder
+counters and the limit switches through the VME driver, run the servo core
+(queue/cache, braking, PID, homing: :class:`~droid.subunits.reis.servo.ServoCore`),
+write the six DACs.  Every few ticks it publishes its status for the servo
+agent and the watchdog.  It never takes a shared-database semaphore (§4.1.6).
+
+On exit, and on any error in read/write (ros2_control's ``on_error``), the
+DACs are zeroed.  The watchdog notices a dead servo and latches the amplifiers
+off.
+"""
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+import zmq
+
+from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
+from droid.brain.rt import PeriodicTimer, try_sched_fifo
+from droid.cli import RuntimeFailure, run
+from droid.subunits.reis import servo_wire as sw
+from droid.subunits.reis.endpoints import reis_endpoints
+from droid.subunits.reis.servo import ServoCore
+from droid.subunits.reis.servo_params import ServoParams
+from droid.subunits.reis.vme import VmeOpenError, open_vme
+
+PROG = "droid-servo"
+SERVO_HZ = 500.0
+OPEN_WAIT_S = 20.0
+LATENESS_WINDOW = 30000  # wake-ups kept for the exit report (60 s at 500 Hz)  # droid-sim creates the register map in parallel at cell start
+
+
+def open_vme_waiting(url: str, wait_s: float):
+    deadline = time.monotonic() + wait_s
+    while True:
+        try:
+            return open_vme(url)
+        except VmeOpenError:
+            if time.monotonic() > deadline or Stop.requested:
+                raise
+            time.sleep(0.05)
+
+
+@run
+def main(argv=None) -> int:
+    args, cell, sub = subunit_program(PROG, "Run the 500 Hz servo loop of a Reis arm on its VME interface cards.", argv, arm=True)
+    ep = reis_endpoints(cell, sub)
+    try_sched_fifo(priority=60, wanted=cell.sched_fifo, prog=PROG)
+    presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
+    ctx = zmq.Context()
+    pull = ctx.socket(zmq.PULL)
+    pull.setsockopt(zmq.LINGER, 0)
+    pull.setsockopt(zmq.RCVHWM, 8)
+    pub = ctx.socket(zmq.PUB)
+    pub.setsockopt(zmq.LINGER, 0)
+    pub.setsockopt(zmq.SNDHWM, 4)
+    bus = None
+    timer = None
+    failed = False
+    try:
+        try:
+            pull.bind(ep.servo)
+            pub.bind(ep.servo_status)
+        except zmq.ZMQError as exc:
+            raise RuntimeFailure(f"cannot bind {ep.servo} / {ep.servo_status}: {exc}") from None
+        bus = open_vme_waiting(ep.vme, OPEN_WAIT_S)
+        bus.zero_dacs()
+        core = ServoCore(ServoParams())
+        timer = PeriodicTimer(int(round(1e9 / SERVO_HZ)))
+        presence.ready()
+        notify_ready(args.ready_fd)
+        bad = 0
+        lateness_us = np.zeros(LATENESS_WINDOW, np.float32)  # the last minute of wake-ups
+        n_late = 0
+        while not Stop.requested:
+            periods = timer.wait(0.5)
+            if not periods:
+                continue
+            lateness_us[n_late % LATENESS_WINDOW] = timer.lateness_ns / 1e3
+            n_late += 1
+            while True:  # every 60 Hz command, in order
+                try:
+                    msg = pull.recv(zmq.NOBLOCK)
+                except zmq.Again:
+                    break
+                try:
+                    c = sw.unpack_command(msg)
+                    core.command(c.mode, c.counts)
+                except (sw.BadServoMessage, ValueError):
+                    bad += 1
+            try:
+                raw = bus.read_encoders_raw()
+                fault_before = core.fault
+                dacs = core.step(raw, bus.read_limit_switches(), periods)
+                bus.write_dacs(dacs)
+                if core.fault != fault_before:
+                    s = core.status()
+                    print(f"{PROG} {sub.name}: fault {s.fault.name} at servo tick {s.tick}: raw encoders "
+                          f"{raw}, positions {s.encoder_pos}, following error {s.following_error}, "
+                          f"{timer.overruns} overruns so far; registers re-read now: "
+                          f"{bus.read_encoders_raw()}", file=sys.stderr, flush=True)
+            except (OSError, ValueError) as exc:
+                failed = True
+                raise RuntimeFailure(f"VME access failed: {exc}") from None
+            if core.tick % sw.STATUS_EVERY_TICKS == 0:
+                pub.send(sw.pack_status(core.status(), bus.amps_powered), zmq.NOBLOCK)
+            presence.beat(0, timer.cycles, timer.overruns, timer.lateness_max_ns)
+        if n_late:
+            w = lateness_us[: min(n_late, LATENESS_WINDOW)]
+            print(f"{PROG} {sub.name}: {timer.cycles} cycles, {timer.overruns} overruns "
+                  f"({100.0 * timer.overruns / max(1, timer.cycles + timer.overruns):.3f} %); wake-up "
+                  f"lateness over the last {len(w)} cycles: median {np.median(w):.0f} us, p99 "
+                  f"{np.percentile(w, 99):.0f} us, max {w.max():.0f} us", file=sys.stderr, flush=True)
+    finally:
+        if bus is not None:
+            try:
+                bus.zero_dacs()
+            except (OSError, ValueError):
+                pass
+            bus.close()
+        if timer is not None:
+            timer.close()
+        pull.close(0)
+        pub.close(0)
+        ctx.term()
+        presence.close(failed=failed)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,87 @@
+"""Messages between droid-servo-agent, droid-servo and droid-watchdog (thesis §4.1.5–4.1.6).
+
+"Message Passing is more suited for the servo program so as to avoid a lock up
+if it were to access a shared memory area instead."  The servo never touches
+a shared database: the servo agent sends it one command message per 60 Hz
+period (ZeroMQ PUSH -> the servo's PULL), and the servo publishes its status
+(PUB) every few servo ticks for the servo agent and the watchdog.
+
+Command  ``<4s I i 6i``   b"DSC1", seq, mode (Mode), encoder command [counts]
+Status   ``<4s Q i i i i i i i 6i 6i 6i 6h``
+         b"DSS1", servo tick, mode, homed, homing joint (-1 none), starved,
+         braking, fault, amplifiers powered, encoder_pos, encoder_cmd,
+         following_error [counts], DACs
+"""
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+CMD_MAGIC = b"DSC1"
+STATUS_MAGIC = b"DSS1"
+_CMD = struct.Struct("<4sIi6i")
+_STATUS = struct.Struct("<4sQiiiiiii6i6i6i6h")
+STATUS_EVERY_TICKS = 4  # the servo publishes at 500/4 = 125 Hz
+
+
+class BadServoMessage(ValueError):
+    pass
+
+
+@dataclass(frozen=True)
+class ServoCommand:
+    seq: int
+    mode: int  # droid.subunits.reis.servo_params.Mode
+    counts: tuple[int, ...]
+
+
+@dataclass(frozen=True)
+class ServoReport:
+    tick: int
+    mode: int
+    homed: bool
+    homing_joint: int
+    starved: bool
+    braking: bool
+    fault: int
+    amps_on: bool
+    encoder_pos: tuple[int, ...]
+    encoder_cmd: tuple[int, ...]
+    following_error: tuple[int, ...]
+    dac: tuple[int, ...]
+
+
+def pack_command(c: ServoCommand) -> bytes:
+    return _CMD.pack(CMD_MAGIC, c.seq & 0xFFFFFFFF, int(c.mode), *[int(v) for v in c.counts])
+
+
+def unpack_command(b: bytes) -> ServoCommand:
+    if len(b) != _CMD.size:
+        raise BadServoMessage(f"servo command of {len(b)} bytes, expected {_CMD.size}")
+    magic, seq, mode, *counts = _CMD.unpack(b)
+    if magic != CMD_MAGIC:
+        raise BadServoMessage(f"servo command magic {magic!r}")
+    return ServoCommand(seq, mode, tuple(counts))
+
+
+def _clip32(v) -> int:
+    return max(-(2**31), min(2**31 - 1, int(v)))
+
+
+def pack_status(s, amps_on: bool = True) -> bytes:
+    """``s``: a droid.subunits.reis.servo.ServoStatus; ``amps_on`` from the VME AMP_STATUS register."""
+    return _STATUS.pack(STATUS_MAGIC, s.tick, int(s.mode), int(s.homed), int(s.homing_joint),
+                        int(s.starved), int(s.braking), int(s.fault), int(bool(amps_on)),
+                        *[_clip32(v) for v in s.encoder_pos], *[_clip32(v) for v in s.encoder_cmd],
+                        *[_clip32(v) for v in s.following_error], *[int(v) for v in s.dac])
+
+
+def unpack_status(b: bytes) -> ServoReport:
+    if len(b) != _STATUS.size:
+        raise BadServoMessage(f"servo status of {len(b)} bytes, expected {_STATUS.size}")
+    v = _STATUS.unpack(b)
+    if v[0] != STATUS_MAGIC:
+        raise BadServoMessage(f"servo status magic {v[0]!r}")
+    return ServoReport(tick=v[1], mode=v[2], homed=bool(v[3]), homing_joint=v[4], starved=bool(v[5]),
+                       braking=bool(v[6]), fault=v[7], amps_on=bool(v[8]), encoder_pos=tuple(v[9:15]),
+                       encoder_cmd=tuple(v[15:21]), following_error=tuple(v[21:27]), dac=tuple(v[27:33]))

@@ -1,0 +1,100 @@
+"""droid-watchdog NAME: keeps the Reis interface cards' watchdog timers alive (thesis §2.3, §4.1.4).
+
+"A Watchdog module is executed at startup to trigger these timers
+periodically. If a system failure occurs, this module would be delayed and the
+timers would expire and cause a shutdown."  At 50 Hz it writes both watchdog
+registers — but only while the servo is alive: it follows the servo's status
+messages, and when the servo's tick stops advancing (or the servo reports a
+fault) it stops kicking for good, and the hardware latches the amplifiers off
+until the power is cycled (:class:`~droid.subunits.reis.watchdog.WatchdogCore`).
+It reports the amplifiers' state (AMP_STATUS) as the WATCHDOG fault bit of the
+controller's Status record.
+"""
+from __future__ import annotations
+
+import sys
+
+import zmq
+
+from droid.brain.databases import open_local
+from droid.brain.layouts import FAULT_WATCHDOG
+from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
+from droid.brain.rt import PeriodicTimer, try_sched_fifo
+from droid.cli import run
+from droid.subunits.reis import servo_wire as sw
+from droid.subunits.reis import vme_map as vm
+from droid.subunits.reis.endpoints import reis_endpoints
+from droid.subunits.reis.servo_prog import OPEN_WAIT_S, open_vme_waiting
+from droid.subunits.reis.watchdog import WatchdogCore, WatchdogParams
+
+PROG = "droid-watchdog"
+
+
+@run
+def main(argv=None) -> int:
+    args, cell, sub = subunit_program(PROG, "Kick a Reis arm's watchdog timers while its servo is alive.", argv, arm=True)
+    ep = reis_endpoints(cell, sub)
+    try_sched_fifo(priority=55, wanted=cell.sched_fifo, prog=PROG)
+    presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
+    ctx = zmq.Context()
+    sub_sock = ctx.socket(zmq.SUB)
+    sub_sock.setsockopt(zmq.SUBSCRIBE, b"")
+    sub_sock.setsockopt(zmq.LINGER, 0)
+    sub_sock.connect(ep.servo_status)
+    params = WatchdogParams()
+    core = WatchdogCore(params)
+    bus = None
+    timer = None
+    status = open_local(cell, sub, "ctrl_status")
+    amps_reported = None
+    try:
+        bus = open_vme_waiting(ep.vme, OPEN_WAIT_S)
+        timer = PeriodicTimer(int(round(1e9 / params.rate_hz)))
+        presence.ready()
+        notify_ready(args.ready_fd)
+        heartbeat = None
+        fault = False
+        reported = False
+        while not Stop.requested:
+            if not timer.wait(0.5):
+                continue
+            while True:
+                try:
+                    rep = sw.unpack_status(sub_sock.recv(zmq.NOBLOCK))
+                except zmq.Again:
+                    break
+                except sw.BadServoMessage:
+                    continue
+                heartbeat, fault = rep.tick, bool(rep.fault)
+            # The amplifiers are powered only once the servo runs and holds the arm
+            # (§4.1.4: "the operator can safely enable the servo motors without
+            # having unwanted motion"): no kick before its first status message.
+            kick = core.step(heartbeat, fault) if heartbeat is not None else None
+            if kick is not None:
+                bus.write_watchdog(*kick)
+            latched = bool(bus.read_amp_status() & vm.AMP_STATUS_WATCHDOG_FAULT)
+            if latched != amps_reported:
+                amps_reported = latched
+                with status.locked() as st:
+                    f = int(st["fault"])
+                    st["fault"] = (f | FAULT_WATCHDOG) if latched else (f & ~FAULT_WATCHDOG)
+                    status.mark_written()
+            elif heartbeat is not None and not reported:
+                reported = True
+                print(f"{PROG} {sub.name}: servo dead or faulted: stopped kicking; the amplifiers "
+                      f"will latch off until the controller's power is cycled", file=sys.stderr, flush=True)
+            presence.beat(0, timer.cycles, timer.overruns, timer.lateness_max_ns)
+    finally:
+        if bus is not None:
+            bus.close()
+        status.close()
+        if timer is not None:
+            timer.close()
+        sub_sock.close(0)
+        ctx.term()
+        presence.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

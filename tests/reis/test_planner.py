@@ -1,0 +1,131 @@
+"""The planner core (thesis §4.1.7): plan_joint_cmd, the pick, refusal, cancel on a lost stream."""
+import numpy as np
+import pytest
+
+from droid.brain import layouts as L
+from droid.kinematics import load_robot
+from droid.kinematics.transforms import pose_to_T
+from droid.subunits.reis.planner import PlannerCore
+
+MODEL = load_robot("reis_v15")
+
+
+def records(homed=True, pos=(0,) * 6):
+    cmd = L.new_record(L.CTRL_COMMAND_LAYOUT)
+    cmd["link_alive"] = 1
+    cmd["cmd_mode"] = L.NORMAL_MODE
+    st = L.new_record(L.CTRL_STATUS_LAYOUT)
+    st["homed"] = int(homed)
+    st["encoder_pos"] = pos
+    return cmd, st
+
+
+def joint_cmd(cmd, counts, ticks, cmd_id):
+    cmd["coord"], cmd["cmd_mode"] = L.JSPACE, L.NORMAL_MODE
+    cmd["encoder_cmd_ext"], cmd["joint_time_count"], cmd["cmd_id"] = counts, ticks, cmd_id
+
+
+def test_nothing_before_homing():
+    core = PlannerCore(MODEL)
+    cmd, st = records(homed=False)
+    joint_cmd(cmd, [1000] * 6, 10, 1)
+    out = core.step(cmd, st)
+    assert out.encoder_cmd_int is None and out.busy is None
+
+
+def test_holds_where_it_is_after_homing_and_interpolates_linearly():
+    core = PlannerCore(MODEL)
+    pos = (100, -200, 300, 0, 50, -60)
+    cmd, st = records(pos=pos)
+    out = core.step(cmd, st)
+    assert list(out.encoder_cmd_int) == list(pos) and out.busy == 0
+    target = np.array([1100, 800, -700, 0, 50, 940])
+    joint_cmd(cmd, target, 10, 7)
+    way = []
+    for _ in range(12):
+        out = core.step(cmd, st)
+        way.append(out.encoder_cmd_int.astype(float))
+    assert way[9].tolist() == target.tolist()  # on target after joint_time_count ticks
+    assert way[11].tolist() == target.tolist()
+    steps = np.diff(np.array([pos] + way[:10]), axis=0)
+    assert np.allclose(steps, (target - pos) / 10, atol=1)  # equal steps: a linear joint move
+    assert out.busy == 0
+
+
+def test_cartesian_command_uses_the_pick():
+    core = PlannerCore(MODEL)
+    cmd, st = records()
+    core.step(cmd, st)
+    q_goal = np.array([20.0, 10.0, 15.0, 5.0, 30.0, -10.0])
+    T = MODEL.fk(q_goal)
+    cmd["coord"], cmd["cmd_mode"], cmd["cmd_id"], cmd["cart_time_count"] = L.CARTSPACE, L.NORMAL_MODE, 3, 5
+    cmd["x"], cmd["y"], cmd["z"], cmd["R"] = T[0, 3], T[1, 3], T[2, 3], T[:3, :3]
+    for _ in range(6):
+        out = core.step(cmd, st)
+    q = MODEL.gearing.counts_to_joints(out.encoder_cmd_int.astype(float))
+    assert np.allclose(q, q_goal, atol=0.01)  # the nearest solution from home, within a count
+
+
+def test_unreachable_and_out_of_limit_targets_are_refused_without_motion():
+    core = PlannerCore(MODEL)
+    pos = (10,) * 6
+    cmd, st = records(pos=pos)
+    core.step(cmd, st)
+    joint_cmd(cmd, [10**8] * 6, 5, 2)
+    out = core.step(cmd, st)
+    assert out.cmd_result == L.CMD_REFUSED and out.cmd_id == 2
+    assert list(out.encoder_cmd_int) == list(pos)
+    cmd["coord"], cmd["cmd_id"], cmd["cart_time_count"] = L.CARTSPACE, 3, 5
+    cmd["x"], cmd["y"], cmd["z"], cmd["R"] = 5000.0, 0.0, 0.0, np.eye(3)
+    out = core.step(cmd, st)
+    assert out.cmd_result == L.CMD_REFUSED and list(out.encoder_cmd_int) == list(pos)
+
+
+@pytest.mark.parametrize("how", ["link", "braking"])
+def test_lost_stream_cancels_and_holds_until_a_new_command(how):
+    core = PlannerCore(MODEL)
+    cmd, st = records()
+    core.step(cmd, st)
+    joint_cmd(cmd, [5000] * 6, 60, 4)
+    for _ in range(10):
+        core.step(cmd, st)
+    st["encoder_pos"] = [700] * 6  # where the arm stopped
+    if how == "link":
+        cmd["link_alive"] = 0
+    else:
+        st["fault"] = L.FAULT_BRAKING
+    out = core.step(cmd, st)
+    assert out.cmd_result == L.CMD_FAILED and out.cmd_id == 4
+    assert list(out.encoder_cmd_int) == [700] * 6 and out.busy == 0
+    cmd["link_alive"], st["fault"] = 1, 0
+    for _ in range(5):  # the old command is not resumed
+        out = core.step(cmd, st)
+        assert list(out.encoder_cmd_int) == [700] * 6
+    joint_cmd(cmd, [800] * 6, 2, 5)
+    core.step(cmd, st)
+    out = core.step(cmd, st)
+    assert list(out.encoder_cmd_int) == [800] * 6
+
+
+def test_follows_the_arm_outside_normal_mode():
+    core = PlannerCore(MODEL)
+    cmd, st = records(pos=(0,) * 6)
+    core.step(cmd, st)
+    cmd["cmd_mode"] = L.JOG_MODE  # droid-jog moves the arm through the servo agent
+    st["encoder_pos"] = (500, -400, 300, 0, 0, 7)
+    out = core.step(cmd, st)
+    assert list(out.encoder_cmd_int) == [500, -400, 300, 0, 0, 7]
+    joint_cmd(cmd, [600, -400, 300, 0, 0, 7], 2, 9)  # back to NORMAL: starts from there
+    out = core.step(cmd, st)
+    assert list(out.encoder_cmd_int) == [550, -400, 300, 0, 0, 7]
+
+
+def test_commands_fail_while_the_servo_is_down():
+    core = PlannerCore(MODEL)
+    cmd, st = records()
+    core.step(cmd, st)
+    st["fault"] = L.FAULT_WATCHDOG
+    joint_cmd(cmd, [900] * 6, 5, 3)
+    out = core.step(cmd, st)
+    assert out.cmd_result == L.CMD_FAILED and out.cmd_id == 3
+    assert list(out.encoder_cmd_int) == [0] * 6 and out.busy == 0

@@ -1,0 +1,222 @@
+"""The simulated Reis robot behind the register map (thesis §2.3, §4.1.2)."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from droid.sim.reis_plant import ReisPlant, ReisPlantParams
+from droid.subunits.reis import vme_map as vm
+from droid.subunits.reis.vme import VmeBus
+
+DT = 0.002  # one servo period
+
+
+def run_open_loop(plant: ReisPlant, bus: VmeBus, dacs, seconds: float, kick: bool = True) -> None:
+    for _ in range(int(round(seconds / DT))):
+        bus.write_dacs(dacs)
+        if kick:
+            bus.kick_watchdog()
+        plant.advance(DT)
+
+
+@pytest.fixture
+def rig():
+    plant = ReisPlant(seed=11)
+    bus = VmeBus.from_buffer(plant.regs)
+    yield plant, bus
+    bus.close()
+
+
+def test_power_up_counters_are_arbitrary_per_seed_and_deterministic():
+    a, b, c = ReisPlant(seed=1), ReisPlant(seed=1), ReisPlant(seed=2)
+    assert a.encoder_raw == b.encoder_raw
+    assert a.encoder_raw != c.encoder_raw
+    assert all(0 <= x < 65536 for x in a.encoder_raw)
+    assert np.array_equal(a.joint_deg, b.joint_deg)
+
+
+def test_registers_mirror_the_state(rig):
+    plant, bus = rig
+    assert bus.read_encoders_raw() == plant.encoder_raw
+    assert bus.read_limit_switches() == plant.limit_switches
+    assert bus.read_amp_status() == 0  # amplifiers off until the watchdog runs
+    bus.kick_watchdog()
+    plant.advance(DT)
+    assert bus.read_amp_status() == vm.AMP_STATUS_POWERED
+
+
+def test_amplifiers_power_up_only_once_both_watchdogs_are_written(rig):
+    plant, bus = rig
+    run_open_loop(plant, bus, [2047] * 6, 0.5, kick=False)  # no watchdog program yet
+    assert not plant.amps_on and np.all(plant.motor_speed_counts_per_s == 0)
+    bus.write_watchdog(1, 0)  # only register 0 changed
+    plant.advance(DT)
+    assert not plant.amps_on
+    bus.write_watchdog(2, 1)
+    plant.advance(DT)
+    assert plant.amps_on
+
+
+def test_encoder_counts_motor_side_4000_per_rev_through_the_gearing():
+    plant = ReisPlant(seed=3, initial_joint_deg=np.zeros(6), encoder_power_up_counts=[0] * 6)
+    bus = VmeBus.from_buffer(plant.regs)
+    run_open_loop(plant, bus, [0, 0, 0, 0, 0, 1500], 0.3)
+    q6 = plant.joint_deg[5]
+    assert q6 > 1.0  # joint 6 turned
+    # counts = M q: 100:1 drive x 4000 counts / 360 deg on joint 6 (no coupling)
+    assert bus.read_encoders_raw()[5] == int(np.floor(q6 * 100 * 4000 / 360)) % 65536
+    bus.close()
+
+
+def test_encoders_wrap_at_16_bits():
+    plant = ReisPlant(seed=3, encoder_power_up_counts=[65000] * 6)
+    bus = VmeBus.from_buffer(plant.regs)
+    assert bus.read_encoders_raw() == (65000,) * 6
+    start = np.floor(plant.motor_counts[5])
+    run_open_loop(plant, bus, [0, 0, 0, 0, 0, 2047], 0.3)
+    moved = np.floor(plant.motor_counts[5]) - start
+    assert moved > 1000  # more than the 536 counts left below 65536
+    assert bus.read_encoders_raw()[5] == (65000 + int(moved)) % 65536
+    assert bus.read_encoders_raw()[5] < 65000
+    bus.close()
+
+
+def test_writing_an_encoder_register_resets_that_counter(rig):
+    plant, bus = rig
+    before = bus.read_encoders_raw()
+    bus.write_u16(vm.ENCODER_OFFSET + 2, 12345)  # any write resets to 0 (thesis §4.1.2)
+    plant.advance(DT)
+    after = bus.read_encoders_raw()
+    assert after[1] in (0, 65535)
+    assert after[0] == before[0]
+
+
+def test_positive_dac_accelerates_and_saturates():
+    params = ReisPlantParams()
+    base = ReisPlant(params, seed=5)
+    speeds = []
+    for dac in (500, 1000, 2047, 30000):
+        plant = ReisPlant(params, seed=5)
+        bus = VmeBus.from_buffer(plant.regs)
+        run_open_loop(plant, bus, [0, 0, 0, dac, 0, 0], 0.05)
+        speeds.append(plant.motor_speed_counts_per_s[3])
+        bus.close()
+    assert 0 < speeds[0] < speeds[1] < speeds[2]
+    assert speeds[3] == speeds[2]  # the driver clamps to 2047, the amplifier limits torque
+    assert base.motor_speed_counts_per_s[3] == 0
+
+
+def test_coulomb_friction_holds_against_a_small_command():
+    plant = ReisPlant(seed=5)
+    bus = VmeBus.from_buffer(plant.regs)
+    q0 = plant.joint_deg.copy()
+    run_open_loop(plant, bus, [20, 0, 0, 20, 20, 20], 0.2)  # torques below Coulomb friction
+    assert np.allclose(plant.joint_deg[[0, 3, 4, 5]], q0[[0, 3, 4, 5]])
+    bus.close()
+
+
+def test_gravity_pulls_the_forearm_down_and_the_balancer_helps_joint_2():
+    """With zero DAC the unbalanced joint 3 load exceeds friction: the arm sags."""
+    plant = ReisPlant(seed=5, initial_joint_deg=np.zeros(6))
+    bus = VmeBus.from_buffer(plant.regs)
+    run_open_loop(plant, bus, [0] * 6, 0.3)
+    assert plant.joint_deg[2] > 1.0  # forearm falls (positive q3 lowers it)
+    tau2, tau3 = plant.gravity_joint_torque_nm(np.zeros(6))
+    no_balancer = ReisPlant(replace(ReisPlantParams(), balancer_fraction=0.0), seed=5)
+    tau2_raw, _ = no_balancer.gravity_joint_torque_nm(np.array([0, 30.0, 0, 0, 0, 0]))
+    tau2_bal, _ = plant.gravity_joint_torque_nm(np.array([0, 30.0, 0, 0, 0, 0]))
+    assert 0 < tau2_bal < tau2_raw
+    assert tau3 > 0
+    bus.close()
+
+
+def test_limit_switch_is_a_cam_active_past_its_position():
+    params = ReisPlantParams()
+    sw = np.array(params.switch_joint_deg)
+    plant = ReisPlant(params, seed=0, initial_joint_deg=sw + np.array([0.1, -0.1, 0.1, -0.1, 5.0, -5.0]))
+    assert plant.limit_switches == (True, False, True, False, True, False)
+    assert VmeBus.from_buffer(plant.regs).read_limit_bits() == 0b010101
+
+
+def test_watchdog_latch_cuts_the_amplifiers_until_power_cycle(rig):
+    plant, bus = rig
+    run_open_loop(plant, bus, [0] * 6, 0.05)
+    assert plant.amps_on
+    run_open_loop(plant, bus, [0] * 6, 0.098, kick=False)  # < 100 ms without a kick: still on
+    assert plant.amps_on
+    run_open_loop(plant, bus, [0] * 6, 0.01, kick=False)
+    assert not plant.amps_on
+    assert bus.read_amp_status() == vm.AMP_STATUS_WATCHDOG_FAULT
+    run_open_loop(plant, bus, [0] * 6, 0.05, kick=False)  # the brake stops the sagging arm
+    assert np.all(plant.motor_speed_counts_per_s == 0)
+    q = plant.joint_deg.copy()
+    run_open_loop(plant, bus, [2047] * 6, 0.3, kick=True)  # kicking again does not help
+    assert not plant.amps_on
+    assert np.allclose(plant.joint_deg, q)  # brake holds, DACs ignored
+    raw_before = bus.read_encoders_raw()
+    plant.power_cycle()
+    assert not plant.amps_on  # powered again once the watchdog is kicked
+    run_open_loop(plant, bus, [0] * 6, 0.004)
+    assert plant.amps_on
+    assert bus.read_amp_status() == vm.AMP_STATUS_POWERED
+    assert bus.read_dacs() == (0,) * 6
+    assert bus.read_encoders_raw() != raw_before  # counters come up arbitrary again
+
+
+def test_one_stuck_watchdog_register_is_enough_to_trip(rig):
+    plant, bus = rig
+    for i in range(80):
+        bus.write_watchdog(i, 7)  # register 1 never changes
+        plant.advance(DT)
+    assert not plant.amps_on
+
+
+def test_jam_blocks_a_motor(rig):
+    plant, bus = rig
+    plant.jam(0)
+    m0 = plant.motor_counts[0]
+    run_open_loop(plant, bus, [2047, 0, 0, 0, 0, 0], 0.2)
+    assert plant.motor_counts[0] == m0
+    plant.jam(0, False)
+    run_open_loop(plant, bus, [2047, 0, 0, 0, 0, 0], 0.05)
+    assert plant.motor_counts[0] > m0
+
+
+def test_advance_needs_whole_substeps(rig):
+    plant, _ = rig
+    with pytest.raises(ValueError):
+        plant.advance(0.0007)
+    with pytest.raises(ValueError):
+        plant.advance(0.0)
+
+
+def test_same_seed_same_trajectory():
+    def trace(seed):
+        plant = ReisPlant(seed=seed)
+        bus = VmeBus.from_buffer(plant.regs)
+        out = []
+        for i in range(200):
+            bus.write_dacs([int(800 * np.sin(i / 20 + j)) for j in range(6)])
+            bus.kick_watchdog()
+            plant.advance(DT)
+            out.append(bytes(plant.regs))
+        return out
+
+    assert trace(9) == trace(9)
+    assert trace(9) != trace(10)
+
+
+def test_hard_stop_holds_a_joint_driven_into_it():
+    params = ReisPlantParams()
+    q0 = np.zeros(6)
+    q0[0] = params.hard_stop_min_deg[0] + 2.0
+    plant = ReisPlant(params, seed=1, initial_joint_deg=q0)
+    bus = VmeBus.from_buffer(plant.regs)
+    run_open_loop(plant, bus, [1500, 0, 0, 0, 0, 0], 0.5)  # joint 1 counts run opposite to q1
+    assert params.hard_stop_min_deg[0] - 0.5 <= plant.joint_deg[0] <= params.hard_stop_min_deg[0]
+    assert plant.motor_speed_counts_per_s[0] == 0
+    run_open_loop(plant, bus, [-1500, 0, 0, 0, 0, 0], 0.1)  # and it can drive away again
+    assert plant.joint_deg[0] > params.hard_stop_min_deg[0] + 0.5
+    bus.close()
