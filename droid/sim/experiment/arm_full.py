@@ -1,0 +1,66 @@
+"""The ``full`` Reis model for the trial harness: every core of the real-time Reis subunit.
+
+:class:`droid.sim.reis_cell.LockstepArm` runs the plant (2 kHz joint
+dynamics behind the VME register map), the 500 Hz servo core (PID, queue,
+braking), the watchdog, the servo agent, the planner and the remote's FK on
+the trial's scheduler.  A trial first homes the arm (the servo's homing from
+a random power-up pose, §4.1.5.3) and moves it to the start pose with a joint
+command, then the seam-tracking core drives it with cartesian commands
+through the Brain Command record, exactly as droid-seamtrack does.
+
+About 30-40x real time (docs/bench-seamtrack.md): the reference for the
+``fast`` model (droid.sim.experiment.arm_fast), not the experiment default.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from droid.cli import RuntimeFailure
+from droid.kinematics.transforms import T_to_pose
+from droid.sim.lockstep import Scheduler
+from droid.sim.reis_cell import LockstepArm
+
+HOME_TIMEOUT_S = 60.0
+MOVE_S = 4.0  # the move from home to the start pose
+SETTLE_S = 1.0
+
+
+class FullArm:
+    """The Reis subunit's cores on a scheduler, with the harness's arm interface."""
+
+    def __init__(self, sched: Scheduler, model, q_start_deg, seed: int = 1, robot: str = "reis_v15",
+                 subunit: str = "arm1") -> None:
+        self.sched = sched
+        self.model = model
+        base = T_to_pose(model.base)
+        self.arm = LockstepArm(sched, subunit, robot=robot, base=tuple(float(v) for v in base), seed=seed)
+        self.q_start = np.asarray(q_start_deg, float)
+
+    def prepare(self) -> None:
+        """Home, then move to the start pose; raises RuntimeFailure if either does not finish."""
+        if not self.arm.home(HOME_TIMEOUT_S):
+            raise RuntimeFailure("full arm model: homing did not finish")
+        counts = np.rint(self.model.gearing.joints_to_counts(self.q_start)).astype(np.int32)
+        cmd = self.arm.command_joint(counts, MOVE_S)
+        if not self.arm.move_done(cmd, MOVE_S + 5.0):
+            raise RuntimeFailure("full arm model: the move to the start pose did not finish")
+        self.sched.run_for(SETTLE_S)
+
+    def command_cart(self, T_global_wcp, ticks: int) -> None:
+        self.arm.command_cart(T_global_wcp, ticks / self.sched.heartbeat_hz)
+
+    def status_pose(self) -> np.ndarray:
+        st = self.arm.status
+        T = np.eye(4)
+        T[:3, :3] = st["R"]
+        T[:3, 3] = (float(st["x"]), float(st["y"]), float(st["z"]))
+        return T
+
+    def status_joints(self) -> np.ndarray:
+        return self.model.gearing.counts_to_joints(np.asarray(self.arm.status["encoder_pos"], float))
+
+    def true_wcp(self) -> np.ndarray:
+        return self.arm.wcp_global()
+
+    def tick(self) -> None:  # the cores run on the scheduler by themselves
+        pass

@@ -1,0 +1,120 @@
+"""The two sensors of a trial: the lead MVS sensor and the tool-tip measuring sensor (thesis §5.3-5.4, §6.1).
+
+Lead sensor (``camera`` model): the camera/DSP twin renders the
+240 stripe columns for the sensor's true pose (:class:`LocalCamera`, the same
+frames as droid.sim.mvs_camera), droid-mvs's core extracts the feature
+(droid.subunits.mvs.feature, Strauss's method) and formats the serial line,
+the Brain's parser reads it back (rounded to the line's 3 and 5 decimals):
+the reading the Status record holds.  ``ideal`` model: the exact geometry at
+the sensor frame (``tool_sensor.measure``, in closed form:
+:mod:`droid.sim.experiment.crossing`), invalid outside the field of view the
+feature extraction can use, plus Gaussian noise of the size the camera chain
+shows (docs/bench-mvs.md), through the same serial-line rounding.
+
+Tool-tip sensor: exact geometry (``tool_sensor.measure`` at the tool frame, closed form),
+"virtually at the tool tip" (§6.1): lateral and height deviation and roll.
+It reports along the seam's straight extensions too (before the seam start
+the tool is still on the extension at the start of a trial).
+
+Timing (as in the real-time cell, docs/mvs.md): a frame taken at tick k
+reaches the Brain's Status within the next tick; the 30 Hz seam-tracking
+cycle at an even tick k reads the frame of tick k - 1.  Frames nobody reads
+(those of even ticks) are not rendered: they would only be overwritten.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from droid.brain.sensor_line import Garbled, format_line, parse_line
+from droid.sim.experiment.crossing import SeamCrossing
+from droid.sim.experiment.render import LocalCamera
+from droid.sim.mvs_camera import CameraNoise
+from droid.sim.tool_sensor import ToolReading
+from droid.sim.workpiece import Workpiece
+from droid.subunits.mvs.calibration import MvsCalibration
+from droid.subunits.mvs.feature import FeatureParams
+from droid.subunits.mvs.sensor import SensorCore
+from droid.subunits.mvs.wire import ROWS
+from droid.tasks.seam.delay import INVALID_READING, Reading
+
+SENSOR_MODELS = ("camera", "ideal")
+
+#: Camera noise of the trials (as the default cell, droid/cells/sim.toml).
+DEFAULT_NOISE = CameraNoise(jitter_px=0.5, spurious_fraction=0.02, drop_probability=0.0)
+
+#: ``ideal`` model: noise sigmas of the camera chain at 0.5 px jitter (docs/bench-mvs.md).
+IDEAL_SIGMA_Y_MM = 0.056
+IDEAL_SIGMA_X_MM = 0.012
+IDEAL_SIGMA_ROLL_RAD = 0.0005
+
+
+@dataclass(frozen=True)
+class _Values:
+    x_mm: float
+    y_mm: float
+    roll_rad: float
+
+
+def _line_to_reading(line: bytes) -> Reading:
+    r = parse_line(line.rstrip(b"\n"))
+    if isinstance(r, Garbled) or not r.valid:
+        return INVALID_READING
+    return Reading(r.x_mm, r.y_mm, r.roll_rad, True)
+
+
+class LeadSensor:
+    """The MVS lead sensor of one trial: its pose in W -> the Brain's reading."""
+
+    def __init__(self, workpiece: Workpiece, model: str = "camera", noise: CameraNoise = DEFAULT_NOISE,
+                 calib: MvsCalibration = MvsCalibration(), seed: int = 0) -> None:
+        if model not in SENSOR_MODELS:
+            raise ValueError(f"unknown sensor model {model!r} (known: {', '.join(SENSOR_MODELS)})")
+        self.model = model
+        self.workpiece = workpiece
+        self.crossing = SeamCrossing(workpiece)
+        self.rng = np.random.default_rng(seed)
+        self.frames = 0
+        self.valid = 0
+        if model == "camera":
+            self.camera = LocalCamera(workpiece, calib, noise)
+            self.core = SensorCore(calib)
+        else:
+            fp = FeatureParams()
+            margin = (fp.min_side_rows + fp.guard_rows) * calib.lateral_mm_per_row
+            half = (ROWS - 1) / 2 * calib.lateral_mm_per_row
+            self.y_limit_mm = half - margin
+            self.x_limit_mm = (calib.column_at_origin - 1.0) * calib.depth_mm_per_column
+
+    def read(self, T_W_S: np.ndarray) -> Reading:
+        """The reading of a frame taken with the sensor frame at ``T_W_S`` (4x4, mm)."""
+        self.frames += 1
+        if self.model == "camera":
+            rows = self.camera.frame(T_W_S, self.rng)
+            line = format_line(None) if rows is None else self.core.step(rows)
+        else:
+            line = format_line(self._ideal(T_W_S))
+        reading = _line_to_reading(line)
+        self.valid += reading.valid
+        return reading
+
+    def _ideal(self, T_W_S: np.ndarray) -> _Values | None:
+        noise = self.rng.standard_normal(3)
+        m = self.crossing.measure(T_W_S)
+        wp = self.workpiece
+        if m is None or not (-wp.lead_in_mm <= m.s_mm <= wp.length_mm + wp.lead_out_mm):
+            return None
+        if abs(m.lateral_mm) > self.y_limit_mm or abs(m.height_mm) > self.x_limit_mm:
+            return None
+        return _Values(m.height_mm + IDEAL_SIGMA_X_MM * noise[0], m.lateral_mm + IDEAL_SIGMA_Y_MM * noise[1],
+                       m.roll_rad + IDEAL_SIGMA_ROLL_RAD * noise[2])
+
+
+def tool_reading(T_W_tool: np.ndarray, crossing: SeamCrossing) -> ToolReading | None:
+    """The tool-tip sensor (§6.1): deviation of the seam from the tool frame, or None."""
+    m = crossing.measure(T_W_tool)
+    if m is None or not all(math.isfinite(v) for v in (m.lateral_mm, m.height_mm, m.roll_rad, m.s_mm)):
+        return None
+    return m

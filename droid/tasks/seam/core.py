@@ -1,0 +1,403 @@
+"""The dynamic seam-tracking core (thesis §5.1-5.2, §5.5, eq. 5.1-5.11; §6.1.1; §6.2.5).
+
+One :meth:`SeamTracker.step` per seam-tracking cycle (30 Hz: every second
+60 Hz heartbeat tick).  Pure: poses and a sensor reading in, two wrist-centre
+commands (or a stop) out; no I/O, no clock.  The functions of the thesis's
+``seamtrack`` program (§5.5.2, Figure 5.9 and the listings) are methods of
+the same names:
+
+===========================  ===========================================================
+``holder_robot_wcp``         the GMF1 wrist-centre pose (global): ``global T (GMF1)6``
+``tool_robot_wcp_wrt_holder``  eq. 5.10: ``(GMF1)6 T (Reis)6``
+``toolpt_wrt_holder``        eq. 5.5: ``(GMF1)6 T tool = (GMF1)6 T (Reis)6 (Reis)6 T tool``
+``update_seam_wrt_holder``   eq. 5.1/5.3 with the yaw and pitch corrections (eq. 5.6-5.7):
+                             the newest seam frame at the front of the dynamic seam patch
+``interpolate``              §5.2/Figure 5.4: the target tool pose, ``vel`` mm further along
+                             the patch, orientation of the patch's front
+``gen_tool_robot_wcp``       eq. 5.11: the Reis wrist-centre command (global)
+``gen_hold_robot_wcp``       the GMF1 wrist-centre command: hold the pose it had at the start
+``write_robot_cmd``          packs both commands into the cycle's :class:`CycleOutput`
+===========================  ===========================================================
+
+Frames (docs/mvs.md): the sensor frame S and the tool frame T have x along
+the tool axis toward the surface (depth), y lateral (left), z the travel
+direction.  A reading (x, y, roll) gives ``sensor T seam = Trans(x, y, 0)
+Rz(roll)`` (the listing's ``Tmvs``, built by the Brain from the MVS Status).
+
+Faithful to the listing, including its quirks:
+
+* the seam patch is a queue of 4x4 frames in the GMF1 wrist frame, newest
+  (the camera) at index 0; ``tcp_idx`` indexes the oldest frame still behind
+  the tool; at most ``max_queue`` + 1 frames are kept (``MAX_QUEUE``);
+* on the first cycle the patch is seeded with the *tool point* itself, so the
+  tool first heads straight for the point where the sensor started: the
+  initial straight section of §6.1.1 ("once ... the tool center point has
+  reached the point on the seam at which the sensor started, any path can be
+  tracked") is the natural start of the queue, not a separate mode;
+* for ``dead_zone_cycles`` cycles (30 in the listing) the sensor is not read
+  and ``Tmvs`` stays the identity: the camera's own frame enters the patch;
+* yaw = -(y / CAMERA_TO_TCP) * k_yaw about the seam frame's x axis and
+  pitch = (x / CAMERA_TO_TCP) * k_pitch about its y axis (the listing's
+  small-angle form of eq. 5.6-5.7);
+* the target orientation is the front of the patch (the frame at the
+  camera), so the corrections turn the wrist about the tool point: the camera
+  is steered back onto the seam while the tool follows the recorded patch;
+* invalid sensor data -> x, y, roll = 0 (§6.2.5): the tracker goes straight on.
+
+Additions (documented in docs/seamtrack.md): stop reasons -- the run length
+reached ("end of seam"), the lead sensor invalid for more than
+``lost_cycles`` consecutive cycles after the dead zone ("seam lost"), a Reis
+command outside the robot model's reach or limits ("unreachable"); and the
+transport-delay buffer of §6.2.5 (:mod:`droid.tasks.seam.delay`).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from droid.kinematics import RobotModel, Unreachable
+from droid.kinematics.transforms import inv_homo
+from droid.tasks.seam.delay import DELAY_OFF, INVALID_READING, Reading, TransportDelay
+
+#: Largest index of the seam patch (the listing's MAX_QUEUE).  The patch
+#: between the camera and the tool holds CAMERA_TO_TCP / (speed / 30 Hz)
+#: frames: 750 at 4 mm/s with the 100 mm sensor lead; 2048 covers 1.5 mm/s.
+MAX_QUEUE = 2048
+#: Seam-tracking cycle rate [Hz]: every second tick of the 60 Hz heartbeat.
+CYCLE_HZ = 30.0
+#: Cycles without reading the sensor at the start (the listing's dead_zone).
+DEAD_ZONE_CYCLES = 30
+#: Consecutive invalid sensor cycles after which the seam counts as lost
+#: (ASSUMED: the thesis stops by hand; 15 cycles = 0.5 s, 2 mm at 4 mm/s,
+#: 32 mm at 64 mm/s of straight-on travel on zero data).
+LOST_CYCLES = 15
+
+STOP_END = "end of seam"
+STOP_LOST = "seam lost"
+STOP_UNREACHABLE = "unreachable"
+
+PHASE_DEAD_ZONE = "dead zone"  # the sensor is not read yet (still the initial section)
+PHASE_INITIAL = "initial"  # the tool heads for the point where the sensor started
+PHASE_TRACKING = "tracking"
+
+
+@dataclass(frozen=True)
+class SeamParams:
+    """Parameters of one seam-tracking run (units in the names)."""
+
+    speed_mm_s: float
+    yaw_gain: float = 0.15  # k_yaw (Experiment 1, §6.2.1)
+    pitch_gain: float = 0.25  # k_pitch
+    dead_zone_cycles: int = DEAD_ZONE_CYCLES
+    lost_cycles: int = LOST_CYCLES
+    length_mm: float = math.inf  # run length: tool travel after which the run ends (end of seam)
+    delay_cycles: int = 0  # transport delay N [cycles] (0 = none)
+    delay_at_mm: float = 150.0  # tool travel at which the delay is inserted [mm]
+    max_queue: int = MAX_QUEUE
+    cycle_hz: float = CYCLE_HZ
+
+    def __post_init__(self) -> None:
+        for name in ("speed_mm_s", "yaw_gain", "pitch_gain", "delay_at_mm", "cycle_hz"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v)):
+                raise ValueError(f"{name} must be a finite number, got {v!r}")
+        if self.speed_mm_s <= 0:
+            raise ValueError(f"speed must be > 0 mm/s, got {self.speed_mm_s!r}")
+        if self.cycle_hz <= 0:
+            raise ValueError("cycle rate must be > 0 Hz")
+        if not (self.length_mm > 0):
+            raise ValueError(f"run length must be > 0 mm, got {self.length_mm!r}")
+        if self.delay_at_mm < 0:
+            raise ValueError("the delay point must be >= 0 mm")
+        for name in ("dead_zone_cycles", "lost_cycles", "delay_cycles", "max_queue"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or v < 0:
+                raise ValueError(f"{name} must be an integer >= 0, got {v!r}")
+        if self.lost_cycles < 1 or self.max_queue < 2:
+            raise ValueError("lost_cycles must be >= 1 and max_queue >= 2")
+
+    @property
+    def step_mm(self) -> float:
+        """The listing's ``vel``: distance the tool target advances per cycle [mm]."""
+        return self.speed_mm_s / self.cycle_hz
+
+
+@dataclass(frozen=True)
+class Stop:
+    """Why a run ended, where (tool travel [mm]) and in which cycle."""
+
+    reason: str  # STOP_END, STOP_LOST, STOP_UNREACHABLE
+    detail: str
+    travel_mm: float
+    cycle: int
+
+    def __str__(self) -> str:
+        return f"{self.reason} at {self.travel_mm:.1f} mm ({self.detail})"
+
+
+@dataclass(frozen=True)
+class CycleOutput:
+    """What one seam-tracking cycle produced."""
+
+    cycle: int
+    reis_cmd: np.ndarray | None  # Reis WCP command, 4x4 global [mm]; None once stopped
+    gmf1_cmd: np.ndarray | None  # GMF1 WCP command, 4x4 global [mm]; None once stopped
+    stop: Stop | None
+    phase: str
+    travel_mm: float  # tool travel since the start, in the holder's wrist frame [mm]
+    yaw_rad: float  # the correction applied this cycle (gain included)
+    pitch_rad: float
+    reading: Reading  # the reading used (after the invalid rule and the delay buffer)
+    delay_state: str
+    tcp_idx: int
+    queue_len: int
+    q_reis_deg: np.ndarray | None = None  # the Reis pick for reis_cmd (None without a model)
+
+
+@dataclass
+class _State:
+    cycle: int = 0
+    dead_zone: int = DEAD_ZONE_CYCLES
+    first: bool = True
+    tcp_idx: int = 0
+    travel_mm: float = 0.0
+    last_tool: np.ndarray | None = None
+    invalid_run: int = 0
+    initial_done: bool = False
+    pushes: int = 0
+    q_prev: np.ndarray | None = None
+    hold_cmd: np.ndarray | None = None
+    stop: Stop | None = None
+    seam_pos: list = field(default_factory=list)  # positions (x, y, z) of the patch, index 0 newest
+    seam_front: np.ndarray | None = None  # the newest patch frame (4x4)
+
+
+class SeamTracker:
+    """The seamtrack core (see the module docstring).
+
+    ``T_wcp_tool``: ``(Reis)6 T tool`` (the listing's T67tool);
+    ``T_wcp_sensor``: ``(Reis)6 T sensor`` (Tcamera_6); ``reis_model``: the
+    Reis robot model *with its base* (commands are global), used to refuse an
+    unreachable command before it is sent (None: no check).
+    """
+
+    def __init__(self, params: SeamParams, T_wcp_tool, T_wcp_sensor, reis_model: RobotModel | None = None):
+        self.p = params
+        self.T67tool = np.asarray(T_wcp_tool, float)
+        self.Tcamera_6 = np.asarray(T_wcp_sensor, float)
+        self.T67tool_inv = inv_homo(self.T67tool)
+        self.camera_to_tcp_mm = float(np.linalg.norm(self.Tcamera_6[:3, 3] - self.T67tool[:3, 3]))
+        if not self.camera_to_tcp_mm > 0:
+            raise ValueError("the sensor's measuring point coincides with the tool point")
+        self.reis_model = reis_model
+        self.delay = TransportDelay(params.delay_cycles, params.delay_at_mm)
+        self.s = _State(dead_zone=params.dead_zone_cycles)
+        # the listing's globals
+        self.T06hold = np.eye(4)  # global T (GMF1)6
+        self.T6tool_hold = np.eye(4)  # (GMF1)6 T (Reis)6
+        self.Ttool7_hold = np.eye(4)  # (GMF1)6 T tool
+        self.Tmvs = np.eye(4)  # sensor T seam
+
+    # ------------------------------------------------------------ listing functions
+    def holder_robot_wcp(self, T_global_hold6) -> np.ndarray:
+        """The workpiece holder's wrist centre in the global frame, ``global T (GMF1)6`` (§5.5.2)."""
+        self.T06hold = np.asarray(T_global_hold6, float)
+        return self.T06hold
+
+    def tool_robot_wcp_wrt_holder(self, T_global_reis6) -> np.ndarray:
+        """Eq. 5.10: the Reis wrist centre w.r.t. the GMF1's, ``(GMF1)6 T (Reis)6``.
+
+        ``(global T (GMF1)0 (GMF1)0 T 6)^-1  global T (Reis)0 (Reis)0 T 6``; the
+        Status poses already include the bases (global frame, Table 3.1).
+        """
+        self.T6tool_hold = inv_homo(self.T06hold) @ np.asarray(T_global_reis6, float)
+        return self.T6tool_hold
+
+    def toolpt_wrt_holder(self) -> np.ndarray:
+        """Eq. 5.5: the tool point w.r.t. the GMF1's wrist centre, ``(GMF1)6 T (Reis)6 (Reis)6 T tool``."""
+        self.Ttool7_hold = self.T6tool_hold @ self.T67tool
+        return self.Ttool7_hold
+
+    def update_seam_wrt_holder(self, reading: Reading) -> tuple[float, float]:
+        """Eq. 5.1/5.3 + 5.6/5.7: push the newest seam frame onto the front of the patch.
+
+        ``(GMF1)6 T seam = (GMF1)6 T (Reis)6  (Reis)6 T sensor  sensor T seam  Tpitch  Tyaw``
+        with yaw = -(y / CAMERA_TO_TCP) k_yaw about x and pitch = (x /
+        CAMERA_TO_TCP) k_pitch about y.  The sensor is not read during the
+        dead zone (``Tmvs`` stays as it was: the identity).  Returns (yaw,
+        pitch) [rad].
+        """
+        s = self.s
+        if s.first:  # seed the patch with the tool point (the listing's Treis7_gmf1)
+            s.first = False
+            s.seam_pos = [tuple(self.Ttool7_hold[:3, 3])]
+            s.seam_front = self.Ttool7_hold.copy()
+        if s.dead_zone > 0:
+            s.dead_zone -= 1
+        else:
+            s.dead_zone = 0
+            self.Tmvs = _seam_transform(reading)
+        L = self.camera_to_tcp_mm
+        yaw = -(self.Tmvs[1, 3] / L) * self.p.yaw_gain
+        pitch = (self.Tmvs[0, 3] / L) * self.p.pitch_gain
+        frame = self.T6tool_hold @ self.Tcamera_6 @ self.Tmvs @ _roty(pitch) @ _rotx(yaw)
+        # rotating the seam queue: seam[i+1] = seam[i] for i = tcp_idx .. 0, seam[0] = newest
+        s.seam_pos.insert(0, (float(frame[0, 3]), float(frame[1, 3]), float(frame[2, 3])))
+        s.seam_front = frame
+        s.tcp_idx += 1
+        s.pushes += 1
+        del s.seam_pos[min(s.tcp_idx, self.p.max_queue + 1) + 1:]
+        return yaw, pitch
+
+    def interpolate(self, vel_mm: float) -> np.ndarray:
+        """§5.2/Figure 5.4: the target tool pose w.r.t. the GMF1 wrist, ``vel_mm`` further along the patch.
+
+        Walks the patch from ``tcp_idx`` toward the camera for the two frames
+        bounding the tool point (or the first one closer than ``vel``), then
+        steps ``vel`` from the tool point toward the newer one.  The
+        orientation is the patch's front (the newest seam frame).  The
+        listing, including its index clamps.
+        """
+        s = self.s
+        seam = s.seam_pos
+        tool = self.Ttool7_hold[:3, 3]
+        tx, ty, tz = float(tool[0]), float(tool[1]), float(tool[2])
+        mq = self.p.max_queue
+        idx = min(max(s.tcp_idx, 1), mq, len(seam) - 1)
+
+        def dists(i: int):
+            px, py, pz = seam[i]
+            nx, ny, nz = seam[i - 1]
+            nd = (nx - tx, ny - ty, nz - tz)
+            return (math.dist((px, py, pz), (tx, ty, tz)), nd, math.hypot(*nd),
+                    math.dist((nx, ny, nz), (px, py, pz)))
+
+        prev_dist, next_d, next_dist, btwn_dist = dists(idx)
+        found = False
+        while not found and idx > 1:
+            if prev_dist < btwn_dist and next_dist < btwn_dist:
+                found = True
+            elif next_dist < vel_mm:
+                found = True
+                idx -= 1
+            else:
+                idx -= 1
+            prev_dist, next_d, next_dist, btwn_dist = dists(idx)
+        s.tcp_idx = min(max(idx, 1), mq - 1) if idx > mq else max(idx, 1)
+        out = np.array(s.seam_front)
+        if next_dist > 1e-9:
+            k = vel_mm / next_dist
+            out[:3, 3] = (tx + k * next_d[0], ty + k * next_d[1], tz + k * next_d[2])
+        else:
+            out[:3, 3] = (tx, ty, tz)
+        if not s.initial_done and idx - 1 < s.pushes - 1:
+            s.initial_done = True  # the tool has passed the point where the sensor started
+        return out
+
+    def gen_tool_robot_wcp(self, Ttool7_hold_new) -> np.ndarray:
+        """Eq. 5.11: the Reis wrist-centre command, ``global T (GMF1)6 (GMF1)6 T tool ((Reis)6 T tool)^-1``."""
+        return self.T06hold @ np.asarray(Ttool7_hold_new, float) @ self.T67tool_inv
+
+    def gen_hold_robot_wcp(self) -> np.ndarray:
+        """The GMF1 wrist-centre command: hold the pose it had at the start of the run.
+
+        The thesis's gen_hold_robot_wcp() "determines the new position and pose
+        of the workpiece holder robot's WCP" but its code is not listed; in
+        every experiment the workpiece stays still on the GMF1's tool plate
+        (§6.1.1), so the holder is commanded to stay where it started.
+        """
+        if self.s.hold_cmd is None:
+            self.s.hold_cmd = self.T06hold.copy()
+        return self.s.hold_cmd
+
+    def write_robot_cmd(self, reis_cmd, gmf1_cmd, **fields) -> CycleOutput:
+        """Both robot commands of this cycle, as the shell writes them (cart commands, one cycle long)."""
+        return CycleOutput(reis_cmd=reis_cmd, gmf1_cmd=gmf1_cmd, **fields)
+
+    # ------------------------------------------------------------ one cycle
+    @property
+    def stopped(self) -> Stop | None:
+        return self.s.stop
+
+    def step(self, T_global_hold6, T_global_reis6, reading: Reading, q_reis_deg=None) -> CycleOutput:
+        """One 30 Hz cycle.
+
+        ``T_global_hold6``, ``T_global_reis6``: the GMF1 and Reis wrist-centre
+        poses (4x4, mm, global, from their Status records); ``reading``: the
+        lead sensor's reading (invalid -> zeros); ``q_reis_deg``: the Reis's
+        joint angles [deg] (the first cycle's IK hint; later the previous
+        pick is used, as the planner does).
+        """
+        s = self.s
+        cycle = s.cycle
+        s.cycle += 1
+        if s.stop is not None:
+            return self._stopped_output(cycle)
+        self.holder_robot_wcp(T_global_hold6)
+        self.tool_robot_wcp_wrt_holder(T_global_reis6)
+        self.toolpt_wrt_holder()
+        tool = self.Ttool7_hold[:3, 3].copy()
+        if s.last_tool is not None:
+            s.travel_mm += float(np.linalg.norm(tool - s.last_tool))
+        s.last_tool = tool
+        if s.q_prev is None and q_reis_deg is not None:
+            s.q_prev = np.asarray(q_reis_deg, float)
+        if s.travel_mm >= self.p.length_mm:
+            return self._stop(cycle, STOP_END, f"run length {self.p.length_mm:g} mm reached")
+
+        in_dead_zone = s.dead_zone > 0
+        if not reading.valid:
+            reading = INVALID_READING  # §6.2.5: invalid data -> x, y, roll = 0
+        used, delay_state = self.delay.filter(reading, s.travel_mm)
+        if not in_dead_zone:
+            s.invalid_run = 0 if used.valid else s.invalid_run + 1
+            if s.invalid_run > self.p.lost_cycles:
+                return self._stop(cycle, STOP_LOST, f"lead sensor invalid for {s.invalid_run} cycles")
+        yaw, pitch = self.update_seam_wrt_holder(used)
+        target = self.interpolate(self.p.step_mm)
+        reis_cmd = self.gen_tool_robot_wcp(target)
+        q = None
+        if self.reis_model is not None:
+            try:
+                q = self.reis_model.ik(reis_cmd, s.q_prev if s.q_prev is not None else np.zeros(6))
+            except (Unreachable, ValueError) as exc:
+                return self._stop(cycle, STOP_UNREACHABLE, str(exc))
+            s.q_prev = q
+        phase = PHASE_DEAD_ZONE if in_dead_zone else (PHASE_TRACKING if s.initial_done else PHASE_INITIAL)
+        return self.write_robot_cmd(
+            reis_cmd, self.gen_hold_robot_wcp(), cycle=cycle, stop=None, phase=phase,
+            travel_mm=s.travel_mm, yaw_rad=yaw, pitch_rad=pitch, reading=used, delay_state=delay_state,
+            tcp_idx=s.tcp_idx, queue_len=len(s.seam_pos), q_reis_deg=q)
+
+    def _stop(self, cycle: int, reason: str, detail: str) -> CycleOutput:
+        self.s.stop = Stop(reason, detail, self.s.travel_mm, cycle)
+        return self._stopped_output(cycle)
+
+    def _stopped_output(self, cycle: int) -> CycleOutput:
+        s = self.s
+        return CycleOutput(cycle=cycle, reis_cmd=None, gmf1_cmd=None, stop=s.stop, phase=PHASE_TRACKING,
+                           travel_mm=s.travel_mm, yaw_rad=0.0, pitch_rad=0.0, reading=INVALID_READING,
+                           delay_state=DELAY_OFF, tcp_idx=s.tcp_idx, queue_len=len(s.seam_pos))
+
+
+def _seam_transform(reading: Reading) -> np.ndarray:
+    """``sensor T seam`` of a reading: Trans(x, y, 0) Rz(roll) (identity when invalid, §6.2.5)."""
+    t = np.eye(4)
+    if not reading.valid:
+        return t
+    c, s = math.cos(reading.roll_rad), math.sin(reading.roll_rad)
+    t[0, 0], t[0, 1], t[1, 0], t[1, 1] = c, -s, s, c
+    t[0, 3], t[1, 3] = reading.x_mm, reading.y_mm
+    return t
+
+
+def _rotx(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[1.0, 0, 0, 0], [0, c, -s, 0], [0, s, c, 0], [0, 0, 0, 1.0]])
+
+
+def _roty(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, 0, s, 0], [0, 1.0, 0, 0], [-s, 0, c, 0], [0, 0, 0, 1.0]])
