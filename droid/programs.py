@@ -32,6 +32,7 @@ PROGRAMS: dict[str, str] = {
     "droid-move": "droid.tasks.move",
     "droid-home": "droid.tasks.home",
     "droid-jog": "droid.tasks.jog",
+    "droid-seamtrack": "droid.tasks.seamtrack",
     # the world
     "droid-sim": "droid.sim.world",
 }

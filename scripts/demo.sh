@@ -1,18 +1,23 @@
 #!/usr/bin/env bash
-# The main job on the built-in simulated cell: bring the cell up, home the Reis,
-# move it to the seam-tracking start position, show every subunit's status,
-# bring the cell down again.  Creates .venv on first use.
+# The main job on the built-in simulated cell: bring the cell up, home both arms,
+# run one dynamic seam-tracking trial end to end (thesis chapters 5-6), print its
+# summary and the path of its figure, bring the cell down again.
+# Creates .venv on first use.  Output: out/demo/ (CSV log and PNG figure).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/venv.sh
 export PATH="$PWD/.venv/bin:$PATH"
+out=out/demo
+mkdir -p "$out"
 droid-cell up
 trap 'droid-cell down' EXIT
 droid-cell status
-droid-home arm1
+droid-home arm1     # the Reis: its 500 Hz servo searches the limit switches (thesis §4.1.5.3)
 droid-home gmf1     # the Fanuc: its KAREL controller goes home, the encoder cards are zeroed
-droid-move arm1 joint 0 0 0 0 0 0 2
-droid-move arm1 cart 300 100 1340 0 180 0 3   # sensor over the seam (docs/mvs.md)
+# Start position (i) of the layout (cells/seamtrack_layout.toml): the Fanuc holds the
+# step-input workpiece, the Reis puts its lead sensor on the seam start; then track
+# 400 mm of the seam (over the 5 degree step at 100 mm) at 16 mm/s.
+droid-seamtrack 16 --start i --length 400 --log "$out/seamtrack.csv" --figure "$out/seamtrack.png"
 for sub in arm1 gmf1 mvs tool; do
     droid-snoop "$sub" --count 1
 done

@@ -60,3 +60,34 @@ def stationary_reis(text: str, wcp=(300.0, 100.0, 1340.0, 0.0, 180.0, 0.0)) -> s
              '"droid-planner"]')
     assert text.count(progs) == 1
     return text.replace(progs, 'programs = ["droid-reis-agent"]')
+
+
+#: How far a fixed holder moves the workpiece back along the seam from start position (i)
+#: [mm]: the lead sensor's laser line then lies at s = 95 mm (before the 5 degree turn of
+#: step_input at 100 mm), the tool point 100 mm behind it at s = -5 mm (on the lead-in).
+SEAM_BACK_MM = 95.0
+
+
+def fixed_seam_cell(text: str, lateral_mm: float = 0.0, deeper_mm: float = 0.0) -> str:
+    """A cell file text with both arms fixed: the Reis at start position (i) of the
+    seam-tracking layout, the workpiece on a fixed ``holder`` moved so that the lead
+    sensor sees the step_input seam ``lateral_mm`` to its left (+y) and ``deeper_mm``
+    deeper (+x), at s = 95 mm (SEAM_BACK_MM); the tool sensor sees the same offsets."""
+    import numpy as np
+
+    from droid.kinematics.transforms import T_to_pose
+    from droid.tasks.seam.layout import load_layout
+
+    lay = load_layout()
+    T_reis, T_hold = lay.start_poses("i")
+    S = T_reis @ lay.wrist("standard").T_wcp_sensor  # sensor frame: x depth, y lateral, z travel
+    T_hold = T_hold.copy()
+    T_hold[:3, 3] += -SEAM_BACK_MM * S[:3, 2] + lateral_mm * S[:3, 1] + deeper_mm * S[:3, 0]
+    text = stationary_reis(text, wcp=[float(v) for v in T_to_pose(T_reis)])
+    holder = 'holder_robot = "gmf1_karel"'
+    assert text.count(holder) == 2  # the camera and the tool sensor
+    text = text.replace(holder, 'holder_robot = "holder"')
+    hold = ", ".join(repr(float(v)) for v in T_to_pose(T_hold))
+    camera = "[world.devices.mvs_camera]"
+    assert text.count(camera) == 1  # devices are declared before the sensors that see them
+    return text.replace(camera, f'[world.devices.holder]\ntype = "fixed_arm"\nwcp = [{hold}]\n\n{camera}')

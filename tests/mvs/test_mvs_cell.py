@@ -1,8 +1,8 @@
 """Integration: the MVS sensor and the tool-tip sensor in the running real-time cell.
 
-The arms are fixed_arm twins holding the sensor over the step_input seam; the
-holder is moved 3 mm to the left of the default layout, so both sensors see
-the seam 3 mm to the left (+y).  droid-sim renders the camera and paces the
+The arms are fixed_arm twins: the Reis holds the sensor at start position (i)
+of the seam-tracking layout; the holder is moved so that both sensors see the
+step_input seam 3 mm to the left (+y).  droid-sim renders the camera and paces the
 serial lines, droid-mvs extracts the feature, droid-remote mvs/tool read the
 lines into the Brain's Status records, droid-snoop shows them.
 """
@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from droid.brain.shmdb import cell_objects
-from tests.brain.cellutil import ROOT, cell_status, droid, make_cell_file, stationary_reis, wait_for
+from tests.brain.cellutil import ROOT, cell_status, droid, fixed_seam_cell, make_cell_file, wait_for
 
 pytestmark = pytest.mark.integration
 CELL = "droid.brain.launcher"
@@ -34,11 +34,7 @@ MEDIAN_TOL_MM = 0.25
 @pytest.fixture
 def cell(tmp_path, cell_name):
     path = make_cell_file(tmp_path, cell_name)
-    text = path.read_text()
-    text = stationary_reis(text)
-    holder = "wcp = [800.0, 0.0, 1000.0, 0.0, 0.0, 0.0]"
-    assert text.count(holder) == 1
-    path.write_text(text.replace(holder, f"wcp = [800.0, {LATERAL_MM}, 1000.0, 0.0, 0.0, 0.0]"))
+    path.write_text(fixed_seam_cell(path.read_text(), lateral_mm=LATERAL_MM))
     yield path
     out = droid(CELL, "down", "--cell", str(path))
     assert out.returncode == 0, out.stderr

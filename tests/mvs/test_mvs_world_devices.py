@@ -21,7 +21,7 @@ from droid.sim.world import build_world
 from droid.subunits.mvs.calibration import MvsCalibration
 from droid.subunits.mvs.dsp import open_dsp
 from droid.subunits.mvs.sensor import SensorCore
-from tests.brain.cellutil import make_cell_file, stationary_reis
+from tests.brain.cellutil import fixed_seam_cell, make_cell_file
 
 STEP = load_workpiece("step_input")
 # The default cell layout (docs/mvs.md): sensor at s = 70 mm, tool tip at s = 20 mm.
@@ -70,12 +70,9 @@ def test_frame_clock_fires_at_its_rate_from_world_steps():
 
 @pytest.fixture
 def world_cell(tmp_path, cell_name):
-    """The default cell (renamed, run dir in tmp) with the holder moved by (3 mm left, 1 mm deeper)."""
+    """The default cell (renamed, run dir in tmp), both arms fixed, the seam 3 mm left and 1 mm deeper."""
     path = make_cell_file(tmp_path, cell_name)
-    text = stationary_reis(path.read_text())
-    old = "wcp = [800.0, 0.0, 1000.0, 0.0, 0.0, 0.0]"
-    assert old in text
-    path.write_text(text.replace(old, "wcp = [800.0, 3.0, 999.0, 0.0, 0.0, 0.0]"))
+    path.write_text(fixed_seam_cell(path.read_text(), lateral_mm=3.0, deeper_mm=1.0))
     return load_cell(path)
 
 
@@ -128,7 +125,7 @@ def test_tool_sensor_device_writes_height_lateral_roll_lines(world_cell):
         assert (newest.x_mm, newest.y_mm, newest.roll_rad) == pytest.approx((1.0, 3.0, 0.0), abs=1e-3)
         tool = world.devices["tool_sensor"]
         assert tool.output.dropped_writes == 0 and tool.output.lost_bytes == 0
-        assert tool.core.last.s_mm == pytest.approx(20.0, abs=1e-6)
+        assert tool.core.last.s_mm == pytest.approx(-5.0, abs=1e-6)  # 100 mm behind the sensor's 95 mm
     finally:
         if port is not None:
             port.close()

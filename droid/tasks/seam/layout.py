@@ -37,10 +37,13 @@ from pathlib import Path
 import numpy as np
 
 from droid.cli import BadInput
-from droid.kinematics.transforms import pose_to_T, roty, rotx, rotz, trans
+from droid.kinematics.transforms import inv_homo, pose_to_T, roty, rotx, rotz, trans
 
 BUNDLED_LAYOUT = Path(__file__).resolve().parents[2] / "cells" / "seamtrack_layout.toml"
 POSITION_IDS = ("i", "ii", "iii", "iv", "v", "vi", "vii")
+#: ``W T seam`` at the seam start: the tool/sensor frame convention (x = -z_W into the
+#: surface, y = +y_W lateral left, z = +x_W the travel direction; docs/mvs.md).
+T_W_SEAM = np.array([[0.0, 0.0, 1.0, 0.0], [0.0, 1.0, 0.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
 
 
 @dataclass(frozen=True)
@@ -129,6 +132,24 @@ class Layout:
 
     def base(self, robot: str) -> np.ndarray:
         return self.bases[robot]
+
+    def start_poses(self, position: str, wrist: str = "standard") -> tuple[np.ndarray, np.ndarray]:
+        """The two wrist-centre poses (4x4, mm, global) at the start of a run at ``position``.
+
+        Returns ``(global T (Reis)6, global T (GMF1)6)``: the Reis with its
+        tool frame on the seam's straight extension CAMERA_TO_TCP before the
+        seam start (tool axis along the surface normal, travel along the seam,
+        so the lead sensor's laser line lies on the seam start, §6.1.1), and
+        the GMF1 holding the position's workpiece so that W lies where the
+        position puts it (``global T W  ((GMF1)6 T W)^-1``, §5.1).  The seam
+        starts at W's origin heading +x_W (the bundled workpieces do).
+        """
+        pos = self.position(position)
+        wr = self.wrist(wrist)
+        L = wr.camera_to_tcp_mm
+        T_gW = pos.T_global_W(L)
+        T_tool = T_gW @ trans(-L, 0.0, 0.0) @ T_W_SEAM
+        return T_tool @ inv_homo(wr.T_wcp_tool), T_gW @ inv_homo(self.mount(pos.workpiece))
 
 
 # ---------------------------------------------------------------- parsing

@@ -1,0 +1,345 @@
+"""droid-seamtrack SPEED: dynamic seam tracking on the running cell (thesis §5.1-5.5, §6.1-6.2).
+
+The shell of the seam-tracking task program (thesis §5.5, Figure 5.9).  The
+core is :class:`droid.tasks.seam.core.SeamTracker` (the listing's functions,
+eq. 5.1-5.11); this program does what the listing's ``main()`` loop does
+around it, on the Brain's databases only (a task never touches a device, §3.4):
+
+1. attach to the Status/Command records of the tool robot (the Reis, arm1),
+   the workpiece holder (the GMF1) and the lead sensor (mvs), and -- for data
+   collection, §6.1 -- the tool-tip sensor (tool);
+2. with ``--start POSITION``: move the holder and then the tool robot to the
+   start poses of that layout position (§6.1.2; droid/cells/seamtrack_layout.toml);
+3. every second heartbeat tick (30 Hz): read the two wrist-centre poses and
+   the lead sensor's reading, step the core, write the Reis cartesian command
+   for the next cycle (``cart_time_count`` = 2 ticks) -- the GMF1 is told once
+   to hold its pose (gen_hold_robot_wcp);
+4. every sixth tick (10 Hz, §6.1) append a CSV row (``--log FILE``);
+5. stop cleanly -- no new command is written, so the Reis completes its last
+   one-cycle step and stands -- at the end of the seam (``--length`` of tool
+   travel reached), when the seam is lost, on an unreachable command, on a
+   stale subunit, or on SIGINT/SIGTERM; then print which, and a summary line.
+
+Exit codes: 0 end of seam; 130 interrupted (SIGINT/SIGTERM); 1 seam lost,
+unreachable command, stale subunit, cell not up, heartbeat lost; 2 bad
+arguments or layout (nothing moves).
+"""
+from __future__ import annotations
+
+import math
+import signal
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import zmq
+
+from droid.brain.databases import open_brain
+from droid.brain.heartbeat import TickSubscriber
+from droid.brain.program import open_cell, parser
+from droid.cli import (EXIT_INTERRUPTED, EXIT_OK, EXIT_RUNTIME, BadInput, RuntimeFailure, finite_float,
+                       positive_float, run)
+from droid.tasks.arm import BrainArm
+from droid.tasks.seam import report
+from droid.tasks.seam.core import (DEAD_ZONE_CYCLES, LOST_CYCLES, STOP_END, SeamParams, SeamTracker)
+from droid.tasks.seam.delay import INVALID_READING, Reading
+from droid.tasks.seam.layout import POSITION_IDS, load_layout
+
+PROG = "droid-seamtrack"
+CYCLE_TICKS = 2  # one 30 Hz cycle = 2 heartbeat ticks
+LOG_TICKS = 6  # 10 Hz log (thesis §6.1)
+HEARTBEAT_LOST_S = 1.0  # no tick for this long: the Brain's heartbeat is gone
+START_MOVE_MIN_S = 3.0  # the shortest move to a start pose [s]
+START_MOVE_MARGIN = 1.5  # move time = margin x the slowest joint at its speed limit
+BASE_TOL_MM = 1e-3
+
+
+def nonneg_int(text: str) -> int:
+    try:
+        v = int(text, 10)
+    except ValueError:
+        import argparse
+
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if v < 0:
+        import argparse
+
+        raise argparse.ArgumentTypeError(f"must be >= 0: {text!r}")
+    return v
+
+
+def build_parser():
+    ap = parser(PROG, "Track a seam with the tool robot, steered by the lead sensor, at SPEED mm/s "
+                      "(thesis §5.5); stops at the end of the seam, on seam loss or on Ctrl-C.")
+    ap.add_argument("speed", type=positive_float, metavar="SPEED", help="travel speed along the seam [mm/s]")
+    ap.add_argument("--yaw-gain", type=finite_float, default=0.15, metavar="K",
+                    help="yaw angle gain k_yaw (eq. 5.6; default 0.15, §6.2.1)")
+    ap.add_argument("--pitch-gain", type=finite_float, default=0.25, metavar="K",
+                    help="pitch angle gain k_pitch (eq. 5.7; default 0.25)")
+    ap.add_argument("--delay", type=nonneg_int, default=0, metavar="CYCLES",
+                    help="transport delay [30 Hz cycles] inserted once (§6.2.5; default 0 = none)")
+    ap.add_argument("--delay-at", type=finite_float, default=150.0, metavar="MM",
+                    help="tool travel at which the transport delay starts [mm] (default 150)")
+    ap.add_argument("--dead-zone", type=nonneg_int, default=DEAD_ZONE_CYCLES, metavar="CYCLES",
+                    help=f"cycles at the start before the sensor is read (default {DEAD_ZONE_CYCLES})")
+    ap.add_argument("--lost-cycles", type=nonneg_int, default=LOST_CYCLES, metavar="CYCLES",
+                    help=f"consecutive invalid readings that count as seam lost (default {LOST_CYCLES})")
+    ap.add_argument("--length", type=positive_float, default=None, metavar="MM",
+                    help="run length: tool travel [mm] at which the seam ends (default: track until "
+                         "the lead sensor loses the seam)")
+    ap.add_argument("--start", choices=POSITION_IDS, default=None, metavar="POSITION",
+                    help="first move both robots to this layout start position (i..vii, §6.1.2)")
+    ap.add_argument("--layout", metavar="FILE", default=None,
+                    help="seam-tracking layout (default: the bundled cells/seamtrack_layout.toml)")
+    ap.add_argument("--wrist", default="standard", metavar="NAME",
+                    help="wrist set-up of the layout (default standard; extension30: experiment 5)")
+    ap.add_argument("--tool-sensor", default="tool", metavar="SUBUNIT",
+                    help="tool-tip measuring sensor logged with the lead sensor ('none': no tool "
+                         "columns; default tool)")
+    ap.add_argument("--log", metavar="FILE", default=None, help="write the 10 Hz CSV log here")
+    ap.add_argument("--figure", metavar="FILE", default=None,
+                    help="draw the run's figure (PNG, thesis Figs 6.5-6.35) here at the end")
+    ap.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    return ap
+
+
+class _Interrupted:
+    """SIGINT/SIGTERM during tracking: finish the cycle, then stop (no traceback, no half-written command)."""
+
+    def __init__(self) -> None:
+        self.signum = 0
+
+    def install(self) -> None:
+        def handler(signum, frame):
+            self.signum = signum
+
+        signal.signal(signal.SIGINT, handler)
+        signal.signal(signal.SIGTERM, handler)
+
+
+def reading_of(rec) -> Reading:
+    """A lead-sensor Status record (Table 3.3) as a reading: x depth, y lateral [mm], roll from R."""
+    if int(rec["stale"]) or int(rec["homed"]):  # homed = 1: the reading is invalid (Table 3.3)
+        return INVALID_READING
+    R = rec["R"]
+    return Reading(float(rec["x"]), float(rec["y"]), math.atan2(float(R[1][0]), float(R[0][0])), True)
+
+
+def pose_of(rec) -> np.ndarray:
+    """A Status record's wrist-centre pose as a 4x4 [mm] (global frame, Table 3.1)."""
+    T = np.eye(4)
+    T[:3, :3] = rec["R"]
+    T[:3, 3] = (float(rec["x"]), float(rec["y"]), float(rec["z"]))
+    return T
+
+
+def _check_bases(layout, cell) -> None:
+    """The layout's robot bases must be the cell's, or every command would land elsewhere."""
+    from droid.kinematics.transforms import pose_to_T
+
+    for name in (layout.tool_robot, layout.holder_robot):
+        sub = cell.subunit(name)
+        if not sub.is_arm:
+            raise BadInput(f"layout {layout.source}: {name} is a {sub.cls} subunit of the cell, not an arm")
+        if not np.allclose(pose_to_T(*sub.base), layout.base(name), atol=BASE_TOL_MM):
+            raise BadInput(f"layout {layout.source}: the base of {name} differs from the cell's "
+                           f"[subunits.{name}] base")
+
+
+def move_to_start(arm: BrainArm, T: np.ndarray, what: str, quiet: bool) -> None:
+    """Move ``arm`` to the wrist-centre pose ``T`` (global, mm) as droid-move would, and wait."""
+    rec = arm.read()
+    arm.check_fresh(rec)
+    if not int(rec["homed"]):
+        raise RuntimeFailure(f"{arm.sub.name} is not homed: run 'droid-home {arm.sub.name}' first")
+    q_now = arm.joints_deg(rec)
+    from droid.kinematics.transforms import T_to_pose
+
+    _, q = arm.check_cart_target(T_to_pose(T), 1e9, q_now)
+    seconds = max(START_MOVE_MIN_S, START_MOVE_MARGIN * float(np.max(np.abs(q - q_now) / arm.model.vmax_deg_s)))
+    if not quiet:
+        print(f"{PROG}: moving {arm.sub.name} to the {what} ({seconds:.1f} s)", file=sys.stderr)
+    rec = arm.wait_idle(seconds + 30.0)
+    cmd_id = arm.command_cart(T, arm.ticks_for(seconds))
+    arm.wait_delivered(cmd_id, 10.0)
+    arm.wait_done(cmd_id, 3 * seconds + 30.0)
+
+
+class Tracker:
+    """The loop of the seamtrack program around the core (see the module docstring)."""
+
+    def __init__(self, args, cell, layout) -> None:
+        self.args = args
+        self.cell = cell
+        self.layout = layout
+        try:
+            self.params = SeamParams(
+                speed_mm_s=args.speed, yaw_gain=args.yaw_gain, pitch_gain=args.pitch_gain,
+                dead_zone_cycles=args.dead_zone, lost_cycles=max(1, args.lost_cycles),
+                length_mm=args.length if args.length is not None else math.inf,
+                delay_cycles=args.delay, delay_at_mm=args.delay_at)
+        except ValueError as exc:
+            raise BadInput(str(exc)) from None
+        self.wrist = layout.wrist(args.wrist)
+        _check_bases(layout, cell)
+        sensor = cell.subunit(layout.sensor)
+        if sensor.is_arm:
+            raise BadInput(f"layout sensor {sensor.name} is an arm, not a sensor")
+        self.tool_sub = None
+        if args.tool_sensor != "none":
+            if args.tool_sensor in cell.subunits:
+                self.tool_sub = cell.subunit(args.tool_sensor)
+            elif args.tool_sensor != "tool":  # named explicitly: it must exist
+                cell.subunit(args.tool_sensor)
+        self.reis = BrainArm(cell, layout.tool_robot)
+        self.hold = BrainArm(cell, layout.holder_robot)
+        self.sensor_sub = sensor
+        self.core = SeamTracker(self.params, self.wrist.T_wcp_tool, self.wrist.T_wcp_sensor, self.reis.model)
+        self.rows: list[tuple] = []
+        self.lead = INVALID_READING
+        self.out = None
+        self.t0 = None
+        self.dbs = []
+
+    # -- set-up ------------------------------------------------------------
+    def connect(self) -> None:
+        self.reis.connect()
+        self.hold.connect()
+        self.lead_db = open_brain(self.cell, self.sensor_sub, "status")
+        self.dbs.append(self.lead_db)
+        self.tool_db = None
+        if self.tool_sub is not None:
+            self.tool_db = open_brain(self.cell, self.tool_sub, "status")
+            self.dbs.append(self.tool_db)
+
+    def close(self) -> None:
+        self.reis.close()
+        self.hold.close()
+        for db in self.dbs:
+            db.close()
+
+    def check_ready(self) -> None:
+        for arm in (self.reis, self.hold):
+            rec = arm.read()
+            arm.check_fresh(rec)
+            if not int(rec["homed"]):
+                raise RuntimeFailure(f"{arm.sub.name} is not homed: run 'droid-home {arm.sub.name}' first")
+        if int(self.lead_db.read()["stale"]):
+            raise RuntimeFailure(f"lead sensor {self.sensor_sub.name} is stale (no readings)")
+
+    def go_to_start(self, position: str) -> None:
+        T_reis, T_hold = self.layout.start_poses(position, self.args.wrist)
+        move_to_start(self.hold, T_hold, f"holding pose of position ({position})", self.args.quiet)
+        move_to_start(self.reis, T_reis, f"start of position ({position})", self.args.quiet)
+
+    # -- one cycle ----------------------------------------------------------
+    def cycle(self) -> str | None:
+        """Read, step the core, write the command; returns a stop reason or None."""
+        reis_rec = self.reis.read()
+        hold_rec = self.hold.read()
+        for arm, rec in ((self.reis, reis_rec), (self.hold, hold_rec)):
+            if int(rec["stale"]):
+                return f"{arm.sub.name} went stale"
+        self.lead = reading_of(self.lead_db.read())
+        out = self.core.step(pose_of(hold_rec), pose_of(reis_rec), self.lead, self.reis.joints_deg(reis_rec))
+        self.out = out
+        if out.stop is not None:
+            return str(out.stop)
+        self.reis.command_cart(out.reis_cmd, CYCLE_TICKS)
+        if out.cycle == 0:  # gen_hold_robot_wcp: the holder keeps the pose it has
+            self.hold.command_cart(out.gmf1_cmd, CYCLE_TICKS)
+        return None
+
+    def log(self, t_s: float) -> None:
+        tool = None
+        if self.tool_db is not None:
+            rec = self.tool_db.read()
+            tool = None if (int(rec["stale"]) or int(rec["homed"])) else reading_of(rec)
+        out = self.out
+        travel = out.travel_mm if out is not None else 0.0
+        self.rows.append(report.log_row(
+            s_mm=travel, t_s=t_s, lead=self.lead,
+            tool=None if tool is None else (tool.y_mm, tool.x_mm, tool.roll_rad),
+            out=out, camera_to_tcp_mm=self.wrist.camera_to_tcp_mm))
+
+    # -- the run -------------------------------------------------------------
+    def run(self, stop_flag: _Interrupted) -> tuple[int, str]:
+        ctx = zmq.Context.instance()
+        ticks = TickSubscriber(ctx, self.cell.heartbeat)
+        try:
+            return self._loop(ticks, stop_flag)
+        finally:
+            ticks.close()
+
+    def _loop(self, ticks: TickSubscriber, stop_flag: _Interrupted) -> tuple[int, str]:
+        k = 0  # ticks since the start of tracking
+        last_tick_wall = time.monotonic()
+        last_progress = 0.0
+        while True:
+            if stop_flag.signum:
+                return EXIT_INTERRUPTED, f"interrupted ({signal.Signals(stop_flag.signum).name})"
+            t = ticks.wait(0.1)
+            now = time.monotonic()
+            if t is None:
+                if now - last_tick_wall > HEARTBEAT_LOST_S:
+                    return EXIT_RUNTIME, "heartbeat lost"
+                continue
+            last_tick_wall = now
+            if self.t0 is None:
+                self.t0 = t.t_ns
+            if k % CYCLE_TICKS == 0:
+                why = self.cycle()
+                if why is not None:
+                    stop = self.core.stopped
+                    if stop is not None and stop.reason == STOP_END:
+                        return EXIT_OK, why
+                    return EXIT_RUNTIME, why
+            if k % LOG_TICKS == LOG_TICKS - 1:
+                self.log((t.t_ns - self.t0) / 1e9)
+            if not self.args.quiet and now - last_progress >= 1.0 and self.out is not None:
+                last_progress = now
+                o = self.out
+                print(f"{PROG}: {o.travel_mm:7.1f} mm  {o.phase:<9} lead y {self.lead.y_mm:+6.2f} "
+                      f"x {self.lead.x_mm:+6.2f} mm{'' if self.lead.valid else ' (invalid)'}", file=sys.stderr)
+            k += 1
+
+
+@run
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    cell = open_cell(args)
+    layout = load_layout(args.layout)
+    tr = Tracker(args, cell, layout)
+    for p in (args.log, args.figure):
+        if p is not None and Path(p).parent and not Path(p).parent.exists():
+            raise BadInput(f"directory of {p} does not exist")
+    stop_flag = _Interrupted()
+    tr.connect()
+    try:
+        tr.check_ready()
+        stop_flag.install()
+        if args.start:
+            tr.go_to_start(args.start)
+        if stop_flag.signum:
+            code, why = EXIT_INTERRUPTED, "interrupted before tracking"
+        else:
+            code, why = tr.run(stop_flag)
+    finally:
+        tr.close()
+    summary = report.summarize(tr.rows, tr.wrist.camera_to_tcp_mm, stop_reason=why)
+    if args.log:
+        report.write_csv(args.log, tr.rows)
+    if args.figure:
+        title = f"droid-seamtrack {args.speed:g} mm/s" + (f", position ({args.start})" if args.start else "")
+        report.figure(args.figure, tr.rows, title, panels="errors")
+    print(f"{PROG}: stopped: {why}", file=sys.stderr)
+    print(report.summary_line(summary))
+    for label, p in (("log", args.log), ("figure", args.figure)):
+        if p:
+            print(f"{label}: {p}")
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,188 @@
+"""droid-seamtrack on the real-time process cell (issue 7; thesis §5.5, §6.1).
+
+Each test brings its own simulated cell up and down (the leak fixture proves
+nothing stays).  No timing decides a verdict: waits are generous polls, and the
+tracking tolerances are stated below.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import select
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from droid.kinematics.transforms import T_to_pose
+from droid.tasks.seam.layout import load_layout
+from droid.tasks.seam.report import COLUMNS
+from tests.brain.cellutil import ROOT, droid
+
+pytestmark = pytest.mark.integration
+SEAMTRACK = "droid.tasks.seamtrack"
+SNOOP = "droid.tasks.snoop"
+#: Stated tolerance of a 16 mm/s run over the step-input seam from position (i):
+#: RMS tool error after settling (s > 150 mm) [mm].
+RT_RMS_LATERAL_MM = 4.0
+RT_RMS_DEPTH_MM = 2.0
+#: Real time vs lockstep: mean |difference| of the tool's lateral and depth error at
+#: the same tool travel, after settling [mm].
+AGREE_MEAN_MM = 1.5
+
+
+def run(*args, cell, timeout=120):
+    return droid(SEAMTRACK, *args, "--cell", str(cell), timeout=timeout)
+
+
+def snoop(cell, sub):
+    out = droid(SNOOP, sub, "--json", "--count", "1", "--rate", "50", "--cell", str(cell))
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout)
+
+
+def home_both(cell):
+    for arm in ("arm1", "gmf1"):
+        out = droid("droid.tasks.home", arm, "--cell", str(cell), timeout=120)
+        assert out.returncode == 0, out.stderr
+
+
+def read_log(path):
+    with open(path, newline="") as f:
+        rows = list(csv.reader(f))
+    assert tuple(rows[0]) == COLUMNS
+    return {name: np.array([float(r[i]) if r[i] not in ("",) and name not in ("phase", "delay_state")
+                            else math.nan for r in rows[1:]]) for i, name in enumerate(COLUMNS)}
+
+
+def assert_standing(cell, arm="arm1"):
+    """No command is in progress and the servo's command does not change any more."""
+    a = snoop(cell, arm)
+    time.sleep(0.3)
+    b = snoop(cell, arm)
+    assert a["busy"] == 0 and b["busy"] == 0
+    assert a["encoder_cmd"] == b["encoder_cmd"], (a, b)
+    assert not set(b["fault"]) & {"servo", "watchdog", "following"}, b
+
+
+def test_track_the_step_seam_end_to_end_and_agree_with_lockstep(sim_cell, tmp_path):
+    home_both(sim_cell)
+    log, fig = tmp_path / "run.csv", tmp_path / "run.png"
+    out = run("16", "--start", "i", "--length", "250", "--log", str(log), "--figure", str(fig), cell=sim_cell)
+    assert out.returncode == 0, out.stderr
+    assert "stopped: end of seam" in out.stderr
+    line = out.stdout.splitlines()[0]
+    assert line.startswith("tool error after settling: lateral RMS") and "seam not lost" in line
+    assert fig.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    d = read_log(log)
+    travel = d["travel_mm"]
+    assert 240 <= travel[-1] <= 262 and np.all(np.diff(travel) >= 0)
+    assert np.mean(np.isfinite(d["lead_lateral_mm"])) >= 0.95  # the lead sensor saw the seam throughout
+    settled = travel > 150
+    assert settled.sum() >= 50
+    lat, dep = d["tool_lateral_mm"][settled], d["tool_depth_mm"][settled]
+    assert np.mean(np.isfinite(lat)) >= 0.95 and np.mean(np.isfinite(dep)) >= 0.95
+    assert math.sqrt(np.nanmean(lat ** 2)) <= RT_RMS_LATERAL_MM
+    assert math.sqrt(np.nanmean(dep ** 2)) <= RT_RMS_DEPTH_MM
+    assert_standing(sim_cell)
+    # the holder was held where the layout puts it
+    g = snoop(sim_cell, "gmf1")
+    _, T_hold = load_layout().start_poses("i")
+    assert np.allclose([g["x"], g["y"], g["z"]], T_hold[:3, 3], atol=0.5)
+
+    # the same trial in lockstep (fast arm model, camera sensor) agrees
+    from droid.sim.experiment.trial import COLUMNS as LS_COLUMNS, TrialConfig, run_trial
+
+    ls = run_trial(TrialConfig("agree", "i", 16.0, length_mm=250.0, seed=1))
+    ls_travel = ls.column("travel_mm")
+    for name in ("tool_lateral_mm", "tool_depth_mm"):
+        assert name in LS_COLUMNS
+        ref = np.interp(travel[settled], ls_travel, ls.column(name))
+        diff = np.abs(d[name][settled] - ref)
+        assert float(np.nanmean(diff)) <= AGREE_MEAN_MM, (name, float(np.nanmean(diff)))
+
+
+def test_sigint_stops_the_run_cleanly_and_says_so(sim_cell, tmp_path):
+    home_both(sim_cell)
+    log = tmp_path / "int.csv"
+    proc = subprocess.Popen([sys.executable, "-m", SEAMTRACK, "16", "--start", "i", "--log", str(log),
+                             "--cell", str(sim_cell)], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        seen = ""
+        deadline = time.monotonic() + 90
+        while "tracking" not in seen and time.monotonic() < deadline and proc.poll() is None:
+            if select.select([proc.stderr], [], [], 0.5)[0]:
+                seen += proc.stderr.readline()
+        assert "tracking" in seen, seen
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130, err
+    assert "stopped: interrupted (SIGINT)" in err
+    assert "stop: interrupted" in out
+    d = read_log(log)
+    assert len(d["s_mm"]) >= 5  # the rows up to the interrupt are kept
+    assert_standing(sim_cell)
+
+
+def test_seam_lost_when_the_sensor_sees_no_seam(sim_cell, tmp_path):
+    """The holder stays at home, so the workpiece is nowhere near the sensor: after the
+    dead zone the lead sensor is invalid, and the run stops as 'seam lost' (exit 1)."""
+    home_both(sim_cell)
+    T_reis, _ = load_layout().start_poses("i")
+    out = droid("droid.tasks.move", "--cell", str(sim_cell), "arm1", "cart", "--",
+                *[f"{v:.6f}" for v in T_to_pose(T_reis)], "3", timeout=60)
+    assert out.returncode == 0, out.stderr
+    before = snoop(sim_cell, "arm1")
+    out = run("8", "--dead-zone", "5", "--lost-cycles", "10", "--log", str(tmp_path / "lost.csv"), cell=sim_cell)
+    assert out.returncode == 1, out.stderr
+    assert "stopped: seam lost" in out.stderr
+    assert "seam lost at s" in out.stdout
+    d = read_log(tmp_path / "lost.csv")
+    assert np.all(np.isnan(d["lead_lateral_mm"]))
+    # straight on for the dead zone and the lost cycles (5 + 11 cycles of 8/30 mm), then stop
+    after = snoop(sim_cell, "arm1")
+    moved = math.dist([before["x"], before["y"], before["z"]], [after["x"], after["y"], after["z"]])
+    assert moved <= 16 * 8 / 30 + 1.0
+    assert_standing(sim_cell)
+
+
+@pytest.mark.parametrize("args, message", [
+    (["-4"], "must be > 0"),
+    (["nan"], "not a finite number"),
+    (["16", "--yaw-gain", "inf"], "not a finite number"),
+    (["16", "--delay", "-1"], "must be >= 0"),
+    (["16", "--start", "viii"], "invalid choice"),
+    (["16", "--wrist", "nosuch"], "unknown wrist"),
+    (["16", "--layout", "/nonexistent.toml"], "not found"),
+    (["16", "--tool-sensor", "nosuch"], "unknown subunit"),
+    (["16", "--log", "/nonexistent/dir/x.csv"], "does not exist"),
+    ([], "required"),
+])
+def test_bad_arguments_exit_2_with_one_line(args, message, tmp_path, cell_name):
+    from tests.brain.cellutil import make_cell_file
+
+    cell = make_cell_file(tmp_path, cell_name)
+    out = run(*args, cell=cell)
+    assert out.returncode == 2, out.stderr
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and message in lines[0], out.stderr
+    assert "Traceback" not in out.stderr
+
+
+def test_cell_not_up_exits_1(tmp_path, cell_name):
+    from tests.brain.cellutil import make_cell_file
+
+    cell = make_cell_file(tmp_path, cell_name)
+    out = run("16", cell=cell)
+    assert out.returncode == 1, out.stderr
+    assert len(out.stderr.strip().splitlines()) == 1 and "Traceback" not in out.stderr
