@@ -1,0 +1,150 @@
+"""The seam-tracking core (thesis §5.1-5.5, §6.2.5) without processes or a simulated world.
+
+A "perfect arm" follows every Reis command exactly and a geometric lead sensor
+reads a straight seam, so the core's own behaviour is what is tested: the
+invalid-data rule, the transport-delay buffer, the stop reasons, convergence.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from droid.kinematics import load_robot
+from droid.kinematics.transforms import trans
+from droid.tasks.seam.core import (PHASE_DEAD_ZONE, STOP_END, STOP_LOST, STOP_UNREACHABLE, SeamParams,
+                                   SeamTracker)
+from droid.tasks.seam.delay import (DELAY_DELAYED, DELAY_OFF, DELAY_ZEROED, INVALID_READING, ZERO_READING,
+                                    Reading, TransportDelay)
+from droid.tasks.seam.layout import load_layout
+
+LAYOUT = load_layout()
+WRIST = LAYOUT.wrist("standard")
+T_HOLD = LAYOUT.start_poses("i")[1]
+
+
+def straight_seam_reading(T_global_S, offset_mm=0.0, depth_mm=0.0) -> Reading:
+    """A straight seam along the global line through (0, offset, -depth) in x, surface normal +z:
+    where the sensor's laser sheet (its x-y plane) crosses it, in the sensor frame."""
+    o, x, y, z = T_global_S[:3, 3], T_global_S[:3, 0], T_global_S[:3, 1], T_global_S[:3, 2]
+    p0, d = np.array([0.0, offset_mm, -depth_mm]), np.array([1.0, 0.0, 0.0])
+    u = float(np.dot(o - p0, z) / np.dot(d, z))
+    p = p0 + u * d - o
+    return Reading(float(np.dot(p, x)), float(np.dot(p, y)), 0.0, True)
+
+
+def start_pose() -> np.ndarray:
+    """Reis WCP with its tool frame on the seam line (global +x), tool axis down, 100 mm before x = 0."""
+    T_tool = np.array([[0.0, 0.0, 1.0, -100.0], [0.0, 1.0, 0.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0, 0, 0, 1.0]])
+    return T_tool @ np.linalg.inv(WRIST.T_wcp_tool)
+
+
+def perfect_run(params: SeamParams, cycles: int, sensor=straight_seam_reading, model=None):
+    core = SeamTracker(params, WRIST.T_wcp_tool, WRIST.T_wcp_sensor, model)
+    T = start_pose()
+    outs = []
+    for _ in range(cycles):
+        out = core.step(T_HOLD, T, sensor(T @ WRIST.T_wcp_sensor))
+        outs.append((out, T))
+        if out.stop is not None:
+            break
+        T = out.reis_cmd  # the perfect arm is where it was told to be one cycle later
+    return core, outs
+
+
+def tool_offset_mm(T_reis) -> float:
+    return float((T_reis @ WRIST.T_wcp_tool)[1, 3])
+
+
+# -- the transport-delay buffer (§6.2.5) -------------------------------------------------
+
+def test_delay_passes_through_until_the_trigger_then_zeroes_then_delays():
+    d = TransportDelay(cycles=3, at_mm=10.0)
+    readings = [Reading(float(i), 0.0, 0.0, True) for i in range(12)]
+    travel = [0, 5, 9.9, 10, 11, 12, 13, 14, 15, 16, 17, 18]
+    got = [d.filter(r, t) for r, t in zip(readings, travel)]
+    assert [s for _, s in got[:3]] == [DELAY_OFF] * 3 and [r.x_mm for r, _ in got[:3]] == [0, 1, 2]
+    assert [s for _, s in got[3:6]] == [DELAY_ZEROED] * 3 and all(r == ZERO_READING for r, _ in got[3:6])
+    assert [s for _, s in got[6:]] == [DELAY_DELAYED] * 6
+    assert [r.x_mm for r, _ in got[6:]] == [3, 4, 5, 6, 7, 8]  # the readings of 3 cycles ago
+    assert d.triggered_at_cycle == 3
+
+
+def test_no_delay_is_a_pass_through_and_bad_delays_are_refused():
+    d = TransportDelay(0)
+    r = Reading(1.0, 2.0, 0.1, True)
+    assert d.filter(r, 1e6) == (r, DELAY_OFF)
+    with pytest.raises(ValueError):
+        TransportDelay(-1)
+    with pytest.raises(ValueError):
+        TransportDelay(2, at_mm=-1.0)
+
+
+@pytest.mark.parametrize("kw", [dict(speed_mm_s=0), dict(speed_mm_s=math.nan), dict(speed_mm_s=8, yaw_gain=math.inf),
+                                dict(speed_mm_s=8, length_mm=0), dict(speed_mm_s=8, delay_cycles=-2),
+                                dict(speed_mm_s=8, lost_cycles=0), dict(speed_mm_s=8, dead_zone_cycles=1.5)])
+def test_bad_parameters_are_refused(kw):
+    with pytest.raises(ValueError):
+        SeamParams(**kw)
+
+
+# -- the core in a closed loop with a perfect arm --------------------------------------------
+
+def test_a_lateral_offset_is_tracked_out_on_a_straight_seam():
+    """The seam lies 3 mm to the left of the start line: after the initial section the
+    tool converges onto it (the perfect arm isolates the core's geometry, eq. 5.1-5.11)."""
+    params = SeamParams(speed_mm_s=16.0, length_mm=400.0)
+    core, outs = perfect_run(params, 2000, sensor=lambda T: straight_seam_reading(T, offset_mm=3.0))
+    assert outs[-1][0].stop is not None and outs[-1][0].stop.reason == STOP_END
+    assert outs[0][0].phase == PHASE_DEAD_ZONE
+    final_tool = tool_offset_mm(outs[-1][1])
+    assert final_tool == pytest.approx(3.0, abs=0.3)
+    # the travel per cycle is the commanded speed: vel = speed / 30 Hz
+    steps = np.diff([o.travel_mm for o, _ in outs[40:-1]])
+    assert np.allclose(steps, 16.0 / 30.0, rtol=0.05)
+
+
+def test_invalid_data_means_zeros_the_tracker_goes_straight_on():
+    """§6.2.5: invalid data -> x, y, roll = 0: the corrections vanish and the run continues
+    straight until the seam counts as lost."""
+    params = SeamParams(speed_mm_s=8.0, dead_zone_cycles=5, lost_cycles=12)
+    _, outs = perfect_run(params, 200, sensor=lambda T: INVALID_READING)
+    moving = [o for o, _ in outs if o.stop is None]
+    assert len(moving) == 5 + 12  # the dead zone, lost_cycles invalid cycles; the next one stops
+    assert all(o.yaw_rad == 0.0 and o.pitch_rad == 0.0 for o in moving)
+    ys = [tool_offset_mm(o.reis_cmd) for o in moving]
+    assert np.allclose(ys, 0.0, atol=1e-9)  # straight on along the start line
+    last = outs[-1][0]
+    assert last.stop.reason == STOP_LOST and last.reis_cmd is None and last.gmf1_cmd is None
+
+
+def test_unreachable_command_stops_the_run_before_it_is_sent():
+    far = load_robot("reis_v15").with_base(trans(5000.0, 0.0, 0.0))  # the Reis base 5 m away
+    params = SeamParams(speed_mm_s=8.0)
+    core, outs = perfect_run(params, 5, model=far)
+    out = outs[-1][0]
+    assert out.stop.reason == STOP_UNREACHABLE and out.reis_cmd is None
+    # stopped stays stopped
+    again = core.step(T_HOLD, start_pose(), ZERO_READING)
+    assert again.stop is out.stop and again.reis_cmd is None
+
+
+def test_the_holder_is_told_to_hold_the_pose_it_started_with():
+    params = SeamParams(speed_mm_s=8.0, length_mm=50.0)
+    _, outs = perfect_run(params, 200)
+    holds = [o.gmf1_cmd for o, _ in outs if o.gmf1_cmd is not None]
+    assert holds and all(np.array_equal(h, T_HOLD) for h in holds)
+
+
+def test_a_transport_delay_zeroes_then_delays_the_readings_the_core_uses():
+    params = SeamParams(speed_mm_s=16.0, length_mm=300.0, delay_cycles=6, delay_at_mm=150.0)
+    _, outs = perfect_run(params, 2000, sensor=lambda T: straight_seam_reading(T, offset_mm=2.0))
+    states = [o.delay_state for o, _ in outs if o.stop is None]
+    first = states.index(DELAY_ZEROED)
+    assert states[:first] == [DELAY_OFF] * first
+    assert states[first:first + 6] == [DELAY_ZEROED] * 6 and set(states[first + 6:]) == {DELAY_DELAYED}
+    assert outs[first][0].travel_mm >= 150.0 > outs[first - 1][0].travel_mm
+    zeroed = [o for o, _ in outs[first:first + 6]]
+    assert all(o.yaw_rad == 0.0 and o.pitch_rad == 0.0 for o in zeroed)  # zero data: no correction
+    assert outs[-1][0].stop.reason == STOP_END
