@@ -25,7 +25,8 @@ def test_seam_loss_run_stops_where_the_lead_sensor_runs_off_the_seam():
     runs off the workpiece's end and the run stops as 'seam lost' -- not later."""
     r = run_trial(TrialConfig("loss", "i", 32.0, length_mm=2000.0, seed=1))
     assert r.stop_reason == "seam lost", (r.stop_reason, r.stop_detail)
-    end = 700.0  # step_input: 100 mm + 600 mm of seam
-    # the tool is CAMERA_TO_TCP (100 mm) behind the sensor; the sensor sees up to the lead-out
-    assert end - 100.0 - 20.0 <= r.stop_s_mm <= end + 20.0, r.stop_s_mm
+    # s_mm is the tool's travel, 0 where the sensor starts on the seam start: the sensor runs
+    # off 700 mm of seam + 10 mm of lead-out, then LOST_CYCLES + 1 cycles of 32/30 mm pass
+    lost_at = 700.0 + 10.0
+    assert lost_at - 10.0 <= r.stop_s_mm <= lost_at + 16 * 32.0 / 30.0 + 10.0, r.stop_s_mm
     assert r.column("travel_mm")[-1] < 2000.0
