@@ -1,0 +1,141 @@
+"""One experiment trial on the real-time process cell (``droid-experiment run ID --realtime``).
+
+The lockstep harness (:mod:`droid.sim.experiment.trial`) runs every core on
+virtual time; this module runs the same trial the way an operator would on the
+cell of processes (thesis §3.4: small programs chained from a shell):
+
+1. write a cell file for the trial: the built-in simulated cell
+   (``droid/cells/sim.toml``) with a unique name, a private run directory, the
+   trial's seed, and the world's workpiece, its mount on the Fanuc twin and the
+   wrist's tool and sensor poses taken from the seam-tracking layout;
+2. ``droid-cell up``, ``droid-home arm1``, ``droid-home gmf1``;
+3. ``droid-seamtrack SPEED --start POSITION --length ... --log trial.csv`` with
+   the trial's gains and transport delay;
+4. ``droid-cell down`` -- always, also on failure or Ctrl-C.
+
+The CSV the task program wrote becomes the :class:`TrialResult`; its ``s_mm``
+is the tool's travel measured by the task (the lockstep log's ``s_mm`` is the
+same quantity from the simulated truth).  The arm and sensor model options of
+a TrialConfig do not apply: the real-time cell always runs every Reis program
+and the camera chain.
+"""
+from __future__ import annotations
+
+import csv
+import math
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+import uuid
+from pathlib import Path
+
+from droid.brain.cellfile import builtin_cell_path
+from droid.cli import RuntimeFailure
+from droid.kinematics.transforms import T_to_pose
+from droid.sim.experiment.geometry import trial_geometry
+from droid.sim.experiment.trial import TrialConfig, TrialResult, default_length_mm
+from droid.tasks.seam.report import COLUMNS
+
+UP_TIMEOUT_S = 120.0
+HOME_TIMEOUT_S = 180.0
+TEXT_COLUMNS = ("phase", "delay_state")
+
+
+def _pose_text(T) -> str:
+    return "[" + ", ".join(f"{float(v):.6f}" for v in T_to_pose(T)) + "]"
+
+
+def _replace(text: str, key: str, value: str, count: int) -> str:
+    """Replace the value of every ``key = ...`` line (exactly ``count`` of them)."""
+    pattern = re.compile(rf"(?m)^{re.escape(key)} = [^\n#]*?(\s*#.*)?$")
+    new, n = pattern.subn(lambda m: f"{key} = {value}{m.group(1) or ''}", text)
+    if n != count:
+        raise RuntimeFailure(f"--realtime: the built-in cell has {n} '{key}' lines, expected {count}")
+    return new
+
+
+def trial_cell_text(cfg: TrialConfig, name: str, run_dir: Path, base_text: str | None = None) -> str:
+    """The cell file of a real-time trial (see the module docstring)."""
+    geo = trial_geometry(cfg.position, cfg.workpiece, cfg.wrist)
+    text = base_text if base_text is not None else builtin_cell_path().read_text()
+    text = _replace(text, "name", f'"{name}"\nrun_dir = "{run_dir}"', 1)
+    text = _replace(text, "seed", str(int(cfg.seed)), 1)
+    text = _replace(text, "workpiece", f'"{geo.workpiece.name}"', 2)
+    text = _replace(text, "workpiece_mount", _pose_text(geo.T_hold6_W), 2)
+    text = _replace(text, "sensor_pose", _pose_text(geo.wrist.T_wcp_sensor), 1)
+    text = _replace(text, "tool_pose", _pose_text(geo.wrist.T_wcp_tool), 1)
+    return text
+
+
+def _run(args: list[str], timeout_s: float, what: str) -> subprocess.CompletedProcess:
+    try:
+        out = subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True, timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        raise RuntimeFailure(f"--realtime: {what} did not finish within {timeout_s:g} s") from None
+    return out
+
+
+def _check(out: subprocess.CompletedProcess, what: str) -> None:
+    if out.returncode != 0:
+        last = (out.stderr.strip().splitlines() or ["(no message)"])[-1]
+        raise RuntimeFailure(f"--realtime: {what} failed (exit {out.returncode}): {last}")
+
+
+def read_log(path) -> list[tuple]:
+    """Rows of a droid-seamtrack CSV log as tuples in COLUMNS order (NaN for empty cells)."""
+    with open(path, newline="") as f:
+        reader = csv.reader(f)
+        header = tuple(next(reader))
+        if header != COLUMNS:
+            raise RuntimeFailure(f"--realtime: {path}: unexpected CSV columns")
+        rows = []
+        for r in reader:
+            rows.append(tuple(v if k in TEXT_COLUMNS else (int(v) if k == "lead_valid" else
+                                                            (float(v) if v != "" else math.nan))
+                              for k, v in zip(COLUMNS, r)))
+    return rows
+
+
+def run_trial_realtime(cfg: TrialConfig, out_dir) -> TrialResult:
+    """Run ``cfg`` on a cell of processes (see the module docstring); the CSV stays in ``out_dir``."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    wall0 = time.perf_counter()
+    geo = trial_geometry(cfg.position, cfg.workpiece, cfg.wrist)
+    length = cfg.length_mm if cfg.length_mm is not None else default_length_mm(geo)
+    name = f"x{uuid.uuid4().hex[:10]}"
+    log = out_dir / f"{cfg.trial_id}.realtime.csv"
+    with tempfile.TemporaryDirectory(prefix="droid-rt-") as tmp:
+        cell = Path(tmp) / f"{name}.toml"
+        cell.write_text(trial_cell_text(cfg, name, Path(tmp) / "run"))
+        c = ["--cell", str(cell)]
+        up = _run(["droid.brain.launcher", "up", *c], UP_TIMEOUT_S, "droid-cell up")
+        try:
+            _check(up, "droid-cell up")
+            for arm in ("arm1", "gmf1"):
+                _check(_run(["droid.tasks.home", arm, *c], HOME_TIMEOUT_S, f"droid-home {arm}"),
+                       f"droid-home {arm}")
+            args = ["droid.tasks.seamtrack", f"{cfg.speed_mm_s:g}", "--start", cfg.position,
+                    "--length", f"{length:g}", "--yaw-gain", f"{cfg.yaw_gain:g}",
+                    "--pitch-gain", f"{cfg.pitch_gain:g}", "--delay", str(cfg.delay_cycles),
+                    "--delay-at", f"{cfg.delay_at_mm:g}", "--dead-zone", str(cfg.dead_zone_cycles),
+                    "--lost-cycles", str(cfg.lost_cycles), "--wrist", cfg.wrist, "--log", str(log), "--quiet", *c]
+            limit = 1.8 * length / cfg.speed_mm_s + 120.0
+            st = _run(args, limit, "droid-seamtrack")
+        finally:
+            down = _run(["droid.brain.launcher", "down", *c], 60.0, "droid-cell down")
+        _check(down, "droid-cell down")
+    if st.returncode not in (0, 1) or not log.exists():
+        _check(st, "droid-seamtrack")
+    result = TrialResult(cfg, rows=read_log(log), camera_to_tcp_mm=geo.camera_to_tcp_mm)
+    stop = next((ln.split("stopped: ", 1)[1] for ln in st.stderr.splitlines() if "stopped: " in ln), "")
+    reason, _, detail = stop.partition(" at ")
+    result.stop_reason, result.stop_detail = reason, stop
+    if result.rows:
+        result.stop_s_mm = float(result.rows[-1][COLUMNS.index("s_mm")])
+        result.sim_s = result.stop_t_s = float(result.rows[-1][COLUMNS.index("t_s")])
+    result.wall_s = time.perf_counter() - wall0
+    return result
