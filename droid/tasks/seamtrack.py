@@ -21,7 +21,7 @@ around it, on the Brain's databases only (a task never touches a device, §3.4):
    stale subunit, or on SIGINT/SIGTERM; then print which, and a summary line.
 
 Exit codes: 0 end of seam; 130 interrupted (SIGINT/SIGTERM); 1 seam lost,
-unreachable command, stale subunit, cell not up, heartbeat lost; 2 bad
+unreachable command, a subunit stale for 2 s, cell not up, heartbeat lost; 2 bad
 arguments or layout (nothing moves).
 """
 from __future__ import annotations
@@ -40,7 +40,7 @@ from droid.brain.heartbeat import TickSubscriber
 from droid.brain.program import open_cell, parser
 from droid.cli import (EXIT_INTERRUPTED, EXIT_OK, EXIT_RUNTIME, BadInput, RuntimeFailure, finite_float,
                        positive_float, run)
-from droid.tasks.arm import BrainArm
+from droid.tasks.arm import STALE_GRACE_S, BrainArm
 from droid.tasks.seam import report
 from droid.tasks.seam.core import (DEAD_ZONE_CYCLES, LOST_CYCLES, STOP_END, SeamParams, SeamTracker)
 from droid.tasks.seam.delay import INVALID_READING, Reading
@@ -49,7 +49,7 @@ from droid.tasks.seam.layout import POSITION_IDS, load_layout
 PROG = "droid-seamtrack"
 CYCLE_TICKS = 2  # one 30 Hz cycle = 2 heartbeat ticks
 LOG_TICKS = 6  # 10 Hz log (thesis §6.1)
-HEARTBEAT_LOST_S = 1.0  # no tick for this long: the Brain's heartbeat is gone
+HEARTBEAT_LOST_S = STALE_GRACE_S  # no tick for this long [s]: the Brain's heartbeat is gone
 START_MOVE_MIN_S = 3.0  # the shortest move to a start pose [s]
 START_MOVE_MARGIN = 1.5  # move time = margin x the slowest joint at its speed limit
 BASE_TOL_MM = 1e-3
@@ -200,6 +200,7 @@ class Tracker:
         self.lead = INVALID_READING
         self.out = None
         self.t0 = None
+        self.stale_since = None
         self.dbs = []
 
     # -- set-up ------------------------------------------------------------
@@ -238,9 +239,14 @@ class Tracker:
         """Read, step the core, write the command; returns a stop reason or None."""
         reis_rec = self.reis.read()
         hold_rec = self.hold.read()
-        for arm, rec in ((self.reis, reis_rec), (self.hold, hold_rec)):
-            if int(rec["stale"]):
-                return f"{arm.sub.name} went stale"
+        stale = [arm.sub.name for arm, rec in ((self.reis, reis_rec), (self.hold, hold_rec)) if int(rec["stale"])]
+        if stale:  # no command this cycle: the Reis finishes its last step and waits
+            now = time.monotonic()
+            self.stale_since = self.stale_since or now
+            if now - self.stale_since > STALE_GRACE_S:
+                return f"{', '.join(stale)} went stale"
+            return None
+        self.stale_since = None
         self.lead = reading_of(self.lead_db.read())
         out = self.core.step(pose_of(hold_rec), pose_of(reis_rec), self.lead, self.reis.joints_deg(reis_rec))
         self.out = out
@@ -273,7 +279,7 @@ class Tracker:
             ticks.close()
 
     def _loop(self, ticks: TickSubscriber, stop_flag: _Interrupted) -> tuple[int, str]:
-        k = 0  # ticks since the start of tracking
+        next_cycle = next_log = None  # heartbeat tick numbers of the next cycle / log row
         last_tick_wall = time.monotonic()
         last_progress = 0.0
         while True:
@@ -288,21 +294,24 @@ class Tracker:
             last_tick_wall = now
             if self.t0 is None:
                 self.t0 = t.t_ns
-            if k % CYCLE_TICKS == 0:
+                next_cycle, next_log = t.tick, t.tick + LOG_TICKS - 1
+            # tick numbers follow time: a late wake-up (ticks drained at once) still steps once
+            if t.tick >= next_cycle:
+                next_cycle = t.tick + CYCLE_TICKS
                 why = self.cycle()
                 if why is not None:
                     stop = self.core.stopped
                     if stop is not None and stop.reason == STOP_END:
                         return EXIT_OK, why
                     return EXIT_RUNTIME, why
-            if k % LOG_TICKS == LOG_TICKS - 1:
+            if t.tick >= next_log:
+                next_log = t.tick + LOG_TICKS
                 self.log((t.t_ns - self.t0) / 1e9)
             if not self.args.quiet and now - last_progress >= 1.0 and self.out is not None:
                 last_progress = now
                 o = self.out
                 print(f"{PROG}: {o.travel_mm:7.1f} mm  {o.phase:<9} lead y {self.lead.y_mm:+6.2f} "
                       f"x {self.lead.x_mm:+6.2f} mm{'' if self.lead.valid else ' (invalid)'}", file=sys.stderr)
-            k += 1
 
 
 @run
