@@ -39,17 +39,12 @@ from droid.sim.mvs_camera import CameraNoise
 from droid.tasks.seam.core import (DEAD_ZONE_CYCLES, LOST_CYCLES, PHASE_DEAD_ZONE, PHASE_INITIAL,
                                    PHASE_TRACKING, SeamParams, SeamTracker)
 from droid.tasks.seam.delay import INVALID_READING, Reading
+from droid.tasks.seam.report import COLUMNS, SETTLE_EXTRA_MM  # noqa: F401 (the log's columns; settling)
 
 ARM_MODELS = ("fast", "full")
 HEARTBEAT_HZ = 60.0
 CYCLE_TICKS = 2  # one 30 Hz seam-tracking cycle = 2 heartbeat ticks (cart_time_count)
 LOG_TICKS = 6  # 10 Hz log
-SETTLE_EXTRA_MM = 50.0  # settling: the initial section (CAMERA_TO_TCP) + 50 mm
-
-#: The CSV columns (exact names first, as docs/experiments.md lists them).
-COLUMNS = ("s_mm", "lead_lateral_mm", "lead_depth_mm", "lead_roll_rad", "tool_lateral_mm", "tool_depth_mm",
-           "tool_roll_rad", "yaw_deg", "pitch_deg", "t_s", "travel_mm", "phase", "lead_valid",
-           "ctrl_yaw_deg", "ctrl_pitch_deg", "delay_state")
 PHASE_CODES = {PHASE_DEAD_ZONE: "dead_zone", PHASE_INITIAL: "initial", PHASE_TRACKING: "tracking"}
 
 
