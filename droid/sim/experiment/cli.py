@@ -168,7 +168,13 @@ def run_jobs(jobs: list[Job], workers: int) -> list[Outcome]:
         return outcomes
     methods = multiprocessing.get_all_start_methods()
     ctx = multiprocessing.get_context("fork" if "fork" in methods else None)
-    pool = ctx.Pool(min(workers, len(jobs)), initializer=_worker_init)  # before the bar's monitor thread
+    # Workers ignore SIGINT from their first instruction (inherited at fork; the initializer
+    # keeps it so under spawn); the parent turns Ctrl-C into terminating the pool.
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        pool = ctx.Pool(min(workers, len(jobs)), initializer=_worker_init)  # before the bar's monitor thread
+    finally:
+        signal.signal(signal.SIGINT, previous)
     try:
         with _progress(len(jobs)) as bar:
             for o in pool.imap_unordered(run_job, jobs, chunksize=1):
