@@ -16,7 +16,7 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 PROG = [sys.executable, "-m", "droid.sim.experiment.cli"]
 
 
-def run_cli(*args, timeout=120):
+def run_cli(*args, timeout=900):  # a hang guard only (DESIGN §8: timing never decides)
     return subprocess.run(PROG + list(args), capture_output=True, text=True, timeout=timeout)
 
 
@@ -121,12 +121,12 @@ def test_sigint_stops_the_pool_and_exits_130(tmp_path):
     p = subprocess.Popen(PROG + ["run", "1.1", "1.2", "1.6", "--out", str(tmp_path), "--jobs", "2", "--no-figures"],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
-        deadline = time.monotonic() + 60
+        deadline = time.monotonic() + 300  # hang guards only
         while len(_session_pids(p.pid)) < 3 and time.monotonic() < deadline:  # parent + 2 workers
             time.sleep(0.05)
         assert len(_session_pids(p.pid)) >= 3, "the pool did not start"
         os.killpg(p.pid, signal.SIGINT)
-        _, err = p.communicate(timeout=30)
+        _, err = p.communicate(timeout=300)
     finally:
         if p.poll() is None:
             os.killpg(p.pid, signal.SIGKILL)
