@@ -33,6 +33,7 @@ PROGRAMS: dict[str, str] = {
     "droid-home": "droid.tasks.home",
     "droid-jog": "droid.tasks.jog",
     "droid-seamtrack": "droid.tasks.seamtrack",
+    "droid-experiment": "droid.sim.experiment.cli",
     # the world
     "droid-sim": "droid.sim.world",
 }

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import json
-import os
 import re
 import subprocess
 import sys
@@ -73,7 +72,6 @@ def fixed_seam_cell(text: str, lateral_mm: float = 0.0, deeper_mm: float = 0.0) 
     seam-tracking layout, the workpiece on a fixed ``holder`` moved so that the lead
     sensor sees the step_input seam ``lateral_mm`` to its left (+y) and ``deeper_mm``
     deeper (+x), at s = 95 mm (SEAM_BACK_MM); the tool sensor sees the same offsets."""
-    import numpy as np
 
     from droid.kinematics.transforms import T_to_pose
     from droid.tasks.seam.layout import load_layout

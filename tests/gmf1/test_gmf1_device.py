@@ -5,7 +5,6 @@ import time
 
 import numpy as np
 import pytest
-import serial
 
 from droid.brain.cellfile import load_cell
 from droid.cli import BadInput

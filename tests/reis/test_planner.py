@@ -4,7 +4,6 @@ import pytest
 
 from droid.brain import layouts as L
 from droid.kinematics import load_robot
-from droid.kinematics.transforms import pose_to_T
 from droid.subunits.reis.planner import PlannerCore
 
 MODEL = load_robot("reis_v15")

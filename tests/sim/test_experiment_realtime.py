@@ -6,9 +6,9 @@ import pytest
 from droid.brain.cellfile import load_cell
 from droid.kinematics.transforms import pose_to_T
 from droid.sim.experiment.geometry import trial_geometry
-from droid.sim.experiment.realtime import read_log, trial_cell_text
+from droid.sim.experiment.realtime import trial_cell_text
 from droid.sim.experiment.trial import TrialConfig
-from droid.tasks.seam.report import COLUMNS, log_row, write_csv
+from droid.tasks.seam.report import COLUMNS, log_row, read_csv, write_csv
 from droid.tasks.seam.delay import Reading
 
 
@@ -35,7 +35,7 @@ def test_a_task_log_reads_back_as_trial_rows(tmp_path):
     rows = [log_row(s_mm=float(i), t_s=i / 10, lead=Reading(0.1, 0.2, 0.0, i % 2 == 0), tool=(0.5, -0.5, 0.0),
                     out=None, camera_to_tcp_mm=100.0) for i in range(5)]
     write_csv(tmp_path / "l.csv", rows)
-    back = read_log(tmp_path / "l.csv")
+    back = read_csv(tmp_path / "l.csv")
     assert len(back) == 5 and len(back[0]) == len(COLUMNS)
     assert back[1][COLUMNS.index("lead_lateral_mm")] != back[1][COLUMNS.index("lead_lateral_mm")]  # NaN: invalid
     assert back[2][COLUMNS.index("tool_lateral_mm")] == 0.5 and back[2][COLUMNS.index("phase")] == "dead_zone"

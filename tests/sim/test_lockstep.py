@@ -1,6 +1,6 @@
 """The lockstep scheduler: rates, ordering, heartbeat time base, determinism."""
 import pytest
-from hypothesis import given, strategies as st
+from hypothesis import given, settings, strategies as st
 
 from droid.sim.lockstep import ORDER_DEVICE, ORDER_WORLD, Scheduler
 
@@ -39,6 +39,7 @@ def test_removed_task_stops():
     assert len(n) == before
 
 
+@settings(deadline=None)  # DESIGN §8: timing never decides a verdict (a loaded host took 398 ms)
 @given(st.floats(1.0, 3000.0), st.floats(0.01, 2.0))
 def test_task_count_matches_rate(rate, seconds):
     s = Scheduler(60.0)

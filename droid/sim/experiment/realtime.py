@@ -21,9 +21,6 @@ and the camera chain.
 """
 from __future__ import annotations
 
-import csv
-import math
-import os
 import re
 import subprocess
 import sys
@@ -37,11 +34,11 @@ from droid.cli import RuntimeFailure
 from droid.kinematics.transforms import T_to_pose
 from droid.sim.experiment.geometry import trial_geometry
 from droid.sim.experiment.trial import TrialConfig, TrialResult, default_length_mm
+from droid.tasks.seam import report
 from droid.tasks.seam.report import COLUMNS
 
 UP_TIMEOUT_S = 120.0
 HOME_TIMEOUT_S = 180.0
-TEXT_COLUMNS = ("phase", "delay_state")
 
 
 def _pose_text(T) -> str:
@@ -84,31 +81,15 @@ def _check(out: subprocess.CompletedProcess, what: str) -> None:
         raise RuntimeFailure(f"--realtime: {what} failed (exit {out.returncode}): {last}")
 
 
-def read_log(path) -> list[tuple]:
-    """Rows of a droid-seamtrack CSV log as tuples in COLUMNS order (NaN for empty cells)."""
-    with open(path, newline="") as f:
-        reader = csv.reader(f)
-        header = tuple(next(reader))
-        if header != COLUMNS:
-            raise RuntimeFailure(f"--realtime: {path}: unexpected CSV columns")
-        rows = []
-        for r in reader:
-            rows.append(tuple(v if k in TEXT_COLUMNS else (int(v) if k == "lead_valid" else
-                                                            (float(v) if v != "" else math.nan))
-                              for k, v in zip(COLUMNS, r)))
-    return rows
-
-
 def run_trial_realtime(cfg: TrialConfig, out_dir) -> TrialResult:
-    """Run ``cfg`` on a cell of processes (see the module docstring); the CSV stays in ``out_dir``."""
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    """Run ``cfg`` on a cell of processes (see the module docstring).  ``out_dir``: where the
+    caller keeps the trial's files (the cell's logs go away with its temporary run dir)."""
     wall0 = time.perf_counter()
     geo = trial_geometry(cfg.position, cfg.workpiece, cfg.wrist)
     length = cfg.length_mm if cfg.length_mm is not None else default_length_mm(geo)
     name = f"x{uuid.uuid4().hex[:10]}"
-    log = out_dir / f"{cfg.trial_id}.realtime.csv"
     with tempfile.TemporaryDirectory(prefix="droid-rt-") as tmp:
+        log = Path(tmp) / "seamtrack.csv"  # the caller writes the trial's own CSV from the result
         cell = Path(tmp) / f"{name}.toml"
         cell.write_text(trial_cell_text(cfg, name, Path(tmp) / "run"))
         c = ["--cell", str(cell)]
@@ -128,12 +109,11 @@ def run_trial_realtime(cfg: TrialConfig, out_dir) -> TrialResult:
         finally:
             down = _run(["droid.brain.launcher", "down", *c], 60.0, "droid-cell down")
         _check(down, "droid-cell down")
-    if st.returncode not in (0, 1) or not log.exists():
-        _check(st, "droid-seamtrack")
-    result = TrialResult(cfg, rows=read_log(log), camera_to_tcp_mm=geo.camera_to_tcp_mm)
+        if st.returncode not in (0, 1) or not log.exists():
+            _check(st, "droid-seamtrack")
+        result = TrialResult(cfg, rows=report.read_csv(log), camera_to_tcp_mm=geo.camera_to_tcp_mm)
     stop = next((ln.split("stopped: ", 1)[1] for ln in st.stderr.splitlines() if "stopped: " in ln), "")
-    reason, _, detail = stop.partition(" at ")
-    result.stop_reason, result.stop_detail = reason, stop
+    result.stop_reason, result.stop_detail = stop.partition(" at ")[0], stop
     if result.rows:
         result.stop_s_mm = float(result.rows[-1][COLUMNS.index("s_mm")])
         result.sim_s = result.stop_t_s = float(result.rows[-1][COLUMNS.index("t_s")])
