@@ -1,0 +1,39 @@
+"""The seam-tracking layout (droid/cells/seamtrack_layout.toml): every start position of
+§6.1.2 is reachable by both robot models, and the Reis reaches the seam along its whole
+length with the tool frame on it (no configuration change needed on the way)."""
+import numpy as np
+import pytest
+
+from droid.kinematics import Unreachable
+from droid.kinematics.transforms import inv_homo
+from droid.sim.experiment.geometry import trial_geometry
+from droid.sim.tool_sensor import seam_frame
+from droid.tasks.seam.layout import POSITION_IDS, load_layout
+
+CASES = [(p, "standard") for p in POSITION_IDS] + [("i", "extension30")]
+
+
+@pytest.mark.parametrize("position, wrist", CASES)
+def test_the_reis_reaches_the_whole_seam_from_the_start_pose(position, wrist):
+    geo = trial_geometry(position, wrist=wrist)
+    wp, L = geo.workpiece, geo.camera_to_tcp_mm
+    T_tool_wcp = inv_homo(geo.wrist.T_wcp_tool)
+    q = geo.q_reis_start_deg
+    for s in np.arange(-L, wp.length_mm - L + 1e-9, 10.0):  # the tool's path while the sensor is on the seam
+        T = geo.T_global_W @ seam_frame(wp, float(s)) @ T_tool_wcp
+        try:
+            q_next = geo.reis.ik(T, q)
+        except Unreachable as exc:
+            pytest.fail(f"position {position}: tool at s = {s:.0f} mm unreachable: {exc}")
+        assert np.max(np.abs(q_next - q)) < 20.0, (position, s, q, q_next)  # no configuration jump
+        q = q_next
+
+
+@pytest.mark.parametrize("position", POSITION_IDS)
+def test_start_poses_are_the_trial_geometry_and_the_holder_can_hold(position):
+    lay = load_layout()
+    geo = trial_geometry(position)
+    T_reis, T_hold = lay.start_poses(position)
+    assert np.allclose(T_reis, geo.T_global_reis6_start, atol=1e-9)
+    assert np.allclose(T_hold, geo.T_global_hold6, atol=1e-6)
+    assert np.allclose(geo.fanuc.fk(geo.fanuc.ik(T_hold, np.zeros(6))), T_hold, atol=1e-6)
