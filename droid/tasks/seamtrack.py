@@ -38,6 +38,7 @@ import zmq
 from droid.brain.databases import open_brain
 from droid.brain.heartbeat import TickSubscriber
 from droid.brain.program import open_cell, parser
+from droid.brain.rt import try_sched_fifo
 from droid.cli import (EXIT_INTERRUPTED, EXIT_OK, EXIT_RUNTIME, BadInput, RuntimeFailure, finite_float,
                        positive_float, run)
 from droid.tasks.arm import STALE_GRACE_S, BrainArm
@@ -53,6 +54,7 @@ HEARTBEAT_LOST_S = STALE_GRACE_S  # no tick for this long [s]: the Brain's heart
 START_MOVE_MIN_S = 3.0  # the shortest move to a start pose [s]
 START_MOVE_MARGIN = 1.5  # move time = margin x the slowest joint at its speed limit
 BASE_TOL_MM = 1e-3
+FIFO_PRIORITY = 49  # SCHED_FIFO priority of the tracking loop (the remotes run at 50)
 
 
 def nonneg_int(text: str) -> int:
@@ -271,6 +273,10 @@ class Tracker:
 
     # -- the run -------------------------------------------------------------
     def run(self, stop_flag: _Interrupted) -> tuple[int, str]:
+        # The 30 Hz loop is part of the cell's tick chain: below the remotes (50) when the
+        # cell asks for SCHED_FIFO, so a loaded host does not stretch the loop's delay
+        # (a delay of 2+ cycles destabilises the tracking, §6.2.5).
+        try_sched_fifo(priority=FIFO_PRIORITY, wanted=self.cell.sched_fifo, prog=PROG)
         ctx = zmq.Context.instance()
         ticks = TickSubscriber(ctx, self.cell.heartbeat)
         try:

@@ -148,3 +148,22 @@ def test_a_transport_delay_zeroes_then_delays_the_readings_the_core_uses():
     zeroed = [o for o, _ in outs[first:first + 6]]
     assert all(o.yaw_rad == 0.0 and o.pitch_rad == 0.0 for o in zeroed)  # zero data: no correction
     assert outs[-1][0].stop.reason == STOP_END
+
+
+def test_a_tool_that_jumps_stops_the_run_as_a_runaway():
+    """The runaway guard (an addition): the arm reported 10 mm from where it was one cycle ago."""
+    from droid.tasks.seam.core import STOP_RUNAWAY
+
+    params = SeamParams(speed_mm_s=16.0)
+    core = SeamTracker(params, WRIST.T_wcp_tool, WRIST.T_wcp_sensor)
+    T = start_pose()
+    out = core.step(T_HOLD, T, straight_seam_reading(T @ WRIST.T_wcp_sensor))
+    T = out.reis_cmd
+    assert core.step(T_HOLD, T, straight_seam_reading(T @ WRIST.T_wcp_sensor)).stop is None
+    jumped = trans(0.0, 10.0, 0.0) @ T
+    out = core.step(T_HOLD, jumped, straight_seam_reading(jumped @ WRIST.T_wcp_sensor))
+    assert out.stop is not None and out.stop.reason == STOP_RUNAWAY and out.reis_cmd is None
+    assert "10.0 mm in one cycle" in out.stop.detail
+    off = SeamTracker(SeamParams(speed_mm_s=16.0, runaway_factor=0.0), WRIST.T_wcp_tool, WRIST.T_wcp_sensor)
+    off.step(T_HOLD, start_pose(), ZERO_READING)
+    assert off.step(T_HOLD, trans(0.0, 10.0, 0.0) @ start_pose(), ZERO_READING).stop is None

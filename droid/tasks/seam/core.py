@@ -47,7 +47,8 @@ Faithful to the listing, including its quirks:
 Additions (documented in docs/seamtrack.md): stop reasons -- the run length
 reached ("end of seam"), the lead sensor invalid for more than
 ``lost_cycles`` consecutive cycles after the dead zone ("seam lost"), a Reis
-command outside the robot model's reach or limits ("unreachable"); and the
+command outside the robot model's reach or limits ("unreachable"), a tool that
+moved more than RUNAWAY_FACTOR steps in one cycle ("runaway"); and the
 transport-delay buffer of §6.2.5 (:mod:`droid.tasks.seam.delay`).
 """
 from __future__ import annotations
@@ -77,6 +78,12 @@ LOST_CYCLES = 15
 STOP_END = "end of seam"
 STOP_LOST = "seam lost"
 STOP_UNREACHABLE = "unreachable"
+STOP_RUNAWAY = "runaway"
+#: Runaway guard (an addition): a cycle in which the tool moved more than
+#: RUNAWAY_FACTOR steps (and at least RUNAWAY_MIN_MM) stops the run -- an oscillating,
+#: unstable loop (long delays, §6.2.5) or an arm that does not follow.
+RUNAWAY_FACTOR = 4.0
+RUNAWAY_MIN_MM = 2.0
 
 PHASE_DEAD_ZONE = "dead zone"  # the sensor is not read yet (still the initial section)
 PHASE_INITIAL = "initial"  # the tool heads for the point where the sensor started
@@ -97,14 +104,17 @@ class SeamParams:
     delay_at_mm: float = 150.0  # tool travel at which the delay is inserted [mm]
     max_queue: int = MAX_QUEUE
     cycle_hz: float = CYCLE_HZ
+    runaway_factor: float = RUNAWAY_FACTOR  # 0 = no runaway guard
 
     def __post_init__(self) -> None:
-        for name in ("speed_mm_s", "yaw_gain", "pitch_gain", "delay_at_mm", "cycle_hz"):
+        for name in ("speed_mm_s", "yaw_gain", "pitch_gain", "delay_at_mm", "cycle_hz", "runaway_factor"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v)):
                 raise ValueError(f"{name} must be a finite number, got {v!r}")
         if self.speed_mm_s <= 0:
             raise ValueError(f"speed must be > 0 mm/s, got {self.speed_mm_s!r}")
+        if self.runaway_factor < 0:
+            raise ValueError("runaway_factor must be >= 0")
         if self.cycle_hz <= 0:
             raise ValueError("cycle rate must be > 0 Hz")
         if not (self.length_mm > 0):
@@ -128,7 +138,7 @@ class SeamParams:
 class Stop:
     """Why a run ended, where (tool travel [mm]) and in which cycle."""
 
-    reason: str  # STOP_END, STOP_LOST, STOP_UNREACHABLE
+    reason: str  # STOP_END, STOP_LOST, STOP_UNREACHABLE, STOP_RUNAWAY
     detail: str
     travel_mm: float
     cycle: int
@@ -339,9 +349,15 @@ class SeamTracker:
         self.tool_robot_wcp_wrt_holder(T_global_reis6)
         self.toolpt_wrt_holder()
         tool = self.Ttool7_hold[:3, 3].copy()
+        moved_mm = 0.0
         if s.last_tool is not None:
-            s.travel_mm += float(np.linalg.norm(tool - s.last_tool))
+            moved_mm = float(np.linalg.norm(tool - s.last_tool))
+            s.travel_mm += moved_mm
         s.last_tool = tool
+        limit_mm = max(self.p.runaway_factor * self.p.step_mm, RUNAWAY_MIN_MM)
+        if self.p.runaway_factor > 0 and moved_mm > limit_mm:
+            return self._stop(cycle, STOP_RUNAWAY, f"the tool moved {moved_mm:.1f} mm in one cycle "
+                                                   f"(limit {limit_mm:.1f} mm)")
         if s.q_prev is None and q_reis_deg is not None:
             s.q_prev = np.asarray(q_reis_deg, float)
         if s.travel_mm >= self.p.length_mm:
