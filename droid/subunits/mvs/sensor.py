@@ -378,7 +378,11 @@ def main(argv=None) -> int:
 def live_in_cell(args, core: SensorCore, cell, sub) -> int:
     """:func:`live` with the cell's readiness handshake and presence record."""
     from droid.brain.program import Presence, notify_ready, presence_key
+    from droid.brain.rt import try_sched_fifo
 
+    # In a cell that asks for SCHED_FIFO the sensor is part of the tracking loop's chain
+    # (frame -> line -> Brain Status -> droid-seamtrack, §5.4): below the Brain's programs.
+    try_sched_fifo(priority=48, wanted=cell.sched_fifo, prog=PROG)
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
     failed = True
 
