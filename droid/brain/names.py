@@ -32,6 +32,7 @@ PROG = "droid-names"
 DEFAULT_TTL_S = 3.0
 MAX_FRAME = 4096
 _NAME_MAX = 64
+PID_MAX = 1 << 22  # Linux's highest pid_max
 
 
 def boot_id() -> str:
@@ -71,8 +72,9 @@ class NameSpaceCore:
             ttl = req.get("ttl_s", DEFAULT_TTL_S)
             if not isinstance(ep, str) or not ep.startswith(("ipc://", "tcp://", "inproc://")):
                 return {**out, "ok": False, "error": "endpoint must be an ipc://, tcp:// or inproc:// string"}
-            if not isinstance(pid, int) or not isinstance(host, str):
-                return {**out, "ok": False, "error": "pid must be an integer and host a string"}
+            if not isinstance(pid, int) or isinstance(pid, bool) or not 0 < pid <= PID_MAX \
+                    or not isinstance(host, str):
+                return {**out, "ok": False, "error": f"pid must be an integer 1..{PID_MAX} and host a string"}
             if not isinstance(ttl, (int, float)) or not 0.1 <= ttl <= 3600:
                 return {**out, "ok": False, "error": "ttl_s must be between 0.1 and 3600"}
             cur = self.entries.get(name)
