@@ -147,7 +147,7 @@ class NameClient:
                 return None
             try:
                 rep = json.loads(self.sock.recv())
-            except (ValueError, zmq.ZMQError):
+            except (ValueError, RecursionError, zmq.ZMQError):
                 continue
             if isinstance(rep, dict) and rep.get("id") == rid:
                 return rep
