@@ -215,7 +215,7 @@ TARGETS = [  # (name, target, valid lines to mutate)
     ("KAREL parse_reply (host <- controller)", t_karel_reply, KAREL_REPLIES),
     ("KAREL LineSplitter (stream)", t_karel_splitter, KAREL_REQUESTS + KAREL_REPLIES),
     ("gmf1 SerialCore.step rx (stream)", t_gmf1_serial_core, KAREL_REPLIES),
-    ("KAREL controller twin receive (stream)", t_karel_controller, KAREL_REQUESTS),
+    ("KAREL controller twin receive (per cycle)", t_karel_controller, KAREL_REQUESTS),
     ("MVS replay parse_frame_line", t_mvs_replay, [b" ".join([b"120"] * 240)]),
     ("heartbeat unpack_tick (ZeroMQ)", t_heartbeat_frame, [wire.pack_tick(wire.Tick(5, 1, 2, 0))]),
     ("link unpack_link (ZeroMQ)", t_link_frames, [b" ".join(wire.pack_link(wire.KIND_CMD, 3, b"x"))]),
