@@ -17,6 +17,7 @@ import argparse
 import functools
 import math
 import os
+import re
 import sys
 from typing import Callable, Sequence
 
@@ -51,15 +52,41 @@ class ArgumentParser(argparse.ArgumentParser):
         self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see --help)\n")
 
 
+# Plain ASCII decimals only.  Python's float() and int() also take "１２" (other
+# scripts' digits), "1_000", " 12 ", "infinity": a shell script never means those.
+_DECIMAL = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?", re.ASCII)
+_INTEGER = re.compile(r"[+-]?[0-9]+", re.ASCII)
+_NON_FINITE = re.compile(r"[+-]?(?:nan|inf|infinity)", re.ASCII | re.IGNORECASE)
+
+
+def parse_finite(text: str) -> float:
+    """A finite number written as a plain ASCII decimal (optional sign, point, exponent).
+
+    Raises ValueError with a one-line reason: ``not a finite number`` for
+    nan/inf or an overflow such as 1e999, ``not a number`` for anything else."""
+    if _NON_FINITE.fullmatch(text):
+        raise ValueError(f"not a finite number: {text!r}")
+    if not _DECIMAL.fullmatch(text):
+        raise ValueError(f"not a number: {text!r}")
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError(f"not a finite number: {text!r}")
+    return value
+
+
+def parse_int(text: str) -> int:
+    """An integer written in plain ASCII decimal digits (optional sign); ValueError otherwise."""
+    if not _INTEGER.fullmatch(text):
+        raise ValueError(f"not an integer: {text!r}")
+    return int(text, 10)
+
+
 def finite_float(text: str) -> float:
     """argparse type: a finite float (rejects nan, inf and malformed numbers)."""
     try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"not a finite number: {text!r}")
-    return value
+        return parse_finite(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def positive_float(text: str) -> float:
@@ -73,12 +100,28 @@ def positive_float(text: str) -> float:
 def positive_int(text: str) -> int:
     """argparse type: an integer > 0."""
     try:
-        value = int(text, 10)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+        value = parse_int(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
     if value <= 0:
         raise argparse.ArgumentTypeError(f"must be > 0: {text!r}")
     return value
+
+
+def non_negative_int(text: str) -> int:
+    """argparse type: an integer >= 0 (plain ASCII decimal digits)."""
+    value = integer(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0: {text!r}")
+    return value
+
+
+def integer(text: str) -> int:
+    """argparse type: an integer (plain ASCII decimal digits)."""
+    try:
+        return parse_int(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def run(main: Callable[[Sequence[str] | None], int | None]) -> Callable[..., int]:

@@ -14,6 +14,7 @@ PROGRAMS: dict[str, str] = {
     "droid-names": "droid.brain.names",
     "droid-remote": "droid.brain.remote",
     "droid-cheader": "droid.brain.cheader",
+    "droid-keys": "droid.brain.keys",
     "droid-kin": "droid.kinematics.cli",
     # subunit agents
     "droid-agent": "droid.subunits.agent",

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from droid.cli import BadInput
+from droid.brain.curve import CurveConfig, parse_curve_table
 from droid.brain.shmdb import check_name_part
 
 SUBUNIT_CLASSES = ("arm6r", "line_laser")
@@ -74,7 +75,7 @@ class Cell:
     names: str
     world: dict[str, Any]
     subunits: dict[str, Subunit]
-    curve: dict[str, Any]
+    curve: CurveConfig | None  # [curve]: CURVE keys for tcp:// links (None: no keys)
     raw: dict[str, Any]
 
     @property
@@ -198,7 +199,7 @@ def parse_cell(raw: dict[str, Any], p: Path) -> Cell:
     world = {"enabled": w.get("enabled", bool, True), "host": w.get("host", str, brain_host)}
     world.update(_expand(w.done(allow_extra=True), run, name))
 
-    curve = _expand(top.get("curve", dict, {}), run, name)
+    curve_table = top.get("curve", dict, None)
 
     subs_raw = top.get("subunits", dict)
     if not subs_raw:
@@ -232,6 +233,10 @@ def parse_cell(raw: dict[str, Any], p: Path) -> Cell:
         subunits[sname] = sub
     top.done(allow_extra=False)
     _check_programs(p, subunits)
+    curve = None
+    if curve_table is not None:
+        hosts = sorted({brain_host, str(world["host"])} | {s.host for s in subunits.values()})
+        curve = parse_curve_table(curve_table, p, hosts, lambda v: _expand(v, run, name))
     return Cell(path=p.resolve(), name=name, heartbeat_hz=hb_hz, stale_ticks=stale,
                 sched_fifo=fifo, run_dir=Path(run_dir), brain_host=brain_host,
                 heartbeat=heartbeat, names=names, world=world, subunits=subunits,

@@ -18,10 +18,11 @@ import sys
 import zmq
 
 from droid.brain import wire
+from droid.brain.curve import CurveHost
 from droid.brain.names import NameClient
 from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
 from droid.brain.rt import PeriodicTimer, now_ns, try_sched_fifo
-from droid.cli import positive_float, run
+from droid.cli import integer, positive_float, run
 
 PROG = "droid-heartbeat"
 
@@ -65,13 +66,19 @@ class TickMonitor:
 
 
 class TickSubscriber:
-    """SUB socket on a heartbeat (or an agent's relay) endpoint."""
+    """SUB socket on a heartbeat (or an agent's relay) endpoint.
 
-    def __init__(self, ctx: zmq.Context, endpoint: str) -> None:
+    ``curve``/``server_host``: the CURVE keys of this program's host and the
+    host that publishes (used for ``tcp://`` endpoints of a cell with keys)."""
+
+    def __init__(self, ctx: zmq.Context, endpoint: str, curve: CurveHost | None = None,
+                 server_host: str = "") -> None:
         self.sock = ctx.socket(zmq.SUB)
         self.sock.setsockopt(zmq.SUBSCRIBE, b"")
         self.sock.setsockopt(zmq.RCVHWM, 4)
         self.sock.setsockopt(zmq.LINGER, 0)
+        if curve is not None:
+            curve.client(self.sock, endpoint, server_host)
         self.sock.connect(endpoint)
         self.monitor = TickMonitor()
         self.bad_frames = 0
@@ -108,7 +115,7 @@ def main(argv=None) -> int:
     ap = parser(PROG, "Publish the cell's heartbeat tick (default 60 Hz) on absolute deadlines.")
     ap.add_argument("--rate", type=positive_float, default=None, metavar="HZ",
                     help="tick rate [Hz] (default: the cell file's heartbeat_hz)")
-    ap.add_argument("--count", type=int, default=0, metavar="N",
+    ap.add_argument("--count", type=integer, default=0, metavar="N",
                     help="stop after N ticks (default: run until SIGTERM/SIGINT)")
     args = ap.parse_args(argv)
     cell = open_cell(args)
@@ -117,6 +124,7 @@ def main(argv=None) -> int:
     Stop.install()
     try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     ctx = zmq.Context()
+    curve = CurveHost(ctx, cell, cell.brain_host)
     pub = ctx.socket(zmq.PUB)
     pub.setsockopt(zmq.LINGER, 0)
     presence = Presence(cell.name, presence_key(PROG), PROG)
@@ -124,8 +132,9 @@ def main(argv=None) -> int:
     failed = False
     try:
         cell.run_dir.mkdir(parents=True, exist_ok=True)
+        curve.server(pub, cell.heartbeat)
         pub.bind(cell.heartbeat)
-        names = NameClient(ctx, cell.names)
+        names = NameClient(ctx, cell.names, curve=curve, server_host=cell.brain_host)
         names.register("heartbeat", cell.heartbeat)
         core = HeartbeatCore(period_ns)
         timer = PeriodicTimer(period_ns)
@@ -155,6 +164,7 @@ def main(argv=None) -> int:
         if names is not None:
             names.close()
         pub.close(0)
+        curve.close()
         ctx.term()
         presence.close(failed=failed)
     return 0

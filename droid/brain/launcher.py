@@ -283,6 +283,22 @@ def _programs_known(cell: Cell) -> list[dict]:
     return progs
 
 
+STATUS_KEYS = {  # droid-cell status --json: one object a line with these keys
+    "name": "program and its subunit, e.g. \"droid-remote arm1\"",
+    "key": "presence record key: /droid.<cell>.proc.<key>",
+    "host": "host the cell file puts it on (\"?\" if started by hand)",
+    "pid": "process id",
+    "alive": "the pid exists (not a zombie)",
+    "state": "starting | ready | stopping | failed | dead",
+    "live": "alive, ready and its presence record younger than 2 s",
+    "last_tick": "last heartbeat tick it saw (0 if not tick-driven; null without a record)",
+    "age_s": "age of its presence record [s]",
+    "cycles": "loop cycles (agents: commands served; remotes: replies received)",
+    "overruns": "missed deadlines (tick-driven programs: missed ticks)",
+    "bad_frames": "malformed messages received and dropped",
+}
+
+
 def status(cell: Cell) -> list[dict]:
     progs = _programs_known(cell)
     if not progs:
@@ -292,7 +308,7 @@ def status(cell: Cell) -> list[dict]:
     for p in progs:
         row = {"name": " ".join([p["prog"], *p["args"]]), "key": p["key"], "host": p["host"],
                "pid": p["pid"], "alive": pid_alive(p["pid"]), "state": "dead", "live": False,
-               "last_tick": None, "age_s": None, "overruns": None}
+               "last_tick": None, "age_s": None, "cycles": None, "overruns": None, "bad_frames": None}
         try:
             db = Database(db_name(cell.name, "proc", p["key"]), PROC_STATUS_LAYOUT, timeout_s=0.2)
         except (NoDatabase, BadInput):
@@ -303,7 +319,9 @@ def status(cell: Cell) -> list[dict]:
                 row["state"] = PROC_STATE_NAMES.get(int(rec["state"]), "?")
                 row["last_tick"] = int(rec["last_tick"])
                 row["age_s"] = round((now - int(rec["updated_ns"])) / 1e9, 3)
+                row["cycles"] = int(rec["cycles"])
                 row["overruns"] = int(rec["overruns"])
+                row["bad_frames"] = int(rec["bad_frames"])
             finally:
                 db.close()
         if not row["alive"]:

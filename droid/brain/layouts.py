@@ -200,10 +200,11 @@ PROC_STATUS = _dtype(
         ("last_tick", "<u8", None),  # last heartbeat tick seen (0 if not tick-driven)
         ("updated_ns", "<i8", None),  # CLOCK_MONOTONIC of last update [ns]
         ("cycles", "<u8", None),  # loop cycles run
-        ("overruns", "<u8", None),  # missed deadlines
+        ("overruns", "<u8", None),  # missed deadlines (tick-driven programs: missed ticks)
         ("lateness_max_ns", "<i8", None),  # worst wake-up lateness [ns]
+        ("bad_frames", "<u8", None),  # malformed messages received and dropped (version 2)
     ],
-    112,
+    120,
 )
 
 
@@ -227,7 +228,7 @@ ARM_COMMAND_LAYOUT = Layout("arm_command", KIND_ARM_COMMAND, 1, ARM_COMMAND, "dr
 SENSOR_STATUS_LAYOUT = Layout("sensor_status", KIND_SENSOR_STATUS, 1, SENSOR_STATUS, "droid_sensor_status")
 CTRL_STATUS_LAYOUT = Layout("ctrl_status", KIND_CTRL_STATUS, 1, CTRL_STATUS, "droid_ctrl_status")
 CTRL_COMMAND_LAYOUT = Layout("ctrl_command", KIND_CTRL_COMMAND, 1, CTRL_COMMAND, "droid_ctrl_command")
-PROC_STATUS_LAYOUT = Layout("proc_status", KIND_PROC_STATUS, 1, PROC_STATUS, "droid_proc_status")
+PROC_STATUS_LAYOUT = Layout("proc_status", KIND_PROC_STATUS, 2, PROC_STATUS, "droid_proc_status")
 
 LAYOUTS = {
     lay.kind: lay

@@ -24,6 +24,7 @@ import time
 
 import zmq
 
+from droid.brain.curve import CurveHost
 from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
 from droid.brain.shmdb import pid_alive
 from droid.cli import RuntimeFailure, run
@@ -32,6 +33,7 @@ PROG = "droid-names"
 DEFAULT_TTL_S = 3.0
 MAX_FRAME = 4096
 _NAME_MAX = 64
+PID_MAX = 1 << 22  # Linux's highest pid_max
 
 
 def boot_id() -> str:
@@ -71,8 +73,9 @@ class NameSpaceCore:
             ttl = req.get("ttl_s", DEFAULT_TTL_S)
             if not isinstance(ep, str) or not ep.startswith(("ipc://", "tcp://", "inproc://")):
                 return {**out, "ok": False, "error": "endpoint must be an ipc://, tcp:// or inproc:// string"}
-            if not isinstance(pid, int) or not isinstance(host, str):
-                return {**out, "ok": False, "error": "pid must be an integer and host a string"}
+            if not isinstance(pid, int) or isinstance(pid, bool) or not 0 < pid <= PID_MAX \
+                    or not isinstance(host, str):
+                return {**out, "ok": False, "error": f"pid must be an integer 1..{PID_MAX} and host a string"}
             if not isinstance(ttl, (int, float)) or not 0.1 <= ttl <= 3600:
                 return {**out, "ok": False, "error": "ttl_s must be between 0.1 and 3600"}
             cur = self.entries.get(name)
@@ -105,8 +108,10 @@ class NameClient:
     """Client of the name space over a DEALER socket (never blocks the caller for long)."""
 
     def __init__(self, ctx: zmq.Context, endpoint: str, *, ttl_s: float = DEFAULT_TTL_S,
-                 timeout_s: float = 0.5) -> None:
+                 timeout_s: float = 0.5, curve: CurveHost | None = None, server_host: str = "") -> None:
+        """``curve``: this host's CURVE keys; ``server_host``: the name space's host (the Brain)."""
         self.ctx, self.endpoint, self.ttl_s, self.timeout_s = ctx, endpoint, ttl_s, timeout_s
+        self.curve, self.server_host = curve, server_host
         self._id = 0
         self._mine: dict[str, str] = {}
         self._last_keepalive = 0.0
@@ -116,6 +121,8 @@ class NameClient:
         self.sock = self.ctx.socket(zmq.DEALER)
         self.sock.setsockopt(zmq.LINGER, 0)
         self.sock.setsockopt(zmq.SNDHWM, 16)
+        if self.curve is not None:
+            self.curve.client(self.sock, self.endpoint, self.server_host)
         self.sock.connect(self.endpoint)
 
     def _send(self, req: dict) -> int:
@@ -140,7 +147,7 @@ class NameClient:
                 return None
             try:
                 rep = json.loads(self.sock.recv())
-            except (ValueError, zmq.ZMQError):
+            except (ValueError, RecursionError, zmq.ZMQError):
                 continue
             if isinstance(rep, dict) and rep.get("id") == rid:
                 return rep
@@ -205,6 +212,7 @@ def main(argv=None) -> int:
         return _query(cell, args)
     Stop.install()
     ctx = zmq.Context()
+    curve = CurveHost(ctx, cell, cell.brain_host)
     sock = ctx.socket(zmq.ROUTER)
     sock.setsockopt(zmq.LINGER, 0)
     sock.setsockopt(zmq.MAXMSGSIZE, MAX_FRAME)
@@ -212,6 +220,7 @@ def main(argv=None) -> int:
     core = NameSpaceCore(boot_id())
     try:
         cell.run_dir.mkdir(parents=True, exist_ok=True)
+        curve.server(sock, cell.names)
         try:
             sock.bind(cell.names)
         except zmq.ZMQError as exc:
@@ -219,27 +228,31 @@ def main(argv=None) -> int:
         presence.ready()
         notify_ready(args.ready_fd)
         cycles = 0
+        bad_frames = 0
         while not Stop.requested:
             if sock.poll(200):
                 frames = sock.recv_multipart()
                 cycles += 1
                 if len(frames) != 2:
+                    bad_frames += 1
                     continue
                 ident, body = frames
                 try:
                     req = json.loads(body)
                     if not isinstance(req, dict):
                         raise ValueError
-                except ValueError:
+                except (ValueError, RecursionError):
+                    bad_frames += 1
                     sock.send_multipart([ident, json.dumps({"ok": False, "error": "not a JSON object"}).encode()])
                     continue
                 rep = core.handle(req, time.monotonic_ns())
                 sock.send_multipart([ident, json.dumps(rep).encode()])
             else:
                 core.expire(time.monotonic_ns())
-            presence.beat(cycles=cycles)
+            presence.beat(cycles=cycles, bad_frames=bad_frames)
     finally:
         sock.close(0)
+        curve.close()
         ctx.term()
         presence.close()
     return 0
@@ -248,7 +261,8 @@ def main(argv=None) -> int:
 def _query(cell, args) -> int:
     ctx = zmq.Context()
     try:
-        client = NameClient(ctx, cell.names, timeout_s=1.0)
+        client = NameClient(ctx, cell.names, timeout_s=1.0, curve=CurveHost(ctx, cell, cell.brain_host),
+                            server_host=cell.brain_host)
         try:
             if args.locate:
                 ep = client.locate(args.locate)

@@ -85,13 +85,15 @@ class Presence:
         self._last = 0
 
     def beat(self, last_tick: int = 0, cycles: int = 0, overruns: int = 0,
-             lateness_max_ns: int = 0, *, force: bool = False) -> None:
+             lateness_max_ns: int = 0, *, bad_frames: int = 0, force: bool = False) -> None:
+        """Refresh the record: last heartbeat tick, loop cycles, overruns (missed deadlines
+        or ticks), worst lateness [ns], malformed messages dropped so far."""
         now = time.monotonic_ns()
         if not force and now - self._last < self.UPDATE_NS:
             return
         self._last = now
         self.db.update(last_tick=last_tick, updated_ns=now, cycles=cycles, overruns=overruns,
-                       lateness_max_ns=lateness_max_ns)
+                       lateness_max_ns=lateness_max_ns, bad_frames=bad_frames)
 
     def set_state(self, state: int) -> None:
         self.db.update(state=state, updated_ns=time.monotonic_ns())

@@ -26,6 +26,7 @@ import zmq
 
 from droid.brain import wire
 from droid.brain.cellfile import Subunit
+from droid.brain.curve import CurveHost
 from droid.brain.databases import brain_layouts, local_layouts, open_brain
 from droid.brain.heartbeat import TickSubscriber
 from droid.brain.layouts import ARM_COMMAND_LAYOUT, FAULT_LINK, LayoutError, check_header
@@ -88,9 +89,10 @@ def main(argv=None) -> int:
     fk = ArmPose(sub) if sub.is_arm else None
     translate = StatusTranslator(sub, fk)
     ctx = zmq.Context()
+    curve = CurveHost(ctx, cell, cell.brain_host)
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
-    names = NameClient(ctx, cell.names)
-    ticks = TickSubscriber(ctx, cell.heartbeat)
+    names = NameClient(ctx, cell.names, curve=curve, server_host=cell.brain_host)
+    ticks = TickSubscriber(ctx, cell.heartbeat, curve, cell.brain_host)
     core = RemoteLinkCore(cell.stale_ticks)
     dealer = None
     endpoint = None
@@ -108,6 +110,7 @@ def main(argv=None) -> int:
             dealer.setsockopt(zmq.LINGER, 0)
             dealer.setsockopt(zmq.SNDHWM, 2)
             dealer.setsockopt(zmq.RCVHWM, 8)
+            curve.client(dealer, endpoint, sub.host)
             dealer.connect(endpoint)
 
     try:
@@ -155,12 +158,14 @@ def main(argv=None) -> int:
                         status.update(tick=tick, updated_ns=time.monotonic_ns(), stale=0, **fields)
                         if command is not None:
                             _ack_sent(command, sent_cmd_id)
-            presence.beat(last_tick, core.replies, ticks.monitor.missed)
+            presence.beat(last_tick, core.replies, ticks.monitor.missed,
+                          bad_frames=bad_frames + ticks.bad_frames)
     finally:
         names.close()
         ticks.close()
         if dealer is not None:
             dealer.close(0)
+        curve.close()
         ctx.term()
         status.close()
         if command is not None:

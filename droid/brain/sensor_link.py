@@ -248,6 +248,7 @@ def serve_serial(cell: Cell, sub: Subunit, ready_fd: int | None, prog: str) -> i
     """The loop of ``droid-remote NAME`` for a serial-linked sensor (see the module docstring)."""
     import zmq
 
+    from droid.brain.curve import CurveHost
     from droid.brain.databases import open_brain
     from droid.brain.heartbeat import TickSubscriber
     from droid.brain.program import Presence, Stop, notify_ready, presence_key
@@ -256,7 +257,8 @@ def serve_serial(cell: Cell, sub: Subunit, ready_fd: int | None, prog: str) -> i
     Stop.install()
     status = open_brain(cell, sub, "status")
     ctx = zmq.Context()
-    ticks = TickSubscriber(ctx, cell.heartbeat)
+    curve = CurveHost(ctx, cell, cell.brain_host)
+    ticks = TickSubscriber(ctx, cell.heartbeat, curve, cell.brain_host)
     presence = Presence(cell.name, presence_key(prog, sub.name), f"{prog} {sub.name}")
     core = SensorStatusCore(cell.stale_ticks)
     port = SerialPortReader(opts.url, opts.baud, min_backoff_ticks=cell.stale_ticks)
@@ -273,10 +275,11 @@ def serve_serial(cell: Cell, sub: Subunit, ready_fd: int | None, prog: str) -> i
                     last_tick = t.tick
                     data, ok = port.poll()
                     status.update(**core.on_tick(t.tick, data, time.monotonic_ns(), ok))
-            presence.beat(last_tick, core.client.lines, ticks.monitor.missed)
+            presence.beat(last_tick, core.client.lines, ticks.monitor.missed, bad_frames=ticks.bad_frames)
     finally:
         port.close()
         ticks.close()
+        curve.close()
         ctx.term()
         status.close()
         presence.close()

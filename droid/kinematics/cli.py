@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import io
 import json
-import math
 import os
 import select
 import sys
@@ -45,7 +44,7 @@ from typing import Iterator, Sequence
 
 import numpy as np
 
-from droid.cli import ArgumentParser, BadInput, finite_float, run
+from droid.cli import ArgumentParser, BadInput, finite_float, parse_finite, run
 from droid.kinematics import RobotFileError, list_robots, load_robot
 from droid.kinematics.transforms import T_to_pose, pose_to_T
 
@@ -168,11 +167,9 @@ def _parse_line(text: str, arities: tuple[int, ...]) -> list[float] | None | str
     vals = []
     for tok in body:
         try:
-            v = float(tok)
-        except ValueError:
-            return f"not a number: {tok!r}"
-        if not math.isfinite(v):
-            return f"not a finite number: {tok!r}"
+            v = parse_finite(tok)
+        except ValueError as exc:
+            return str(exc)
         vals.append(v)
     if len(vals) not in arities:
         want = " or ".join(str(a) for a in arities)

@@ -29,6 +29,7 @@ import numpy as np
 import zmq
 
 from droid.brain import wire
+from droid.brain.curve import CurveHost
 from droid.brain.databases import local_layouts, open_local
 from droid.brain.layouts import ARM_COMMAND_LAYOUT, FAULT_LINK, LayoutError, check_header
 from droid.brain.link import AgentLinkCore
@@ -80,6 +81,7 @@ def agent_main(prog: str, argv=None) -> int:
     ctrl_cmd = open_local(cell, sub, "ctrl_command") if "ctrl_command" in layouts else None
     copier = CommandCopier(ctrl_cmd) if ctrl_cmd is not None else None
     ctx = zmq.Context()
+    curve = CurveHost(ctx, cell, sub.host)
     presence = Presence(cell.name, presence_key(prog, sub.name), f"{prog} {sub.name}")
     router = ctx.socket(zmq.ROUTER)
     router.setsockopt(zmq.LINGER, 0)
@@ -93,12 +95,14 @@ def agent_main(prog: str, argv=None) -> int:
     was_alive = False
     try:
         cell.run_dir.mkdir(parents=True, exist_ok=True)
+        curve.server(router, sub.agent)
+        curve.server(relay, sub.relay)
         try:
             router.bind(sub.agent)
             relay.bind(sub.relay)
         except zmq.ZMQError as exc:
             raise RuntimeFailure(f"cannot bind {sub.agent} / {sub.relay}: {exc}") from None
-        names = NameClient(ctx, cell.names)
+        names = NameClient(ctx, cell.names, curve=curve, server_host=cell.brain_host)
         names.register(sub.name, sub.agent)
         presence.ready()
         notify_ready(args.ready_fd)
@@ -148,12 +152,13 @@ def agent_main(prog: str, argv=None) -> int:
                     if ctrl_cmd is not None:
                         ctrl_cmd.update(brain_tick=local)
                     relay.send(wire.pack_tick(wire.Tick(local, now, cell.period_ns)))
-            presence.beat(link.last_tick, link.commands, bad_frames)
+            presence.beat(link.last_tick, link.commands, timer.overruns, bad_frames=bad_frames)
     finally:
         if names is not None:
             names.close()
         router.close(0)
         relay.close(0)
+        curve.close()
         ctx.term()
         timer.close()
         status.close()

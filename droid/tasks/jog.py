@@ -36,7 +36,7 @@ import time
 import numpy as np
 
 from droid.brain.program import open_cell, parser
-from droid.cli import BadInput, RuntimeFailure, positive_float, run
+from droid.cli import BadInput, RuntimeFailure, integer, parse_finite, positive_float, run
 from droid.kinematics.transforms import T_to_pose, pose_to_T
 from droid.tasks.arm import BrainArm
 
@@ -176,12 +176,9 @@ def trapezoid_steps(distance: int, vmax: float, accel: float, dt: float) -> list
 
 def _number(text: str) -> float:
     try:
-        v = float(text)
-    except ValueError:
-        raise BadInput(f"not a number: {text!r}") from None
-    if not math.isfinite(v):
-        raise BadInput(f"not a finite number: {text!r}")
-    return v
+        return parse_finite(text)
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None
 
 
 def _keyboard(jog: Jogger) -> int:
@@ -215,7 +212,7 @@ def main(argv=None) -> int:
     ap = parser(PROG, "Jog an arm from the keyboard or from command lines on stdin (works before homing).")
     ap.add_argument("robot", help="arm subunit, e.g. arm1")
     ap.add_argument("--cart", action="store_true", help="start in cartesian mode (keyboard)")
-    ap.add_argument("--step", type=int, default=200, metavar="COUNTS",
+    ap.add_argument("--step", type=integer, default=200, metavar="COUNTS",
                     help="joint step per key [encoder counts] (default 200)")
     ap.add_argument("--step-mm", type=positive_float, default=1.0, metavar="MM",
                     help="cartesian step per key [mm] (default 1)")

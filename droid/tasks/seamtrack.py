@@ -40,7 +40,7 @@ from droid.brain.heartbeat import TickSubscriber
 from droid.brain.program import open_cell, parser
 from droid.brain.rt import try_sched_fifo
 from droid.cli import (EXIT_INTERRUPTED, EXIT_OK, EXIT_RUNTIME, BadInput, RuntimeFailure, finite_float,
-                       positive_float, run)
+                       non_negative_int, positive_float, run)
 from droid.tasks.arm import STALE_GRACE_S, BrainArm
 from droid.tasks.seam import report
 from droid.tasks.seam.core import (DEAD_ZONE_CYCLES, LOST_CYCLES, STOP_END, SeamParams, SeamTracker)
@@ -54,21 +54,10 @@ HEARTBEAT_LOST_S = STALE_GRACE_S  # no tick for this long [s]: the Brain's heart
 START_MOVE_MIN_S = 3.0  # the shortest move to a start pose [s]
 START_MOVE_MARGIN = 1.5  # move time = margin x the slowest joint at its speed limit
 BASE_TOL_MM = 1e-3
+SETTLED_COUNTS = 2  # after a start move: encoder change per poll [counts] that counts as still
+SETTLE_POLL_S = 0.1
+SETTLE_TIMEOUT_S = 3.0
 FIFO_PRIORITY = 49  # SCHED_FIFO priority of the tracking loop (the remotes run at 50)
-
-
-def nonneg_int(text: str) -> int:
-    try:
-        v = int(text, 10)
-    except ValueError:
-        import argparse
-
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if v < 0:
-        import argparse
-
-        raise argparse.ArgumentTypeError(f"must be >= 0: {text!r}")
-    return v
 
 
 def build_parser():
@@ -79,13 +68,13 @@ def build_parser():
                     help="yaw angle gain k_yaw (eq. 5.6; default 0.15, §6.2.1)")
     ap.add_argument("--pitch-gain", type=finite_float, default=0.25, metavar="K",
                     help="pitch angle gain k_pitch (eq. 5.7; default 0.25)")
-    ap.add_argument("--delay", type=nonneg_int, default=0, metavar="CYCLES",
+    ap.add_argument("--delay", type=non_negative_int, default=0, metavar="CYCLES",
                     help="transport delay [30 Hz cycles] inserted once (§6.2.5; default 0 = none)")
     ap.add_argument("--delay-at", type=finite_float, default=150.0, metavar="MM",
                     help="tool travel at which the transport delay starts [mm] (default 150)")
-    ap.add_argument("--dead-zone", type=nonneg_int, default=DEAD_ZONE_CYCLES, metavar="CYCLES",
+    ap.add_argument("--dead-zone", type=non_negative_int, default=DEAD_ZONE_CYCLES, metavar="CYCLES",
                     help=f"cycles at the start before the sensor is read (default {DEAD_ZONE_CYCLES})")
-    ap.add_argument("--lost-cycles", type=nonneg_int, default=LOST_CYCLES, metavar="CYCLES",
+    ap.add_argument("--lost-cycles", type=non_negative_int, default=LOST_CYCLES, metavar="CYCLES",
                     help=f"consecutive invalid readings that count as seam lost (default {LOST_CYCLES})")
     ap.add_argument("--length", type=positive_float, default=None, metavar="MM",
                     help="run length: tool travel [mm] at which the seam ends (default: track until "
@@ -166,6 +155,15 @@ def move_to_start(arm: BrainArm, T: np.ndarray, what: str, quiet: bool) -> None:
     cmd_id = arm.command_cart(T, arm.ticks_for(seconds))
     arm.wait_delivered(cmd_id, 10.0)
     arm.wait_done(cmd_id, 3 * seconds + 30.0)
+    # "done" is the planner's; let the servo settle before tracking starts from here
+    prev = None
+    deadline = time.monotonic() + SETTLE_TIMEOUT_S
+    while time.monotonic() < deadline:
+        pos = np.asarray(arm.read()["encoder_pos"], np.int64)
+        if prev is not None and np.max(np.abs(pos - prev)) <= SETTLED_COUNTS:
+            return
+        prev = pos
+        time.sleep(SETTLE_POLL_S)
 
 
 class Tracker:
@@ -203,6 +201,7 @@ class Tracker:
         self.out = None
         self.t0 = None
         self.stale_since = None
+        self.status_tick = None
         self.dbs = []
 
     # -- set-up ------------------------------------------------------------
@@ -250,7 +249,11 @@ class Tracker:
             return None
         self.stale_since = None
         self.lead = reading_of(self.lead_db.read())
-        out = self.core.step(pose_of(hold_rec), pose_of(reis_rec), self.lead, self.reis.joints_deg(reis_rec))
+        tick = int(reis_rec["tick"])  # the Status's own tick: a late update spans more cycles
+        elapsed = 1.0 if self.status_tick is None else max(1.0, (tick - self.status_tick) / CYCLE_TICKS)
+        self.status_tick = tick
+        out = self.core.step(pose_of(hold_rec), pose_of(reis_rec), self.lead, self.reis.joints_deg(reis_rec),
+                             elapsed_cycles=elapsed)
         self.out = out
         if out.stop is not None:
             return str(out.stop)

@@ -89,3 +89,45 @@ def fixed_seam_cell(text: str, lateral_mm: float = 0.0, deeper_mm: float = 0.0) 
     camera = "[world.devices.mvs_camera]"
     assert text.count(camera) == 1  # devices are declared before the sensors that see them
     return text.replace(camera, f'[world.devices.holder]\ntype = "fixed_arm"\nwcp = [{hold}]\n\n{camera}')
+
+
+def free_port() -> int:
+    """A tcp port on 127.0.0.1 free at the time of asking."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def small_tcp_cell(tmp_path: Path, name: str, keys: Path | None = None, extra: str = "") -> Path:
+    """A two-host cell over tcp:// on 127.0.0.1: the Brain (names, heartbeat, one remote)
+    and host ``a1`` whose arm subunit ``a1`` runs only its agent (no world, no servo).
+    With ``keys`` the cell file has a ``[curve]`` table naming that key directory."""
+    ports = [free_port() for _ in range(4)]
+    text = f'''[cell]
+name = "{name}"
+run_dir = "{tmp_path}/run"
+heartbeat_hz = 60.0
+
+[brain]
+host = "brain"
+heartbeat = "tcp://127.0.0.1:{ports[0]}"
+names = "tcp://127.0.0.1:{ports[1]}"
+
+[world]
+enabled = false
+
+[subunits.a1]
+class = "arm6r"
+robot = "reis_v15"
+host = "a1"
+agent = "tcp://127.0.0.1:{ports[2]}"
+relay = "tcp://127.0.0.1:{ports[3]}"
+programs = ["droid-reis-agent"]
+'''
+    if keys is not None:
+        text += f'\n[curve]\nkeys = "{keys}"\n'
+    path = tmp_path / f"{name}.toml"
+    path.write_text(text + extra)
+    return path

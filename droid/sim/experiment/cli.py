@@ -30,7 +30,7 @@ import time
 from dataclasses import dataclass, replace
 from typing import Sequence
 
-from droid.cli import ArgumentParser, BadInput, positive_float, positive_int, run
+from droid.cli import ArgumentParser, BadInput, non_negative_int, positive_float, positive_int, run
 from droid.sim.experiment.matrix import (EXP4_RUNS, POSITION_LABELS, TABLES, Experiment, experiments, resolve,
                                          valid_forms, with_seed)
 from droid.sim.experiment.sensors import SENSOR_MODELS
@@ -41,16 +41,6 @@ from droid.tasks.seam.core import STOP_END
 PROG = "droid-experiment"
 DEFAULT_OUT = os.path.join("out", "experiments")
 DEFAULT_SEED = 1
-
-
-def non_negative_int(text: str) -> int:
-    try:
-        value = int(text, 10)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0: {text!r}")
-    return value
 
 
 def build_parser() -> ArgumentParser:

@@ -19,6 +19,7 @@ import sys
 
 import zmq
 
+from droid.brain.curve import CurveHost
 from droid.brain.databases import open_local
 from droid.brain.heartbeat import TickSubscriber
 from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
@@ -68,7 +69,7 @@ def main(argv=None) -> int:
         station = SerialStation(core, link, ctrl_command, ctrl_status)
         presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
         ctx = zmq.Context()
-        ticks = TickSubscriber(ctx, sub.relay)
+        ticks = TickSubscriber(ctx, sub.relay, CurveHost(ctx, cell, sub.host), sub.host)
         link.open()  # a missing port is a fault, not a start-up failure
         presence.ready()
         notify_ready(args.ready_fd)
@@ -88,7 +89,7 @@ def main(argv=None) -> int:
             if link.opens != opens:
                 opens = link.opens
                 print(f"{PROG}: serial {url} open", file=sys.stderr)
-            presence.beat(t.tick, cycles, ticks.monitor.missed, 0)
+            presence.beat(t.tick, cycles, ticks.monitor.missed, 0, bad_frames=ticks.bad_frames)
         print(f"{PROG}: sent {core.sent}, completed {core.completed}, dropped {core.dropped}, refused "
               f"{core.refused}, failed {core.failed}, garbled {core.garbled}, timeouts {core.timeouts}, "
               f"busy rejects {core.busy_rejects}, port opens {link.opens}", file=sys.stderr)

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import zmq
 
+from droid.brain.curve import CurveHost
 from droid.brain.databases import open_local
 from droid.brain.heartbeat import TickSubscriber
 from droid.brain.rt import try_sched_fifo
@@ -188,7 +189,7 @@ def main(argv=None) -> int:
     ctrl_command = open_local(cell, sub, "ctrl_command")
     ctrl_status = open_local(cell, sub, "ctrl_status")
     ctx = zmq.Context()
-    ticks = TickSubscriber(ctx, sub.relay)
+    ticks = TickSubscriber(ctx, sub.relay, CurveHost(ctx, cell, sub.host), sub.host)
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
     core = PlannerCore(model)
     try:
@@ -198,14 +199,14 @@ def main(argv=None) -> int:
         while not Stop.requested:
             t = ticks.wait(0.5)
             if t is None:
-                presence.beat(last, core.refused, ticks.monitor.missed)
+                presence.beat(last, core.refused, ticks.monitor.missed, bad_frames=ticks.bad_frames)
                 continue
             last = t.tick
             out = core.step(ctrl_command.read(), ctrl_status.read())
             apply(out, ctrl_command, ctrl_status, t.tick)
             if out.note:
                 print(f"{PROG} {sub.name}: {out.note}", file=sys.stderr, flush=True)
-            presence.beat(last, core.refused, ticks.monitor.missed)
+            presence.beat(last, core.refused, ticks.monitor.missed, bad_frames=ticks.bad_frames)
     finally:
         ticks.close()
         ctx.term()

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 import zmq
 
+from droid.brain.curve import CurveHost
 from droid.brain.databases import open_local
 from droid.brain.layouts import (CMD_FAILED, CMD_OK, FAULT_BRAKING, FAULT_SERVO, HOME_MODE,
                                  HOMED, JOG_MODE, NORMAL_MODE, OFF)
@@ -146,13 +147,16 @@ def main(argv=None) -> int:
     ctrl_status = open_local(cell, sub, "ctrl_status")
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
     ctx = zmq.Context()
+    curve = CurveHost(ctx, cell, sub.host)  # the servo runs on the same host
     push = ctx.socket(zmq.PUSH)
     for opt, val in ((zmq.LINGER, 0), (zmq.SNDHWM, 2), (zmq.IMMEDIATE, 1)):
         push.setsockopt(opt, val)
+    curve.client(push, ep.servo, sub.host)
     push.connect(ep.servo)
     sub_sock = ctx.socket(zmq.SUB)
     sub_sock.setsockopt(zmq.SUBSCRIBE, b"")
     sub_sock.setsockopt(zmq.LINGER, 0)
+    curve.client(sub_sock, ep.servo_status, sub.host)
     sub_sock.connect(ep.servo_status)
     core = ServoAgentCore(cell.stale_ticks)
     timer = PeriodicTimer(int(round(1e9 / COMMAND_HZ)))
@@ -161,6 +165,7 @@ def main(argv=None) -> int:
         presence.ready()
         notify_ready(args.ready_fd)
         report, report_ns = None, 0
+        bad_frames = 0
         last_why = ""
         while not Stop.requested:
             if not timer.wait(0.5):
@@ -172,6 +177,7 @@ def main(argv=None) -> int:
                 except zmq.Again:
                     break
                 except sw.BadServoMessage:
+                    bad_frames += 1
                     continue
             fresh = report is not None and time.monotonic_ns() - report_ns < fresh_ns
             d = core.step(ctrl_command.read(), report, fresh)
@@ -189,7 +195,7 @@ def main(argv=None) -> int:
                 if d.why:
                     print(f"{PROG} {sub.name}: not commanding the servo: {d.why}", file=sys.stderr, flush=True)
                 last_why = d.why
-            presence.beat(0, timer.cycles, timer.overruns, timer.lateness_max_ns)
+            presence.beat(0, timer.cycles, timer.overruns, timer.lateness_max_ns, bad_frames=bad_frames)
     finally:
         timer.close()
         push.close(0)

@@ -19,6 +19,7 @@ import time
 import numpy as np
 import zmq
 
+from droid.brain.curve import CurveHost
 from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import RuntimeFailure, run
@@ -52,6 +53,7 @@ def main(argv=None) -> int:
     try_sched_fifo(priority=60, wanted=cell.sched_fifo, prog=PROG)
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
     ctx = zmq.Context()
+    curve = CurveHost(ctx, cell, sub.host)
     pull = ctx.socket(zmq.PULL)
     pull.setsockopt(zmq.LINGER, 0)
     pull.setsockopt(zmq.RCVHWM, 8)
@@ -62,6 +64,8 @@ def main(argv=None) -> int:
     timer = None
     failed = False
     try:
+        curve.server(pull, ep.servo)
+        curve.server(pub, ep.servo_status)
         try:
             pull.bind(ep.servo)
             pub.bind(ep.servo_status)
@@ -108,7 +112,7 @@ def main(argv=None) -> int:
                 raise RuntimeFailure(f"VME access failed: {exc}") from None
             if core.tick % sw.STATUS_EVERY_TICKS == 0:
                 pub.send(sw.pack_status(core.status(), bus.amps_powered), zmq.NOBLOCK)
-            presence.beat(0, timer.cycles, timer.overruns, timer.lateness_max_ns)
+            presence.beat(0, timer.cycles, timer.overruns, timer.lateness_max_ns, bad_frames=bad)
         if n_late:
             w = lateness_us[: min(n_late, LATENESS_WINDOW)]
             print(f"{PROG} {sub.name}: {timer.cycles} cycles, {timer.overruns} overruns "
@@ -126,6 +130,7 @@ def main(argv=None) -> int:
             timer.close()
         pull.close(0)
         pub.close(0)
+        curve.close()
         ctx.term()
         presence.close(failed=failed)
     return 0

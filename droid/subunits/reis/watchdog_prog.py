@@ -16,6 +16,7 @@ import sys
 
 import zmq
 
+from droid.brain.curve import CurveHost
 from droid.brain.databases import open_local
 from droid.brain.layouts import FAULT_WATCHDOG
 from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
@@ -40,6 +41,7 @@ def main(argv=None) -> int:
     sub_sock = ctx.socket(zmq.SUB)
     sub_sock.setsockopt(zmq.SUBSCRIBE, b"")
     sub_sock.setsockopt(zmq.LINGER, 0)
+    CurveHost(ctx, cell, sub.host).client(sub_sock, ep.servo_status, sub.host)
     sub_sock.connect(ep.servo_status)
     params = WatchdogParams()
     core = WatchdogCore(params)
@@ -53,6 +55,7 @@ def main(argv=None) -> int:
         presence.ready()
         notify_ready(args.ready_fd)
         heartbeat = None
+        bad_frames = 0
         fault = False
         reported = False
         while not Stop.requested:
@@ -64,6 +67,7 @@ def main(argv=None) -> int:
                 except zmq.Again:
                     break
                 except sw.BadServoMessage:
+                    bad_frames += 1
                     continue
                 heartbeat, fault = rep.tick, bool(rep.fault)
             # The amplifiers are powered only once the servo runs and holds the arm
@@ -83,7 +87,7 @@ def main(argv=None) -> int:
                 reported = True
                 print(f"{PROG} {sub.name}: servo dead or faulted: stopped kicking; the amplifiers "
                       f"will latch off until the controller's power is cycled", file=sys.stderr, flush=True)
-            presence.beat(0, timer.cycles, timer.overruns, timer.lateness_max_ns)
+            presence.beat(0, timer.cycles, timer.overruns, timer.lateness_max_ns, bad_frames=bad_frames)
     finally:
         if bus is not None:
             bus.close()

@@ -48,12 +48,13 @@ Additions (documented in docs/seamtrack.md): stop reasons -- the run length
 reached ("end of seam"), the lead sensor invalid for more than
 ``lost_cycles`` consecutive cycles after the dead zone ("seam lost"), a Reis
 command outside the robot model's reach or limits ("unreachable"), a tool that
-moved more than RUNAWAY_FACTOR steps in one cycle ("runaway"); and the
+moved faster than RUNAWAY_FACTOR times the speed for half a second ("runaway"); and the
 transport-delay buffer of §6.2.5 (:mod:`droid.tasks.seam.delay`).
 """
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -79,11 +80,15 @@ STOP_END = "end of seam"
 STOP_LOST = "seam lost"
 STOP_UNREACHABLE = "unreachable"
 STOP_RUNAWAY = "runaway"
-#: Runaway guard (an addition): a cycle in which the tool moved more than
-#: RUNAWAY_FACTOR steps (and at least RUNAWAY_MIN_MM) stops the run -- an oscillating,
-#: unstable loop (long delays, §6.2.5) or an arm that does not follow.
-RUNAWAY_FACTOR = 4.0
-RUNAWAY_MIN_MM = 2.0
+#: Runaway guard (an addition): after the dead zone, the tool moving more than
+#: RUNAWAY_FACTOR times the commanded speed over the last RUNAWAY_WINDOW cycles (and
+#: more than RUNAWAY_MIN_MM) stops the run -- an oscillating, unstable loop (long
+#: delays, §6.2.5) or an arm that does not follow.  The arm moves in bursts within a
+#: cycle (up to ~0.8 mm per 60 Hz tick at the wrist centre at 16 mm/s), so the guard
+#: looks at half a second, not one cycle; normal tracking runs at ~0.5x the speed.
+RUNAWAY_FACTOR = 3.0
+RUNAWAY_WINDOW = 15
+RUNAWAY_MIN_MM = 5.0
 
 PHASE_DEAD_ZONE = "dead zone"  # the sensor is not read yet (still the initial section)
 PHASE_INITIAL = "initial"  # the tool heads for the point where the sensor started
@@ -182,6 +187,7 @@ class _State:
     stop: Stop | None = None
     seam_pos: list = field(default_factory=list)  # positions (x, y, z) of the patch, index 0 newest
     seam_front: np.ndarray | None = None  # the newest patch frame (4x4)
+    recent: deque = field(default_factory=lambda: deque(maxlen=RUNAWAY_WINDOW))  # (moved mm, cycles)
 
 
 class SeamTracker:
@@ -331,14 +337,17 @@ class SeamTracker:
     def stopped(self) -> Stop | None:
         return self.s.stop
 
-    def step(self, T_global_hold6, T_global_reis6, reading: Reading, q_reis_deg=None) -> CycleOutput:
+    def step(self, T_global_hold6, T_global_reis6, reading: Reading, q_reis_deg=None,
+             elapsed_cycles: float = 1.0) -> CycleOutput:
         """One 30 Hz cycle.
 
         ``T_global_hold6``, ``T_global_reis6``: the GMF1 and Reis wrist-centre
         poses (4x4, mm, global, from their Status records); ``reading``: the
         lead sensor's reading (invalid -> zeros); ``q_reis_deg``: the Reis's
         joint angles [deg] (the first cycle's IK hint; later the previous
-        pick is used, as the planner does).
+        pick is used, as the planner does); ``elapsed_cycles``: how many
+        cycles of time lie between this Reis pose and the last one (a late
+        Status counts more than one: the runaway guard scales with it).
         """
         s = self.s
         cycle = s.cycle
@@ -354,10 +363,13 @@ class SeamTracker:
             moved_mm = float(np.linalg.norm(tool - s.last_tool))
             s.travel_mm += moved_mm
         s.last_tool = tool
-        limit_mm = max(self.p.runaway_factor * self.p.step_mm, RUNAWAY_MIN_MM)
-        if self.p.runaway_factor > 0 and moved_mm > limit_mm:
-            return self._stop(cycle, STOP_RUNAWAY, f"the tool moved {moved_mm:.1f} mm in one cycle "
-                                                   f"(limit {limit_mm:.1f} mm)")
+        if self.p.runaway_factor > 0 and s.dead_zone == 0:  # (in the dead zone the arm may still settle)
+            s.recent.append((moved_mm, max(1.0, elapsed_cycles)))
+            moved = sum(m for m, _ in s.recent)
+            limit_mm = max(self.p.runaway_factor * self.p.step_mm * sum(e for _, e in s.recent), RUNAWAY_MIN_MM)
+            if moved > limit_mm:
+                return self._stop(cycle, STOP_RUNAWAY, f"the tool moved {moved:.1f} mm in {len(s.recent)} "
+                                                       f"cycles (limit {limit_mm:.1f} mm)")
         if s.q_prev is None and q_reis_deg is not None:
             s.q_prev = np.asarray(q_reis_deg, float)
         if s.travel_mm >= self.p.length_mm:
