@@ -13,6 +13,7 @@ off.
 """
 from __future__ import annotations
 
+import json
 import sys
 import time
 
@@ -23,6 +24,7 @@ from droid.brain.program import Presence, Stop, notify_ready, presence_key, subu
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import RuntimeFailure, run
 from droid.subunits.reis import servo_wire as sw
+from droid.subunits.reis.brake_log import BrakeRecorder
 from droid.subunits.reis.endpoints import reis_endpoints
 from droid.subunits.reis.servo import ServoCore
 from droid.subunits.reis.servo_params import ServoParams
@@ -74,6 +76,7 @@ def main(argv=None) -> int:
         presence.ready()
         notify_ready(args.ready_fd)
         bad = 0
+        brakes = BrakeRecorder()
         lateness_us = np.zeros(LATENESS_WINDOW, np.float32)  # the last minute of wake-ups
         n_late = 0
         while not Stop.requested:
@@ -82,6 +85,7 @@ def main(argv=None) -> int:
                 continue
             lateness_us[n_late % LATENESS_WINDOW] = timer.lateness_ns / 1e3
             n_late += 1
+            arrived = False
             while True:  # every 60 Hz command, in order
                 try:
                     msg = pull.recv(zmq.NOBLOCK)
@@ -89,7 +93,7 @@ def main(argv=None) -> int:
                     break
                 try:
                     c = sw.unpack_command(msg)
-                    core.command(c.mode, c.counts)
+                    arrived = core.command(c.mode, c.counts) or arrived
                 except (sw.BadServoMessage, ValueError):
                     bad += 1
             try:
@@ -106,6 +110,9 @@ def main(argv=None) -> int:
             except (OSError, ValueError) as exc:
                 failed = True
                 raise RuntimeFailure(f"VME access failed: {exc}") from None
+            event = brakes.step(core.tick, arrived, core.starved, core.braking, core.encoder_pos)
+            if event is not None:
+                print(f"{PROG} {sub.name}: brake {json.dumps(event.as_dict())}", file=sys.stderr, flush=True)
             if core.tick % sw.STATUS_EVERY_TICKS == 0:
                 pub.send(sw.pack_status(core.status(), bus.amps_powered), zmq.NOBLOCK)
             presence.beat(0, timer.cycles, timer.overruns, timer.lateness_max_ns)
