@@ -34,4 +34,6 @@ PROGRAMS: dict[str, str] = {
     "droid-jog": "droid.tasks.jog",
     # the world
     "droid-sim": "droid.sim.world",
+    # tools
+    "droid-fault": "droid.faults.cli",
 }

@@ -124,7 +124,7 @@ def main(argv=None) -> int:
     failed = False
     try:
         cell.run_dir.mkdir(parents=True, exist_ok=True)
-        pub.bind(cell.heartbeat)
+        pub.bind(cell.bind_endpoint(cell.heartbeat))
         names = NameClient(ctx, cell.names)
         names.register("heartbeat", cell.heartbeat)
         core = HeartbeatCore(period_ns)

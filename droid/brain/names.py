@@ -213,7 +213,7 @@ def main(argv=None) -> int:
     try:
         cell.run_dir.mkdir(parents=True, exist_ok=True)
         try:
-            sock.bind(cell.names)
+            sock.bind(cell.bind_endpoint(cell.names))
         except zmq.ZMQError as exc:
             raise RuntimeFailure(f"cannot bind name space endpoint {cell.names}: {exc}") from None
         presence.ready()

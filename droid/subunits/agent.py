@@ -94,8 +94,8 @@ def agent_main(prog: str, argv=None) -> int:
     try:
         cell.run_dir.mkdir(parents=True, exist_ok=True)
         try:
-            router.bind(sub.agent)
-            relay.bind(sub.relay)
+            router.bind(cell.bind_endpoint(sub.agent))
+            relay.bind(cell.bind_endpoint(sub.relay))
         except zmq.ZMQError as exc:
             raise RuntimeFailure(f"cannot bind {sub.agent} / {sub.relay}: {exc}") from None
         names = NameClient(ctx, cell.names)

@@ -65,8 +65,8 @@ def main(argv=None) -> int:
     failed = False
     try:
         try:
-            pull.bind(ep.servo)
-            pub.bind(ep.servo_status)
+            pull.bind(cell.bind_endpoint(ep.servo))
+            pub.bind(cell.bind_endpoint(ep.servo_status))
         except zmq.ZMQError as exc:
             raise RuntimeFailure(f"cannot bind {ep.servo} / {ep.servo_status}: {exc}") from None
         bus = open_vme_waiting(ep.vme, OPEN_WAIT_S)
