@@ -1,29 +1,31 @@
-"""What the servo records about each emergency stop (thesis §4.1.5.1), in its own ticks.
+"""What the servo records about each halt of the arm (thesis §4.1.5.1), in its own ticks.
 
-The servo brakes when its command stream stops (the queue and the cache ran
-dry: the Brain link was lost, the planner or the servo agent went silent).
-:class:`BrakeRecorder` watches the servo core once per 500 Hz tick and, for
-every stop, records
+The arm halts at the end of every move, and also when its command stream
+stops: the queue and the cache run dry and the servo loads the emergency
+braking profile, or the way-point stops advancing (a silent Brain link
+freezes the planner's way-point, which the servo agent repeats until the
+link is declared lost).  :class:`BrakeRecorder` watches the measured encoder
+positions once per 500 Hz tick and, for every halt after motion, records
 
-* ``last_command_tick`` — the last servo tick at which a command message
-  arrived (the servo agent stops sending at most one 60 Hz period after the
-  Brain link was declared lost, so this is no later than the detection);
-* ``starved_tick`` — the first tick of the braking profile;
-* ``cmd_zero_tick`` — the first tick at which the braking profile's velocity
-  is zero on every joint;
+* ``moving_tick`` — the last tick at which some joint still moved at
+  ``min_speed`` counts per tick or more;
+* ``last_command_tick`` — the last command message that arrived up to then;
+* ``starved_tick`` — the first tick of the braking profile, or -1 when the
+  queue never ran dry (a planned end, or a frozen way-point);
 * ``standstill_tick`` — the first tick at which no joint moves on in its
-  direction of travel (at the last command) by more than ``still_counts``
-  counts per tick: the arm's velocity has reached zero (the position loop may
-  then pull back a few counts of overshoot);
-* ``settled_tick`` — the first tick of ``still_ticks`` ticks in a row in
-  which no measured encoder moved more than ``still_counts`` counts per tick;
-* ``speed_counts_per_tick`` — the largest measured joint speed at the last
-  command, and ``travel_counts`` — how far each joint moved from the last
-  command to the standstill.
+  direction of travel by more than ``still_counts`` counts per tick: the
+  arm's velocity has reached zero (the position loop may then pull back a
+  few counts of overshoot);
+* ``settled_tick`` — the first of ``still_ticks`` ticks in a row in which no
+  encoder moved more than ``still_counts`` counts per tick;
+* ``peak_speed_counts_per_tick`` — the fastest joint during the motion.
 
-Pure: the shell feeds it ticks and positions and prints the finished records
-(one JSON object, on the servo's log).  Wall-clock time never enters it.
+Velocities are averaged over ``WINDOW`` ticks: the encoders are sampled on
+another process's clock (the hardware's), so a single tick's difference
+jitters.  Pure: the shell feeds it ticks and positions and prints each
+record (one JSON object, on the servo's log).  Wall-clock time never enters.
 """
+
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
@@ -31,21 +33,21 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 SERVO_TICK_S = 0.002  # 500 Hz
+WINDOW = 4  # ticks over which velocity is averaged
 
 
 @dataclass(frozen=True)
 class BrakeEvent:
     last_command_tick: int
+    moving_tick: int
     starved_tick: int
-    cmd_zero_tick: int
     standstill_tick: int
     settled_tick: int
-    speed_counts_per_tick: int
-    travel_counts: tuple[int, ...]
+    peak_speed_counts_per_tick: int
 
     @property
     def stop_ticks(self) -> int:
-        """Servo ticks from the last command to the measured standstill (velocity zero)."""
+        """Servo ticks from the last command of the motion to zero velocity."""
         return self.standstill_tick - self.last_command_tick
 
     @property
@@ -55,67 +57,74 @@ class BrakeEvent:
 
     def as_dict(self) -> dict:
         d = asdict(self)
-        d["travel_counts"] = list(self.travel_counts)
-        d.update(stop_ticks=self.stop_ticks, stop_ms=round(self.stop_ms, 1),
-                 settle_ms=round((self.settled_tick - self.last_command_tick) * SERVO_TICK_S * 1e3, 1))
+        d.update(stop_ticks=self.stop_ticks, stop_ms=round(self.stop_ms, 1))
         return d
 
 
 class BrakeRecorder:
     """Turns the servo's per-tick state into :class:`BrakeEvent` records.  Pure."""
 
-    def __init__(self, still_counts: int = 1, still_ticks: int = 5, min_speed_counts_per_tick: int = 2):
+    def __init__(self, still_counts: float = 1.0, still_ticks: int = 5, min_speed_counts_per_tick: float = 2.0):
         self.still_counts = still_counts
         self.still_ticks = still_ticks
-        self.min_speed = min_speed_counts_per_tick  # slower than this at the last command: not a stop worth recording
-        self._prev: np.ndarray | None = None
-        self._prev_at_cmd: np.ndarray | None = None
-        self._last_cmd_tick = 0
-        self._pos_at_cmd: np.ndarray | None = None
-        self._speed_at_cmd = 0
-        self._starved_tick: int | None = None
-        self._zero_tick: int | None = None
-        self._still_since: int | None = None
-        self._dir: np.ndarray | None = None  # sign of each joint's velocity at the last command
-        self._stand_tick: int | None = None
-        self._done = True  # no stop in progress
+        self.min_speed = min_speed_counts_per_tick
+        self._hist: list[np.ndarray] = []
+        self._last_cmd_tick = -1
+        self._starved_since = -1
+        self._moving = False
+        self._reset_motion()
 
-    def step(self, tick: int, command_arrived: bool, starved: bool, braking: bool,
-             encoder_pos_counts) -> BrakeEvent | None:
-        """One servo tick, after the core's step; returns a record when a stop completes."""
+    def _reset_motion(self) -> None:
+        self._dir: np.ndarray | None = None
+        self._peak = 0.0
+        self._moving_tick = self._cmd_tick = -1
+        self._stand_tick: int | None = None
+        self._still_since: int | None = None
+
+    def step(self, tick: int, command_arrived: bool, starved: bool, encoder_pos_counts,
+             homing: bool = False) -> BrakeEvent | None:
+        """One servo tick, after the core's step; returns a record when a halt completes.
+        Homing moves (and the jump of the count frame when homing ends) are not recorded."""
         pos = np.asarray(encoder_pos_counts, np.int64)
-        same = self._prev is not None and self._prev.shape == pos.shape
-        vel = pos - self._prev if same else np.zeros_like(pos)
+        if homing:
+            self._hist.clear()
+            self._moving = False
+            return None
+        self._hist.append(pos)
+        if len(self._hist) > WINDOW + 1:
+            self._hist.pop(0)
+        n = len(self._hist) - 1
+        vel = (pos - self._hist[0]) / n if n else np.zeros(pos.shape)
         speed = np.abs(vel)
-        self._prev_at_cmd = self._prev if same else None
-        self._prev = pos
         if command_arrived:
             self._last_cmd_tick = tick
-            self._pos_at_cmd = pos
-            self._speed_at_cmd = int(speed.max()) if speed.size else 0
-            self._dir = np.sign(pos - self._prev_at_cmd) if self._prev_at_cmd is not None else None
         if not starved:
-            self._starved_tick = self._zero_tick = self._still_since = self._stand_tick = None
-            self._done = False
+            self._starved_since = -1
+        elif self._starved_since < 0:
+            self._starved_since = tick
+        # moving: any joint at min_speed; once a halt has begun, only onwards in the
+        # direction of travel (the position loop pulling back an overshoot is part of the halt)
+        onwards = vel * self._dir if (self._moving and self._dir is not None) else speed
+        if onwards.max(initial=0.0) >= self.min_speed:
+            if not self._moving:
+                self._moving = True
+                self._reset_motion()
+            self._dir = np.where(speed >= self.still_counts, np.sign(vel), 0.0)
+            self._peak = max(self._peak, float(speed.max()))
+            self._moving_tick, self._cmd_tick = tick, self._last_cmd_tick
+            self._stand_tick, self._still_since = None, None
             return None
-        if self._done:
+        if not self._moving:
             return None
-        if self._starved_tick is None:
-            self._starved_tick = tick
-        if self._zero_tick is None and not braking:
-            self._zero_tick = tick
-        if self._stand_tick is None and self._dir is not None and np.all(vel * self._dir <= self.still_counts):
+        if self._stand_tick is None and np.all(vel * self._dir <= self.still_counts):
             self._stand_tick = tick
         if np.all(speed <= self.still_counts):
             if self._still_since is None:
                 self._still_since = tick
         else:
             self._still_since = None
-        if self._zero_tick is None or self._still_since is None or tick - self._still_since + 1 < self.still_ticks:
+        if self._stand_tick is None or self._still_since is None or tick - self._still_since + 1 < self.still_ticks:
             return None
-        self._done = True
-        if self._speed_at_cmd < self.min_speed or self._pos_at_cmd is None:
-            return None
-        stand = self._stand_tick if self._stand_tick is not None else self._still_since
-        return BrakeEvent(self._last_cmd_tick, self._starved_tick, self._zero_tick, stand, self._still_since,
-                          self._speed_at_cmd, tuple(int(x) for x in pos - self._pos_at_cmd))
+        self._moving = False
+        return BrakeEvent(self._cmd_tick, self._moving_tick, self._starved_since, self._stand_tick,
+                          self._still_since, int(round(self._peak)))

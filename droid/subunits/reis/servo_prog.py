@@ -10,6 +10,10 @@ agent and the watchdog.  It never takes a shared-database semaphore (§4.1.6).
 On exit, and on any error in read/write (ros2_control's ``on_error``), the
 DACs are zeroed.  The watchdog notices a dead servo and latches the amplifiers
 off.
+
+Every halt of the arm (the end of a move, an emergency stop) is recorded in
+servo ticks (:mod:`~droid.subunits.reis.brake_log`) and printed as one line
+``droid-servo NAME: halt {json}`` on the servo's log.
 """
 from __future__ import annotations
 
@@ -76,7 +80,7 @@ def main(argv=None) -> int:
         presence.ready()
         notify_ready(args.ready_fd)
         bad = 0
-        brakes = BrakeRecorder()
+        halts = BrakeRecorder()
         lateness_us = np.zeros(LATENESS_WINDOW, np.float32)  # the last minute of wake-ups
         n_late = 0
         while not Stop.requested:
@@ -110,9 +114,9 @@ def main(argv=None) -> int:
             except (OSError, ValueError) as exc:
                 failed = True
                 raise RuntimeFailure(f"VME access failed: {exc}") from None
-            event = brakes.step(core.tick, arrived, core.starved, core.braking, core.encoder_pos)
+            event = halts.step(core.tick, arrived, core.starved, core.encoder_pos, core.homing)
             if event is not None:
-                print(f"{PROG} {sub.name}: brake {json.dumps(event.as_dict())}", file=sys.stderr, flush=True)
+                print(f"{PROG} {sub.name}: halt {json.dumps(event.as_dict())}", file=sys.stderr, flush=True)
             if core.tick % sw.STATUS_EVERY_TICKS == 0:
                 pub.send(sw.pack_status(core.status(), bus.amps_powered), zmq.NOBLOCK)
             presence.beat(0, timer.cycles, timer.overruns, timer.lateness_max_ns)
