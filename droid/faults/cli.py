@@ -29,6 +29,7 @@ import sys
 
 from droid.brain.cellfile import load_cell
 from droid.brain.program import Stop
+from droid.brain.rt import try_sched_fifo
 from droid.cli import ArgumentParser, BadInput, DroidError, finite_float, run
 from droid.faults import procs
 from droid.faults.core import LinkFaults
@@ -115,6 +116,8 @@ def main(argv=None) -> int:
     if args.cmd == "proxy":
         proxy = FaultProxy(cell, args.label, LinkFaults.from_dict(_faults_from(args)), seed=args.seed)
         Stop.install()
+        # the proxy stands in for a wire: it runs at the priority of the programs it sits between
+        try_sched_fifo(priority=50, wanted=cell.sched_fifo, prog=PROG)
         print(f"{PROG}: proxy on {args.label} ({proxy.ep.public} -> {proxy.inner}), control {proxy.control}",
               file=sys.stderr, flush=True)
         proxy.serve(stop=lambda: Stop.requested)
