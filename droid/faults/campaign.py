@@ -51,6 +51,7 @@ from droid.brain.databases import open_local
 from droid.brain.layouts import FAULT_WATCHDOG
 from droid.brain.shmdb import cell_objects, pid_alive
 from droid.faults import procs
+from droid.faults.cells import campaign_cell_text  # noqa: F401  (re-exported)
 from droid.cli import RuntimeFailure
 from droid.faults.proxy import control
 
@@ -109,43 +110,6 @@ def plan(n: int, seed: int) -> list[Fault]:
     return out
 
 
-def campaign_cell_text(name: str, run_dir: str) -> str:
-    """A one-host cell with the Reis alone, its agent link behind a fault proxy."""
-    return f'''
-[cell]
-name = "{name}"
-run_dir = "{run_dir}"
-heartbeat_hz = 60.0
-stale_ticks = 3
-sched_fifo = true
-
-[brain]
-host = "brain"
-
-[world]
-enabled = true
-host = "arm1"
-rate_hz = 1000.0
-seed = 1
-
-[world.devices.arm1]
-type = "reis_vme"
-subunit = "arm1"
-
-[subunits.arm1]
-class = "arm6r"
-robot = "reis_v15"
-host = "arm1"
-programs = ["droid-watchdog", "droid-servo", "droid-servo-agent", "droid-reis-agent", "droid-planner"]
-vme = "shm://droid.{{cell}}.arm1.vme"
-servo = "ipc://{{run}}/arm1.servo"
-servo_status = "ipc://{{run}}/arm1.servostat"
-
-[interpose]
-"ipc://{{run}}/arm1.agent" = "ipc://{{run}}/arm1.agent.inner"
-'''
-
-
 def droid(module: str, *args: str, timeout: float = 120) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", module, *args], capture_output=True, text=True, timeout=timeout)
 
@@ -180,7 +144,7 @@ class MoveLoop(Workload):
         t = self.targets[round_no % 2]
         return subprocess.Popen([sys.executable, "-m", "droid.tasks.move", "arm1", "joint", *map(str, t),
                                  str(self.seconds), "--cell", str(cell_path)],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
 
     def recovery_target(self) -> np.ndarray:
         return self.targets[0]
@@ -204,6 +168,7 @@ class Round:
     runaway: list = field(default_factory=list)
     wedged: list = field(default_factory=list)
     move_rc: int | None = None
+    move_error: str = ""  # the workload command's last words when it failed
     idle_check_s: float = 0.0  # fault cleared -> command ended, arm idle and checked (not in recovery_s)
     recovery_failures: list = field(default_factory=list)  # stderr of recovery moves that failed
     false_success: bool = False  # the workload's command exited 0 but the arm is not at its target
@@ -461,6 +426,11 @@ class Campaign:
                 except subprocess.TimeoutExpired:
                     move.kill()
                     r.move_rc = move.wait()
+                if move.stderr is not None:
+                    err = move.stderr.read().strip()
+                    move.stderr.close()
+                    if r.move_rc:
+                        r.move_error = err[-200:]
                 # the task has ended; a command it left in the cell (a failed task) may still
                 # be carried out: that is an orphan move, recorded, not a runaway
                 try:

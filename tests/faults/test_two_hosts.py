@@ -18,48 +18,11 @@ import time
 import numpy as np
 import pytest
 
+from droid.faults.cells import two_host_cell_text
 from tests.brain.cellutil import ROOT, droid, wait_for
 
 pytestmark = pytest.mark.integration
 STOP_LIMIT_MS = 100.0  # link cut to zero velocity, in servo time (2 ms a tick)
-
-
-def two_host_cell_text(name: str, run_dir: str, brain_addr: str, arm_addr: str) -> str:
-    """arm1 (Reis) on host arm1 with the world; the Brain on host brain; tcp between them."""
-    return f'''
-[cell]
-name = "{name}"
-run_dir = "{run_dir}"
-heartbeat_hz = 60.0
-stale_ticks = 3
-sched_fifo = true
-
-[brain]
-host = "brain"
-heartbeat = "tcp://{brain_addr}:5551"
-names = "tcp://{brain_addr}:5550"
-
-[world]
-enabled = true
-host = "arm1"
-rate_hz = 1000.0
-seed = 1
-
-[world.devices.arm1]
-type = "reis_vme"
-subunit = "arm1"
-
-[subunits.arm1]
-class = "arm6r"
-robot = "reis_v15"
-host = "arm1"
-agent = "tcp://{arm_addr}:5552"
-relay = "ipc://{{run}}/arm1.relay"
-programs = ["droid-watchdog", "droid-servo", "droid-servo-agent", "droid-reis-agent", "droid-planner"]
-vme = "shm://droid.{{cell}}.arm1.vme"
-servo = "ipc://{{run}}/arm1.servo"
-servo_status = "ipc://{{run}}/arm1.servostat"
-'''
 
 
 def in_ns(hp, side, module, *args, timeout=120):
