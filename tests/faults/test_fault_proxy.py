@@ -153,3 +153,46 @@ def test_cli_list_and_interpose(cell, capsys):
     assert cli.main(["--cell", str(cell.path), "interpose", "arm1.relay"]) == 0
     assert "arm1.relay.inner" in capsys.readouterr().out
     assert cli.main(["--cell", str(cell.path), "kill", "droid-servo arm1"]) == 1  # the cell is not up
+
+
+def test_wedged_databases_finds_a_live_holder_and_not_a_dead_one(tmp_path, cell_name):
+    """The campaign's lock check can fail: a holder that is alive (here: stopped) wedges its
+    database; once it is dead, the next waiter recovers the lock."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    from droid.brain.databases import create_databases
+    from droid.brain.shmdb import remove_cell_objects
+    from droid.faults.cells import campaign_cell_text
+    from droid.faults.procs import wedged_databases
+
+    path = tmp_path / f"{cell_name}.toml"
+    path.write_text(campaign_cell_text(cell_name, str(tmp_path / "run")))
+    c = load_cell(path)
+    for db in create_databases(c):
+        db.close()
+    code = ("import sys,time\nfrom droid.brain.cellfile import load_cell\n"
+            "from droid.brain.databases import open_local\n"
+            "c = load_cell(sys.argv[1]); db = open_local(c, c.subunit('arm1'), 'ctrl_command')\n"
+            "db._acquire(); print('held', flush=True); time.sleep(60)\n")
+    p = subprocess.Popen([sys.executable, "-c", code, str(path)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert p.stdout.readline().strip() == "held"
+        os.kill(p.pid, signal.SIGSTOP)
+        assert wedged_databases(c, timeout_s=0.2) == [f"/droid.{cell_name}.arm1.ctrl_command"]
+        p.kill()
+        p.wait()
+        assert wedged_databases(c, timeout_s=0.2) == []
+    finally:
+        p.kill()
+        p.wait()
+        p.stdout.close()
+        remove_cell_objects(cell_name)
+
+
+def test_droid_cell_restart_refuses_when_the_cell_is_not_up(cell):
+    from droid.brain import launcher
+
+    assert launcher.main(["restart", "droid-servo arm1", "--cell", str(cell.path)]) == 1
