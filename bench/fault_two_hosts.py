@@ -84,10 +84,14 @@ def main() -> int:
         try:
             run("droid.brain.launcher", "up", "--cell", str(path), "--host", "brain", ns="a", hp=hp)
             run("droid.brain.launcher", "up", "--cell", str(path), "--host", "arm1", ns="b", hp=hp)
-            time.sleep(1.0)
-            run("droid.tasks.home", "arm1", "--cell", str(path))
             ctrl = open_local(cell, cell.subunit("arm1"), "ctrl_status")
             brain = open_brain(cell, cell.subunit("arm1"), "status")
+            deadline = time.monotonic() + 30
+            while int(brain.read()["stale"]) or int(brain.read()["fault"]):
+                if time.monotonic() > deadline:
+                    raise SystemExit(f"arm1 not fresh and fault-free: fault {int(brain.read()['fault'])}")
+                time.sleep(0.1)
+            run("droid.tasks.home", "arm1", "--cell", str(path))
             ticks = Ticks(cell.subunit("arm1").options["servo_status"])
             ticks.start()
             targets = [[30000, 0, 0, 0, 0, 60000], [0, 0, 0, 0, 0, 0]]

@@ -318,8 +318,7 @@ class Campaign:
             procs.signal_program(self.cell, f.target, "kill")
             return lambda: None
         if f.kind == "semkill":
-            sub, area = f.target.split(".")
-            self._kill_holder(sub, area)
+            self._kill_holder()
             return lambda: None
         raise ValueError(f.kind)
 
@@ -328,23 +327,37 @@ class Campaign:
         if not ans.get("ok"):
             raise RuntimeError(f"fault proxy refused {faults}: {ans}")
 
-    def _kill_holder(self, sub: str, area: str) -> None:
-        """A process takes the database's semaphore (recording itself as the holder, as
-        every program does) and is SIGKILLed holding it."""
-        code = ("import sys,time\n"
-                "from droid.brain.cellfile import load_cell\n"
-                "from droid.brain.databases import open_brain, open_local\n"
-                "c = load_cell(sys.argv[1]); s = c.subunit(sys.argv[2]); a = sys.argv[3]\n"
-                "db = (open_local if a.startswith('ctrl_') else open_brain)(c, s, a)\n"
-                "db._acquire(); print('held', flush=True); time.sleep(60)\n")
-        p = subprocess.Popen([sys.executable, "-c", code, str(self.path), sub, area], stdout=subprocess.PIPE,
-                             text=True)
+    def prepare(self, f: Fault) -> None:
+        """Start what a fault needs ahead of time, so that it lands when planned: the
+        semaphore holder (a Python process takes ~0.2-2 s to start on a loaded machine)."""
+        self._holder = None
+        if f.kind == "semkill":
+            sub, area = f.target.split(".")
+            code = ("import sys,time\n"
+                    "from droid.brain.cellfile import load_cell\n"
+                    "from droid.brain.databases import open_brain, open_local\n"
+                    "c = load_cell(sys.argv[1]); s = c.subunit(sys.argv[2]); a = sys.argv[3]\n"
+                    "db = (open_local if a.startswith('ctrl_') else open_brain)(c, s, a)\n"
+                    "print('ready', flush=True); sys.stdin.readline()\n"
+                    "db._acquire(); print('held', flush=True); time.sleep(60)\n")
+            self._holder = subprocess.Popen([sys.executable, "-c", code, str(self.path), sub, area],
+                                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+            self._holder.stdout.readline()
+
+    def _kill_holder(self) -> None:
+        """The prepared process takes the database's semaphore (recording itself as the
+        holder, as every program does) and is SIGKILLed holding it."""
+        p = self._holder
         try:
+            p.stdin.write("go\n")
+            p.stdin.flush()
             p.stdout.readline()
         finally:
             p.kill()
             p.wait()
             p.stdout.close()
+            p.stdin.close()
+            self._holder = None
 
     def recover(self, f: Fault, cleared_at: float) -> tuple[float | None, str]:
         """Until a new command succeeds: restart a dead program, or the whole cell."""
@@ -408,6 +421,7 @@ class Campaign:
             for i, f in enumerate(faults):
                 r = Round(asdict(f))
                 watcher.enabled.set()
+                self.prepare(f)
                 move = self.workload.start(self.path, i)
                 time.sleep(f.after_s)
                 try:

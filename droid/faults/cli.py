@@ -150,9 +150,9 @@ def main(argv=None) -> int:
         print(f"{PROG}: {args.cmd} {args.program} (pid {pid})")
         return 0
     if args.cmd == "link":
-        from droid.faults.netns import _ip
+        from droid.faults.netns import ip
 
-        _ip("-n", args.netns, "link", "set", args.dev, args.state)
+        ip("-n", args.netns, "link", "set", args.dev, args.state)
         return 0
     return 2
 

@@ -23,7 +23,8 @@ PREFIX = "droidf-"
 VETH_PREFIX = "dfv"
 
 
-def _ip(*args: str, check: bool = True) -> subprocess.CompletedProcess:
+def ip(*args: str, check: bool = True) -> subprocess.CompletedProcess:
+    """Run ``ip ARGS``; RuntimeFailure with its message if it fails (and ``check``)."""
     out = subprocess.run(["ip", *args], capture_output=True, text=True, timeout=10)
     if check and out.returncode != 0:
         raise RuntimeFailure(f"ip {' '.join(args)}: {out.stderr.strip() or out.returncode}")
@@ -35,18 +36,18 @@ def available() -> str | None:
     if shutil.which("ip") is None:
         return "iproute2 'ip' is not installed"
     probe = f"{PREFIX}probe-{uuid.uuid4().hex[:6]}"
-    out = _ip("netns", "add", probe, check=False)
+    out = ip("netns", "add", probe, check=False)
     if out.returncode != 0:
         return f"cannot create a network namespace: {out.stderr.strip()}"
-    _ip("netns", "del", probe, check=False)
+    ip("netns", "del", probe, check=False)
     return None
 
 
 def leftovers() -> list[str]:
     """Namespaces and root-namespace links made by this module that still exist."""
-    ns = _ip("netns", "list", check=False).stdout.split("\n")
+    ns = ip("netns", "list", check=False).stdout.split("\n")
     names = [line.split()[0] for line in ns if line.startswith(PREFIX)]
-    links = _ip("-o", "link", "show", check=False).stdout.splitlines()
+    links = ip("-o", "link", "show", check=False).stdout.splitlines()
     names += [ln.split(":")[1].strip().split("@")[0] for ln in links
               if len(ln.split(":")) > 1 and ln.split(":")[1].strip().startswith(VETH_PREFIX)]
     return names
@@ -69,15 +70,15 @@ class HostPair:
     def create(self) -> "HostPair":
         try:
             for ns in (self.ns_a, self.ns_b):
-                _ip("netns", "add", ns)
+                ip("netns", "add", ns)
                 self._made.append(ns)
-                _ip("-n", ns, "link", "set", "lo", "up")
-            _ip("link", "add", self.dev_a, "type", "veth", "peer", "name", self.dev_b)
-            _ip("link", "set", self.dev_a, "netns", self.ns_a)
-            _ip("link", "set", self.dev_b, "netns", self.ns_b)
+                ip("-n", ns, "link", "set", "lo", "up")
+            ip("link", "add", self.dev_a, "type", "veth", "peer", "name", self.dev_b)
+            ip("link", "set", self.dev_a, "netns", self.ns_a)
+            ip("link", "set", self.dev_b, "netns", self.ns_b)
             for ns, dev, addr in ((self.ns_a, self.dev_a, self.addr_a), (self.ns_b, self.dev_b, self.addr_b)):
-                _ip("-n", ns, "addr", "add", f"{addr}/24", "dev", dev)
-                _ip("-n", ns, "link", "set", dev, "up")
+                ip("-n", ns, "addr", "add", f"{addr}/24", "dev", dev)
+                ip("-n", ns, "link", "set", dev, "up")
         except BaseException:
             self.destroy()
             raise
@@ -85,15 +86,15 @@ class HostPair:
 
     def destroy(self) -> None:
         """Remove both namespaces (the veth pair goes with them); idempotent."""
-        _ip("link", "del", self.dev_a, check=False)  # if it never moved into its namespace
+        ip("link", "del", self.dev_a, check=False)  # if it never moved into its namespace
         for ns in (self.ns_a, self.ns_b):
-            _ip("netns", "del", ns, check=False)
+            ip("netns", "del", ns, check=False)
         self._made.clear()
 
     def set_link(self, side: str, up: bool) -> None:
         """Bring one side's veth up or down (``side`` 'a' or 'b'): down cuts the hosts apart."""
         ns, dev = (self.ns_a, self.dev_a) if side == "a" else (self.ns_b, self.dev_b)
-        _ip("-n", ns, "link", "set", dev, "up" if up else "down")
+        ip("-n", ns, "link", "set", dev, "up" if up else "down")
 
     def exec_argv(self, side: str, argv: list[str]) -> list[str]:
         """``argv`` run inside one namespace."""

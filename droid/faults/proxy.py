@@ -168,10 +168,7 @@ class FaultProxy:
                 back.connect(self.inner)
                 if kind == "pub":
                     poller.register(back, zmq.POLLIN)
-            if kind in ("router", "pub"):
-                poller.register(front, zmq.POLLIN)
-            elif kind == "pull":
-                poller.register(front, zmq.POLLIN)
+            poller.register(front, zmq.POLLIN)
             poller.register(ctl, zmq.POLLIN)
             self._ready.set()
             while not self._stop.is_set() and not stop():
