@@ -157,6 +157,31 @@ class MoveLoop(Workload):
         return np.stack([t.min(axis=0), t.max(axis=0)])
 
 
+class CommandWorkload(Workload):
+    """Any task program as the workload: ``argv(cell_path, round_no)`` gives its module and
+    arguments (run as ``python -m``).  A seam-tracking workload is one entry::
+
+        WORKLOADS["seamtrack"] = lambda: CommandWorkload(
+            "droid-seamtrack 16", lambda cell, i: ["droid.tasks.seamtrack", "16", "--cell", str(cell)],
+            envelope=SEAM_ENVELOPE_COUNTS, recovery_target=SEAM_START_COUNTS)
+    """
+
+    def __init__(self, name: str, argv, envelope, recovery_target):
+        self.name, self._argv = name, argv
+        self._envelope = np.asarray(envelope, int)
+        self._recovery = np.asarray(recovery_target, int)
+
+    def start(self, cell_path, round_no):
+        return subprocess.Popen([sys.executable, "-m", *self._argv(cell_path, round_no)],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+
+    def envelope(self):
+        return self._envelope
+
+    def recovery_target(self):
+        return self._recovery
+
+
 WORKLOADS = {"move": MoveLoop}
 
 

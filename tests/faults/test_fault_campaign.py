@@ -18,6 +18,17 @@ def test_plan_is_seeded_and_covers_every_kind():
     assert kinds == {"drop", "delay", "duplicate", "cut", "pause", "kill", "semkill"}
 
 
+def test_a_task_program_is_a_workload_in_one_line():
+    from droid.faults.campaign import CommandWorkload
+
+    w = CommandWorkload("droid-move", lambda cell, i: ["droid.tasks.move", "--help"],
+                        envelope=[[0] * 6, [1] * 6], recovery_target=[0] * 6)
+    p = w.start("unused.toml", 0)
+    assert p.wait(60) == 0
+    p.stderr.close()
+    assert w.envelope().shape == (2, 6) and w.recovery_target().shape == (6,)
+
+
 def test_short_campaign_has_no_runaway_no_wedged_semaphore_and_no_leak(tmp_path, cell_name):
     path = tmp_path / f"{cell_name}.toml"
     path.write_text(campaign_cell_text(cell_name, str(tmp_path / "run")))
