@@ -37,4 +37,6 @@ PROGRAMS: dict[str, str] = {
     "droid-experiment": "droid.sim.experiment.cli",
     # the world
     "droid-sim": "droid.sim.world",
+    # tools
+    "droid-fault": "droid.faults.cli",
 }

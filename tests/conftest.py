@@ -134,3 +134,23 @@ def sim_cell(tmp_path, cell_name):
         out = droid("droid.brain.launcher", "down", "--cell", str(path))
         assert out.returncode == 0, out.stderr
         assert cell_objects(cell_name) == []
+
+
+@pytest.fixture
+def host_pair():
+    """Two network namespaces joined by a veth pair (droid.faults.netns), removed after the
+    test; fails the test if any namespace or veth it made is left behind."""
+    from droid.faults import netns
+
+    why = netns.available()
+    if why is not None:
+        pytest.skip(f"no network namespaces here: {why}")
+    before = set(netns.leftovers())
+    hp = netns.HostPair(subnet=int(uuid.uuid4().int % 200) + 20)
+    hp.create()
+    try:
+        yield hp
+    finally:
+        hp.destroy()
+        left = set(netns.leftovers()) - before
+        assert not left, f"test left network namespaces or links behind: {sorted(left)}"

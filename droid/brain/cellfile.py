@@ -77,6 +77,13 @@ class Cell:
     subunits: dict[str, Subunit]
     curve: CurveConfig | None  # [curve]: CURVE keys for tcp:// links (None: no keys)
     raw: dict[str, Any]
+    # [interpose] public endpoint -> the endpoint its owner binds instead, so that a
+    # fault proxy (droid-fault) can serve the public one (docs/safety.md)
+    interpose: dict[str, str] = field(default_factory=dict)
+
+    def bind_endpoint(self, endpoint: str) -> str:
+        """Where the owner of ``endpoint`` binds: itself, or its [interpose] inner endpoint."""
+        return self.interpose.get(endpoint, endpoint)
 
     @property
     def period_ns(self) -> int:
@@ -200,6 +207,13 @@ def parse_cell(raw: dict[str, Any], p: Path) -> Cell:
     world.update(_expand(w.done(allow_extra=True), run, name))
 
     curve_table = top.get("curve", dict, None)
+    interpose = {}
+    for public, inner in top.get("interpose", dict, {}).items():
+        for v in (public, inner):
+            msg = _endpoint(v) if isinstance(v, str) else "must be a string"
+            if msg:
+                raise BadInput(f"{p}: [interpose] {v!r} {msg}")
+        interpose[_expand(public, run, name)] = _expand(inner, run, name)
 
     subs_raw = top.get("subunits", dict)
     if not subs_raw:
@@ -240,7 +254,7 @@ def parse_cell(raw: dict[str, Any], p: Path) -> Cell:
     return Cell(path=p.resolve(), name=name, heartbeat_hz=hb_hz, stale_ticks=stale,
                 sched_fifo=fifo, run_dir=Path(run_dir), brain_host=brain_host,
                 heartbeat=heartbeat, names=names, world=world, subunits=subunits,
-                curve=curve, raw=raw)
+                curve=curve, raw=raw, interpose=interpose)
 
 
 def _check_programs(p: Path, subunits: dict[str, Subunit]) -> None:

@@ -133,7 +133,7 @@ def main(argv=None) -> int:
     try:
         cell.run_dir.mkdir(parents=True, exist_ok=True)
         curve.server(pub, cell.heartbeat)
-        pub.bind(cell.heartbeat)
+        pub.bind(cell.bind_endpoint(cell.heartbeat))
         names = NameClient(ctx, cell.names, curve=curve, server_host=cell.brain_host)
         names.register("heartbeat", cell.heartbeat)
         core = HeartbeatCore(period_ns)

@@ -10,6 +10,11 @@
     only creates the databases, for a cell started by hand (scripts/start-cell.sh).
 ``droid-cell status [--json]``
     every program with its pid, state, liveness and last tick.
+``droid-cell restart NAME``
+    starts one program of the cell again (after it died or was killed: a
+    fault, docs/safety.md), waits for its handshake and records its new pid,
+    so ``down`` stops it.  NAME as ``status`` shows it (``droid-servo arm1``)
+    or its key.
 ``droid-cell down``
     stops every program (SIGTERM, then SIGKILL after a grace period) and
     removes every shared-memory object and semaphore of the cell.
@@ -299,6 +304,41 @@ STATUS_KEYS = {  # droid-cell status --json: one object a line with these keys
 }
 
 
+def restart(cell: Cell, name: str, timeout_s: float) -> Spec:
+    """Start one program of the cell again (it must be dead); returns its new Spec."""
+    state = read_state(cell)
+    if state is None:
+        raise RuntimeFailure(f"cell {cell.name!r} is not up (no programs found)")
+    found = None
+    for fname in sorted(f for f in os.listdir(cell.run_dir) if f.startswith("cell") and f.endswith(".json")):
+        with open(cell.run_dir / fname) as f:
+            st = json.load(f)
+        for p in st.get("programs", []):
+            if name in (p["key"], " ".join([p["prog"], *p["args"]])):
+                found = (fname, st, p)
+    if found is None:
+        raise BadInput(f"no program {name!r} in cell {cell.name!r}")
+    fname, st, p = found
+    if pid_alive(p["pid"]):
+        raise RuntimeFailure(f"{name} is still running (pid {p['pid']})")
+    _reap()
+    spec = Spec(p["key"], p["prog"], list(p["args"]), p["host"])
+    log_dir = str(cell.run_dir / "logs")
+    started = _start(cell, [spec], log_dir)
+    p["pid"] = spec.pid
+    p["argv"] = spec.argv
+    path = str(cell.run_dir / fname)
+    with open(path + ".tmp", "w") as f:
+        json.dump(st, f, indent=1)
+    os.replace(path + ".tmp", path)
+    try:
+        _await_ready(started, timeout_s, log_dir)
+    except BaseException:
+        _stop_pids([spec.pid], STOP_GRACE_S)
+        raise
+    return spec
+
+
 def status(cell: Cell) -> list[dict]:
     progs = _programs_known(cell)
     if not progs:
@@ -337,13 +377,17 @@ def main(argv=None) -> int:
     ap = ArgumentParser(prog=PROG, description="Bring a DROID cell up, report on it, or bring it down.")
     ap.add_argument("--cell", metavar="FILE", default=None,
                     help="cell file (default: $DROID_CELL, else the built-in simulated cell)")
-    sp = ap.add_subparsers(dest="cmd", required=True, metavar="{up,status,down}")
+    sp = ap.add_subparsers(dest="cmd", required=True, metavar="{up,status,restart,down}")
     p_up = sp.add_parser("up", help="create the databases and start every program")
     p_up.add_argument("--host", action="append", metavar="HOST",
                       help="start only this host's programs (repeatable; default: all hosts)")
     p_up.add_argument("--timeout", type=positive_float, default=READY_TIMEOUT_S, metavar="S",
                       help=f"readiness timeout [s] (default {READY_TIMEOUT_S:g})")
     sp.add_parser("init", help="only create the databases (to start programs by hand)")
+    p_rs = sp.add_parser("restart", help="start one dead program of the cell again")
+    p_rs.add_argument("name", help="the program as 'status' lists it (e.g. 'droid-servo arm1') or its key")
+    p_rs.add_argument("--timeout", type=positive_float, default=READY_TIMEOUT_S, metavar="S",
+                      help=f"readiness timeout [s] (default {READY_TIMEOUT_S:g})")
     p_st = sp.add_parser("status", help="list every program with its pid and liveness")
     p_st.add_argument("--json", action="store_true", help="one JSON object per program, a line each")
     p_dn = sp.add_parser("down", help="stop every program and remove the shared memory")
@@ -363,6 +407,10 @@ def main(argv=None) -> int:
                                f"(cell hosts: {', '.join(cell.hosts())})")
         specs = up(cell, hosts, args.timeout)
         print(f"cell {cell.name} up: {len(specs)} programs ready (run dir {cell.run_dir})")
+        return 0
+    if args.cmd == "restart":
+        spec = restart(cell, args.name, args.timeout)
+        print(f"cell {cell.name}: {spec.prog} {' '.join(spec.args)} restarted (pid {spec.pid})")
         return 0
     if args.cmd == "init":
         for db in create_databases(cell):

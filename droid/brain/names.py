@@ -222,7 +222,7 @@ def main(argv=None) -> int:
         cell.run_dir.mkdir(parents=True, exist_ok=True)
         curve.server(sock, cell.names)
         try:
-            sock.bind(cell.names)
+            sock.bind(cell.bind_endpoint(cell.names))
         except zmq.ZMQError as exc:
             raise RuntimeFailure(f"cannot bind name space endpoint {cell.names}: {exc}") from None
         presence.ready()

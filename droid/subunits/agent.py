@@ -98,8 +98,8 @@ def agent_main(prog: str, argv=None) -> int:
         curve.server(router, sub.agent)
         curve.server(relay, sub.relay)
         try:
-            router.bind(sub.agent)
-            relay.bind(sub.relay)
+            router.bind(cell.bind_endpoint(sub.agent))
+            relay.bind(cell.bind_endpoint(sub.relay))
         except zmq.ZMQError as exc:
             raise RuntimeFailure(f"cannot bind {sub.agent} / {sub.relay}: {exc}") from None
         names = NameClient(ctx, cell.names, curve=curve, server_host=cell.brain_host)

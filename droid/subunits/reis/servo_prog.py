@@ -10,9 +10,14 @@ agent and the watchdog.  It never takes a shared-database semaphore (§4.1.6).
 On exit, and on any error in read/write (ros2_control's ``on_error``), the
 DACs are zeroed.  The watchdog notices a dead servo and latches the amplifiers
 off.
+
+Every halt of the arm (the end of a move, an emergency stop) is recorded in
+servo ticks (:mod:`~droid.subunits.reis.brake_log`) and printed as one line
+``droid-servo NAME: halt {json}`` on the servo's log.
 """
 from __future__ import annotations
 
+import json
 import sys
 import time
 
@@ -24,6 +29,7 @@ from droid.brain.program import Presence, Stop, notify_ready, presence_key, subu
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import RuntimeFailure, run
 from droid.subunits.reis import servo_wire as sw
+from droid.subunits.reis.brake_log import BrakeRecorder
 from droid.subunits.reis.endpoints import reis_endpoints
 from droid.subunits.reis.servo import ServoCore
 from droid.subunits.reis.servo_params import ServoParams
@@ -67,8 +73,8 @@ def main(argv=None) -> int:
         curve.server(pull, ep.servo)
         curve.server(pub, ep.servo_status)
         try:
-            pull.bind(ep.servo)
-            pub.bind(ep.servo_status)
+            pull.bind(cell.bind_endpoint(ep.servo))
+            pub.bind(cell.bind_endpoint(ep.servo_status))
         except zmq.ZMQError as exc:
             raise RuntimeFailure(f"cannot bind {ep.servo} / {ep.servo_status}: {exc}") from None
         bus = open_vme_waiting(ep.vme, OPEN_WAIT_S)
@@ -78,6 +84,7 @@ def main(argv=None) -> int:
         presence.ready()
         notify_ready(args.ready_fd)
         bad = 0
+        halts = BrakeRecorder()
         lateness_us = np.zeros(LATENESS_WINDOW, np.float32)  # the last minute of wake-ups
         n_late = 0
         while not Stop.requested:
@@ -86,6 +93,7 @@ def main(argv=None) -> int:
                 continue
             lateness_us[n_late % LATENESS_WINDOW] = timer.lateness_ns / 1e3
             n_late += 1
+            arrived = False
             while True:  # every 60 Hz command, in order
                 try:
                     msg = pull.recv(zmq.NOBLOCK)
@@ -93,7 +101,7 @@ def main(argv=None) -> int:
                     break
                 try:
                     c = sw.unpack_command(msg)
-                    core.command(c.mode, c.counts)
+                    arrived = core.command(c.mode, c.counts) or arrived
                 except (sw.BadServoMessage, ValueError):
                     bad += 1
             try:
@@ -110,6 +118,9 @@ def main(argv=None) -> int:
             except (OSError, ValueError) as exc:
                 failed = True
                 raise RuntimeFailure(f"VME access failed: {exc}") from None
+            event = halts.step(core.tick, arrived, core.starved, core.encoder_pos, core.homing)
+            if event is not None:
+                print(f"{PROG} {sub.name}: halt {json.dumps(event.as_dict())}", file=sys.stderr, flush=True)
             if core.tick % sw.STATUS_EVERY_TICKS == 0:
                 pub.send(sw.pack_status(core.status(), bus.amps_powered), zmq.NOBLOCK)
             presence.beat(0, timer.cycles, timer.overruns, timer.lateness_max_ns, bad_frames=bad)

@@ -1,0 +1,158 @@
+"""A two-host cell: the Brain in one network namespace, arm1 (and the world) in another,
+ZeroMQ over tcp between them on a veth pair (issue 8).
+
+Cut the link during a move: the arm comes to a standstill, measured by the servo
+itself in its own ticks (the ``halt`` record on its log, droid.subunits.reis.brake_log,
+against the servo tick read just before the cut);
+restore it: the arm stays where it stopped until a new command, which then succeeds.
+Waits are generous polls; no wall-clock figure decides the verdict (bench/fault_two_hosts.py
+measures the wall-clock side).
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from droid.faults.cells import two_host_cell_text
+from tests.brain.cellutil import ROOT, droid, wait_for
+
+pytestmark = pytest.mark.integration
+STOP_LIMIT_MS = 100.0  # link cut to zero velocity, in servo time (2 ms a tick)
+
+
+def in_ns(hp, side, module, *args, timeout=120):
+    return subprocess.run(hp.exec_argv(side, [sys.executable, "-m", module, *args]), capture_output=True,
+                          text=True, timeout=timeout, cwd=ROOT)
+
+
+@pytest.fixture
+def two_hosts(tmp_path, cell_name, host_pair):
+    hp = host_pair
+    path = tmp_path / f"{cell_name}.toml"
+    path.write_text(two_host_cell_text(cell_name, str(tmp_path / "run"), hp.addr_a, hp.addr_b))
+    try:
+        out = in_ns(hp, "a", "droid.brain.launcher", "up", "--cell", str(path), "--host", "brain")
+        assert out.returncode == 0, out.stdout + out.stderr
+        out = in_ns(hp, "b", "droid.brain.launcher", "up", "--cell", str(path), "--host", "arm1")
+        assert out.returncode == 0, out.stdout + out.stderr
+        yield hp, path
+    finally:
+        out = droid("droid.brain.launcher", "down", "--cell", str(path))
+        assert out.returncode == 0, out.stderr
+
+
+def snoop(path):
+    out = droid("droid.tasks.snoop", "arm1", "--json", "--count", "1", "--rate", "50", "--cell", str(path))
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout)
+
+
+def local_status(path):
+    """arm1's own controller Status (host arm1's database, not the Brain's)."""
+    from droid.brain.cellfile import load_cell
+    from droid.brain.databases import open_local
+
+    cell = load_cell(path)
+    db = open_local(cell, cell.subunit("arm1"), "ctrl_status")
+    try:
+        rec = db.read()
+        return np.asarray(rec["encoder_pos"]).copy(), int(rec["fault"])
+    finally:
+        db.close()
+
+
+def halt_records(path):
+    """The servo's halt records (droid.subunits.reis.brake_log) from its log."""
+    f = path.parent / "run" / "logs" / "servo-arm1.log"
+    return [json.loads(ln.split(": halt ", 1)[1]) for ln in f.read_text().splitlines() if ": halt {" in ln]
+
+
+class ServoTicks:
+    """The servo's own tick, from its status messages (the test reads them on host arm1's
+    ipc endpoint, which is a file: reachable from any namespace)."""
+
+    def __init__(self, path):
+        import zmq
+
+        from droid.brain.cellfile import load_cell
+
+        self.ctx = zmq.Context()
+        self.sock = self.ctx.socket(zmq.SUB)
+        self.sock.setsockopt(zmq.SUBSCRIBE, b"")
+        self.sock.setsockopt(zmq.LINGER, 0)
+        self.sock.connect(load_cell(path).subunit("arm1").options["servo_status"])
+
+    def latest(self) -> int:
+        import zmq
+
+        from droid.subunits.reis.servo_wire import unpack_status
+
+        tick = None
+        deadline = time.monotonic() + 10
+        while tick is None or self.sock.poll(0):
+            assert time.monotonic() < deadline, "no servo status"
+            if self.sock.poll(100):
+                tick = unpack_status(self.sock.recv(zmq.NOBLOCK)).tick
+        return tick
+
+    def close(self):
+        self.sock.close(0)
+        self.ctx.term()
+
+
+def test_link_cut_during_a_move_brakes_the_arm_which_stays_stopped_until_a_new_command(two_hosts):
+    from droid.brain.layouts import FAULT_LINK
+
+    hp, path = two_hosts
+    wait_for(lambda: not snoop(path)["stale"], timeout=30, what="the Brain reaches arm1 over tcp")
+    home = droid("droid.tasks.home", "arm1", "--cell", str(path), timeout=200)
+    assert home.returncode == 0, home.stderr
+    start = np.asarray(snoop(path)["encoder_pos"])
+    target = [30000, 0, 0, 0, 0, 60000]
+    out = droid("droid.tasks.move", "arm1", "joint", *map(str, target), "8", "--no-wait", "--cell", str(path))
+    assert out.returncode == 0, out.stderr
+    ticks = ServoTicks(path)
+    try:
+        wait_for(lambda: np.any(np.abs(local_status(path)[0] - start) > 2000), what="moving")
+        cut_tick = ticks.latest()  # at most one status period (4 ticks) before the cut
+    finally:
+        ticks.close()
+    hp.set_link("b", False)  # arm1's host is cut off
+    try:
+        rec = wait_for(lambda: [r for r in halt_records(path) if r["standstill_tick"] >= cut_tick],
+                       timeout=20, what="the servo's halt record")[0]
+        pos, fault = wait_for(lambda: (lambda a, b: (b, a[1]) if np.all(np.abs(b[0] - a[0]) <= 2) else None)(
+            local_status(path), (time.sleep(0.2), local_status(path))[1]), what="arm1 at a standstill")
+        assert fault & FAULT_LINK  # arm1 itself knows its Brain is gone
+        assert snoop(path)["stale"] == 1  # and the Brain knows arm1 is gone
+        stopped = pos[0]
+    finally:
+        hp.set_link("b", True)
+    # the servo's own record: it was moving, and reached zero velocity within 100 ms of
+    # servo time after the cut (the way-point froze; the link loss is declared after 3
+    # missed ticks and the servo agent then stops sending: docs/safety.md)
+    assert rec["peak_speed_counts_per_tick"] >= 5, rec
+    assert (rec["standstill_tick"] - cut_tick) * 2.0 <= STOP_LIMIT_MS, (rec, cut_tick)
+    # link back: the Brain sees arm1 again; the arm stays where it stopped
+    wait_for(lambda: not snoop(path)["stale"], timeout=30, what="fresh again")
+    time.sleep(1.0)
+    now = np.asarray(snoop(path)["encoder_pos"])
+    assert np.all(np.abs(now - stopped) <= 5), (now, stopped)
+    assert np.any(np.abs(now - np.asarray(target)) > 1000)  # the interrupted move was not resumed
+    assert [r for r in halt_records(path) if r["standstill_tick"] >= cut_tick] == [rec]  # nothing moved since
+    # a new command moves the arm again.  One retry: on this shared 2-core VM the 60 Hz chain
+    # occasionally gaps long enough for the servo to brake, and the planner then fails the
+    # move (exit 1, docs/safety.md finding 6); a recovery that is broken fails both times.
+    errors = []
+    for _ in range(2):
+        out = droid("droid.tasks.move", "arm1", "joint", *map(str, target), "6", "--cell", str(path), timeout=60)
+        if out.returncode == 0:
+            break
+        errors.append(out.stderr.strip())
+    assert out.returncode == 0, errors
+    assert np.all(np.abs(np.asarray(snoop(path)["encoder_pos"]) - target) <= 20)
