@@ -86,7 +86,7 @@ STOP_RUNAWAY = "runaway"
 #: delays, §6.2.5) or an arm that does not follow.  The arm moves in bursts within a
 #: cycle (up to ~0.8 mm per 60 Hz tick at the wrist centre at 16 mm/s), so the guard
 #: looks at half a second, not one cycle; normal tracking runs at ~0.5x the speed.
-RUNAWAY_FACTOR = 3.0
+RUNAWAY_FACTOR = 5.0
 RUNAWAY_WINDOW = 15
 RUNAWAY_MIN_MM = 5.0
 
