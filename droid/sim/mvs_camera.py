@@ -144,7 +144,10 @@ class MvsCamera:
         d_c = [dist(cx, cy) for dist in self._distances]
         best = min(range(len(d_c)), key=d_c.__getitem__)
         first = self._segments[best].project(xy)
-        limit = float(first[0].max()) + radius + 1e-9
+        farthest = float(first[0].max())
+        limit = farthest + radius + 1e-9
+        if farthest < math.inf and all(not d <= limit for k, d in enumerate(d_c) if k != best):
+            return first[1], first[2]  # the only candidate, every distance finite (< inf): nearest_many's result
         best_d = best_s = best_lat = None
         for k, seg in enumerate(self._segments):
             if k != best and not d_c[k] <= limit:
@@ -179,9 +182,11 @@ class MvsCamera:
         # The edge face: the ray passes from beside the upper plate (at its top
         # height) to under it (at the bottom) -- it meets the face in between.
         face = ~upper & (side_up < 0) & (side_low >= 0) & (side_low <= wp.width_mm) & along[ROWS:] & (t_up > 0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            t_face = t_up + (-side_up) / (side_low - side_up) * (t_low - t_up)
-        hit = np.where(upper, t_up, np.where(face, t_face, np.where(lower, t_low, np.nan)))
+        hit = np.where(upper, t_up, np.where(lower, t_low, np.nan))  # upper, face and lower exclude each other
+        if face.any():
+            with np.errstate(invalid="ignore", divide="ignore"):
+                t_face = t_up + (-side_up) / (side_low - side_up) * (t_low - t_up)
+            hit = np.where(face, t_face, hit)
         return hit - self.standoff_mm
 
     def frame(self, T_W_S: np.ndarray, rng: np.random.Generator) -> np.ndarray | None:
