@@ -126,6 +126,8 @@ class RobotModel:
         hi_img = np.maximum(m * self.joint_min_deg, m * self.joint_max_deg).sum(axis=1)
         implied = bool(np.all(lo_img >= self.counts_min + 1e-6) and np.all(hi_img <= self.counts_max - 1e-6))
         object.__setattr__(self, "_counts_implied", implied)
+        # ik()'s memo of the last pose solved: (pose bytes, hints it depended on or None, solutions)
+        object.__setattr__(self, "_ik_memo", None)
 
     # ------------------------------------------------------------------ misc
 
@@ -223,12 +225,29 @@ class RobotModel:
 
         Raises :class:`Unreachable` if no solution exists or none is inside
         the joint and encoder limits.
+
+        The 8 solutions of the last pose are kept: the same pose (a 4x4
+        float array, byte for byte) asked again, e.g. by the seam tracker's
+        reach check and then by the planner, is picked from them (they do
+        not depend on ``q_prev_deg`` unless the pose is singular, and then
+        they are solved again).
         """
-        rows = self._target_rows(T)
+        key = T.tobytes() if type(T) is np.ndarray and T.dtype == np.float64 and T.shape == (4, 4) else None
+        memo = self._ik_memo
+        if key is None or memo is None or memo[0] != key:
+            memo = None
+            rows = self._target_rows(T)
         prev = q_prev_deg.tolist() if isinstance(q_prev_deg, np.ndarray) else [float(v) for v in q_prev_deg]
         if len(prev) != 6 or not math.isfinite(sum(prev)):
             raise ValueError("q_prev_deg: expected 6 finite joint angles")
-        sols = opw.ik(self.opw, rows, prev[0], prev[3])
+        if memo is not None and (memo[1] is None or memo[1] == (prev[0], prev[3])):
+            sols = memo[2]
+        else:
+            if memo is not None:
+                rows = self._target_rows(T)
+            sols, hinted = opw.ik_hinted(self.opw, rows, prev[0], prev[3])
+            if key is not None:
+                object.__setattr__(self, "_ik_memo", (key, (prev[0], prev[3]) if hinted else None, sols))
         i = self.pick_index(sols, prev)
         if i < 0:
             raise Unreachable(self.explain(sols))

@@ -175,6 +175,15 @@ def ik(p: OpwParams, t, hint1_deg: float = 0.0, hint4_deg: float = 0.0) -> list:
     that does not exist is 6 NaN.  ``hint1_deg``/``hint4_deg`` are the
     robot's joint-1/joint-4 angles used at the shoulder/wrist singularities.
     """
+    return ik_hinted(p, t, hint1_deg, hint4_deg)[0]
+
+
+def ik_hinted(p: OpwParams, t, hint1_deg: float = 0.0, hint4_deg: float = 0.0) -> tuple[list, bool]:
+    """:func:`ik`, and whether a hint was used (the pose is at a shoulder or wrist singularity).
+
+    When no hint was used the solutions do not depend on the hints, so a
+    caller may reuse them for the same pose with other hints.
+    """
     r0, r1, r2 = t[0], t[1], t[2]
     r00, r02, px = r0[0], r0[2], r0[3]  # the middle column follows from the other two
     r10, r12, py = r1[0], r1[2], r1[3]
@@ -192,11 +201,13 @@ def ik(p: OpwParams, t, hint1_deg: float = 0.0, hint4_deg: float = 0.0) -> list:
         if nx2 > -1e-9 * max(1.0, b * b):
             nx2 = 0.0
         else:
-            return [list(nanrow) for _ in range(8)]
+            return [list(nanrow) for _ in range(8)], False
     nx = math.sqrt(nx2)
     sg, of = p.signs, p.offsets_deg
+    hinted = False
     if b == 0.0 and rr < SHOULDER_EPS_MM * SHOULDER_EPS_MM:
         phi = (sg[0] * hint1_deg - of[0]) * RAD
+        hinted = True
     else:
         phi = math.atan2(cy, cx)
     h4 = (sg[3] * hint4_deg - of[3]) * RAD
@@ -264,6 +275,7 @@ def ik(p: OpwParams, t, hint1_deg: float = 0.0, hint4_deg: float = 0.0) -> list:
                 gamma = atan2(m10, cb * w - sbn * o20)
                 alpha_b, gamma_b = alpha + PI, gamma + PI
             else:
+                hinted = True
                 alpha = alpha_b = h4
                 ca, sa = cos(alpha), sin(alpha)
                 w = ca * o00 + sa * o10
@@ -282,4 +294,4 @@ def ik(p: OpwParams, t, hint1_deg: float = 0.0, hint4_deg: float = 0.0) -> list:
                 if j6 == -180.0:
                     j6 = 180.0
                 out[base + wrist] = [j1, j2, j3, j4, j5, j6]
-    return out
+    return out, hinted

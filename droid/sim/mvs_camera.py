@@ -62,8 +62,8 @@ def quantise(depth_mm: np.ndarray, calib: MvsCalibration, noise: CameraNoise,
     if dropped:
         return None
     col = np.rint(calib.column_of(np.asarray(depth_mm, float)) + jitter)
-    stripe = np.isfinite(col) & (col >= 0) & (col < COLUMNS)
-    out = np.where(stripe, np.nan_to_num(col), NO_STRIPE).astype(np.int16)
+    stripe = (col >= 0) & (col < COLUMNS)  # False for NaN (no stripe) and +-inf
+    out = np.where(stripe, col, NO_STRIPE).astype(np.int16)
     out[spurious] = random_cols[spurious]
     return out
 
@@ -98,7 +98,17 @@ def lap_joint_profile_mm(calib: MvsCalibration, foot_x_mm: float, foot_y_mm: flo
 
 
 class MvsCamera:
-    """The laser/camera/DSP twin over one workpiece (see the module docstring)."""
+    """The laser/camera/DSP twin over one workpiece (see the module docstring).
+
+    Per frame it intersects the 240 rays with the two surface planes and
+    finds the nearest seam point of each of the 480 hits.  Only the seam
+    segments that can be nearest to some hit are projected (the hits of one
+    frame lie within a few centimetres of each other; see
+    :meth:`_nearest`), so the cost does not grow with the seam's length;
+    the per-hit arithmetic is :meth:`Workpiece.nearest_many`'s, so the
+    frames are the same bit for bit (tests/mvs/test_mvs_camera.py checks
+    against that straightforward form).
+    """
 
     def __init__(self, workpiece: Workpiece, calib: MvsCalibration = MvsCalibration(),
                  noise: CameraNoise = CameraNoise(), standoff_mm: float = 150.0):
@@ -107,35 +117,109 @@ class MvsCamera:
         self.noise = noise
         self.standoff_mm = float(standoff_mm)
         self._y_rows = calib.lateral_of(np.arange(ROWS, dtype=float))
+        # the rays' start points in S [mm]: standoff_mm before the measuring point, one per row
+        self._origins_s = np.stack([np.full(ROWS, -self.standoff_mm), self._y_rows, np.zeros(ROWS)], axis=1)
+        self._segments = workpiece._all  # the seam's segments and its two straight extensions
+        self._distances = [_distance_fn(seg) for seg in self._segments]
+        wp = workpiece
+        self._along_mm = (-wp.lead_in_mm, wp.length_mm + wp.lead_out_mm)  # the surfaces' extent in s
+
+    def _nearest(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(s [mm], lateral [mm]) of the nearest seam point of the (2 ROWS, 2) hits, as Workpiece.nearest_many.
+
+        The hits of each plane lie on a line, in row order (each is affine in
+        the row), so the four end hits bound them all: their centre c and
+        radius R (plus a rounding margin).  The segment nearest to c gives
+        an upper bound D of every hit's nearest distance (the hits' largest
+        distance to it); a segment farther than D + R from c cannot be
+        nearer to any hit (triangle inequality) and is skipped.  The others
+        are projected in the workpiece's order with nearest_many's strict
+        ``<``, so ties resolve as there.
+        """
+        (x0, y0), (x1, y1), (x2, y2), (x3, y3) = xy[_END_HITS].tolist()
+        cx, cy = (x0 + x1 + x2 + x3) / 4, (y0 + y1 + y2 + y3) / 4
+        radius = max(math.hypot(x0 - cx, y0 - cy), math.hypot(x1 - cx, y1 - cy),
+                     math.hypot(x2 - cx, y2 - cy), math.hypot(x3 - cx, y3 - cy))
+        radius += 1e-9 * (1.0 + abs(cx) + abs(cy) + radius)  # the hits' rounding off their line
+        d_c = [dist(cx, cy) for dist in self._distances]
+        best = min(range(len(d_c)), key=d_c.__getitem__)
+        first = self._segments[best].project(xy)
+        farthest = float(first[0].max())
+        limit = farthest + radius + 1e-9
+        if farthest < math.inf and all(not d <= limit for k, d in enumerate(d_c) if k != best):
+            return first[1], first[2]  # the only candidate, every distance finite (< inf): nearest_many's result
+        best_d = best_s = best_lat = None
+        for k, seg in enumerate(self._segments):
+            if k != best and not d_c[k] <= limit:
+                continue
+            d, s, lat = first if k == best else seg.project(xy)
+            better = d < (np.inf if best_d is None else best_d)
+            best_d = np.where(better, d, np.inf if best_d is None else best_d)
+            best_s = np.where(better, s, 0.0 if best_s is None else best_s)
+            best_lat = np.where(better, lat, 0.0 if best_lat is None else best_lat)
+        return best_s, best_lat
 
     def profile_mm(self, T_W_S: np.ndarray) -> np.ndarray:
         """Noise-free stripe depth x_S [mm] for each of the 240 rows (NaN = no stripe)."""
         wp = self.workpiece
-        origins_s = np.stack([np.full(ROWS, -self.standoff_mm), self._y_rows, np.zeros(ROWS)], axis=1)
-        origins = apply(T_W_S, origins_s)
-        d = np.asarray(T_W_S)[0:3, 0]
-        out = np.full(ROWS, np.nan)
-        if d[2] > -1e-9:  # the laser does not point down onto the surfaces
-            return out
+        t = np.asarray(T_W_S)
+        origins = apply(t, self._origins_s)
+        d = t[0:3, 0]
+        if not float(d[2]) <= -1e-9:  # the laser does not point down onto the surfaces
+            return np.full(ROWS, np.nan)
         t_up = (wp.step_mm - origins[:, 2]) / d[2]
         t_low = -origins[:, 2] / d[2]
         p_up = origins[:, 0:2] + t_up[:, None] * d[0:2]
         p_low = origins[:, 0:2] + t_low[:, None] * d[0:2]
-        s_up, lat_up = wp.nearest_many(p_up)
-        s_low, lat_low = wp.nearest_many(p_low)
-        upper = (wp.heights_from(s_up, lat_up) == wp.step_mm) & (t_up > 0)
-        lower = (wp.heights_from(s_low, lat_low) == 0.0) & (t_low > 0)
+        s, lat = self._nearest(np.concatenate([p_up, p_low]))
+        # Workpiece.heights_from's tests, for both planes' hits at once: the
+        # upper plane's hit is on the upper surface, the lower plane's on the lower.
+        side = wp.upper_sign * lat
+        along = (s >= self._along_mm[0]) & (s <= self._along_mm[1])
+        side_up, side_low = side[:ROWS], side[ROWS:]
+        upper = along[:ROWS] & (side_up >= 0) & (side_up <= wp.width_mm) & (t_up > 0)
+        lower = along[ROWS:] & (side_low < 0) & (side_low >= -wp.width_mm) & (t_low > 0)
         # The edge face: the ray passes from beside the upper plate (at its top
         # height) to under it (at the bottom) -- it meets the face in between.
-        side_up, side_low = wp.upper_sign * lat_up, wp.upper_sign * lat_low
-        along = (s_low >= -wp.lead_in_mm) & (s_low <= wp.length_mm + wp.lead_out_mm)
-        face = ~upper & (side_up < 0) & (side_low >= 0) & (side_low <= wp.width_mm) & along & (t_up > 0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            t_face = t_up + (-side_up) / (side_low - side_up) * (t_low - t_up)
-        t = np.where(upper, t_up, np.where(face, t_face, np.where(lower, t_low, np.nan)))
-        out[:] = t - self.standoff_mm
-        return out
+        face = ~upper & (side_up < 0) & (side_low >= 0) & (side_low <= wp.width_mm) & along[ROWS:] & (t_up > 0)
+        hit = np.where(upper, t_up, np.where(lower, t_low, np.nan))  # upper, face and lower exclude each other
+        if face.any():
+            with np.errstate(invalid="ignore", divide="ignore"):
+                t_face = t_up + (-side_up) / (side_low - side_up) * (t_low - t_up)
+            hit = np.where(face, t_face, hit)
+        return hit - self.standoff_mm
 
     def frame(self, T_W_S: np.ndarray, rng: np.random.Generator) -> np.ndarray | None:
         """One DSP frame: int16 (240,) stripe columns (-1 = none), or None if dropped."""
         return quantise(self.profile_mm(T_W_S), self.calib, self.noise, rng)
+
+
+#: Indices of the end hits of the two planes in the (2 ROWS, 2) hits array.
+_END_HITS = [0, ROWS - 1, ROWS, 2 * ROWS - 1]
+
+
+def _distance_fn(seg):
+    """A function (x, y) -> distance [mm] from the point to the segment (line or arc), scalar math."""
+    h = seg.heading0_rad
+    ux, uy = math.cos(h), math.sin(h)
+    sx, sy = (float(v) for v in seg.start_xy)
+    length = seg.length_mm
+    hypot = math.hypot
+    if not seg.is_arc:
+        def line(x: float, y: float) -> float:
+            t = min(max((x - sx) * ux + (y - sy) * uy, 0.0), length)
+            return hypot(x - sx - t * ux, y - sy - t * uy)
+        return line
+    sign = 1.0 if seg.sweep_rad > 0 else -1.0
+    r = seg.radius_mm
+    cx, cy = sx - sign * r * uy, sy + sign * r * ux
+    start_radial = h - sign * math.pi / 2
+    sweep = abs(seg.sweep_rad)
+    ex, ey = (float(v) for v in seg.end()[0])
+    atan2, two_pi = math.atan2, 2 * math.pi
+
+    def arc(x: float, y: float) -> float:
+        if (sign * (atan2(y - cy, x - cx) - start_radial)) % two_pi <= sweep:
+            return abs(hypot(x - cx, y - cy) - r)
+        return min(hypot(x - sx, y - sy), hypot(x - ex, y - ey))
+    return arc

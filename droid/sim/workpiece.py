@@ -87,6 +87,15 @@ class Segment:
     radius_mm: float = math.inf
     sweep_rad: float = 0.0
 
+    def __post_init__(self) -> None:
+        # constants of project(), once per segment: the heading as a unit vector, the start
+        # point, the arc's centre (the same arithmetic as before, only not repeated per call)
+        h = np.array([math.cos(self.heading0_rad), math.sin(self.heading0_rad)])
+        object.__setattr__(self, "_h", h)
+        object.__setattr__(self, "_start", np.asarray(self.start_xy))
+        if self.sweep_rad != 0.0:
+            object.__setattr__(self, "_c", self._center())
+
     @property
     def is_arc(self) -> bool:
         return self.sweep_rad != 0.0
@@ -120,16 +129,16 @@ class Segment:
 
         Returns (distance [mm], s [mm], signed lateral [mm], + = left).
         """
-        if not self.is_arc:
-            h = np.array([math.cos(self.heading0_rad), math.sin(self.heading0_rad)])
-            d = xy - np.asarray(self.start_xy)
-            t = np.clip(d @ h, 0.0, self.length_mm)
+        if self.sweep_rad == 0.0:
+            h = self._h
+            d = xy - self._start
+            t = np.minimum(np.maximum(d @ h, 0.0), self.length_mm)  # np.clip, without its overhead
             off = d - t[:, None] * h
             dist = np.hypot(off[:, 0], off[:, 1])
             cross = h[0] * d[:, 1] - h[1] * d[:, 0]
             return dist, self.s0_mm + t, np.copysign(dist, cross)
         sign = self._turn_sign()
-        v = xy - self._center()
+        v = xy - self._c
         r = np.hypot(v[:, 0], v[:, 1])
         start_radial = self.heading0_rad - sign * math.pi / 2
         delta = np.mod(sign * (np.arctan2(v[:, 1], v[:, 0]) - start_radial), 2 * math.pi)
@@ -138,7 +147,7 @@ class Segment:
         dist = np.abs(r - self.radius_mm)
         s = self.s0_mm + self.radius_mm * np.minimum(delta, sweep)
         lateral = sign * (self.radius_mm - r)
-        if not np.all(on_arc):
+        if not on_arc.all():
             # Off the arc's angular span: the nearer end point is nearest.
             ends = []
             for s_end in (self.s0_mm, self.s0_mm + self.length_mm):

@@ -7,7 +7,7 @@ import itertools
 import numpy as np
 import pytest
 
-from droid.kinematics import Unreachable
+from droid.kinematics import Unreachable, opw
 from droid.kinematics.transforms import pose_to_T
 
 START = (300.0, 100.0, 1340.0)  # thesis §6, start position (i), mm from the Reis base
@@ -161,3 +161,33 @@ def test_ik_rejects_bad_previous_vector(reis):
         reis.ik(t, [0, 0, 0])
     with pytest.raises(ValueError):
         reis.ik(t, [0, 0, float("nan"), 0, 0, 0])
+
+
+def _fresh_pick(model, t, prev):
+    """The pick without ik()'s memo: solve and pick from scratch."""
+    rows = model._target_rows(t)
+    sols = opw.ik(model.opw, rows, float(prev[0]), float(prev[3]))
+    i = model.pick_index(sols, [float(v) for v in prev])
+    return None if i < 0 else sols[i]
+
+
+@pytest.mark.parametrize("singular", [False, True])
+def test_ik_memo_gives_the_fresh_pick(reis, singular):
+    """ik() keeps the last pose's solutions; asked again with another previous angle vector it must
+    pick exactly as a fresh solve would -- also at the wrist singularity, where the solutions
+    depend on the hint (joint 4) and are solved again."""
+    model = dataclasses.replace(reis)  # a model of its own: an empty memo
+    rng = np.random.default_rng(11)
+    lo, hi = model.joint_min_deg, model.joint_max_deg
+    for _ in range(200):
+        q = rng.uniform(lo, hi)
+        if singular:
+            q[4] = 0.0
+        t = model.fk(q)
+        for prev in (rng.uniform(lo, hi), q + rng.normal(0, 1, 6), rng.uniform(lo, hi)):
+            want = _fresh_pick(model, t, prev)
+            if want is None:
+                with pytest.raises(Unreachable):
+                    model.ik(t, prev)
+            else:
+                assert model.ik(t, prev).tolist() == want

@@ -5,6 +5,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from droid.sim.mvs_camera import CameraNoise, MvsCamera
 from droid.sim.mvs_frames import rot_y, translation
@@ -137,3 +139,51 @@ def test_noise_is_seeded_and_shaped_by_its_parameters():
 def test_calibration_maps_the_field_of_view():
     assert CAL.to_mm(0, 0)[1] == pytest.approx(-23.9) and CAL.to_mm(239, 511) == pytest.approx((25.55, 23.9))
     assert CAL.slope_to_roll(2.0) == pytest.approx(-math.atan(1.0))  # 2 columns a row = 0.2 mm per 0.2 mm
+
+
+def reference_profile_mm(camera, T_W_S):
+    """MvsCamera.profile_mm in its straightforward form (before the speed work): every segment
+    projected for every hit through Workpiece.nearest_many, the heights through heights_from."""
+    from droid.sim.mvs_frames import apply
+
+    wp = camera.workpiece
+    origins_s = np.stack([np.full(ROWS, -camera.standoff_mm), camera._y_rows, np.zeros(ROWS)], axis=1)
+    origins = apply(T_W_S, origins_s)
+    d = np.asarray(T_W_S)[0:3, 0]
+    out = np.full(ROWS, np.nan)
+    if d[2] > -1e-9:
+        return out
+    t_up = (wp.step_mm - origins[:, 2]) / d[2]
+    t_low = -origins[:, 2] / d[2]
+    p_up = origins[:, 0:2] + t_up[:, None] * d[0:2]
+    p_low = origins[:, 0:2] + t_low[:, None] * d[0:2]
+    s_up, lat_up = wp.nearest_many(p_up)
+    s_low, lat_low = wp.nearest_many(p_low)
+    upper = (wp.heights_from(s_up, lat_up) == wp.step_mm) & (t_up > 0)
+    lower = (wp.heights_from(s_low, lat_low) == 0.0) & (t_low > 0)
+    side_up, side_low = wp.upper_sign * lat_up, wp.upper_sign * lat_low
+    along = (s_low >= -wp.lead_in_mm) & (s_low <= wp.length_mm + wp.lead_out_mm)
+    face = ~upper & (side_up < 0) & (side_low >= 0) & (side_low <= wp.width_mm) & along & (t_up > 0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t_face = t_up + (-side_up) / (side_low - side_up) * (t_low - t_up)
+    t = np.where(upper, t_up, np.where(face, t_face, np.where(lower, t_low, np.nan)))
+    out[:] = t - camera.standoff_mm
+    return out
+
+
+CAMERAS = {name: MvsCamera(load_workpiece(name)) for name in ("step_input", "ramp_r500")}
+
+
+@settings(max_examples=150, deadline=None)
+@given(name=st.sampled_from(sorted(CAMERAS)), s=st.floats(-80.0, 1500.0), dx=st.floats(-40, 40),
+       dy=st.floats(-40, 40), dz=st.floats(-30, 30), yaw=st.floats(-0.6, 0.6), tilt=st.floats(-0.6, 0.6),
+       roll=st.floats(-0.5, 0.5))
+def test_local_nearest_search_renders_the_reference_frames_bit_for_bit(name, s, dx, dy, dz, yaw, tilt, roll):
+    """Only the segments near the frame are projected; the depths are the full search's, bit for bit,
+    anywhere along both workpieces (ends, the 5 degree turn, the arc), off the seam and tilted."""
+    from droid.sim.mvs_frames import rot_x, rot_z
+
+    camera = CAMERAS[name]
+    pose = seam_frame(camera.workpiece, min(s, camera.workpiece.length_mm + 60.0)) @ translation(dx, dy, dz) \
+        @ rot_z(yaw) @ rot_y(tilt) @ rot_x(roll)
+    assert camera.profile_mm(pose).tobytes() == reference_profile_mm(camera, pose).tobytes()

@@ -2,6 +2,7 @@
 (droid.tasks.seam) driving the Reis (fast arm model) from the camera-and-feature lead
 sensor over the step-input workpiece (thesis §6.1.1)."""
 import numpy as np
+import pytest
 
 from droid.sim.experiment.trial import TrialConfig, run_trial
 
@@ -32,3 +33,35 @@ def test_trial_is_deterministic_for_a_seed_and_logs_the_thesis_columns():
     a, b = short_trial(3), short_trial(3)
     assert len(a.rows) > 100
     assert repr(a.rows) == repr(b.rows)  # identical, NaN (no reading) included
+
+
+# Summary numbers of short trials as the harness gave them before the speed work (commit
+# 05e3b11, the straightforward numpy forms of the camera, feature extraction, arm model and
+# tracking core).  The optimised code gives the same rows bit for bit on the machine they were
+# computed on; the tolerances leave room for another BLAS's rounding (4x4 products), which a
+# closed loop can carry into the last digits.
+REFERENCE = [
+    (dict(position="i", speed_mm_s=16.0, length_mm=300),
+     dict(stop="end of seam", rows=396, frames=1200, valid=1200, rms_lat=2.085931628421978,
+          rms_dep=0.00249272922836549, stop_s=300.4824662146583)),
+    (dict(position="vii", speed_mm_s=64.0, length_mm=500, workpiece="ramp_r500"),
+     dict(stop="end of seam", rows=165, frames=510, valid=510, rms_lat=2.9691318635760604,
+          rms_dep=0.001669011072433204, stop_s=502.25673363859545)),
+    (dict(position="iii", speed_mm_s=16.0, length_mm=300, sensor="ideal"),
+     dict(stop="end of seam", rows=396, frames=1200, valid=1200, rms_lat=2.0955749847513254,
+          rms_dep=0.0025271484438159964, stop_s=300.4844008444424)),
+]
+
+
+@pytest.mark.parametrize("kw,ref", REFERENCE, ids=["i-16-camera", "vii-64-camera", "iii-16-ideal"])
+def test_tracking_result_is_the_reference(kw, ref):
+    r = run_trial(TrialConfig("ref", seed=2, **kw))
+    s = r.column("s_mm")
+    after = s > 150
+    lat, dep = r.column("tool_lateral_mm")[after], r.column("tool_depth_mm")[after]
+    assert r.stop_reason == ref["stop"]
+    assert abs(len(r.rows) - ref["rows"]) <= 1
+    assert r.frames == pytest.approx(ref["frames"], abs=3) and r.valid_frames >= ref["valid"] - 3
+    assert np.sqrt(np.nanmean(lat ** 2)) == pytest.approx(ref["rms_lat"], rel=0.01)
+    assert np.sqrt(np.nanmean(dep ** 2)) == pytest.approx(ref["rms_dep"], rel=0.01)
+    assert r.stop_s_mm == pytest.approx(ref["stop_s"], abs=0.5)

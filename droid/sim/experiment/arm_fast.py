@@ -71,16 +71,23 @@ def _transition(wn: float, zeta: float, h: float) -> np.ndarray:
 
 
 class _Ramp:
-    """One servo reference ramp: from ``r0`` at slope ``v`` from ``t0_ns``, with the tracking error state."""
+    """One servo reference ramp: from ``r0`` at slope ``v`` from ``t0_ns``, with the tracking error state.
+
+    Per joint lists of 6 floats [deg, deg/s]: per-tick arithmetic on 6-vectors is
+    cheaper in plain floats than in numpy (and the same, operation by operation).
+    """
 
     __slots__ = ("t0_ns", "r0", "v", "e", "ed")
 
-    def __init__(self, t0_ns: int, r0, v, e, ed) -> None:
+    def __init__(self, t0_ns: int, r0: list, v: list, e: list, ed: list) -> None:
         self.t0_ns, self.r0, self.v, self.e, self.ed = t0_ns, r0, v, e, ed
 
 
 class FastArm:
-    """The Reis as the trial harness drives it (see the module docstring)."""
+    """The Reis as the trial harness drives it (see the module docstring).
+
+    Joint vectors are kept as lists of 6 floats [deg]; the accessors return arrays.
+    """
 
     def __init__(self, model: RobotModel, q_start_deg, params: FastArmParams = FastArmParams(),
                  servo: ServoParams = ServoParams()) -> None:
@@ -90,25 +97,47 @@ class FastArm:
         self.period_s = self.period_ns / 1e9
         self.half_ns = self.period_ns // 2
         self._wn = 2.0 * math.pi * params.natural_hz
-        self._phi_cache: dict[int, np.ndarray] = {}
+        self._phi_cache: dict[int, tuple[float, float, float, float]] = {}
         cpd = np.abs(np.diag(model.gearing.joint_to_counts_matrix))
         self.vmax_deg_s = np.asarray(servo.max_speed_counts_per_tick, float) * servo.servo_rate_hz / cpd
+        self._lim_deg = (self.vmax_deg_s * self.period_s).tolist()  # largest step per period [deg]
         self.status_period_ns = int(round(STATUS_EVERY_TICKS * 1e9 / servo.servo_rate_hz))
         self.status_phase_ns = int(round((STATUS_EVERY_TICKS - 1) * 1e9 / servo.servo_rate_hz))
-        q0 = np.asarray(q_start_deg, float).copy()
-        self.q_int = q0.copy()  # the planner's current way-point [deg]
-        self.q_ext = q0.copy()  # the command's target [deg]
+        q0 = np.asarray(q_start_deg, float).tolist()
+        self._q_int = list(q0)  # the planner's current way-point [deg]
+        self._q_ext = list(q0)  # the command's target [deg]
         self.time_count = 0
         self._mailbox: tuple[np.ndarray, int] | None = None  # written by the task, planned next tick
         self.refused = 0
         self.last_refusal = ""
-        self._sent = q0.copy()  # the servo's last (speed-clipped) target
-        z = np.zeros(6)
-        self._ramps: deque[_Ramp] = deque([_Ramp(-self.half_ns, q0.copy(), z, z, z)], maxlen=4)
+        self._sent = list(q0)  # the servo's last (speed-clipped) target
+        z = [0.0] * 6
+        self._ramps: deque[_Ramp] = deque([_Ramp(-self.half_ns, list(q0), z, z, z)], maxlen=4)
         self.ticks = 0
         self.t_ns = 0
-        self.q = q0.copy()  # true joints at the last tick [deg]
-        self.q_status = q0.copy()  # joints the Status holds at the last tick [deg]
+        self._q = list(q0)  # true joints at the last tick [deg]
+        self._q_status = list(q0)  # joints the Status holds at the last tick [deg]
+
+    # -- joint vectors as arrays [deg] ------------------------------------------
+    @property
+    def q(self) -> np.ndarray:
+        """True joints at the last tick [deg]."""
+        return np.array(self._q)
+
+    @property
+    def q_status(self) -> np.ndarray:
+        """Joints the Status holds at the last tick [deg]."""
+        return np.array(self._q_status)
+
+    @property
+    def q_int(self) -> np.ndarray:
+        """The planner's current way-point [deg]."""
+        return np.array(self._q_int)
+
+    @property
+    def q_ext(self) -> np.ndarray:
+        """The planner's target [deg]."""
+        return np.array(self._q_ext)
 
     # -- what the task side sees and does -------------------------------------
     def command_cart(self, T_global_wcp, ticks: int) -> None:
@@ -117,60 +146,67 @@ class FastArm:
 
     def status_pose(self) -> np.ndarray:
         """The Brain Status pose at this tick: FK of the sampled joints (4x4, global, mm)."""
-        return self.model.fk(self.q_status)
+        return self.model.fk(self._q_status)
 
     def status_joints(self) -> np.ndarray:
-        return self.q_status.copy()
+        return np.array(self._q_status)
 
     def true_wcp(self) -> np.ndarray:
         """The true wrist-centre pose at this tick (the arm-twin interface, 4x4 mm)."""
-        return self.model.fk(self.q)
+        return self.model.fk(self._q)
 
     # -- time evolution ----------------------------------------------------------
-    def _phi(self, dt_ns: int) -> np.ndarray:
-        """Transition over ``dt_ns`` (to the microsecond: the tick times repeat, so a handful of values)."""
+    def _phi(self, dt_ns: int) -> tuple[float, float, float, float]:
+        """Transition (phi00, phi01, phi10, phi11) over ``dt_ns`` (to the microsecond: the tick
+        times repeat, so a handful of values)."""
         key = int(round(dt_ns / 1000))
         phi = self._phi_cache.get(key)
         if phi is None:
-            phi = self._phi_cache[key] = _transition(self._wn, self.p.damping, key / 1e6)
+            m = _transition(self._wn, self.p.damping, key / 1e6)
+            phi = self._phi_cache[key] = (float(m[0, 0]), float(m[0, 1]), float(m[1, 0]), float(m[1, 1]))
         return phi
 
-    def q_at(self, t_ns: int) -> np.ndarray:
-        """Joint angles [deg] at time ``t_ns`` (within the last few ramps)."""
+    def _q_at(self, t_ns: int) -> list:
         for ramp in reversed(self._ramps):
             if ramp.t0_ns <= t_ns:
                 break
         dt = t_ns - ramp.t0_ns
-        phi = self._phi(dt)
-        return ramp.r0 + ramp.v * (dt / 1e9) + phi[0, 0] * ramp.e + phi[0, 1] * ramp.ed
+        p00, p01, _, _ = self._phi(dt)
+        x = dt / 1e9
+        return [r + v * x + p00 * e + p01 * ed for r, v, e, ed in zip(ramp.r0, ramp.v, ramp.e, ramp.ed)]
+
+    def q_at(self, t_ns: int) -> np.ndarray:
+        """Joint angles [deg] at time ``t_ns`` (within the last few ramps)."""
+        return np.array(self._q_at(t_ns))
 
     def tick(self) -> None:
         """Advance to the next heartbeat tick: joints, Status sample, planner, next servo ramp."""
         self.ticks += 1
         self.t_ns = int(round(self.ticks * 1e9 / self.p.heartbeat_hz))
-        self.q = self.q_at(self.t_ns)
+        self._q = self._q_at(self.t_ns)
         if self.p.status_sampling:
             t_agent = self.t_ns - self.half_ns
             t_s = self.status_phase_ns + self.status_period_ns * ((t_agent - self.status_phase_ns)
                                                                   // self.status_period_ns)
-            self.q_status = self.q_at(t_s)
+            self._q_status = self._q_at(t_s)
         else:
-            self.q_status = self.q
+            self._q_status = self._q
         if self._mailbox is not None:  # the remote/agent deliver last tick's command to the planner
             T, ticks = self._mailbox
             self._mailbox = None
             try:
-                target = self.model.ik(T, self.q_int)
+                target = self.model.ik(T, self._q_int)
             except (Unreachable, ValueError) as exc:
                 self.refused += 1
                 self.last_refusal = str(exc)
             else:
-                self.q_ext = target
+                self._q_ext = target.tolist()
                 self.time_count = ticks
         if self.time_count > 1:  # plan_joint_cmd(): the next way-point
-            self.q_int = self.q_int + (self.q_ext - self.q_int) / self.time_count
+            n = self.time_count
+            self._q_int = [qi + (qe - qi) / n for qi, qe in zip(self._q_int, self._q_ext)]
         else:
-            self.q_int = self.q_ext.copy()
+            self._q_int = list(self._q_ext)
         if self.time_count > 0:
             self.time_count -= 1
         self._next_ramp(self.t_ns + self.half_ns)
@@ -179,11 +215,14 @@ class FastArm:
         """The servo agent's send half a tick after the tick: the next ramp (speed-clipped)."""
         last = self._ramps[-1]
         dt = t0_ns - last.t0_ns
-        phi = self._phi(dt)
-        e = phi[0, 0] * last.e + phi[0, 1] * last.ed
-        ed = phi[1, 0] * last.e + phi[1, 1] * last.ed
-        r_end = last.r0 + last.v * (dt / 1e9)
-        lim = self.vmax_deg_s * self.period_s
-        self._sent = self._sent + np.clip(self.q_int - self._sent, -lim, lim)
-        v_new = (self._sent - r_end) / self.period_s
-        self._ramps.append(_Ramp(t0_ns, r_end, v_new, e, ed - (v_new - last.v)))
+        p00, p01, p10, p11 = self._phi(dt)
+        e = [p00 * a + p01 * b for a, b in zip(last.e, last.ed)]
+        ed = [p10 * a + p11 * b for a, b in zip(last.e, last.ed)]
+        x = dt / 1e9
+        r_end = [r + v * x for r, v in zip(last.r0, last.v)]
+        # np.clip(q_int - sent, -lim, lim), value for value (also for NaN and signed zeros)
+        self._sent = sent = [s + min(max(qi - s, -lim), lim)
+                             for s, qi, lim in zip(self._sent, self._q_int, self._lim_deg)]
+        period = self.period_s
+        v_new = [(s - r) / period for s, r in zip(sent, r_end)]
+        self._ramps.append(_Ramp(t0_ns, r_end, v_new, e, [d - (vn - vl) for d, vn, vl in zip(ed, v_new, last.v)]))

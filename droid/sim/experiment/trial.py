@@ -58,7 +58,7 @@ class TrialConfig:
     trial_id: str
     position: str
     speed_mm_s: float
-    workpiece: str = "step_input"
+    workpiece: str | None = None  # None: the position's own (droid/cells/seamtrack_layout.toml)
     yaw_gain: float = 0.15
     pitch_gain: float = 0.25
     delay_cycles: int = 0

@@ -36,15 +36,68 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from itertools import accumulate
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
 
 from droid.cli import BadInput
 from droid.subunits.mvs.calibration import MvsCalibration
 from droid.subunits.mvs.wire import COLUMNS, ROWS
 
 MAD_TO_SIGMA = 1.4826  # sigma of a normal distribution per median absolute deviation
+_R_ALL = np.arange(ROWS, dtype=float)  # the row index of each of the 240 rows
+
+
+# The medians below are np.median's values bit for bit (the same middle
+# elements, their sum halved, -0.0 made +0.0 as np.mean does) without its
+# per-call overhead (~30 us a call against ~2 us): the feature extraction
+# takes some thirty medians per frame.  The inputs here are finite: no NaN
+# handling.
+
+def _median(a: np.ndarray) -> float:
+    """Median of a 1-D float array of finite values, exactly as ``float(np.median(a))``.
+
+    Reorders ``a`` in place: pass a temporary (or a copy).
+    """
+    n = a.shape[0]
+    h = n >> 1
+    if n & 1:
+        a.partition(h)
+        return float(a[h]) + 0.0
+    a.partition((h - 1, h))
+    return (float(a[h - 1]) + float(a[h]) + 0.0) / 2
+
+
+def _windows(a: np.ndarray, width: int) -> np.ndarray:
+    """(len - width + 1, width) view of the sliding windows of a 1-D contiguous float array."""
+    return np.ndarray((a.shape[0] - width + 1, width), dtype=a.dtype, buffer=a, strides=(a.strides[0],) * 2)
+
+
+def _median_rows(w: np.ndarray) -> np.ndarray:
+    """Median of each row of a 2-D array of finite values, exactly as ``np.median(w, axis=1)``.
+
+    A sort of the short rows is cheaper than np.partition along them.
+    """
+    m = w.shape[1]
+    h = m >> 1
+    s = np.sort(w, axis=1)
+    if m & 1:
+        return s[:, h] + 0.0
+    return (s[:, h - 1] + s[:, h] + 0.0) / 2
+
+
+def _running_median5(c: np.ndarray) -> np.ndarray:
+    """Median of each 5 consecutive values of a 1-D array (len - 4 of them), exactly.
+
+    A selection network of minima and maxima (6 exchanges, then the median
+    of three): it returns an input value, as np.median of 5 does.
+    """
+    n = c.shape[0] - 4
+    mn, mx = np.minimum, np.maximum
+    a0, a1, a3, a4 = c[0:n], c[1:n + 1], c[3:n + 3], c[4:n + 4]
+    lo = mx(mn(a0, a1), mn(a3, a4))  # the larger of the two pairs' minima
+    hi = mn(mx(a0, a1), mx(a3, a4))  # the smaller of the two pairs' maxima
+    return mx(mn(lo, hi), mn(mx(lo, hi), c[2:n + 2])) + 0.0
 
 
 @dataclass(frozen=True)
@@ -101,44 +154,54 @@ def _fit_robust(r: np.ndarray, c: np.ndarray, p: FeatureParams) -> _Line | str:
     if n < p.min_side_rows:
         return f"only {n} rows on one side of the step"
     half = n // 2
-    slope = float(np.median((c[half:half * 2] - c[:half]) / (r[half:half * 2] - r[:half])))
-    intercept = float(np.median(c - slope * r))
-    mask = np.ones(n, bool)
+    slope = _median((c[half:half * 2] - c[:half]) / (r[half:half * 2] - r[:half]))
+    intercept = _median(c - slope * r)
+    mask = None  # all rows
     threshold = p.residual_floor_px
+    add = np.add.reduce  # = ndarray.sum / mean's sum (pairwise), without the method overhead
+    new_mask = None
     for _ in range(p.fit_iterations):
         res = c - (intercept + slope * r)
-        sigma = MAD_TO_SIGMA * float(np.median(np.abs(res[mask] - np.median(res[mask]))))
+        kept = res.copy() if mask is None else res[mask]
+        sigma = MAD_TO_SIGMA * _median(np.abs(kept - _median(kept)))  # kept's order does not matter
         threshold = max(p.residual_floor_px, p.residual_sigmas * sigma)
         new_mask = np.abs(res) <= threshold
-        if new_mask.sum() < 2:
+        count = int(np.count_nonzero(new_mask))
+        if count < 2:
             return "no consistent line on one side of the step"
         rm, cm = r[new_mask], c[new_mask]
-        mean_r, mean_c = rm.mean(), cm.mean()
-        sxx = float(((rm - mean_r) ** 2).sum())
+        mean_r, mean_c = float(add(rm)) / count, float(add(cm)) / count
+        dr = rm - mean_r
+        sxx = float(add(dr * dr))
         if sxx == 0.0:
             return "degenerate line fit"
-        slope = float(((rm - mean_r) * (cm - mean_c)).sum() / sxx)
-        intercept = float(mean_c - slope * mean_r)
-        if np.array_equal(new_mask, mask):
+        slope = float(add(dr * (cm - mean_c))) / sxx
+        intercept = mean_c - slope * mean_r
+        if count == n if mask is None else new_mask.tobytes() == mask.tobytes():
             break
         mask = new_mask
     mask = np.abs(c - (intercept + slope * r)) <= threshold
-    inliers = int(mask.sum())
+    inliers = int(np.count_nonzero(mask))
     if inliers < p.min_side_rows or inliers < p.min_inlier_fraction * n:
         return f"too few inliers on one side of the step ({inliers} of {n})"
-    rm, cm = r[mask], c[mask]
-    rms = float(np.sqrt(np.mean((cm - (intercept + slope * rm)) ** 2)))
+    if new_mask is None or mask.tobytes() != new_mask.tobytes():  # else: the last fit's rows, means, sxx
+        rm, cm = r[mask], c[mask]
+        mean_r, mean_c = float(add(rm)) / inliers, float(add(cm)) / inliers
+        dr = rm - mean_r
+        sxx = float(add(dr * dr))
+    e = cm - (intercept + slope * rm)
+    rms = math.sqrt(float(add(e * e)) / inliers)
     if rms > p.max_rms_px:
         return f"line residual {rms:.2f} px > {p.max_rms_px} px"
-    mean_r = float(rm.mean())
-    return _Line(slope, float(((rm - mean_r) ** 2).sum()), rms, mean_r, float(cm.mean()), inliers, threshold)
+    return _Line(slope, sxx, rms, mean_r, mean_c, inliers, threshold)
 
 
 def _histogram_bound(c: np.ndarray, calib: MvsCalibration, p: FeatureParams) -> np.ndarray:
     """Mask of the columns inside the stripe's concentration (step 1)."""
     bins = -(-COLUMNS // p.hist_bin_px)
     counts = np.bincount((c // p.hist_bin_px).astype(int), minlength=bins)
-    peak = int(np.argmax(counts))
+    peak = int(counts.argmax())
+    counts = counts.tolist()
     threshold = p.hist_min_count
     max_gap = math.ceil(p.max_step_mm / calib.depth_mm_per_column / p.hist_bin_px)
     bounds = []
@@ -160,6 +223,7 @@ def _discontinuities(r: np.ndarray, c: np.ndarray, min_jump_px: float, max_jump_
                      p: FeatureParams) -> list[tuple[int, float]]:
     """Candidate steps, largest first: (index j of the first point after, jump [columns]) (step 2).
 
+    ``r`` ascending (the rows in order), ``c`` their columns.
     The jump at each position is the median of the k points after less the
     median of the k points before (of the profile after a short running
     median), less the profile's median slope over k.
@@ -168,26 +232,31 @@ def _discontinuities(r: np.ndarray, c: np.ndarray, min_jump_px: float, max_jump_
     least k points and must exceed ``min_jump_px``.
     """
     k = p.derivative_rows
-    trend = float(np.median((c[k:] - c[:-k]) / (r[k:] - r[:-k])))
+    trend = _median((c[k:] - c[:-k]) / (r[k:] - r[:-k]))
     half = p.prefilter_rows // 2  # a running median first removes isolated spurious rows
-    c = np.median(sliding_window_view(np.pad(c, half, mode="edge"), 2 * half + 1), axis=1)
-    med_c = np.median(sliding_window_view(c, k), axis=1)
-    med_r = np.median(sliding_window_view(r, k), axis=1)
+    padded = np.concatenate((c[:1].repeat(half), c, c[-1:].repeat(half)))  # np.pad(mode="edge")
+    c = _running_median5(padded) if half == 2 else _median_rows(_windows(padded, 2 * half + 1))
+    med_c = _median_rows(_windows(c, k))
+    # r is in row order, so each window of r is sorted: its median is its middle
+    m, h = len(r) - k + 1, k // 2
+    med_r = r[h:h + m] + 0.0 if k % 2 else (r[h - 1:h - 1 + m] + r[h:h + m] + 0.0) / 2
     jump = (med_c[k:] - med_c[:-k]) - trend * (med_r[k:] - med_r[:-k])  # split at j = i + k
     size = np.abs(jump)
     candidates = []
     size[size > max_jump_px] = 0.0  # more than any step: spurious rows
     while len(candidates) < p.max_candidates:
-        best = int(np.argmax(size))
-        if size[best] < min_jump_px:
+        best = int(size.argmax())
+        size_best = float(size[best])
+        if size_best < min_jump_px:
             break
-        plateau = (size >= 0.8 * size[best]) & (np.sign(jump) == np.sign(jump[best]))
+        jump_best = float(jump[best])  # > 0 or < 0: np.sign(jump) == np.sign(jump_best) is the same test
+        plateau = ((size >= 0.8 * size_best) & ((jump > 0) if jump_best > 0 else (jump < 0))).tolist()
         lo = hi = best
         while lo > 0 and plateau[lo - 1]:
             lo -= 1
-        while hi < len(jump) - 1 and plateau[hi + 1]:
+        while hi < len(plateau) - 1 and plateau[hi + 1]:
             hi += 1
-        candidates.append(((lo + hi) // 2 + k, float(jump[best])))
+        candidates.append(((lo + hi) // 2 + k, jump_best))
         size[max(0, lo - k):hi + k + 1] = 0.0
     return candidates
 
@@ -206,37 +275,46 @@ def _locate_step(r: np.ndarray, c: np.ndarray, a0: float, b0: float, slope: floa
     """
     window = p.derivative_rows + p.guard_rows
     near = np.abs(r - split_row) <= window
-    rw, cw = r[near], c[near]
-    ca, cb = a0 + slope * rw, b0 + slope * rw
-    on_a, on_b = np.abs(cw - ca) <= tol[0], np.abs(cw - cb) <= tol[1]
-    cls = on_a ^ on_b
-    ra, is_a = rw[cls], on_a[cls]
+    # The ~25 rows near the split, in plain floats: the same arithmetic, row by row.
+    rows = []  # (row, column, line A's column, line B's column, on A, on B)
+    ra, is_a = [], []  # the rows on exactly one line, and whether that is A
+    tol_a, tol_b = tol
+    for x, y in zip(r[near].tolist(), c[near].tolist()):
+        u, v = a0 + slope * x, b0 + slope * x
+        oa, ob = abs(y - u) <= tol_a, abs(y - v) <= tol_b
+        rows.append((x, y, u, v, oa, ob))
+        if oa != ob:
+            ra.append(x)
+            is_a.append(oa)
     if len(ra) < 2:
         return "step not located (no rows near it fit the lines)"
-    before_a = np.concatenate([[0], np.cumsum(is_a)])
-    after_b = np.concatenate([np.cumsum(~is_a[::-1])[::-1], [0]])
-    score = before_a + after_b
-    ties = np.flatnonzero(score == score.max())
-    m = int(ties[len(ties) // 2])
+    before_a = [0, *accumulate(is_a)]  # A rows before each split
+    after_b = [*accumulate([not a for a in reversed(is_a)])][::-1] + [0]  # B rows after each split
+    score = [a + b for a, b in zip(before_a, after_b)]
+    top = max(score)
+    ties = [i for i, v in enumerate(score) if v == top]
+    m = ties[len(ties) // 2]
     if m == 0 or m == len(ra):
         return "step not located (one side has no rows near it)"
-    wrong = len(ra) - int(score[m])
+    wrong = len(ra) - score[m]
     if before_a[m] < p.min_support_rows or after_b[m] < p.min_support_rows or wrong > p.max_misfit_rows:
         return "step not located (the lines do not meet there)"
     r_a, r_b = ra[m - 1], ra[m]
     if r_b - r_a > max_gap_rows:
         return f"step not located (a gap of {r_b - r_a:.0f} rows)"
     if not edge_visible:
-        return float((r_a + r_b) / 2)
-    inside = (cw > np.minimum(ca, cb)) & (cw < np.maximum(ca, cb))  # spurious rows lie outside
-    face = (rw >= r_a) & (rw <= r_b) & ((rw == r_a) | (rw == r_b) | (inside & ~(on_a | on_b)))
-    rf = rw[face]
-    g = (cw - (ca + cb) / 2)[face]
+        return (r_a + r_b) / 2
+    rf, g = [], []  # the edge face's rows and their distance from the midline
+    for x, y, u, v, oa, ob in rows:
+        inside = min(u, v) < y < max(u, v)  # spurious rows lie outside
+        if r_a <= x <= r_b and (x == r_a or x == r_b or (inside and not (oa or ob))):
+            rf.append(x)
+            g.append(y - (u + v) / 2)
     sign_a = math.copysign(1.0, a0 - b0)
     for k in range(1, len(rf)):
         if g[k] * sign_a <= 0 < g[k - 1] * sign_a:
-            return float(rf[k - 1] + g[k - 1] / (g[k - 1] - g[k]) * (rf[k] - rf[k - 1]))
-    return float((r_a + r_b) / 2)
+            return rf[k - 1] + g[k - 1] / (g[k - 1] - g[k]) * (rf[k] - rf[k - 1])
+    return (r_a + r_b) / 2
 
 
 def analyse(rows, calib: MvsCalibration, params: FeatureParams = FeatureParams()) -> Feature | str:
@@ -245,11 +323,11 @@ def analyse(rows, calib: MvsCalibration, params: FeatureParams = FeatureParams()
     cols = np.asarray(rows)
     if cols.shape != (ROWS,):
         raise BadInput(f"a frame has {ROWS} rows, got shape {cols.shape}")
-    r_all = np.arange(ROWS, dtype=float)
     ok = (cols >= 0) & (cols < COLUMNS)
-    if ok.sum() < 2 * p.min_side_rows:
-        return f"only {int(ok.sum())} rows with a stripe"
-    c, r = cols[ok].astype(float), r_all[ok]
+    n_ok = int(np.count_nonzero(ok))
+    if n_ok < 2 * p.min_side_rows:
+        return f"only {n_ok} rows with a stripe"
+    c, r = cols[ok].astype(float), _R_ALL[ok]
     keep = _histogram_bound(c, calib, p)
     c, r = c[keep], r[keep]
     if len(c) < 2 * p.min_side_rows:
@@ -274,10 +352,12 @@ def analyse(rows, calib: MvsCalibration, params: FeatureParams = FeatureParams()
 def _feature_at(split_row: float, r: np.ndarray, c: np.ndarray, calib: MvsCalibration,
                 p: FeatureParams) -> Feature | str:
     """Steps 3 and 4 for the step near ``split_row``: the feature, or why there is none."""
-    line_a = _fit_robust(r[r < split_row - p.guard_rows], c[r < split_row - p.guard_rows], p)
+    side = r < split_row - p.guard_rows
+    line_a = _fit_robust(r[side], c[side], p)
     if isinstance(line_a, str):
         return line_a
-    line_b = _fit_robust(r[r > split_row + p.guard_rows], c[r > split_row + p.guard_rows], p)
+    side = r > split_row + p.guard_rows
+    line_b = _fit_robust(r[side], c[side], p)
     if isinstance(line_b, str):
         return line_b
     roll_a, roll_b = calib.slope_to_roll(line_a.b), calib.slope_to_roll(line_b.b)

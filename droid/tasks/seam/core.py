@@ -215,6 +215,7 @@ class SeamTracker:
         self.T6tool_hold = np.eye(4)  # (GMF1)6 T (Reis)6
         self.Ttool7_hold = np.eye(4)  # (GMF1)6 T tool
         self.Tmvs = np.eye(4)  # sensor T seam
+        self._hold_inv_key, self._hold_inv = None, None  # global T (GMF1)6 (bytes) and its inverse
 
     # ------------------------------------------------------------ listing functions
     def holder_robot_wcp(self, T_global_hold6) -> np.ndarray:
@@ -228,7 +229,10 @@ class SeamTracker:
         ``(global T (GMF1)0 (GMF1)0 T 6)^-1  global T (Reis)0 (Reis)0 T 6``; the
         Status poses already include the bases (global frame, Table 3.1).
         """
-        self.T6tool_hold = inv_homo(self.T06hold) @ np.asarray(T_global_reis6, float)
+        key = self.T06hold.tobytes()  # the holder usually stands still: invert a new pose only
+        if key != self._hold_inv_key:
+            self._hold_inv_key, self._hold_inv = key, inv_homo(self.T06hold)
+        self.T6tool_hold = self._hold_inv @ np.asarray(T_global_reis6, float)
         return self.T6tool_hold
 
     def toolpt_wrt_holder(self) -> np.ndarray:
@@ -360,7 +364,8 @@ class SeamTracker:
         tool = self.Ttool7_hold[:3, 3].copy()
         moved_mm = 0.0
         if s.last_tool is not None:
-            moved_mm = float(np.linalg.norm(tool - s.last_tool))
+            d = tool - s.last_tool
+            moved_mm = math.sqrt(float(d.dot(d)))  # np.linalg.norm(d), without its overhead
             s.travel_mm += moved_mm
         s.last_tool = tool
         if self.p.runaway_factor > 0 and s.dead_zone == 0:  # (in the dead zone the arm may still settle)
