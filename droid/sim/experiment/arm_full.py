@@ -8,7 +8,7 @@ a random power-up pose, §4.1.5.3) and moves it to the start pose with a joint
 command, then the seam-tracking core drives it with cartesian commands
 through the Brain Command record, exactly as droid-seamtrack does.
 
-About 30-40x real time (docs/bench-seamtrack.md): the reference for the
+A few times slower than the fast model (docs/benchmarks.md): the reference for the
 ``fast`` model (droid.sim.experiment.arm_fast), not the experiment default.
 """
 from __future__ import annotations
