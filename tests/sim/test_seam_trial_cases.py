@@ -30,3 +30,20 @@ def test_seam_loss_run_stops_where_the_lead_sensor_runs_off_the_seam():
     lost_at = 700.0 + 10.0
     assert lost_at - 10.0 <= r.stop_s_mm <= lost_at + 16 * 32.0 / 30.0 + 10.0, r.stop_s_mm
     assert r.column("travel_mm")[-1] < 2000.0
+
+
+def test_the_ideal_sensor_model_gives_the_camera_chains_numbers():
+    """droid-experiment's default sensor model ("ideal": the seam in the field of view plus the
+    camera chain's noise) must track like the camera twin + the MVS feature code it stands in
+    for: RMS tool error after settling within 0.2 mm, the same stop."""
+    from droid.tasks.seam.report import summarize
+
+    out = {}
+    for sensor in ("camera", "ideal"):
+        r = run_trial(TrialConfig("agree", "iii", 16.0, length_mm=260.0, seed=5, sensor=sensor))
+        out[sensor] = summarize(r.rows, stop_reason=r.stop_reason, camera_to_tcp_mm=r.camera_to_tcp_mm)
+    cam, ideal = out["camera"], out["ideal"]
+    assert cam.stop_reason == ideal.stop_reason == "end of seam"
+    assert cam.settled_rows > 50
+    assert abs(cam.rms_lateral_mm - ideal.rms_lateral_mm) <= 0.2
+    assert abs(cam.rms_depth_mm - ideal.rms_depth_mm) <= 0.2
