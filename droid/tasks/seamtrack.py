@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 import signal
+from collections import deque
 import sys
 import time
 from pathlib import Path
@@ -58,6 +59,12 @@ SETTLED_COUNTS = 2  # after a start move: encoder change per poll [counts] that 
 SETTLE_POLL_S = 0.1
 SETTLE_TIMEOUT_S = 3.0
 FIFO_PRIORITY = 49  # SCHED_FIFO priority of the tracking loop (the remotes run at 50)
+#: Latency compensation (an addition, docs/seamtrack.md): a lead reading that reaches the
+#: Brain's Status at tick m left the camera about a tick earlier (the MVS program, 20
+#: characters at 19200 baud, the remote's tick), so the seam update places it with the
+#: Reis pose of tick m - SENSOR_LAG_TICKS, not the newest one.
+SENSOR_LAG_TICKS = 1
+POSE_HISTORY_TICKS = 16
 
 
 def build_parser():
@@ -202,6 +209,7 @@ class Tracker:
         self.t0 = None
         self.stale_since = None
         self.status_tick = None
+        self.poses: deque = deque(maxlen=POSE_HISTORY_TICKS)
         self.dbs = []
 
     # -- set-up ------------------------------------------------------------
@@ -235,6 +243,21 @@ class Tracker:
         move_to_start(self.hold, T_hold, f"holding pose of position ({position})", self.args.quiet)
         move_to_start(self.reis, T_reis, f"start of position ({position})", self.args.quiet)
 
+    # -- the Reis pose history (latency compensation) --------------------------
+    def remember(self) -> None:
+        """Every tick: keep the Reis Status pose under the tick it was updated in."""
+        rec = self.reis.read()
+        tick = int(rec["tick"])
+        if not self.poses or self.poses[-1][0] != tick:
+            self.poses.append((tick, pose_of(rec)))
+
+    def pose_at(self, tick: int):
+        """The newest remembered Reis pose updated at or before ``tick`` (None: none that old)."""
+        for t, T in reversed(self.poses):
+            if t <= tick:
+                return T
+        return None
+
     # -- one cycle ----------------------------------------------------------
     def cycle(self) -> str | None:
         """Read, step the core, write the command; returns a stop reason or None."""
@@ -248,12 +271,14 @@ class Tracker:
                 return f"{', '.join(stale)} went stale"
             return None
         self.stale_since = None
-        self.lead = reading_of(self.lead_db.read())
+        lead_rec = self.lead_db.read()
+        self.lead = reading_of(lead_rec)
+        sensed = self.pose_at(int(lead_rec["tick"]) - SENSOR_LAG_TICKS)
         tick = int(reis_rec["tick"])  # the Status's own tick: a late update spans more cycles
         elapsed = 1.0 if self.status_tick is None else max(1.0, (tick - self.status_tick) / CYCLE_TICKS)
         self.status_tick = tick
         out = self.core.step(pose_of(hold_rec), pose_of(reis_rec), self.lead, self.reis.joints_deg(reis_rec),
-                             elapsed_cycles=elapsed)
+                             elapsed_cycles=elapsed, T_global_reis6_sensed=sensed)
         self.out = out
         if out.stop is not None:
             return str(out.stop)
@@ -304,6 +329,7 @@ class Tracker:
             if self.t0 is None:
                 self.t0 = t.t_ns
                 next_cycle, next_log = t.tick, t.tick + LOG_TICKS - 1
+            self.remember()
             # tick numbers follow time: a late wake-up (ticks drained at once) still steps once
             if t.tick >= next_cycle:
                 next_cycle = t.tick + CYCLE_TICKS

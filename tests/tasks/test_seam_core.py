@@ -151,7 +151,7 @@ def test_a_transport_delay_zeroes_then_delays_the_readings_the_core_uses():
 
 
 def test_a_tool_that_jumps_stops_the_run_as_a_runaway():
-    """The runaway guard (an addition): the arm reported 10 mm from where it was one cycle ago
+    """The runaway guard (an addition): the arm reported 15 mm from where it was one cycle ago
     (after the dead zone: during it the arm may still settle from its start move)."""
     from droid.tasks.seam.core import STOP_RUNAWAY
 
@@ -161,14 +161,14 @@ def test_a_tool_that_jumps_stops_the_run_as_a_runaway():
     out = core.step(T_HOLD, T, straight_seam_reading(T @ WRIST.T_wcp_sensor))
     T = out.reis_cmd
     assert core.step(T_HOLD, T, straight_seam_reading(T @ WRIST.T_wcp_sensor)).stop is None
-    jumped = trans(0.0, 10.0, 0.0) @ T
+    jumped = trans(0.0, 15.0, 0.0) @ T
     out = core.step(T_HOLD, jumped, straight_seam_reading(jumped @ WRIST.T_wcp_sensor))
     assert out.stop is not None and out.stop.reason == STOP_RUNAWAY and out.reis_cmd is None
-    assert "10.5 mm in 3 cycles" in out.stop.detail
+    assert "15.5 mm in 3 cycles (limit 10.0 mm)" in out.stop.detail
     settling = SeamTracker(SeamParams(speed_mm_s=16.0, dead_zone_cycles=5), WRIST.T_wcp_tool, WRIST.T_wcp_sensor)
     settling.step(T_HOLD, start_pose(), ZERO_READING)
-    assert settling.step(T_HOLD, trans(0.0, 10.0, 0.0) @ start_pose(), ZERO_READING).stop is None
+    assert settling.step(T_HOLD, trans(0.0, 15.0, 0.0) @ start_pose(), ZERO_READING).stop is None
     off = SeamTracker(SeamParams(speed_mm_s=16.0, dead_zone_cycles=0, runaway_factor=0.0), WRIST.T_wcp_tool,
                       WRIST.T_wcp_sensor)
     off.step(T_HOLD, start_pose(), ZERO_READING)
-    assert off.step(T_HOLD, trans(0.0, 10.0, 0.0) @ start_pose(), ZERO_READING).stop is None
+    assert off.step(T_HOLD, trans(0.0, 15.0, 0.0) @ start_pose(), ZERO_READING).stop is None

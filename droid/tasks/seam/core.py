@@ -48,7 +48,7 @@ Additions (documented in docs/seamtrack.md): stop reasons -- the run length
 reached ("end of seam"), the lead sensor invalid for more than
 ``lost_cycles`` consecutive cycles after the dead zone ("seam lost"), a Reis
 command outside the robot model's reach or limits ("unreachable"), a tool that
-moved faster than RUNAWAY_FACTOR times the speed for half a second ("runaway"); and the
+moved faster than RUNAWAY_FACTOR times the speed for two seconds ("runaway"); and the
 transport-delay buffer of §6.2.5 (:mod:`droid.tasks.seam.delay`).
 """
 from __future__ import annotations
@@ -83,12 +83,13 @@ STOP_RUNAWAY = "runaway"
 #: Runaway guard (an addition): after the dead zone, the tool moving more than
 #: RUNAWAY_FACTOR times the commanded speed over the last RUNAWAY_WINDOW cycles (and
 #: more than RUNAWAY_MIN_MM) stops the run -- an oscillating, unstable loop (long
-#: delays, §6.2.5) or an arm that does not follow.  The arm moves in bursts within a
-#: cycle (up to ~0.8 mm per 60 Hz tick at the wrist centre at 16 mm/s), so the guard
-#: looks at half a second, not one cycle; normal tracking runs at ~0.5x the speed.
-RUNAWAY_FACTOR = 5.0
-RUNAWAY_WINDOW = 15
-RUNAWAY_MIN_MM = 5.0
+#: delays, §6.2.5) or an arm that does not follow.  Normal tracking runs at ~0.5x the
+#: speed; the real-time arm moves in bursts (up to ~0.8 mm per 60 Hz tick at the wrist
+#: centre) and, on a busy host, lurches once by 20-30 mm in under a second and recovers:
+#: the guard looks at two seconds, so it stops sustained oscillation, not one lurch.
+RUNAWAY_FACTOR = 4.0
+RUNAWAY_WINDOW = 60
+RUNAWAY_MIN_MM = 10.0
 
 PHASE_DEAD_ZONE = "dead zone"  # the sensor is not read yet (still the initial section)
 PHASE_INITIAL = "initial"  # the tool heads for the point where the sensor started
@@ -216,6 +217,7 @@ class SeamTracker:
         self.Ttool7_hold = np.eye(4)  # (GMF1)6 T tool
         self.Tmvs = np.eye(4)  # sensor T seam
         self._hold_inv_key, self._hold_inv = None, None  # global T (GMF1)6 (bytes) and its inverse
+        self._T6tool_hold_sensed = None  # (GMF1)6 T (Reis)6 when the reading was taken (None: now)
 
     # ------------------------------------------------------------ listing functions
     def holder_robot_wcp(self, T_global_hold6) -> np.ndarray:
@@ -262,7 +264,8 @@ class SeamTracker:
         L = self.camera_to_tcp_mm
         yaw = -(self.Tmvs[1, 3] / L) * self.p.yaw_gain
         pitch = (self.Tmvs[0, 3] / L) * self.p.pitch_gain
-        frame = self.T6tool_hold @ self.Tcamera_6 @ self.Tmvs @ _roty(pitch) @ _rotx(yaw)
+        T6tool_hold = self.T6tool_hold if self._T6tool_hold_sensed is None else self._T6tool_hold_sensed
+        frame = T6tool_hold @ self.Tcamera_6 @ self.Tmvs @ _roty(pitch) @ _rotx(yaw)
         # rotating the seam queue: seam[i+1] = seam[i] for i = tcp_idx .. 0, seam[0] = newest
         s.seam_pos.insert(0, (float(frame[0, 3]), float(frame[1, 3]), float(frame[2, 3])))
         s.seam_front = frame
@@ -342,7 +345,7 @@ class SeamTracker:
         return self.s.stop
 
     def step(self, T_global_hold6, T_global_reis6, reading: Reading, q_reis_deg=None,
-             elapsed_cycles: float = 1.0) -> CycleOutput:
+             elapsed_cycles: float = 1.0, T_global_reis6_sensed=None) -> CycleOutput:
         """One 30 Hz cycle.
 
         ``T_global_hold6``, ``T_global_reis6``: the GMF1 and Reis wrist-centre
@@ -351,7 +354,12 @@ class SeamTracker:
         joint angles [deg] (the first cycle's IK hint; later the previous
         pick is used, as the planner does); ``elapsed_cycles``: how many
         cycles of time lie between this Reis pose and the last one (a late
-        Status counts more than one: the runaway guard scales with it).
+        Status counts more than one: the runaway guard scales with it);
+        ``T_global_reis6_sensed``: the Reis pose when the sensor took the
+        reading (eq. 5.3 places the reading with the camera pose of its own
+        instant; a real-time shell whose readings arrive later than the pose
+        passes the pose of the reading's time -- an addition; None: the
+        current pose, as the listing).
         """
         s = self.s
         cycle = s.cycle
@@ -388,6 +396,8 @@ class SeamTracker:
             s.invalid_run = 0 if used.valid else s.invalid_run + 1
             if s.invalid_run > self.p.lost_cycles:
                 return self._stop(cycle, STOP_LOST, f"lead sensor invalid for {s.invalid_run} cycles")
+        self._T6tool_hold_sensed = None if T_global_reis6_sensed is None else \
+            self._hold_inv @ np.asarray(T_global_reis6_sensed, float)
         yaw, pitch = self.update_seam_wrt_holder(used)
         target = self.interpolate(self.p.step_mm)
         reis_cmd = self.gen_tool_robot_wcp(target)
