@@ -53,14 +53,16 @@ def notify_ready(fd: int | None) -> None:
 
 
 class Stop:
-    """SIGTERM/SIGINT -> ``requested`` (checked by loops)."""
+    """SIGTERM/SIGINT -> ``requested`` (checked by loops); ``signum``: which signal."""
 
     requested = False
+    signum = 0
 
     @classmethod
     def install(cls) -> None:
         def handler(signum, frame):
             cls.requested = True
+            cls.signum = signum
 
         signal.signal(signal.SIGTERM, handler)
         signal.signal(signal.SIGINT, handler)

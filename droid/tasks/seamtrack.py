@@ -38,7 +38,7 @@ import zmq
 
 from droid.brain.databases import open_brain
 from droid.brain.heartbeat import TickSubscriber
-from droid.brain.program import open_cell, parser
+from droid.brain.program import Stop, open_cell, parser
 from droid.brain.rt import try_sched_fifo
 from droid.cli import (EXIT_INTERRUPTED, EXIT_OK, EXIT_RUNTIME, BadInput, RuntimeFailure, finite_float,
                        non_negative_int, positive_float, run)
@@ -102,20 +102,6 @@ def build_parser():
     return ap
 
 
-class _Interrupted:
-    """SIGINT/SIGTERM during tracking: finish the cycle, then stop (no traceback, no half-written command)."""
-
-    def __init__(self) -> None:
-        self.signum = 0
-
-    def install(self) -> None:
-        def handler(signum, frame):
-            self.signum = signum
-
-        signal.signal(signal.SIGINT, handler)
-        signal.signal(signal.SIGTERM, handler)
-
-
 def reading_of(rec) -> Reading:
     """A lead-sensor Status record (Table 3.3) as a reading: x depth, y lateral [mm], roll from R."""
     if int(rec["stale"]) or int(rec["homed"]):  # homed = 1: the reading is invalid (Table 3.3)
@@ -158,7 +144,7 @@ def move_to_start(arm: BrainArm, T: np.ndarray, what: str, quiet: bool) -> None:
     seconds = max(START_MOVE_MIN_S, START_MOVE_MARGIN * float(np.max(np.abs(q - q_now) / arm.model.vmax_deg_s)))
     if not quiet:
         print(f"{PROG}: moving {arm.sub.name} to the {what} ({seconds:.1f} s)", file=sys.stderr)
-    rec = arm.wait_idle(seconds + 30.0)
+    arm.wait_idle(seconds + 30.0)
     cmd_id = arm.command_cart(T, arm.ticks_for(seconds))
     arm.wait_delivered(cmd_id, 10.0)
     arm.wait_done(cmd_id, 3 * seconds + 30.0)
@@ -300,7 +286,7 @@ class Tracker:
             out=out, camera_to_tcp_mm=self.wrist.camera_to_tcp_mm))
 
     # -- the run -------------------------------------------------------------
-    def run(self, stop_flag: _Interrupted) -> tuple[int, str]:
+    def run(self) -> tuple[int, str]:
         # The 30 Hz loop is part of the cell's tick chain: below the remotes (50) when the
         # cell asks for SCHED_FIFO, so a loaded host does not stretch the loop's delay
         # (a delay of 2+ cycles destabilises the tracking, §6.2.5).
@@ -308,17 +294,17 @@ class Tracker:
         ctx = zmq.Context.instance()
         ticks = TickSubscriber(ctx, self.cell.heartbeat)
         try:
-            return self._loop(ticks, stop_flag)
+            return self._loop(ticks)
         finally:
             ticks.close()
 
-    def _loop(self, ticks: TickSubscriber, stop_flag: _Interrupted) -> tuple[int, str]:
+    def _loop(self, ticks: TickSubscriber) -> tuple[int, str]:
         next_cycle = next_log = None  # heartbeat tick numbers of the next cycle / log row
         last_tick_wall = time.monotonic()
         last_progress = 0.0
         while True:
-            if stop_flag.signum:
-                return EXIT_INTERRUPTED, f"interrupted ({signal.Signals(stop_flag.signum).name})"
+            if Stop.requested:  # finish the cycle, then stop: no half-written command
+                return EXIT_INTERRUPTED, f"interrupted ({signal.Signals(Stop.signum).name})"
             t = ticks.wait(0.1)
             now = time.monotonic()
             if t is None:
@@ -358,17 +344,16 @@ def main(argv=None) -> int:
     for p in (args.log, args.figure):
         if p is not None and Path(p).parent and not Path(p).parent.exists():
             raise BadInput(f"directory of {p} does not exist")
-    stop_flag = _Interrupted()
     tr.connect()
     try:
         tr.check_ready()
-        stop_flag.install()
+        Stop.install()
         if args.start:
             tr.go_to_start(args.start)
-        if stop_flag.signum:
+        if Stop.requested:
             code, why = EXIT_INTERRUPTED, "interrupted before tracking"
         else:
-            code, why = tr.run(stop_flag)
+            code, why = tr.run()
     finally:
         tr.close()
     stop = tr.core.stopped
