@@ -230,12 +230,13 @@ class Tracker:
         move_to_start(self.reis, T_reis, f"start of position ({position})", self.args.quiet)
 
     # -- the Reis pose history (latency compensation) --------------------------
-    def remember(self) -> None:
-        """Every tick: keep the Reis Status pose under the tick it was updated in."""
+    def remember(self):
+        """Every tick: keep the Reis Status pose under the tick it was updated in; returns the record."""
         rec = self.reis.read()
         tick = int(rec["tick"])
         if not self.poses or self.poses[-1][0] != tick:
             self.poses.append((tick, pose_of(rec)))
+        return rec
 
     def pose_at(self, tick: int):
         """The newest remembered Reis pose updated at or before ``tick`` (None: none that old)."""
@@ -245,9 +246,8 @@ class Tracker:
         return None
 
     # -- one cycle ----------------------------------------------------------
-    def cycle(self) -> str | None:
+    def cycle(self, reis_rec) -> str | None:
         """Read, step the core, write the command; returns a stop reason or None."""
-        reis_rec = self.reis.read()
         hold_rec = self.hold.read()
         stale = [arm.sub.name for arm, rec in ((self.reis, reis_rec), (self.hold, hold_rec)) if int(rec["stale"])]
         if stale:  # no command this cycle: the Reis finishes its last step and waits
@@ -315,11 +315,11 @@ class Tracker:
             if self.t0 is None:
                 self.t0 = t.t_ns
                 next_cycle, next_log = t.tick, t.tick + LOG_TICKS - 1
-            self.remember()
+            reis_rec = self.remember()
             # tick numbers follow time: a late wake-up (ticks drained at once) still steps once
             if t.tick >= next_cycle:
                 next_cycle = t.tick + CYCLE_TICKS
-                why = self.cycle()
+                why = self.cycle(reis_rec)
                 if why is not None:
                     stop = self.core.stopped
                     if stop is not None and stop.reason == STOP_END:
