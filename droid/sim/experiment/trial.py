@@ -36,7 +36,7 @@ from droid.sim.experiment.geometry import TrialGeometry, trial_geometry
 from droid.sim.experiment.sensors import DEFAULT_NOISE, SENSOR_MODELS, LeadSensor, tool_reading
 from droid.sim.lockstep import ORDER_DEVICE, ORDER_TASK, ORDER_WORLD, Scheduler
 from droid.sim.mvs_camera import CameraNoise
-from droid.tasks.seam.core import DEAD_ZONE_CYCLES, LOST_CYCLES, SeamParams, SeamTracker
+from droid.tasks.seam.core import DEAD_ZONE_CYCLES, LOST_CYCLES, MODE_THESIS, MODES, SeamParams, SeamTracker
 from droid.tasks.seam.delay import INVALID_READING, Reading
 from droid.tasks.seam.report import COLUMNS, SETTLE_EXTRA_MM, log_row  # noqa: F401 (columns; settling)
 
@@ -74,10 +74,13 @@ class TrialConfig:
     fast_params: FastArmParams = FastArmParams()
     title: str = ""
     panels: str = "errors"  # "errors" (Figs 6.5-6.13) or "angles" (Figs 6.17-6.35: yaw/pitch panels)
+    mode: str = MODE_THESIS  # tracking mode: thesis, listing, plus (docs/seamtrack.md)
 
     def __post_init__(self) -> None:
         if self.arm not in ARM_MODELS:
             raise BadInput(f"unknown arm model {self.arm!r} (known: {', '.join(ARM_MODELS)})")
+        if self.mode not in MODES:
+            raise BadInput(f"unknown mode {self.mode!r} (known: {', '.join(MODES)})")
         if self.sensor not in SENSOR_MODELS:
             raise BadInput(f"unknown sensor model {self.sensor!r} (known: {', '.join(SENSOR_MODELS)})")
         for name in ("speed_mm_s", "yaw_gain", "pitch_gain", "delay_at_mm"):
@@ -128,7 +131,7 @@ def run_trial(cfg: TrialConfig, layout=None) -> TrialResult:
     length = cfg.length_mm if cfg.length_mm is not None else default_length_mm(geo)
     params = SeamParams(speed_mm_s=cfg.speed_mm_s, yaw_gain=cfg.yaw_gain, pitch_gain=cfg.pitch_gain,
                         dead_zone_cycles=cfg.dead_zone_cycles, lost_cycles=cfg.lost_cycles, length_mm=length,
-                        delay_cycles=cfg.delay_cycles, delay_at_mm=cfg.delay_at_mm)
+                        delay_cycles=cfg.delay_cycles, delay_at_mm=cfg.delay_at_mm, mode=cfg.mode)
     sched = Scheduler(HEARTBEAT_HZ)
     if cfg.arm == "fast":
         arm = FastArm(geo.reis, geo.q_reis_start_deg, cfg.fast_params)
