@@ -164,6 +164,8 @@ def test_seam_lost_when_the_sensor_sees_no_seam(sim_cell, tmp_path):
     (["16", "--yaw-gain", "inf"], "not a finite number"),
     (["16", "--delay", "-1"], "must be >= 0"),
     (["16", "--start", "viii"], "invalid choice"),
+    (["16", "--mode", "nosuch"], "invalid choice"),
+    (["0", "--mode", "plus"], "must be > 0"),
     (["16", "--wrist", "nosuch"], "unknown wrist"),
     (["16", "--layout", "/nonexistent.toml"], "not found"),
     (["16", "--tool-sensor", "nosuch"], "unknown subunit"),

@@ -425,7 +425,7 @@ class SeamTracker:
         return self.s.stop
 
     def step(self, T_global_hold6, T_global_reis6, reading: Reading, q_reis_deg=None,
-             elapsed_cycles: float = 1.0, T_global_reis6_sensed=None) -> CycleOutput:
+             elapsed_cycles: float = 1.0, T_global_reis6_sensed=None, T_global_hold6_sensed=None) -> CycleOutput:
         """One 30 Hz cycle.
 
         ``T_global_hold6``, ``T_global_reis6``: the GMF1 and Reis wrist-centre
@@ -439,7 +439,8 @@ class SeamTracker:
         reading (eq. 5.3 places the reading with the camera pose of its own
         instant; a real-time shell whose readings arrive later than the pose
         passes the pose of the reading's time -- an addition; None: the
-        current pose, as the listing).
+        current pose, as the listing); ``T_global_hold6_sensed``: the GMF1 pose at
+        that instant (None: the current one).
         """
         s = self.s
         cycle = s.cycle
@@ -476,8 +477,10 @@ class SeamTracker:
             s.invalid_run = 0 if used.valid else s.invalid_run + 1
             if s.invalid_run > self.p.lost_cycles:
                 return self._stop(cycle, STOP_LOST, f"lead sensor invalid for {s.invalid_run} cycles")
+        hold_inv = self._hold_inv if T_global_hold6_sensed is None else inv_homo(np.asarray(T_global_hold6_sensed,
+                                                                                           float))
         self._T6tool_hold_sensed = None if T_global_reis6_sensed is None else \
-            self._hold_inv @ np.asarray(T_global_reis6_sensed, float)
+            hold_inv @ np.asarray(T_global_reis6_sensed, float)
         yaw, pitch = self.update_seam_wrt_holder(used)
         target = self.interpolate(self.p.step_mm)
         reis_cmd = self.gen_tool_robot_wcp(target)
