@@ -345,7 +345,7 @@ def main(argv=None) -> int:
     reason, detail = (stop.reason, stop.detail) if stop is not None else (why, "")
     s_end = stop.travel_mm if stop is not None else (tr.out.travel_mm if tr.out is not None else math.nan)
     summary = report.summarize(tr.rows, stop_reason=reason, stop_detail=detail, stop_s_mm=s_end,
-                               camera_to_tcp_mm=tr.wrist.camera_to_tcp_mm)
+                               camera_to_tcp_mm=tr.wrist.camera_to_tcp_mm, commanded_mm_s=args.speed)
     if args.log:
         report.write_csv(args.log, tr.rows)
     if args.figure:

@@ -1,7 +1,8 @@
 """droid-experiment: run the seam-tracking experiments of thesis chapter 6 (issue 7).
 
     droid-experiment run ID|TABLE... [--out DIR] [--realtime] [--seed N] [--jobs N]
-                         [--sensor camera|ideal] [--arm fast|full] [--no-figures]
+                         [--sensor camera|ideal] [--arm fast|full] [--mode thesis|listing|plus]
+                         [--no-figures]
     droid-experiment list [ID|TABLE...]
 
 IDs and tables: droid.sim.experiment.matrix (``droid-experiment list``;
@@ -36,7 +37,7 @@ from droid.sim.experiment.matrix import (EXP4_RUNS, POSITION_LABELS, TABLES, Exp
 from droid.sim.experiment.sensors import SENSOR_MODELS
 from droid.sim.experiment.trial import ARM_MODELS
 from droid.tasks.seam import report
-from droid.tasks.seam.core import STOP_END
+from droid.tasks.seam.core import MODES, STOP_END
 
 PROG = "droid-experiment"
 DEFAULT_OUT = os.path.join("out", "experiments")
@@ -64,6 +65,9 @@ def build_parser() -> ArgumentParser:
                         "chain's noise, ~3x faster; camera: the MVS camera twin and feature code)")
     r.add_argument("--arm", choices=ARM_MODELS, default=None,
                    help="Reis model (default: fast; full runs every Reis core and the plant)")
+    r.add_argument("--mode", choices=MODES, default=None,
+                   help="tracker: thesis (default, §5.2's patch), listing (the literal port), plus "
+                        "(seam map, holds the speed; docs/seamtrack.md)")
     r.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     r.add_argument("--length", type=positive_float, default=None, help=argparse.SUPPRESS)  # run length [mm]
     lp = sub.add_parser("list", help="list the experiments with their parameters, one a line")
@@ -109,7 +113,7 @@ def run_job(job: Job) -> Outcome:
     report.write_csv(base + ".csv", result.rows)
     summary = report.summarize(result.rows, trial_id=job.exp.id, stop_reason=result.stop_reason,
                                stop_detail=result.stop_detail, stop_s_mm=result.stop_s_mm,
-                               camera_to_tcp_mm=result.camera_to_tcp_mm)
+                               camera_to_tcp_mm=result.camera_to_tcp_mm, commanded_mm_s=cfg.speed_mm_s)
     if job.figures:
         early = not result.stop_reason.startswith(STOP_END)
         report.figure(base + ".png", result.rows, cfg.title or job.exp.id, cfg.panels,
@@ -254,6 +258,8 @@ def cmd_run(args) -> int:
         overrides["sensor"] = args.sensor
     if args.arm:
         overrides["arm"] = args.arm
+    if getattr(args, "mode", None):
+        overrides["mode"] = args.mode
     if args.length:
         overrides["length_mm"] = args.length
     if overrides:
