@@ -124,7 +124,8 @@ class SeamMap:
                 self.rejected += 1  # the oldest held point was a lone outlier
                 self._held.pop(0)
                 return False
-        self._held = []  # a point that fits: whatever was held back was spurious
+        self.rejected += len(self._held)  # a point that fits: whatever was held back was spurious
+        self._held = []
         self._enter(p, n, front)
         return True
 
