@@ -68,6 +68,8 @@ class SeamMap:
         self.rejected = 0
         self._held: list[tuple[np.ndarray, np.ndarray]] = []
         self._first_reading_s: float | None = None
+        self.version = 0  # bumped on every change of the knots
+        self._front_cache: tuple[int, SeamPoint] | None = None
 
     # -- building ----------------------------------------------------------------
     @property
@@ -95,6 +97,7 @@ class SeamMap:
         i = self.size
         self._s[i], self._p[i], self._n[i], self._w[i] = s, p, n / max(np.linalg.norm(n), 1e-12), 1.0
         self.size += 1
+        self.version += 1
 
     def add(self, p, n) -> bool:
         """Add a sensed seam point ``p`` with its surface normal ``n``; False if held back or dropped."""
@@ -102,7 +105,7 @@ class SeamMap:
         if self.size == 0:
             self.seed(p, n)
             return True
-        front = self.fit(self.front_s, one_sided=True, wide=2.0)
+        front = self.front()
         d = p - front.p
         ds = float(d @ front.t)
         if self.size >= 2 * WINDOW_KNOTS and self._first_reading_s is not None:
@@ -141,6 +144,7 @@ class SeamMap:
             self._p[i] = (self._p[i] * w + p) / (w + 1)
             self._n[i] = (self._n[i] * w + n) / (w + 1)
             self._w[i] = w + 1
+            self.version += 1
             return
         self._append(self.front_s + ds, p, n)
         if self._first_reading_s is None:
@@ -193,8 +197,15 @@ class SeamMap:
         nn = (self._n[lo:hi] * w[:, None]).sum(axis=0)
         return SeamPoint(s, p0, t, k, _normal(nn, t))
 
+    def front(self) -> SeamPoint:
+        """The fit at the newest knot over twice the window (cached until the knots change)."""
+        c = self._front_cache
+        if c is None or c[0] != self.version:
+            c = self._front_cache = (self.version, self.fit(self.front_s, one_sided=True, wide=2.0))
+        return c[1]
+
     def _extrapolate(self, s: float) -> SeamPoint:
-        f = self.fit(self.front_s, one_sided=True, wide=2.0)
+        f = self.front()
         u = s - f.s_mm
         k = f.k
         kn = float(np.linalg.norm(k))
