@@ -150,9 +150,13 @@ SENSOR_STATUS = _dtype(
         ("valid_count", "<u4", None),  # addition: valid readings received
         ("invalid_count", "<u4", None),  # addition: readings flagged invalid by the sensor
         ("garbled_count", "<u4", None),  # addition: lines that did not parse
+        ("capture_age_us", "<u4", None),  # addition (v2, issue 12): age of the reading's camera frame at
+        #                                   updated_ns [us], from the line's stamp; NO_CAPTURE_AGE: unstamped
     ],
     240,
 )
+#: SENSOR_STATUS.capture_age_us of a reading without a capture stamp.
+NO_CAPTURE_AGE = 0xFFFFFFFF
 
 ARM_COMMAND = _dtype(
     HEADER_FIELDS
@@ -225,7 +229,7 @@ class Layout:
 
 ARM_STATUS_LAYOUT = Layout("arm_status", KIND_ARM_STATUS, 1, ARM_STATUS, "droid_arm_status")
 ARM_COMMAND_LAYOUT = Layout("arm_command", KIND_ARM_COMMAND, 1, ARM_COMMAND, "droid_arm_command")
-SENSOR_STATUS_LAYOUT = Layout("sensor_status", KIND_SENSOR_STATUS, 1, SENSOR_STATUS, "droid_sensor_status")
+SENSOR_STATUS_LAYOUT = Layout("sensor_status", KIND_SENSOR_STATUS, 2, SENSOR_STATUS, "droid_sensor_status")
 CTRL_STATUS_LAYOUT = Layout("ctrl_status", KIND_CTRL_STATUS, 1, CTRL_STATUS, "droid_ctrl_status")
 CTRL_COMMAND_LAYOUT = Layout("ctrl_command", KIND_CTRL_COMMAND, 1, CTRL_COMMAND, "droid_ctrl_command")
 PROC_STATUS_LAYOUT = Layout("proc_status", KIND_PROC_STATUS, 2, PROC_STATUS, "droid_proc_status")

@@ -22,6 +22,11 @@ blocks) and :class:`SensorStatusCore` turns the bytes into Status fields:
   (a garbled line counts as invalid *and* as garbled);
 * ``tick``, ``updated_ns``: the heartbeat tick and CLOCK_MONOTONIC [ns] at
   which the newest line arrived;
+* ``capture_age_us`` (layout v2, issue 12): for a line with a capture stamp
+  (droid.brain.sensor_line), how long before ``updated_ns`` its camera frame
+  was taken [us]; ``NO_CAPTURE_AGE`` for a plain line.  A stamp from the
+  future, older than a second or out of order drops the reading (invalid)
+  and counts as garbled;
 * ``stale = 1`` and the LINK fault after ``stale_ticks`` ticks without any
   line (and until the first line); cleared when lines flow again;
 * after the port is (re)opened, bytes up to the first line end are skipped
@@ -44,7 +49,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from droid.brain.cellfile import Cell, Subunit
-from droid.brain.layouts import FAULT_DEVICE, FAULT_LINK
+from droid.brain.layouts import FAULT_DEVICE, FAULT_LINK, NO_CAPTURE_AGE
 from droid.brain.sensor_line import DEFAULT_BAUD, INVALID, MIN_BAUD, Reading, SensorClientCore
 from droid.cli import BadInput
 
@@ -132,7 +137,7 @@ class SensorStatusCore:
             self._fresh = False
         self._port_ok = port_ok
         before = self.client.lines
-        reading = self.client.feed(data if port_ok else b"")
+        reading = self.client.feed(data if port_ok else b"", now_ns)
         if self.client.lines > before:
             self._fresh = True
             self.last_line_tick, self.last_line_ns = tick, now_ns
@@ -145,7 +150,9 @@ class SensorStatusCore:
             fault=(FAULT_LINK if stale else 0) | (0 if port_ok else FAULT_DEVICE),
             valid_count=self.client.valid & _U32,
             invalid_count=self.client.invalid & _U32,
-            garbled_count=self.client.garbled & _U32,
+            garbled_count=(self.client.garbled + self.client.stamp_dropped) & _U32,
+            capture_age_us=(NO_CAPTURE_AGE if not reading.valid or reading.age_ms is None
+                            else min(int(reading.age_ms) * 1000, NO_CAPTURE_AGE - 1)),
             tick=self.last_line_tick,
             updated_ns=self.last_line_ns,
         )

@@ -136,7 +136,7 @@ _Static_assert(offsetof(droid_arm_command_t, cmd_id) == 172, "droid_arm_command.
 _Static_assert(sizeof(droid_arm_command_t) == 176, "droid_arm_command size");
 
 #define DROID_SENSOR_STATUS_KIND 3
-#define DROID_SENSOR_STATUS_VERSION 1
+#define DROID_SENSOR_STATUS_VERSION 2
 #define DROID_SENSOR_STATUS_SIZE 240
 #pragma pack(push, 1)
 typedef struct droid_sensor_status {
@@ -167,7 +167,7 @@ typedef struct droid_sensor_status {
     uint32_t valid_count;
     uint32_t invalid_count;
     uint32_t garbled_count;
-    uint8_t _pad0[4];
+    uint32_t capture_age_us;
 } droid_sensor_status_t;
 #pragma pack(pop)
 _Static_assert(offsetof(droid_sensor_status_t, magic) == 0, "droid_sensor_status.magic offset");
@@ -197,6 +197,7 @@ _Static_assert(offsetof(droid_sensor_status_t, cmd_result) == 220, "droid_sensor
 _Static_assert(offsetof(droid_sensor_status_t, valid_count) == 224, "droid_sensor_status.valid_count offset");
 _Static_assert(offsetof(droid_sensor_status_t, invalid_count) == 228, "droid_sensor_status.invalid_count offset");
 _Static_assert(offsetof(droid_sensor_status_t, garbled_count) == 232, "droid_sensor_status.garbled_count offset");
+_Static_assert(offsetof(droid_sensor_status_t, capture_age_us) == 236, "droid_sensor_status.capture_age_us offset");
 _Static_assert(sizeof(droid_sensor_status_t) == 240, "droid_sensor_status size");
 
 #define DROID_CTRL_STATUS_KIND 4

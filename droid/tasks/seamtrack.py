@@ -36,6 +36,7 @@ import numpy as np
 import zmq
 
 from droid.brain.databases import open_brain
+from droid.brain.layouts import NO_CAPTURE_AGE
 from droid.brain.heartbeat import TickSubscriber
 from droid.brain.program import Stop, open_cell, parser
 from droid.brain.rt import try_sched_fifo
@@ -100,12 +101,20 @@ def build_parser():
     return ap
 
 
-def reading_of(rec) -> Reading:
-    """A lead-sensor Status record (Table 3.3) as a reading: x depth, y lateral [mm], roll from R."""
+def reading_of(rec, period_ns: int | None = None) -> Reading:
+    """A lead-sensor Status record (Table 3.3) as a reading: x depth, y lateral [mm], roll from R.
+
+    With ``period_ns`` (the heartbeat period) and a stamped line (``capture_age_us``, layout
+    v2): the capture instant in heartbeat ticks, ``tick - age / period`` (issue 12)."""
     if int(rec["stale"]) or int(rec["homed"]):  # homed = 1: the reading is invalid (Table 3.3)
         return INVALID_READING
     R = rec["R"]
-    return Reading(float(rec["x"]), float(rec["y"]), math.atan2(float(R[1][0]), float(R[0][0])), True)
+    stamp = None
+    names = getattr(getattr(rec, "dtype", None), "names", None) or ()
+    if period_ns and "capture_age_us" in names and int(rec["capture_age_us"]) != NO_CAPTURE_AGE:
+        stamp = int(rec["tick"]) - int(rec["capture_age_us"]) * 1000.0 / period_ns
+    return Reading(float(rec["x"]), float(rec["y"]), math.atan2(float(R[1][0]), float(R[0][0])), True,
+                   stamp_tick=stamp)
 
 
 def pose_of(rec) -> np.ndarray:
@@ -251,7 +260,7 @@ class Tracker:
             return None
         self.stale_since = None
         lead_rec = self.lead_db.read()
-        self.lead = reading_of(lead_rec)
+        self.lead = reading_of(lead_rec, self.cell.period_ns)
         out = self.cyc.step(pose_of(hold_rec), pose_of(reis_rec), int(reis_rec["tick"]), self.lead,
                             int(lead_rec["tick"]), self.reis.joints_deg(reis_rec))
         self.out = out

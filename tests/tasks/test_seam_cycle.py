@@ -64,3 +64,19 @@ def test_a_reading_is_placed_with_the_pose_of_its_capture_and_a_future_one_is_dr
     assert cyc.locate(Reading(stamp_tick=50.0)) is None and cyc.dropped == 1
     out = cyc.step(T_hold, trans(90.0, 0, 0), 9, r, 9)
     assert out.stop is None and cyc.dropped == 1
+
+
+def test_the_real_time_shell_reads_the_capture_instant_from_the_sensor_status():
+    from droid.brain.layouts import NO_CAPTURE_AGE, SENSOR_STATUS
+    from droid.tasks.seamtrack import reading_of
+
+    rec = np.zeros((), SENSOR_STATUS)
+    rec["R"] = np.eye(3)
+    rec["tick"], rec["x"], rec["y"] = 600, 0.5, -1.0
+    rec["capture_age_us"] = 25_000  # 1.5 ticks of 60 Hz
+    r = reading_of(rec, int(round(1e9 / 60)))
+    assert r.valid and r.stamp_tick == pytest.approx(598.5, abs=1e-3)
+    rec["capture_age_us"] = NO_CAPTURE_AGE
+    assert reading_of(rec, int(round(1e9 / 60))).stamp_tick is None  # the cycle assumes the lag
+    rec["homed"] = 1
+    assert not reading_of(rec).valid
