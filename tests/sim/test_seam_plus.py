@@ -71,7 +71,8 @@ def test_thesis_mode_tracks_the_r200_ramp_where_the_listing_loses_it():
 
 
 @pytest.mark.parametrize("kw", [dict(mode="nosuch"), dict(mode="plus", speed_mm_s=0.0),
-                                dict(mode="plus", speed_mm_s=-3.0), dict(latency_cycles=-1),
+                                dict(mode="plus", speed_mm_s=-3.0), dict(mode="plus", speed_mm_s=900.0),
+                                dict(latency_cycles=-1),
                                 dict(holder_mm_s=(1.0, 2.0))])
 def test_bad_trial_configs_are_refused(kw):
     args = dict(trial_id="bad", position="i", speed_mm_s=16.0)

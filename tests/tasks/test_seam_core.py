@@ -83,7 +83,9 @@ def test_no_delay_is_a_pass_through_and_bad_delays_are_refused():
 
 @pytest.mark.parametrize("kw", [dict(speed_mm_s=0), dict(speed_mm_s=math.nan), dict(speed_mm_s=8, yaw_gain=math.inf),
                                 dict(speed_mm_s=8, length_mm=0), dict(speed_mm_s=8, delay_cycles=-2),
-                                dict(speed_mm_s=8, lost_cycles=0), dict(speed_mm_s=8, dead_zone_cycles=1.5)])
+                                dict(speed_mm_s=8, lost_cycles=0), dict(speed_mm_s=8, dead_zone_cycles=1.5),
+                                dict(speed_mm_s=900.0), dict(speed_mm_s=8, mode="fastest"),
+                                dict(speed_mm_s=8, accel_mm_s2=0.0), dict(speed_mm_s=8, gap_mm=-1.0)])
 def test_bad_parameters_are_refused(kw):
     with pytest.raises(ValueError):
         SeamParams(**kw)

@@ -196,6 +196,7 @@ def test_seam_lost_when_the_sensor_sees_no_seam(sim_cell, tmp_path):
     (["16", "--start", "viii"], "invalid choice"),
     (["16", "--mode", "nosuch"], "invalid choice"),
     (["0", "--mode", "plus"], "must be > 0"),
+    (["900", "--mode", "plus"], "beyond what the arm can do"),
     (["16", "--wrist", "nosuch"], "unknown wrist"),
     (["16", "--layout", "/nonexistent.toml"], "not found"),
     (["16", "--tool-sensor", "nosuch"], "unknown subunit"),

@@ -76,6 +76,11 @@ DEAD_ZONE_CYCLES = 30
 #: 32 mm at 64 mm/s of straight-on travel on zero data).
 LOST_CYCLES = 15
 
+#: Fastest travel speed a run accepts [mm/s] (ASSUMED: the thesis gives no Reis TCP speed
+#: limit; plus mode tracks the step track at 400 mm/s in lockstep with the fast arm model,
+#: whose joints are speed-limited as the servo's).  A faster request is refused up front.
+MAX_SPEED_MM_S = 500.0
+
 STOP_END = "end of seam"
 STOP_LOST = "seam lost"
 STOP_UNREACHABLE = "unreachable"
@@ -137,6 +142,9 @@ class SeamParams:
             raise ValueError(f"the bridged gap must be > 0 mm, got {self.gap_mm!r}")
         if self.speed_mm_s <= 0:
             raise ValueError(f"speed must be > 0 mm/s, got {self.speed_mm_s!r}")
+        if self.speed_mm_s > MAX_SPEED_MM_S:
+            raise ValueError(f"speed {self.speed_mm_s:g} mm/s is beyond what the arm can do "
+                             f"(at most {MAX_SPEED_MM_S:g} mm/s)")
         if self.runaway_factor < 0:
             raise ValueError("runaway_factor must be >= 0")
         if self.cycle_hz <= 0:
