@@ -10,11 +10,14 @@ around it, on the Brain's databases only (a task never touches a device, §3.4):
    collection, §6.1 -- the tool-tip sensor (tool);
 2. with ``--start POSITION``: move the holder and then the tool robot to the
    start poses of that layout position (§6.1.2; droid/cells/seamtrack_layout.toml);
-3. every second heartbeat tick (30 Hz): read the two wrist-centre poses and
-   the lead sensor's reading, step the core, write the Reis cartesian command
-   for the next cycle (``cart_time_count`` = 2 ticks) -- the GMF1 is told once
-   to hold its pose (gen_hold_robot_wcp);
-4. every sixth tick (10 Hz, §6.1) append a CSV row (``--log FILE``);
+3. every tick hand both robots' Status poses to the tracking cycle
+   (droid.tasks.seam.cycle.TrackingCycle, the same code the lockstep trial
+   runs); every ``heartbeat_hz / 30`` ticks (30 Hz) read the lead sensor's
+   reading, step the cycle -- the core of ``--mode`` (thesis, listing, plus)
+   -- and write the Reis cartesian command for the next cycle
+   (``cart_time_count`` = one cycle of ticks); the GMF1 is told once to hold
+   its pose (gen_hold_robot_wcp);
+4. every ``heartbeat_hz / 10`` ticks (10 Hz, §6.1) append a CSV row (``--log FILE``);
 5. stop cleanly -- no new command is written, so the Reis completes its last
    one-cycle step and stands -- at the end of the seam (``--length`` of tool
    travel reached), when the seam is lost, on an unreachable command, on a

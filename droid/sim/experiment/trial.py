@@ -7,12 +7,19 @@ what                  when             does
 ====================  ===============  ==================================================
 Reis arm              every tick       ``fast`` (arm_fast: planner + analytic servo) or
                                        ``full`` (arm_full: every Reis core + the plant)
-GMF1                  --               holds the workpiece still at its start pose
-lead sensor           odd ticks        the frame the next cycle reads (sensors.LeadSensor)
-tool-tip sensor       ticks 5 mod 6    the sample the next log row shows
-seam-tracking core    even ticks       droid.tasks.seam.SeamTracker: Status poses +
-                      (30 Hz)          the lead reading -> Reis cart command (2 ticks)
-log                   every 6th tick   one CSV row (10 Hz, thesis §6.1)
+GMF1                  every tick       holds the workpiece still at its start pose, or drifts at
+                                       ``holder_mm_s`` (the holder-moving test of plus mode)
+lead sensor           the tick before  the frame the next cycle reads (sensors.LeadSensor),
+                      each cycle       stamped with its capture tick; ``latency_cycles`` holds
+                                       every reading back that many cycles
+tool-tip sensor       the tick before  the sample the next log row shows
+                      each log row
+tracking cycle        every tick:      droid.tasks.seam.cycle.TrackingCycle -- the same code as
+                      poses; every     droid-seamtrack: pose histories, cycle counting from the
+                      cycle_ticks      heartbeat, the reading placed with the poses of its
+                      (30 Hz): step    capture, the core of the mode (thesis, listing, plus)
+                                       -> Reis cart command (one cycle of ticks)
+log                   every log_ticks  one CSV row (10 Hz, thesis §6.1)
 ====================  ===============  ==================================================
 
 Within a tick the order is: arm (its state at the tick), sensors (the true
