@@ -10,6 +10,8 @@ experiments' default arm model (``fast``), N seeds each, both modes:
 * ``step_V`` (V = 4, 16, 32, 64, 128 mm/s): the step track (position i) over
   ``--step-length`` mm -- seam lost or not, lateral max (the 5 degree corner
   at 100 mm);
+* ``r25_16``: an R25 arc (a workpiece of 20 mm surfaces, written to a
+  temporary file) at 16 mm/s -- tracked to its end or not;
 * ``delay16``: the step track at 16 mm/s with a 16-cycle transport delay at
   150 mm (§6.2.5) against the same trial without: the lateral RMS ratio;
 * every trial: the achieved travel speed after settling / the commanded one.
@@ -46,8 +48,39 @@ def one(mode: str, seed: int, **kw) -> dict:
             "end": su.stop_reason, "wall_s": r.wall_s}
 
 
+R25_TOML = """name = "ramp_r25"
+description = "300 mm straight, 90 deg arc of radius 25 mm, 300 mm straight, 20 mm wide surfaces"
+step_mm = 2.0
+width_mm = 20.0
+upper_side = "left"
+lead_in_mm = 10.0
+lead_out_mm = 10.0
+[[segment]]
+type = "line"
+length_mm = 300.0
+[[segment]]
+type = "arc"
+radius_mm = 25.0
+angle_deg = 90.0
+[[segment]]
+type = "line"
+length_mm = 300.0
+"""
+
+
+def r25_file() -> str:
+    """The R25 arc workpiece (20 mm surfaces) as a file of its own (not a bundled workpiece)."""
+    import tempfile
+
+    path = os.path.join(tempfile.gettempdir(), f"bench_ramp_r25_{os.getpid()}.toml")
+    with open(path, "w") as f:
+        f.write(R25_TOML)
+    return path
+
+
 def trials(speeds, step_length):
     yield "r200_64", dict(position="vii", workpiece="ramp_r200", speed_mm_s=64.0)
+    yield "r25_16", dict(position="vii", workpiece=r25_file(), speed_mm_s=16.0)
     for v in speeds:
         yield f"step_{v:g}", dict(position="i", speed_mm_s=float(v), length_mm=step_length)
     yield "nodelay16", dict(position="i", speed_mm_s=16.0, length_mm=step_length)
@@ -60,6 +93,7 @@ def build_parser() -> ArgumentParser:
     p.add_argument("--modes", default="thesis,plus", help="modes to compare (default thesis,plus)")
     p.add_argument("--speeds", default="4,16,32,64,128", help="step-track speeds [mm/s]")
     p.add_argument("--step-length", type=positive_float, default=400.0, help="step-track run length [mm]")
+    p.add_argument("--trials", default=None, help="only these trials (comma-separated names, e.g. r25_16)")
     p.add_argument("--json", action="store_true", help="also print the raw figures as JSON")
     return p
 
@@ -86,7 +120,13 @@ def main(argv=None) -> int:
         raise BadInput("--speeds: every speed must be > 0 mm/s")
     t0 = time.perf_counter()
     res: dict = {}
+    only = None if a.trials is None else set(a.trials.split(","))
+    names = [n for n, _ in trials(speeds, a.step_length) if only is None or n in only]
+    if not names:
+        raise BadInput(f"--trials: none of {a.trials!r} is a trial of this bench")
     for name, kw in trials(speeds, a.step_length):
+        if name not in names:
+            continue
         for m in modes:
             res[(name, m)] = [one(m, seed, **kw) for seed in range(1, a.seeds + 1)]
     wall = time.perf_counter() - t0
@@ -96,7 +136,7 @@ def main(argv=None) -> int:
     print("| trial | mode | lateral RMS [mm] | lateral max [mm] | steady depth [mm] | speed / commanded "
           "| seam lost | ends |")
     print("|---|---|---|---|---|---|---|---|")
-    for name, _ in trials(speeds, a.step_length):
+    for name in names:
         for m in modes:
             rs = res[(name, m)]
             col = {k: np.array([r[k] for r in rs], float) for k in ("rms_lat", "max_lat", "steady_dep",
@@ -104,7 +144,7 @@ def main(argv=None) -> int:
             ends = sorted({r["end"] for r in rs})
             print(f"| {name} | {m} | {fmt(col['rms_lat'])} | {fmt(col['max_lat'])} | {fmt(col['steady_dep'])} "
                   f"| {fmt(col['speed_ratio'])} | {int(col['lost'].sum())}/{len(rs)} | {', '.join(ends)} |")
-    for m in modes:
+    for m in modes if {"nodelay16", "delay16"} <= set(names) else ():
         base = np.array([r["rms_lat"] for r in res[("nodelay16", m)]])
         dl = np.array([r["rms_lat"] for r in res[("delay16", m)]])
         print(f"\n{m}: a 16-cycle transport delay at 150 mm changes the lateral RMS by "
