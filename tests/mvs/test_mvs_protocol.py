@@ -185,3 +185,18 @@ def test_the_sensor_status_keeps_the_capture_age():
     assert st["capture_age_us"] == NO_CAPTURE_AGE
     st = core.on_tick(4, format_line(f, stamp_ms_of(t + 99_000_000)), t + 48_000_000)  # from the future
     assert st["homed"] == 1 and st["capture_age_us"] == NO_CAPTURE_AGE and st["garbled_count"] == 1
+
+
+def test_the_sensor_core_appends_the_capture_stamp_only_when_asked():
+    from droid.brain.sensor_line import parse_line
+    from droid.sim.mvs_camera import CameraNoise, lap_joint_profile_mm, quantise
+    from droid.subunits.mvs.calibration import MvsCalibration
+    from droid.subunits.mvs.sensor import SensorCore
+
+    calib = MvsCalibration()
+    rows = quantise(lap_joint_profile_mm(calib, 1.0, 2.0, 0.1, 2.0, 1.0), calib, CameraNoise(0.0, 0.0),
+                    np.random.default_rng(1))
+    core = SensorCore(calib)
+    plain, stamped = parse_line(core.step(rows)), parse_line(core.step(rows, 4321))
+    assert plain.valid and plain.stamp_ms is None
+    assert stamped.valid and stamped.stamp_ms == 4321 and stamped.x_mm == plain.x_mm

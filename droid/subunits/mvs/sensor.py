@@ -57,6 +57,7 @@ from droid.cli import ArgumentParser, BadInput, RuntimeFailure, finite_float, po
 from droid.subunits.mvs.calibration import MvsCalibration
 from droid.subunits.mvs.dsp import open_dsp
 from droid.subunits.mvs.feature import Feature, FeatureParams, extract
+from droid.brain.sensor_line import stamp_ms_of
 from droid.subunits.mvs.protocol import format_line
 from droid.subunits.mvs.wire import COLUMNS, DEFAULT_BAUD, FRAME_RATE_HZ, MIN_BAUD, NO_STRIPE, ROWS
 
@@ -88,9 +89,10 @@ class SensorCore:
         self.valid += self.last is not None
         return self.last
 
-    def step(self, rows: np.ndarray) -> bytes:
-        """One frame -> the line to send ("x,y,roll\\n" or "invalid\\n")."""
-        return format_line(self.process(rows))
+    def step(self, rows: np.ndarray, stamp_ms: int | None = None) -> bytes:
+        """One frame -> the line to send ("x,y,roll\\n" or "invalid\\n"); with ``stamp_ms`` the
+        frame's capture stamp as the line's optional fourth field (droid.brain.sensor_line)."""
+        return format_line(self.process(rows), stamp_ms)
 
     @property
     def invalid(self) -> int:
@@ -231,6 +233,7 @@ def live(args, core: SensorCore, ready=None, beat=None, reopen: bool = False) ->
         t0 = time.monotonic()
         while not stop.is_set() and (args.count is None or core.frames < args.count):
             frame = board.wait_frame(args.retrace_timeout)
+            t_frame_ns = time.monotonic_ns()  # the retrace: the frame's capture, on the cell's clock
             if stop.is_set():
                 break
             if frame is None:
@@ -238,7 +241,7 @@ def live(args, core: SensorCore, ready=None, beat=None, reopen: bool = False) ->
                 line = format_line(None)
             else:
                 missed += frame.missed
-                line = core.step(frame.rows)
+                line = core.step(frame.rows, stamp_ms_of(t_frame_ns) if getattr(args, "stamp", False) else None)
                 if record is not None:
                     try:
                         record.write(format_frame_line(frame.rows) + "\n")
@@ -300,6 +303,9 @@ def build_parser() -> ArgumentParser:
                         help="wait up to S seconds for the DSP board (and in a cell the serial port) "
                         f"to appear (default 5; in a cell {CELL_WAIT_S:g})")
     parser.add_argument("--record", metavar="FILE", help="also write each frame to FILE (replay format)")
+    parser.add_argument("--stamp", action="store_true",
+                        help="append each frame's capture stamp (CLOCK_MONOTONIC ms mod 100000) to its line "
+                             "(issue 12; only where the Brain shares this host's clock)")
     parser.add_argument("--replay", metavar="FILE", help="process recorded frames from FILE ('-' = stdin)")
     parser.add_argument("--pixels", action="store_true", help="with --replay: print 'row,col' of the step")
     parser.add_argument("--calib", metavar="FILE", help="calibration TOML (keys of MvsCalibration)")
@@ -347,8 +353,8 @@ def cell_calibration(sub, where: str) -> MvsCalibration:
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     if args.replay is not None:
-        if args.dsp or args.serial or args.record or args.count or args.subunit or args.cell:
-            raise BadInput("--replay takes no --dsp, --serial, --record, --count, --cell or subunit")
+        if args.dsp or args.serial or args.record or args.count or args.subunit or args.cell or args.stamp:
+            raise BadInput("--replay takes no --dsp, --serial, --record, --count, --stamp, --cell or subunit")
         replay(args.replay, SensorCore(load_calibration(args.calib)), args.pixels)
         return 0
     if args.pixels:
