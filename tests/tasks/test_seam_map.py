@@ -111,3 +111,35 @@ def test_plus_stops_clearly_when_the_map_runs_out():
     last = outs[-1][0]
     assert last.stop.reason == STOP_LOST and "no seam mapped" in last.stop.detail
     assert cyc.core.s_cmd <= cyc.core.map.front_s + 20.0
+
+
+def _biased_run(bias_mm, cycles=900):
+    """The perfect arm, but it settles ``bias_mm`` deeper along the tool axis than commanded
+    (a sag its encoders see): the Status shows where it is."""
+    from droid.kinematics.transforms import trans
+
+    cyc = TrackingCycle(SeamParams(16.0, mode="plus", length_mm=400.0), WRIST.T_wcp_tool, WRIST.T_wcp_sensor)
+    T = start_pose()
+    sag = WRIST.T_wcp_tool @ trans(bias_mm, 0.0, 0.0) @ np.linalg.inv(WRIST.T_wcp_tool)
+    out = None
+    for k in range(cycles):
+        tick = 2 * (k + 1)
+        cyc.remember(tick - 1, T, tick - 1, T_HOLD)
+        cyc.remember(tick, T, tick, T_HOLD)
+        out = cyc.step(T_HOLD, T, tick, straight_seam_reading(T @ WRIST.T_wcp_sensor), tick + 1)
+        if out.stop is not None:
+            break
+        T = out.reis_cmd @ sag
+    tool_z = float((T @ WRIST.T_wcp_tool)[2, 3])  # the seam lies at z = 0, the tool axis is -z
+    return tool_z, cyc
+
+
+def test_plus_integral_action_removes_a_steady_depth_error(monkeypatch):
+    z, cyc = _biased_run(1.0)
+    assert abs(z) <= 0.05, z  # on the seam in depth despite the 1 mm sag
+    assert cyc.core.depth_bias_mm == pytest.approx(1.0, abs=0.05)
+    import droid.tasks.seam.plus as plus
+
+    monkeypatch.setattr(plus, "DEPTH_KI", 0.0)
+    z_off, _ = _biased_run(1.0)
+    assert abs(z_off) >= 0.9  # without it the sag stays
