@@ -115,3 +115,15 @@ def test_plus_tracks_an_r25_arc_to_its_end(tmp_path):
     assert su.rms_lateral_mm <= 0.5 and su.max_lateral_mm <= 1.0
     yaw = r.column("ctrl_yaw_deg")
     assert np.nanmax(np.abs(yaw)) >= 10.0  # the sensor did turn about the tool axis
+
+
+def test_plus_keeps_the_tool_normal_to_a_rolled_surface():
+    """Position (iv): the workpiece rolled 45 degrees.  The tool-tip sensor's roll -- the
+    surface's roll about the tool's travel axis -- stays near 0: the tool axis is the surface
+    normal at the tool point (the listing orients by the seam 100 mm ahead)."""
+    r, su = run(position="iv", speed_mm_s=16.0, length_mm=400.0)
+    assert su.stop_reason == "end of seam", su.stop_detail
+    s = r.column("s_mm")
+    roll = r.column("tool_roll_rad")[s > 150.0]
+    assert np.isfinite(roll).sum() >= 50
+    assert np.degrees(np.nanmax(np.abs(roll))) <= 0.5
