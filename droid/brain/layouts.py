@@ -133,6 +133,7 @@ FAULT_SERVO = 4  # servo program silent
 FAULT_LIMIT = 8  # a target was clamped at a joint limit
 FAULT_BRAKING = 16  # the servo ran out of commands and braked
 FAULT_DEVICE = 32  # device driver error (serial port, encoder card)
+FAULT_HEARTBEAT = 64  # Brain side: no heartbeat tick for stale_ticks periods (the Status is not being refreshed)
 FAULT_NAMES = {
     FAULT_LINK: "link",
     FAULT_WATCHDOG: "watchdog",
@@ -140,6 +141,7 @@ FAULT_NAMES = {
     FAULT_LIMIT: "limit",
     FAULT_BRAKING: "braking",
     FAULT_DEVICE: "device",
+    FAULT_HEARTBEAT: "heartbeat",
 }
 
 ARM_STATUS = _dtype(_STATUS, 224)

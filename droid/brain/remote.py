@@ -29,8 +29,8 @@ from droid.brain.cellfile import Subunit
 from droid.brain.curve import CurveHost
 from droid.brain.databases import brain_layouts, local_layouts, open_brain
 from droid.brain.heartbeat import TickSubscriber
-from droid.brain.layouts import ARM_COMMAND_LAYOUT, FAULT_LINK, LayoutError, check_header
-from droid.brain.link import RemoteLinkCore
+from droid.brain.layouts import ARM_COMMAND_LAYOUT, FAULT_HEARTBEAT, FAULT_LINK, LayoutError, check_header
+from droid.brain.link import HeartbeatWatch, RemoteLinkCore
 from droid.brain.names import NameClient
 from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
 from droid.brain.rt import try_sched_fifo
@@ -94,6 +94,7 @@ def main(argv=None) -> int:
     names = NameClient(ctx, cell.names, curve=curve, server_host=cell.brain_host)
     ticks = TickSubscriber(ctx, cell.heartbeat, curve, cell.brain_host)
     core = RemoteLinkCore(cell.stale_ticks)
+    watch = HeartbeatWatch.for_rate(cell.heartbeat_hz, cell.stale_ticks)
     dealer = None
     endpoint = None
     bad_frames = 0
@@ -124,10 +125,14 @@ def main(argv=None) -> int:
             poller = zmq.Poller()
             for s in socks:
                 poller.register(s, zmq.POLLIN)
-            events = dict(poller.poll(500))
+            events = dict(poller.poll(watch.poll_ms))
+            if watch.became_silent(time.monotonic_ns()):
+                status.update(stale=1, fault=int(status.read()["fault"]) | FAULT_LINK | FAULT_HEARTBEAT)
             if ticks.sock in events:
                 t = ticks.recv_latest()
                 if t is not None:
+                    if watch.on_tick(time.monotonic_ns()):  # the heartbeat is back: the reply clears stale
+                        status.update(fault=int(status.read()["fault"]) & ~FAULT_HEARTBEAT)
                     last_tick = t.tick
                     act = core.on_tick(t.tick)
                     if act.became_stale:

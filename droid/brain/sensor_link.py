@@ -44,7 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from droid.brain.cellfile import Cell, Subunit
-from droid.brain.layouts import FAULT_DEVICE, FAULT_LINK
+from droid.brain.layouts import FAULT_DEVICE, FAULT_HEARTBEAT, FAULT_LINK
 from droid.brain.sensor_line import DEFAULT_BAUD, INVALID, MIN_BAUD, Reading, SensorClientCore
 from droid.cli import BadInput
 
@@ -251,6 +251,7 @@ def serve_serial(cell: Cell, sub: Subunit, ready_fd: int | None, prog: str) -> i
     from droid.brain.curve import CurveHost
     from droid.brain.databases import open_brain
     from droid.brain.heartbeat import TickSubscriber
+    from droid.brain.link import HeartbeatWatch
     from droid.brain.program import Presence, Stop, notify_ready, presence_key
 
     opts = serial_link_options(cell, sub)
@@ -268,10 +269,15 @@ def serve_serial(cell: Cell, sub: Subunit, ready_fd: int | None, prog: str) -> i
         presence.ready()
         notify_ready(ready_fd)
         last_tick = 0
+        watch = HeartbeatWatch.for_rate(cell.heartbeat_hz, cell.stale_ticks)
         while not Stop.requested:
-            if ticks.sock.poll(500):
+            ready = ticks.sock.poll(watch.poll_ms)
+            if watch.became_silent(time.monotonic_ns()):
+                status.update(stale=1, fault=int(status.read()["fault"]) | FAULT_LINK | FAULT_HEARTBEAT)
+            if ready:
                 t = ticks.recv_latest()
                 if t is not None:
+                    watch.on_tick(time.monotonic_ns())  # on_tick below rewrites stale and fault
                     last_tick = t.tick
                     data, ok = port.poll()
                     status.update(**core.on_tick(t.tick, data, time.monotonic_ns(), ok))

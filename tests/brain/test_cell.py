@@ -102,9 +102,15 @@ def test_heartbeat_death_marks_everything_stale_no_crash(cell):
         t0 = snoop_json(cell, "arm1")[0]["tick"]
         rows = snoop_json(cell, "arm1", 3, rate=10)
         assert all(r["tick"] == t0 for r in rows)  # nothing refreshed without ticks
+        # ... and the Brain says so: every subunit goes stale with the heartbeat fault
+        for sub in ("arm1", "gmf1", "mvs", "tool"):
+            wait_for(lambda: (lambda r: r["stale"] and "heartbeat" in r["fault"])(snoop_json(cell, sub)[0]),
+                     what=f"{sub} stale (heartbeat)")
     finally:
         os.kill(hb["pid"], signal.SIGCONT)
     wait_for(lambda: snoop_json(cell, "arm1")[0]["tick"] > t0, what="ticks again")
+    wait_for(lambda: (lambda r: not r["stale"] and "heartbeat" not in r["fault"])(snoop_json(cell, "arm1")[0]),
+             what="arm1 fresh again, heartbeat fault cleared")
     assert all(r["alive"] for r in cell_status(cell))
 
 
