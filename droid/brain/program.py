@@ -17,14 +17,14 @@ import time
 from droid.brain.cellfile import Cell, load_cell
 from droid.brain.layouts import PROC_FAILED, PROC_READY, PROC_STARTING, PROC_STATUS_LAYOUT, PROC_STOPPING
 from droid.brain.shmdb import Database, db_name, unlink_database
-from droid.cli import ArgumentParser
+from droid.cli import ArgumentParser, bounded_int
 
 
 def parser(prog: str, description: str) -> ArgumentParser:
     p = ArgumentParser(prog=prog, description=description)
     p.add_argument("--cell", metavar="FILE", default=None,
                    help="cell file (default: $DROID_CELL, else the built-in simulated cell)")
-    p.add_argument("--ready-fd", type=int, default=None, help=argparse_suppress())
+    p.add_argument("--ready-fd", type=bounded_int(0, 1 << 20), default=None, help=argparse_suppress())
     return p
 
 

@@ -24,7 +24,7 @@ from typing import Any
 
 from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
-from droid.cli import BadInput, run
+from droid.cli import BadInput, bounded_int, run
 
 PROG = "droid-sim"
 DEFAULT_RATE_HZ = 1000.0
@@ -103,7 +103,7 @@ def build_world(cell, seed: int | None = None) -> World:
 @run
 def main(argv=None) -> int:
     ap = parser(PROG, "Run the simulated hardware of a cell (robots, controllers, sensors).")
-    ap.add_argument("--seed", type=int, default=None, help="random seed (default: the cell file's)")
+    ap.add_argument("--seed", type=bounded_int(0, 2**32 - 1), default=None, help="random seed (default: the cell file's)")
     args = ap.parse_args(argv)
     cell = open_cell(args)
     rate = float(cell.world.get("rate_hz", DEFAULT_RATE_HZ))

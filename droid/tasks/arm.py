@@ -22,7 +22,7 @@ from droid.brain.databases import open_brain
 from droid.brain.layouts import (CARTSPACE, CMD_OK, CMD_REFUSED, FAULT_DEVICE, FAULT_NAMES,
                                  FAULT_SERVO, FAULT_WATCHDOG, HOME_MODE,
                                  JOG_MODE, JSPACE, NORMAL_MODE)
-from droid.cli import BadInput, RuntimeFailure
+from droid.cli import MAX_MOVE_S, BadInput, RuntimeFailure
 from droid.kinematics import Unreachable, load_robot
 from droid.kinematics.transforms import pose_to_T
 
@@ -88,8 +88,8 @@ class BrainArm:
 
     # -- validating (before anything moves) -------------------------------
     def ticks_for(self, seconds: float) -> int:
-        if not (math.isfinite(seconds) and seconds > 0):
-            raise BadInput(f"move time must be a finite number of seconds > 0, got {seconds!r}")
+        if not (math.isfinite(seconds) and 0 < seconds <= MAX_MOVE_S):
+            raise BadInput(f"move time must be in (0, {MAX_MOVE_S:g}] s, got {seconds!r}")
         ticks = int(round(seconds * self.hb_hz))
         if ticks < 1:
             raise BadInput(f"move time {seconds:g} s is shorter than one heartbeat tick")

@@ -36,7 +36,7 @@ import time
 import numpy as np
 
 from droid.brain.program import open_cell, parser
-from droid.cli import BadInput, RuntimeFailure, integer, parse_finite, positive_float, run
+from droid.cli import BadInput, RuntimeFailure, bounded_float, bounded_int, parse_finite, run
 from droid.kinematics.transforms import T_to_pose, pose_to_T
 from droid.tasks.arm import BrainArm
 
@@ -212,15 +212,13 @@ def main(argv=None) -> int:
     ap = parser(PROG, "Jog an arm from the keyboard or from command lines on stdin (works before homing).")
     ap.add_argument("robot", help="arm subunit, e.g. arm1")
     ap.add_argument("--cart", action="store_true", help="start in cartesian mode (keyboard)")
-    ap.add_argument("--step", type=integer, default=200, metavar="COUNTS",
+    ap.add_argument("--step", type=bounded_int(1, 100_000, "counts"), default=200, metavar="COUNTS",
                     help="joint step per key [encoder counts] (default 200)")
-    ap.add_argument("--step-mm", type=positive_float, default=1.0, metavar="MM",
+    ap.add_argument("--step-mm", type=bounded_float(0.0, 100.0, "mm", lo_open=True), default=1.0, metavar="MM",
                     help="cartesian step per key [mm] (default 1)")
-    ap.add_argument("--step-deg", type=positive_float, default=1.0, metavar="DEG",
+    ap.add_argument("--step-deg", type=bounded_float(0.0, 90.0, "deg", lo_open=True), default=1.0, metavar="DEG",
                     help="orientation step per key [deg] (default 1)")
     args = ap.parse_args(argv)
-    if args.step <= 0:
-        ap.error("--step must be > 0 counts")
     cell = open_cell(args)
     with BrainArm(cell, args.robot) as arm:
         arm.connect()

@@ -25,7 +25,7 @@ from __future__ import annotations
 import sys
 
 from droid.brain.program import open_cell, parser
-from droid.cli import RuntimeFailure, finite_float, positive_float, run
+from droid.cli import MAX_MOVE_S, RuntimeFailure, finite_float, run, timeout_s
 from droid.tasks.arm import BrainArm
 
 PROG = "droid-move"
@@ -40,14 +40,14 @@ def main(argv=None) -> int:
     ap.add_argument("values", nargs="+", type=finite_float, metavar="V",
                     help="6 target values, then the move time in seconds")
     ap.add_argument("--no-wait", action="store_true", help="return once the command is delivered")
-    ap.add_argument("--timeout", type=positive_float, default=None, metavar="S",
+    ap.add_argument("--timeout", type=timeout_s, default=None, metavar="S",
                     help="give up waiting after S seconds (default: 2 x move time + 10 s)")
     args = ap.parse_args(argv)
     if len(args.values) != 7:
         ap.error(f"{args.mode} needs 6 target values and SECONDS, got {len(args.values)} numbers")
     *target, seconds = args.values
-    if seconds <= 0:
-        ap.error(f"SECONDS must be > 0, got {seconds:g}")
+    if not 0 < seconds <= MAX_MOVE_S:
+        ap.error(f"SECONDS must be > 0 and <= {MAX_MOVE_S:g} s (one hour), got {seconds:g}")
     cell = open_cell(args)
     with BrainArm(cell, args.robot) as arm:
         ticks = arm.ticks_for(seconds)

@@ -25,7 +25,7 @@ import time
 from droid.brain.databases import open_local
 from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
 from droid.brain.rt import PeriodicTimer, now_ns, try_sched_fifo
-from droid.cli import BadInput, positive_float, run
+from droid.cli import BadInput, bounded_float, run
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.subunits.gmf1.config import gmf1_config
@@ -95,7 +95,7 @@ class CardSession:
 def main(argv=None) -> int:
     ap = parser(PROG, "Read the GMF1 encoder cards at 120 Hz and keep the Status pose fresh.")
     ap.add_argument("subunit", help="the GMF1 subunit, e.g. gmf1")
-    ap.add_argument("--rate", type=positive_float, default=None, metavar="HZ",
+    ap.add_argument("--rate", type=bounded_float(0.0, 10_000.0, "Hz", lo_open=True), default=None, metavar="HZ",
                     help="read rate [Hz] (default: the cell file's encoder_hz, 120)")
     args = ap.parse_args(argv)
     cell = open_cell(args)

@@ -53,7 +53,7 @@ from dataclasses import dataclass
 import numpy as np
 import serial
 
-from droid.cli import ArgumentParser, BadInput, RuntimeFailure, finite_float, positive_float, positive_int, run
+from droid.cli import ArgumentParser, BadInput, MAX_WAIT_S, RuntimeFailure, bounded_float, bounded_int, run
 from droid.subunits.mvs.calibration import MvsCalibration
 from droid.subunits.mvs.dsp import open_dsp
 from droid.subunits.mvs.feature import Feature, FeatureParams, extract
@@ -288,15 +288,15 @@ def build_parser() -> ArgumentParser:
                         "board, port, baud and calibration from [subunits.NAME]")
     parser.add_argument("--cell", metavar="FILE", default=None,
                         help="cell file (with a subunit; default: $DROID_CELL, else the built-in simulated cell)")
-    parser.add_argument("--ready-fd", type=int, default=None, help=argparse.SUPPRESS)
+    parser.add_argument("--ready-fd", type=bounded_int(0, 1 << 20), default=None, help=argparse.SUPPRESS)
     parser.add_argument("--dsp", metavar="URL", help="DSP board: shm://NAME or inproc://NAME")
     parser.add_argument("--serial", metavar="URL", help="serial port URL or device (pyserial serial_for_url)")
-    parser.add_argument("--baud", type=positive_int, default=None,
+    parser.add_argument("--baud", type=bounded_int(1, 4_000_000, "baud"), default=None,
                         help=f"baud rate, >= {MIN_BAUD} (default {DEFAULT_BAUD})")
-    parser.add_argument("--count", type=positive_int, help="stop after N frames")
-    parser.add_argument("--retrace-timeout", type=positive_float, default=6 / FRAME_RATE_HZ, metavar="S",
+    parser.add_argument("--count", type=bounded_int(1, 10**12), help="stop after N frames")
+    parser.add_argument("--retrace-timeout", type=bounded_float(0.0, 60.0, "s", lo_open=True), default=6 / FRAME_RATE_HZ, metavar="S",
                         help="send 'invalid' when no retrace comes within S seconds (default 0.1)")
-    parser.add_argument("--board-wait", type=finite_float, default=None, metavar="S",
+    parser.add_argument("--board-wait", type=bounded_float(0.0, MAX_WAIT_S, "s"), default=None, metavar="S",
                         help="wait up to S seconds for the DSP board (and in a cell the serial port) "
                         f"to appear (default 5; in a cell {CELL_WAIT_S:g})")
     parser.add_argument("--record", metavar="FILE", help="also write each frame to FILE (replay format)")
