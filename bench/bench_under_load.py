@@ -108,28 +108,27 @@ def cyclictest(seconds: float) -> dict | None:
         return None
     with tempfile.TemporaryDirectory() as d:
         hist = os.path.join(d, "hist")
-        # thread 0 at 60 Hz (16667 us), thread 1 at 500 Hz (2000 us), SCHED_FIFO 80
-        cmd = [exe, "-q", "-m", "-p", "80", "-t", "2", "-i", "16667", "-d", "-14667",
-               "-D", f"{int(seconds)}", "-h", "20000", f"--histfile={hist}"]
-        r = subprocess.run(cmd, capture_output=True, text=True)
-        if r.returncode != 0 or not os.path.exists(hist):
-            return None
-        counts: list[dict[int, int]] = [{}, {}]
-        for line in Path(hist).read_text().splitlines():
-            if line.startswith("#") or not line.strip():
+        # one SCHED_FIFO 80 thread at 60 Hz (16667 us), one at 500 Hz (2000 us), side by side
+        procs = {}
+        for name, interval in (("60Hz", 16667), ("500Hz", 2000)):
+            cmd = [exe, "-q", "-m", "-p", "80", "-t", "1", "-i", str(interval), "-D", f"{int(seconds)}",
+                   "-h", "20000", f"--histfile={hist}.{name}"]
+            procs[name] = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        out = {}
+        for name, p in procs.items():
+            if p.wait() != 0 or not os.path.exists(f"{hist}.{name}"):
                 continue
-            parts = line.split()
-            us = int(parts[0])
-            for t in range(2):
-                n = int(parts[1 + t])
+            counts: dict[int, int] = {}
+            for line in Path(f"{hist}.{name}").read_text().splitlines():
+                if line.startswith("#") or not line.strip():
+                    continue
+                us, n = (int(x) for x in line.split()[:2])
                 if n:
-                    counts[t][us] = n
-    out = {}
-    for t, name in ((0, "60Hz"), (1, "500Hz")):
-        vals = np.repeat(np.fromiter(counts[t].keys(), float), np.fromiter(counts[t].values(), int))
-        if vals.size:
-            out[name] = {"p50": float(np.percentile(vals, 50)), "p99": float(np.percentile(vals, 99)),
-                         "max": float(vals.max()), "n": int(vals.size)}
+                    counts[us] = n
+            vals = np.repeat(np.fromiter(counts.keys(), float), np.fromiter(counts.values(), int))
+            if vals.size:
+                out[name] = {"p50": float(np.percentile(vals, 50)), "p99": float(np.percentile(vals, 99)),
+                             "max": float(vals.max()), "n": int(vals.size)}
     return out
 
 
@@ -289,6 +288,10 @@ def main() -> int:
                 down = droid(cell, "droid-cell", "down")
                 if down.returncode:
                     print(f"  droid-cell down: {reason(down)}")
+                notes = []
+                for log in sorted((tmp / "run" / "logs").glob("*.log")):
+                    notes += [x for x in log.read_text(errors="replace").splitlines()
+                              if "slipped" in x or " fault " in x or "overruns (" in x]
             ft.join()
     print(f"  rounds {args.rounds} in {elapsed:.0f} s")
     for k, (ok, bad) in results.items():
@@ -313,6 +316,8 @@ def main() -> int:
         print(f"  heartbeat / floor    p99 {lat['p99'] / max(f60['p99'], 1.0):.1f}x   max {lat['max'] / max(f60['max'], 1.0):.1f}x")
     if not floor:
         print("  floor: cyclictest unavailable (scripts/rt-tests.sh installs Debian's rt-tests)")
+    for n in notes:
+        print(f"  log: {n}")
     for f in failures:
         print(f"  FAIL {f}")
     return 0

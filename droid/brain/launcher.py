@@ -38,7 +38,7 @@ from dataclasses import asdict, dataclass, field
 from droid.brain.cellfile import Cell, load_cell
 from droid.brain.databases import create_databases
 from droid.brain.layouts import PROC_STATE_NAMES, PROC_STATUS_LAYOUT
-from droid.brain.program import presence_key
+from droid.brain.program import presence_key, use_cell
 from droid.brain.shmdb import (Database, NoDatabase, cell_objects, db_name, pid_alive,
                                remove_cell_objects, unlink_database)
 from droid.cli import ArgumentParser, BadInput, RuntimeFailure, run, timeout_s
@@ -398,6 +398,7 @@ def main(argv=None) -> int:
                        help="cell file (default: $DROID_CELL, else the built-in simulated cell)")
     args = ap.parse_args(argv)
     cell = load_cell(args.cell)
+    use_cell(cell)
     if args.cmd == "up":
         hosts = set(args.host) if args.host else None
         if hosts:

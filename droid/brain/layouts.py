@@ -53,6 +53,12 @@ OFF = 0  # cmd_mode
 JOG_MODE = 1
 HOME_MODE = 2
 NORMAL_MODE = 3
+#: A NORMAL command whose time count (joint_time_count or cart_time_count, by coord) is
+#: STOP_TICKS is a *stop* (addition, issue 16): the controller drops what is pending, ends
+#: the move in progress where its way-point is and holds there.  Task programs that give
+#: up (timeout, stale link, interrupted) write one, so their command is never carried out
+#: later (no "orphan moves").  No move command has 0 ticks (droid-move refuses < 1 tick).
+STOP_TICKS = 0
 CMD_MODE_NAMES = {OFF: "OFF", JOG_MODE: "JOG", HOME_MODE: "HOME", NORMAL_MODE: "NORMAL"}
 COORD_NAMES = {JSPACE: "JOINT", CARTSPACE: "CARTESIAN"}
 FALSE = 0

@@ -35,7 +35,18 @@ def argparse_suppress():
 
 
 def open_cell(args) -> Cell:
-    return load_cell(args.cell)
+    """Load the cell file a program was given; in a cell that wants SCHED_FIFO, the
+    program's database accesses use the priority ceiling (droid.brain.shmdb)."""
+    cell = load_cell(args.cell)
+    use_cell(cell)
+    return cell
+
+
+def use_cell(cell: Cell) -> None:
+    """Process-wide settings a cell asks for: the databases' priority ceiling."""
+    from droid.brain import shmdb
+
+    shmdb.set_priority_ceiling(shmdb.CEILING_PRIORITY if cell.sched_fifo else None)
 
 
 def notify_ready(fd: int | None) -> None:

@@ -17,8 +17,11 @@ The target is checked against the robot model first — joint and encoder
 limits, reachability, joint speed limits — and a bad target exits 2 with the
 reason before anything is written: the robot does not move.  Then the program
 waits for ``busy == 0``, writes the command, and waits until the robot reports
-it finished (``--no-wait``: until the agent has it).  Exit 1 if the arm is not
-homed, stale, or does not finish in time.
+it finished and is within 0.05 joint degrees of the target (``--no-wait``: until
+the agent has it).  Exit 1 if the arm is not homed, stale, does not finish in
+time, or halted short of its target; a move given up on (timeout, stale,
+Ctrl-C) is stopped (a stop command is written over it) so it is never carried
+out later.  SECONDS is at most 3600 (one hour).
 """
 from __future__ import annotations
 
@@ -67,11 +70,13 @@ def main(argv=None) -> int:
             counts = arm.check_joint_target(target, seconds, q_now)
             cmd_id = arm.command_joint(counts, ticks)
         else:
-            T, _ = arm.check_cart_target(target, seconds, q_now)
+            T, q_goal = arm.check_cart_target(target, seconds, q_now)
+            counts = arm.model.gearing.joints_to_counts(q_goal)
             cmd_id = arm.command_cart(T, ticks)
         arm.wait_delivered(cmd_id, timeout)
         if not args.no_wait:
             arm.wait_done(cmd_id, timeout)
+            arm.wait_arrived(counts)  # "done" short of the target is a failure (exit 1)
     return 0
 
 

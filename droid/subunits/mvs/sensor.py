@@ -309,8 +309,10 @@ def build_parser() -> ArgumentParser:
 def apply_cell(args):
     """Fill unset live options from the cell file's ``[subunits.NAME]``; returns (cell, subunit)."""
     from droid.brain.cellfile import load_cell
+    from droid.brain.program import use_cell
 
     cell = load_cell(args.cell)
+    use_cell(cell)
     sub = cell.subunit(args.subunit)
     where = f"{cell.path}: [subunits.{sub.name}]"
     if sub.cls != "line_laser":
