@@ -106,7 +106,10 @@ class BrainArm:
         down = int(rec["fault"]) & (FAULT_SERVO | FAULT_WATCHDOG | FAULT_DEVICE)
         if down:
             names = ", ".join(n for b, n in FAULT_NAMES.items() if down & b)
-            raise RuntimeFailure(f"{self.sub.name} cannot move: fault {names}")
+            hint = (" (the amplifiers are latched off: the servo missed its deadlines -- a host too busy "
+                    "for the cell, or sched_fifo off; power-cycle with 'droid-cell down' and 'droid-cell up')"
+                    if down & FAULT_WATCHDOG else "")
+            raise RuntimeFailure(f"{self.sub.name} cannot move: fault {names}{hint}")
 
     # -- validating (before anything moves) -------------------------------
     def ticks_for(self, seconds: float) -> int:
