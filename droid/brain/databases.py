@@ -1,5 +1,8 @@
 """Which databases a cell has, and their names (thesis §3.2–3.3, §4.1.3).
 
+The layouts of each area come from the subunit's class (:mod:`droid.brain.classes`);
+for the classes shipped:
+
 Brain (one per subunit):
   ``/droid.<cell>.<sub>.status``   ARM_STATUS (arm6r, Table 3.1) or SENSOR_STATUS (Table 3.3)
   ``/droid.<cell>.<sub>.command``  ARM_COMMAND (arm6r only, Table 3.2)
@@ -7,33 +10,23 @@ Subunit side (the motion controller's own, Tables 4.2–4.3; arm6r only):
   ``/droid.<cell>.<sub>.ctrl_status``   CTRL_STATUS
   ``/droid.<cell>.<sub>.ctrl_command``  CTRL_COMMAND
 Subunit side for sensors: ``/droid.<cell>.<sub>.ctrl_status`` SENSOR_STATUS.
+Joysticks: ``status`` and ``ctrl_status`` JOYSTICK_STATUS.
 """
 from __future__ import annotations
 
 from droid.brain.cellfile import Cell, Subunit
-from droid.brain.layouts import (
-    ARM_COMMAND_LAYOUT,
-    ARM_STATUS_LAYOUT,
-    CTRL_COMMAND_LAYOUT,
-    CTRL_STATUS_LAYOUT,
-    JOG_MODE,
-    JSPACE,
-    SENSOR_STATUS_LAYOUT,
-    Layout,
-)
+from droid.brain.layouts import JOG_MODE, JSPACE, Layout
 from droid.brain.shmdb import Database, db_name
 
 
 def brain_layouts(sub: Subunit) -> dict[str, Layout]:
-    if sub.is_arm:
-        return {"status": ARM_STATUS_LAYOUT, "command": ARM_COMMAND_LAYOUT}
-    return {"status": SENSOR_STATUS_LAYOUT}
+    """The Brain's areas of a subunit -> layout (its class's ``brain`` table)."""
+    return dict(sub.kind.brain)
 
 
 def local_layouts(sub: Subunit) -> dict[str, Layout]:
-    if sub.is_arm:
-        return {"ctrl_status": CTRL_STATUS_LAYOUT, "ctrl_command": CTRL_COMMAND_LAYOUT}
-    return {"ctrl_status": SENSOR_STATUS_LAYOUT}
+    """The subunit side's areas -> layout (its class's ``local`` table)."""
+    return dict(sub.kind.local)
 
 
 def create_databases(cell: Cell, hosts: set[str] | None = None) -> list[Database]:

@@ -42,6 +42,7 @@ KIND_SENSOR_STATUS = 3  # Brain, Table 3.3
 KIND_CTRL_STATUS = 4  # motion controller, Table 4.2
 KIND_CTRL_COMMAND = 5  # motion controller, Table 4.3
 KIND_PROC_STATUS = 6  # one per running program (droid-cell status)
+KIND_JOYSTICK_STATUS = 7  # an analog joystick (thesis §2.6, §3.4, Figure 2.10)
 
 # Header flags
 FLAG_RECOVERED = 1  # the semaphore was taken over from a dead holder at least once
@@ -208,6 +209,29 @@ PROC_STATUS = _dtype(
 )
 
 
+#: axes and buttons a joystick record holds (the thesis's Thrustmaster: 2 analog
+#: axes and 8 digital inputs, §2.6; a USB stick has more)
+JOYSTICK_AXES = 8
+JOYSTICK_BUTTONS = 16
+
+JOYSTICK_STATUS = _dtype(
+    HEADER_FIELDS
+    + [
+        ("axes", "<f8", (JOYSTICK_AXES,)),  # deflection, -1..1 (0 = centred); unused axes 0
+        ("buttons", "<u1", (JOYSTICK_BUTTONS,)),  # 1 = pressed
+        ("valid", "<u4", None),  # 1 = the device is open and its state is known
+        ("events", "<u4", None),  # device events read (wraps)
+        ("tick", "<u8", None),  # heartbeat tick of the last refresh
+        ("updated_ns", "<i8", None),  # CLOCK_MONOTONIC of the last refresh [ns]
+        ("stale", "<u4", None),  # 1 when the link missed >= stale_ticks ticks
+        ("fault", "<u4", None),  # FAULT_* bits (FAULT_DEVICE: the device could not be read)
+        ("n_axes", "<u4", None),  # axes the device has (<= JOYSTICK_AXES)
+        ("n_buttons", "<u4", None),  # buttons the device has (<= JOYSTICK_BUTTONS)
+    ],
+    160,
+)
+
+
 @dataclass(frozen=True)
 class Layout:
     """A versioned record layout: kind, version and dtype."""
@@ -229,6 +253,8 @@ SENSOR_STATUS_LAYOUT = Layout("sensor_status", KIND_SENSOR_STATUS, 1, SENSOR_STA
 CTRL_STATUS_LAYOUT = Layout("ctrl_status", KIND_CTRL_STATUS, 1, CTRL_STATUS, "droid_ctrl_status")
 CTRL_COMMAND_LAYOUT = Layout("ctrl_command", KIND_CTRL_COMMAND, 1, CTRL_COMMAND, "droid_ctrl_command")
 PROC_STATUS_LAYOUT = Layout("proc_status", KIND_PROC_STATUS, 2, PROC_STATUS, "droid_proc_status")
+JOYSTICK_STATUS_LAYOUT = Layout("joystick_status", KIND_JOYSTICK_STATUS, 1, JOYSTICK_STATUS,
+                                "droid_joystick_status")
 
 LAYOUTS = {
     lay.kind: lay
@@ -239,6 +265,7 @@ LAYOUTS = {
         CTRL_STATUS_LAYOUT,
         CTRL_COMMAND_LAYOUT,
         PROC_STATUS_LAYOUT,
+        JOYSTICK_STATUS_LAYOUT,
     )
 }
 
