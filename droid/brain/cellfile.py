@@ -23,6 +23,7 @@ from typing import Any
 from droid.cli import BadInput
 from droid.brain.classes import CLASSES, SubunitClass
 from droid.brain.curve import CurveConfig, parse_curve_table
+from droid.brain.wire import LIVENESS_TICKS
 from droid.brain.shmdb import check_name_part
 
 SUBUNIT_CLASSES = tuple(CLASSES)  # droid.brain.classes: the classes as data
@@ -196,7 +197,7 @@ def parse_cell(raw: dict[str, Any], p: Path) -> Cell:
     hb_hz = c.get("heartbeat_hz", float, 60.0, check=_positive)
     if hb_hz > 1000:
         raise BadInput(f"{p}: [cell] heartbeat_hz {hb_hz:g} is above 1000 Hz")
-    stale = c.get("stale_ticks", int, 3, check=lambda v: None if v >= 1 else "must be >= 1")
+    stale = c.get("stale_ticks", int, LIVENESS_TICKS, check=lambda v: None if v >= 1 else "must be >= 1")
     fifo = c.get("sched_fifo", bool, False)
     run_root = os.environ.get(ENV_RUN_ROOT, DEFAULT_RUN_ROOT)
     run_dir = c.get("run_dir", str, f"{run_root}/{name}")

@@ -27,6 +27,7 @@ sent, encoder_cmd_ext, encoder_cmd_int); additions are documented per field.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import IntEnum
 
 import numpy as np
 
@@ -50,11 +51,26 @@ FLAG_RECOVERED = 1  # the semaphore was taken over from a dead holder at least o
 # Enumerations (thesis §3.3)
 JSPACE = 0  # coord: joint space
 CARTSPACE = 1  # coord: cartesian space
-OFF = 0  # cmd_mode
-JOG_MODE = 1
-HOME_MODE = 2
-NORMAL_MODE = 3
-CMD_MODE_NAMES = {OFF: "OFF", JOG_MODE: "JOG", HOME_MODE: "HOME", NORMAL_MODE: "NORMAL"}
+
+
+class CmdMode(IntEnum):
+    """Command modes (Command/Status ``cmd_mode``, thesis §3.3 and Table 4.3): the one definition.
+
+    The Brain's records, the agent and every task use these numbers; the Reis
+    servo's own message wire should too (its ``servo_params.Mode`` still numbers
+    HOME and JOG the other way round and is mapped in the servo agent)."""
+
+    OFF = 0
+    JOG = 1  # relative encoder counts; works before homing (§3.4)
+    HOME = 2  # run the homing routine
+    NORMAL = 3  # absolute joint or cartesian target (needs homed)
+
+
+OFF = CmdMode.OFF  # cmd_mode
+JOG_MODE = CmdMode.JOG
+HOME_MODE = CmdMode.HOME
+NORMAL_MODE = CmdMode.NORMAL
+CMD_MODE_NAMES = {int(m): m.name for m in CmdMode}
 COORD_NAMES = {JSPACE: "JOINT", CARTSPACE: "CARTESIAN"}
 FALSE = 0
 HOMED = 1  # Status.homed (arms); for sensors homed==1 means INVALID data (Table 3.3)

@@ -77,7 +77,7 @@ class StatusTranslator:
 def main(argv=None) -> int:
     args, cell, sub = subunit_program(
         PROG, "Keep one subunit's Brain database in step with its agent, once per heartbeat.", argv)
-    try_sched_fifo(priority=50, wanted=cell.sched_fifo, prog=PROG)
+    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     if link_kind(cell, sub) == LINK_SERIAL:
         return serve_serial(cell, sub, args.ready_fd, PROG)
     status = open_brain(cell, sub, "status")

@@ -75,7 +75,7 @@ def agent_main(prog: str, argv=None) -> int:
     cell = open_cell(args)
     sub = cell.subunit(args.subunit)
     Stop.install()
-    try_sched_fifo(priority=51, wanted=cell.sched_fifo, prog=prog)
+    try_sched_fifo(wanted=cell.sched_fifo, prog=prog)
     layouts = local_layouts(sub)
     status = open_local(cell, sub, "ctrl_status")
     ctrl_cmd = open_local(cell, sub, "ctrl_command") if "ctrl_command" in layouts else None

@@ -56,7 +56,7 @@ def open_vme_waiting(url: str, wait_s: float):
 def main(argv=None) -> int:
     args, cell, sub = subunit_program(PROG, "Run the 500 Hz servo loop of a Reis arm on its VME interface cards.", argv, arm=True)
     ep = reis_endpoints(cell, sub)
-    try_sched_fifo(priority=60, wanted=cell.sched_fifo, prog=PROG)
+    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
     ctx = zmq.Context()
     curve = CurveHost(ctx, cell, sub.host)
