@@ -379,12 +379,23 @@ class RobotModel:
         if prev.ndim == 1:
             prev = prev[None, :]
         prev = prev[:, None, :]
+        lo, hi, w = self._lo, self._hi, self._w
         with np.errstate(invalid="ignore"):
-            valid = np.all((s >= self.joint_min_deg) & (s <= self.joint_max_deg), axis=2)  # NaN fails
+            # joint by joint over (N, 8) planes: numpy reduces a last axis of 6 slowly
+            sj = s[..., 0]
+            valid = (sj >= lo[0]) & (sj <= hi[0])  # NaN (no solution) fails
+            score = np.abs(sj - prev[..., 0]) * w[0]
+            for j in range(1, 6):
+                sj = s[..., j]
+                valid &= sj >= lo[j]
+                valid &= sj <= hi[j]
+                d = sj - prev[..., j]
+                np.abs(d, out=d)
+                d *= w[j]
+                score += d
             if not self._counts_implied:
                 c = s @ self.gearing.joint_to_counts_matrix.T
                 valid &= np.all((c >= self.counts_min) & (c <= self.counts_max), axis=2)
-            score = np.abs(s - prev) @ self.weights
         score[~valid] = _INF
         idx = np.argmin(score, axis=1)  # first minimum: lowest index on ties
         idx[~valid.any(axis=1)] = -1
