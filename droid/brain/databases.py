@@ -60,3 +60,16 @@ def open_brain(cell: Cell, sub: Subunit, area: str, **kw) -> Database:
 
 def open_local(cell: Cell, sub: Subunit, area: str, **kw) -> Database:
     return Database(db_name(cell.name, sub.name, area), local_layouts(sub)[area], **kw)
+
+
+def write_command(command: Database, **fields) -> int:
+    """Write a new command into a Command record (Table 3.2): the fields, the next ``cmd_id``
+    (never 0) and ``sent = 1``, under one lock.  Returns the ``cmd_id`` [tasks' one writer]."""
+    with command.locked() as c:
+        cmd_id = (int(c["cmd_id"]) + 1) & 0xFFFFFFFF or 1
+        for k, v in fields.items():
+            c[k] = v
+        c["cmd_id"] = cmd_id
+        c["sent"] = 1
+        command.mark_written()
+    return cmd_id

@@ -254,6 +254,8 @@ def ik_hinted(p: OpwParams, t, hint1_deg: float = 0.0, hint4_deg: float = 0.0) -
         p2 = c1 * r02 + s1 * r12
         o10 = -s1 * r00 + c1 * r10
         o12 = -s1 * r02 + c1 * r12
+        # Deliberate copies: each joint angle is wrapped into (-180, 180] by the same
+        # two loops written out inline (a helper call per angle costs ~2 us a pose).
         j1 = g1 * q1 + b1
         while j1 > 180.0:
             j1 -= 360.0

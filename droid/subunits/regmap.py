@@ -62,17 +62,22 @@ class Region:
 
     def replaced(self) -> bool:
         """True if the name now holds another object than the one mapped (or nothing)."""
-        if self.identity is None:
-            return False
-        try:
-            return self.identity() != self.opened_as
-        except OSError:
-            return True
+        return identity_changed(self.identity, self.opened_as)
 
     def close(self) -> None:
         if self._closer is not None:
             closer, self._closer = self._closer, None
             closer()
+
+
+def identity_changed(identity: Callable[[], object] | None, opened_as: object) -> bool:
+    """True if ``identity()`` (what a name holds now) differs from ``opened_as``, or the name is gone."""
+    if identity is None:
+        return False
+    try:
+        return identity() != opened_as
+    except OSError:
+        return True
 
 
 def parse_url(url, what: str, schemes: tuple[str, ...] = ("shm", "mem"), forms: str = URL_FORMS):

@@ -18,7 +18,7 @@ import time
 import numpy as np
 
 from droid.brain.cellfile import Cell
-from droid.brain.databases import open_brain
+from droid.brain.databases import open_brain, write_command
 from droid.brain.layouts import (CARTSPACE, CMD_OK, CMD_REFUSED, FAULT_DEVICE, FAULT_NAMES,
                                  FAULT_SERVO, FAULT_WATCHDOG, HOME_MODE,
                                  JOG_MODE, JSPACE, NORMAL_MODE)
@@ -143,14 +143,7 @@ class BrainArm:
 
     # -- commanding --------------------------------------------------------
     def _write(self, **fields) -> int:
-        with self.command.locked() as c:
-            cmd_id = (int(c["cmd_id"]) + 1) & 0xFFFFFFFF or 1
-            for k, v in fields.items():
-                c[k] = v
-            c["cmd_id"] = cmd_id
-            c["sent"] = 1
-            self.command.mark_written()
-        return cmd_id
+        return write_command(self.command, **fields)
 
     def command_joint(self, counts, ticks: int, mode: int = NORMAL_MODE) -> int:
         return self._write(encoder_pos=np.asarray(counts, np.int32), joint_time_count=int(ticks),

@@ -7,7 +7,7 @@ import re
 import numpy as np
 import pytest
 
-from tests.brain.cellutil import droid, make_cell_file, wait_for
+from tests.brain.cellutil import cell_up, droid, make_cell_file, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -16,8 +16,6 @@ DEFLECT = 0.6  # the twin's hand holds axis 0 here from power-on
 
 @pytest.fixture
 def cell(tmp_path, cell_name):
-    from droid.brain.shmdb import cell_objects
-
     path = make_cell_file(tmp_path, cell_name)
     text = path.read_text()
     text = re.sub(r'(\[world\.devices\.joy_stick\][^\[]*?buttons = 8\n)',
@@ -25,14 +23,8 @@ def cell(tmp_path, cell_name):
                   text, count=1)
     assert "script = " in text
     path.write_text(text)
-    out = droid("droid.brain.launcher", "up", "--cell", str(path), timeout=120)
-    try:
-        assert out.returncode == 0, out.stdout + out.stderr
+    with cell_up(path, cell_name):
         yield path
-    finally:
-        out = droid("droid.brain.launcher", "down", "--cell", str(path))
-        assert out.returncode == 0, out.stderr
-        assert cell_objects(cell_name) == []
 
 
 def snoop(path, sub):

@@ -129,6 +129,17 @@ def fields(line: bytes) -> list[bytes]:
     return [f for f in _SEP.split(line.strip(b" \t")) if f]
 
 
+def _word(field: bytes, what: str, known: tuple, hint: str, unknown: str | None = None) -> str:
+    """The first field of a request or reply as one of ``known``; WireError otherwise."""
+    try:
+        word = field.decode("ascii")
+    except UnicodeDecodeError:
+        raise WireError(f"{what} is not ASCII") from None
+    if word not in known:
+        raise WireError(f"{unknown or 'unknown ' + what} {word[:12]!r}{hint}")
+    return word
+
+
 def parse_request(line: bytes) -> Request:
     """Parse one request line (without its terminator).  Raises :class:`WireError`."""
     if len(line) > MAX_LINE:
@@ -136,12 +147,7 @@ def parse_request(line: bytes) -> Request:
     f = fields(line)
     if not f:
         raise WireError("empty line")
-    try:
-        verb = f[0].decode("ascii")
-    except UnicodeDecodeError:
-        raise WireError("verb is not ASCII") from None
-    if verb not in VERBS:
-        raise WireError(f"unknown verb {verb[:12]!r} (known: {', '.join(VERBS)})")
+    verb = _word(f[0], "verb", VERBS, f" (known: {', '.join(VERBS)})")
     if len(f) < 2:
         raise WireError(f"{verb} needs an id")
     cmd_id = _parse_id(f[1])
@@ -230,12 +236,7 @@ def parse_reply(line: bytes) -> Reply:
     f = fields(line)
     if len(f) < 2:
         raise WireError(f"reply {line[:20]!r} has fewer than 2 fields")
-    try:
-        kind = f[0].decode("ascii")
-    except UnicodeDecodeError:
-        raise WireError("reply kind is not ASCII") from None
-    if kind not in REPLY_KINDS:
-        raise WireError(f"unknown reply {kind[:12]!r}")
+    kind = _word(f[0], "reply kind", REPLY_KINDS, "", unknown="unknown reply")
     if kind == ERR and f[1] == b"0":
         cmd_id = 0
     else:

@@ -30,7 +30,7 @@ import numpy as np
 
 from droid.cli import BadInput
 from droid.subunits.gmf1 import quad04_map as qm
-from droid.subunits.regmap import URL_FORMS, MapUnavailable, open_region, parse_url
+from droid.subunits.regmap import URL_FORMS, MapUnavailable, identity_changed, open_region, parse_url
 
 #: the card's memory is not there (object missing, file unreadable): retry later
 #: (the register-map error every driver shares, droid.subunits.regmap)
@@ -87,12 +87,7 @@ class Quad04Card:
 
     def replaced(self) -> bool:
         """True if the object behind the map was removed or replaced since it was opened."""
-        if self._identity is None:
-            return False
-        try:
-            return self._identity() != self.identity
-        except OSError:
-            return True
+        return identity_changed(self._identity, self.identity)
 
     def close(self) -> None:
         if self._mv is not None:
