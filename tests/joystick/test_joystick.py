@@ -218,3 +218,15 @@ def test_cartesian_mode_moves_the_wrist_centre(reis):
     moved = act.T[:3, 3] - reis.fk(q)[:3, 3]
     assert moved[0] == pytest.approx(core.cart_mm_s * 0.1, rel=0.2)  # 50 mm/s for ~0.1 s
     assert abs(moved[1]) < 1e-6 and abs(moved[2]) < 1e-6
+
+
+def test_the_class_table_names_the_drivers_the_url_table_opens():
+    import importlib
+
+    from droid.subunits.joystick.driver import DRIVERS
+
+    table = CLASSES["joystick"].drivers
+    assert set(table) == set(DRIVERS)
+    for scheme, ref in table.items():
+        module, name = ref.split(":")
+        assert getattr(importlib.import_module(module), name) is DRIVERS[scheme]
