@@ -24,8 +24,9 @@ READ_ROUNDS = 64  # socket:// reports at most 1 byte in_waiting: bound the loop
 _HANGUP = select.POLLHUP | select.POLLERR | select.POLLNVAL
 
 
-def serial_opener(url: str, baud: int) -> Callable[[], object]:
-    """A function opening ``url`` (device path or pyserial URL) at ``baud``; checks the URL form now."""
+def serial_opener(url: str, baud: int, *, write_timeout_s: float = 0.5) -> Callable[[], object]:
+    """A function opening ``url`` (device path or pyserial URL) at ``baud`` (non-blocking reads,
+    writes waiting at most ``write_timeout_s`` [s]); checks the URL form now."""
     try:
         probe = serial.serial_for_url(url, baudrate=baud, do_not_open=True)
     except (ValueError, serial.SerialException) as exc:
@@ -33,7 +34,7 @@ def serial_opener(url: str, baud: int) -> Callable[[], object]:
     del probe
 
     def opener():
-        return serial.serial_for_url(url, baudrate=baud, timeout=0, write_timeout=0.5)
+        return serial.serial_for_url(url, baudrate=baud, timeout=0, write_timeout=write_timeout_s)
 
     return opener
 
@@ -45,9 +46,14 @@ class PortLink:
     setting) raises BadInput naming ``bad_url`` instead of counting as a
     failed open (for openers that did not check the URL beforehand)."""
 
-    def __init__(self, opener: Callable[[], object], *, bad_url: str | None = None) -> None:
+    def __init__(self, opener: Callable[[], object], *, bad_url: str | None = None,
+                 write_timeout_keeps_open: bool = False) -> None:
         self._opener = opener
         self._bad_url = bad_url
+        # a write that timed out (the line is slower than the writer): an error that
+        # closes the port (default), or counted in write_timeouts with the port kept
+        self.write_timeout_keeps_open = write_timeout_keeps_open
+        self.write_timeouts = 0
         self.port = None
         self.last_error = ""
         self.opens = 0
@@ -120,11 +126,18 @@ class PortLink:
         return b"".join(chunks)
 
     def write(self, data: bytes) -> bool:
+        """Write ``data``; False if the port is closed, the write timed out or failed (closing it)."""
         if self.port is None:
             return False
         try:
             self.port.write(data)
             return True
+        except serial.SerialTimeoutException as exc:
+            if not self.write_timeout_keeps_open:
+                self._fail(exc)
+            else:
+                self.write_timeouts += 1
+            return False
         except (serial.SerialException, OSError, ValueError) as exc:
             self._fail(exc)
             return False
