@@ -70,13 +70,7 @@ def main(argv=None) -> int:
     timer = None
     failed = False
     try:
-        curve.server(pull, ep.servo)
-        curve.server(pub, ep.servo_status)
-        try:
-            pull.bind(cell.bind_endpoint(ep.servo))
-            pub.bind(cell.bind_endpoint(ep.servo_status))
-        except zmq.ZMQError as exc:
-            raise RuntimeFailure(f"cannot bind {ep.servo} / {ep.servo_status}: {exc}") from None
+        curve.bind(cell, (pull, ep.servo), (pub, ep.servo_status))
         bus = open_vme_waiting(ep.vme, OPEN_WAIT_S)
         bus.zero_dacs()
         core = ServoCore(ServoParams())
