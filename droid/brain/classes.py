@@ -4,9 +4,10 @@ A subunit's ``class`` in the cell file names one :class:`SubunitClass`: its
 layout definitions (the Brain's Status and, for a commandable subunit, its
 Command; the subunit side's own records), the fields ``droid-remote`` copies
 from the agent's reply into the Brain's Status, the fields ``droid-snoop``
-prints, and the drivers its programs open.  The Brain (databases, remote),
-``droid-snoop``, ``droid-cell status`` and ``droid-cheader`` read this table
-and never name a class, so a new class -- the joystick of §3.4 here, the
+prints, and the drivers its programs open.  The Brain (databases, remote) and
+``droid-snoop`` read this table, ``droid-cheader`` writes every layout of
+``layouts.LAYOUTS`` and ``droid-cell status`` lists programs, not classes: none
+of them names a class, so a new class -- the joystick of §3.4 here, the
 force/torque sensor of §7.3 next -- is one entry and its layouts.
 
 =============  =========================  ============================  ===========================

@@ -325,24 +325,31 @@ class RobotModel:
         """
         p0, p1, p2, p3, p4, p5 = q_prev_deg
         w0, w1, w2, w3, w4, w5 = self._w
-        scores = []
         best, best_score = -1, _INF
-        for i, s in enumerate(solutions):
-            a, b, c, d, e, f = s
+        i = 0
+        for a, b, c, d, e, f in solutions:
             score = (
                 w0 * abs(a - p0) + w1 * abs(b - p1) + w2 * abs(c - p2)
                 + w3 * abs(d - p3) + w4 * abs(e - p4) + w5 * abs(f - p5)
             )
-            scores.append(score)
             if score < best_score:  # strict: ties keep the lowest index; NaN rows never win
                 best, best_score = i, score
+            i += 1
         if best < 0:
             return -1
         # usually the best-scored solution is commandable: check it alone first
         if self._commandable(solutions[best]):
             return best
-        order = sorted((sc, i) for i, sc in enumerate(scores) if sc == sc and i != best)
-        for _, i in order:
+        scored = []
+        for i, (a, b, c, d, e, f) in enumerate(solutions):
+            score = (
+                w0 * abs(a - p0) + w1 * abs(b - p1) + w2 * abs(c - p2)
+                + w3 * abs(d - p3) + w4 * abs(e - p4) + w5 * abs(f - p5)
+            )
+            if score == score and i != best:
+                scored.append((score, i))
+        scored.sort()
+        for _, i in scored:
             if self._commandable(solutions[i]):
                 return i
         return -1
