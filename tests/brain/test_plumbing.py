@@ -53,3 +53,73 @@ def test_splitter_resync_skips_to_the_next_line_end():
     s.resync()
     assert s.feed(b"00,0.1\n3.000,4.000,0.00000\n") == [b"3.000,4.000,0.00000"]
     assert s.skipped == len(b"1.0,2") + len(b"00,0.1\n")
+
+
+def test_one_bind_for_server_sockets_names_the_endpoint_it_could_not_bind(tmp_path):
+    import socket
+    import types
+
+    import zmq
+
+    from droid.brain.curve import CurveHost
+    from droid.cli import RuntimeFailure
+
+    class NoKeys(CurveHost):  # a cell without [curve]: plain sockets
+        enabled = False
+
+        def __init__(self):
+            pass
+
+    cell = types.SimpleNamespace(bind_endpoint=lambda e: e)
+    ctx = zmq.Context()
+    a, b = ctx.socket(zmq.ROUTER), ctx.socket(zmq.PUB)
+    taken = socket.socket()
+    try:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        NoKeys().bind(cell, (a, f"ipc://{tmp_path}/a"))
+        busy = f"tcp://127.0.0.1:{taken.getsockname()[1]}"
+        with pytest.raises(RuntimeFailure, match="cannot bind " + busy):
+            NoKeys().bind(cell, (b, busy))
+    finally:
+        taken.close()
+        a.close(0)
+        b.close(0)
+        ctx.term()
+
+
+class _Port:
+    """A pyserial-like port whose writes time out or fail on demand."""
+
+    def __init__(self):
+        self.fail = None
+        self.closed = False
+        self.in_waiting = 0
+
+    def reset_input_buffer(self):
+        pass
+
+    def write(self, data):
+        if self.fail is not None:
+            raise self.fail
+        return len(data)
+
+    def close(self):
+        self.closed = True
+
+
+@pytest.mark.parametrize("keep", [False, True])
+def test_port_link_write_timeout_is_an_overrun_or_a_failure(keep):
+    import serial
+
+    from droid.brain.serial_port import PortLink
+
+    port = _Port()
+    link = PortLink(lambda: port, write_timeout_keeps_open=keep)
+    assert link.open() and link.write(b"x\n")
+    port.fail = serial.SerialTimeoutException("write timeout")
+    assert not link.write(b"x\n")
+    assert link.is_open == keep and link.write_timeouts == (1 if keep else 0)
+    if keep:
+        port.fail = serial.SerialException("gone")
+        assert not link.write(b"x\n") and not link.is_open and port.closed and link.last_error == "gone"
