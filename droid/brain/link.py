@@ -16,6 +16,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from droid.brain.wire import LIVENESS_TICKS, MAX_BACKOFF_TICKS
+
 
 @dataclass
 class RemoteAction:
@@ -27,7 +29,7 @@ class RemoteAction:
 class RemoteLinkCore:
     """Brain side: liveness of one agent, counted in heartbeat ticks.  Pure."""
 
-    def __init__(self, stale_ticks: int = 3, max_backoff_ticks: int = 120) -> None:
+    def __init__(self, stale_ticks: int = LIVENESS_TICKS, max_backoff_ticks: int = MAX_BACKOFF_TICKS) -> None:
         self.stale_ticks = stale_ticks
         self.max_backoff_ticks = max_backoff_ticks
         self.pending: int | None = None  # tick of the command awaiting a reply
@@ -73,7 +75,7 @@ class RemoteLinkCore:
 class AgentLinkCore:
     """Subunit side: is the Brain still sending?  Pure; time in ns is passed in."""
 
-    def __init__(self, period_ns: int, stale_ticks: int = 3) -> None:
+    def __init__(self, period_ns: int, stale_ticks: int = LIVENESS_TICKS) -> None:
         self.period_ns = period_ns
         self.stale_ticks = stale_ticks
         self.last_cmd_ns: int | None = None

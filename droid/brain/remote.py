@@ -38,10 +38,6 @@ from droid.brain.sensor_link import LINK_SERIAL, link_kind, serve_serial
 from droid.cli import run
 
 PROG = "droid-remote"
-COPY_FIELDS_ARM = ("encoder_pos", "encoder_cmd", "busy", "homed", "fault", "cmd_mode", "coord",
-                   "cmd_id", "cmd_result")
-COPY_FIELDS_SENSOR = ("x", "y", "z", "R", "homed", "fault", "valid_count", "invalid_count",
-                      "garbled_count")
 
 
 class ArmPose:
@@ -59,12 +55,12 @@ class ArmPose:
 
 
 class StatusTranslator:
-    """Agent reply (motion-controller or sensor status record) -> Brain Status fields."""
+    """Agent reply (the subunit side's status record) -> Brain Status fields (the class's copy_fields)."""
 
     def __init__(self, sub: Subunit, fk=None) -> None:
         self.sub = sub
         self.reply_layout = local_layouts(sub)["ctrl_status"]
-        self.fields = COPY_FIELDS_ARM if sub.is_arm else COPY_FIELDS_SENSOR
+        self.fields = sub.kind.copy_fields
         self.fk = fk
 
     def __call__(self, payload: bytes) -> dict:
@@ -81,12 +77,12 @@ class StatusTranslator:
 def main(argv=None) -> int:
     args, cell, sub = subunit_program(
         PROG, "Keep one subunit's Brain database in step with its agent, once per heartbeat.", argv)
-    try_sched_fifo(priority=50, wanted=cell.sched_fifo, prog=PROG)
+    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     if link_kind(cell, sub) == LINK_SERIAL:
         return serve_serial(cell, sub, args.ready_fd, PROG)
     status = open_brain(cell, sub, "status")
     command = open_brain(cell, sub, "command") if "command" in brain_layouts(sub) else None
-    fk = ArmPose(sub) if sub.is_arm else None
+    fk = ArmPose(sub) if sub.kind.kinematic else None
     translate = StatusTranslator(sub, fk)
     ctx = zmq.Context()
     curve = CurveHost(ctx, cell, cell.brain_host)

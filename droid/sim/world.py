@@ -37,6 +37,7 @@ DEVICE_TYPES: dict[str, tuple[str, str]] = {
     "mvs_camera": ("droid.sim.mvs_world", "mvs_camera"),
     "tool_sensor": ("droid.sim.mvs_world", "tool_sensor"),
     "serial_cable": ("droid.sim.serial_cable", "serial_cable"),
+    "joystick": ("droid.sim.joystick", "make_joystick"),
 }
 
 
@@ -116,7 +117,7 @@ def main(argv=None) -> int:
     if not 1.0 <= rate <= 10000.0:
         raise BadInput(f"{cell.path}: [world] rate_hz {rate:g} outside 1..10000 Hz")
     Stop.install()
-    try_sched_fifo(priority=52, wanted=cell.sched_fifo, prog=PROG)
+    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     presence = Presence(cell.name, presence_key(PROG), PROG)
     world = None
     timer = None

@@ -18,7 +18,7 @@ import time
 import numpy as np
 
 from droid.brain.cellfile import Cell
-from droid.brain.databases import open_brain
+from droid.brain.databases import open_brain, write_command
 from droid.brain.layouts import (CARTSPACE, CMD_OK, CMD_REFUSED, FAULT_DEVICE, FAULT_NAMES,
                                  FAULT_SERVO, FAULT_WATCHDOG, HOME_MODE,
                                  JOG_MODE, JSPACE, NORMAL_MODE, STOP_TICKS)
@@ -168,15 +168,8 @@ class BrainArm:
 
     # -- commanding --------------------------------------------------------
     def _write(self, **fields) -> int:
-        with self.command.locked() as c:
-            cmd_id = (int(c["cmd_id"]) + 1) & 0xFFFFFFFF or 1
-            for k, v in fields.items():
-                c[k] = v
-            c["cmd_id"] = cmd_id
-            c["sent"] = 1
-            self.command.mark_written()
-        self.live_cmd = cmd_id
-        return cmd_id
+        self.live_cmd = write_command(self.command, **fields)
+        return self.live_cmd
 
     def command_joint(self, counts, ticks: int, mode: int = NORMAL_MODE) -> int:
         return self._write(encoder_pos=np.asarray(counts, np.int32), joint_time_count=int(ticks),

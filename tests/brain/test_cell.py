@@ -14,7 +14,7 @@ import sys
 import pytest
 
 from droid.brain.shmdb import cell_objects
-from tests.brain.cellutil import ROOT, cell_status, droid, make_cell_file, wait_for
+from tests.brain.cellutil import brought_down, ROOT, cell_status, droid, make_cell_file, wait_for
 
 pytestmark = pytest.mark.integration
 CELL = "droid.brain.launcher"
@@ -23,11 +23,8 @@ SNOOP = "droid.tasks.snoop"
 
 @pytest.fixture
 def cell(tmp_path, cell_name):
-    path = make_cell_file(tmp_path, cell_name)
-    yield path
-    out = droid(CELL, "down", "--cell", str(path))
-    assert out.returncode == 0, out.stderr
-    assert cell_objects(cell_name) == []
+    with brought_down(make_cell_file(tmp_path, cell_name), cell_name) as path:
+        yield path
 
 
 def n_programs(path) -> int:

@@ -37,7 +37,6 @@ PROG = "droid-gmf1-encoder"
 REOPEN_MIN_S = 0.1
 REOPEN_MAX_S = 2.0
 CHECK_EVERY_S = 1.0  # how often to check that the cards are still the objects we mapped
-FIFO_PRIORITY = 45  # below the Reis servo (60), watchdog (55), heartbeat and world (50)
 
 
 class CardSession:
@@ -107,7 +106,7 @@ def main(argv=None) -> int:
     model = load_robot(sub.robot).with_base(pose_to_T(*sub.base))
     core = EncoderCore(model, rate)
     Stop.install()
-    try_sched_fifo(priority=FIFO_PRIORITY, wanted=cell.sched_fifo, prog=PROG)
+    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     status = open_local(cell, sub, "ctrl_status")
     station = EncoderStation(core, status)
     cards = CardSession(cfg.encoders)

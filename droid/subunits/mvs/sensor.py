@@ -51,8 +51,8 @@ import tomllib
 from dataclasses import dataclass
 
 import numpy as np
-import serial
 
+from droid.brain.serial_port import PortLink, serial_opener
 from droid.cli import ArgumentParser, BadInput, MAX_WAIT_S, RuntimeFailure, bounded_float, bounded_int, run
 from droid.subunits.mvs.calibration import MvsCalibration
 from droid.subunits.mvs.dsp import open_dsp
@@ -162,28 +162,19 @@ def replay(source: str, core: SensorCore, pixels: bool, out=None) -> None:
             stream.close()
 
 
-def _open_serial(url: str, baud: int):
-    try:
-        return serial.serial_for_url(url, baudrate=baud, write_timeout=WRITE_TIMEOUT_S)
-    except ValueError as exc:
-        raise BadInput(f"serial {url}: {exc}") from None
-    except serial.SerialException as exc:
-        raise RuntimeFailure(f"cannot open serial {url}: {exc}") from None
-
-
-def _open_serial_waiting(url: str, baud: int, wait_s: float, stop: threading.Event):
-    """Open the port, retrying for up to ``wait_s`` [s] while it is not there yet (None if stopped)."""
+def _open_serial_waiting(link: PortLink, url: str, wait_s: float, stop: threading.Event) -> bool:
+    """Open the port, retrying for up to ``wait_s`` [s] while it is not there yet (False if stopped)."""
     deadline = time.monotonic() + wait_s
     while not stop.is_set():
-        try:
-            return _open_serial(url, baud)
-        except RuntimeFailure as exc:
-            if time.monotonic() >= deadline:
-                if wait_s > 0:
-                    raise RuntimeFailure(f"{exc} (waited {wait_s:g} s; is droid-sim running?)") from None
-                raise
-            stop.wait(APPEAR_POLL_S)
-    return None
+        if link.open():
+            return True
+        if time.monotonic() >= deadline:
+            why = f"cannot open serial {url}: {link.last_error}"
+            if wait_s > 0:
+                raise RuntimeFailure(f"{why} (waited {wait_s:g} s; is droid-sim running?)")
+            raise RuntimeFailure(why)
+        stop.wait(APPEAR_POLL_S)
+    return False
 
 
 def _open_board(url: str, wait_s: float, stop: threading.Event):
@@ -215,12 +206,16 @@ def live(args, core: SensorCore, ready=None, beat=None, reopen: bool = False) ->
     handlers = {}
     if threading.current_thread() is threading.main_thread():
         handlers = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
-    record = board = port = None
-    timeouts = missed = overruns = lost = reopened = 0
+    record = board = None
+    # the cell's one serial port (droid.brain.serial_port): a write that times out is an
+    # overrun (the line is slower than the frames), any other error closes the port
+    port = PortLink(serial_opener(args.serial, args.baud, write_timeout_s=WRITE_TIMEOUT_S),
+                    write_timeout_keeps_open=True)
+    timeouts = missed = lost = reopened = 0
     t0 = time.monotonic()
     try:
         board = _open_board(args.dsp, wait_s, stop)
-        port = _open_serial_waiting(args.serial, args.baud, max(0.0, deadline - time.monotonic()), stop)
+        _open_serial_waiting(port, args.serial, max(0.0, deadline - time.monotonic()), stop)
         if args.record:
             try:
                 record = open(args.record, "w")
@@ -244,40 +239,31 @@ def live(args, core: SensorCore, ready=None, beat=None, reopen: bool = False) ->
                         record.write(format_frame_line(frame.rows) + "\n")
                     except OSError as exc:
                         raise RuntimeFailure(f"cannot write {args.record}: {exc.strerror}") from None
-            if port is None:
-                try:
-                    port = _open_serial(args.serial, args.baud)
+            if not port.is_open:
+                if port.open():
                     reopened += 1
-                except RuntimeFailure:
+                else:
                     lost += 1
-            if port is not None:
-                try:
-                    port.write(line)
-                except serial.SerialTimeoutException:
-                    overruns += 1
-                except serial.SerialException as exc:
-                    if not reopen:
-                        raise RuntimeFailure(f"serial {args.serial}: {exc}") from None
-                    print(f"{PROG}: serial {args.serial}: {exc}; reopening", file=sys.stderr, flush=True)
-                    port.close()
-                    port = None
-                    lost += 1
+            if port.is_open and not port.write(line) and not port.is_open:
+                if not reopen:
+                    raise RuntimeFailure(f"serial {args.serial}: {port.last_error}")
+                print(f"{PROG}: serial {args.serial}: {port.last_error}; reopening", file=sys.stderr, flush=True)
+                lost += 1
             if beat is not None:
-                beat(core.frames, overruns + timeouts + lost)
+                beat(core.frames, port.write_timeouts + timeouts + lost)
     finally:
         elapsed = max(time.monotonic() - t0, 1e-9)
         for sig, old in handlers.items():
             signal.signal(sig, old)
         if record is not None:
             record.close()
-        if port is not None:
-            port.close()
+        port.close()
         if board is not None:
             board.close()
     reopen_note = f", {lost} lines lost with the port, {reopened} reopens" if reopen else ""
     print(f"{PROG}: {core.frames} frames in {elapsed:.2f} s = {core.frames / elapsed:.1f} frames/s "
           f"({core.valid} valid, {core.invalid} invalid, {missed} missed, {timeouts} retrace timeouts, "
-          f"{overruns} serial overruns{reopen_note})", file=sys.stderr)
+          f"{port.write_timeouts} serial overruns{reopen_note})", file=sys.stderr)
     return 0
 
 
@@ -384,7 +370,7 @@ def live_in_cell(args, core: SensorCore, cell, sub) -> int:
 
     # In a cell that asks for SCHED_FIFO the sensor is part of the tracking loop's chain
     # (frame -> line -> Brain Status -> droid-seamtrack, §5.4): below the Brain's programs.
-    try_sched_fifo(priority=48, wanted=cell.sched_fifo, prog=PROG)
+    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
     failed = True
 

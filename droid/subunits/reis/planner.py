@@ -196,7 +196,7 @@ PROG = "droid-planner"
 def main(argv=None) -> int:
     args, cell, sub = subunit_program(PROG, "Plan an arm's joint and cartesian commands into per-tick way-points (thesis §4.1.7).", argv, arm=True)
     model = load_robot(sub.robot).with_base(pose_to_T(*sub.base))
-    try_sched_fifo(priority=51, wanted=cell.sched_fifo, prog=PROG)
+    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     ctrl_command = open_local(cell, sub, "ctrl_command")
     ctrl_status = open_local(cell, sub, "ctrl_status")
     ctx = zmq.Context()
