@@ -124,6 +124,49 @@ def integer(text: str) -> int:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def bounded_float(lo: float, hi: float, unit: str = "", *, lo_open: bool = False) -> Callable[[str], float]:
+    """argparse type: a finite float in [lo, hi] (``lo_open``: in (lo, hi]); the message names the range.
+
+    Negative zero is zero.  Every duration, rate and size a program accepts has a
+    stated maximum, so no accepted value overflows what the program does with it
+    (ticks in an int32 field, a deadline, a sleep)."""
+    u = f" {unit}" if unit else ""
+    span = f"{'(' if lo_open else '['}{lo:g}, {hi:g}]{u}"
+    rule = f"must be {'>' if lo_open else '>='} {lo:g} and <= {hi:g}{u}"
+
+    def parse(text: str) -> float:
+        value = finite_float(text) + 0.0  # -0.0 -> 0.0
+        if not ((lo < value) if lo_open else (lo <= value)) or value > hi:
+            raise argparse.ArgumentTypeError(f"{rule}: {text!r} is outside {span}")
+        return value
+
+    parse.__name__ = f"number in {span}"
+    return parse
+
+
+def bounded_int(lo: int, hi: int, unit: str = "") -> Callable[[str], int]:
+    """argparse type: a plain decimal integer in [lo, hi]; the message names the range."""
+    u = f" {unit}" if unit else ""
+    rule = f"must be {'> 0' if lo == 1 else f'>= {lo}'} and <= {hi}{u}"
+
+    def parse(text: str) -> int:
+        value = integer(text)
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"{rule}: {text!r} is outside [{lo}, {hi}]{u}")
+        return value
+
+    parse.__name__ = f"integer in [{lo}, {hi}]"
+    return parse
+
+
+#: The longest wait any program accepts (--timeout, move times) [s]: one day.
+MAX_WAIT_S = 86400.0
+#: The longest move a task accepts [s] (droid-move SECONDS): one hour at the
+#: heartbeat rate is 216 000 ticks, well inside the Command's int32 tick count.
+MAX_MOVE_S = 3600.0
+timeout_s = bounded_float(0.0, MAX_WAIT_S, "s", lo_open=True)
+
+
 def run(main: Callable[[Sequence[str] | None], int | None]) -> Callable[..., int]:
     """Wrap a ``main(argv)`` so DroidErrors become one-line messages and exit codes."""
 

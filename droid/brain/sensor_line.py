@@ -37,6 +37,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from droid.brain.serial_line import BITS_PER_BYTE  # noqa: F401  (re-exported: droid.subunits.mvs.wire)
+from droid.brain.serial_line import LineSplitter as _SerialLineSplitter
+
 # -- grammar constants (droid.subunits.mvs.wire re-exports them) ------------------
 #: A valid line: "x,y,roll\n" with x, y in mm (3 decimals) and roll in rad (5 decimals).
 X_DECIMALS = 3
@@ -52,8 +55,7 @@ STAMP_MODULO_MS = 100_000
 STAMP_MAX_AGE_MS = 1_000
 #: Line rate of the sensors [lines/s] (one a video frame, thesis §5.4, §6.1).
 LINE_RATE_HZ = 60.0
-#: Bits on the wire per byte (8N1: start + 8 data + stop).
-BITS_PER_BYTE = 10
+#: Bits on the wire per byte (8N1): droid.brain.serial_line's, imported above.
 #: Lowest baud rate accepted.  A line for a feature inside the default field of
 #: view is at most 25 bytes ("-25.600,-24.000,-1.57080\n"), 31 with a stamp: 60 lines/s
 #: x 31 bytes x 10 bits = 18 600 bit/s, which 9600 baud cannot carry and 19200 can.
@@ -154,58 +156,19 @@ def parse_line(line: bytes) -> Reading | Garbled:
     return Reading(valid=True, x_mm=x, y_mm=y, roll_rad=roll, stamp_ms=None if stamp is None else int(stamp))
 
 
-class LineSplitter:
+class LineSplitter(_SerialLineSplitter):
     """Accumulates serial chunks and yields complete lines (without ``\\n``).
 
     The buffer is bounded: of a line longer than ``max_line_bytes`` only the
     first ``max_line_bytes + 1`` bytes are kept (and yielded, in order, where
     the parser rejects them as garbled); ``overlong`` counts such lines.
+    :meth:`resync` (a port just reopened) skips to the next line end and
+    counts the bytes in ``skipped``.  The cell's one line splitter
+    (:class:`droid.brain.serial_line.LineSplitter`) with this grammar's policy.
     """
 
     def __init__(self, max_line_bytes: int = MAX_LINE_BYTES):
-        self.max_line_bytes = max_line_bytes
-        self.overlong = 0
-        self.skipped = 0  # bytes dropped by resync()
-        self._resync = False
-        self._buffer = bytearray()
-
-    def _add(self, piece: bytes) -> None:
-        room = self.max_line_bytes + 1 - len(self._buffer)
-        if room > 0:
-            self._buffer += piece[:room]
-
-    def feed(self, chunk: bytes) -> list[bytes]:
-        """Add a chunk; return the lines it completed, oldest first."""
-        chunk = bytes(chunk)
-        if self._resync:
-            end = chunk.find(LINE_END)
-            if end < 0:
-                self.skipped += len(chunk)
-                return []
-            self.skipped += end + 1
-            chunk = chunk[end + 1:]
-            self._resync = False
-        *complete, tail = chunk.split(LINE_END)
-        lines = []
-        for piece in complete:
-            self._add(piece)
-            if len(self._buffer) > self.max_line_bytes:
-                self.overlong += 1
-            lines.append(bytes(self._buffer))
-            self._buffer.clear()
-        self._add(tail)
-        return lines
-
-    def resync(self) -> None:
-        """Drop the incomplete line and skip up to the next line end.
-
-        For a port just (re)opened: it may have been opened in the middle of a
-        line, whose tail would otherwise count as a garbled line.  The bytes
-        skipped are counted in ``skipped``.
-        """
-        self.skipped += len(self._buffer)
-        self._buffer.clear()
-        self._resync = True
+        super().__init__(max_line_bytes, LINE_END)
 
 
 class SensorClientCore:

@@ -42,15 +42,15 @@ use it.
 from __future__ import annotations
 
 import math
-import select
 import time
 from dataclasses import dataclass
 
 import numpy as np
 
 from droid.brain.cellfile import Cell, Subunit
-from droid.brain.layouts import FAULT_DEVICE, FAULT_LINK, NO_CAPTURE_AGE
+from droid.brain.layouts import FAULT_DEVICE, FAULT_HEARTBEAT, FAULT_LINK, NO_CAPTURE_AGE
 from droid.brain.sensor_line import DEFAULT_BAUD, INVALID, MIN_BAUD, Reading, SensorClientCore
+from droid.brain.serial_port import ReopeningPort
 from droid.cli import BadInput
 
 LINK_AGENT = "agent"
@@ -159,96 +159,21 @@ class SensorStatusCore:
         return fields
 
 
-def _default_opener(url: str, baud: int):
-    import serial
-
-    return serial.serial_for_url(url, baudrate=baud, timeout=0, write_timeout=0)
-
-
-class SerialPortReader:
+class SerialPortReader(ReopeningPort):
     """The Brain's serial port: opened by URL, read without blocking, reopened with back-off.
 
     :meth:`poll` once a tick returns ``(bytes, port_ok)``.  A port that cannot
     be opened or fails while reading (EIO, hang-up) is closed and tried again
     after ``min_backoff_ticks`` ticks, doubling up to ``max_backoff_ticks``.
-    A URL pyserial rejects as malformed is a :class:`BadInput`.
+    A URL pyserial rejects as malformed is a :class:`BadInput`.  (The cell's
+    one reopening port, :class:`droid.brain.serial_port.ReopeningPort`, reading
+    at most MAX_READ_BYTES a tick.)
     """
 
     def __init__(self, url: str, baud: int, *, min_backoff_ticks: int = 3,
                  max_backoff_ticks: int = MAX_BACKOFF_TICKS, opener=None) -> None:
-        self.url = url
-        self.baud = baud
-        self.min_backoff = max(1, min_backoff_ticks)
-        self.max_backoff = max(self.min_backoff, max_backoff_ticks)
-        self.opener = opener or _default_opener
-        self.port = None
-        self._backoff = self.min_backoff
-        self._wait = 0
-        self.opens = 0
-        self.failures = 0  # failed opens and lost ports
-        self.last_error = ""
-
-    def _fail(self, exc: Exception) -> None:
-        self.failures += 1
-        self.last_error = str(exc)
-        self._wait = self._backoff
-        self._backoff = min(self._backoff * 2, self.max_backoff)
-
-    def _try_open(self) -> bool:
-        import serial
-
-        try:
-            self.port = self.opener(self.url, self.baud)
-        except ValueError as exc:  # pyserial: malformed URL or settings
-            raise BadInput(f"serial {self.url}: {exc}") from None
-        except (serial.SerialException, OSError) as exc:
-            self._fail(exc)
-            return False
-        self.opens += 1
-        return True
-
-    def _hung_up(self) -> bool:
-        try:
-            fd = self.port.fileno()
-        except Exception:  # URL handlers without a descriptor (loop://, socket://)
-            return False
-        p = select.poll()
-        p.register(fd, select.POLLIN)
-        return any(ev & (select.POLLHUP | select.POLLERR | select.POLLNVAL) for _, ev in p.poll(0))
-
-    def close(self) -> None:
-        if self.port is not None:
-            try:
-                self.port.close()
-            except Exception:
-                pass
-            self.port = None
-
-    def start(self) -> bool:
-        """Try to open the port now (a malformed URL raises BadInput); True if open."""
-        return self.port is not None or self._try_open()
-
-    def poll(self) -> tuple[bytes, bool]:
-        """This tick's bytes and whether the port is open (never blocks)."""
-        import serial
-
-        if self.port is None:
-            if self._wait > 0:
-                self._wait -= 1
-                return b"", False
-            if not self._try_open():
-                return b"", False
-        try:
-            n = self.port.in_waiting
-            data = self.port.read(min(n, MAX_READ_BYTES)) if n else b""
-            if not data and self._hung_up():
-                raise serial.SerialException("the port hung up")
-        except (serial.SerialException, OSError) as exc:
-            self.close()
-            self._fail(exc)
-            return b"", False
-        self._backoff = self.min_backoff
-        return data, True
+        super().__init__(url, baud, min_backoff_ticks=min_backoff_ticks, max_backoff_ticks=max_backoff_ticks,
+                         max_read_bytes=MAX_READ_BYTES, opener=opener)
 
 
 def serve_serial(cell: Cell, sub: Subunit, ready_fd: int | None, prog: str) -> int:
@@ -258,6 +183,7 @@ def serve_serial(cell: Cell, sub: Subunit, ready_fd: int | None, prog: str) -> i
     from droid.brain.curve import CurveHost
     from droid.brain.databases import open_brain
     from droid.brain.heartbeat import TickSubscriber
+    from droid.brain.link import HeartbeatWatch
     from droid.brain.program import Presence, Stop, notify_ready, presence_key
 
     opts = serial_link_options(cell, sub)
@@ -275,10 +201,15 @@ def serve_serial(cell: Cell, sub: Subunit, ready_fd: int | None, prog: str) -> i
         presence.ready()
         notify_ready(ready_fd)
         last_tick = 0
+        watch = HeartbeatWatch.for_rate(cell.heartbeat_hz, cell.stale_ticks)
         while not Stop.requested:
-            if ticks.sock.poll(500):
+            ready = ticks.sock.poll(watch.poll_ms)
+            if watch.became_silent(time.monotonic_ns()):
+                status.update(stale=1, fault=int(status.read()["fault"]) | FAULT_LINK | FAULT_HEARTBEAT)
+            if ready:
                 t = ticks.recv_latest()
                 if t is not None:
+                    watch.on_tick(time.monotonic_ns())  # on_tick below rewrites stale and fault
                     last_tick = t.tick
                     data, ok = port.poll()
                     status.update(**core.on_tick(t.tick, data, time.monotonic_ns(), ok))
