@@ -472,7 +472,7 @@ def cmd_run(args) -> int:
     if args.plan is not None:
         return cmd_run_plan(args)
     if not args.ids:
-        raise BadInput("give experiment IDs (or a table, or all), or --plan FILE")
+        raise BadInput("experiment IDs are required (an ID, a table or all), or --plan FILE")
     if args.resume:
         raise BadInput("--resume applies to --plan runs")
     dask = _check_dask(args.dask)
