@@ -1,0 +1,123 @@
+"""droid-experiment --dask (issue 15): a scheduler and two workers on loopback give the pool's results.csv."""
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+distributed = pytest.importorskip("distributed")  # the [cluster] extra
+
+from droid.sim.experiment.cli import main  # noqa: E402
+
+PROG = [sys.executable, "-m", "droid.sim.experiment.cli"]
+DASK = str(Path(sys.executable).parent / "dask")
+ROOT = str(Path(__file__).resolve().parents[2])
+
+PLAN = """
+name = "dask"
+[defaults]
+length_mm = 140
+sensor = "ideal"
+seed = 3
+[sweep]
+position = ["i", "iii"]
+speed_mm_s = [16, 32]
+delay_cycles = [0, 2]
+"""
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def loopback_cluster(tmp_path):
+    """A dask scheduler and two single-threaded workers on 127.0.0.1, importing this droid."""
+    if not os.path.exists(DASK):
+        pytest.skip("no dask command next to the interpreter")
+    port = _free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    env = {**os.environ, "PYTHONPATH": ROOT + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    logs = open(tmp_path / "dask.log", "w")
+    procs = [subprocess.Popen([DASK, "scheduler", "--host", "127.0.0.1", "--port", str(port),
+                               "--no-dashboard"], env=env, stdout=logs, stderr=logs)]
+    try:
+        for _ in range(2):
+            procs.append(subprocess.Popen([DASK, "worker", address, "--nthreads", "1", "--host", "127.0.0.1",
+                                           "--no-dashboard", "--local-directory", str(tmp_path / "workers")],
+                                          env=env, stdout=logs, stderr=logs))
+        client = distributed.Client(address, timeout=60)
+        try:
+            client.wait_for_workers(2, timeout=120)
+        finally:
+            client.close()
+        yield address
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+        for p in reversed(procs):
+            try:
+                p.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+        logs.close()
+
+
+def test_two_loopback_workers_give_the_pools_results_value_for_value(tmp_path, loopback_cluster):
+    plan = tmp_path / "p.toml"
+    plan.write_text(PLAN)
+    pool = subprocess.run(PROG + ["run", "--plan", str(plan), "--out", str(tmp_path / "pool"), "--jobs", "2"],
+                          capture_output=True, text=True, timeout=600)
+    assert pool.returncode == 0, pool.stderr
+    dask = subprocess.run(PROG + ["run", "--plan", str(plan), "--out", str(tmp_path / "dask"),
+                                  "--dask", loopback_cluster], capture_output=True, text=True, timeout=600)
+    assert dask.returncode == 0, dask.stderr
+    assert f"on Dask {loopback_cluster}" in dask.stderr
+    a = (tmp_path / "pool" / "dask" / "results.csv").read_text()
+    b = (tmp_path / "dask" / "dask" / "results.csv").read_text()
+    assert a == b and len(a.splitlines()) == 9
+    for png in (tmp_path / "dask" / "dask").glob("*.png"):  # the workers' figures, written here
+        assert png.read_bytes()[:4] == b"\x89PNG"
+    assert len(list((tmp_path / "dask" / "dask").glob("*.png"))) == 8
+    # the per-trial logs too, byte for byte
+    for csv_file in (tmp_path / "pool" / "dask").glob("t*.csv"):
+        assert csv_file.read_bytes() == (tmp_path / "dask" / "dask" / csv_file.name).read_bytes()
+
+
+def test_dask_local_runs_a_local_cluster(tmp_path):
+    plan = tmp_path / "p.toml"
+    plan.write_text(PLAN.replace('position = ["i", "iii"]', 'position = ["i"]'))
+    p = subprocess.run(PROG + ["run", "--plan", str(plan), "--out", str(tmp_path / "o"), "--dask", "local",
+                               "--jobs", "2", "--no-figures"], capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr
+    assert "on Dask local" in p.stderr
+    assert len((tmp_path / "o" / "dask" / "results.csv").read_text().splitlines()) == 5
+
+
+def test_an_address_that_does_not_answer_exits_1_naming_it(tmp_path):
+    plan = tmp_path / "p.toml"
+    plan.write_text(PLAN)
+    address = f"tcp://127.0.0.1:{_free_port()}"
+    t0 = time.monotonic()
+    p = subprocess.run(PROG + ["run", "--plan", str(plan), "--out", str(tmp_path / "o"), "--dask", address],
+                       capture_output=True, text=True, timeout=120)
+    elapsed = time.monotonic() - t0
+    assert p.returncode == 1, p.stderr
+    lines = p.stderr.strip().splitlines()
+    assert any(address in ln and "no Dask scheduler answers" in ln for ln in lines), p.stderr
+    assert "Traceback" not in p.stderr
+    print(f"refused in {elapsed:.1f} s")  # the 10 s bound is CONNECT_TIMEOUT_S (6 s); timing decides nothing
+
+
+def test_a_malformed_address_is_bad_input(tmp_path, capsys):
+    plan = tmp_path / "p.toml"
+    plan.write_text(PLAN)
+    assert main(["run", "--plan", str(plan), "--out", str(tmp_path / "o"), "--dask", "tcp://nohost"]) == 2
+    assert "--dask" in capsys.readouterr().err
