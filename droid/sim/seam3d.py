@@ -64,6 +64,12 @@ class Seam3D:
         t = _unit(np.asarray(t, float))
         n0 = np.asarray(n0, float)
         n0 = _unit(n0 - np.sum(n0 * t, axis=1, keepdims=True) * t)
+        # what varies along the seam needs samples: every SAMPLE_MM when a profile varies, the
+        # profiles' points, and both sides of each gap's and tack's ends (the step jumps there)
+        edges = sorted({e for a, b in gaps for e in (a, b)} | {e for a, b, _ in tacks for e in (a, b)})
+        points = [a for a, _ in roll_profile] + [a for a, _ in step_profile]
+        dense = bool(roll_profile or step_profile)
+        s, p, t, n0, s_eval = _refine(s, p, t, n0, dense, points, edges)
         self.length_mm = float(s[-1])
         # the straight extensions: one sample far before the start and one far after the end
         e = EXTENSION_MM
@@ -79,14 +85,16 @@ class Seam3D:
         self.step_profile = tuple((float(a), float(b)) for a, b in step_profile)  # (s_mm, step_mm)
         self.gaps = tuple((float(a), float(b)) for a, b in gaps)  # (s0, s1) [mm]
         self.tacks = tuple((float(a), float(b), float(h)) for a, b, h in tacks)  # (s0, s1, height) [mm]
-        # per sample: the rolled frame and the step height (the profiles read at each sample)
-        roll = self.roll_at(self.s)
+        # per sample: the rolled frame and the step height (the profiles read at each sample;
+        # at a jump, the sample pair reads either side)
+        s_eval = np.concatenate([[s_eval[0] - e], s_eval, [s_eval[-1] + e]])
+        roll = self.roll_at(s_eval)
         c, sn = np.cos(roll)[:, None], np.sin(roll)[:, None]
         l0 = np.cross(self.n0, self.t)
         self.n = c * self.n0 - sn * l0
         self.l = c * l0 + sn * self.n0
-        self.h = self.step_at(self.s)
-        self.tack_h = self.tack_at(self.s)
+        self.h = self.step_at(s_eval)
+        self.tack_h = self.tack_at(s_eval)
 
     # -- profiles along the seam ---------------------------------------------
     def roll_at(self, s_mm) -> np.ndarray:
@@ -244,6 +252,45 @@ class Seam3D:
         for x, y, v in ((xl, yl, vl), (xu, yu, vu), face):
             best = np.minimum(best, _rays_hit(x, y, v, y_rows, -standoff_mm))
         return np.where(np.isfinite(best), best, np.nan)
+
+
+def _refine(s, p, t, n0, dense: bool, points, edges):
+    """Samples added: every SAMPLE_MM (``dense``), at ``points``, and a pair at each of ``edges``.
+
+    Returns (s, p, t, n0, s_eval): s_eval is s, but the first of a pair at an
+    edge reads just before it and the second just after (gaps, tacks)."""
+    eps = 1e-7
+    inner = sorted(set(points) | set(edges))
+    out_s, out_p, out_t, out_n, out_e = [s[0]], [p[0]], [t[0]], [n0[0]], [s[0]]
+
+    def add(sv, pv, tv, nv, ev):
+        out_s.append(sv), out_p.append(pv), out_t.append(tv), out_n.append(nv), out_e.append(ev)
+
+    edge_set = set(edges)
+    for i in range(len(s) - 1):
+        a, b = s[i], s[i + 1]
+        if b > a:
+            extra = [v for v in inner if a < v < b]
+            if dense:
+                n = math.ceil((b - a) / SAMPLE_MM)
+                extra = sorted(set(extra) | {a + (b - a) * k / n for k in range(1, n)})
+            for v in extra:
+                f = (v - a) / (b - a)
+                pv = (1 - f) * p[i] + f * p[i + 1]
+                tv = _unit((1 - f) * t[i] + f * t[i + 1])
+                nv = (1 - f) * n0[i] + f * n0[i + 1]
+                nv = _unit(nv - (nv @ tv) * tv)
+                if v in edge_set:
+                    add(v, pv, tv, nv, v - eps)
+                    add(v, pv, tv, nv, v + eps)
+                else:
+                    add(v, pv, tv, nv, v)
+        if s[i + 1] in edge_set and (i + 2 >= len(s) or s[i + 2] > s[i + 1]):
+            add(s[i + 1], p[i + 1], t[i + 1], n0[i + 1], s[i + 1] - eps)
+            add(s[i + 1], p[i + 1], t[i + 1], n0[i + 1], s[i + 1] + eps)
+        else:
+            add(s[i + 1], p[i + 1], t[i + 1], n0[i + 1], s[i + 1])
+    return (np.array(out_s), np.array(out_p), np.array(out_t), np.array(out_n), np.array(out_e))
 
 
 def _rays_hit(x: np.ndarray, y: np.ndarray, valid: np.ndarray, y_rows: np.ndarray, x_min: float) -> np.ndarray:
