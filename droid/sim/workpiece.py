@@ -20,6 +20,14 @@ arc-length coordinate s [mm] runs from 0 at the start; before the start and
 after the end the seam is extended along its end tangents, so ``nearest`` and
 ``point_at`` answer everywhere.
 
+Issue 15 extends the format (docs/workpieces.md): ``rise_mm`` on lines and
+arcs (helices), ``type = "curve"`` segments (``points_mm`` or ``csv``,
+``interpolation``), ``roll_profile``, ``step_profile``, ``[[gap]]`` and
+``[[tack]]``.  A file with none of them is the plane model below, exactly as
+before (``planar``); one with any of them is a 3-D seam
+(:class:`droid.sim.seam3d.Seam3D`, ``Workpiece.seam``), which the camera twin,
+the tool-tip and the ideal sensors render.
+
 File format (see docs/mvs.md)::
 
     name = "step_input"                  # optional, defaults to the file stem

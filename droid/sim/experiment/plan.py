@@ -319,5 +319,6 @@ def trial_config(tid: str, params: dict, plan_name: str = ""):
     from droid.sim.experiment.trial import TrialConfig
 
     kw = {k: v for k, v in params.items() if not (k == "mode" and v is None)}
-    title = f"{plan_name} {tid}: {_show(params['speed_mm_s'])} mm/s, position {params['position']}"
+    piece = f", {Path(params['workpiece']).stem}" if params.get("workpiece") else ""
+    title = f"{plan_name} {tid}: {_show(params['speed_mm_s'])} mm/s, position {params['position']}{piece}"
     return TrialConfig(trial_id=tid, title=title, **kw)
