@@ -27,6 +27,11 @@ EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
 
 
+#: Modules imported only where a program draws a figure -> the pip name that installs them.
+#: A program that finds one missing ends with one line naming it (:func:`run`).
+OPTIONAL_MODULES = {"matplotlib": "matplotlib"}
+
+
 class DroidError(Exception):
     """Base of errors that end a program with a one-line message."""
 
@@ -170,6 +175,14 @@ def run(main: Callable[[Sequence[str] | None], int | None]) -> Callable[..., int
         except DroidError as exc:
             print(f"{prog}: {exc}", file=sys.stderr)
             return exc.exit_code
+        except ModuleNotFoundError as exc:
+            # an optional module a figure path imports late (matplotlib): one line, never a traceback
+            if (exc.name or "").split(".")[0] not in OPTIONAL_MODULES:
+                raise
+            top = exc.name.split(".")[0]
+            print(f"{prog}: {top} is not installed (pip install {OPTIONAL_MODULES[top]}): "
+                  "no figure", file=sys.stderr)
+            return EXIT_RUNTIME
         except KeyboardInterrupt:
             return EXIT_INTERRUPTED
         except BrokenPipeError:
