@@ -26,6 +26,12 @@ CLI = [sys.executable, "-m", "droid.sim.experiment.cli"]
 DASK = str(Path(sys.executable).parent / "dask")
 
 
+def _default_sigint() -> None:
+    # a shell's background job (`cmd &`) starts with SIGINT ignored, and a program that starts so keeps
+    # ignoring it (as nohup wants): give the interrupted run a terminal's Ctrl-C semantics
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def env() -> dict:
     return {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
 
@@ -62,7 +68,7 @@ def main() -> None:
     t0 = time.perf_counter()
     proc = subprocess.Popen(CLI + ["run", "--plan", a.plan, "--out", str(out / "resumed"), "--jobs", str(a.jobs)]
                             + figs, env=env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)
+                            start_new_session=True, preexec_fn=_default_sigint)
     while proc.poll() is None and len(list(d.glob("*.json"))) < a.interrupt_at:
         time.sleep(0.01)
     os.killpg(proc.pid, signal.SIGINT)

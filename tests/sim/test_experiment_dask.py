@@ -101,6 +101,15 @@ def test_dask_local_runs_a_local_cluster(tmp_path):
     assert len((tmp_path / "o" / "dask" / "results.csv").read_text().splitlines()) == 5
 
 
+def test_experiment_ids_run_on_dask_too(tmp_path):
+    p = subprocess.run(PROG + ["run", "1.1", "1.2", "--length", "150", "--out", str(tmp_path / "o"), "--dask", "local",
+                               "--jobs", "2", "--no-figures"], capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr
+    rows = (tmp_path / "o" / "table6.1" / "summary.csv").read_text().splitlines()
+    assert len(rows) == 3 and rows[1].startswith("1.1,") and rows[2].startswith("1.2,")
+    assert (tmp_path / "o" / "table6.1" / "1.2.csv").is_file()
+
+
 def test_an_address_that_does_not_answer_exits_1_naming_it(tmp_path):
     plan = tmp_path / "p.toml"
     plan.write_text(PLAN)
