@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import functools
 import json
 import math
 import multiprocessing
@@ -204,10 +205,15 @@ def _worker_init() -> None:
 
 def _cost(exp) -> float:
     """Relative cost of a trial: its simulated duration (run length / speed) [s]."""
+    length = exp.config.length_mm or _seam_length_mm(exp.config.workpiece or "step_input")
+    return length / exp.config.speed_mm_s
+
+
+@functools.lru_cache(maxsize=64)
+def _seam_length_mm(workpiece: str) -> float:
     from droid.sim.workpiece import load_workpiece
 
-    length = exp.config.length_mm or load_workpiece(exp.config.workpiece or "step_input").length_mm
-    return length / exp.config.speed_mm_s
+    return load_workpiece(workpiece).length_mm
 
 
 def _progress(total: int):

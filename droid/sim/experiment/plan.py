@@ -309,7 +309,11 @@ def plan_from_dict(data: dict, source: str = "<plan>", plan_dir: Path | None = N
         if tid in ids:  # a hash collision within one plan: 10 hex digits make this ~1e-9 at 10^3 trials
             raise bad(f"two trials have the same ID {tid}")
         ids.add(tid)
-        config = trial_config(tid, {**params, "workpiece": checker.resolved(params["workpiece"])}, name)
+        try:
+            config = trial_config(tid, {**params, "workpiece": checker.resolved(params["workpiece"])}, name)
+        except BadInput as exc:  # TrialConfig's own checks (e.g. a mode it does not know)
+            shown = ", ".join(f"{k} = {_toml(params[k])}" for k in keys)
+            raise bad(f"trial {index} ({shown}): {exc}") from None
         trials.append(PlanTrial(tid, index, params, config, name))
     return Plan(name, description, source, defaults, sweep, tuple(trials))
 
