@@ -242,3 +242,27 @@ def test_workpiece_constructed_in_code_keeps_working():
     assert wp.planar and wp.seam.length_mm == 100.0
     assert wp.seam_frame(50.0)[0:3, 3] == pytest.approx([50.0, 0.0, 0.0])
     assert (WORKPIECE_DIR / "cad_curve.csv").is_file()
+
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+
+@settings(max_examples=40, deadline=None)
+@given(radius=st.floats(60, 800), angle=st.floats(-300, 300).filter(lambda a: abs(a) > 5),
+       rise=st.floats(-80, 80), line_rise=st.floats(-40, 40), roll=st.floats(-60, 60),
+       frac=st.floats(0.02, 0.98), x=st.floats(-5, 5), y=st.floats(-10, 10), r=st.floats(-0.4, 0.4))
+def test_any_helix_reads_back_its_pose_offsets(tmp_path_factory, radius, angle, rise, line_rise, roll, frac,
+                                               x, y, r):
+    text = (f"roll_profile = [[0, 0], [400, {roll}]]\n"
+            f'[[segment]]\ntype = "line"\nlength_mm = 80\nrise_mm = {line_rise}\n'
+            f'[[segment]]\ntype = "arc"\nradius_mm = {radius}\nangle_deg = {angle}\nrise_mm = {rise}\n')
+    wp = wp_from(tmp_path_factory.mktemp("h"), text)
+    s = frac * wp.length_mm
+    T = pose_for_reading(wp, s, x, y, r)
+    R = T[0:3, 0:3]
+    assert np.allclose(R.T @ R, np.eye(3), atol=1e-9) and np.linalg.det(R) == pytest.approx(1.0)
+    m = measure(T, wp)
+    assert m is not None
+    assert (m.height_mm, m.lateral_mm, m.roll_rad) == pytest.approx((x, y, r), abs=1e-6)
+    assert m.s_mm == pytest.approx(s, abs=1e-6)
