@@ -158,6 +158,8 @@ def run_job(job: Job) -> Outcome:
             result = run_trial(cfg)
         except BadInput as exc:
             return Outcome(job.exp, None, str(exc))
+        except Exception as exc:  # noqa: BLE001 -- one trial's failure must not end the sweep: exit 1, named
+            return Outcome(job.exp, None, f"the trial failed: {type(exc).__name__}: {exc}")
     summary = report.summarize(result.rows, trial_id=job.exp.id, stop_reason=result.stop_reason,
                                stop_detail=result.stop_detail, stop_s_mm=result.stop_s_mm,
                                camera_to_tcp_mm=result.camera_to_tcp_mm)
