@@ -17,6 +17,7 @@ finished are cancelled and the client (and a local cluster) closed.
 from __future__ import annotations
 
 import logging
+import sys
 import threading
 import uuid
 from typing import Callable
@@ -84,6 +85,12 @@ def run_on_dask(jobs: list, address: str, workers: int, run_job: Callable, done:
     from droid.sim.experiment.cli import Outcome  # noqa: PLC0415 (the caller's type)
 
     client, cluster = connect(address, workers)
+    try:
+        if not client.scheduler_info().get("workers"):
+            print(f"droid-experiment: --dask {address}: the scheduler has no workers yet; the trials wait for one",
+                  file=sys.stderr)
+    except Exception:  # noqa: BLE001 -- only a courtesy
+        pass
     run_key = uuid.uuid4().hex[:8]
     futures = {}
     try:
