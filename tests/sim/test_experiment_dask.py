@@ -145,3 +145,34 @@ def test_a_malformed_address_is_bad_input(tmp_path, capsys):
     plan.write_text(PLAN)
     assert main(["run", "--plan", str(plan), "--out", str(tmp_path / "o"), "--dask", "tcp://nohost"]) == 2
     assert "--dask" in capsys.readouterr().err
+
+
+def test_ctrl_c_on_a_local_cluster_then_resume(tmp_path):
+    """SIGINT to the process group (a terminal's Ctrl-C): exit 130 with no worker's traceback and no
+    process left; --resume on the cluster completes the pool's table."""
+    import signal
+
+    plan = tmp_path / "p.toml"
+    plan.write_text(PLAN.replace('sensor = "ideal"', 'sensor = "camera"').replace(
+        "[16, 32]", "[8, 12, 16, 24, 32]"))  # 20 trials, ~0.5 s each
+    ref = subprocess.run(PROG + ["run", "--plan", str(plan), "--out", str(tmp_path / "ref"), "--no-figures",
+                                 "--jobs", "2"], capture_output=True, text=True, timeout=600)
+    assert ref.returncode == 0, ref.stderr
+    out = tmp_path / "out"
+    proc = subprocess.Popen(PROG + ["run", "--plan", str(plan), "--out", str(out), "--no-figures", "--dask", "local",
+                                    "--jobs", "2"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    d = out / "dask"
+    deadline = time.monotonic() + 300
+    while len(list(d.glob("*.json"))) < 2 and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.01)
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err, err
+    done = len(list(d.glob("*.json")))
+    assert 2 <= done < 20, "the run ended before the interrupt: nothing was tested"
+    p = subprocess.run(PROG + ["run", "--plan", str(plan), "--out", str(out), "--no-figures", "--dask", "local",
+                               "--jobs", "2", "--resume"], capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr
+    assert (d / "results.csv").read_text() == (tmp_path / "ref" / "dask" / "results.csv").read_text()

@@ -17,6 +17,7 @@ finished are cancelled and the client (and a local cluster) closed.
 from __future__ import annotations
 
 import logging
+import signal
 import sys
 import threading
 import uuid
@@ -43,11 +44,16 @@ def connect(address: str, workers: int):
     if address == "local":
         from distributed import LocalCluster
 
+        # Ctrl-C reaches the whole process group: the workers ignore it (inherited SIG_IGN, as the
+        # pool's), this process cancels the trials and closes the cluster
+        previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
         try:
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                                    dashboard_address=None, silence_logs=logging.CRITICAL)
         except Exception as exc:  # noqa: BLE001 -- any failure to start is one line
             raise RuntimeFailure(f"--dask local: could not start a LocalCluster: {exc}") from None
+        finally:
+            signal.signal(signal.SIGINT, previous)
         return Client(cluster), cluster
     # Client's own timeout bounds the TCP connect, not a peer that accepts and never answers (measured:
     # hung for 10 min on a silent listener): connect in a daemon thread and stop waiting at the bound.
