@@ -45,9 +45,9 @@ import sys
 import tempfile
 import time
 from dataclasses import dataclass, replace
-from typing import Callable, Sequence
+from typing import Sequence
 
-from droid.cli import ArgumentParser, BadInput, RuntimeFailure, non_negative_int, positive_float, positive_int, run
+from droid.cli import ArgumentParser, BadInput, non_negative_int, positive_float, positive_int, run
 from droid.sim.experiment.matrix import (EXP4_RUNS, POSITION_LABELS, TABLES, Experiment, experiments, resolve,
                                          valid_forms, with_seed)
 from droid.sim.experiment.plan import FIELDS, Plan, PlanTrial, load_plan
