@@ -27,6 +27,11 @@ EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
 
 
+#: Modules imported only where a program draws a figure -> the pip name that installs them.
+#: A program that finds one missing ends with one line naming it (:func:`run`).
+OPTIONAL_MODULES = {"matplotlib": "matplotlib"}
+
+
 class DroidError(Exception):
     """Base of errors that end a program with a one-line message."""
 
@@ -45,8 +50,43 @@ class RuntimeFailure(DroidError):
     exit_code = EXIT_RUNTIME
 
 
+def droid_version() -> str:
+    """The installed package's version (its metadata), else ``droid.__version__``."""
+    try:
+        from importlib.metadata import PackageNotFoundError, version
+        try:
+            return version("droid")
+        except PackageNotFoundError:
+            pass
+    except ImportError:  # pragma: no cover
+        pass
+    from droid import __version__
+    return __version__
+
+
+class _VersionAction(argparse.Action):
+    """``--version``: print ``PROG VERSION`` and exit 0 (the version looked up only then)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings=option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(f"{parser.prog} {droid_version()}", file=sys.stdout, flush=True)
+        parser.exit(EXIT_OK)
+
+
 class ArgumentParser(argparse.ArgumentParser):
-    """argparse with a one-line error and exit code 2 (never the usage block)."""
+    """argparse with a one-line error and exit code 2 (never the usage block).
+
+    Every parser answers ``--version`` (``PROG VERSION`` on stdout, exit 0),
+    so every console script does (issue 15), unless built with
+    ``version=False``.
+    """
+
+    def __init__(self, *args, version: bool = True, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        if version and self.add_help:
+            self.add_argument("--version", action=_VersionAction, help="print the program's version and exit")
 
     def error(self, message: str) -> None:  # type: ignore[override]
         self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see --help)\n")
@@ -178,6 +218,14 @@ def run(main: Callable[[Sequence[str] | None], int | None]) -> Callable[..., int
         except DroidError as exc:
             print(f"{prog}: {exc}", file=sys.stderr)
             return exc.exit_code
+        except ModuleNotFoundError as exc:
+            # an optional module a figure path imports late (matplotlib): one line, never a traceback
+            if (exc.name or "").split(".")[0] not in OPTIONAL_MODULES:
+                raise
+            top = exc.name.split(".")[0]
+            print(f"{prog}: {top} is not installed (pip install {OPTIONAL_MODULES[top]}): "
+                  "no figure", file=sys.stderr)
+            return EXIT_RUNTIME
         except KeyboardInterrupt:
             return EXIT_INTERRUPTED
         except BrokenPipeError:
