@@ -89,9 +89,9 @@ class SceneBuilder:
     def __init__(self, subunits: list[dict], scene: dict) -> None:
         self.arms = {}
         for s in subunits:
-            if s.get("class") == "arm6r" and s.get("robot"):
+            if s.get("class") == "arm6r":
                 try:
-                    model = load_robot(s["robot"])
+                    model = load_robot(s["robot"]) if s.get("robot") else None
                 except Exception:  # noqa: BLE001 -- an unknown robot file: draw its wrist centre only
                     model = None
                 self.arms[s["name"]] = (model, pose_to_T(*s.get("base", [0.0] * 6)))

@@ -99,6 +99,8 @@ def build_parser():
     ap.add_argument("--figure", metavar="FILE", default=None,
                     help="draw the run's figure (PNG, thesis Figs 6.5-6.35) here at the end")
     ap.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    ap.add_argument("--record", metavar="FILE", default=None,
+                    help="record the cell by tick into this MCAP file (droid-record's layout, docs/observe.md)")
     return ap
 
 
@@ -197,6 +199,7 @@ class Tracker:
         self.status_tick = None
         self.poses: deque = deque(maxlen=POSE_HISTORY_TICKS)
         self.dbs = []
+        self.recorder = None  # droid.observe.record.LiveRecorder with --record
 
     # -- set-up ------------------------------------------------------------
     def connect(self) -> None:
@@ -316,6 +319,8 @@ class Tracker:
                 self.t0 = t.t_ns
                 next_cycle, next_log = t.tick, t.tick + LOG_TICKS - 1
             reis_rec = self.remember()
+            if self.recorder is not None:
+                self.recorder.on_tick(t.tick)
             # tick numbers follow time: a late wake-up (ticks drained at once) still steps once
             if t.tick >= next_cycle:
                 next_cycle = t.tick + CYCLE_TICKS
@@ -341,11 +346,15 @@ def main(argv=None) -> int:
     cell = open_cell(args)
     layout = load_layout(args.layout)
     tr = Tracker(args, cell, layout)
-    for p in (args.log, args.figure):
+    for p in (args.log, args.figure, args.record):
         if p is not None and Path(p).parent and not Path(p).parent.exists():
             raise BadInput(f"directory of {p} does not exist")
     tr.connect()
     try:
+        if args.record:
+            from droid.observe.record import LiveRecorder
+
+            tr.recorder = LiveRecorder(cell, args.record, layout_path=args.layout)
         tr.check_ready()
         Stop.install()
         if args.start:
@@ -355,6 +364,8 @@ def main(argv=None) -> int:
         else:
             code, why = tr.run()
     finally:
+        if tr.recorder is not None:
+            tr.recorder.close()
         tr.close()
     stop = tr.core.stopped
     reason, detail = (stop.reason, stop.detail) if stop is not None else (why, "")

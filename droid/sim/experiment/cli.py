@@ -65,6 +65,8 @@ def build_parser() -> ArgumentParser:
     r.add_argument("--arm", choices=ARM_MODELS, default=None,
                    help="Reis model (default: fast; full runs every Reis core and the plant)")
     r.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    r.add_argument("--record", action="store_true",
+                   help="also record each lockstep trial as DIR/<table>/<id>.mcap (docs/observe.md)")
     r.add_argument("--length", type=positive_float, default=None, help=argparse.SUPPRESS)  # run length [mm]
     lp = sub.add_parser("list", help="list the experiments with their parameters, one a line")
     lp.add_argument("ids", nargs="*", metavar="ID", help="IDs or tables to list (default: all)")
@@ -79,6 +81,7 @@ class Job:
     out_dir: str  # DIR/<table>
     figures: bool
     realtime: bool = False
+    record: bool = False  # also write DIR/<table>/<id>.mcap (droid.observe, docs/observe.md)
 
 
 @dataclass(frozen=True)
@@ -102,7 +105,7 @@ def run_job(job: Job) -> Outcome:
         from droid.sim.experiment.trial import run_trial
 
         try:
-            result = run_trial(cfg)
+            result = run_trial(cfg, record=os.path.join(job.out_dir, job.exp.id + ".mcap") if job.record else None)
         except BadInput as exc:
             return Outcome(job.exp, None, str(exc))
     base = os.path.join(job.out_dir, job.exp.id)
@@ -263,7 +266,7 @@ def cmd_run(args) -> int:
         os.makedirs(args.out, exist_ok=True)
     except OSError as exc:
         raise BadInput(f"--out {args.out}: {exc.strerror}") from None
-    jobs = [Job(e, os.path.join(args.out, e.table), figures, args.realtime) for e in picked]
+    jobs = [Job(e, os.path.join(args.out, e.table), figures, args.realtime, args.record) for e in picked]
     workers = 1 if args.realtime else (args.jobs or os.cpu_count() or 1)
     if workers > 1:
         jobs.sort(key=lambda j: -_cost(j.exp))  # longest first: the pool ends together
