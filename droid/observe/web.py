@@ -1,0 +1,316 @@
+"""droid-web: a live page of the cell, and of recordings (thesis §3.4, §7.3; docs/observe.md).
+
+``droid-web [--cell FILE] [--port 8060] [--bind 127.0.0.1] [--token TOKEN] [--file F.mcap]``
+
+Serves one page: every subunit's Status (homed, busy, mode, stale, fault,
+cmd_result), program health and the heartbeat's lateness, live plots of the
+tracking errors and the tool speed, and a 3-D view (three.js, vendored in
+``static/vendor/three`` with its licence) of both arms' link frames (their
+forward kinematics, eq. 4.1), the workpiece, the seam map, the laser line
+and the tool point -- pushed over a WebSocket (``/ws``) at ``--rate`` (30 Hz
+by default).  With ``--file`` the page opens a recording with a time slider
+(``GET /api/frame?i=N``).  JSON for scripts: ``GET /api/status`` (one object
+per subunit, with its tick) and ``GET /api/cell``.
+
+Read-only: it reads the Brain's databases like a task and has no endpoint
+that writes (only GET and the WebSocket, whose incoming messages are ignored
+and counted: ``ws_ignored`` in ``/api/cell``).  It binds loopback by default
+and refuses a non-loopback ``--bind`` without ``--token`` (then every request
+to ``/api/*`` and ``/ws`` needs ``?token=TOKEN`` or ``Authorization: Bearer
+TOKEN``; the page and its scripts are served without it and pass on the
+page's own ``?token=``).
+
+Exit: 0 on SIGINT/SIGTERM; 1 cell not up, port in use (named); 2 bad arguments or file.
+"""
+from __future__ import annotations
+
+import asyncio
+import errno
+import hmac
+import ipaddress
+import json
+import signal
+import sys
+import time
+from pathlib import Path
+
+from aiohttp import WSMsgType, web
+
+from droid.brain.program import open_cell, parser
+from droid.cli import BadInput, RuntimeFailure, positive_float, positive_int, run
+from droid.observe import schemas
+from droid.observe.mcapfile import TOPIC_HEALTH, TOPIC_LOG, cell_meta, read_recording
+from droid.observe.scene import scene_meta
+from droid.observe.view import ViewBuilder
+
+PROG = "droid-web"
+STATIC = Path(__file__).resolve().parent / "static"
+DEFAULT_PORT = 8060
+DEFAULT_RATE_HZ = 30.0
+HEALTH_PERIOD_S = 0.5
+LOG_TAIL = 30
+
+
+def is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+class LiveSource:
+    """Snapshots of a running (or replay) cell's Brain databases."""
+
+    mode = "live"
+
+    def __init__(self, cell) -> None:
+        from droid.observe.sampler import CellSampler
+
+        self.cell = cell
+        self.meta = cell_meta(cell, "live", scene_meta(cell))
+        self.sampler = CellSampler(cell).connect()
+        self.view = ViewBuilder(self.meta)
+        self._health: dict = {}
+        self._health_t = 0.0
+        self.last: dict | None = None
+
+    def health(self) -> dict:
+        from droid.observe.sampler import health
+
+        now = time.monotonic()
+        if now - self._health_t >= HEALTH_PERIOD_S:
+            self._health_t = now
+            self._health = health(self.cell)
+        return self._health
+
+    def statuses(self) -> dict[str, dict]:
+        return {s: schemas.record_to_dict(r) for s, a, _, r in self.sampler.read() if a == "status"}
+
+    def snapshot(self) -> dict:
+        st = self.statuses()
+        tick = max((int(d.get("tick", 0)) for d in st.values()), default=0)
+        self.last = self.view.snapshot(tick, time.time_ns(), st, self.health())
+        return self.last
+
+    def status(self) -> dict:
+        return {n: dict(schemas_status(d), subunit=n) for n, d in self.statuses().items()}
+
+    def close(self) -> None:
+        self.sampler.close()
+
+
+def schemas_status(d: dict) -> dict:
+    """A Status dict for /api/status: its payload fields (the header's bookkeeping left out)."""
+    return {k: v for k, v in d.items() if k not in schemas.HEADER_KEEP or k == "seq"}
+
+
+class FileSource:
+    """Snapshots of a recording, by index (the page's time slider)."""
+
+    mode = "file"
+
+    def __init__(self, path: str) -> None:
+        self.rec = read_recording(path)
+        self.meta = self.rec.meta
+        view = ViewBuilder(self.meta)
+        self.snaps: list[dict] = []
+        health: dict = {}
+        logs: list[dict] = []
+        self.log_n: list[int] = []
+        self.logs = logs
+        for i, tick in enumerate(self.rec.ticks):
+            fr = self.rec.frames[i]
+            st = {t.split("/")[1]: m[-1] for t, m in fr.items() if t.endswith("/status") and t.count("/") == 2}
+            if TOPIC_HEALTH in fr:
+                health = {k: v for k, v in fr[TOPIC_HEALTH][-1].items() if k != "_tick"}
+            logs.extend({"tick": m["_tick"], "level": m["level"], "name": m["name"], "message": m["message"]}
+                        for m in fr.get(TOPIC_LOG, []))
+            self.log_n.append(len(logs))
+            self.snaps.append(view.snapshot(tick, self.rec.t_ns[i], st, health))
+        self.seam = view.seam
+        if not self.snaps:
+            raise BadInput(f"{path}: the recording holds no tick")
+        self.index = len(self.snaps) - 1
+
+    def frame(self, i: int) -> dict:
+        i = min(max(0, i), len(self.snaps) - 1)
+        self.index = i
+        s = dict(self.snaps[i], index=i)
+        s["seam"] = self.seam[: s["geo"]["seam_n"]]
+        s["logs"] = self.logs[max(0, self.log_n[i] - LOG_TAIL): self.log_n[i]]
+        return s
+
+    def status(self) -> dict:
+        i = self.index
+        fr = self.rec.frames[i]
+        return {t.split("/")[1]: dict(schemas_status(m[-1]), subunit=t.split("/")[1])
+                for t, m in fr.items() if t.endswith("/status") and t.count("/") == 2}
+
+    def close(self) -> None:
+        pass
+
+
+class WebApp:
+    """The aiohttp application: GET routes and one WebSocket; nothing writes."""
+
+    def __init__(self, source, token: str | None, rate_hz: float) -> None:
+        self.src = source
+        self.token = token
+        self.period_s = 1.0 / rate_hz
+        self.clients: set[web.WebSocketResponse] = set()
+        self.ws_ignored = 0
+        self.sent = 0
+        self.app = web.Application(middlewares=[self._auth])
+        self.app.add_routes([web.get("/", self.index), web.get("/api/cell", self.api_cell),
+                             web.get("/api/status", self.api_status), web.get("/api/frame", self.api_frame),
+                             web.get("/api/seam", self.api_seam), web.get("/ws", self.ws),
+                             web.static("/static", STATIC, follow_symlinks=False)])
+        self.app.on_shutdown.append(self._close_clients)
+
+    @web.middleware
+    async def _auth(self, request, handler):
+        # the page and its scripts are public code; the data (api/, ws) needs the token
+        if self.token is not None and request.path not in ("/", "/favicon.ico") and not request.path.startswith("/static/"):
+            got = request.query.get("token") or request.headers.get("Authorization", "").removeprefix("Bearer ")
+            if not hmac.compare_digest(got.encode(), self.token.encode()):
+                return web.json_response({"error": "token required"}, status=401)
+        return await handler(request)
+
+    async def index(self, request):
+        return web.FileResponse(STATIC / "index.html", headers={"Cache-Control": "no-store"})
+
+    async def api_cell(self, request):
+        m = self.src.meta
+        body = {"cell": m.get("cell"), "source": self.src.mode, "recording_source": m.get("source"),
+                "heartbeat_hz": m.get("heartbeat_hz"), "subunits": m.get("subunits", []),
+                "ws_clients": len(self.clients), "ws_ignored": self.ws_ignored, "ws_sent": self.sent,
+                "rate_hz": round(1.0 / self.period_s, 3)}
+        if self.src.mode == "file":
+            body["file"] = {"path": self.src.rec.path, "count": len(self.src.snaps),
+                            "first_tick": self.src.rec.ticks[0], "last_tick": self.src.rec.ticks[-1]}
+        return web.json_response(body)
+
+    async def api_status(self, request):
+        return web.json_response(self.src.status())
+
+    async def api_frame(self, request):
+        if self.src.mode != "file":
+            return web.json_response({"error": "no recording open (droid-web --file F.mcap)"}, status=404)
+        try:
+            i = int(request.query.get("i", "-1"))
+        except ValueError:
+            return web.json_response({"error": "i must be an integer"}, status=400)
+        if i < 0:
+            i = len(self.src.snaps) - 1
+        return web.json_response(self.src.frame(i))
+
+    async def api_seam(self, request):
+        seam = self.src.seam if self.src.mode == "file" else self.src.view.seam
+        return web.json_response({"seam": seam})
+
+    async def ws(self, request):
+        ws = web.WebSocketResponse(heartbeat=10.0, max_msg_size=4096)
+        await ws.prepare(request)
+        self.clients.add(ws)
+        try:
+            await ws.send_json({"type": "hello", "mode": self.src.mode})
+            async for msg in ws:
+                if msg.type in (WSMsgType.TEXT, WSMsgType.BINARY):
+                    self.ws_ignored += 1  # read-only: nothing a client sends is acted on
+                elif msg.type == WSMsgType.ERROR:
+                    self.ws_ignored += 1
+                    break
+        finally:
+            self.clients.discard(ws)
+        return ws
+
+    async def _close_clients(self, app) -> None:
+        for ws in list(self.clients):
+            await ws.close()
+
+    async def pump(self) -> None:
+        """Live mode: one snapshot to every client each period (absolute deadlines)."""
+        loop = asyncio.get_running_loop()
+        nxt = loop.time()
+        seam_sent = {}
+        while True:
+            nxt += self.period_s
+            if self.clients and self.src.mode == "live":
+                snap = self.src.snapshot()
+                data = json.dumps({"type": "snapshot", **snap})
+                n = snap["geo"]["seam_n"]
+                for ws in list(self.clients):
+                    try:
+                        k = seam_sent.get(id(ws), 0)
+                        if n > k:
+                            await ws.send_str(json.dumps({"type": "seam", "from": k, "points": self.src.view.seam[k:n]}))
+                            seam_sent[id(ws)] = n
+                        await ws.send_str(data)
+                        self.sent += 1
+                    except (ConnectionError, RuntimeError):
+                        self.clients.discard(ws)
+            delay = nxt - loop.time()
+            if delay < -1.0:
+                nxt = loop.time()
+            await asyncio.sleep(max(0.0, delay))
+
+
+async def serve(app: WebApp, bind: str, port: int) -> None:
+    runner = web.AppRunner(app.app, access_log=None, handle_signals=False)
+    await runner.setup()
+    site = web.TCPSite(runner, bind, port, reuse_address=False)
+    try:
+        await site.start()
+    except OSError as exc:
+        await runner.cleanup()
+        if exc.errno == errno.EADDRINUSE:
+            raise RuntimeFailure(f"port {port} on {bind} is in use") from None
+        if exc.errno in (errno.EADDRNOTAVAIL, errno.EINVAL):
+            raise BadInput(f"--bind {bind}: not an address of this host") from None
+        raise RuntimeFailure(f"cannot listen on {bind}:{port}: {exc.strerror}") from None
+    print(f"{PROG}: serving {app.src.mode} view of {app.src.meta.get('cell')} on http://{bind}:{port}/",
+          file=sys.stderr, flush=True)
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    pump = asyncio.create_task(app.pump())
+    try:
+        await stop.wait()
+    finally:
+        pump.cancel()
+        await runner.cleanup()
+
+
+@run
+def main(argv=None) -> int:
+    ap = parser(PROG, "Serve a read-only live web page of the cell (or of a recording).")
+    ap.add_argument("--port", type=positive_int, default=DEFAULT_PORT, metavar="PORT",
+                    help=f"TCP port (default {DEFAULT_PORT})")
+    ap.add_argument("--bind", default="127.0.0.1", metavar="ADDR",
+                    help="address to listen on (default 127.0.0.1; any other needs --token)")
+    ap.add_argument("--token", default=None, metavar="TOKEN", help="require ?token=TOKEN on every request")
+    ap.add_argument("--file", default=None, metavar="F.mcap", help="open a recording instead of the live cell")
+    ap.add_argument("--rate", type=positive_float, default=DEFAULT_RATE_HZ, metavar="HZ",
+                    help=f"WebSocket snapshots per second (default {DEFAULT_RATE_HZ:g})")
+    args = ap.parse_args(argv)
+    if args.port > 65535:
+        ap.error(f"--port {args.port} is above 65535")
+    if args.rate > 120:
+        ap.error(f"--rate {args.rate:g} is above 120 Hz")
+    if args.token is not None and (len(args.token) < 8 or not args.token.isprintable()):
+        ap.error("--token must be at least 8 printable characters")
+    if not is_loopback(args.bind) and args.token is None:
+        raise BadInput(f"--bind {args.bind} is not loopback: refused without --token TOKEN")
+    src = FileSource(args.file) if args.file else LiveSource(open_cell(args))
+    try:
+        asyncio.run(serve(WebApp(src, args.token, args.rate), args.bind, args.port))
+    finally:
+        src.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
