@@ -165,7 +165,7 @@ class WebApp:
         self.app = web.Application(middlewares=[self._auth])
         self.app.add_routes([web.get("/", self.index), web.get("/api/cell", self.api_cell),
                              web.get("/api/status", self.api_status), web.get("/api/frame", self.api_frame),
-                             web.get("/api/seam", self.api_seam), web.get("/ws", self.ws),
+                             web.get("/api/seam", self.api_seam), web.get("/api/plots", self.api_plots), web.get("/ws", self.ws),
                              web.static("/static", STATIC, follow_symlinks=False)])
         self.app.on_shutdown.append(self._close_clients)
 
@@ -205,6 +205,19 @@ class WebApp:
         if i < 0:
             i = len(self.src.snaps) - 1
         return web.json_response(self.src.frame(i))
+
+    async def api_plots(self, request):
+        """A recording's plot series, at most ``n`` (default 600) samples evenly over it."""
+        if self.src.mode != "file":
+            return web.json_response({"error": "no recording open (droid-web --file F.mcap)"}, status=404)
+        try:
+            n = max(1, min(5000, int(request.query.get("n", "600"))))
+        except ValueError:
+            return web.json_response({"error": "n must be an integer"}, status=400)
+        snaps = self.src.snaps
+        step = max(1, len(snaps) // n)
+        return web.json_response({"ticks": [s["tick"] for s in snaps[::step]],
+                                  "plots": [s["plots"] for s in snaps[::step]]})
 
     async def api_seam(self, request):
         seam = self.src.seam if self.src.mode == "file" else self.src.view.seam

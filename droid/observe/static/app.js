@@ -164,8 +164,8 @@ async function openFile(info) {
     } finally { busy = false; if (pending !== null) { const p = pending; pending = null; go(p); } }
   }
   // plots of the whole recording: sample the frames once
-  const n = info.file.count, step = Math.max(1, Math.floor(n / PLOT_N));
-  for (let i = 0; i < n; i += step) { const f = await getJSON(`api/frame?i=${i}`); pushPlots(f.plots); }
+  const pl = await getJSON(`api/plots?n=${PLOT_N}`);
+  for (const p of pl.plots) pushPlots(p);
   plot("plot-errors", ["tool_lateral_mm", "tool_height_mm", "lead_lateral_mm"], "mm"); plot("plot-speed", ["speed_mm_s"], "mm/s");
   s.addEventListener("input", () => go(Number(s.value)));
   s.value = 0; await go(0);
