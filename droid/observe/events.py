@@ -4,7 +4,7 @@
 program's health row with the previous one and returns the changes worth a
 line -- a fault bit set or cleared (FAULT_* of Table 3.1's additions), a
 subunit going stale or fresh, homed, a command refused or failed
-(``cmd_result``), a new command (``cmd_id``), a sensor's data turning
+(``cmd_result``), a change of command mode, a sensor's data turning
 invalid, a program changing state or dying, and heartbeat ticks missed.
 """
 from __future__ import annotations
@@ -48,9 +48,9 @@ class EventWatcher:
                     out.append((LOG_INFO, name, "homed" if d.get("homed") else "not homed"))
                 else:
                     out.append((LOG_WARNING, name, "data invalid") if d.get("homed") else (LOG_INFO, name, "data valid"))
-            if arm and d.get("cmd_id") != p.get("cmd_id"):
-                mode = CMD_MODE_NAMES.get(int(d.get("cmd_mode", -1)), str(d.get("cmd_mode")))
-                out.append((LOG_INFO, name, f"command {d.get('cmd_id')} ({mode})"))
+            if arm and d.get("cmd_mode") != p.get("cmd_mode"):
+                old, new = (CMD_MODE_NAMES.get(int(x.get("cmd_mode", -1)), str(x.get("cmd_mode"))) for x in (p, d))
+                out.append((LOG_INFO, name, f"mode {old} -> {new}"))
             res = d.get("cmd_result")
             if arm and (res != p.get("cmd_result") or d.get("cmd_id") != p.get("cmd_id")):
                 if res == CMD_REFUSED:

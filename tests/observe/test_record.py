@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from droid.brain.databases import open_brain
-from droid.brain.layouts import CMD_REFUSED, FAULT_WATCHDOG
+from droid.brain.layouts import CMD_REFUSED, FAULT_WATCHDOG, HOME_MODE
 from droid.cli import BadInput
 from droid.observe.mcapfile import (FORMAT_VERSION, RecordingWriter, cell_meta, read_recording, recover)
 from droid.observe.record import CellRecorder
@@ -89,6 +89,8 @@ def test_faults_and_events_are_logged(db_cell, tmp_path):
     def change(i):
         if i == 5:
             arm.update(fault=FAULT_WATCHDOG, stale=1)
+        if i == 7:
+            arm.update(cmd_mode=HOME_MODE)
         if i == 8:
             arm.update(cmd_id=4, cmd_result=CMD_REFUSED)
         if i == 10:
@@ -102,6 +104,7 @@ def test_faults_and_events_are_logged(db_cell, tmp_path):
     assert (105, 4, "arm1", "fault watchdog set") in logs
     assert (105, 3, "arm1", "stale") in logs
     assert (108, 3, "arm1", "command 4 refused") in logs
+    assert (107, 2, "arm1", "mode OFF -> HOME") in logs
     assert (110, 2, "arm1", "fault watchdog cleared") in logs
 
 
