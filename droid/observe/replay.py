@@ -109,8 +109,9 @@ def export_csv(rec: Recording, subunit: str, area: str, ticks: range, out) -> in
     return n
 
 
-def play(cell, rec: Recording, ticks: range, rate: float, quiet: bool = True) -> int:
-    """Write the recorded records of ``ticks`` into the cell's Brain databases at ``rate`` x the recorded pace."""
+def play(cell, rec: Recording, ticks: range, rate: float, on_tick=None) -> int:
+    """Write the recorded records of ``ticks`` into the cell's Brain databases at ``rate`` x the recorded
+    pace; ``on_tick(tick, n)`` after each tick written."""
     dbs = {}
     try:
         for (sub_name, area) in rec.layouts():
@@ -139,6 +140,8 @@ def play(cell, rec: Recording, ticks: range, rate: float, quiet: bool = True) ->
                 schemas.dict_to_record(msgs[-1], lay, r)
                 db.write(r)
             n += 1
+            if on_tick is not None:
+                on_tick(rec.ticks[i], n)
         return n
     finally:
         for db, _ in dbs.values():
@@ -192,7 +195,8 @@ def main(argv=None) -> int:
     pres = Presence(cell.name, "replay", f"droid-replay {os.path.basename(args.file)}"[:31])
     pres.ready()
     try:
-        n = play(cell, rec, tick_range(rec, args.t_from, args.t_to), args.rate)
+        n = play(cell, rec, tick_range(rec, args.t_from, args.t_to), args.rate,
+                 on_tick=lambda tick, k: pres.beat(tick, k))
     finally:
         pres.close()
     print(f"{PROG}: {n} ticks replayed into cell {cell.name}", file=sys.stderr)

@@ -179,3 +179,44 @@ def test_record_cli_cell_not_up(tmp_path, cell_name):
     path = make_cell_file(tmp_path, cell_name)
     out = run_prog("droid.observe.record", "--cell", str(path), "--out", str(tmp_path / "x.mcap"))
     assert out.returncode == 1 and "does not exist" in out.stderr, out.stderr
+
+
+def test_record_cli_follows_the_heartbeat(db_cell, tmp_path):
+    """droid-record's shell on a heartbeat (published here, no cell programs): one sample per tick."""
+    import threading
+    import time
+
+    import zmq
+
+    from droid.brain import wire
+
+    cell, cf = db_cell
+    cell.run_dir.mkdir(parents=True, exist_ok=True)
+    ctx = zmq.Context()
+    pub = ctx.socket(zmq.PUB)
+    pub.setsockopt(zmq.LINGER, 0)
+    pub.bind(cell.heartbeat)
+    stop = threading.Event()
+
+    def beat():
+        k, t0 = 0, time.monotonic()
+        while not stop.is_set():
+            k += 1
+            pub.send(wire.pack_tick(wire.Tick(k, time.monotonic_ns(), cell.period_ns)))
+            time.sleep(max(0.0, t0 + k / cell.heartbeat_hz - time.monotonic()))
+
+    th = threading.Thread(target=beat, daemon=True)
+    th.start()
+    try:
+        out = run_prog("droid.observe.record", "--cell", str(cf), "--out", str(tmp_path / "hb.mcap"),
+                       "--seconds", "1.5", "arm1", "mvs")
+    finally:
+        stop.set()
+        th.join()
+        pub.close(0)
+        ctx.term()
+    assert out.returncode == 0, out.stderr
+    rec = read_recording(tmp_path / "hb.mcap")
+    assert set(rec.layouts()) == {("arm1", "status"), ("arm1", "command"), ("mvs", "status")}
+    assert len(rec.ticks) >= 10 and rec.ticks == sorted(set(rec.ticks))
+    assert "/health" in rec.channels and rec.frames[0]["/tick"][0]["t_ns"] > 0

@@ -61,10 +61,15 @@ def test_websocket_input_is_ignored_and_counted(recording):
                     await ws.send_str(m)
                 await ws.send_bytes(b"\x00\xff")
                 await asyncio.sleep(0.3)
+            async with s.ws_connect(url + "ws") as ws:  # an oversized message: that socket closes
+                await ws.receive_json(timeout=5)
+                await ws.send_str("y" * 10000)
+                msg = await ws.receive(timeout=5)
+                assert msg.type in (aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED, aiohttp.WSMsgType.CLOSING)
 
     with WebServer("--file", recording) as w:
         asyncio.run(talk(w.url))
-        assert w.get("api/cell")["ws_ignored"] == 4
+        assert w.get("api/cell")["ws_ignored"] == 5
         assert w.proc.poll() is None
 
 
