@@ -37,7 +37,7 @@ from pathlib import Path
 from aiohttp import WSMsgType, web
 
 from droid.brain.program import open_cell, parser
-from droid.cli import BadInput, RuntimeFailure, positive_float, positive_int, run
+from droid.cli import BadInput, DroidError, RuntimeFailure, positive_float, positive_int, run
 from droid.observe import schemas
 from droid.observe.mcapfile import TOPIC_HEALTH, TOPIC_LOG, cell_meta, read_recording
 from droid.observe.scene import scene_meta
@@ -162,6 +162,7 @@ class WebApp:
         self.clients: set[web.WebSocketResponse] = set()
         self.ws_ignored = 0
         self.sent = 0
+        self.read_errors = 0
         self.app = web.Application(middlewares=[self._auth])
         self.app.add_routes([web.get("/", self.index), web.get("/api/cell", self.api_cell),
                              web.get("/api/status", self.api_status), web.get("/api/frame", self.api_frame),
@@ -251,7 +252,14 @@ class WebApp:
         while True:
             nxt += self.period_s
             if self.clients and self.src.mode == "live":
-                snap = self.src.snapshot()
+                try:
+                    snap = self.src.snapshot()
+                except DroidError as exc:  # a database held too long: skip this period, say so once a second
+                    self.read_errors += 1
+                    if self.read_errors == 1 or self.read_errors % 30 == 0:
+                        print(f"{PROG}: {exc}", file=sys.stderr, flush=True)
+                    await asyncio.sleep(self.period_s)
+                    continue
                 data = json.dumps({"type": "snapshot", **snap})
                 n = snap["geo"]["seam_n"]
                 for ws in list(self.clients):
