@@ -79,8 +79,12 @@ def quat(R) -> dict:
     return {"x": x, "y": y, "z": z, "w": w}
 
 
-def _vec(p) -> dict:
-    return {"x": float(p[0]), "y": float(p[1]), "z": float(p[2])}
+M_PER_MM = 1e-3  # Foxglove's schemas are in metres; everything else here is in mm
+
+
+def _vec(p, scale: float = M_PER_MM) -> dict:
+    """A foxglove Vector3/Point3 [m] of a point [mm]."""
+    return {"x": float(p[0]) * scale, "y": float(p[1]) * scale, "z": float(p[2]) * scale}
 
 
 class SceneBuilder:
@@ -162,14 +166,15 @@ class SceneBuilder:
     # -- Foxglove messages ---------------------------------------------------------
     @staticmethod
     def frame_transforms(frames: dict[str, np.ndarray], t_ns: int) -> dict:
-        """foxglove.FrameTransforms: every frame a child of ``world`` [mm as given]."""
+        """foxglove.FrameTransforms: every frame a child of ``world`` (translations in m, as Foxglove expects)."""
         ts = stamp(t_ns)
         return {"transforms": [{"timestamp": ts, "parent_frame_id": "world", "child_frame_id": name,
                                 "translation": _vec(T[:3, 3]), "rotation": quat(T[:3, :3])}
                                for name, T in frames.items()]}
 
     def scene_update(self, geo: dict, t_ns: int) -> dict:
-        """foxglove.SceneUpdate: the workpiece plate (in frame ``workpiece``), the seam map and the laser line."""
+        """foxglove.SceneUpdate: the workpiece plate (in frame ``workpiece``), the seam map and the laser line
+        (lengths in m, as Foxglove expects)."""
         ts = stamp(t_ns)
         ident = {"position": _vec((0, 0, 0)), "orientation": {"x": 0, "y": 0, "z": 0, "w": 1}}
         ents = []

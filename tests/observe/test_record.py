@@ -220,3 +220,17 @@ def test_record_cli_follows_the_heartbeat(db_cell, tmp_path):
     assert set(rec.layouts()) == {("arm1", "status"), ("arm1", "command"), ("mvs", "status")}
     assert len(rec.ticks) >= 10 and rec.ticks == sorted(set(rec.ticks))
     assert "/health" in rec.channels and rec.frames[0]["/tick"][0]["t_ns"] > 0
+
+
+def test_foxglove_frames_are_in_metres(db_cell, tmp_path):
+    cell, _ = db_cell
+    arm = open_brain(cell, cell.subunit("arm1"), "status")
+    arm.update(x=300.0, y=100.0, z=1340.0)
+    arm.close()
+    path = str(tmp_path / "m.mcap")
+    record_ticks(cell, path, 2).close()
+    tf = {t["child_frame_id"]: t for t in read_recording(path).frames[0]["/tf"][0]["transforms"]}
+    assert tf["arm1/wcp"]["translation"] == {"x": 0.3, "y": 0.1, "z": 1.34}
+    assert tf["gmf1/base"]["translation"]["x"] == pytest.approx(2.0)
+    q = tf["gmf1/base"]["rotation"]
+    assert abs(q["x"] ** 2 + q["y"] ** 2 + q["z"] ** 2 + q["w"] ** 2 - 1) < 1e-12
