@@ -54,3 +54,34 @@ def test_seam_map_from_valid_lead_readings():
     assert np.allclose(geo["frames"]["sensor"], S)
     geo = sb.step({"arm1": arm, "mvs": {"x": 9.0, "y": 9.0, "homed": 1, "stale": 0}})  # invalid: no point
     assert len(geo["seam"]) == 1 and geo["laser"] is not None
+
+
+def test_observers_import_only_brain_kinematics_and_the_seam_layout():
+    """DESIGN §7: observers read the Brain's databases like a task; never a device or the simulator."""
+    import ast
+    from pathlib import Path
+
+    may = ("droid.brain", "droid.kinematics", "droid.cli", "droid.observe", "droid.tasks.seam.layout")
+    for path in (Path(__file__).resolve().parents[2] / "droid" / "observe").rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = []
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                names = [node.module]
+            for n in names:
+                if n == "droid" or n.startswith("droid."):
+                    assert any(n == m or n.startswith(m + ".") for m in may), (path, n)
+
+
+def test_observers_never_write_a_command():
+    """Only droid-replay writes databases (into a replay cell); no observer opens a Command to write it."""
+    from pathlib import Path
+
+    for path in (Path(__file__).resolve().parents[2] / "droid" / "observe").rglob("*.py"):
+        text = path.read_text()
+        if path.name == "replay.py":
+            continue
+        assert ".write(" not in text.replace("w.write(", "").replace("self.write(", "").replace(
+            "csv", ""), path
+        assert ".update(" not in text, path
