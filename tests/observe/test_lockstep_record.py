@@ -39,3 +39,16 @@ def test_trial_recording(tmp_path):
     assert seam and len(seam[0]["points"]) >= 1
     names = {t["child_frame_id"] for t in rec.frames[-1]["/tf"][0]["transforms"]}
     assert {"arm1/wcp", "gmf1/wcp", "tool", "sensor", "workpiece"} <= names
+
+
+def test_experiment_cli_record(tmp_path):
+    from tests.brain.cellutil import droid
+
+    out = droid("droid.sim.experiment.cli", "run", "1.3", "--record", "--length", "60", "--no-figures",
+                "--jobs", "1", "--out", str(tmp_path))
+    assert out.returncode == 0, out.stderr
+    rec = read_recording(tmp_path / "table6.1" / "1.3.mcap")
+    assert rec.meta["trial"] == "1.3" and rec.meta["source"] == "lockstep" and rec.complete
+    out = droid("droid.sim.experiment.cli", "run", "1.3", "--length", "60", "--no-figures", "--jobs", "1",
+                "--out", str(tmp_path / "plain"))
+    assert out.returncode == 0 and not list((tmp_path / "plain").rglob("*.mcap"))
