@@ -3,7 +3,8 @@
 One file per recording, written with the ``mcap`` package (MCAP is ROS 2's
 default bag format, read by Foxglove, Lichtblick and the ``mcap`` CLI):
 
-* header profile ``droid``; right after it a metadata record ``droid`` holding
+* header profile ``droid``; right after it a metadata record ``droid`` (every value
+  JSON-encoded) holding
   ``format_version``, the cell (name, heartbeat rate, subunits with their
   class, robot, base and database layouts with versions), the wrist/workpiece
   geometry the scene needs and the source (``live`` or ``lockstep``), so a
@@ -69,8 +70,8 @@ class RecordingWriter:
         self._w = Writer(self._f, chunk_size=CHUNK_BYTES, compression=compression)
         self._w.start(profile=PROFILE, library=f"droid-record (format {FORMAT_VERSION})")
         self.meta = dict(meta, format_version=FORMAT_VERSION)
-        self._w.add_metadata(META_NAME, {k: v if isinstance(v, str) else json.dumps(v)
-                                         for k, v in self.meta.items()})
+        # every value JSON-encoded (strings too), so a reader gets back exactly what was written
+        self._w.add_metadata(META_NAME, {k: json.dumps(v) for k, v in self.meta.items()})
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
         self._record_schemas: dict[str, dict] = {}
