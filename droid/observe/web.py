@@ -72,8 +72,13 @@ class LiveSource:
         self.meta = cell_meta(cell, "live", scene_meta(cell))
         self.sampler = CellSampler(cell).connect()
         self.view = ViewBuilder(self.meta)
+        from droid.observe.events import EventWatcher
+
+        self.events = EventWatcher({s.name for s in cell.subunits.values() if s.is_arm})
+        self.logs: list[dict] = []
         self._health: dict = {}
         self._health_t = 0.0
+        self._tick = 0
         self.last: dict | None = None
 
     def health(self) -> dict:
@@ -83,15 +88,23 @@ class LiveSource:
         if now - self._health_t >= HEALTH_PERIOD_S:
             self._health_t = now
             self._health = health(self.cell)
+            self._log(self.events.health(self._health.get("programs", [])), self._tick)
         return self._health
+
+    def _log(self, found, tick: int) -> None:
+        for level, name, msg in found:
+            self.logs.append({"tick": tick, "level": level, "name": name, "message": msg})
+        del self.logs[:-LOG_TAIL]
 
     def statuses(self) -> dict[str, dict]:
         return {s: schemas.record_to_dict(r) for s, a, _, r in self.sampler.read() if a == "status"}
 
     def snapshot(self) -> dict:
         st = self.statuses()
-        tick = max((int(d.get("tick", 0)) for d in st.values()), default=0)
+        tick = self._tick = max((int(d.get("tick", 0)) for d in st.values()), default=0)
+        self._log(self.events.step(st), tick)
         self.last = self.view.snapshot(tick, time.time_ns(), st, self.health())
+        self.last["logs"] = list(self.logs)
         return self.last
 
     def status(self) -> dict:
