@@ -12,7 +12,8 @@ cell down again.
 
 ``--offline``: no processes -- the recording core alone (CellRecorder with the
 sampler reading every Brain database, health every 12 ticks) on a cell's
-databases without programs, per tick [us] and as % of one core at 60 Hz.
+databases without programs, per tick [us] and as % of one core at 60 Hz; and
+one droid-web live snapshot (databases read, link frames, JSON) [us].
 Prints figures only; the verdict is the reader's (docs/benchmarks.md).
 """
 from __future__ import annotations
@@ -111,6 +112,20 @@ def offline(args, tmp: Path) -> None:
         size = os.path.getsize(tmp / "off.mcap")
         print(f"offline core, {n} ticks: {per * 1e6:.0f} us/tick = {100 * per * cell.heartbeat_hz:.2f} % of one core "
               f"at {cell.heartbeat_hz:g} Hz; {size / 1e6 / (args.seconds / 60):.2f} MB/min (mostly static records)")
+        import json
+
+        from droid.observe.web import DEFAULT_RATE_HZ, LiveSource
+
+        src = LiveSource(cell)
+        m = 600
+        t0 = time.process_time()
+        for i in range(m):
+            arm.update(tick=i, x=300.0 + (i % 100) * 0.37, encoder_pos=[i % 997, i % 13, 0, 0, 0, -i % 71])
+            data = json.dumps(src.snapshot())
+        per = (time.process_time() - t0) / m
+        src.close()
+        print(f"droid-web live snapshot (read + FK + JSON, {len(data)} B): {per * 1e6:.0f} us = "
+              f"{100 * per * DEFAULT_RATE_HZ:.2f} % of one core at {DEFAULT_RATE_HZ:g} Hz")
     finally:
         for d in dbs:
             d.unlink()

@@ -28,7 +28,6 @@ import json
 import os
 from dataclasses import dataclass, field
 
-from mcap.exceptions import McapError
 from mcap.records import Channel, Footer, Header, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
@@ -263,7 +262,7 @@ def _read(p: str, f, allow_truncated: bool) -> Recording:
                 saw_footer = True
     except BadRecording:
         raise
-    except (McapError, EOFError, ValueError, OSError, Exception) as exc:  # noqa: BLE001 -- any decode failure
+    except Exception as exc:  # noqa: BLE001 -- any decode failure of a damaged file (McapError, EOF, struct...)
         if rec is not None and allow_truncated:
             pass
         else:
