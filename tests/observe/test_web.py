@@ -108,3 +108,18 @@ def test_live_cell_not_up(tmp_path, cell_name):
 
     out = run_web("--cell", str(make_cell_file(tmp_path, cell_name)), "--port", str(free_port()))
     assert out.returncode == 1 and "does not exist" in out.stderr
+
+
+def test_package_data_ships_every_static_file():
+    """pyproject's package-data globs cover every file of droid/observe/static (checked against a built wheel
+    by hand: `pip wheel . --no-deps`)."""
+    import tomllib
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    globs = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]["droid.observe"]
+    pkg = root / "droid" / "observe"
+    shipped = {p for g in globs for p in pkg.glob(g) if p.is_file()}
+    static = {p for p in (pkg / "static").rglob("*") if p.is_file() and "__pycache__" not in p.parts}
+    assert static and static == shipped, sorted(map(str, static - shipped))
+    assert (pkg / "static" / "vendor" / "three" / "LICENSE").read_text().startswith("The MIT License")
