@@ -30,6 +30,8 @@ BAD = [  # (module, argv, reason)
     ("droid.observe.web", ["--token", "short"], "at least 8"),
     ("droid.observe.web", ["--file", "{tmp}/none.mcap"], "no such file"),
     ("droid.observe.web", ["extra"], "unrecognized arguments"),
+    ("droid.brain.launcher", ["up", "--replay", "{tmp}/none.mcap"], "no such file"),
+    ("droid.brain.launcher", ["up", "--replay", "{tmp}/x.mcap", "--host", "brain"], "no --host"),
 ]
 
 
@@ -38,6 +40,8 @@ def test_bad_invocation(module, argv, reason, tmp_path, cell_name, capsys):
     (tmp_path / "x.mcap").write_bytes(b"")
     main = importlib.import_module(module).main
     argv = [a.replace("{tmp}", str(tmp_path)) for a in argv] + ["--cell", str(make_cell_file(tmp_path, cell_name))]
+    if module == "droid.brain.launcher":  # its --cell belongs after the subcommand
+        argv = argv[:1] + argv[-2:] + argv[1:-2]
     try:
         code = main(argv)
     except SystemExit as exc:
