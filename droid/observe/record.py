@@ -34,7 +34,7 @@ from droid.observe import schemas
 from droid.observe.events import EventWatcher
 from droid.observe.mcapfile import TOPIC_HEALTH, TOPIC_SCENE, TOPIC_TF, RecordingWriter, cell_meta
 from droid.observe.sampler import CellSampler, health
-from droid.observe.scene import SceneBuilder, scene_meta
+from droid.observe.scene import SceneBuilder, is_arm, scene_meta
 
 PROG = "droid-record"
 HEALTH_TICKS = 12  # program health every 12 ticks (5 Hz at 60 Hz)
@@ -51,7 +51,7 @@ class CellRecorder:
         meta = writer.meta
         subs = meta.get("subunits", [])
         self.scene = SceneBuilder(subs, meta.get("scene", {}))
-        self.events = EventWatcher({s["name"] for s in subs if s.get("class") == "arm6r"})
+        self.events = EventWatcher({s["name"] for s in subs if is_arm(s)})
         self.health_ticks, self.scene_ticks = health_ticks, scene_ticks
         self.samples = 0
 

@@ -52,6 +52,12 @@ def scene_meta(cell, layout_path=None) -> dict:
             "T_wcp_workpiece": np.asarray(mount).tolist()}
 
 
+def is_arm(sub: dict) -> bool:
+    """A recorded subunit is an arm if it has a Command database (or a robot model): read from the
+    recording's metadata, not from a list of classes."""
+    return "command" in (sub.get("areas") or {}) or bool(sub.get("robot")) or sub.get("class") == "arm6r"
+
+
 def status_T(d: dict) -> np.ndarray:
     """A Status dict's pose as a 4x4 [mm]."""
     T = np.eye(4)
@@ -93,7 +99,7 @@ class SceneBuilder:
     def __init__(self, subunits: list[dict], scene: dict) -> None:
         self.arms = {}
         for s in subunits:
-            if s.get("class") == "arm6r":
+            if is_arm(s):
                 try:
                     model = load_robot(s["robot"]) if s.get("robot") else None
                 except Exception:  # noqa: BLE001 -- an unknown robot file: draw its wrist centre only

@@ -21,13 +21,14 @@ import numpy as np
 
 from droid.brain.layouts import CMD_MODE_NAMES
 from droid.observe.events import fault_names
-from droid.observe.scene import SceneBuilder
+from droid.observe.scene import SceneBuilder, is_arm
 
 CMD_RESULT_NAMES = {0: "ok", 1: "failed", 2: "refused"}
 
 
-def subunit_view(cls: str, d: dict) -> dict:
-    """The status fields the page's table shows for one subunit."""
+def subunit_view(sub: dict, d: dict) -> dict:
+    """The status fields the page's table shows for one subunit (``sub``: its recording metadata)."""
+    cls = sub.get("class", "?")
     v = {"tick": int(d.get("tick", 0)), "class": cls, "homed": int(d.get("homed", 0)), "busy": int(d.get("busy", 0)),
          "mode": CMD_MODE_NAMES.get(int(d.get("cmd_mode", -1)), str(d.get("cmd_mode"))),
          "stale": bool(d.get("stale", 0)), "fault": fault_names(int(d.get("fault", 0))),
@@ -35,7 +36,8 @@ def subunit_view(cls: str, d: dict) -> dict:
          "cmd_id": int(d.get("cmd_id", 0)),
          "x": round(float(d.get("x", 0.0)), 3), "y": round(float(d.get("y", 0.0)), 3),
          "z": round(float(d.get("z", 0.0)), 3)}
-    if cls != "arm6r":
+    v["arm"] = is_arm(sub)
+    if not v["arm"]:
         v["valid"] = not d.get("homed") and not d.get("stale")
     return v
 
@@ -55,7 +57,7 @@ class ViewBuilder:
 
     def snapshot(self, tick: int, t_ns: int, statuses: dict[str, dict], health: dict | None = None) -> dict:
         geo = self.scene.step(statuses)
-        subs = {n: subunit_view(self.subs.get(n, {}).get("class", "?"), d) for n, d in statuses.items()}
+        subs = {n: subunit_view(self.subs.get(n, {}), d) for n, d in statuses.items()}
         tool_T = geo["frames"].get("tool")
         speed = None
         if tool_T is not None:

@@ -94,7 +94,7 @@ requestAnimationFrame(animate);
 const esc = (s) => String(s).replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;" })[c]);
 function drawTables(snap) {
   const rows = Object.entries(snap.subunits).map(([n, s]) => {
-    const homed = s.class === "arm6r" ? (s.homed ? "yes" : "no") : (s.valid ? "valid" : "invalid");
+    const homed = s.arm ? (s.homed ? "yes" : "no") : (s.valid ? "valid" : "invalid");
     return `<tr data-subunit="${esc(n)}"><td>${esc(n)}</td><td class="tick">${s.tick}</td><td>${homed}</td><td>${s.busy}</td>` +
       `<td>${esc(s.mode)}</td><td class="${s.stale ? "bad" : "ok"}">${s.stale ? "STALE" : "fresh"}</td>` +
       `<td class="${s.fault.length ? "bad" : ""}">${esc(s.fault.join(",") || "–")}</td>` +
