@@ -10,7 +10,10 @@ Observers read the Brain's databases only, like a task (DESIGN §7: they import
 * :mod:`droid.observe.sampler`  -- one snapshot of a running cell's databases per heartbeat tick;
 * :mod:`droid.observe.record`   -- ``droid-record`` (and the hooks of droid-seamtrack / droid-experiment);
 * :mod:`droid.observe.replay`   -- ``droid-replay`` (into a ``droid-cell up --replay`` cell; CSV export);
-* :mod:`droid.observe.web`      -- ``droid-web`` (live page, 3-D view, recordings with a time slider).
+* :mod:`droid.observe.web`      -- ``droid-web`` (live page, 3-D view, recordings with a time slider);
+  :mod:`droid.observe.sources` and :mod:`droid.observe.view` -- its snapshots, live or from a file;
+* :mod:`droid.observe.events`   -- faults and events between snapshots (foxglove ``Log``);
+* :mod:`droid.observe.lockstep` -- lockstep trials into the same layout.
 
 ``droid-replay`` is the one program here that writes databases: the Status and
 Command records of a *replay* cell, which has no programs of its own.

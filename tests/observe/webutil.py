@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -70,5 +69,3 @@ def lockstep_recording(path) -> str:
     return str(path)
 
 
-def env_clean() -> dict:
-    return dict(os.environ)
