@@ -9,9 +9,10 @@
     live cell (its programs own those records) and a cell whose database
     layouts differ from the recording's, naming both versions.
 ``droid-replay FILE --export csv --subunit arm1 [--area status] [--from TICK] [--to TICK] [--out F]``
-    one CSV row per recorded tick of one database: ``tick`` then every field
-    (arrays flattened as ``name_i`` / ``name_i_j``; the header's bookkeeping
-    left out).
+    one CSV row per recorded tick of one database: ``tick`` (the heartbeat tick
+    of the sample) then every field (arrays flattened as ``name_i`` /
+    ``name_i_j``; the record's own ``tick`` as ``record_tick``; the header's
+    bookkeeping left out).
 ``droid-replay FILE --recover OUT.mcap``
     rewrites the whole chunks of a recording that stopped uncleanly.
 
@@ -100,7 +101,10 @@ def export_csv(rec: Recording, subunit: str, area: str, ticks: range, out) -> in
         msgs = rec.frames[i].get(topic)
         if not msgs:
             continue
-        row = {"tick": rec.ticks[i], **flatten(msgs[-1])}
+        fields = flatten(msgs[-1])
+        if "tick" in fields:  # the record's own tick (when its writer last refreshed it)
+            fields["record_tick"] = fields.pop("tick")
+        row = {"tick": rec.ticks[i], **fields}
         if w is None:
             w = csv.DictWriter(out, fieldnames=list(row), lineterminator="\n")
             w.writeheader()

@@ -20,7 +20,7 @@ def make_recording(db_cell, tmp_path, n=40):
     cmd = open_brain(cell, cell.subunit("arm1"), "command")
 
     def change(i):
-        arm.update(tick=100 + i, x=500.0 + i, encoder_pos=[i, 2 * i, 0, 0, 0, -i], homed=1, busy=40 - i)
+        arm.update(tick=90 + i, x=500.0 + i, encoder_pos=[i, 2 * i, 0, 0, 0, -i], homed=1, busy=40 - i)
         cmd.update(cmd_id=i // 10, joint_time_count=7)
 
     path = tmp_path / "rec.mcap"
@@ -52,7 +52,7 @@ def test_replay_into_a_replay_cell_then_snoop_reads_it(db_cell, tmp_path, cell_n
         snoop = droid("droid.tasks.snoop", "arm1", "--count", "1", "--json", "--rate", "50", "--cell", str(cf))
         assert snoop.returncode == 0, snoop.stderr
         d = json.loads(snoop.stdout)
-        assert d["tick"] == 139 and d["x"] == 539.0 and d["encoder_pos"] == [39, 78, 0, 0, 0, -39]
+        assert d["tick"] == 129 and d["x"] == 539.0 and d["encoder_pos"] == [39, 78, 0, 0, 0, -39]
         from droid.brain.cellfile import load_cell
 
         cell2 = load_cell(cf)
@@ -92,6 +92,7 @@ def test_export_csv_with_tick_range(db_cell, tmp_path):
     assert out.returncode == 0, out.stderr
     rows = list(csv.DictReader(io.StringIO(out.stdout)))
     assert [int(r["tick"]) for r in rows] == [110, 111, 112, 113, 114]
+    assert [int(r["record_tick"]) for r in rows] == [100, 101, 102, 103, 104]
     assert float(rows[2]["x"]) == 512.0 and int(rows[2]["encoder_pos_1"]) == 24 and "R_2_2" in rows[0]
     assert "magic" not in rows[0]
     out = droid("droid.observe.replay", str(path), "--export", "csv", "--subunit", "arm1", "--area", "command")
