@@ -7,8 +7,9 @@ temporary directory; or uses ``--cell FILE`` if that cell is already up), runs
 ``droid-record --out ... --seconds S`` on it as its own process at the cell's
 60 Hz heartbeat, and reports that process's CPU time (user + system, from
 wait4) over the wall time as % of one core (target <= 5 %), the file's size
-per minute and the ticks it holds against the ticks elapsed.  Then brings the
-cell down again.
+per minute and the ticks it holds against the ticks elapsed.  Then it runs
+droid-web on the cell for 10 s and counts the snapshots a WebSocket client
+receives per second (>= 20 wanted), and brings the cell down again.
 
 ``--offline``: no processes -- the recording core alone (CellRecorder with the
 sampler reading every Brain database, health every 12 ticks) on a cell's
@@ -79,12 +80,56 @@ def live(args, tmp: Path) -> None:
         print(f"file: {size / 1e6:.2f} MB = {size / 1e6 / (args.seconds / 60):.2f} MB/min; "
               f"{len(rec.ticks)} ticks recorded of {span} elapsed ({len(rec.channels)} channels)")
         print(f"droid-record said: {err}")
+        print(web_rate(cell_file, min(10.0, args.seconds)))
         print(f"load average: {' '.join(f'{v:.2f}' for v in os.getloadavg())}, {os.cpu_count()} CPUs")
     finally:
         if own:
             out = droid("droid.brain.launcher", "down", "--cell", str(cell_file))
             if out.returncode != 0:
                 print(f"bench_record: down failed: {out.stderr.strip()}", file=sys.stderr)
+
+
+def web_rate(cell_file: Path, seconds: float) -> str:
+    """droid-web on the cell: snapshots per second a WebSocket client receives, and droid-web's CPU."""
+    import asyncio
+    import json
+    import signal
+    import socket
+
+    import aiohttp
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.Popen([sys.executable, "-m", "droid.observe.web", "--cell", str(cell_file), "--port", str(port)],
+                            env=env, cwd=ROOT, stderr=subprocess.PIPE, text=True)
+
+    async def count() -> tuple[int, float]:
+        url = f"http://127.0.0.1:{port}/"
+        async with aiohttp.ClientSession() as sess:
+            for _ in range(100):
+                try:
+                    async with sess.get(url + "api/cell"):
+                        break
+                except aiohttp.ClientError:
+                    await asyncio.sleep(0.1)
+            async with sess.ws_connect(url + "ws") as ws:
+                n, t0 = 0, time.monotonic()
+                while time.monotonic() - t0 < seconds:
+                    msg = await ws.receive(timeout=5)
+                    if msg.type == aiohttp.WSMsgType.TEXT and json.loads(msg.data).get("type") == "snapshot":
+                        n += 1
+                return n, time.monotonic() - t0
+
+    try:
+        n, dt = asyncio.run(count())
+    finally:
+        proc.send_signal(signal.SIGINT)
+        _, _, ru = os.wait4(proc.pid, 0)
+        proc.stderr.close()
+    return (f"droid-web: {n / dt:.1f} snapshots/s over its WebSocket for {dt:.1f} s (asked 30 Hz; >= 20 wanted); "
+            f"its CPU incl. start-up {ru.ru_utime + ru.ru_stime:.2f} s")
 
 
 def offline(args, tmp: Path) -> None:
