@@ -208,7 +208,7 @@ def test_record_cli_follows_the_heartbeat(db_cell, tmp_path):
     th.start()
     try:
         out = run_prog("droid.observe.record", "--cell", str(cf), "--out", str(tmp_path / "hb.mcap"),
-                       "--seconds", "1.5", "arm1", "mvs")
+                       "--seconds", "2", "arm1", "mvs")
     finally:
         stop.set()
         th.join()
