@@ -40,4 +40,8 @@ PROGRAMS: dict[str, str] = {
     "droid-sim": "droid.sim.world",
     # tools
     "droid-fault": "droid.faults.cli",
+    # observers (docs/observe.md)
+    "droid-record": "droid.observe.record",
+    "droid-replay": "droid.observe.replay",
+    "droid-web": "droid.observe.web",
 }

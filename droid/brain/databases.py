@@ -29,8 +29,9 @@ def local_layouts(sub: Subunit) -> dict[str, Layout]:
     return dict(sub.kind.local)
 
 
-def create_databases(cell: Cell, hosts: set[str] | None = None) -> list[Database]:
-    """Create (fresh) every database of the cell for ``hosts`` (default all).
+def create_databases(cell: Cell, hosts: set[str] | None = None, *, brain_only: bool = False) -> list[Database]:
+    """Create (fresh) every database of the cell for ``hosts`` (default all); ``brain_only``:
+    the Brain's Status/Command records only (a replay cell), no subunit's local records.
 
     Command records start "with safe values so that unwanted sudden motion is
     eliminated" (§4.1.4): JOG mode and JOINT coordinates (§3.3), no command."""
@@ -40,7 +41,7 @@ def create_databases(cell: Cell, hosts: set[str] | None = None) -> list[Database
             areas = []
             if hosts is None or cell.brain_host in hosts:
                 areas += list(brain_layouts(sub).items())
-            if hosts is None or sub.host in hosts:
+            if (hosts is None or sub.host in hosts) and not brain_only:
                 areas += list(local_layouts(sub).items())
             for area, lay in areas:
                 db = Database(db_name(cell.name, sub.name, area), lay, create=True)

@@ -6,6 +6,10 @@
     subunit's programs and the ``droid-sim`` world; waits for each program's
     readiness handshake (``--ready-fd``) and returns.  If any program fails
     to come up, everything started is stopped and removed again.
+``droid-cell up --replay FILE``
+    a *replay* cell: only the Brain's databases (no name space, heartbeat,
+    remotes, world or subunit programs), for ``droid-replay FILE`` to play a
+    recording into (docs/observe.md); ``down`` removes it as any cell.
 ``droid-cell init``
     only creates the databases, for a cell started by hand (scripts/start-cell.sh).
 ``droid-cell status [--json]``
@@ -204,6 +208,26 @@ def up(cell: Cell, hosts: set[str] | None, timeout_s: float) -> list[Spec]:
     return specs
 
 
+def up_replay(cell: Cell, recording: str) -> None:
+    """A replay cell: the Brain's databases only, and a state file naming the recording."""
+    if not os.path.isfile(recording):
+        raise BadInput(f"--replay {recording}: no such file")
+    state = read_state(cell)
+    if state is not None:
+        if any(pid_alive(p.get("pid", 0)) for p in state.get("programs", [])):
+            raise RuntimeFailure(f"cell {cell.name!r} is already up; run 'droid-cell down' first")
+        _cleanup(cell)
+    os.makedirs(cell.run_dir / "logs", exist_ok=True)
+    for db in create_databases(cell, {cell.brain_host}, brain_only=True):
+        db.close()
+    state = {"cell": cell.name, "cell_file": str(cell.path), "hosts": [cell.brain_host], "started_at": time.time(),
+             "launcher_pid": os.getpid(), "replay": os.path.abspath(recording), "programs": []}
+    path = state_path(cell)
+    with open(path + ".tmp", "w") as f:
+        json.dump(state, f, indent=1)
+    os.replace(path + ".tmp", path)
+
+
 def _stop_pids(pids: list[int], grace_s: float) -> list[int]:
     """SIGTERM every process group, wait, SIGKILL survivors; returns those killed hard."""
     for pid in pids:
@@ -383,6 +407,8 @@ def main(argv=None) -> int:
                       help="start only this host's programs (repeatable; default: all hosts)")
     p_up.add_argument("--timeout", type=timeout_s, default=READY_TIMEOUT_S, metavar="S",
                       help=f"readiness timeout [s] (default {READY_TIMEOUT_S:g})")
+    p_up.add_argument("--replay", metavar="FILE", default=None,
+                      help="a replay cell: the Brain's databases only, for droid-replay FILE (docs/observe.md)")
     sp.add_parser("init", help="only create the databases (to start programs by hand)")
     p_rs = sp.add_parser("restart", help="start one dead program of the cell again")
     p_rs.add_argument("name", help="the program as 'status' lists it (e.g. 'droid-servo arm1') or its key")
@@ -399,6 +425,12 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     cell = load_cell(args.cell)
     use_cell(cell)
+    if args.cmd == "up" and args.replay is not None:
+        if args.host:
+            raise BadInput("--replay brings up the Brain's databases only: no --host")
+        up_replay(cell, args.replay)
+        print(f"cell {cell.name} up for replay of {args.replay}: Brain databases only (run dir {cell.run_dir})")
+        return 0
     if args.cmd == "up":
         hosts = set(args.host) if args.host else None
         if hosts:

@@ -147,7 +147,10 @@ FIFO_PRIORITIES: dict[str, int] = {
     "droid-seamtrack": 49,
     "droid-mvs": 48,
     "droid-gmf1-encoder": 45,
+    "droid-record": 10,  # an observer: below every cell program, above normal load
 }
+#: The priority ceiling of the databases' semaphores (droid.brain.shmdb): above them all.
+CEILING_PRIORITY = 61
 DEFAULT_FIFO_PRIORITY = 50
 
 

@@ -31,6 +31,8 @@ from typing import Iterator
 import numpy as np
 import posix_ipc
 
+from droid.brain import rt
+
 from droid.cli import BadInput, RuntimeFailure
 from droid.brain.layouts import (
     FLAG_RECOVERED,
@@ -98,9 +100,9 @@ def pid_alive(pid: int) -> bool:
 #: droid-snoop at normal priority, preempted by busy processes while it holds a Status
 #: semaphore for a 1 us copy, blocked the real-time remote, servo agent or the servo's
 #: own presence record for tens of ms -- the stalls that failed homing under load.
-#: Above every program's own priority (droid.brain.rt.FIFO_PRIORITIES: servo 60).
-CEILING_PRIORITY = 61
+#: CEILING_PRIORITY (droid.brain.rt, 61) is above every program's own priority (servo 60).
 _ceiling: int | None = None
+CEILING_PRIORITY = rt.CEILING_PRIORITY
 
 
 def set_priority_ceiling(priority: int | None) -> None:

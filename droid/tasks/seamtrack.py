@@ -60,7 +60,6 @@ BASE_TOL_MM = 1e-3
 SETTLED_COUNTS = 2  # after a start move: encoder change per poll [counts] that counts as still
 SETTLE_POLL_S = 0.1
 SETTLE_TIMEOUT_S = 3.0
-FIFO_PRIORITY = 49  # SCHED_FIFO priority of the tracking loop (the remotes run at 50)
 # Cycle counting, the pose histories and the latency compensation (a reading placed with the
 # poses of its capture instant, SENSOR_LAG_TICKS) live in droid.tasks.seam.cycle, shared with
 # the lockstep trial.
@@ -101,6 +100,8 @@ def build_parser():
     ap.add_argument("--figure", metavar="FILE", default=None,
                     help="draw the run's figure (PNG, thesis Figs 6.5-6.35) here at the end")
     ap.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    ap.add_argument("--record", metavar="FILE", default=None,
+                    help="record the cell by tick into this MCAP file (droid-record's layout, docs/observe.md)")
     return ap
 
 
@@ -210,6 +211,7 @@ class Tracker:
         self.t0 = None
         self.stale_since = None
         self.dbs = []
+        self.recorder = None  # droid.observe.record.LiveRecorder with --record
 
     # -- set-up ------------------------------------------------------------
     def connect(self) -> None:
@@ -291,7 +293,7 @@ class Tracker:
         # The 30 Hz loop is part of the cell's tick chain: below the remotes (50) when the
         # cell asks for SCHED_FIFO, so a loaded host does not stretch the loop's delay
         # (a delay of 2+ cycles destabilises the tracking, §6.2.5).
-        try_sched_fifo(priority=FIFO_PRIORITY, wanted=self.cell.sched_fifo, prog=PROG)
+        try_sched_fifo(wanted=self.cell.sched_fifo, prog=PROG)
         ctx = zmq.Context.instance()
         ticks = TickSubscriber(ctx, self.cell.heartbeat)
         try:
@@ -315,6 +317,8 @@ class Tracker:
             if self.t0 is None:
                 self.t0 = t.t_ns
             reis_rec, hold_rec = self.remember()
+            if self.recorder is not None:
+                self.recorder.on_tick(t.tick)
             # tick numbers follow time: a late wake-up (ticks drained at once) still steps once
             if self.cyc.due(t.tick):
                 why = self.cycle(reis_rec, hold_rec)
@@ -338,11 +342,15 @@ def main(argv=None) -> int:
     cell = open_cell(args)
     layout = load_layout(args.layout)
     tr = Tracker(args, cell, layout)
-    for p in (args.log, args.figure):
+    for p in (args.log, args.figure, args.record):
         if p is not None and Path(p).parent and not Path(p).parent.exists():
             raise BadInput(f"directory of {p} does not exist")
     tr.connect()
     try:
+        if args.record:
+            from droid.observe.record import LiveRecorder
+
+            tr.recorder = LiveRecorder(cell, args.record, layout_path=args.layout)
         tr.check_ready()
         Stop.install()
         if args.start:
@@ -352,6 +360,8 @@ def main(argv=None) -> int:
         else:
             code, why = tr.run()
     finally:
+        if tr.recorder is not None:
+            tr.recorder.close()
         tr.close()
     stop = tr.core.stopped
     reason, detail = (stop.reason, stop.detail) if stop is not None else (why, "")

@@ -91,6 +91,8 @@ def build_parser() -> ArgumentParser:
                    help="tracker: thesis (default, §5.2's patch), listing (the literal port), plus "
                         "(seam map, holds the speed; docs/seamtrack.md)")
     r.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    r.add_argument("--record", action="store_true",
+                   help="also record each lockstep trial as DIR/<table>/<id>.mcap (docs/observe.md)")
     r.add_argument("--length", type=positive_float, default=None, help=argparse.SUPPRESS)  # run length [mm]
     lp = sub.add_parser("list", help="list the experiments with their parameters, one a line")
     lp.add_argument("ids", nargs="*", metavar="ID", help="IDs or tables to list (default: all)")
@@ -106,6 +108,7 @@ class Job:
     out_dir: str  # DIR/<table>
     figures: bool
     realtime: bool = False
+    record: bool = False  # also write DIR/<table>/<id>.mcap (droid.observe, docs/observe.md)
 
 
 @dataclass(frozen=True)
@@ -159,7 +162,9 @@ def run_job(job: Job) -> Outcome:
         from droid.sim.experiment.trial import run_trial
 
         try:
-            result = run_trial(cfg)
+            if job.record:
+                os.makedirs(job.out_dir, exist_ok=True)
+            result = run_trial(cfg, record=os.path.join(job.out_dir, job.exp.id + ".mcap") if job.record else None)
         except BadInput as exc:
             return Outcome(job.exp, None, str(exc))
         except Exception as exc:  # noqa: BLE001 -- one trial's failure must not end the sweep: exit 1, named
@@ -490,6 +495,8 @@ def cmd_run(args) -> int:
     dask = _check_dask(args.dask)
     if dask and args.realtime:
         raise BadInput("--realtime runs on this host's process cell, not on --dask")
+    if dask and args.record:
+        raise BadInput("--record writes each trial's recording where the trial runs: not with --dask")
     picked = [with_seed(e, DEFAULT_SEED if args.seed is None else args.seed) for e in resolve(args.ids)]
     overrides = {"sensor": args.sensor or DEFAULT_SENSOR}
     if args.arm:
@@ -504,7 +511,7 @@ def cmd_run(args) -> int:
         os.makedirs(args.out, exist_ok=True)
     except OSError as exc:
         raise BadInput(f"--out {args.out}: {exc.strerror}") from None
-    jobs = [Job(e, os.path.join(args.out, e.table), figures, args.realtime) for e in picked]
+    jobs = [Job(e, os.path.join(args.out, e.table), figures, args.realtime, args.record) for e in picked]
     workers = 1 if args.realtime else (args.jobs or os.cpu_count() or 1)
     if workers > 1 or dask:
         jobs.sort(key=lambda j: -_cost(j.exp))  # longest first: the pool ends together

@@ -142,8 +142,9 @@ def default_length_mm(geo: TrialGeometry) -> float:
     return geo.workpiece.length_mm
 
 
-def run_trial(cfg: TrialConfig, layout=None) -> TrialResult:
-    """Run one trial in lockstep and return its log (see the module docstring)."""
+def run_trial(cfg: TrialConfig, layout=None, record: str | None = None) -> TrialResult:
+    """Run one trial in lockstep and return its log (see the module docstring); ``record``: also
+    write an MCAP recording of it there (droid.observe.lockstep, docs/observe.md)."""
     wall0 = time.perf_counter()
     geo = trial_geometry(cfg.position, cfg.workpiece, cfg.wrist, layout)
     L = geo.camera_to_tcp_mm
@@ -202,7 +203,16 @@ def run_trial(cfg: TrialConfig, layout=None) -> TrialResult:
         if k % lt == lt - 1:
             state["tool"] = tool_reading(T_W_g @ arm.true_wcp() @ T_wcp_tool, crossing)
 
+    recorder = None
+    if record is not None:
+        from droid.observe.lockstep import TrialRecorder
+
+        recorder = TrialRecorder(record, cfg.trial_id, geo.reis, geo.fanuc, T_wcp_tool, T_wcp_sensor, geo.T_hold6_W,
+                                 geo.q_hold_deg, T_hold0)
+
     def task(tick: int) -> None:
+        if recorder is not None:
+            recorder.sample(tick, sched.t_ns, arm, state)
         if state["done"]:
             return
         k = tick - t0_tick
@@ -239,6 +249,8 @@ def run_trial(cfg: TrialConfig, layout=None) -> TrialResult:
     result.sim_s = sched.t_ns / 1e9 - t_start
     result.frames, result.valid_frames = lead.frames, lead.valid
     result.dropped = cyc.dropped
+    if recorder is not None:
+        recorder.close()
     result.wall_s = time.perf_counter() - wall0
     return result
 

@@ -1,0 +1,211 @@
+"""droid-replay: play a recording back into a replay cell's Brain databases, or export it.
+
+``droid-replay FILE.mcap [--cell FILE] [--rate X] [--from TICK] [--to TICK]``
+    writes every recorded Status and Command record, tick by tick, at the
+    recorded pace (``--rate 2`` twice as fast) into the Brain databases of a
+    cell brought up with ``droid-cell up --replay FILE`` -- databases only: no
+    world, no subunit programs, no remotes -- so ``droid-snoop``, ``droid-web``
+    and read-only tasks read the recorded cell as if it ran.  It refuses a
+    live cell (its programs own those records) and a cell whose database
+    layouts differ from the recording's, naming both versions.
+``droid-replay FILE --export csv --subunit arm1 [--area status] [--from TICK] [--to TICK] [--out F]``
+    one CSV row per recorded tick of one database: ``tick`` (the heartbeat tick
+    of the sample) then every field (arrays flattened as ``name_i`` /
+    ``name_i_j``; the record's own ``tick`` as ``record_tick``; the header's
+    bookkeeping left out).
+``droid-replay FILE --recover OUT.mcap``
+    rewrites the whole chunks of a recording that stopped uncleanly.
+
+A truncated, foreign or future-version file: one line on stderr, exit 2.
+Exit 0 at the end of the recording or on SIGINT; 1 the cell is not a replay cell / not up.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import os
+import sys
+import time
+
+from droid.brain.databases import brain_layouts, open_brain
+from droid.brain.layouts import HEADER_FIELDS
+from droid.brain.program import Presence, Stop, open_cell, parser
+from droid.cli import BadInput, RuntimeFailure, non_negative_int, positive_float, run
+from droid.observe import schemas
+from droid.observe.mcapfile import Recording, db_topic, read_recording, recover
+
+PROG = "droid-replay"
+REPLAY_KEY = "replay"  # cell.json of a replay cell: {"replay": FILE, "programs": []}
+SKIP_CSV = {name for name, _, _ in HEADER_FIELDS} - {"seq"}
+
+
+def check_layouts(cell, rec: Recording) -> None:
+    """BadInput unless every recorded database exists in ``cell`` with the same layout and version."""
+    for (sub_name, area), (lay_name, ver) in sorted(rec.layouts().items()):
+        if sub_name not in cell.subunits:
+            raise BadInput(f"{rec.path}: recorded subunit {sub_name} is not in cell {cell.name} "
+                           f"(cell subunits: {', '.join(cell.subunits)})")
+        have = brain_layouts(cell.subunits[sub_name]).get(area)
+        if have is None:
+            raise BadInput(f"{rec.path}: {sub_name} {area}: the recording has {lay_name} version {ver}, "
+                           f"cell {cell.name} has no such database")
+        if (have.name, have.version) != (lay_name, ver):
+            raise BadInput(f"{rec.path}: {sub_name} {area}: the recording has {lay_name} version {ver}, "
+                           f"cell {cell.name} has {have.name} version {have.version}")
+
+
+def replay_state(cell) -> dict | None:
+    """The replay cell's state file (None when the cell was not brought up with --replay)."""
+    try:
+        with open(cell.run_dir / "cell.json") as f:
+            st = json.load(f)
+    except (OSError, ValueError):
+        return None
+    return st if REPLAY_KEY in st else None
+
+
+def tick_range(rec: Recording, t_from: int | None, t_to: int | None) -> range:
+    import bisect
+
+    lo = 0 if t_from is None else bisect.bisect_left(rec.ticks, t_from)
+    hi = len(rec.ticks) if t_to is None else bisect.bisect_right(rec.ticks, t_to)
+    return range(lo, max(lo, hi))
+
+
+def flatten(d: dict) -> dict:
+    """A record dict as flat CSV columns (header bookkeeping dropped, arrays as name_i / name_i_j)."""
+    out = {}
+    for k, v in d.items():
+        if k in SKIP_CSV or k.startswith("_"):
+            continue
+        if isinstance(v, list):
+            for i, x in enumerate(v):
+                if isinstance(x, list):
+                    for j, y in enumerate(x):
+                        out[f"{k}_{i}_{j}"] = y
+                else:
+                    out[f"{k}_{i}"] = x
+        else:
+            out[k] = v
+    return out
+
+
+def export_csv(rec: Recording, subunit: str, area: str, ticks: range, out) -> int:
+    topic = db_topic(subunit, area)
+    if topic not in rec.channels:
+        have = sorted({t.split("/")[1] for t in rec.channels if t.count("/") == 2})
+        raise BadInput(f"{rec.path}: no {area} of {subunit!r} recorded (subunits: {', '.join(have)})")
+    w = None
+    n = 0
+    for i in ticks:
+        msgs = rec.frames[i].get(topic)
+        if not msgs:
+            continue
+        fields = flatten(msgs[-1])
+        if "tick" in fields:  # the record's own tick (when its writer last refreshed it)
+            fields["record_tick"] = fields.pop("tick")
+        row = {"tick": rec.ticks[i], **fields}
+        if w is None:
+            w = csv.DictWriter(out, fieldnames=list(row), lineterminator="\n")
+            w.writeheader()
+        w.writerow(row)
+        n += 1
+    return n
+
+
+def play(cell, rec: Recording, ticks: range, rate: float, on_tick=None) -> int:
+    """Write the recorded records of ``ticks`` into the cell's Brain databases at ``rate`` x the recorded
+    pace; ``on_tick(tick, n)`` after each tick written."""
+    dbs = {}
+    try:
+        for (sub_name, area) in rec.layouts():
+            dbs[db_topic(sub_name, area)] = (open_brain(cell, cell.subunits[sub_name], area),
+                                             brain_layouts(cell.subunits[sub_name])[area])
+        if not len(ticks):
+            return 0
+        t0 = rec.t_ns[ticks[0]]
+        start = time.monotonic()
+        n = 0
+        for i in ticks:
+            if Stop.requested:
+                break
+            due = start + (rec.t_ns[i] - t0) / 1e9 / rate
+            while not Stop.requested:
+                left = due - time.monotonic()
+                if left <= 0:
+                    break
+                time.sleep(min(left, 0.1))
+            for topic, msgs in rec.frames[i].items():
+                target = dbs.get(topic)
+                if target is None:
+                    continue
+                db, lay = target
+                r = db.read()
+                schemas.dict_to_record(msgs[-1], lay, r)
+                db.write(r)
+            n += 1
+            if on_tick is not None:
+                on_tick(rec.ticks[i], n)
+        return n
+    finally:
+        for db, _ in dbs.values():
+            db.close()
+
+
+@run
+def main(argv=None) -> int:
+    ap = parser(PROG, "Play a DROID recording back into a replay cell, export one database as CSV, or recover it.")
+    ap.add_argument("file", metavar="FILE.mcap", help="a recording made by droid-record")
+    ap.add_argument("--rate", type=positive_float, default=1.0, metavar="X",
+                    help="playback speed, x the recorded pace (default 1)")
+    ap.add_argument("--from", dest="t_from", type=non_negative_int, default=None, metavar="TICK",
+                    help="first heartbeat tick")
+    ap.add_argument("--to", dest="t_to", type=non_negative_int, default=None, metavar="TICK",
+                    help="last heartbeat tick")
+    ap.add_argument("--export", choices=("csv",), default=None, help="write one database as CSV instead of playing")
+    ap.add_argument("--subunit", default=None, metavar="NAME", help="with --export: the subunit, e.g. arm1")
+    ap.add_argument("--area", default="status", metavar="AREA", help="with --export: status (default) or command")
+    ap.add_argument("--out", default="-", metavar="FILE", help="with --export: the CSV file (default stdout)")
+    ap.add_argument("--recover", default=None, metavar="OUT.mcap",
+                    help="rewrite the whole chunks of a truncated recording into OUT.mcap")
+    args = ap.parse_args(argv)
+    if args.t_from is not None and args.t_to is not None and args.t_to < args.t_from:
+        ap.error(f"--to {args.t_to} is before --from {args.t_from}")
+    if args.recover:
+        if os.path.abspath(args.recover) == os.path.abspath(args.file):
+            raise BadInput("--recover OUT.mcap must be another file")
+        rec = recover(args.file, args.recover)
+        print(f"{PROG}: {len(rec.ticks)} ticks recovered into {args.recover}", file=sys.stderr)
+        return 0
+    if args.export:
+        if not args.subunit:
+            ap.error("--export needs --subunit NAME")
+        rec = read_recording(args.file)
+        ticks = tick_range(rec, args.t_from, args.t_to)
+        if args.out == "-":
+            export_csv(rec, args.subunit, args.area, ticks, sys.stdout)
+        else:
+            with open(args.out, "w", newline="") as f:
+                export_csv(rec, args.subunit, args.area, ticks, f)
+        return 0
+    rec = read_recording(args.file)
+    cell = open_cell(args)
+    check_layouts(cell, rec)
+    st = replay_state(cell)
+    if st is None:
+        raise RuntimeFailure(f"cell {cell.name} is not a replay cell: bring it up with "
+                             f"'droid-cell up --replay {args.file}' (a live cell's programs own its records)")
+    Stop.install()
+    pres = Presence(cell.name, "replay", f"droid-replay {os.path.basename(args.file)}"[:31])
+    pres.ready()
+    try:
+        n = play(cell, rec, tick_range(rec, args.t_from, args.t_to), args.rate,
+                 on_tick=lambda tick, k: pres.beat(tick, k))
+    finally:
+        pres.close()
+    print(f"{PROG}: {n} ticks replayed into cell {cell.name}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,85 @@
+"""What droid-web shows, as plain JSON: one :class:`ViewBuilder` for a live cell and a recording.
+
+A *snapshot* is one tick of the cell::
+
+    {"tick": 1234, "t_ns": ..., "subunits": {name: {tick, class, homed, busy, mode, stale, fault,
+     cmd_result, cmd_id, x, y, z, valid}}, "health": {...}, "plots": {"tool_lateral_mm": ..,
+     "tool_height_mm": .., "lead_lateral_mm": .., "lead_depth_mm": .., "speed_mm_s": ..},
+     "geo": {"links": {arm: [[x,y,z] x 7]}, "frames": {name: 16 numbers, row-major 4x4},
+             "laser": [[x,y,z],[x,y,z]] | null, "tool": [x,y,z] | null, "seam_n": N}}
+
+The seam map is sent apart (``seam``: the points so far), since it only grows.
+Tracking errors are the tool-tip sensor's reading (thesis §6.1: the seam's
+lateral and height deviation from the tool point) and the lead sensor's; the
+speed is the tool point's [mm/s] over the ticks between snapshots.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from droid.brain.layouts import CMD_MODE_NAMES
+from droid.observe.events import fault_names
+from droid.observe.scene import SceneBuilder, is_arm
+
+CMD_RESULT_NAMES = {0: "ok", 1: "failed", 2: "refused"}
+
+
+def subunit_view(sub: dict, d: dict) -> dict:
+    """The status fields the page's table shows for one subunit (``sub``: its recording metadata)."""
+    cls = sub.get("class", "?")
+    v = {"tick": int(d.get("tick", 0)), "class": cls, "homed": int(d.get("homed", 0)), "busy": int(d.get("busy", 0)),
+         "mode": CMD_MODE_NAMES.get(int(d.get("cmd_mode", -1)), str(d.get("cmd_mode"))),
+         "stale": bool(d.get("stale", 0)), "fault": fault_names(int(d.get("fault", 0))),
+         "cmd_result": CMD_RESULT_NAMES.get(int(d.get("cmd_result", 0)), str(d.get("cmd_result"))),
+         "cmd_id": int(d.get("cmd_id", 0)),
+         "x": round(float(d.get("x", 0.0)), 3), "y": round(float(d.get("y", 0.0)), 3),
+         "z": round(float(d.get("z", 0.0)), 3)}
+    v["arm"] = is_arm(sub)
+    if not v["arm"]:
+        v["valid"] = not d.get("homed") and not d.get("stale")
+    return v
+
+
+class ViewBuilder:
+    """Status dicts per tick -> snapshots (see the module docstring)."""
+
+    def __init__(self, meta: dict) -> None:
+        self.meta = meta
+        self.subs = {s["name"]: s for s in meta.get("subunits", [])}
+        self.scene = SceneBuilder(meta.get("subunits", []), meta.get("scene", {}))
+        g = meta.get("scene", {})
+        self.lead_name = g.get("sensor")
+        self.tool_name = "tool" if "tool" in self.subs else None
+        self.hz = float(meta.get("heartbeat_hz", 60.0))
+        self._last_tool: tuple[int, np.ndarray] | None = None
+
+    def snapshot(self, tick: int, t_ns: int, statuses: dict[str, dict], health: dict | None = None) -> dict:
+        geo = self.scene.step(statuses)
+        subs = {n: subunit_view(self.subs.get(n, {}), d) for n, d in statuses.items()}
+        tool_T = geo["frames"].get("tool")
+        speed = None
+        if tool_T is not None:
+            p = tool_T[:3, 3]
+            if self._last_tool is not None and tick > self._last_tool[0]:
+                speed = float(np.linalg.norm(p - self._last_tool[1]) * self.hz / (tick - self._last_tool[0]))
+            if self._last_tool is None or tick != self._last_tool[0]:
+                self._last_tool = (tick, p.copy())
+        plots = {"speed_mm_s": speed}
+        for name, pre, xk in ((self.tool_name, "tool", "height"), (self.lead_name, "lead", "depth")):
+            d = statuses.get(name) if name else None
+            ok = d is not None and not d.get("homed") and not d.get("stale")
+            plots[f"{pre}_lateral_mm"] = float(d["y"]) if ok else None
+            plots[f"{pre}_{xk}_mm"] = float(d["x"]) if ok else None
+        frames = {k: [round(float(v), 4) for v in T.reshape(-1)] for k, T in geo["frames"].items()}
+        return {"tick": int(tick), "t_ns": int(t_ns), "subunits": subs, "health": health or {},
+                "plots": {k: (None if v is None or not math.isfinite(v) else round(v, 4)) for k, v in plots.items()},
+                "geo": {"links": {k: [[round(c, 3) for c in p] for p in pts] for k, pts in geo["links"].items()},
+                        "frames": frames, "laser": geo["laser"],
+                        "tool": None if tool_T is None else tool_T[:3, 3].round(3).tolist(),
+                        "seam_n": len(geo["seam"])}}
+
+    @property
+    def seam(self) -> list:
+        return self.scene.seam
