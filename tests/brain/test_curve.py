@@ -224,7 +224,12 @@ def test_pub_sub_only_the_cell_keys_receive(cell, ctx):
 
 
 def _first_handshake(mon, timeout_ms: int = 10000) -> str:
-    while mon.poll(timeout_ms):
+    """The first handshake event on a monitor socket, within ``timeout_ms`` in all (other
+    events -- connect retries -- keep coming: a per-event timeout alone could wait forever)."""
+    import time
+
+    deadline = time.monotonic() + timeout_ms / 1000
+    while (left := deadline - time.monotonic()) > 0 and mon.poll(max(1, int(left * 1000))):
         ev = recv_monitor_message(mon)["event"]
         if ev in HANDSHAKE_EVENTS:
             return HANDSHAKE_EVENTS[ev]
