@@ -46,7 +46,8 @@ def use_cell(cell: Cell) -> None:
     """Process-wide settings a cell asks for: the databases' priority ceiling."""
     from droid.brain import shmdb
 
-    shmdb.set_priority_ceiling(shmdb.CEILING_PRIORITY if cell.sched_fifo else None)
+    off = os.environ.get("DROID_NO_CEILING") == "1"  # for comparisons (bench/bench_under_load.py)
+    shmdb.set_priority_ceiling(shmdb.CEILING_PRIORITY if cell.sched_fifo and not off else None)
 
 
 def notify_ready(fd: int | None) -> None:
