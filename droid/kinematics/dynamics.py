@@ -44,6 +44,7 @@ DYNAMICS_KEYS = {
     "torque_constant_nm_per_a": "6",
     "amp_gain_a_per_v": "6",
     "amp_current_limit_a": "6",
+    "motor_no_load_speed_rad_s": "6",
     "dac_full_scale_v": "1",
     "hd_stiffness_nm_per_rad": "6",
     "hd_damping_nm_s_per_rad": "6",
@@ -55,7 +56,8 @@ DYNAMICS_KEYS = {
 }
 #: keys that must be > 0 element-wise (the others must be >= 0, gravity and the balancer any sign >= 0)
 POSITIVE = {"link_mass_kg", "rotor_inertia_kgm2", "torque_constant_nm_per_a", "amp_gain_a_per_v",
-            "amp_current_limit_a", "dac_full_scale_v", "hd_stiffness_nm_per_rad"}
+            "amp_current_limit_a", "dac_full_scale_v", "hd_stiffness_nm_per_rad",
+            "motor_no_load_speed_rad_s"}
 
 #: [servo] keys (PID per servo tick, thesis §4.1.5.1; counts are motor encoder counts)
 SERVO_KEYS = {
@@ -78,6 +80,7 @@ class Dynamics:
     torque_constant_nm_per_a: np.ndarray
     amp_gain_a_per_v: np.ndarray
     amp_current_limit_a: np.ndarray
+    motor_no_load_speed_rad_s: np.ndarray  # back-EMF: the amplifier's torque fades to 0 at this speed
     dac_full_scale_v: float
     hd_stiffness_nm_per_rad: np.ndarray  # joint side
     hd_damping_nm_s_per_rad: np.ndarray  # joint side
@@ -198,6 +201,7 @@ def dynamics_from_table(data) -> Dynamics:
         torque_constant_nm_per_a=v["torque_constant_nm_per_a"],
         amp_gain_a_per_v=v["amp_gain_a_per_v"],
         amp_current_limit_a=v["amp_current_limit_a"],
+        motor_no_load_speed_rad_s=v["motor_no_load_speed_rad_s"],
         dac_full_scale_v=float(v["dac_full_scale_v"]),
         hd_stiffness_nm_per_rad=v["hd_stiffness_nm_per_rad"],
         hd_damping_nm_s_per_rad=v["hd_damping_nm_s_per_rad"],
