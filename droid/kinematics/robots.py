@@ -52,7 +52,8 @@ _REQUIRED = {
 
 
 class RobotFileError(ValueError):
-    """A robot name that is not bundled, or a robot file that is missing or malformed."""
+    """A robot name that is not bundled, or a robot file that is missing or malformed
+    (programs turn it into a :class:`droid.cli.BadInput`: exit 2 with the message)."""
 
 
 def list_robots() -> list[str]:
