@@ -215,3 +215,36 @@ class LockstepArm:
     def move_done(self, cmd_id: int, max_s: float) -> bool:
         return self.run_until(lambda: int(self.status["cmd_id"]) == cmd_id and int(self.status["busy"]) == 0,
                               max_s)
+
+
+def arms_from_cell(sched: Scheduler, cell, seed: int | None = None) -> dict[str, LockstepArm]:
+    """The cell file's Reis arms (its ``reis_vme`` world devices) as lockstep arms on ``sched``.
+
+    Each arm reads its subunit's robot file and base; its plant carries the device table's
+    world errors (``home_error_deg``, ``calibration_seed``, ``link_error_mm``,
+    ``twist_error_deg``; droid.sim.reis_world), and a device naming a different robot file
+    than its subunit is refused, as droid-sim refuses it.
+    """
+    from droid.cli import BadInput
+    from droid.sim.reis_world import _OPTIONS, world_errors
+
+    arms = {}
+    world_seed = int(cell.world.get("seed", 0)) if seed is None else seed
+    for name, opts in cell.world.get("devices", {}).items():
+        if not isinstance(opts, dict) or opts.get("type") != "reis_vme":
+            continue
+        opts = {k: v for k, v in opts.items() if k != "type"}
+        where = f"{cell.path}: [world.devices.{name}]"
+        unknown = set(opts) - _OPTIONS
+        if unknown:
+            raise BadInput(f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
+        sub = cell.subunit(opts.get("subunit", name))
+        if "robot" in opts and opts["robot"] != sub.robot:
+            raise BadInput(f"{where}: the world's robot file {opts['robot']!r} differs from the controller's "
+                           f"{sub.robot!r} ([subunits.{sub.name}] robot): one arm, one robot file")
+        model = load_robot(sub.robot)
+        home_error, dh_error = world_errors(where, model, opts)
+        pp = ReisPlantParams(robot=sub.robot, home_error_deg=home_error, dh_error=dh_error)
+        arms[sub.name] = LockstepArm(sched, sub.name, robot=sub.robot, base=tuple(sub.base),
+                                     seed=int(opts.get("seed", world_seed)), plant_params=pp)
+    return arms
