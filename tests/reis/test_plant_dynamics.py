@@ -128,3 +128,24 @@ def test_non_physical_dynamics_are_refused_naming_file_key_and_reason(tmp_path, 
     assert r.returncode == 2
     assert str(p) in r.stderr and words[0] in r.stderr and "Traceback" not in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
+
+
+def test_the_experimental_exact_integrator_follows_the_reference_on_a_joint_move():
+    from droid.sim.reis_lockstep import (LockstepRates, ReisLockstep, min_jerk_waypoints, run_homing,
+                                         waypoint_commander)
+    from droid.subunits.reis.servo import ServoCore
+    from droid.subunits.reis.servo_params import Mode
+
+    traces = {}
+    for integ in ("substep", "exact"):
+        pp = ReisPlantParams(integrator=integ)
+        plant = ReisPlant(pp, seed=2, initial_joint_deg=np.asarray(pp.switch_joint_deg) + 0.3)
+        ls = ReisLockstep(plant, ServoCore(ServoParams()), rates=LockstepRates(plant_hz=2000, command_hz=60))
+        ls.run(0.05)
+        run_homing(ls)
+        assert ls.servo.homed
+        M = np.asarray(ls.servo.params.joint_to_counts)
+        goal = np.rint(M @ np.array([40.0, -25.0, 30.0, -60.0, 45.0, 90.0])).astype(int)
+        wp = min_jerk_waypoints(ls.servo.encoder_cmd, goal, 1.0)
+        traces[integ] = ls.run(1.5, waypoint_commander(wp, Mode.NORMAL, first_index=ls.command_index)).joint_deg
+    assert np.abs(traces["substep"] - traces["exact"]).max() < 0.1
