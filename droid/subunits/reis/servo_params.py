@@ -112,7 +112,8 @@ class ServoParams:
     home_switch_deg: Six = field(default_factory=_default("home_switch_deg"))
     home_search_dir: tuple[int, ...] = field(default_factory=_default("home_search_dir"))
     home_speed_counts_per_tick: int = 20  # "moderate speed"
-    home_settle_ticks: int = 100  # rest after the switch is found, before the fine approach
+    home_settle_ticks: int = 250  # rest after the switch is found, before the fine approach: 0.5 s, so the
+    # links stop ringing on the compliant drives (~10 Hz, ~10 % damping: 0.2 s left ~30 % of it)
     home_fine_counts_per_tick: int = 1  # the final single-count approach
     home_search_limit_counts: int = 400_000  # ~360 joint degrees per phase
 
@@ -138,11 +139,19 @@ class ServoParams:
         return 1.0 / self.servo_rate_hz
 
     @classmethod
-    def from_robot(cls, robot, **overrides) -> "ServoParams":
+    def from_robot(cls, robot, home_offset_deg=None, **overrides) -> "ServoParams":
         """The servo of an arm: a bundled robot name, a ``.toml`` path or a RobotModel
-        (raises :class:`droid.kinematics.RobotFileError` for a bad file)."""
+        (raises :class:`droid.kinematics.RobotFileError` for a bad file).  ``home_offset_deg``
+        (6, from droid-calibrate) is added to the robot file's switch positions: the switches'
+        calibrated positions, which homing uses."""
         model = load_robot(robot) if isinstance(robot, (str, Path)) else robot
-        return cls(**{**robot_servo_fields(model), **overrides})
+        fields = robot_servo_fields(model)
+        if home_offset_deg is not None:
+            off = np.asarray(home_offset_deg, float)
+            if off.shape != (6,) or not np.all(np.isfinite(off)):
+                raise ValueError("home_offset_deg: expected 6 finite numbers")
+            fields["home_switch_deg"] = tuple(float(a + b) for a, b in zip(fields["home_switch_deg"], off))
+        return cls(**{**fields, **overrides})
 
     @classmethod
     def for_robot_file(cls, path: str | Path, **overrides) -> "ServoParams":

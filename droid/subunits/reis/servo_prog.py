@@ -33,6 +33,7 @@ from droid.subunits.reis import servo_wire as sw
 from droid.subunits.reis.brake_log import BrakeRecorder
 from droid.subunits.reis.endpoints import reis_endpoints
 from droid.subunits.reis.servo import ServoCore
+from droid.subunits.reis.robot_file import read_offsets
 from droid.subunits.reis.servo_params import ServoParams
 from droid.subunits.reis.vme import VmeOpenError, open_vme
 
@@ -80,9 +81,9 @@ def main(argv=None) -> int:
             raise RuntimeFailure(f"cannot bind {ep.servo} / {ep.servo_status}: {exc}") from None
         bus = open_vme_waiting(ep.vme, OPEN_WAIT_S)
         bus.zero_dacs()
-        try:  # the arm's robot file: gains, home switches, limits
-            core = ServoCore(ServoParams.from_robot(sub.robot))
-        except RobotFileError as exc:
+        try:  # the arm's robot file: gains, home switches, limits; plus droid-calibrate's offsets
+            core = ServoCore(ServoParams.from_robot(sub.robot, read_offsets(cell, sub.name)))
+        except (RobotFileError, ValueError) as exc:
             raise BadInput(str(exc)) from None
         timer = PeriodicTimer(int(round(1e9 / SERVO_HZ)))
         presence.ready()
