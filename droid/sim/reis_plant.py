@@ -196,6 +196,11 @@ class ReisPlant:
         self._Ainv = np.linalg.inv(a)
         self._AinvT = self._Ainv.T.copy()
         self._J_rotor_ref = self._AinvT @ np.diag(dyn.rotor_inertia_kgm2) @ self._Ainv  # at the joints
+        kd = np.asarray(dyn.hd_stiffness_nm_per_rad, float)[:, None]
+        dd = np.asarray(dyn.hd_damping_nm_s_per_rad, float)[:, None]
+        # drive torques tau_s = S @ [theta, omega, q, qd]; their motor-side reaction A^T tau_s
+        self._S = np.hstack((kd * a, dd * a, -np.diagflat(kd), -np.diagflat(dd)))
+        self._ATS = a.T @ self._S
         self._Jm = np.asarray(dyn.rotor_inertia_kgm2, float)
         self._K = np.asarray(dyn.hd_stiffness_nm_per_rad, float)
         self._D = np.asarray(dyn.hd_damping_nm_s_per_rad, float)
@@ -347,34 +352,39 @@ class ReisPlant:
         self._write_outputs()
 
     def _steps_compliant(self, n: int, h: float, drive, tau_c) -> None:
-        A, AT, K, D = self._A, self._AT, self._K, self._D
+        """Semi-implicit Euler on the state s = [theta, omega, q, qd] (one 24-vector, few numpy
+        calls per substep: the drive torques and their motor-side reaction are one matrix
+        product each)."""
+        S, ATS = self._S, self._ATS
         h_over_j = h / self._Jm
         damp = 1.0 / (1.0 + self._b * h_over_j)
+        hjd = h_over_j * damp
         dw_c = tau_c * h_over_j
+        neg_dw_c = -dw_c
         model, data, aba = self._pin_model, self._pin_data, pin.aba
-        theta, omega, q, qd = self._theta, self._omega, self._q, self._qd
-        jammed = self._jammed.any()
-        stops = jammed or self._near_stop(n * h)
+        st = np.concatenate((self._theta, self._omega, self._q, self._qd))
+        theta, omega, q, qd = st[0:6], st[6:12], st[12:18], st[18:24]
+        stops = bool(self._jammed.any()) or self._near_stop(n * h)
         bal, sin = self._bal, math.sin
-        tmax, w0 = self._tau_max, self._w0
+        tmax, tmax_w0, two_tmax = self._tau_max, self._tau_max / self._w0, 2.0 * self._tau_max
         amps = self._amps_on
         for _ in range(n):
-            ts = K * (A @ theta - q) + D * (A @ omega - qd)  # drive torques at the joints
+            ts = S @ st  # drive torques at the joints: K (A theta - q) + D (A omega - qd)
             if amps:  # back-EMF: the amplifier's torque range shifts with the motor speed
-                fade = tmax * (omega / w0)
-                tau_m = np.minimum(np.maximum(drive, -tmax - fade), tmax - fade)
+                hi = tmax - tmax_w0 * omega
+                tau_m = np.minimum(np.maximum(drive, hi - two_tmax), hi)
             else:
                 tau_m = drive
-            w = (omega + h_over_j * (tau_m - AT @ ts)) * damp
-            omega = np.where(w > dw_c, w - dw_c, np.where(w < -dw_c, w + dw_c, 0.0))  # Coulomb + stiction
+            w = omega * damp + hjd * (tau_m - ATS @ st)
+            omega[:] = w - np.maximum(np.minimum(w, dw_c), neg_dw_c)  # Coulomb + stiction
             if bal:
                 ts[1] -= bal * sin(q[1])
-            qd = qd + h * aba(model, data, q, qd, ts)
+            qd += h * aba(model, data, q, qd, ts)
             if stops:
-                omega, qd = self._apply_stops(q, omega, qd)
-            theta = theta + h * omega
-            q = q + h * qd
-        self._theta, self._omega, self._q, self._qd = theta, omega, q, qd
+                omega[:], qd[:] = self._apply_stops(q, omega, qd)
+            theta += h * omega
+            q += h * qd
+        self._theta, self._omega, self._q, self._qd = theta.copy(), omega.copy(), q.copy(), qd.copy()
 
     # -- the exact (linearised, zero-order-hold) integrator --------------------------------
     def _discretise(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
