@@ -27,6 +27,11 @@ EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
 
 
+#: Modules imported only where a program draws a figure -> the pip name that installs them.
+#: A program that finds one missing ends with one line naming it (:func:`run`).
+OPTIONAL_MODULES = {"matplotlib": "matplotlib"}
+
+
 class DroidError(Exception):
     """Base of errors that end a program with a one-line message."""
 
@@ -45,8 +50,43 @@ class RuntimeFailure(DroidError):
     exit_code = EXIT_RUNTIME
 
 
+def droid_version() -> str:
+    """The installed package's version (its metadata), else ``droid.__version__``."""
+    try:
+        from importlib.metadata import PackageNotFoundError, version
+        try:
+            return version("droid")
+        except PackageNotFoundError:
+            pass
+    except ImportError:  # pragma: no cover
+        pass
+    from droid import __version__
+    return __version__
+
+
+class _VersionAction(argparse.Action):
+    """``--version``: print ``PROG VERSION`` and exit 0 (the version looked up only then)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings=option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(f"{parser.prog} {droid_version()}", file=sys.stdout, flush=True)
+        parser.exit(EXIT_OK)
+
+
 class ArgumentParser(argparse.ArgumentParser):
-    """argparse with a one-line error and exit code 2 (never the usage block)."""
+    """argparse with a one-line error and exit code 2 (never the usage block).
+
+    Every parser answers ``--version`` (``PROG VERSION`` on stdout, exit 0),
+    so every console script does (issue 15), unless built with
+    ``version=False``.
+    """
+
+    def __init__(self, *args, version: bool = True, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        if version and self.add_help:
+            self.add_argument("--version", action=_VersionAction, help="print the program's version and exit")
 
     def error(self, message: str) -> None:  # type: ignore[override]
         self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see --help)\n")
@@ -124,6 +164,49 @@ def integer(text: str) -> int:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def bounded_float(lo: float, hi: float, unit: str = "", *, lo_open: bool = False) -> Callable[[str], float]:
+    """argparse type: a finite float in [lo, hi] (``lo_open``: in (lo, hi]); the message names the range.
+
+    Negative zero is zero.  Every duration, rate and size a program accepts has a
+    stated maximum, so no accepted value overflows what the program does with it
+    (ticks in an int32 field, a deadline, a sleep)."""
+    u = f" {unit}" if unit else ""
+    span = f"{'(' if lo_open else '['}{lo:g}, {hi:g}]{u}"
+    rule = f"must be {'>' if lo_open else '>='} {lo:g} and <= {hi:g}{u}"
+
+    def parse(text: str) -> float:
+        value = finite_float(text) + 0.0  # -0.0 -> 0.0
+        if not ((lo < value) if lo_open else (lo <= value)) or value > hi:
+            raise argparse.ArgumentTypeError(f"{rule}: {text!r} is outside {span}")
+        return value
+
+    parse.__name__ = f"number in {span}"
+    return parse
+
+
+def bounded_int(lo: int, hi: int, unit: str = "") -> Callable[[str], int]:
+    """argparse type: a plain decimal integer in [lo, hi]; the message names the range."""
+    u = f" {unit}" if unit else ""
+    rule = f"must be {'> 0' if lo == 1 else f'>= {lo}'} and <= {hi}{u}"
+
+    def parse(text: str) -> int:
+        value = integer(text)
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"{rule}: {text!r} is outside [{lo}, {hi}]{u}")
+        return value
+
+    parse.__name__ = f"integer in [{lo}, {hi}]"
+    return parse
+
+
+#: The longest wait any program accepts (--timeout, move times) [s]: one day.
+MAX_WAIT_S = 86400.0
+#: The longest move a task accepts [s] (droid-move SECONDS): one hour at the
+#: heartbeat rate is 216 000 ticks, well inside the Command's int32 tick count.
+MAX_MOVE_S = 3600.0
+timeout_s = bounded_float(0.0, MAX_WAIT_S, "s", lo_open=True)
+
+
 def run(main: Callable[[Sequence[str] | None], int | None]) -> Callable[..., int]:
     """Wrap a ``main(argv)`` so DroidErrors become one-line messages and exit codes."""
 
@@ -135,6 +218,14 @@ def run(main: Callable[[Sequence[str] | None], int | None]) -> Callable[..., int
         except DroidError as exc:
             print(f"{prog}: {exc}", file=sys.stderr)
             return exc.exit_code
+        except ModuleNotFoundError as exc:
+            # an optional module a figure path imports late (matplotlib): one line, never a traceback
+            if (exc.name or "").split(".")[0] not in OPTIONAL_MODULES:
+                raise
+            top = exc.name.split(".")[0]
+            print(f"{prog}: {top} is not installed (pip install {OPTIONAL_MODULES[top]}): "
+                  "no figure", file=sys.stderr)
+            return EXIT_RUNTIME
         except KeyboardInterrupt:
             return EXIT_INTERRUPTED
         except BrokenPipeError:

@@ -27,6 +27,7 @@ PROGRAMS: dict[str, str] = {
     "droid-servo-agent": "droid.subunits.reis.servo_agent",
     "droid-watchdog": "droid.subunits.reis.watchdog_prog",
     "droid-mvs": "droid.subunits.mvs.sensor",
+    "droid-joystick": "droid.subunits.joystick.prog",
     "droid-mvs-board": "droid.sim.mvs_dsp",
     # tasks
     "droid-snoop": "droid.tasks.snoop",

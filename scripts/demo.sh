@@ -16,8 +16,9 @@ droid-home arm1     # the Reis: its 500 Hz servo searches the limit switches (th
 droid-home gmf1     # the Fanuc: its KAREL controller goes home, the encoder cards are zeroed
 # Start position (i) of the layout (cells/seamtrack_layout.toml): the Fanuc holds the
 # step-input workpiece, the Reis puts its lead sensor on the seam start; then track
-# 400 mm of the seam (over the 5 degree step at 100 mm) at 16 mm/s.
-droid-seamtrack 16 --start i --length 400 --log "$out/seamtrack.csv" --figure "$out/seamtrack.png"
+# 400 mm of the seam (over the 5 degree step at 100 mm) at 16 mm/s in plus mode (the
+# seam-map tracker, docs/seamtrack.md; `--mode thesis` runs the thesis's tracker).
+droid-seamtrack 16 --mode plus --start i --length 400 --log "$out/seamtrack.csv" --figure "$out/seamtrack.png"
 for sub in arm1 gmf1 mvs tool; do
     droid-snoop "$sub" --count 1
 done

@@ -37,8 +37,11 @@ bg gmf1-encoder-gmf1 droid-gmf1-encoder gmf1   # the encoder cards, 120 Hz (§4.
 # the MVS sensor PC runs the sensor program; its lines reach the Brain by a serial cable
 bg mvs-mvs droid-mvs mvs
 bg planner-arm1 droid-planner arm1
+# the Brain's joystick (thesis §3.4): its device reader and its agent
+bg joystick-joy droid-joystick joy
+bg agent-joy droid-agent joy
 # 6. ... one remote client per subunit on the Brain ...
-for sub in arm1 gmf1 mvs tool; do bg "remote-$sub" droid-remote "$sub"; done
+for sub in arm1 gmf1 mvs tool joy; do bg "remote-$sub" droid-remote "$sub"; done
 # 7. ... and the heartbeat that paces them all (60 Hz).
 bg heartbeat droid-heartbeat
 # wait (bounded) until every program says it is live, then show them

@@ -10,6 +10,6 @@ fi
 stamp=.venv/.droid-installed
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
     .venv/bin/python -m pip install --quiet --upgrade pip
-    .venv/bin/python -m pip install --quiet -e ".[test,plots]"
+    .venv/bin/python -m pip install --quiet -e ".[test,plots,cluster]"
     touch "$stamp"
 fi

@@ -122,18 +122,10 @@ def cell_name(request) -> str:
 def sim_cell(tmp_path, cell_name):
     """The built-in simulated cell (renamed, run dir in tmp) brought up for the test and
     always brought down after it; yields the cell file's path."""
-    from droid.brain.shmdb import cell_objects
-    from tests.brain.cellutil import droid, make_cell_file
+    from tests.brain.cellutil import cell_up, make_cell_file
 
-    path = make_cell_file(tmp_path, cell_name)
-    out = droid("droid.brain.launcher", "up", "--cell", str(path), timeout=120)
-    try:
-        assert out.returncode == 0, out.stdout + out.stderr
+    with cell_up(make_cell_file(tmp_path, cell_name), cell_name) as path:
         yield path
-    finally:
-        out = droid("droid.brain.launcher", "down", "--cell", str(path))
-        assert out.returncode == 0, out.stderr
-        assert cell_objects(cell_name) == []
 
 
 @pytest.fixture

@@ -21,10 +21,12 @@ from pathlib import Path
 from typing import Any
 
 from droid.cli import BadInput
+from droid.brain.classes import CLASSES, SubunitClass
 from droid.brain.curve import CurveConfig, parse_curve_table
+from droid.brain.wire import LIVENESS_TICKS
 from droid.brain.shmdb import check_name_part
 
-SUBUNIT_CLASSES = ("arm6r", "line_laser")
+SUBUNIT_CLASSES = tuple(CLASSES)  # droid.brain.classes: the classes as data
 DEFAULT_RUN_ROOT = "/tmp/droid"
 ENV_CELL = "DROID_CELL"
 ENV_RUN_ROOT = "DROID_RUN_ROOT"
@@ -45,7 +47,7 @@ class Subunit:
     """One subunit of the cell (thesis §3.2)."""
 
     name: str
-    cls: str  # arm6r | line_laser
+    cls: str  # a key of droid.brain.classes.CLASSES: arm6r | line_laser | joystick
     host: str
     agent: str  # ZeroMQ endpoint the agent binds
     relay: str  # ZeroMQ endpoint where the agent relays ticks to its local programs
@@ -56,8 +58,14 @@ class Subunit:
     options: dict[str, Any] = field(default_factory=dict)  # class-specific tables
 
     @property
+    def kind(self) -> SubunitClass:
+        """The subunit's class as data (layouts, fields, drivers)."""
+        return CLASSES[self.cls]
+
+    @property
     def is_arm(self) -> bool:
-        return self.cls == "arm6r"
+        """A commandable arm with a robot model (its class is kinematic)."""
+        return CLASSES[self.cls].kinematic
 
 
 @dataclass
@@ -189,7 +197,7 @@ def parse_cell(raw: dict[str, Any], p: Path) -> Cell:
     hb_hz = c.get("heartbeat_hz", float, 60.0, check=_positive)
     if hb_hz > 1000:
         raise BadInput(f"{p}: [cell] heartbeat_hz {hb_hz:g} is above 1000 Hz")
-    stale = c.get("stale_ticks", int, 3, check=lambda v: None if v >= 1 else "must be >= 1")
+    stale = c.get("stale_ticks", int, LIVENESS_TICKS, check=lambda v: None if v >= 1 else "must be >= 1")
     fifo = c.get("sched_fifo", bool, False)
     run_root = os.environ.get(ENV_RUN_ROOT, DEFAULT_RUN_ROOT)
     run_dir = c.get("run_dir", str, f"{run_root}/{name}")
@@ -242,7 +250,7 @@ def parse_cell(raw: dict[str, Any], p: Path) -> Cell:
             if not isinstance(prog, str):
                 raise BadInput(f"{p}: [subunits.{sname}] programs must be a list of program names")
         if sub.is_arm and not sub.robot:
-            raise BadInput(f"{p}: [subunits.{sname}] an arm6r subunit needs 'robot'")
+            raise BadInput(f"{p}: [subunits.{sname}] an {sub.cls} subunit needs 'robot'")
         sub.options = _expand(r.done(allow_extra=True), run, name)
         subunits[sname] = sub
     top.done(allow_extra=False)

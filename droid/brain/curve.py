@@ -153,6 +153,21 @@ class CurveHost:
         sock.zap_domain = self.domain.encode()
         return True
 
+    def bind(self, cell, *socks_endpoints: tuple[zmq.Socket, str]) -> None:
+        """Serve each ``(socket, endpoint)`` (CURVE where it leaves the host) and bind it where the
+        cell says its owner binds (``cell.bind_endpoint``); RuntimeFailure (exit 1) naming the
+        endpoints if one cannot be bound.  The one bind of every server socket of a program."""
+        from droid.cli import RuntimeFailure
+
+        for sock, endpoint in socks_endpoints:
+            self.server(sock, endpoint)
+        try:
+            for sock, endpoint in socks_endpoints:
+                sock.bind(cell.bind_endpoint(endpoint))
+        except zmq.ZMQError as exc:
+            names = " / ".join(ep for _, ep in socks_endpoints)
+            raise RuntimeFailure(f"cannot bind {names}: {exc}") from None
+
     def client(self, sock: zmq.Socket, endpoint: str, server_host: str) -> bool:
         """Make ``sock`` a CURVE client of ``server_host``'s key if ``endpoint`` leaves the host."""
         if not (self.enabled and secured(endpoint)):

@@ -1,5 +1,8 @@
 """Which databases a cell has, and their names (thesis §3.2–3.3, §4.1.3).
 
+The layouts of each area come from the subunit's class (:mod:`droid.brain.classes`);
+for the classes shipped:
+
 Brain (one per subunit):
   ``/droid.<cell>.<sub>.status``   ARM_STATUS (arm6r, Table 3.1) or SENSOR_STATUS (Table 3.3)
   ``/droid.<cell>.<sub>.command``  ARM_COMMAND (arm6r only, Table 3.2)
@@ -7,33 +10,23 @@ Subunit side (the motion controller's own, Tables 4.2–4.3; arm6r only):
   ``/droid.<cell>.<sub>.ctrl_status``   CTRL_STATUS
   ``/droid.<cell>.<sub>.ctrl_command``  CTRL_COMMAND
 Subunit side for sensors: ``/droid.<cell>.<sub>.ctrl_status`` SENSOR_STATUS.
+Joysticks: ``status`` and ``ctrl_status`` JOYSTICK_STATUS.
 """
 from __future__ import annotations
 
 from droid.brain.cellfile import Cell, Subunit
-from droid.brain.layouts import (
-    ARM_COMMAND_LAYOUT,
-    ARM_STATUS_LAYOUT,
-    CTRL_COMMAND_LAYOUT,
-    CTRL_STATUS_LAYOUT,
-    JOG_MODE,
-    JSPACE,
-    SENSOR_STATUS_LAYOUT,
-    Layout,
-)
+from droid.brain.layouts import JOG_MODE, JSPACE, Layout
 from droid.brain.shmdb import Database, db_name
 
 
 def brain_layouts(sub: Subunit) -> dict[str, Layout]:
-    if sub.is_arm:
-        return {"status": ARM_STATUS_LAYOUT, "command": ARM_COMMAND_LAYOUT}
-    return {"status": SENSOR_STATUS_LAYOUT}
+    """The Brain's areas of a subunit -> layout (its class's ``brain`` table)."""
+    return dict(sub.kind.brain)
 
 
 def local_layouts(sub: Subunit) -> dict[str, Layout]:
-    if sub.is_arm:
-        return {"ctrl_status": CTRL_STATUS_LAYOUT, "ctrl_command": CTRL_COMMAND_LAYOUT}
-    return {"ctrl_status": SENSOR_STATUS_LAYOUT}
+    """The subunit side's areas -> layout (its class's ``local`` table)."""
+    return dict(sub.kind.local)
 
 
 def create_databases(cell: Cell, hosts: set[str] | None = None) -> list[Database]:
@@ -67,3 +60,16 @@ def open_brain(cell: Cell, sub: Subunit, area: str, **kw) -> Database:
 
 def open_local(cell: Cell, sub: Subunit, area: str, **kw) -> Database:
     return Database(db_name(cell.name, sub.name, area), local_layouts(sub)[area], **kw)
+
+
+def write_command(command: Database, **fields) -> int:
+    """Write a new command into a Command record (Table 3.2): the fields, the next ``cmd_id``
+    (never 0) and ``sent = 1``, under one lock.  Returns the ``cmd_id`` [tasks' one writer]."""
+    with command.locked() as c:
+        cmd_id = (int(c["cmd_id"]) + 1) & 0xFFFFFFFF or 1
+        for k, v in fields.items():
+            c[k] = v
+        c["cmd_id"] = cmd_id
+        c["sent"] = 1
+        command.mark_written()
+    return cmd_id

@@ -38,10 +38,10 @@ from dataclasses import asdict, dataclass, field
 from droid.brain.cellfile import Cell, load_cell
 from droid.brain.databases import create_databases
 from droid.brain.layouts import PROC_STATE_NAMES, PROC_STATUS_LAYOUT
-from droid.brain.program import presence_key
+from droid.brain.program import presence_key, use_cell
 from droid.brain.shmdb import (Database, NoDatabase, cell_objects, db_name, pid_alive,
                                remove_cell_objects, unlink_database)
-from droid.cli import ArgumentParser, BadInput, RuntimeFailure, positive_float, run
+from droid.cli import ArgumentParser, BadInput, RuntimeFailure, run, timeout_s
 from droid.programs import PROGRAMS
 
 PROG = "droid-cell"
@@ -381,23 +381,24 @@ def main(argv=None) -> int:
     p_up = sp.add_parser("up", help="create the databases and start every program")
     p_up.add_argument("--host", action="append", metavar="HOST",
                       help="start only this host's programs (repeatable; default: all hosts)")
-    p_up.add_argument("--timeout", type=positive_float, default=READY_TIMEOUT_S, metavar="S",
+    p_up.add_argument("--timeout", type=timeout_s, default=READY_TIMEOUT_S, metavar="S",
                       help=f"readiness timeout [s] (default {READY_TIMEOUT_S:g})")
     sp.add_parser("init", help="only create the databases (to start programs by hand)")
     p_rs = sp.add_parser("restart", help="start one dead program of the cell again")
     p_rs.add_argument("name", help="the program as 'status' lists it (e.g. 'droid-servo arm1') or its key")
-    p_rs.add_argument("--timeout", type=positive_float, default=READY_TIMEOUT_S, metavar="S",
+    p_rs.add_argument("--timeout", type=timeout_s, default=READY_TIMEOUT_S, metavar="S",
                       help=f"readiness timeout [s] (default {READY_TIMEOUT_S:g})")
     p_st = sp.add_parser("status", help="list every program with its pid and liveness")
     p_st.add_argument("--json", action="store_true", help="one JSON object per program, a line each")
     p_dn = sp.add_parser("down", help="stop every program and remove the shared memory")
-    p_dn.add_argument("--timeout", type=positive_float, default=STOP_GRACE_S, metavar="S",
+    p_dn.add_argument("--timeout", type=timeout_s, default=STOP_GRACE_S, metavar="S",
                       help=f"grace period before SIGKILL [s] (default {STOP_GRACE_S:g})")
     for p in sp.choices.values():
         p.add_argument("--cell", metavar="FILE", default=argparse_default(),
                        help="cell file (default: $DROID_CELL, else the built-in simulated cell)")
     args = ap.parse_args(argv)
     cell = load_cell(args.cell)
+    use_cell(cell)
     if args.cmd == "up":
         hosts = set(args.host) if args.host else None
         if hosts:

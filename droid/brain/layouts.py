@@ -27,6 +27,7 @@ sent, encoder_cmd_ext, encoder_cmd_int); additions are documented per field.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import IntEnum
 
 import numpy as np
 
@@ -42,6 +43,7 @@ KIND_SENSOR_STATUS = 3  # Brain, Table 3.3
 KIND_CTRL_STATUS = 4  # motion controller, Table 4.2
 KIND_CTRL_COMMAND = 5  # motion controller, Table 4.3
 KIND_PROC_STATUS = 6  # one per running program (droid-cell status)
+KIND_JOYSTICK_STATUS = 7  # an analog joystick (thesis §2.6, §3.4, Figure 2.10)
 
 # Header flags
 FLAG_RECOVERED = 1  # the semaphore was taken over from a dead holder at least once
@@ -49,11 +51,32 @@ FLAG_RECOVERED = 1  # the semaphore was taken over from a dead holder at least o
 # Enumerations (thesis §3.3)
 JSPACE = 0  # coord: joint space
 CARTSPACE = 1  # coord: cartesian space
-OFF = 0  # cmd_mode
-JOG_MODE = 1
-HOME_MODE = 2
-NORMAL_MODE = 3
-CMD_MODE_NAMES = {OFF: "OFF", JOG_MODE: "JOG", HOME_MODE: "HOME", NORMAL_MODE: "NORMAL"}
+
+
+class CmdMode(IntEnum):
+    """Command modes (Command/Status ``cmd_mode``, thesis §3.3 and Table 4.3): the one definition.
+
+    The Brain's records, the agent and every task use these numbers; the Reis
+    servo's own message wire should too (its ``servo_params.Mode`` still numbers
+    HOME and JOG the other way round and is mapped in the servo agent)."""
+
+    OFF = 0
+    JOG = 1  # relative encoder counts; works before homing (§3.4)
+    HOME = 2  # run the homing routine
+    NORMAL = 3  # absolute joint or cartesian target (needs homed)
+
+
+OFF = CmdMode.OFF  # cmd_mode
+JOG_MODE = CmdMode.JOG
+HOME_MODE = CmdMode.HOME
+NORMAL_MODE = CmdMode.NORMAL
+CMD_MODE_NAMES = {int(m): m.name for m in CmdMode}
+#: A NORMAL command whose time count (joint_time_count or cart_time_count, by coord) is
+#: STOP_TICKS is a *stop* (addition, issue 16): the controller drops what is pending, ends
+#: the move in progress where its way-point is and holds there.  Task programs that give
+#: up (timeout, stale link, interrupted) write one, so their command is never carried out
+#: later (no "orphan moves").  No move command has 0 ticks (droid-move refuses < 1 tick).
+STOP_TICKS = 0
 COORD_NAMES = {JSPACE: "JOINT", CARTSPACE: "CARTESIAN"}
 FALSE = 0
 HOMED = 1  # Status.homed (arms); for sensors homed==1 means INVALID data (Table 3.3)
@@ -133,6 +156,7 @@ FAULT_SERVO = 4  # servo program silent
 FAULT_LIMIT = 8  # a target was clamped at a joint limit
 FAULT_BRAKING = 16  # the servo ran out of commands and braked
 FAULT_DEVICE = 32  # device driver error (serial port, encoder card)
+FAULT_HEARTBEAT = 64  # Brain side: no heartbeat tick for stale_ticks periods (the Status is not being refreshed)
 FAULT_NAMES = {
     FAULT_LINK: "link",
     FAULT_WATCHDOG: "watchdog",
@@ -140,6 +164,7 @@ FAULT_NAMES = {
     FAULT_LIMIT: "limit",
     FAULT_BRAKING: "braking",
     FAULT_DEVICE: "device",
+    FAULT_HEARTBEAT: "heartbeat",
 }
 
 ARM_STATUS = _dtype(_STATUS, 224)
@@ -150,9 +175,13 @@ SENSOR_STATUS = _dtype(
         ("valid_count", "<u4", None),  # addition: valid readings received
         ("invalid_count", "<u4", None),  # addition: readings flagged invalid by the sensor
         ("garbled_count", "<u4", None),  # addition: lines that did not parse
+        ("capture_age_us", "<u4", None),  # addition (v2, issue 12): age of the reading's camera frame at
+        #                                   updated_ns [us], from the line's stamp; NO_CAPTURE_AGE: unstamped
     ],
     240,
 )
+#: SENSOR_STATUS.capture_age_us of a reading without a capture stamp.
+NO_CAPTURE_AGE = 0xFFFFFFFF
 
 ARM_COMMAND = _dtype(
     HEADER_FIELDS
@@ -208,6 +237,29 @@ PROC_STATUS = _dtype(
 )
 
 
+#: axes and buttons a joystick record holds (the thesis's Thrustmaster: 2 analog
+#: axes and 8 digital inputs, §2.6; a USB stick has more)
+JOYSTICK_AXES = 8
+JOYSTICK_BUTTONS = 16
+
+JOYSTICK_STATUS = _dtype(
+    HEADER_FIELDS
+    + [
+        ("axes", "<f8", (JOYSTICK_AXES,)),  # deflection, -1..1 (0 = centred); unused axes 0
+        ("buttons", "<u1", (JOYSTICK_BUTTONS,)),  # 1 = pressed
+        ("valid", "<u4", None),  # 1 = the device is open and its state is known
+        ("events", "<u4", None),  # device events read (wraps)
+        ("tick", "<u8", None),  # heartbeat tick of the last refresh
+        ("updated_ns", "<i8", None),  # CLOCK_MONOTONIC of the last refresh [ns]
+        ("stale", "<u4", None),  # 1 when the link missed >= stale_ticks ticks
+        ("fault", "<u4", None),  # FAULT_* bits (FAULT_DEVICE: the device could not be read)
+        ("n_axes", "<u4", None),  # axes the device has (<= JOYSTICK_AXES)
+        ("n_buttons", "<u4", None),  # buttons the device has (<= JOYSTICK_BUTTONS)
+    ],
+    160,
+)
+
+
 @dataclass(frozen=True)
 class Layout:
     """A versioned record layout: kind, version and dtype."""
@@ -225,10 +277,12 @@ class Layout:
 
 ARM_STATUS_LAYOUT = Layout("arm_status", KIND_ARM_STATUS, 1, ARM_STATUS, "droid_arm_status")
 ARM_COMMAND_LAYOUT = Layout("arm_command", KIND_ARM_COMMAND, 1, ARM_COMMAND, "droid_arm_command")
-SENSOR_STATUS_LAYOUT = Layout("sensor_status", KIND_SENSOR_STATUS, 1, SENSOR_STATUS, "droid_sensor_status")
+SENSOR_STATUS_LAYOUT = Layout("sensor_status", KIND_SENSOR_STATUS, 2, SENSOR_STATUS, "droid_sensor_status")
 CTRL_STATUS_LAYOUT = Layout("ctrl_status", KIND_CTRL_STATUS, 1, CTRL_STATUS, "droid_ctrl_status")
 CTRL_COMMAND_LAYOUT = Layout("ctrl_command", KIND_CTRL_COMMAND, 1, CTRL_COMMAND, "droid_ctrl_command")
 PROC_STATUS_LAYOUT = Layout("proc_status", KIND_PROC_STATUS, 2, PROC_STATUS, "droid_proc_status")
+JOYSTICK_STATUS_LAYOUT = Layout("joystick_status", KIND_JOYSTICK_STATUS, 1, JOYSTICK_STATUS,
+                                "droid_joystick_status")
 
 LAYOUTS = {
     lay.kind: lay
@@ -239,6 +293,7 @@ LAYOUTS = {
         CTRL_STATUS_LAYOUT,
         CTRL_COMMAND_LAYOUT,
         PROC_STATUS_LAYOUT,
+        JOYSTICK_STATUS_LAYOUT,
     )
 }
 

@@ -16,6 +16,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from droid.brain.wire import LIVENESS_TICKS, MAX_BACKOFF_TICKS
+
 
 @dataclass
 class RemoteAction:
@@ -27,7 +29,7 @@ class RemoteAction:
 class RemoteLinkCore:
     """Brain side: liveness of one agent, counted in heartbeat ticks.  Pure."""
 
-    def __init__(self, stale_ticks: int = 3, max_backoff_ticks: int = 120) -> None:
+    def __init__(self, stale_ticks: int = LIVENESS_TICKS, max_backoff_ticks: int = MAX_BACKOFF_TICKS) -> None:
         self.stale_ticks = stale_ticks
         self.max_backoff_ticks = max_backoff_ticks
         self.pending: int | None = None  # tick of the command awaiting a reply
@@ -73,7 +75,7 @@ class RemoteLinkCore:
 class AgentLinkCore:
     """Subunit side: is the Brain still sending?  Pure; time in ns is passed in."""
 
-    def __init__(self, period_ns: int, stale_ticks: int = 3) -> None:
+    def __init__(self, period_ns: int, stale_ticks: int = LIVENESS_TICKS) -> None:
         self.period_ns = period_ns
         self.stale_ticks = stale_ticks
         self.last_cmd_ns: int | None = None
@@ -90,3 +92,45 @@ class AgentLinkCore:
         if self.last_cmd_ns is None:
             return False
         return now_ns - self.last_cmd_ns < self.stale_ticks * self.period_ns
+
+
+class HeartbeatWatch:
+    """Brain side: has the heartbeat itself gone silent?  Pure; time in ns is passed in.
+
+    A remote is driven by the heartbeat's ticks (thesis §3.2), so when the
+    heartbeat dies nothing would refresh -- or mark stale -- its subunit's
+    Status: it would freeze with its last values and ``stale = 0``.  The remote
+    polls with a timeout of one period and asks :meth:`became_silent`: after
+    ``stale_ticks`` periods without a tick it reports the silence once (the
+    remote then sets ``stale`` and FAULT_HEARTBEAT); the next tick clears it.
+    """
+
+    def __init__(self, period_ns: int, stale_ticks: int = 3) -> None:
+        if period_ns <= 0 or stale_ticks < 1:
+            raise ValueError("need period_ns > 0 and stale_ticks >= 1")
+        self.limit_ns = int(period_ns) * stale_ticks
+        self.last_ns: int | None = None
+        self.silent = False
+        self.silences = 0
+        self.poll_ms = max(1, int(round(period_ns / 1e6)))  # the remote's poll timeout: one period
+
+    @classmethod
+    def for_rate(cls, heartbeat_hz: float, stale_ticks: int) -> "HeartbeatWatch":
+        return cls(int(round(1e9 / heartbeat_hz)), stale_ticks)
+
+    def on_tick(self, now_ns: int) -> bool:
+        """A tick arrived at ``now_ns``; True if this ends a silence."""
+        self.last_ns = now_ns
+        ended, self.silent = self.silent, False
+        return ended
+
+    def became_silent(self, now_ns: int) -> bool:
+        """True once when no tick came for ``stale_ticks`` periods (counted from the
+        first call when no tick was ever seen)."""
+        if self.last_ns is None:
+            self.last_ns = now_ns
+        if not self.silent and now_ns - self.last_ns > self.limit_ns:
+            self.silent = True
+            self.silences += 1
+            return True
+        return False

@@ -220,11 +220,7 @@ def main(argv=None) -> int:
     core = NameSpaceCore(boot_id())
     try:
         cell.run_dir.mkdir(parents=True, exist_ok=True)
-        curve.server(sock, cell.names)
-        try:
-            sock.bind(cell.bind_endpoint(cell.names))
-        except zmq.ZMQError as exc:
-            raise RuntimeFailure(f"cannot bind name space endpoint {cell.names}: {exc}") from None
+        curve.bind(cell, (sock, cell.names))
         presence.ready()
         notify_ready(args.ready_fd)
         cycles = 0

@@ -17,14 +17,14 @@ import time
 from droid.brain.cellfile import Cell, load_cell
 from droid.brain.layouts import PROC_FAILED, PROC_READY, PROC_STARTING, PROC_STATUS_LAYOUT, PROC_STOPPING
 from droid.brain.shmdb import Database, db_name, unlink_database
-from droid.cli import ArgumentParser
+from droid.cli import ArgumentParser, bounded_int
 
 
 def parser(prog: str, description: str) -> ArgumentParser:
     p = ArgumentParser(prog=prog, description=description)
     p.add_argument("--cell", metavar="FILE", default=None,
                    help="cell file (default: $DROID_CELL, else the built-in simulated cell)")
-    p.add_argument("--ready-fd", type=int, default=None, help=argparse_suppress())
+    p.add_argument("--ready-fd", type=bounded_int(0, 1 << 20), default=None, help=argparse_suppress())
     return p
 
 
@@ -35,7 +35,18 @@ def argparse_suppress():
 
 
 def open_cell(args) -> Cell:
-    return load_cell(args.cell)
+    """Load the cell file a program was given; in a cell that wants SCHED_FIFO, the
+    program's database accesses use the priority ceiling (droid.brain.shmdb)."""
+    cell = load_cell(args.cell)
+    use_cell(cell)
+    return cell
+
+
+def use_cell(cell: Cell) -> None:
+    """Process-wide settings a cell asks for: the databases' priority ceiling."""
+    from droid.brain import shmdb
+
+    shmdb.set_priority_ceiling(shmdb.CEILING_PRIORITY if cell.sched_fifo else None)
 
 
 def notify_ready(fd: int | None) -> None:

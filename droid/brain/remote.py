@@ -29,8 +29,8 @@ from droid.brain.cellfile import Subunit
 from droid.brain.curve import CurveHost
 from droid.brain.databases import brain_layouts, local_layouts, open_brain
 from droid.brain.heartbeat import TickSubscriber
-from droid.brain.layouts import ARM_COMMAND_LAYOUT, FAULT_LINK, LayoutError, check_header
-from droid.brain.link import RemoteLinkCore
+from droid.brain.layouts import ARM_COMMAND_LAYOUT, FAULT_HEARTBEAT, FAULT_LINK, LayoutError, check_header
+from droid.brain.link import HeartbeatWatch, RemoteLinkCore
 from droid.brain.names import NameClient
 from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
 from droid.brain.rt import try_sched_fifo
@@ -38,10 +38,6 @@ from droid.brain.sensor_link import LINK_SERIAL, link_kind, serve_serial
 from droid.cli import run
 
 PROG = "droid-remote"
-COPY_FIELDS_ARM = ("encoder_pos", "encoder_cmd", "busy", "homed", "fault", "cmd_mode", "coord",
-                   "cmd_id", "cmd_result")
-COPY_FIELDS_SENSOR = ("x", "y", "z", "R", "homed", "fault", "valid_count", "invalid_count",
-                      "garbled_count")
 
 
 class ArmPose:
@@ -59,12 +55,12 @@ class ArmPose:
 
 
 class StatusTranslator:
-    """Agent reply (motion-controller or sensor status record) -> Brain Status fields."""
+    """Agent reply (the subunit side's status record) -> Brain Status fields (the class's copy_fields)."""
 
     def __init__(self, sub: Subunit, fk=None) -> None:
         self.sub = sub
         self.reply_layout = local_layouts(sub)["ctrl_status"]
-        self.fields = COPY_FIELDS_ARM if sub.is_arm else COPY_FIELDS_SENSOR
+        self.fields = sub.kind.copy_fields
         self.fk = fk
 
     def __call__(self, payload: bytes) -> dict:
@@ -81,12 +77,12 @@ class StatusTranslator:
 def main(argv=None) -> int:
     args, cell, sub = subunit_program(
         PROG, "Keep one subunit's Brain database in step with its agent, once per heartbeat.", argv)
-    try_sched_fifo(priority=50, wanted=cell.sched_fifo, prog=PROG)
+    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     if link_kind(cell, sub) == LINK_SERIAL:
         return serve_serial(cell, sub, args.ready_fd, PROG)
     status = open_brain(cell, sub, "status")
     command = open_brain(cell, sub, "command") if "command" in brain_layouts(sub) else None
-    fk = ArmPose(sub) if sub.is_arm else None
+    fk = ArmPose(sub) if sub.kind.kinematic else None
     translate = StatusTranslator(sub, fk)
     ctx = zmq.Context()
     curve = CurveHost(ctx, cell, cell.brain_host)
@@ -94,6 +90,7 @@ def main(argv=None) -> int:
     names = NameClient(ctx, cell.names, curve=curve, server_host=cell.brain_host)
     ticks = TickSubscriber(ctx, cell.heartbeat, curve, cell.brain_host)
     core = RemoteLinkCore(cell.stale_ticks)
+    watch = HeartbeatWatch.for_rate(cell.heartbeat_hz, cell.stale_ticks)
     dealer = None
     endpoint = None
     bad_frames = 0
@@ -124,10 +121,14 @@ def main(argv=None) -> int:
             poller = zmq.Poller()
             for s in socks:
                 poller.register(s, zmq.POLLIN)
-            events = dict(poller.poll(500))
+            events = dict(poller.poll(watch.poll_ms))
+            if watch.became_silent(time.monotonic_ns()):
+                status.update(stale=1, fault=int(status.read()["fault"]) | FAULT_LINK | FAULT_HEARTBEAT)
             if ticks.sock in events:
                 t = ticks.recv_latest()
                 if t is not None:
+                    if watch.on_tick(time.monotonic_ns()):  # the heartbeat is back: the reply clears stale
+                        status.update(fault=int(status.read()["fault"]) & ~FAULT_HEARTBEAT)
                     last_tick = t.tick
                     act = core.on_tick(t.tick)
                     if act.became_stale:

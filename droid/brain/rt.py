@@ -127,10 +127,37 @@ class PeriodicTimer:
         self.close()
 
 
-def try_sched_fifo(priority: int = 50, *, wanted: bool = True, prog: str = "droid") -> bool:
-    """Switch this process to SCHED_FIFO at ``priority`` if wanted and permitted."""
+#: SCHED_FIFO priority of every program that asks for it (higher runs first).  The
+#: servo's 500 Hz loop outranks everything; the watchdog must kick while the servo
+#: lives; the world (the hardware) outranks the programs that drive it except the
+#: servo side; the per-tick programs sit at the heartbeat's level; the sensor and
+#: the encoder program below (DESIGN §9; docs/architecture.md "Real time").
+FIFO_PRIORITIES: dict[str, int] = {
+    "droid-servo": 60,
+    "droid-watchdog": 55,
+    "droid-servo-agent": 54,
+    "droid-sim": 52,
+    "droid-planner": 51,
+    "droid-agent": 51,
+    "droid-reis-agent": 51,
+    "droid-gmf1-agent": 51,
+    "droid-heartbeat": 50,
+    "droid-remote": 50,
+    "droid-fault": 50,
+    "droid-seamtrack": 49,
+    "droid-mvs": 48,
+    "droid-gmf1-encoder": 45,
+}
+DEFAULT_FIFO_PRIORITY = 50
+
+
+def try_sched_fifo(priority: int | None = None, *, wanted: bool = True, prog: str = "droid") -> bool:
+    """Switch this process to SCHED_FIFO if wanted and permitted, at ``priority``
+    (default: ``prog``'s entry in :data:`FIFO_PRIORITIES`)."""
     if not wanted:
         return False
+    if priority is None:
+        priority = FIFO_PRIORITIES.get(prog, DEFAULT_FIFO_PRIORITY)
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
         return True

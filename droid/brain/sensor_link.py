@@ -22,6 +22,11 @@ blocks) and :class:`SensorStatusCore` turns the bytes into Status fields:
   (a garbled line counts as invalid *and* as garbled);
 * ``tick``, ``updated_ns``: the heartbeat tick and CLOCK_MONOTONIC [ns] at
   which the newest line arrived;
+* ``capture_age_us`` (layout v2, issue 12): for a line with a capture stamp
+  (droid.brain.sensor_line), how long before ``updated_ns`` its camera frame
+  was taken [us]; ``NO_CAPTURE_AGE`` for a plain line.  A stamp from the
+  future, older than a second or out of order drops the reading (invalid)
+  and counts as garbled;
 * ``stale = 1`` and the LINK fault after ``stale_ticks`` ticks without any
   line (and until the first line); cleared when lines flow again;
 * after the port is (re)opened, bytes up to the first line end are skipped
@@ -37,15 +42,15 @@ use it.
 from __future__ import annotations
 
 import math
-import select
 import time
 from dataclasses import dataclass
 
 import numpy as np
 
 from droid.brain.cellfile import Cell, Subunit
-from droid.brain.layouts import FAULT_DEVICE, FAULT_LINK
+from droid.brain.layouts import FAULT_DEVICE, FAULT_HEARTBEAT, FAULT_LINK, NO_CAPTURE_AGE
 from droid.brain.sensor_line import DEFAULT_BAUD, INVALID, MIN_BAUD, Reading, SensorClientCore
+from droid.brain.serial_port import ReopeningPort
 from droid.cli import BadInput
 
 LINK_AGENT = "agent"
@@ -132,7 +137,7 @@ class SensorStatusCore:
             self._fresh = False
         self._port_ok = port_ok
         before = self.client.lines
-        reading = self.client.feed(data if port_ok else b"")
+        reading = self.client.feed(data if port_ok else b"", now_ns)
         if self.client.lines > before:
             self._fresh = True
             self.last_line_tick, self.last_line_ns = tick, now_ns
@@ -145,103 +150,30 @@ class SensorStatusCore:
             fault=(FAULT_LINK if stale else 0) | (0 if port_ok else FAULT_DEVICE),
             valid_count=self.client.valid & _U32,
             invalid_count=self.client.invalid & _U32,
-            garbled_count=self.client.garbled & _U32,
+            garbled_count=(self.client.garbled + self.client.stamp_dropped) & _U32,
+            capture_age_us=(NO_CAPTURE_AGE if not reading.valid or reading.age_ms is None
+                            else min(int(reading.age_ms) * 1000, NO_CAPTURE_AGE - 1)),
             tick=self.last_line_tick,
             updated_ns=self.last_line_ns,
         )
         return fields
 
 
-def _default_opener(url: str, baud: int):
-    import serial
-
-    return serial.serial_for_url(url, baudrate=baud, timeout=0, write_timeout=0)
-
-
-class SerialPortReader:
+class SerialPortReader(ReopeningPort):
     """The Brain's serial port: opened by URL, read without blocking, reopened with back-off.
 
     :meth:`poll` once a tick returns ``(bytes, port_ok)``.  A port that cannot
     be opened or fails while reading (EIO, hang-up) is closed and tried again
     after ``min_backoff_ticks`` ticks, doubling up to ``max_backoff_ticks``.
-    A URL pyserial rejects as malformed is a :class:`BadInput`.
+    A URL pyserial rejects as malformed is a :class:`BadInput`.  (The cell's
+    one reopening port, :class:`droid.brain.serial_port.ReopeningPort`, reading
+    at most MAX_READ_BYTES a tick.)
     """
 
     def __init__(self, url: str, baud: int, *, min_backoff_ticks: int = 3,
                  max_backoff_ticks: int = MAX_BACKOFF_TICKS, opener=None) -> None:
-        self.url = url
-        self.baud = baud
-        self.min_backoff = max(1, min_backoff_ticks)
-        self.max_backoff = max(self.min_backoff, max_backoff_ticks)
-        self.opener = opener or _default_opener
-        self.port = None
-        self._backoff = self.min_backoff
-        self._wait = 0
-        self.opens = 0
-        self.failures = 0  # failed opens and lost ports
-        self.last_error = ""
-
-    def _fail(self, exc: Exception) -> None:
-        self.failures += 1
-        self.last_error = str(exc)
-        self._wait = self._backoff
-        self._backoff = min(self._backoff * 2, self.max_backoff)
-
-    def _try_open(self) -> bool:
-        import serial
-
-        try:
-            self.port = self.opener(self.url, self.baud)
-        except ValueError as exc:  # pyserial: malformed URL or settings
-            raise BadInput(f"serial {self.url}: {exc}") from None
-        except (serial.SerialException, OSError) as exc:
-            self._fail(exc)
-            return False
-        self.opens += 1
-        return True
-
-    def _hung_up(self) -> bool:
-        try:
-            fd = self.port.fileno()
-        except Exception:  # URL handlers without a descriptor (loop://, socket://)
-            return False
-        p = select.poll()
-        p.register(fd, select.POLLIN)
-        return any(ev & (select.POLLHUP | select.POLLERR | select.POLLNVAL) for _, ev in p.poll(0))
-
-    def close(self) -> None:
-        if self.port is not None:
-            try:
-                self.port.close()
-            except Exception:
-                pass
-            self.port = None
-
-    def start(self) -> bool:
-        """Try to open the port now (a malformed URL raises BadInput); True if open."""
-        return self.port is not None or self._try_open()
-
-    def poll(self) -> tuple[bytes, bool]:
-        """This tick's bytes and whether the port is open (never blocks)."""
-        import serial
-
-        if self.port is None:
-            if self._wait > 0:
-                self._wait -= 1
-                return b"", False
-            if not self._try_open():
-                return b"", False
-        try:
-            n = self.port.in_waiting
-            data = self.port.read(min(n, MAX_READ_BYTES)) if n else b""
-            if not data and self._hung_up():
-                raise serial.SerialException("the port hung up")
-        except (serial.SerialException, OSError) as exc:
-            self.close()
-            self._fail(exc)
-            return b"", False
-        self._backoff = self.min_backoff
-        return data, True
+        super().__init__(url, baud, min_backoff_ticks=min_backoff_ticks, max_backoff_ticks=max_backoff_ticks,
+                         max_read_bytes=MAX_READ_BYTES, opener=opener)
 
 
 def serve_serial(cell: Cell, sub: Subunit, ready_fd: int | None, prog: str) -> int:
@@ -251,6 +183,7 @@ def serve_serial(cell: Cell, sub: Subunit, ready_fd: int | None, prog: str) -> i
     from droid.brain.curve import CurveHost
     from droid.brain.databases import open_brain
     from droid.brain.heartbeat import TickSubscriber
+    from droid.brain.link import HeartbeatWatch
     from droid.brain.program import Presence, Stop, notify_ready, presence_key
 
     opts = serial_link_options(cell, sub)
@@ -268,10 +201,15 @@ def serve_serial(cell: Cell, sub: Subunit, ready_fd: int | None, prog: str) -> i
         presence.ready()
         notify_ready(ready_fd)
         last_tick = 0
+        watch = HeartbeatWatch.for_rate(cell.heartbeat_hz, cell.stale_ticks)
         while not Stop.requested:
-            if ticks.sock.poll(500):
+            ready = ticks.sock.poll(watch.poll_ms)
+            if watch.became_silent(time.monotonic_ns()):
+                status.update(stale=1, fault=int(status.read()["fault"]) | FAULT_LINK | FAULT_HEARTBEAT)
+            if ready:
                 t = ticks.recv_latest()
                 if t is not None:
+                    watch.on_tick(time.monotonic_ns())  # on_tick below rewrites stale and fault
                     last_tick = t.tick
                     data, ok = port.poll()
                     status.update(**core.on_tick(t.tick, data, time.monotonic_ns(), ok))

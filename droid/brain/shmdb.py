@@ -91,6 +91,50 @@ def pid_alive(pid: int) -> bool:
         return True
 
 
+# -- the priority ceiling (issue 16) ---------------------------------------------------
+#: A process that holds a database semaphore runs at this SCHED_FIFO priority while it
+#: holds it (the immediate priority-ceiling protocol), when its cell asks for SCHED_FIFO.
+#: POSIX named semaphores have no priority inheritance: without the ceiling a task or
+#: droid-snoop at normal priority, preempted by busy processes while it holds a Status
+#: semaphore for a 1 us copy, blocked the real-time remote, servo agent or the servo's
+#: own presence record for tens of ms -- the stalls that failed homing under load.
+#: Above every program's own priority (droid.brain.rt.FIFO_PRIORITIES: servo 60).
+CEILING_PRIORITY = 61
+_ceiling: int | None = None
+
+
+def set_priority_ceiling(priority: int | None) -> None:
+    """Use the priority ceiling in this process from now on (None: never).  Called when a
+    program opens a cell that wants SCHED_FIFO; silently off where the OS refuses it."""
+    global _ceiling
+    _ceiling = priority
+
+
+def _raise_to_ceiling():
+    """Enter the ceiling; returns what to restore, or None (no change was made)."""
+    global _ceiling
+    if _ceiling is None:
+        return None
+    try:
+        policy = os.sched_getscheduler(0)
+        prio = os.sched_getparam(0).sched_priority
+        if policy in (os.SCHED_FIFO, os.SCHED_RR) and prio >= _ceiling:
+            return None
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(_ceiling))
+    except (PermissionError, OSError):
+        _ceiling = None  # not permitted here: the normal scheduler, as without it
+        return None
+    return policy, prio
+
+
+def _leave_ceiling(saved) -> None:
+    if saved is not None:
+        try:
+            os.sched_setscheduler(0, saved[0], os.sched_param(saved[1]))
+        except OSError:
+            pass
+
+
 class Database:
     """One record of ``layout`` in shared memory, guarded by a named semaphore.
 
@@ -194,36 +238,44 @@ class Database:
     @contextlib.contextmanager
     def locked(self) -> Iterator[np.ndarray]:
         """Hold the semaphore; yields the live 0-d record view (writes bump seq)."""
-        self._acquire()
+        saved = _raise_to_ceiling()
         try:
-            yield self._view
+            self._acquire()
+            try:
+                yield self._view
+            finally:
+                self._release()
         finally:
-            self._release()
+            _leave_ceiling(saved)
 
     # -- access ----------------------------------------------------------
     def read(self) -> np.ndarray:
         """A consistent copy of the record (0-d structured array)."""
-        self._acquire()
+        saved = _raise_to_ceiling()
         try:
-            raw = bytearray(self._mm[: self.layout.size])  # one memcpy; numpy's copy is 20x slower
+            self._acquire()
+            try:
+                raw = bytearray(self._mm[: self.layout.size])  # one memcpy; numpy's copy is 20x slower
+            finally:
+                self._release()
         finally:
-            self._release()
+            _leave_ceiling(saved)
         return np.ndarray((), dtype=self.layout.dtype, buffer=raw)
 
     def write(self, rec: np.ndarray | None = None, **fields) -> int:
         """Write a whole record (payload only; header kept) and/or fields; returns seq."""
-        self._acquire()
-        try:
-            v = self._view
-            if rec is not None:
-                hdr = self._mm[:32]
-                self._mm[: self.layout.size] = np.asarray(rec, dtype=self.layout.dtype).tobytes()
-                self._mm[:32] = hdr
-            for k, val in fields.items():
-                v[k] = val
-            return self._bump()
-        finally:
-            self._release()
+        with self.locked():
+            return self._write_locked(rec, fields)
+
+    def _write_locked(self, rec, fields) -> int:
+        v = self._view
+        if rec is not None:
+            hdr = self._mm[:32]
+            self._mm[: self.layout.size] = np.asarray(rec, dtype=self.layout.dtype).tobytes()
+            self._mm[:32] = hdr
+        for k, val in fields.items():
+            v[k] = val
+        return self._bump()
 
     def update(self, **fields) -> int:
         """Set some fields under the lock; returns the new seq."""
@@ -246,11 +298,8 @@ class Database:
 
     def raw_bytes(self) -> bytes:
         """The whole record as bytes (locked copy)."""
-        self._acquire()
-        try:
+        with self.locked():
             return bytes(self._mm[: self.layout.size])
-        finally:
-            self._release()
 
     def close(self) -> None:
         """Unmap and close the semaphores (the objects stay for others)."""

@@ -31,10 +31,9 @@ KIND_CMD = b"CMD"
 KIND_STA = b"STA"
 _TICK = struct.Struct("<Q")
 
-# Timeouts and liveness (zguide Paranoid Pirate)
-LIVENESS_TICKS = 3  # missed ticks before a peer is declared stale (cell file: stale_ticks)
-RECONNECT_MIN_S = 0.05
-RECONNECT_MAX_S = 2.0
+# Liveness (zguide Paranoid Pirate), counted in heartbeat ticks (droid.brain.link)
+LIVENESS_TICKS = 3  # missed ticks before a peer is declared stale (the cell file's stale_ticks default)
+MAX_BACKOFF_TICKS = 120  # a remote's reconnect back-off doubles from LIVENESS_TICKS up to this
 
 
 class BadFrame(ValueError):

@@ -117,7 +117,7 @@ def main(argv=None) -> int:
         proxy = FaultProxy(cell, args.label, LinkFaults.from_dict(_faults_from(args)), seed=args.seed)
         Stop.install()
         # the proxy stands in for a wire: it runs at the priority of the programs it sits between
-        try_sched_fifo(priority=50, wanted=cell.sched_fifo, prog=PROG)
+        try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
         print(f"{PROG}: proxy on {args.label} ({proxy.ep.public} -> {proxy.inner}), control {proxy.control}",
               file=sys.stderr, flush=True)
         proxy.serve(stop=lambda: Stop.requested)

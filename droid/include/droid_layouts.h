@@ -27,6 +27,7 @@
 #define DROID_FAULT_LIMIT 8
 #define DROID_FAULT_BRAKING 16
 #define DROID_FAULT_DEVICE 32
+#define DROID_FAULT_HEARTBEAT 64
 #define DROID_CMD_OK 0
 #define DROID_CMD_REFUSED 2
 #define DROID_CMD_FAILED 1
@@ -136,7 +137,7 @@ _Static_assert(offsetof(droid_arm_command_t, cmd_id) == 172, "droid_arm_command.
 _Static_assert(sizeof(droid_arm_command_t) == 176, "droid_arm_command size");
 
 #define DROID_SENSOR_STATUS_KIND 3
-#define DROID_SENSOR_STATUS_VERSION 1
+#define DROID_SENSOR_STATUS_VERSION 2
 #define DROID_SENSOR_STATUS_SIZE 240
 #pragma pack(push, 1)
 typedef struct droid_sensor_status {
@@ -167,7 +168,7 @@ typedef struct droid_sensor_status {
     uint32_t valid_count;
     uint32_t invalid_count;
     uint32_t garbled_count;
-    uint8_t _pad0[4];
+    uint32_t capture_age_us;
 } droid_sensor_status_t;
 #pragma pack(pop)
 _Static_assert(offsetof(droid_sensor_status_t, magic) == 0, "droid_sensor_status.magic offset");
@@ -197,6 +198,7 @@ _Static_assert(offsetof(droid_sensor_status_t, cmd_result) == 220, "droid_sensor
 _Static_assert(offsetof(droid_sensor_status_t, valid_count) == 224, "droid_sensor_status.valid_count offset");
 _Static_assert(offsetof(droid_sensor_status_t, invalid_count) == 228, "droid_sensor_status.invalid_count offset");
 _Static_assert(offsetof(droid_sensor_status_t, garbled_count) == 232, "droid_sensor_status.garbled_count offset");
+_Static_assert(offsetof(droid_sensor_status_t, capture_age_us) == 236, "droid_sensor_status.capture_age_us offset");
 _Static_assert(sizeof(droid_sensor_status_t) == 240, "droid_sensor_status size");
 
 #define DROID_CTRL_STATUS_KIND 4
@@ -355,5 +357,51 @@ _Static_assert(offsetof(droid_proc_status_t, overruns) == 96, "droid_proc_status
 _Static_assert(offsetof(droid_proc_status_t, lateness_max_ns) == 104, "droid_proc_status.lateness_max_ns offset");
 _Static_assert(offsetof(droid_proc_status_t, bad_frames) == 112, "droid_proc_status.bad_frames offset");
 _Static_assert(sizeof(droid_proc_status_t) == 120, "droid_proc_status size");
+
+#define DROID_JOYSTICK_STATUS_KIND 7
+#define DROID_JOYSTICK_STATUS_VERSION 1
+#define DROID_JOYSTICK_STATUS_SIZE 160
+#pragma pack(push, 1)
+typedef struct droid_joystick_status {
+    uint32_t magic;
+    uint16_t version;
+    uint16_t kind;
+    uint32_t size;
+    int32_t writer_pid;
+    int32_t holder_pid;
+    uint32_t flags;
+    uint64_t seq;
+    double axes[8];
+    uint8_t buttons[16];
+    uint32_t valid;
+    uint32_t events;
+    uint64_t tick;
+    int64_t updated_ns;
+    uint32_t stale;
+    uint32_t fault;
+    uint32_t n_axes;
+    uint32_t n_buttons;
+    uint8_t _pad0[8];
+} droid_joystick_status_t;
+#pragma pack(pop)
+_Static_assert(offsetof(droid_joystick_status_t, magic) == 0, "droid_joystick_status.magic offset");
+_Static_assert(offsetof(droid_joystick_status_t, version) == 4, "droid_joystick_status.version offset");
+_Static_assert(offsetof(droid_joystick_status_t, kind) == 6, "droid_joystick_status.kind offset");
+_Static_assert(offsetof(droid_joystick_status_t, size) == 8, "droid_joystick_status.size offset");
+_Static_assert(offsetof(droid_joystick_status_t, writer_pid) == 12, "droid_joystick_status.writer_pid offset");
+_Static_assert(offsetof(droid_joystick_status_t, holder_pid) == 16, "droid_joystick_status.holder_pid offset");
+_Static_assert(offsetof(droid_joystick_status_t, flags) == 20, "droid_joystick_status.flags offset");
+_Static_assert(offsetof(droid_joystick_status_t, seq) == 24, "droid_joystick_status.seq offset");
+_Static_assert(offsetof(droid_joystick_status_t, axes) == 32, "droid_joystick_status.axes offset");
+_Static_assert(offsetof(droid_joystick_status_t, buttons) == 96, "droid_joystick_status.buttons offset");
+_Static_assert(offsetof(droid_joystick_status_t, valid) == 112, "droid_joystick_status.valid offset");
+_Static_assert(offsetof(droid_joystick_status_t, events) == 116, "droid_joystick_status.events offset");
+_Static_assert(offsetof(droid_joystick_status_t, tick) == 120, "droid_joystick_status.tick offset");
+_Static_assert(offsetof(droid_joystick_status_t, updated_ns) == 128, "droid_joystick_status.updated_ns offset");
+_Static_assert(offsetof(droid_joystick_status_t, stale) == 136, "droid_joystick_status.stale offset");
+_Static_assert(offsetof(droid_joystick_status_t, fault) == 140, "droid_joystick_status.fault offset");
+_Static_assert(offsetof(droid_joystick_status_t, n_axes) == 144, "droid_joystick_status.n_axes offset");
+_Static_assert(offsetof(droid_joystick_status_t, n_buttons) == 148, "droid_joystick_status.n_buttons offset");
+_Static_assert(sizeof(droid_joystick_status_t) == 160, "droid_joystick_status size");
 
 #endif /* DROID_LAYOUTS_H */

@@ -44,7 +44,7 @@ from typing import Iterator, Sequence
 
 import numpy as np
 
-from droid.cli import ArgumentParser, BadInput, finite_float, parse_finite, run
+from droid.cli import ArgumentParser, BadInput, bounded_float, parse_finite, run
 from droid.kinematics import RobotFileError, list_robots, load_robot
 from droid.kinematics.transforms import T_to_pose, pose_to_T
 
@@ -54,19 +54,25 @@ CHUNK_LINES = 1024
 _READ_BYTES = 1 << 16
 
 
+#: Joint angles [deg] and pose values (mm or deg) a script may give: wide, but bounded so that
+#: no value overflows the trigonometry or means nothing (1e308 deg is no angle).
+ANGLE_DEG = bounded_float(-3600.0, 3600.0, "deg")
+POSE_VALUE = bounded_float(-1e6, 1e6, "(mm or deg)")
+
+
 def _parser() -> ArgumentParser:
     ap = ArgumentParser(prog=PROG, description="Forward/inverse kinematics of a DROID robot model.")
     sub = ap.add_subparsers(dest="cmd", required=True, parser_class=ArgumentParser)
     fk = sub.add_parser("fk", help="joint angles [deg] -> wrist-centre pose")
     fk.add_argument("--robot", required=True, help="bundled robot name or path to a .toml file")
     fk.add_argument("--json", action="store_true", help='print {"T": [[...]]} records')
-    fk.add_argument("q", nargs="*", type=finite_float, metavar="Q", help="6 joint angles [deg] (else stdin)")
+    fk.add_argument("q", nargs="*", type=ANGLE_DEG, metavar="Q", help="6 joint angles [deg] (else stdin)")
     ik = sub.add_parser("ik", help="wrist-centre pose -> 8 solutions and the planner's pick")
     ik.add_argument("--robot", required=True, help="bundled robot name or path to a .toml file")
-    ik.add_argument("--prev", nargs=6, type=finite_float, metavar="Q", help="previous joint angles [deg] (default 0)")
+    ik.add_argument("--prev", nargs=6, type=ANGLE_DEG, metavar="Q", help="previous joint angles [deg] (default 0)")
     ik.add_argument("--all", action="store_true", help="also print all 8 solutions")
     ik.add_argument("--json", action="store_true", help="print JSON records")
-    ik.add_argument("pose", nargs="*", type=finite_float, metavar="P", help="X Y Z [mm] A B C [deg ZYZ] (else stdin)")
+    ik.add_argument("pose", nargs="*", type=POSE_VALUE, metavar="P", help="X Y Z [mm] A B C [deg ZYZ] (else stdin)")
     rb = sub.add_parser("robots", help="list the bundled robot models")
     rb.add_argument("--json", action="store_true")
     return ap

@@ -222,6 +222,38 @@ class RobotModel:
             raise ValueError(f"ik_all_batch: pose {i}: rotation is not orthonormal and right-handed")
         return opw_batch.ik_batch(self.opw, t, q_hint_deg, hint_used)
 
+    def ik_batch(self, Ts, q_prev_deg) -> tuple[np.ndarray, np.ndarray]:
+        """The planner's pick for N poses (N, 4, 4): (joint angles (N, 6) [deg], index (N,)).
+
+        Vectorised :meth:`ik` without the memo: all 8 solutions and the pick
+        (eq. 4.15) per chunk of ``opw_batch.BATCH_CHUNK`` poses so the
+        temporaries stay in cache.  ``q_prev_deg`` (6,) or (N, 6) is the
+        previous joint vector (also the singularity hint); rows with no
+        commandable solution are NaN with index -1 (no exception).
+        """
+        t = np.asarray(Ts, float)
+        if t.ndim != 3 or t.shape[1:] != (4, 4):
+            raise ValueError(f"ik_batch: expected (N, 4, 4) transforms, got shape {t.shape}")
+        n = t.shape[0]
+        prev = np.asarray(q_prev_deg, float)
+        if prev.shape == (6,):
+            prev = np.broadcast_to(prev, (n, 6))
+        if prev.shape != (n, 6) or not np.all(np.isfinite(prev)):
+            raise ValueError("q_prev_deg: expected (6,) or (N, 6) finite joint angles")
+        q = np.full((n, 6), np.nan)
+        idx = np.empty(n, np.int64)
+        step = opw_batch.BATCH_CHUNK
+        rows = np.arange(min(n, step))
+        for i in range(0, n, step):
+            j = min(n, i + step)
+            sols = self.ik_all_batch(t[i:j], prev[i:j])
+            k = self.pick_batch(sols, prev[i:j])
+            idx[i:j] = k
+            r = rows[: j - i]
+            ok = k >= 0
+            q[i:j][ok] = sols[r[ok], k[ok]]
+        return q, idx
+
     def ik(self, T, q_prev_deg) -> np.ndarray:
         """The planner's pick (eq. 4.15) for pose T (4x4, mm): 6 joint angles [deg].
 
@@ -295,27 +327,45 @@ class RobotModel:
         """
         p0, p1, p2, p3, p4, p5 = q_prev_deg
         w0, w1, w2, w3, w4, w5 = self._w
-        scored = []
-        for i, s in enumerate(solutions):
-            a, b, c, d, e, f = s
+        best, best_score = -1, _INF
+        i = 0
+        for a, b, c, d, e, f in solutions:
             score = (
                 w0 * abs(a - p0) + w1 * abs(b - p1) + w2 * abs(c - p2)
                 + w3 * abs(d - p3) + w4 * abs(e - p4) + w5 * abs(f - p5)
             )
-            if score == score:  # NaN rows (no solution) drop out here
+            if score < best_score:  # strict: ties keep the lowest index; NaN rows never win
+                best, best_score = i, score
+            i += 1
+        if best < 0:
+            return -1
+        # usually the best-scored solution is commandable: check it alone first
+        if self._commandable(solutions[best]):
+            return best
+        scored = []
+        for i, (a, b, c, d, e, f) in enumerate(solutions):
+            score = (
+                w0 * abs(a - p0) + w1 * abs(b - p1) + w2 * abs(c - p2)
+                + w3 * abs(d - p3) + w4 * abs(e - p4) + w5 * abs(f - p5)
+            )
+            if score == score and i != best:
                 scored.append((score, i))
         scored.sort()
-        l0, l1, l2, l3, l4, l5 = self._lo
-        h0, h1, h2, h3, h4, h5 = self._hi
         for _, i in scored:
-            a, b, c, d, e, f = s = solutions[i]
-            if (
-                l0 <= a <= h0 and l1 <= b <= h1 and l2 <= c <= h2
-                and l3 <= d <= h3 and l4 <= e <= h4 and l5 <= f <= h5
-            ):
-                if self._counts_implied or self._counts_violation(list(s)) is None:
-                    return i
+            if self._commandable(solutions[i]):
+                return i
         return -1
+
+    def _commandable(self, s) -> bool:
+        """Fast limit check of one solution (6 deg) for :meth:`pick_index`."""
+        a, b, c, d, e, f = s
+        lo, hi = self._lo, self._hi
+        if (
+            lo[0] <= a <= hi[0] and lo[1] <= b <= hi[1] and lo[2] <= c <= hi[2]
+            and lo[3] <= d <= hi[3] and lo[4] <= e <= hi[4] and lo[5] <= f <= hi[5]
+        ):
+            return self._counts_implied or self._counts_violation(list(s)) is None
+        return False
 
     def explain(self, solutions) -> str:
         """One-line reason why no solution of ``solutions`` (8x6) is commandable."""
@@ -338,14 +388,24 @@ class RobotModel:
         if prev.ndim == 1:
             prev = prev[None, :]
         prev = prev[:, None, :]
-        valid = ~np.isnan(s).any(axis=2)
+        lo, hi, w = self._lo, self._hi, self._w
         with np.errstate(invalid="ignore"):
-            valid &= np.all((s >= self.joint_min_deg) & (s <= self.joint_max_deg), axis=2)
+            # joint by joint over (N, 8) planes: numpy reduces a last axis of 6 slowly
+            sj = s[..., 0]
+            valid = (sj >= lo[0]) & (sj <= hi[0])  # NaN (no solution) fails
+            score = np.abs(sj - prev[..., 0]) * w[0]
+            for j in range(1, 6):
+                sj = s[..., j]
+                valid &= sj >= lo[j]
+                valid &= sj <= hi[j]
+                d = sj - prev[..., j]
+                np.abs(d, out=d)
+                d *= w[j]
+                score += d
             if not self._counts_implied:
                 c = s @ self.gearing.joint_to_counts_matrix.T
                 valid &= np.all((c >= self.counts_min) & (c <= self.counts_max), axis=2)
-            score = np.abs(s - prev) @ self.weights
-        score = np.where(valid, score, _INF)
+        score[~valid] = _INF
         idx = np.argmin(score, axis=1)  # first minimum: lowest index on ties
         idx[~valid.any(axis=1)] = -1
         return idx

@@ -219,14 +219,24 @@ def ik_hinted(p: OpwParams, t, hint1_deg: float = 0.0, hint4_deg: float = 0.0) -
     v = cz - p.c1
     den = 2.0 * c2l * k
     ck = c2l * c2l + k * k
-    rem = math.remainder
+    b5x2 = 2.0 * b5
     atan2, sin, cos, sqrt = math.atan2, math.sin, math.cos, math.sqrt
+    if b == 0.0 and not hinted:
+        # e^{i phi} from the WCP itself (no trig call)
+        r = sqrt(rr)
+        c1f, s1f = cx / r, cy / r
+    else:
+        c1f, s1f = cos(phi), sin(phi)
     for shoulder in (0, 1):
         x = nx if shoulder == 0 else -nx
         if b == 0.0:
-            q1 = phi if shoulder == 0 else phi + PI
+            if shoulder == 0:
+                q1, s1, c1 = phi, s1f, c1f
+            else:
+                q1, s1, c1 = phi + PI, -s1f, -c1f
         else:
             q1 = phi - atan2(b, x)
+            s1, c1 = sin(q1), cos(q1)
         u = x - p.a1
         d = (u * u + v * v - ck) / den
         if d > 1.0 or d < -1.0:
@@ -236,20 +246,28 @@ def ik_hinted(p: OpwParams, t, hint1_deg: float = 0.0, hint4_deg: float = 0.0) -
                 continue
             d = 1.0 if d > 0 else -1.0
         acd = math.acos(d)
-        s1, c1 = sin(q1), cos(q1)
+        sad = sqrt(1.0 - d * d)  # sin(acos d) >= 0
         atuv = atan2(u, v)
+        delta = atan2(k * sad, c2l + k * d)  # elbow 0; elbow 1 is -delta
         # rotation rows of the target seen from the joint-1 plane
         p0 = c1 * r00 + s1 * r10
         p2 = c1 * r02 + s1 * r12
         o10 = -s1 * r00 + c1 * r10
         o12 = -s1 * r02 + c1 * r12
-        j1 = rem(g1 * q1 + b1, 360.0)
-        if j1 == -180.0:
-            j1 = 180.0
+        # Deliberate copies: each joint angle is wrapped into (-180, 180] by the same
+        # two loops written out inline (a helper call per angle costs ~2 us a pose).
+        j1 = g1 * q1 + b1
+        while j1 > 180.0:
+            j1 -= 360.0
+        while j1 <= -180.0:
+            j1 += 360.0
         for elbow in (0, 1):
-            ang = acd if elbow == 0 else -acd
-            q3 = ang - psi3
-            q2 = atuv - atan2(k * sin(ang), c2l + k * cos(ang))
+            if elbow == 0:
+                q3 = acd - psi3
+                q2 = atuv - delta
+            else:
+                q3 = -acd - psi3
+                q2 = atuv + delta
             q23 = q2 + q3
             s23, c23 = sin(q23), cos(q23)
             # O = R_0c^T R (only the entries the ZYZ extraction needs)
@@ -259,39 +277,63 @@ def ik_hinted(p: OpwParams, t, hint1_deg: float = 0.0, hint4_deg: float = 0.0) -
             o22 = s23 * p2 + c23 * r22
             sb = sqrt(o02 * o02 + o12 * o12)
             beta = atan2(sb, o22)
-            nrm = math.hypot(sb, o22)
-            cb, sbn = o22 / nrm, sb / nrm
-            j2 = rem(g2 * q2 + b2, 360.0)
-            if j2 == -180.0:
-                j2 = 180.0
-            j3 = rem(g3 * q3 + b3, 360.0)
-            if j3 == -180.0:
-                j3 = 180.0
+            j2 = g2 * q2 + b2
+            while j2 > 180.0:
+                j2 -= 360.0
+            while j2 <= -180.0:
+                j2 += 360.0
+            j3 = g3 * q3 + b3
+            while j3 > 180.0:
+                j3 -= 360.0
+            while j3 <= -180.0:
+                j3 += 360.0
             if sb > WRIST_EPS:
                 alpha = atan2(o12, o02)
-                ca, sa = cos(alpha), sin(alpha)
-                w = ca * o00 + sa * o10
-                m10 = -sa * o00 + ca * o10
-                gamma = atan2(m10, cb * w - sbn * o20)
-                alpha_b, gamma_b = alpha + PI, gamma + PI
+                ca, sa = o02 / sb, o12 / sb
             else:
                 hinted = True
-                alpha = alpha_b = h4
-                ca, sa = cos(alpha), sin(alpha)
-                w = ca * o00 + sa * o10
-                m10 = -sa * o00 + ca * o10
-                gamma = atan2(m10, cb * w - sbn * o20)
-                gamma_b = atan2(m10, cb * w + sbn * o20)
+                alpha = h4
+                ca, sa = cos(h4), sin(h4)
+            w = ca * o00 + sa * o10
+            m10 = -sa * o00 + ca * o10
+            gamma = atan2(m10, o22 * w - sb * o20)
+            j4 = g4 * alpha + b4
+            while j4 > 180.0:
+                j4 -= 360.0
+            while j4 <= -180.0:
+                j4 += 360.0
+            j5 = g5 * beta + b5
+            while j5 > 180.0:
+                j5 -= 360.0
+            while j5 <= -180.0:
+                j5 += 360.0
+            j6 = g6 * gamma + b6
+            while j6 > 180.0:
+                j6 -= 360.0
+            while j6 <= -180.0:
+                j6 += 360.0
+            # wrist 1: (alpha + pi, -beta, gamma + pi); singular: alpha kept, gamma from the residual
+            j5b = b5x2 - j5
+            while j5b > 180.0:
+                j5b -= 360.0
+            while j5b <= -180.0:
+                j5b += 360.0
+            if sb > WRIST_EPS:
+                # j - 180 of a tiny positive j rounds to -180: keep (-180, 180]
+                j4b = j4 - 180.0 if j4 > 0.0 else j4 + 180.0
+                if j4b == -180.0:
+                    j4b = 180.0
+                j6b = j6 - 180.0 if j6 > 0.0 else j6 + 180.0
+                if j6b == -180.0:
+                    j6b = 180.0
+            else:
+                j4b = j4
+                j6b = g6 * atan2(m10, o22 * w + sb * o20) + b6
+                while j6b > 180.0:
+                    j6b -= 360.0
+                while j6b <= -180.0:
+                    j6b += 360.0
             base = 4 * shoulder + 2 * elbow
-            for wrist, (a4, a5, a6) in enumerate(((alpha, beta, gamma), (alpha_b, -beta, gamma_b))):
-                j4 = rem(g4 * a4 + b4, 360.0)
-                if j4 == -180.0:
-                    j4 = 180.0
-                j5 = rem(g5 * a5 + b5, 360.0)
-                if j5 == -180.0:
-                    j5 = 180.0
-                j6 = rem(g6 * a6 + b6, 360.0)
-                if j6 == -180.0:
-                    j6 = 180.0
-                out[base + wrist] = [j1, j2, j3, j4, j5, j6]
+            out[base] = [j1, j2, j3, j4, j5, j6]
+            out[base + 1] = [j1, j2, j3, j4b, j5b, j6b]
     return out, hinted

@@ -91,6 +91,8 @@ def _load_bundled(path: str) -> RobotModel:
 
 
 def _load_path(path: Path) -> RobotModel:
+    # Deliberately its own TOML reading (as droid-mvs's calibration loader): droid.kinematics
+    # imports nothing else of droid (DESIGN §7), so it raises its own RobotFileError.
     try:
         with open(path, "rb") as f:
             data = tomllib.load(f)

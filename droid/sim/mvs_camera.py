@@ -119,6 +119,8 @@ class MvsCamera:
         self._y_rows = calib.lateral_of(np.arange(ROWS, dtype=float))
         # the rays' start points in S [mm]: standoff_mm before the measuring point, one per row
         self._origins_s = np.stack([np.full(ROWS, -self.standoff_mm), self._y_rows, np.zeros(ROWS)], axis=1)
+        # a 3-D seam (issue 15: rise, curves, roll and step profiles, gaps, tacks): droid.sim.seam3d's renderer
+        self._seam3d = None if workpiece.planar else workpiece.seam
         self._segments = workpiece._all  # the seam's segments and its two straight extensions
         self._distances = [_distance_fn(seg) for seg in self._segments]
         wp = workpiece
@@ -163,6 +165,8 @@ class MvsCamera:
         """Noise-free stripe depth x_S [mm] for each of the 240 rows (NaN = no stripe)."""
         wp = self.workpiece
         t = np.asarray(T_W_S)
+        if self._seam3d is not None:
+            return self._seam3d.stripe_depth_mm(t, self._y_rows, self.standoff_mm)
         origins = apply(t, self._origins_s)
         d = t[0:3, 0]
         if not float(d[2]) <= -1e-9:  # the laser does not point down onto the surfaces

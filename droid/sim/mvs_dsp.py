@@ -26,7 +26,7 @@ import time
 import numpy as np
 import posix_ipc
 
-from droid.cli import ArgumentParser, BadInput, finite_float, positive_float, positive_int, run
+from droid.cli import ArgumentParser, BadInput, bounded_float, bounded_int, run
 from droid.sim.mvs_camera import CameraNoise, MvsCamera
 from droid.sim.tool_sensor import pose_for_reading
 from droid.sim.workpiece import load_workpiece
@@ -151,17 +151,17 @@ def main(argv=None) -> int:
     parser = ArgumentParser(prog="droid-mvs-board", description=__doc__.split("\n\n")[0])
     parser.add_argument("url", help="board URL: shm://NAME")
     parser.add_argument("--workpiece", default="step_input", help="bundled name or TOML path")
-    parser.add_argument("--start", type=finite_float, default=20.0, help="start arc length [mm]")
-    parser.add_argument("--speed", type=finite_float, default=0.0, help="travel speed along the seam [mm/s]")
-    parser.add_argument("--lateral", type=finite_float, default=0.0, help="feature y the sensor sees [mm]")
-    parser.add_argument("--depth", type=finite_float, default=0.0, help="feature x the sensor sees [mm]")
-    parser.add_argument("--roll", type=finite_float, default=0.0, help="surface roll the sensor sees [deg]")
-    parser.add_argument("--jitter", type=finite_float, default=0.5, help="column jitter sigma [px]")
-    parser.add_argument("--spurious", type=finite_float, default=0.0, help="fraction of spurious rows")
-    parser.add_argument("--drop", type=finite_float, default=0.0, help="probability of a dropped frame")
-    parser.add_argument("--rate", type=positive_float, default=FRAME_RATE_HZ, help="frames per second")
-    parser.add_argument("--count", type=positive_int, help="stop after this many frames")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--start", type=bounded_float(-1e6, 1e6, "mm"), default=20.0, help="start arc length [mm]")
+    parser.add_argument("--speed", type=bounded_float(-1e4, 1e4, "mm/s"), default=0.0, help="travel speed along the seam [mm/s]")
+    parser.add_argument("--lateral", type=bounded_float(-1e3, 1e3, "mm"), default=0.0, help="feature y the sensor sees [mm]")
+    parser.add_argument("--depth", type=bounded_float(-1e3, 1e3, "mm"), default=0.0, help="feature x the sensor sees [mm]")
+    parser.add_argument("--roll", type=bounded_float(-90.0, 90.0, "deg"), default=0.0, help="surface roll the sensor sees [deg]")
+    parser.add_argument("--jitter", type=bounded_float(0.0, 100.0, "px"), default=0.5, help="column jitter sigma [px]")
+    parser.add_argument("--spurious", type=bounded_float(0.0, 1.0), default=0.0, help="fraction of spurious rows")
+    parser.add_argument("--drop", type=bounded_float(0.0, 1.0), default=0.0, help="probability of a dropped frame")
+    parser.add_argument("--rate", type=bounded_float(0.0, 1000.0, "Hz", lo_open=True), default=FRAME_RATE_HZ, help="frames per second")
+    parser.add_argument("--count", type=bounded_int(1, 10**12), help="stop after this many frames")
+    parser.add_argument("--seed", type=bounded_int(0, 2**32 - 1), default=0)
     args = parser.parse_args(argv)
     if parse_dsp_url(args.url)[0] != "shm":
         raise BadInput("a stand-alone board needs a shm://NAME URL")

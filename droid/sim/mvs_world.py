@@ -220,6 +220,8 @@ class IdealSensorCore(ToolSensorCore):
 
     def reading(self, T_W_S: np.ndarray) -> ToolReading | None:
         m = super().reading(T_W_S)
+        if m is not None and self.workpiece.gaps and self.workpiece.in_gap(m.s_mm):
+            return None  # a gap (issue 15): no feature to find
         if m is None or not (self.y_range_mm[0] <= m.lateral_mm <= self.y_range_mm[1]
                              and self.x_range_mm[0] <= m.height_mm <= self.x_range_mm[1]):
             return None

@@ -35,7 +35,8 @@ import os
 import tty
 from typing import Any
 
-from droid.brain.sensor_line import BITS_PER_BYTE, DEFAULT_BAUD
+from droid.brain.sensor_line import DEFAULT_BAUD
+from droid.brain.serial_line import BITS_PER_BYTE
 from droid.cli import BadInput
 from droid.sim.world import Device
 

@@ -50,16 +50,10 @@ def seam_frame(workpiece: Workpiece, s_mm: float) -> np.ndarray:
     """T_W_seam: the nominal sensor frame on the seam foot at arc length s [mm].
 
     Origin on the seam at the lower surface's height, x = -z_W (into the
-    surface), y = the left normal, z = the seam's heading.
+    surface), y = the left normal, z = the seam's heading.  A 3-D seam
+    (issue 15): x = -its rolled surface normal, y its lateral, z its tangent.
     """
-    xy, heading = workpiece.point_at(s_mm)
-    c, s = math.cos(heading), math.sin(heading)
-    t = np.eye(4)
-    t[0:3, 0] = (0.0, 0.0, -1.0)
-    t[0:3, 1] = (-s, c, 0.0)
-    t[0:3, 2] = (c, s, 0.0)
-    t[0:2, 3] = xy
-    return t
+    return workpiece.seam_frame(s_mm)
 
 
 def pose_for_reading(workpiece: Workpiece, s_mm: float, x_mm: float = 0.0, y_mm: float = 0.0,
@@ -85,6 +79,8 @@ def measure(T_W_tool: np.ndarray, workpiece: Workpiece) -> ToolReading | None:
     perpendicular to the seam's direction) or the search does not converge.
     """
     T_W_tool = np.asarray(T_W_tool, float)
+    if not workpiece.planar:  # a 3-D seam (issue 15): its sampled foot crossing the plane
+        return workpiece.seam.measure(T_W_tool)
     T_tool_W = invert(T_W_tool)
     s, _, _ = workpiece.nearest(T_W_tool[0:3, 3])
 

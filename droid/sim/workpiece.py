@@ -20,6 +20,14 @@ arc-length coordinate s [mm] runs from 0 at the start; before the start and
 after the end the seam is extended along its end tangents, so ``nearest`` and
 ``point_at`` answer everywhere.
 
+Issue 15 extends the format (docs/workpieces.md): ``rise_mm`` on lines and
+arcs (helices), ``type = "curve"`` segments (``points_mm`` or ``csv``,
+``interpolation``), ``roll_profile``, ``step_profile``, ``[[gap]]`` and
+``[[tack]]``.  A file with none of them is the plane model below, exactly as
+before (``planar``); one with any of them is a 3-D seam
+(:class:`droid.sim.seam3d.Seam3D`, ``Workpiece.seam``), which the camera twin,
+the tool-tip and the ideal sensors render.
+
 File format (see docs/mvs.md)::
 
     name = "step_input"                  # optional, defaults to the file stem
@@ -64,13 +72,19 @@ EXTENSION_MM = 1.0e6
 _TOP_KEYS = {
     "name", "description", "step_mm", "width_mm", "upper_side",
     "lead_in_mm", "lead_out_mm", "start", "segment",
+    "roll_profile", "step_profile", "gap", "tack",
 }
 _START_KEYS = {"x_mm", "y_mm", "heading_deg"}
 _SEGMENT_KEYS = {
-    "line": {"type", "length_mm"},
-    "arc": {"type", "radius_mm", "angle_deg"},
+    "line": {"type", "length_mm", "rise_mm"},
+    "arc": {"type", "radius_mm", "angle_deg", "rise_mm"},
     "turn": {"type", "angle_deg"},
+    "curve": {"type", "points_mm", "csv", "interpolation"},
 }
+_GAP_KEYS = {"s_mm", "length_mm"}
+_TACK_KEYS = {"s_mm", "length_mm", "height_mm"}
+#: Largest |roll| [deg] a roll_profile may give.
+MAX_ROLL_DEG = 80.0
 
 
 @dataclass(frozen=True)
@@ -176,9 +190,19 @@ class Workpiece:
     lead_out_mm: float = 0.0
     description: str = ""
     source: str = "<dict>"
+    #: the 3-D seam (droid.sim.seam3d) of a workpiece the plane model cannot hold (``planar`` False);
+    #: None: built from ``segments`` when asked for (:attr:`seam`)
+    seam3d: object = field(default=None, repr=False, compare=False)
+    planar: bool = True
+    roll_profile: tuple = ()  # ((s_mm, roll_deg), ...) as in the file
+    step_profile: tuple = ()  # ((s_mm, step_mm), ...)
+    gaps: tuple = ()  # ((s_mm, length_mm), ...)
+    tacks: tuple = ()  # ((s_mm, length_mm, height_mm), ...)
     _all: tuple[Segment, ...] = field(default=(), repr=False, compare=False)
 
     def __post_init__(self) -> None:
+        if not self.planar:
+            return
         first, last = self.segments[0], self.segments[-1]
         h0 = np.array([math.cos(first.heading0_rad), math.sin(first.heading0_rad)])
         before = Segment(-EXTENSION_MM, EXTENSION_MM,
@@ -191,8 +215,37 @@ class Workpiece:
     @property
     def length_mm(self) -> float:
         """Seam length [mm] from the start to the end (extensions excluded)."""
+        if not self.planar:
+            return self.seam3d.length_mm
         last = self.segments[-1]
         return last.s0_mm + last.length_mm
+
+    @property
+    def seam(self):
+        """The seam as a :class:`droid.sim.seam3d.Seam3D` (any workpiece; built once for a plane one)."""
+        if self.seam3d is None:
+            object.__setattr__(self, "seam3d", _planar_seam(self))
+        return self.seam3d
+
+    def in_gap(self, s_mm: float) -> bool:
+        """True where the seam has no feature (inside a ``[[gap]]``)."""
+        return any(a <= s_mm <= a + n for a, n in self.gaps)
+
+    def seam_frame(self, s_mm: float) -> np.ndarray:
+        """T_W_seam (4x4, mm): the nominal sensor frame on the seam foot at arc length s.
+
+        Origin on the foot, x into the surface (-normal), y the left lateral,
+        z the direction of travel (droid.sim.tool_sensor.seam_frame)."""
+        if not self.planar:
+            return self.seam3d.seam_frame(s_mm)
+        xy, heading = self.point_at(s_mm)
+        c, s = math.cos(heading), math.sin(heading)
+        t = np.eye(4)
+        t[0:3, 0] = (0.0, 0.0, -1.0)
+        t[0:3, 1] = (-s, c, 0.0)
+        t[0:3, 2] = (c, s, 0.0)
+        t[0:2, 3] = xy
+        return t
 
     @property
     def upper_sign(self) -> float:
@@ -200,8 +253,13 @@ class Workpiece:
         return 1.0 if self.upper_side == "left" else -1.0
 
     def point_at(self, s_mm: float) -> tuple[np.ndarray, float]:
-        """Seam point (x, y) [mm] in W and heading [rad from +x_W] at arc length s [mm]."""
+        """Seam point (x, y) [mm] in W and heading [rad from +x_W] at arc length s [mm].
+
+        For a 3-D seam: the plan view (x, y of the foot; the azimuth of the tangent)."""
         s_mm = float(s_mm)
+        if not self.planar:
+            p, t, _, _ = self.seam3d.point_frame(s_mm)
+            return p[0:2].copy(), math.atan2(float(t[1]), float(t[0]))
         seg = self._all[0]
         for candidate in self._all:
             if s_mm >= candidate.s0_mm:
@@ -210,7 +268,11 @@ class Workpiece:
         return pts[0], float(heading[0])
 
     def nearest_many(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Arc length s [mm] and signed lateral [mm] of the nearest seam point, for (N, 2) points."""
+        """Arc length s [mm] and signed lateral [mm] of the nearest seam point, for (N, 2) points.
+
+        The plane model's; for a 3-D seam use :attr:`seam` (its ``measure``)."""
+        if not self.planar:
+            raise ValueError(f"workpiece {self.name}: nearest_many is the plane model's (a 3-D seam: .seam)")
         xy = np.asarray(xy, float).reshape(-1, 2)
         best_d = np.full(len(xy), np.inf)
         best_s = np.zeros(len(xy))
@@ -230,6 +292,12 @@ class Workpiece:
         gives s and the lateral distance.
         """
         p = np.asarray(p_xyz, float)
+        if not self.planar:  # the nearest sample of the foot, in 3-D
+            seam = self.seam3d
+            k = int(np.argmin(np.sum((seam.p - p) ** 2, axis=1)))
+            _, _, n, l = seam.point_frame(float(seam.s[k]))
+            d = p - seam.p[k]
+            return float(seam.s[k]), float(d @ l), float(d @ n)
         s, lat = self.nearest_many(p[None, 0:2])
         return float(s[0]), float(lat[0]), float(p[2])
 
@@ -301,7 +369,10 @@ class Workpiece:
         raw = data.get("segment")
         if not isinstance(raw, list) or not raw:
             raise bad("needs at least one [[segment]]")
+        planar = not any(k in data for k in ("roll_profile", "step_profile", "gap", "tack")) and all(
+            isinstance(seg, dict) and seg.get("type") != "curve" and not seg.get("rise_mm") for seg in raw)
         segments: list[Segment] = []
+        builder = _SeamBuilder(xy, heading)
         s = 0.0
         for i, seg in enumerate(raw, 1):
             where = f"segment {i}: "
@@ -309,17 +380,30 @@ class Workpiece:
                 raise bad(f"{where}must be a table")
             kind = seg.get("type")
             if kind not in _SEGMENT_KEYS:
-                raise bad(f"{where}type must be one of line, arc, turn, got {kind!r}")
+                raise bad(f"{where}type must be one of line, arc, turn, curve, got {kind!r}")
             check_keys(seg, _SEGMENT_KEYS[kind], where)
             if kind == "turn":
                 angle = number(seg, "angle_deg", where, required=True)
                 if not -180.0 < angle < 180.0:
                     raise bad(f"{where}angle_deg must be within (-180, 180), got {angle:g}")
                 heading += math.radians(angle)
+                builder.turn(math.radians(angle))
                 continue
+            if kind == "curve":
+                points = _curve_points(seg, where, source, bad)
+                interp = seg.get("interpolation", "spline")
+                if interp not in ("spline", "linear"):
+                    raise bad(f"{where}interpolation must be \"spline\" or \"linear\", got {interp!r}")
+                try:
+                    builder.curve(points, interp)
+                except ValueError as exc:
+                    raise bad(f"{where}points_mm: {exc}") from None
+                continue
+            rise = number(seg, "rise_mm", where, default=0.0)
             if kind == "line":
                 length = number(seg, "length_mm", where, minimum=0.0, exclusive=True, required=True)
                 new = Segment(s, length, xy, heading)
+                builder.line(length, rise)
             else:
                 radius = number(seg, "radius_mm", where, minimum=0.0, exclusive=True, required=True)
                 angle = number(seg, "angle_deg", where, required=True)
@@ -329,15 +413,283 @@ class Workpiece:
                     raise bad(f"{where}angle_deg must be non-zero and within [-360, 360], got {angle:g}")
                 sweep = math.radians(angle)
                 new = Segment(s, radius * abs(sweep), xy, heading, radius, sweep)
+                builder.arc(radius, sweep, rise)
             segments.append(new)
             end_xy, heading = new.end()
             xy = (float(end_xy[0]), float(end_xy[1]))
             s += new.length_mm
-        if not segments:
-            raise bad("needs at least one line or arc segment")
-        return cls(name=name, segments=tuple(segments), step_mm=step, width_mm=width,
-                   upper_side=upper, lead_in_mm=lead_in, lead_out_mm=lead_out,
-                   description=description, source=source)
+        if not builder.pieces:
+            raise bad("needs at least one line or arc (or curve) segment")
+        length_total = builder.s
+        roll_profile = _profile(data, "roll_profile", "roll_deg", bad, lo=-MAX_ROLL_DEG, hi=MAX_ROLL_DEG)
+        step_profile = _profile(data, "step_profile", "step_mm", bad, lo=0.0, lo_exclusive=True)
+        gaps = tuple((g["s_mm"], g["length_mm"]) for g in
+                     _intervals(data, "gap", _GAP_KEYS, length_total, check_keys, number, bad))
+        tacks = tuple((t["s_mm"], t["length_mm"], t["height_mm"]) for t in
+                      _intervals(data, "tack", _TACK_KEYS, length_total, check_keys, number, bad))
+        common = dict(name=name, step_mm=step, width_mm=width, upper_side=upper, lead_in_mm=lead_in,
+                      lead_out_mm=lead_out, description=description, source=source)
+        if planar:
+            return cls(segments=tuple(segments), **common)
+        from droid.sim.seam3d import Seam3D
+
+        seam = Seam3D(*builder.arrays(), step_mm=step, width_mm=width, upper_sign=1.0 if upper == "left" else -1.0,
+                      lead_in_mm=lead_in, lead_out_mm=lead_out,
+                      roll_profile=[(a, math.radians(r)) for a, r in roll_profile], step_profile=step_profile,
+                      gaps=[(a, a + n) for a, n in gaps], tacks=[(a, a + n, h) for a, n, h in tacks])
+        return cls(segments=(), seam3d=seam, planar=False, roll_profile=roll_profile, step_profile=step_profile,
+                   gaps=gaps, tacks=tacks, **common)
+
+
+def _profile(data: dict, key: str, value_name: str, bad, lo: float, hi: float = math.inf,
+             lo_exclusive: bool = False) -> tuple:
+    """``key = [[s_mm, value], ...]``: at least one point, s strictly increasing, values in range."""
+    if key not in data:
+        return ()
+    raw = data[key]
+    if not isinstance(raw, list) or not raw:
+        raise bad(f"{key} must be a non-empty list of [s_mm, {value_name}] pairs")
+    out = []
+    for k, pair in enumerate(raw, 1):
+        ok = isinstance(pair, list) and len(pair) == 2 and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in pair)
+        if not ok:
+            raise bad(f"{key}: point {k} must be [s_mm, {value_name}] (two finite numbers), got {pair!r}")
+        s_k, v = float(pair[0]), float(pair[1])
+        if out and s_k <= out[-1][0]:
+            raise bad(f"{key}: point {k}: s_mm must increase, got {s_k:g} after {out[-1][0]:g}")
+        if v < lo or (lo_exclusive and v == lo) or v > hi:
+            rng = f"> {lo:g}" if hi == math.inf else f"within [{lo:g}, {hi:g}]"
+            raise bad(f"{key}: point {k}: {value_name} must be {rng}, got {v:g}")
+        out.append((s_k, v))
+    return tuple(out)
+
+
+def _intervals(data: dict, key: str, keys: set, length_mm: float, check_keys, number, bad) -> list[dict]:
+    """``[[gap]]`` / ``[[tack]]`` tables: s_mm >= 0, lengths (and heights) > 0, within the seam."""
+    raw = data.get(key, [])
+    if not isinstance(raw, list) or not all(isinstance(t, dict) for t in raw):
+        raise bad(f"{key} must be [[{key}]] tables")
+    out = []
+    for k, table in enumerate(raw, 1):
+        where = f"[[{key}]] {k}: "
+        check_keys(table, keys, where)
+        item = {"s_mm": number(table, "s_mm", where, minimum=0.0, required=True),
+                "length_mm": number(table, "length_mm", where, minimum=0.0, exclusive=True, required=True)}
+        if "height_mm" in keys:
+            item["height_mm"] = number(table, "height_mm", where, minimum=0.0, exclusive=True, required=True)
+        if item["s_mm"] + item["length_mm"] > length_mm + 1e-9:
+            raise bad(f"{where}s_mm + length_mm ({item['s_mm'] + item['length_mm']:g}) must lie within the "
+                      f"seam (length {length_mm:g} mm)")
+        out.append(item)
+    return out
+
+
+def _curve_points(seg: dict, where: str, source: str, bad) -> np.ndarray:
+    """The (N, 3) points [mm] of a curve segment: ``points_mm`` inline or ``csv`` (relative to the file)."""
+    if ("points_mm" in seg) == ("csv" in seg):
+        raise bad(f"{where}give points_mm or csv (one of them)")
+    if "points_mm" in seg:
+        raw = seg["points_mm"]
+        if not isinstance(raw, list):
+            raise bad(f"{where}points_mm must be a list of [x, y, z] points")
+        rows = []
+        for k, pt in enumerate(raw, 1):
+            ok = isinstance(pt, list) and len(pt) == 3 and all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in pt)
+            if not ok:
+                raise bad(f"{where}points_mm: point {k} must be [x, y, z] (three finite numbers), got {pt!r}")
+            rows.append([float(v) for v in pt])
+        what = "points_mm"
+    else:
+        rel = seg["csv"]
+        if not isinstance(rel, str) or not rel:
+            raise bad(f"{where}csv must be a file name, got {rel!r}")
+        base = Path(source).parent if source != "<dict>" else Path.cwd()
+        path = Path(rel) if os.path.isabs(rel) else base / rel
+        rows = _read_points_csv(path, where, bad)
+        what = f"csv {rel}"
+    pts = np.array(rows, float).reshape(-1, 3)
+    if len(pts) < 2:
+        raise bad(f"{where}{what}: needs at least 2 points, got {len(pts)}")
+    if np.max(np.abs(pts[0])) > 1e-6:
+        raise bad(f"{where}{what}: the first point must be [0, 0, 0] (the segment's start), got {pts[0].tolist()}")
+    return pts
+
+
+def _read_points_csv(path: Path, where: str, bad) -> list[list[float]]:
+    import csv
+
+    try:
+        with open(path, newline="") as f:
+            reader = csv.reader(f)
+            header = [h.strip() for h in next(reader, [])]
+            if header != ["x_mm", "y_mm", "z_mm"]:
+                raise bad(f"{where}csv {path}: the header must be x_mm,y_mm,z_mm, got {','.join(header)!r}")
+            rows = []
+            for line_no, row in enumerate(reader, 2):
+                if not row or all(not c.strip() for c in row):
+                    continue
+                try:
+                    vals = [float(c) for c in row]
+                except ValueError:
+                    vals = []
+                if len(vals) != 3 or not all(math.isfinite(v) for v in vals):
+                    raise bad(f"{where}csv {path}: line {line_no}: expected three finite numbers, got {row!r}")
+                rows.append(vals)
+            return rows
+    except FileNotFoundError:
+        raise bad(f"{where}csv file not found: {path}") from None
+    except OSError as exc:
+        raise bad(f"{where}csv {path}: {exc.strerror}") from None
+
+
+class _SeamBuilder:
+    """Samples of the 3-D seam, piece by piece: s [mm], foot p, tangent t, unrolled normal n0.
+
+    The current state is the end of the last piece: its point, tangent and
+    normal.  A line or arc runs at the current azimuth (the tangent's plan
+    direction) and height, climbing ``rise_mm`` linearly, its lateral
+    horizontal (n0 = t x l0, l0 the plan's left normal); a turn rotates the
+    tangent about the normal; a curve's points are in the frame of its
+    start (x the tangent, z the normal, y = z x x), and its normal is the
+    start normal made perpendicular to the curve's tangent.
+    """
+
+    def __init__(self, xy: tuple[float, float], heading_rad: float) -> None:
+        self.p = np.array([xy[0], xy[1], 0.0])
+        self.t = np.array([math.cos(heading_rad), math.sin(heading_rad), 0.0])
+        self.n0 = np.array([0.0, 0.0, 1.0])
+        self.s = 0.0
+        self.pieces: list[tuple[np.ndarray, ...]] = []
+
+    def _add(self, s, p, t, n0) -> None:
+        self.pieces.append((np.asarray(s, float), np.asarray(p, float), np.asarray(t, float), np.asarray(n0, float)))
+        self.s, self.p, self.t, self.n0 = float(s[-1]), np.asarray(p[-1], float), np.asarray(t[-1], float), \
+            np.asarray(n0[-1], float)
+
+    def turn(self, angle_rad: float) -> None:
+        l0 = np.cross(self.n0, self.t)
+        self.t = math.cos(angle_rad) * self.t + math.sin(angle_rad) * l0
+
+    def _climb_frames(self, azimuth: np.ndarray, gamma: float) -> tuple[np.ndarray, np.ndarray]:
+        cg, sg = math.cos(gamma), math.sin(gamma)
+        t = np.stack([np.cos(azimuth) * cg, np.sin(azimuth) * cg, np.full_like(azimuth, sg)], axis=1)
+        l0 = np.stack([-np.sin(azimuth), np.cos(azimuth), np.zeros_like(azimuth)], axis=1)
+        return t, np.cross(t, l0)
+
+    def line(self, length_mm: float, rise_mm: float) -> None:
+        az = math.atan2(self.t[1], self.t[0])
+        gamma = math.atan2(rise_mm, length_mm)
+        u = np.array([0.0, 1.0])
+        p = self.p + np.outer(u, [length_mm * math.cos(az), length_mm * math.sin(az), rise_mm])
+        t, n0 = self._climb_frames(np.full(2, az), gamma)
+        self._add(self.s + u * math.hypot(length_mm, rise_mm), p, t, n0)
+
+    def arc(self, radius_mm: float, sweep_rad: float, rise_mm: float) -> None:
+        az0 = math.atan2(self.t[1], self.t[0])
+        sign = 1.0 if sweep_rad > 0 else -1.0
+        plan = radius_mm * abs(sweep_rad)
+        n = max(2, math.ceil(math.hypot(plan, rise_mm) / _sample_mm()) + 1)
+        u = np.linspace(0.0, 1.0, n)
+        az = az0 + sweep_rad * u
+        cx = self.p[0] - sign * radius_mm * math.sin(az0)
+        cy = self.p[1] + sign * radius_mm * math.cos(az0)
+        p = np.stack([cx + sign * radius_mm * np.sin(az), cy - sign * radius_mm * np.cos(az),
+                      self.p[2] + rise_mm * u], axis=1)
+        t, n0 = self._climb_frames(az, math.atan2(rise_mm, plan))
+        self._add(self.s + u * math.hypot(plan, rise_mm), p, t, n0)
+
+    def curve(self, points: np.ndarray, interpolation: str) -> None:
+        x, z = self.t / np.linalg.norm(self.t), self.n0
+        y = np.cross(z, x)
+        world = self.p + points @ np.stack([x, y, z])
+        chords = np.linalg.norm(np.diff(world, axis=0), axis=1)
+        if np.any(chords < 1e-6):
+            k = int(np.argmax(chords < 1e-6)) + 1
+            raise ValueError(f"points {k} and {k + 1} coincide")
+        if interpolation == "linear":
+            p = np.repeat(world, 2, axis=0)[1:-1]  # each inner vertex twice: the tangent jumps there
+            t = np.repeat(np.diff(world, axis=0) / chords[:, None], 2, axis=0)
+            seg_s = np.concatenate([[0.0], np.cumsum(chords)])
+            s = np.repeat(seg_s, 2)[1:-1]
+        else:
+            p, d = _natural_spline(world, chords)
+            t = d / np.linalg.norm(d, axis=1, keepdims=True)
+            s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+        along = t @ z
+        if np.any(np.abs(along) > 1.0 - 1e-6):
+            raise ValueError("the curve runs along the surface normal (its lateral is undefined there)")
+        n0 = z - along[:, None] * t
+        n0 /= np.linalg.norm(n0, axis=1, keepdims=True)
+        self._add(self.s + s, p, t, n0)
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        return tuple(np.concatenate([piece[k] for piece in self.pieces]) for k in range(4))
+
+
+def _sample_mm() -> float:
+    from droid.sim.seam3d import SAMPLE_MM
+
+    return SAMPLE_MM
+
+
+def _natural_spline(points: np.ndarray, chords: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A natural cubic spline through (N, 3) points, chord-length parameter; dense samples and derivatives.
+
+    Each interval is cut into pieces of at most SAMPLE_MM / 2 of chord."""
+    n = len(points)
+    h = chords
+    m = np.zeros((n, 3))  # second derivatives (natural: 0 at both ends)
+    if n > 2:
+        # tridiagonal system for the inner second derivatives (Thomas algorithm)
+        a = h[:-1].copy()
+        b = 2.0 * (h[:-1] + h[1:])
+        c = h[1:].copy()
+        d = 6.0 * ((points[2:] - points[1:-1]) / h[1:, None] - (points[1:-1] - points[:-2]) / h[:-1, None])
+        k = n - 2
+        cp = np.zeros(k)
+        dp = np.zeros((k, 3))
+        cp[0], dp[0] = c[0] / b[0], d[0] / b[0]
+        for i in range(1, k):
+            den = b[i] - a[i] * cp[i - 1]
+            cp[i] = c[i] / den
+            dp[i] = (d[i] - a[i] * dp[i - 1]) / den
+        x = np.zeros((k, 3))
+        x[-1] = dp[-1]
+        for i in range(k - 2, -1, -1):
+            x[i] = dp[i] - cp[i] * x[i + 1]
+        m[1:-1] = x
+    step = _sample_mm() / 2
+    pts, ders = [], []
+    for i in range(n - 1):
+        cnt = max(2, math.ceil(h[i] / step) + 1)
+        tau = np.linspace(0.0, h[i], cnt)[:-1] if i < n - 2 else np.linspace(0.0, h[i], cnt)
+        A, B = (h[i] - tau) / h[i], tau / h[i]
+        p = (A[:, None] * points[i] + B[:, None] * points[i + 1]
+             + ((A ** 3 - A)[:, None] * m[i] + (B ** 3 - B)[:, None] * m[i + 1]) * h[i] ** 2 / 6.0)
+        dp_ = ((points[i + 1] - points[i]) / h[i]
+               + (-(3 * A ** 2 - 1))[:, None] * m[i] * h[i] / 6.0 + (3 * B ** 2 - 1)[:, None] * m[i + 1] * h[i] / 6.0)
+        pts.append(p)
+        ders.append(dp_)
+    return np.concatenate(pts), np.concatenate(ders)
+
+
+def _planar_seam(wp: "Workpiece"):
+    """The Seam3D of a plane workpiece (its segments sampled; no profiles, gaps or tacks)."""
+    from droid.sim.seam3d import SAMPLE_MM, Seam3D
+
+    parts = []
+    for seg in wp.segments:
+        n = 2 if not seg.is_arc else max(2, math.ceil(seg.length_mm / SAMPLE_MM) + 1)
+        s = seg.s0_mm + np.linspace(0.0, seg.length_mm, n)
+        xy, heading = seg.at(s)
+        p = np.column_stack([xy, np.zeros(n)])
+        t = np.column_stack([np.cos(heading), np.sin(heading), np.zeros(n)])
+        parts.append((s, p, t, np.tile([0.0, 0.0, 1.0], (n, 1))))
+    arrays = [np.concatenate([part[k] for part in parts]) for k in range(4)]
+    return Seam3D(*arrays, step_mm=wp.step_mm, width_mm=wp.width_mm, upper_sign=wp.upper_sign,
+                  lead_in_mm=wp.lead_in_mm, lead_out_mm=wp.lead_out_mm)
 
 
 def bundled_workpieces() -> list[str]:

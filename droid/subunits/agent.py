@@ -36,7 +36,7 @@ from droid.brain.link import AgentLinkCore
 from droid.brain.names import NameClient
 from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
-from droid.cli import RuntimeFailure, run
+from droid.cli import run
 
 # Brain Command (Table 3.2) -> controller Command (Table 4.3)
 COMMAND_MAP = {
@@ -75,7 +75,7 @@ def agent_main(prog: str, argv=None) -> int:
     cell = open_cell(args)
     sub = cell.subunit(args.subunit)
     Stop.install()
-    try_sched_fifo(priority=51, wanted=cell.sched_fifo, prog=prog)
+    try_sched_fifo(wanted=cell.sched_fifo, prog=prog)
     layouts = local_layouts(sub)
     status = open_local(cell, sub, "ctrl_status")
     ctrl_cmd = open_local(cell, sub, "ctrl_command") if "ctrl_command" in layouts else None
@@ -95,13 +95,7 @@ def agent_main(prog: str, argv=None) -> int:
     was_alive = False
     try:
         cell.run_dir.mkdir(parents=True, exist_ok=True)
-        curve.server(router, sub.agent)
-        curve.server(relay, sub.relay)
-        try:
-            router.bind(cell.bind_endpoint(sub.agent))
-            relay.bind(cell.bind_endpoint(sub.relay))
-        except zmq.ZMQError as exc:
-            raise RuntimeFailure(f"cannot bind {sub.agent} / {sub.relay}: {exc}") from None
+        curve.bind(cell, (router, sub.agent), (relay, sub.relay))
         names = NameClient(ctx, cell.names, curve=curve, server_host=cell.brain_host)
         names.register(sub.name, sub.agent)
         presence.ready()

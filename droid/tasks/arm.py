@@ -18,11 +18,11 @@ import time
 import numpy as np
 
 from droid.brain.cellfile import Cell
-from droid.brain.databases import open_brain
+from droid.brain.databases import open_brain, write_command
 from droid.brain.layouts import (CARTSPACE, CMD_OK, CMD_REFUSED, FAULT_DEVICE, FAULT_NAMES,
                                  FAULT_SERVO, FAULT_WATCHDOG, HOME_MODE,
-                                 JOG_MODE, JSPACE, NORMAL_MODE)
-from droid.cli import BadInput, RuntimeFailure
+                                 JOG_MODE, JSPACE, NORMAL_MODE, STOP_TICKS)
+from droid.cli import MAX_MOVE_S, BadInput, RuntimeFailure
 from droid.kinematics import Unreachable, load_robot
 from droid.kinematics.transforms import pose_to_T
 
@@ -32,6 +32,12 @@ POLL_S = 1.0 / 120  # twice per heartbeat tick
 #: this only decides when the *task* reports failure, so it rides through a
 #: loaded host's scheduling gaps (seen: 0.7 s at load 18 on 2 cores).
 STALE_GRACE_S = 2.0
+#: A finished move must end within this of its target [joint deg] (the servo holds
+#: to a few encoder counts: ~0.005 deg on the Reis) ...
+ARRIVAL_TOL_DEG = 0.05
+#: ... within this long after the arm reported it done [s] (the Status lags a tick
+#: or two and the servo settles the last way-point).
+ARRIVAL_WAIT_S = 1.0
 
 
 class BrainArm:
@@ -45,6 +51,8 @@ class BrainArm:
         self.model = load_robot(self.sub.robot).with_base(pose_to_T(*self.sub.base))
         self.hb_hz = cell.heartbeat_hz
         self.status = self.command = None
+        self.live_cmd: int | None = None  # our command the arm may still carry out
+        self.stopped_cmd: int | None = None  # the stop written when we gave up on live_cmd
 
     def connect(self) -> "BrainArm":
         """Attach to the Brain's Status and Command records (RuntimeFailure if the cell is not up)."""
@@ -64,8 +72,22 @@ class BrainArm:
     def __enter__(self) -> "BrainArm":
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def __exit__(self, exc_type, exc, tb) -> None:
+        try:
+            if exc_type is not None and not issubclass(exc_type, BadInput):
+                self.give_up()
+        finally:
+            self.close()
+
+    def give_up(self) -> None:
+        """The task gives up (timeout, stale, interrupted): if its command may still be
+        carried out, write a stop over it (STOP_TICKS), so the arm never executes it
+        later -- e.g. when a cut link comes back (no "orphan moves", issue 16)."""
+        if self.live_cmd is None or self.command is None:
+            return
+        self.stopped_cmd = self._write(coord=JSPACE, cmd_mode=NORMAL_MODE, joint_time_count=STOP_TICKS,
+                                       cart_time_count=STOP_TICKS)
+        self.live_cmd = None
 
     # -- reading ---------------------------------------------------------
     def read(self):
@@ -84,12 +106,15 @@ class BrainArm:
         down = int(rec["fault"]) & (FAULT_SERVO | FAULT_WATCHDOG | FAULT_DEVICE)
         if down:
             names = ", ".join(n for b, n in FAULT_NAMES.items() if down & b)
-            raise RuntimeFailure(f"{self.sub.name} cannot move: fault {names}")
+            hint = (" (the amplifiers are latched off: the servo missed its deadlines -- a host too busy "
+                    "for the cell, or sched_fifo off; power-cycle with 'droid-cell down' and 'droid-cell up')"
+                    if down & FAULT_WATCHDOG else "")
+            raise RuntimeFailure(f"{self.sub.name} cannot move: fault {names}{hint}")
 
     # -- validating (before anything moves) -------------------------------
     def ticks_for(self, seconds: float) -> int:
-        if not (math.isfinite(seconds) and seconds > 0):
-            raise BadInput(f"move time must be a finite number of seconds > 0, got {seconds!r}")
+        if not (math.isfinite(seconds) and 0 < seconds <= MAX_MOVE_S):
+            raise BadInput(f"move time must be in (0, {MAX_MOVE_S:g}] s, got {seconds!r}")
         ticks = int(round(seconds * self.hb_hz))
         if ticks < 1:
             raise BadInput(f"move time {seconds:g} s is shorter than one heartbeat tick")
@@ -143,14 +168,8 @@ class BrainArm:
 
     # -- commanding --------------------------------------------------------
     def _write(self, **fields) -> int:
-        with self.command.locked() as c:
-            cmd_id = (int(c["cmd_id"]) + 1) & 0xFFFFFFFF or 1
-            for k, v in fields.items():
-                c[k] = v
-            c["cmd_id"] = cmd_id
-            c["sent"] = 1
-            self.command.mark_written()
-        return cmd_id
+        self.live_cmd = write_command(self.command, **fields)
+        return self.live_cmd
 
     def command_joint(self, counts, ticks: int, mode: int = NORMAL_MODE) -> int:
         return self._write(encoder_pos=np.asarray(counts, np.int32), joint_time_count=int(ticks),
@@ -200,8 +219,31 @@ class BrainArm:
         """Wait until command ``cmd_id`` finished; raises if it was refused or failed."""
         rec = self.wait(lambda r: int(r["cmd_id"]) == cmd_id and int(r["busy"]) == 0,
                         timeout_s, f"{self.sub.name} to finish command {cmd_id}")
+        self.live_cmd = None  # finished (or refused/failed): nothing left to cancel
         self.check_result(rec, cmd_id)
         return rec
+
+    def wait_arrived(self, target_counts, timeout_s: float = ARRIVAL_WAIT_S, tol_deg: float = ARRIVAL_TOL_DEG):
+        """After a move reported done: wait until every joint is within ``tol_deg`` of
+        the target [counts]; RuntimeFailure naming the joint (and the faults) if the arm
+        halted short of it -- e.g. the servo braked after its command stream stopped, so
+        "done" is not taken for "there" (issue 16)."""
+        q_goal = self.model.gearing.counts_to_joints(np.asarray(target_counts, float))
+        deadline = time.monotonic() + timeout_s
+        while True:
+            rec = self.read()
+            err = self.joints_deg(rec) - q_goal
+            worst = int(np.argmax(np.abs(err)))
+            if abs(err[worst]) <= tol_deg:
+                return rec
+            if time.monotonic() > deadline:
+                faults = [n for b, n in FAULT_NAMES.items() if int(rec["fault"]) & b]
+                why = f" (faults: {', '.join(faults)})" if faults else ""
+                pos = int(np.asarray(rec["encoder_pos"])[worst])
+                raise RuntimeFailure(f"{self.sub.name} halted short of its target: joint {worst + 1} at "
+                                     f"{pos} counts, {err[worst]:+.3f} deg from the target "
+                                     f"{int(np.asarray(target_counts)[worst])} counts{why}")
+            time.sleep(POLL_S)
 
     def wait_delivered(self, cmd_id: int, timeout_s: float):
         """Wait until the agent acknowledged ``cmd_id`` (Command.sent cleared)."""

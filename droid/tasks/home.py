@@ -20,7 +20,7 @@ import sys
 
 from droid.brain.program import open_cell, parser
 from droid.brain.layouts import CMD_OK
-from droid.cli import positive_float, run
+from droid.cli import run, timeout_s
 from droid.tasks.arm import BrainArm
 
 PROG = "droid-home"
@@ -31,7 +31,7 @@ DEFAULT_TIMEOUT_S = 180.0
 def main(argv=None) -> int:
     ap = parser(PROG, "Home an arm and wait until it reports HOMED.")
     ap.add_argument("robot", help="arm subunit, e.g. arm1")
-    ap.add_argument("--timeout", type=positive_float, default=DEFAULT_TIMEOUT_S, metavar="S",
+    ap.add_argument("--timeout", type=timeout_s, default=DEFAULT_TIMEOUT_S, metavar="S",
                     help=f"give up after S seconds (default {DEFAULT_TIMEOUT_S:g})")
     args = ap.parse_args(argv)
     cell = open_cell(args)

@@ -20,6 +20,11 @@ Lines (stdin is a pipe or file), one command a line, for scripts::
     wait 0.5       pause [s]
     # comment
 
+Joystick (``--joystick SUBUNIT``, a subunit of class ``joystick``): the thesis's
+Joystick program (§3.4), in :mod:`droid.tasks.stick`: axis 0/1 drive joints 1/2
+(cartesian x/y), buttons 0-2 select the pair (j1 j2, j3 j4, j5 j6; x y, z A, B C),
+button 3 toggles joint/cartesian, button 7 quits (or ``--seconds``, or Ctrl-C).
+
 Joint jogs are JOG-mode commands: relative encoder counts (thesis §3.3) that
 work before homing.  Cartesian jogs need a homed arm (the pose is only known
 then) and are sent as short cartesian moves, checked for reach and limits
@@ -35,10 +40,13 @@ import time
 
 import numpy as np
 
+from droid.brain.databases import open_brain
 from droid.brain.program import open_cell, parser
-from droid.cli import BadInput, RuntimeFailure, integer, parse_finite, positive_float, run
+from droid.brain.rt import PeriodicTimer
+from droid.cli import MAX_WAIT_S, BadInput, RuntimeFailure, bounded_float, bounded_int, parse_finite, run
 from droid.kinematics.transforms import T_to_pose, pose_to_T
 from droid.tasks.arm import BrainArm
+from droid.tasks.stick import StickInput, StickJog
 
 PROG = "droid-jog"
 KEYS = "azsxdcfvgbhn"  # pairs (+, -) for axes 1..6
@@ -207,24 +215,80 @@ def _keyboard(jog: Jogger) -> int:
         termios.tcsetattr(fd, termios.TCSADRAIN, saved)
 
 
+def _joystick(arm: BrainArm, cell, joy_name: str, cart: bool, seconds: float | None) -> int:
+    """Drive ``arm`` from the joystick subunit ``joy_name`` once per heartbeat tick (§3.4)."""
+    joy = cell.subunit(joy_name)
+    if joy.cls != "joystick":
+        raise BadInput(f"{joy_name} is a {joy.cls} subunit, not a joystick")
+    status = open_brain(cell, joy, "status")
+    core = StickJog(arm.model, arm.hb_hz, cart=cart)
+    period_ns = int(round(1e9 / arm.hb_hz))
+    timer = PeriodicTimer(period_ns, start_ns=time.monotonic_ns())
+    t0 = last = time.monotonic()
+    last_note = ""
+    print(f"{PROG}: {arm.sub.name} from joystick {joy_name} ({'cartesian' if cart else 'joint'} mode; "
+          "buttons 0-2 axis pair, 3 joint/cartesian, 7 quit)", file=sys.stderr, flush=True)
+    try:
+        while seconds is None or time.monotonic() - t0 < seconds:
+            if not timer.wait(0.5):
+                continue
+            now = time.monotonic()
+            dt, last = now - last, now
+            j = status.read()
+            stick = StickInput(tuple(float(v) for v in j["axes"]), tuple(int(v) for v in j["buttons"]),
+                               bool(j["valid"]), bool(j["stale"]))
+            rec = arm.read()
+            with arm.command.locked() as c:
+                delivered = not int(c["sent"])
+            homed = bool(int(rec["homed"]))
+            q = arm.joints_deg(rec) if homed else None
+            act = core.step(dt, stick, homed, delivered, q)
+            if act.note and act.note != last_note:
+                print(f"{PROG}: {act.note}", file=sys.stderr, flush=True)
+            last_note = act.note or last_note
+            if act.kind == "quit":
+                break
+            if act.kind == "jog":
+                arm.command_jog(act.delta_counts)
+            elif act.kind == "cart":
+                arm.command_cart(act.T, act.ticks)
+    finally:
+        timer.close()
+        status.close()
+    return 0
+
+
 @run
 def main(argv=None) -> int:
-    ap = parser(PROG, "Jog an arm from the keyboard or from command lines on stdin (works before homing).")
+    ap = parser(PROG, "Jog an arm from the keyboard, a joystick or command lines on stdin (works before homing).")
     ap.add_argument("robot", help="arm subunit, e.g. arm1")
     ap.add_argument("--cart", action="store_true", help="start in cartesian mode (keyboard)")
-    ap.add_argument("--step", type=integer, default=200, metavar="COUNTS",
+    ap.add_argument("--step", type=bounded_int(1, 100_000, "counts"), default=200, metavar="COUNTS",
                     help="joint step per key [encoder counts] (default 200)")
-    ap.add_argument("--step-mm", type=positive_float, default=1.0, metavar="MM",
+    ap.add_argument("--step-mm", type=bounded_float(0.0, 100.0, "mm", lo_open=True), default=1.0, metavar="MM",
                     help="cartesian step per key [mm] (default 1)")
-    ap.add_argument("--step-deg", type=positive_float, default=1.0, metavar="DEG",
+    ap.add_argument("--step-deg", type=bounded_float(0.0, 90.0, "deg", lo_open=True), default=1.0, metavar="DEG",
                     help="orientation step per key [deg] (default 1)")
+    ap.add_argument("--joystick", metavar="SUBUNIT", default=None,
+                    help="drive the arm from this joystick subunit (thesis §3.4), e.g. joy")
+    ap.add_argument("--seconds", type=bounded_float(0.0, MAX_WAIT_S, "s", lo_open=True), default=None, metavar="S",
+                    help="with --joystick: stop after S seconds (default: button 7 or Ctrl-C)")
     args = ap.parse_args(argv)
-    if args.step <= 0:
-        ap.error("--step must be > 0 counts")
+    if args.seconds is not None and args.joystick is None:
+        ap.error("--seconds needs --joystick")
     cell = open_cell(args)
+    if args.joystick is not None:  # a bad joystick name: exit 2 before touching the arm
+        joy = cell.subunit(args.joystick)
+        if joy.cls != "joystick":
+            raise BadInput(f"{joy.name} is a {joy.cls} subunit, not a joystick")
     with BrainArm(cell, args.robot) as arm:
         arm.connect()
         arm.check_fresh()
+        if args.joystick is not None:
+            try:
+                return _joystick(arm, cell, args.joystick, args.cart, args.seconds)
+            except KeyboardInterrupt:
+                return 0
         jog = Jogger(arm, args.step, args.step_mm, args.step_deg)
         jog.cart = args.cart
         if sys.stdin.isatty():

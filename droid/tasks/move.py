@@ -17,15 +17,18 @@ The target is checked against the robot model first — joint and encoder
 limits, reachability, joint speed limits — and a bad target exits 2 with the
 reason before anything is written: the robot does not move.  Then the program
 waits for ``busy == 0``, writes the command, and waits until the robot reports
-it finished (``--no-wait``: until the agent has it).  Exit 1 if the arm is not
-homed, stale, or does not finish in time.
+it finished and is within 0.05 joint degrees of the target (``--no-wait``: until
+the agent has it).  Exit 1 if the arm is not homed, stale, does not finish in
+time, or halted short of its target; a move given up on (timeout, stale,
+Ctrl-C) is stopped (a stop command is written over it) so it is never carried
+out later.  SECONDS is at most 3600 (one hour).
 """
 from __future__ import annotations
 
 import sys
 
 from droid.brain.program import open_cell, parser
-from droid.cli import RuntimeFailure, finite_float, positive_float, run
+from droid.cli import MAX_MOVE_S, RuntimeFailure, finite_float, run, timeout_s
 from droid.tasks.arm import BrainArm
 
 PROG = "droid-move"
@@ -40,14 +43,14 @@ def main(argv=None) -> int:
     ap.add_argument("values", nargs="+", type=finite_float, metavar="V",
                     help="6 target values, then the move time in seconds")
     ap.add_argument("--no-wait", action="store_true", help="return once the command is delivered")
-    ap.add_argument("--timeout", type=positive_float, default=None, metavar="S",
+    ap.add_argument("--timeout", type=timeout_s, default=None, metavar="S",
                     help="give up waiting after S seconds (default: 2 x move time + 10 s)")
     args = ap.parse_args(argv)
     if len(args.values) != 7:
         ap.error(f"{args.mode} needs 6 target values and SECONDS, got {len(args.values)} numbers")
     *target, seconds = args.values
-    if seconds <= 0:
-        ap.error(f"SECONDS must be > 0, got {seconds:g}")
+    if not 0 < seconds <= MAX_MOVE_S:
+        ap.error(f"SECONDS must be > 0 and <= {MAX_MOVE_S:g} s (one hour), got {seconds:g}")
     cell = open_cell(args)
     with BrainArm(cell, args.robot) as arm:
         ticks = arm.ticks_for(seconds)
@@ -67,11 +70,13 @@ def main(argv=None) -> int:
             counts = arm.check_joint_target(target, seconds, q_now)
             cmd_id = arm.command_joint(counts, ticks)
         else:
-            T, _ = arm.check_cart_target(target, seconds, q_now)
+            T, q_goal = arm.check_cart_target(target, seconds, q_now)
+            counts = arm.model.gearing.joints_to_counts(q_goal)
             cmd_id = arm.command_cart(T, ticks)
         arm.wait_delivered(cmd_id, timeout)
         if not args.no_wait:
             arm.wait_done(cmd_id, timeout)
+            arm.wait_arrived(counts)  # "done" short of the target is a failure (exit 1)
     return 0
 
 

@@ -10,11 +10,14 @@ around it, on the Brain's databases only (a task never touches a device, §3.4):
    collection, §6.1 -- the tool-tip sensor (tool);
 2. with ``--start POSITION``: move the holder and then the tool robot to the
    start poses of that layout position (§6.1.2; droid/cells/seamtrack_layout.toml);
-3. every second heartbeat tick (30 Hz): read the two wrist-centre poses and
-   the lead sensor's reading, step the core, write the Reis cartesian command
-   for the next cycle (``cart_time_count`` = 2 ticks) -- the GMF1 is told once
-   to hold its pose (gen_hold_robot_wcp);
-4. every sixth tick (10 Hz, §6.1) append a CSV row (``--log FILE``);
+3. every tick hand both robots' Status poses to the tracking cycle
+   (droid.tasks.seam.cycle.TrackingCycle, the same code the lockstep trial
+   runs); every ``heartbeat_hz / 30`` ticks (30 Hz) read the lead sensor's
+   reading, step the cycle -- the core of ``--mode`` (thesis, listing, plus)
+   -- and write the Reis cartesian command for the next cycle
+   (``cart_time_count`` = one cycle of ticks); the GMF1 is told once to hold
+   its pose (gen_hold_robot_wcp);
+4. every ``heartbeat_hz / 10`` ticks (10 Hz, §6.1) append a CSV row (``--log FILE``);
 5. stop cleanly -- no new command is written, so the Reis completes its last
    one-cycle step and stands -- at the end of the seam (``--length`` of tool
    travel reached), when the seam is lost, on an unreachable command, on a
@@ -28,7 +31,6 @@ from __future__ import annotations
 
 import math
 import signal
-from collections import deque
 import sys
 import time
 from pathlib import Path
@@ -37,6 +39,7 @@ import numpy as np
 import zmq
 
 from droid.brain.databases import open_brain
+from droid.brain.layouts import NO_CAPTURE_AGE
 from droid.brain.heartbeat import TickSubscriber
 from droid.brain.program import Stop, open_cell, parser
 from droid.brain.rt import try_sched_fifo
@@ -44,13 +47,12 @@ from droid.cli import (EXIT_INTERRUPTED, EXIT_OK, EXIT_RUNTIME, BadInput, Runtim
                        non_negative_int, positive_float, run)
 from droid.tasks.arm import STALE_GRACE_S, BrainArm
 from droid.tasks.seam import report
-from droid.tasks.seam.core import (DEAD_ZONE_CYCLES, LOST_CYCLES, STOP_END, SeamParams, SeamTracker)
+from droid.tasks.seam.core import DEAD_ZONE_CYCLES, LOST_CYCLES, MODE_THESIS, MODES, STOP_END, SeamParams
+from droid.tasks.seam.cycle import SENSOR_LAG_TICKS, TrackingCycle  # noqa: F401 (SENSOR_LAG_TICKS: docs)
 from droid.tasks.seam.delay import INVALID_READING, Reading
 from droid.tasks.seam.layout import POSITION_IDS, load_layout
 
 PROG = "droid-seamtrack"
-CYCLE_TICKS = 2  # one 30 Hz cycle = 2 heartbeat ticks
-LOG_TICKS = 6  # 10 Hz log (thesis §6.1)
 HEARTBEAT_LOST_S = STALE_GRACE_S  # no tick for this long [s]: the Brain's heartbeat is gone
 START_MOVE_MIN_S = 3.0  # the shortest move to a start pose [s]
 START_MOVE_MARGIN = 1.5  # move time = margin x the slowest joint at its speed limit
@@ -59,18 +61,18 @@ SETTLED_COUNTS = 2  # after a start move: encoder change per poll [counts] that 
 SETTLE_POLL_S = 0.1
 SETTLE_TIMEOUT_S = 3.0
 FIFO_PRIORITY = 49  # SCHED_FIFO priority of the tracking loop (the remotes run at 50)
-#: Latency compensation (an addition, docs/seamtrack.md): a lead reading that reaches the
-#: Brain's Status at tick m left the camera about a tick earlier (the MVS program, 20
-#: characters at 19200 baud, the remote's tick), so the seam update places it with the
-#: Reis pose of tick m - SENSOR_LAG_TICKS, not the newest one.
-SENSOR_LAG_TICKS = 1
-POSE_HISTORY_TICKS = 16
+# Cycle counting, the pose histories and the latency compensation (a reading placed with the
+# poses of its capture instant, SENSOR_LAG_TICKS) live in droid.tasks.seam.cycle, shared with
+# the lockstep trial.
 
 
 def build_parser():
     ap = parser(PROG, "Track a seam with the tool robot, steered by the lead sensor, at SPEED mm/s "
                       "(thesis §5.5); stops at the end of the seam, on seam loss or on Ctrl-C.")
     ap.add_argument("speed", type=positive_float, metavar="SPEED", help="travel speed along the seam [mm/s]")
+    ap.add_argument("--mode", choices=MODES, default=MODE_THESIS,
+                    help="tracker: thesis (§5.2's patch, default), listing (the literal port of the "
+                         "listing), plus (seam map, holds the speed; docs/seamtrack.md)")
     ap.add_argument("--yaw-gain", type=finite_float, default=0.15, metavar="K",
                     help="yaw angle gain k_yaw (eq. 5.6; default 0.15, §6.2.1)")
     ap.add_argument("--pitch-gain", type=finite_float, default=0.25, metavar="K",
@@ -102,12 +104,20 @@ def build_parser():
     return ap
 
 
-def reading_of(rec) -> Reading:
-    """A lead-sensor Status record (Table 3.3) as a reading: x depth, y lateral [mm], roll from R."""
+def reading_of(rec, period_ns: int | None = None) -> Reading:
+    """A lead-sensor Status record (Table 3.3) as a reading: x depth, y lateral [mm], roll from R.
+
+    With ``period_ns`` (the heartbeat period) and a stamped line (``capture_age_us``, layout
+    v2): the capture instant in heartbeat ticks, ``tick - age / period`` (issue 12)."""
     if int(rec["stale"]) or int(rec["homed"]):  # homed = 1: the reading is invalid (Table 3.3)
         return INVALID_READING
     R = rec["R"]
-    return Reading(float(rec["x"]), float(rec["y"]), math.atan2(float(R[1][0]), float(R[0][0])), True)
+    stamp = None
+    names = getattr(getattr(rec, "dtype", None), "names", None) or ()
+    if period_ns and "capture_age_us" in names and int(rec["capture_age_us"]) != NO_CAPTURE_AGE:
+        stamp = int(rec["tick"]) - int(rec["capture_age_us"]) * 1000.0 / period_ns
+    return Reading(float(rec["x"]), float(rec["y"]), math.atan2(float(R[1][0]), float(R[0][0])), True,
+                   stamp_tick=stamp)
 
 
 def pose_of(rec) -> np.ndarray:
@@ -171,7 +181,7 @@ class Tracker:
                 speed_mm_s=args.speed, yaw_gain=args.yaw_gain, pitch_gain=args.pitch_gain,
                 dead_zone_cycles=args.dead_zone, lost_cycles=max(1, args.lost_cycles),
                 length_mm=args.length if args.length is not None else math.inf,
-                delay_cycles=args.delay, delay_at_mm=args.delay_at)
+                delay_cycles=args.delay, delay_at_mm=args.delay_at, mode=args.mode)
         except ValueError as exc:
             raise BadInput(str(exc)) from None
         self.wrist = layout.wrist(args.wrist)
@@ -188,14 +198,17 @@ class Tracker:
         self.reis = BrainArm(cell, layout.tool_robot)
         self.hold = BrainArm(cell, layout.holder_robot)
         self.sensor_sub = sensor
-        self.core = SeamTracker(self.params, self.wrist.T_wcp_tool, self.wrist.T_wcp_sensor, self.reis.model)
+        try:
+            self.cyc = TrackingCycle(self.params, self.wrist.T_wcp_tool, self.wrist.T_wcp_sensor, self.reis.model,
+                                     heartbeat_hz=cell.heartbeat_hz)
+        except ValueError as exc:
+            raise BadInput(f"cell {cell.name}: {exc}") from None
+        self.core = self.cyc.core
         self.rows: list[tuple] = []
         self.lead = INVALID_READING
         self.out = None
         self.t0 = None
         self.stale_since = None
-        self.status_tick = None
-        self.poses: deque = deque(maxlen=POSE_HISTORY_TICKS)
         self.dbs = []
 
     # -- set-up ------------------------------------------------------------
@@ -229,26 +242,18 @@ class Tracker:
         move_to_start(self.hold, T_hold, f"holding pose of position ({position})", self.args.quiet)
         move_to_start(self.reis, T_reis, f"start of position ({position})", self.args.quiet)
 
-    # -- the Reis pose history (latency compensation) --------------------------
+    # -- the pose histories (latency compensation: droid.tasks.seam.cycle) ------------
     def remember(self):
-        """Every tick: keep the Reis Status pose under the tick it was updated in; returns the record."""
+        """Every tick: hand both robots' Status poses to the tracking cycle; returns (Reis, GMF1) records."""
         rec = self.reis.read()
-        tick = int(rec["tick"])
-        if not self.poses or self.poses[-1][0] != tick:
-            self.poses.append((tick, pose_of(rec)))
-        return rec
-
-    def pose_at(self, tick: int):
-        """The newest remembered Reis pose updated at or before ``tick`` (None: none that old)."""
-        for t, T in reversed(self.poses):
-            if t <= tick:
-                return T
-        return None
+        hold_rec = self.hold.read()
+        if not int(rec["stale"]) and not int(hold_rec["stale"]):
+            self.cyc.remember(int(rec["tick"]), pose_of(rec), int(hold_rec["tick"]), pose_of(hold_rec))
+        return rec, hold_rec
 
     # -- one cycle ----------------------------------------------------------
-    def cycle(self, reis_rec) -> str | None:
-        """Read, step the core, write the command; returns a stop reason or None."""
-        hold_rec = self.hold.read()
+    def cycle(self, reis_rec, hold_rec) -> str | None:
+        """Read, step the tracking cycle, write the command; returns a stop reason or None."""
         stale = [arm.sub.name for arm, rec in ((self.reis, reis_rec), (self.hold, hold_rec)) if int(rec["stale"])]
         if stale:  # no command this cycle: the Reis finishes its last step and waits
             now = time.monotonic()
@@ -258,19 +263,15 @@ class Tracker:
             return None
         self.stale_since = None
         lead_rec = self.lead_db.read()
-        self.lead = reading_of(lead_rec)
-        sensed = self.pose_at(int(lead_rec["tick"]) - SENSOR_LAG_TICKS)
-        tick = int(reis_rec["tick"])  # the Status's own tick: a late update spans more cycles
-        elapsed = 1.0 if self.status_tick is None else max(1.0, (tick - self.status_tick) / CYCLE_TICKS)
-        self.status_tick = tick
-        out = self.core.step(pose_of(hold_rec), pose_of(reis_rec), self.lead, self.reis.joints_deg(reis_rec),
-                             elapsed_cycles=elapsed, T_global_reis6_sensed=sensed)
+        self.lead = reading_of(lead_rec, self.cell.period_ns)
+        out = self.cyc.step(pose_of(hold_rec), pose_of(reis_rec), int(reis_rec["tick"]), self.lead,
+                            int(lead_rec["tick"]), self.reis.joints_deg(reis_rec))
         self.out = out
         if out.stop is not None:
             return str(out.stop)
-        self.reis.command_cart(out.reis_cmd, CYCLE_TICKS)
+        self.reis.command_cart(out.reis_cmd, self.cyc.cycle_ticks)
         if out.cycle == 0:  # gen_hold_robot_wcp: the holder keeps the pose it has
-            self.hold.command_cart(out.gmf1_cmd, CYCLE_TICKS)
+            self.hold.command_cart(out.gmf1_cmd, self.cyc.cycle_ticks)
         return None
 
     def log(self, t_s: float) -> None:
@@ -299,7 +300,6 @@ class Tracker:
             ticks.close()
 
     def _loop(self, ticks: TickSubscriber) -> tuple[int, str]:
-        next_cycle = next_log = None  # heartbeat tick numbers of the next cycle / log row
         last_tick_wall = time.monotonic()
         last_progress = 0.0
         while True:
@@ -314,19 +314,16 @@ class Tracker:
             last_tick_wall = now
             if self.t0 is None:
                 self.t0 = t.t_ns
-                next_cycle, next_log = t.tick, t.tick + LOG_TICKS - 1
-            reis_rec = self.remember()
+            reis_rec, hold_rec = self.remember()
             # tick numbers follow time: a late wake-up (ticks drained at once) still steps once
-            if t.tick >= next_cycle:
-                next_cycle = t.tick + CYCLE_TICKS
-                why = self.cycle(reis_rec)
+            if self.cyc.due(t.tick):
+                why = self.cycle(reis_rec, hold_rec)
                 if why is not None:
                     stop = self.core.stopped
                     if stop is not None and stop.reason == STOP_END:
                         return EXIT_OK, why
                     return EXIT_RUNTIME, why
-            if t.tick >= next_log:
-                next_log = t.tick + LOG_TICKS
+            if self.cyc.log_due(t.tick):
                 self.log((t.t_ns - self.t0) / 1e9)
             if not self.args.quiet and now - last_progress >= 1.0 and self.out is not None:
                 last_progress = now
@@ -360,7 +357,7 @@ def main(argv=None) -> int:
     reason, detail = (stop.reason, stop.detail) if stop is not None else (why, "")
     s_end = stop.travel_mm if stop is not None else (tr.out.travel_mm if tr.out is not None else math.nan)
     summary = report.summarize(tr.rows, stop_reason=reason, stop_detail=detail, stop_s_mm=s_end,
-                               camera_to_tcp_mm=tr.wrist.camera_to_tcp_mm)
+                               camera_to_tcp_mm=tr.wrist.camera_to_tcp_mm, commanded_mm_s=args.speed)
     if args.log:
         report.write_csv(args.log, tr.rows)
     if args.figure:

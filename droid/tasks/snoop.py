@@ -4,7 +4,9 @@
 1Hz via the Standard Output port."  With ``--json`` each sample is one JSON
 object on its own line, with the thesis's field names (x, y, z, R,
 encoder_pos, encoder_cmd, busy, homed) plus ``tick`` and ``stale``; sensors
-also carry ``invalid`` (Table 3.3 uses ``homed`` as the invalid flag).
+also carry ``invalid`` (Table 3.3 uses ``homed`` as the invalid flag); a
+joystick ``axes``, ``buttons`` and ``valid``.  Which fields: the subunit's
+class (``snoop_fields`` in :mod:`droid.brain.classes`).
 Reads the Brain's database only (a task never touches a device, §3.4).
 
 Exit: 0 after ``--count`` samples or on SIGINT; 1 if the cell is not up.
@@ -17,40 +19,29 @@ import sys
 import time
 
 from droid.brain.databases import open_brain
-from droid.brain.layouts import CMD_MODE_NAMES, FAULT_NAMES
+from droid.brain.classes import field_json
 from droid.brain.program import open_cell, parser
 from droid.brain.rt import PeriodicTimer
-from droid.cli import positive_float, positive_int, run
+from droid.cli import bounded_float, bounded_int, run
 
 PROG = "droid-snoop"
 
 
 def status_dict(sub, rec) -> dict:
-    """The JSON object of one Status sample."""
-    d = {
-        "subunit": sub.name,
-        "tick": int(rec["tick"]),
-        "stale": bool(rec["stale"]),
-        "x": round(float(rec["x"]), 4),
-        "y": round(float(rec["y"]), 4),
-        "z": round(float(rec["z"]), 4),
-        "R": [[round(float(v), 6) for v in row] for row in rec["R"]],
-        "encoder_pos": [int(v) for v in rec["encoder_pos"]],
-        "encoder_cmd": [int(v) for v in rec["encoder_cmd"]],
-        "busy": int(rec["busy"]),
-        "homed": int(rec["homed"]),
-        "cmd_mode": CMD_MODE_NAMES.get(int(rec["cmd_mode"]), str(int(rec["cmd_mode"]))),
-        "fault": [name for bit, name in FAULT_NAMES.items() if int(rec["fault"]) & bit],
-    }
-    if not sub.is_arm:
-        d["invalid"] = bool(rec["homed"])
-        for k in ("valid_count", "invalid_count", "garbled_count"):
-            d[k] = int(rec[k])
+    """The JSON object of one Status sample: subunit, tick, stale, then the class's snoop fields."""
+    d = {"subunit": sub.name, "tick": int(rec["tick"]), "stale": bool(rec["stale"])}
+    for name in sub.kind.snoop_fields:
+        d[name] = field_json(rec, name)
     return d
 
 
 def status_text(d: dict) -> str:
     flags = " STALE" if d["stale"] else ""
+    if "axes" in d:
+        axes = " ".join(f"{v:+.2f}" for v in d["axes"][: max(1, d.get("n_axes", 0))])
+        pressed = [i for i, b in enumerate(d["buttons"]) if b]
+        state = "valid" if d["valid"] else "INVALID"
+        return f"{d['subunit']} tick {d['tick']}{flags}  axes [{axes}]  buttons {pressed}  {state}"
     if "invalid" in d:
         state = "INVALID" if d["invalid"] else "valid"
         return (f"{d['subunit']} tick {d['tick']}{flags}  x {d['x']:.3f}  y {d['y']:.3f}  "
@@ -66,9 +57,9 @@ def status_text(d: dict) -> str:
 def main(argv=None) -> int:
     ap = parser(PROG, "Print a subunit's Status record (default once a second).")
     ap.add_argument("subunit", help="subunit name, e.g. arm1")
-    ap.add_argument("--rate", type=positive_float, default=1.0, metavar="HZ",
+    ap.add_argument("--rate", type=bounded_float(0.0, 1000.0, "Hz", lo_open=True), default=1.0, metavar="HZ",
                     help="samples per second (default 1)")
-    ap.add_argument("--count", type=positive_int, default=None, metavar="N",
+    ap.add_argument("--count", type=bounded_int(1, 10**9), default=None, metavar="N",
                     help="stop after N samples (default: until interrupted)")
     ap.add_argument("--json", action="store_true", help="one JSON object a line")
     args = ap.parse_args(argv)

@@ -1,6 +1,7 @@
 """Helpers for tests that bring a real cell of processes up on loopback."""
 from __future__ import annotations
 
+import contextlib
 import json
 import re
 import subprocess
@@ -20,6 +21,29 @@ def make_cell_file(tmp_path: Path, name: str, source: Path | None = None, extra:
     path = tmp_path / f"{name}.toml"
     path.write_text(text + extra)
     return path
+
+
+@contextlib.contextmanager
+def brought_down(path: Path, cell_name: str):
+    """Whatever the body does with the cell file ``path``, bring the cell down after it and
+    check that ``down`` succeeds and leaves nothing of the cell in /dev/shm."""
+    from droid.brain.shmdb import cell_objects
+
+    try:
+        yield path
+    finally:
+        out = droid("droid.brain.launcher", "down", "--cell", str(path))
+        assert out.returncode == 0, out.stderr
+        assert cell_objects(cell_name) == []
+
+
+@contextlib.contextmanager
+def cell_up(path: Path, cell_name: str):
+    """Bring the cell file ``path`` up for the body and always down after it (:func:`brought_down`)."""
+    with brought_down(path, cell_name):
+        out = droid("droid.brain.launcher", "up", "--cell", str(path), timeout=120)
+        assert out.returncode == 0, out.stdout + out.stderr
+        yield path
 
 
 def droid(prog_module: str, *args: str, timeout: float = 60, check: bool = False) -> subprocess.CompletedProcess:

@@ -14,7 +14,7 @@ import sys
 import pytest
 
 from droid.brain.shmdb import cell_objects
-from tests.brain.cellutil import ROOT, cell_status, droid, make_cell_file, wait_for
+from tests.brain.cellutil import brought_down, ROOT, cell_status, droid, make_cell_file, wait_for
 
 pytestmark = pytest.mark.integration
 CELL = "droid.brain.launcher"
@@ -23,11 +23,8 @@ SNOOP = "droid.tasks.snoop"
 
 @pytest.fixture
 def cell(tmp_path, cell_name):
-    path = make_cell_file(tmp_path, cell_name)
-    yield path
-    out = droid(CELL, "down", "--cell", str(path))
-    assert out.returncode == 0, out.stderr
-    assert cell_objects(cell_name) == []
+    with brought_down(make_cell_file(tmp_path, cell_name), cell_name) as path:
+        yield path
 
 
 def n_programs(path) -> int:
@@ -102,9 +99,15 @@ def test_heartbeat_death_marks_everything_stale_no_crash(cell):
         t0 = snoop_json(cell, "arm1")[0]["tick"]
         rows = snoop_json(cell, "arm1", 3, rate=10)
         assert all(r["tick"] == t0 for r in rows)  # nothing refreshed without ticks
+        # ... and the Brain says so: every subunit goes stale with the heartbeat fault
+        for sub in ("arm1", "gmf1", "mvs", "tool"):
+            wait_for(lambda: (lambda r: r["stale"] and "heartbeat" in r["fault"])(snoop_json(cell, sub)[0]),
+                     what=f"{sub} stale (heartbeat)")
     finally:
         os.kill(hb["pid"], signal.SIGCONT)
     wait_for(lambda: snoop_json(cell, "arm1")[0]["tick"] > t0, what="ticks again")
+    wait_for(lambda: (lambda r: not r["stale"] and "heartbeat" not in r["fault"])(snoop_json(cell, "arm1")[0]),
+             what="arm1 fresh again, heartbeat fault cleared")
     assert all(r["alive"] for r in cell_status(cell))
 
 
@@ -182,7 +185,8 @@ def test_cell_over_tcp_started_host_by_host(tmp_path, cell_name):
             wait_for(lambda: not snoop_json(path, sub)[0]["stale"], what=f"{sub} fresh over tcp")
         names = droid("droid.brain.names", "--list", "--json", "--cell", str(path))
         eps = {json.loads(l)["name"]: json.loads(l)["endpoint"] for l in names.stdout.splitlines()}
-        assert set(eps) == {"heartbeat", "arm1", "gmf1"}  # the sensors have serial links, no agents
+        # the sensors have serial links, no agents; the joystick has the generic agent
+        assert set(eps) == {"heartbeat", "arm1", "gmf1", "joy"}
         assert all(e.startswith("tcp://127.0.0.1:") for e in eps.values())
     finally:
         out = droid(CELL, "down", "--cell", str(path))

@@ -97,3 +97,31 @@ def test_name_space_register_locate_expire():
 def test_name_space_bad_requests(req):
     rep = NameSpaceCore("h").handle(req, 0)
     assert rep["ok"] is False and rep["error"]
+
+
+# -- the heartbeat's own silence (issue 16: the Brain marks every subunit stale) ------
+def test_heartbeat_watch_reports_a_silence_once_and_clears_on_the_next_tick():
+    from droid.brain.link import HeartbeatWatch
+
+    period = 16_666_667
+    w = HeartbeatWatch(period, stale_ticks=3)
+    t = 1_000_000_000
+    assert not w.on_tick(t)
+    assert not w.became_silent(t + 3 * period)  # exactly stale_ticks periods: not yet
+    assert w.became_silent(t + 3 * period + 1)
+    assert w.silent and w.silences == 1
+    assert not w.became_silent(t + 10 * period)  # reported once
+    assert w.on_tick(t + 11 * period)  # the heartbeat is back
+    assert not w.silent
+    assert not w.became_silent(t + 12 * period)
+    assert w.became_silent(t + 15 * period)
+    assert w.silences == 2
+
+
+def test_heartbeat_watch_counts_from_the_first_look_when_no_tick_ever_came():
+    from droid.brain.link import HeartbeatWatch
+
+    w = HeartbeatWatch.for_rate(60.0, 3)
+    assert w.poll_ms == 17
+    assert not w.became_silent(5_000_000_000)
+    assert w.became_silent(5_000_000_000 + 60_000_000)

@@ -178,3 +178,32 @@ def test_memory_database_same_interface():
     out = m.read()
     assert int(out["joint_time_count"]) == 5 and int(out["cmd_id"]) == 3 and m.seq == 2
     L.check_header(m.raw_bytes(), L.ARM_COMMAND_LAYOUT, "mem")
+
+
+def test_priority_ceiling_holds_the_lock_at_fifo_61_and_restores_the_policy(cell_name):
+    """Issue 16: a normal-priority reader holding a semaphore cannot be preempted by busy
+    processes (it runs at the ceiling while it holds it), then drops back."""
+    import os
+
+    from droid.brain import shmdb
+    from droid.brain.layouts import ARM_STATUS_LAYOUT
+
+    name = f"/droid.{cell_name}.arm1.status"
+    db = shmdb.Database(name, ARM_STATUS_LAYOUT, create=True)
+    before = (os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)
+    try:
+        shmdb.set_priority_ceiling(shmdb.CEILING_PRIORITY)
+        with db.locked():
+            inside = (os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)
+        after = (os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)
+        db.update(tick=5)
+        assert int(db.read()["tick"]) == 5
+        if shmdb._ceiling is None:  # the OS refused SCHED_FIFO: the ceiling switched itself off
+            assert inside == before
+        else:
+            assert inside == (os.SCHED_FIFO, shmdb.CEILING_PRIORITY)
+        assert after == before
+    finally:
+        shmdb.set_priority_ceiling(None)
+        db.close()
+        shmdb.unlink_database(name)

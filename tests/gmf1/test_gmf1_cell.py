@@ -12,10 +12,9 @@ import signal
 import numpy as np
 import pytest
 
-from droid.brain.shmdb import cell_objects
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T, T_to_pose
-from tests.brain.cellutil import cell_status, droid, make_cell_file, wait_for
+from tests.brain.cellutil import brought_down, cell_status, droid, make_cell_file, wait_for
 
 pytestmark = pytest.mark.integration
 CELL = "droid.brain.launcher"
@@ -26,11 +25,8 @@ TARGET = [round(v, 3) for v in T_to_pose(MODEL.fk([0, 10, 10, 0, 40, 20]))]
 
 @pytest.fixture
 def cell(tmp_path, cell_name):
-    path = make_cell_file(tmp_path, cell_name)
-    yield path
-    out = droid(CELL, "down", "--cell", str(path))
-    assert out.returncode == 0, out.stderr
-    assert cell_objects(cell_name) == []
+    with brought_down(make_cell_file(tmp_path, cell_name), cell_name) as path:
+        yield path
 
 
 def snoop(path):

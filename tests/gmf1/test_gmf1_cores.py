@@ -262,3 +262,21 @@ def test_gmf1_programs_do_not_import_the_world():
                 names = [node.module]
             bad += [f"{path.name}: {n}" for n in names if n == "droid.sim" or n.startswith("droid.sim.")]
     assert bad == []
+
+
+def test_a_stop_drops_the_pending_command_and_the_move_in_flight_runs_out():
+    """Issue 16: a task that gave up writes a stop (STOP_TICKS); what waited is never sent."""
+    from droid.brain.layouts import STOP_TICKS
+
+    c = opened_core()
+    c.step(20, cmd(1), HOMED_VIEW, b"", True)  # in flight
+    c.step(26, cmd(1), HOMED_VIEW, b"ACK 1 2.000\r\n", True)
+    c.step(30, cmd(2), HOMED_VIEW, b"", True)  # waits as pending (a move is in flight)
+    assert c.pending is not None and c.pending.cmd_id == 2
+    out = c.step(31, cmd(3, ticks=STOP_TICKS), HOMED_VIEW, b"", True)
+    assert c.pending is None and c.stops == 1
+    assert out.fields["cmd_id"] == 3 and out.fields["cmd_result"] == CMD_OK
+    out = c.step(200, cmd(3, ticks=STOP_TICKS), HOMED_VIEW, b"DONE 1\r\n", True)
+    assert c.state == IDLE
+    for t in range(201, 400, 20):  # command 2 is never sent
+        assert c.step(t, cmd(3, ticks=STOP_TICKS), HOMED_VIEW, b"", True).tx == b""

@@ -184,6 +184,59 @@ OFFLINE = [  # (module, argv, reason)
 ]
 
 
+# Extreme but finite values, negative zero, huge exponents, values just outside each limit
+# (issue 16): exit 2, one line naming the limit; nothing is created, nothing moves.
+J6 = [*JOINT0, "0"]
+EXTREME = [
+    ("droid.tasks.move", ["arm1", "joint", *J6, "1e308"], "<= 3600 s"),
+    ("droid.tasks.move", ["arm1", "joint", *J6, "1e9"], "<= 3600 s"),
+    ("droid.tasks.move", ["arm1", "joint", *J6, "3600.001"], "<= 3600 s"),
+    ("droid.tasks.move", ["arm1", "joint", *J6, "-0"], "SECONDS must be > 0"),
+    ("droid.tasks.move", ["arm1", "joint", *J6, "-0.0"], "SECONDS must be > 0"),
+    ("droid.tasks.move", ["arm1", "joint", *J6, "4.9e-324"], "shorter than one"),
+    ("droid.tasks.move", ["arm1", "joint", *J6, "1", "--timeout", "1e308"], "<= 86400 s"),
+    ("droid.tasks.move", ["arm1", "joint", *J6, "1", "--timeout", "-0"], "must be > 0"),
+    ("droid.tasks.home", ["arm1", "--timeout", "86400.5"], "<= 86400 s"),
+    ("droid.tasks.home", ["arm1", "--timeout", "0e0"], "must be > 0"),
+    ("droid.tasks.snoop", ["arm1", "--rate", "1e308"], "<= 1000 Hz"),
+    ("droid.tasks.snoop", ["arm1", "--rate", "1000.0001"], "<= 1000 Hz"),
+    ("droid.tasks.snoop", ["arm1", "--rate", "-0"], "must be > 0"),
+    ("droid.tasks.snoop", ["arm1", "--count", "99999999999999999999999"], "<= 1000000000"),
+    ("droid.tasks.jog", ["arm1", "--step", "100001"], "<= 100000 counts"),
+    ("droid.tasks.jog", ["arm1", "--step", "-0"], "must be > 0"),
+    ("droid.tasks.jog", ["arm1", "--step-mm", "1e300"], "<= 100 mm"),
+    ("droid.tasks.jog", ["arm1", "--step-deg", "90.01"], "<= 90 deg"),
+    ("droid.kinematics.cli", ["fk", "--robot", "reis_v15", *JOINT0, "1e308"], "<= 3600 deg"),
+    ("droid.kinematics.cli", ["ik", "--robot", "reis_v15", "--", "300", "100", "1340", "-1e308", "90", "0"], ">= -1e+06"),
+    ("droid.brain.launcher", ["up", "--timeout", "1e308"], "<= 86400 s"),
+    ("droid.brain.launcher", ["down", "--timeout", "-0.0"], "must be > 0"),
+    ("droid.brain.heartbeat", ["--rate", "1e308"], "<= 1000 Hz"),
+    ("droid.brain.heartbeat", ["--count", "-1"], ">= 0"),
+    ("droid.brain.remote", ["arm1", "--ready-fd", "99999999999999"], "<= 1048576"),
+    ("droid.subunits.mvs.sensor", ["--baud", "4000001"], "<= 4000000 baud"),
+    ("droid.subunits.mvs.sensor", ["--retrace-timeout", "1e308"], "<= 60 s"),
+    ("droid.subunits.mvs.sensor", ["--board-wait=-1e-300"], ">= 0"),
+    ("droid.subunits.gmf1.serial_prog", ["gmf1", "--baud", "9" * 40], "<= 4000000 baud"),
+    ("droid.subunits.gmf1.encoder_prog", ["gmf1", "--rate", "10000.5"], "<= 10000 Hz"),
+    ("droid.sim.world", ["--seed", "4294967296"], "<= 4294967295"),
+    ("droid.sim.world", ["--seed", "-1"], ">= 0"),
+]
+
+
+@pytest.mark.parametrize("module,argv,reason", EXTREME,
+                         ids=[f"{m.rsplit('.', 1)[1]} {' '.join(a)}" for m, a, _ in EXTREME])
+def test_extreme_numbers_exit_2_naming_the_limit(module, argv, reason, tmp_path, cell_name, capsys,
+                                                 monkeypatch):
+    import importlib
+
+    main = importlib.import_module(module).main
+    if module != "droid.kinematics.cli":
+        argv = argv + ["--cell", str(make_cell_file(tmp_path, cell_name))]
+    code, err = call(main, argv, capsys, monkeypatch, stdin="")
+    assert_one_line(code, err, reason)
+    assert cell_objects(cell_name) == []  # nothing was created
+
+
 @pytest.mark.parametrize("module,argv,reason", OFFLINE,
                          ids=[f"{m.rsplit('.', 1)[1]} {' '.join(a)}" for m, a, _ in OFFLINE])
 def test_bad_invocation_exits_2_with_one_line(module, argv, reason, tmp_path, cell_name, capsys,

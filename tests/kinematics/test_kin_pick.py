@@ -191,3 +191,27 @@ def test_ik_memo_gives_the_fresh_pick(reis, singular):
                     model.ik(t, prev)
             else:
                 assert model.ik(t, prev).tolist() == want
+
+
+def test_ik_batch_equals_scalar_ik(reis):
+    """RobotModel.ik_batch (chunked 8 solutions + pick) picks what ik picks, pose by pose."""
+    rng = np.random.default_rng(17)
+    n = 2500  # more than one chunk
+    q = rng.uniform(reis.joint_min_deg * 0.9, reis.joint_max_deg * 0.9, (n, 6))
+    ts = reis.fk_batch(q)
+    prev = q + rng.normal(0.0, 2.0, q.shape)
+    ts[5, :3, 3] = [5000.0, 0.0, 0.0]  # out of reach: NaN row, index -1
+    got, idx = reis.ik_batch(ts, prev)
+    assert got.shape == (n, 6) and idx.shape == (n,)
+    assert idx[5] == -1 and np.isnan(got[5]).all()
+    for i in range(0, n, 7):
+        if i == 5:
+            continue
+        try:
+            want = reis.ik(ts[i], prev[i])
+        except Unreachable:
+            assert idx[i] == -1
+            continue
+        assert np.allclose(got[i], want, atol=1e-9)
+    with pytest.raises(ValueError):
+        reis.ik_batch(ts[:3], np.zeros((2, 6)))

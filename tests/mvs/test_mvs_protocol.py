@@ -133,3 +133,70 @@ def test_seam_transform_is_table_3_3_record():
     assert t[0:3, 0:3] @ [0, 1, 0] == pytest.approx([-math.sin(0.3), math.cos(0.3), 0])  # along the surface
     assert t[0:3, 0:3] @ [0, 0, 1] == pytest.approx([0, 0, 1])  # still along the travel direction
     assert np.allclose(seam_transform(0, 0, 0), np.eye(4))
+
+
+# -- capture stamps (issue 12 item 2) ------------------------------------------------------
+
+def test_a_stamped_line_round_trips_and_a_plain_thesis_line_still_parses():
+    from droid.brain.sensor_line import Reading as LineReading, format_line, parse_line, stamp_ms_of
+
+    f = LineReading(True, -1.25, 3.5, 0.01)
+    line = format_line(f, stamp_ms_of(123_456_789_000_000))
+    assert line == b"-1.250,3.500,0.01000,56789\n" and len(line) <= MAX_LINE_BYTES
+    r = parse_line(line)
+    assert (r.x_mm, r.y_mm, r.roll_rad, r.stamp_ms) == (-1.25, 3.5, 0.01, 56789)
+    plain = parse_line(b"-1.250,3.500,0.01000")
+    assert plain.valid and plain.stamp_ms is None
+    for bad in (b"1.000,2.000,0.00000,", b"1.000,2.000,0.00000,123456", b"1.000,2.000,0.00000,-5",
+                b"1.000,2.000,0.00000,1.5", b"1.000,2.000,0.00000,12,3"):
+        assert not parse_line(bad).valid, bad
+
+
+def test_stamps_from_the_future_too_old_or_out_of_order_are_dropped_and_counted():
+    from droid.brain.sensor_line import SensorClientCore, format_line, stamp_ms_of
+    from droid.brain.sensor_line import Reading as LineReading
+
+    c = SensorClientCore(stale_after_feeds=100)
+    f = LineReading(True, 0.5, -0.25, 0.0)
+    now = 5_000_000_000_000  # ns
+    ok = c.feed(format_line(f, stamp_ms_of(now - 20_000_000)), now)
+    assert ok.valid and ok.age_ms == 20 and c.stamp_dropped == 0
+    assert not c.feed(format_line(f, stamp_ms_of(now + 30_000_000)), now + 1_000_000).valid  # future
+    assert not c.feed(format_line(f, stamp_ms_of(now - 5_000_000_000)), now + 2_000_000).valid  # 5 s old
+    assert not c.feed(format_line(f, stamp_ms_of(now - 40_000_000)), now + 3_000_000).valid  # before the last
+    assert c.stamp_dropped == 3
+    later = c.feed(format_line(f, stamp_ms_of(now + 10_000_000)), now + 16_000_000)
+    assert later.valid and later.age_ms == 6
+
+
+def test_the_sensor_status_keeps_the_capture_age():
+    from droid.brain.layouts import NO_CAPTURE_AGE, SENSOR_STATUS_LAYOUT
+    from droid.brain.sensor_line import Reading as LineReading, format_line, stamp_ms_of
+    from droid.brain.sensor_link import SensorStatusCore
+
+    assert SENSOR_STATUS_LAYOUT.version == 2 and "capture_age_us" in SENSOR_STATUS_LAYOUT.dtype.names
+    core = SensorStatusCore(stale_ticks=3)
+    f = LineReading(True, 0.5, -0.25, 0.0)
+    t = 7_000_000_000_000
+    st = core.on_tick(1, format_line(f), t)  # the first line after opening is skipped (resync)
+    st = core.on_tick(2, format_line(f, stamp_ms_of(t - 12_000_000)), t + 16_000_000)
+    assert st["homed"] == 0 and st["capture_age_us"] == 28_000
+    st = core.on_tick(3, format_line(f), t + 32_000_000)
+    assert st["capture_age_us"] == NO_CAPTURE_AGE
+    st = core.on_tick(4, format_line(f, stamp_ms_of(t + 99_000_000)), t + 48_000_000)  # from the future
+    assert st["homed"] == 1 and st["capture_age_us"] == NO_CAPTURE_AGE and st["garbled_count"] == 1
+
+
+def test_the_sensor_core_appends_the_capture_stamp_only_when_asked():
+    from droid.brain.sensor_line import parse_line
+    from droid.sim.mvs_camera import CameraNoise, lap_joint_profile_mm, quantise
+    from droid.subunits.mvs.calibration import MvsCalibration
+    from droid.subunits.mvs.sensor import SensorCore
+
+    calib = MvsCalibration()
+    rows = quantise(lap_joint_profile_mm(calib, 1.0, 2.0, 0.1, 2.0, 1.0), calib, CameraNoise(0.0, 0.0),
+                    np.random.default_rng(1))
+    core = SensorCore(calib)
+    plain, stamped = parse_line(core.step(rows)), parse_line(core.step(rows, 4321))
+    assert plain.valid and plain.stamp_ms is None
+    assert stamped.valid and stamped.stamp_ms == 4321 and stamped.x_mm == plain.x_mm

@@ -149,3 +149,27 @@ def test_servo_agent_never_sends_a_stale_far_way_point():
     cmd["encoder_cmd_int"] = [9000, 1000, 1000, 1000, 1000, 1000]  # 8000 counts ahead: stale
     d = agent.step(cmd, rep, True)
     assert d.message is None and d.fault_bits & L.FAULT_BRAKING
+
+
+def test_a_stop_command_ends_the_move_where_its_way_point_is_and_holds():
+    """Issue 16: a task that gives up writes a stop (0 ticks); the move is not carried on."""
+    core = PlannerCore(MODEL)
+    cmd, st = records()
+    core.step(cmd, st)
+    joint_cmd(cmd, [6000] * 6, 60, 1)
+    for _ in range(20):
+        out = core.step(cmd, st)
+    where = out.encoder_cmd_int.copy()
+    assert 1500 < where[0] < 2500 and out.busy > 0  # a third of the way
+    joint_cmd(cmd, [6000] * 6, L.STOP_TICKS, 2)  # the stop (its target is ignored)
+    out = core.step(cmd, st)
+    assert out.cmd_id == 2 and out.cmd_result == L.CMD_OK and out.busy == 0
+    assert "stopped by command 2" in out.note
+    for _ in range(60):
+        out = core.step(cmd, st)
+        assert np.array_equal(out.encoder_cmd_int, where)  # held, never resumed
+    assert out.busy == 0
+    joint_cmd(cmd, [0] * 6, 30, 3)  # and a new move works
+    for _ in range(31):
+        out = core.step(cmd, st)
+    assert list(out.encoder_cmd_int) == [0] * 6

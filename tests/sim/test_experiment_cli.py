@@ -67,6 +67,7 @@ def test_exp4_writes_the_standard_deviations_across_its_runs(tmp_path):
     (["run"], "required"),
     (["run", "1.1", "--jobs", "0"], "--jobs"),
     (["run", "1.1", "--sensor", "laser"], "--sensor"),
+    (["run", "1.1", "--mode", "fastest"], "--mode"),
     (["run", "1.1", "--seed", "-3"], "--seed"),
     (["run", "1.1", "--length", "nan"], "--length"),
     (["fly"], "invalid choice"),

@@ -151,3 +151,12 @@ def test_report_import_does_not_load_matplotlib_or_the_simulator():
             "print(sorted(m for m in sys.modules if m.startswith(('droid.sim', 'matplotlib'))))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
+
+
+def test_summary_line_prints_the_achieved_travel_speed_beside_the_commanded():
+    # make_row: t_s = s / 8: the tool advanced at 8 mm/s
+    rows = [make_row(float(s)) for s in range(0, 400, 10)]
+    su = report.summarize(rows, stop_reason=STOP_END, commanded_mm_s=16.0)
+    assert su.travel_speed_mm_s == pytest.approx(8.0)
+    assert "travel speed 8.0 mm/s (commanded 16 mm/s)" in report.summary_line(su)
+    assert "travel speed" not in report.summary_line(report.summarize(rows, stop_reason=STOP_END))

@@ -39,23 +39,26 @@ def test_trial_is_deterministic_for_a_seed_and_logs_the_thesis_columns():
 # 05e3b11, the straightforward numpy forms of the camera, feature extraction, arm model and
 # tracking core).  The optimised code gives the same rows bit for bit on the machine they were
 # computed on; the tolerances leave room for another BLAS's rounding (4x4 products), which a
-# closed loop can carry into the last digits.
+# closed loop can carry into the last digits.  Re-pinned for issue 12 (mode "listing": the
+# literal port; the lead reading now placed with the Reis pose of its capture instant by the
+# shared tracking cycle, droid.tasks.seam.cycle, instead of the pose half a tick later): lateral
+# RMS moved by < 0.3 %, the micrometre depth RMS by 0.2-0.4 um.
 REFERENCE = [
     (dict(position="i", speed_mm_s=16.0, length_mm=300),
-     dict(stop="end of seam", rows=396, frames=1200, valid=1200, rms_lat=2.085931628421978,
-          rms_dep=0.00249272922836549, stop_s=300.4824662146583)),
+     dict(stop="end of seam", rows=396, frames=1200, valid=1200, rms_lat=2.084183245181736,
+          rms_dep=0.002142135998653251, stop_s=300.48256846791554)),
     (dict(position="vii", speed_mm_s=64.0, length_mm=500, workpiece="ramp_r500"),
-     dict(stop="end of seam", rows=165, frames=510, valid=510, rms_lat=2.9691318635760604,
-          rms_dep=0.001669011072433204, stop_s=502.25673363859545)),
+     dict(stop="end of seam", rows=165, frames=510, valid=510, rms_lat=2.9624781216029588,
+          rms_dep=0.00183878256469123, stop_s=502.24445838924134)),
     (dict(position="iii", speed_mm_s=16.0, length_mm=300, sensor="ideal"),
-     dict(stop="end of seam", rows=396, frames=1200, valid=1200, rms_lat=2.0955749847513254,
-          rms_dep=0.0025271484438159964, stop_s=300.4844008444424)),
+     dict(stop="end of seam", rows=396, frames=1200, valid=1200, rms_lat=2.0945811807426793,
+          rms_dep=0.0023725948100257015, stop_s=300.48425904996674)),
 ]
 
 
 @pytest.mark.parametrize("kw,ref", REFERENCE, ids=["i-16-camera", "vii-64-camera", "iii-16-ideal"])
 def test_tracking_result_is_the_reference(kw, ref):
-    r = run_trial(TrialConfig("ref", seed=2, **kw))
+    r = run_trial(TrialConfig("ref", seed=2, mode="listing", **kw))  # the literal port the numbers pin
     s = r.column("s_mm")
     after = s > 150
     lat, dep = r.column("tool_lateral_mm")[after], r.column("tool_depth_mm")[after]

@@ -1,8 +1,20 @@
-"""droid-experiment: run the seam-tracking experiments of thesis chapter 6 (issue 7).
+"""droid-experiment: run the seam-tracking experiments of thesis chapter 6 (issue 7), and sweep plans (issue 15).
 
     droid-experiment run ID|TABLE... [--out DIR] [--realtime] [--seed N] [--jobs N]
-                         [--sensor camera|ideal] [--arm fast|full] [--no-figures]
+                         [--sensor camera|ideal] [--arm fast|full] [--mode thesis|listing|plus]
+                         [--no-figures] [--dask ADDRESS]
+    droid-experiment run --plan FILE.toml [--out DIR] [--resume] [--jobs N] [--no-figures] [--dask ADDRESS]
     droid-experiment list [ID|TABLE...]
+    droid-experiment list --plan FILE.toml
+
+A plan (droid.sim.experiment.plan) is a researcher's own sweep: its trials
+write ``DIR/<plan name>/<id>.csv``, ``.png``, ``.json`` (the trial's
+parameters and summary: its results exist) and one tidy ``results.csv`` (a
+row per trial, in plan order: the parameters and the summary figures).
+``--resume`` skips trials whose ``.json`` exists.  ``--dask ADDRESS`` runs
+the trials on a Dask distributed cluster (``tcp://host:8786``, or ``local``
+for a LocalCluster of ``--jobs`` workers) instead of the process pool; the
+workers compute, this process writes every file.
 
 IDs and tables: droid.sim.experiment.matrix (``droid-experiment list``;
 docs/experiments.md).  Lockstep by default, the trials in parallel on a
@@ -16,16 +28,22 @@ a summary line on stdout.  Per table: ``DIR/<table>/summary.csv`` and
 real-time process cell (droid.sim.experiment.realtime).
 
 Exit 0 when every trial ran (whatever its tracking outcome), 1 when a trial
-could not run, 2 on bad arguments, 130 on SIGINT (the pool is stopped first).
+could not run (or the Dask scheduler does not answer), 2 on bad arguments or a
+bad plan, 130 on SIGINT (the pool is stopped first).
 """
 from __future__ import annotations
 
 import argparse
+import csv
+import functools
+import json
 import math
 import multiprocessing
 import os
+import re
 import signal
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, replace
 from typing import Sequence
@@ -33,10 +51,11 @@ from typing import Sequence
 from droid.cli import ArgumentParser, BadInput, non_negative_int, positive_float, positive_int, run
 from droid.sim.experiment.matrix import (EXP4_RUNS, POSITION_LABELS, TABLES, Experiment, experiments, resolve,
                                          valid_forms, with_seed)
+from droid.sim.experiment.plan import FIELDS, Plan, PlanTrial, load_plan
 from droid.sim.experiment.sensors import SENSOR_MODELS
 from droid.sim.experiment.trial import ARM_MODELS
 from droid.tasks.seam import report
-from droid.tasks.seam.core import STOP_END
+from droid.tasks.seam.core import MODES, STOP_END
 
 PROG = "droid-experiment"
 DEFAULT_OUT = os.path.join("out", "experiments")
@@ -50,24 +69,32 @@ def build_parser() -> ArgumentParser:
     p = ArgumentParser(prog=PROG, description="Run the seam-tracking experiments of thesis chapter 6 "
                                               "(Tables 6.1-6.3, experiments 4 and 5).")
     sub = p.add_subparsers(dest="command", required=True, metavar="{run,list}")
-    r = sub.add_parser("run", help="run experiments by ID or table name",
-                       description=f"Run experiments. {valid_forms()}.")
-    r.add_argument("ids", nargs="+", metavar="ID", help="an ID (1.12), a table (table6.1, exp4) or all")
+    r = sub.add_parser("run", help="run experiments by ID or table name, or a sweep plan",
+                       description=f"Run experiments. {valid_forms()}; or --plan FILE.toml.")
+    r.add_argument("ids", nargs="*", metavar="ID", help="an ID (1.12), a table (table6.1, exp4) or all")
+    r.add_argument("--plan", metavar="FILE", help="a sweep plan (TOML; or a bundled plan's name)")
+    r.add_argument("--resume", action="store_true", help="with --plan: skip trials whose results exist")
+    r.add_argument("--dask", metavar="ADDRESS",
+                   help="run the trials on a Dask cluster: tcp://HOST:8786, or local (a LocalCluster)")
     r.add_argument("--out", default=DEFAULT_OUT, metavar="DIR", help=f"output directory (default {DEFAULT_OUT})")
     r.add_argument("--realtime", action="store_true", help="run on the real-time process cell (one at a time)")
-    r.add_argument("--seed", type=non_negative_int, default=DEFAULT_SEED, metavar="N",
+    r.add_argument("--seed", type=non_negative_int, default=None, metavar="N",
                    help=f"base seed; each trial's seed is derived from it and the ID (default {DEFAULT_SEED})")
     r.add_argument("--jobs", type=positive_int, default=None, metavar="N",
                    help="parallel trials (default: the CPU count)")
-    r.add_argument("--sensor", choices=SENSOR_MODELS, default=DEFAULT_SENSOR,
+    r.add_argument("--sensor", choices=SENSOR_MODELS, default=None,
                    help="lead sensor model (default: ideal -- the seam in the field of view with the camera "
                         "chain's noise, ~3x faster; camera: the MVS camera twin and feature code)")
     r.add_argument("--arm", choices=ARM_MODELS, default=None,
                    help="Reis model (default: fast; full runs every Reis core and the plant)")
+    r.add_argument("--mode", choices=MODES, default=None,
+                   help="tracker: thesis (default, §5.2's patch), listing (the literal port), plus "
+                        "(seam map, holds the speed; docs/seamtrack.md)")
     r.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     r.add_argument("--length", type=positive_float, default=None, help=argparse.SUPPRESS)  # run length [mm]
     lp = sub.add_parser("list", help="list the experiments with their parameters, one a line")
     lp.add_argument("ids", nargs="*", metavar="ID", help="IDs or tables to list (default: all)")
+    lp.add_argument("--plan", metavar="FILE", help="list a sweep plan's trials instead: index, ID, parameters")
     return p
 
 
@@ -75,7 +102,7 @@ def build_parser() -> ArgumentParser:
 
 @dataclass(frozen=True)
 class Job:
-    exp: Experiment
+    exp: Experiment  # or a plan.PlanTrial (both have .id, .table, .config)
     out_dir: str  # DIR/<table>
     figures: bool
     realtime: bool = False
@@ -88,15 +115,45 @@ class Outcome:
     error: str = ""
     sim_s: float = math.nan
     wall_s: float = math.nan
+    rows: tuple = ()  # the 10 Hz log (written by the parent: a Dask worker may be another machine)
+    png: bytes | None = None  # the figure, rendered by the worker
+    figure_error: str = ""  # why there is no figure (one line), e.g. matplotlib missing
+
+
+#: The one line a figure path ends with when matplotlib is missing (issue 15: never a traceback).
+NO_MATPLOTLIB = "no figures: matplotlib is not installed (pip install matplotlib)"
+
+
+def render_figure(rows, cfg, summary: report.Summary, result) -> tuple[bytes | None, str]:
+    """The trial's figure as PNG bytes, or (None, one-line reason)."""
+    early = not result.stop_reason.startswith(STOP_END)
+    fd, path = tempfile.mkstemp(suffix=".png", prefix="droid-exp-")
+    os.close(fd)
+    try:
+        report.figure(path, rows, cfg.title or cfg.trial_id, cfg.panels,
+                      settle_s_mm=summary.settle_s_mm, stop_s_mm=result.stop_s_mm if early else math.nan,
+                      stop_label=result.stop_reason if early else "")
+        with open(path, "rb") as f:
+            return f.read(), ""
+    except ImportError:
+        return None, NO_MATPLOTLIB
+    finally:
+        try:
+            os.unlink(path)
+        except OSError:
+            pass
 
 
 def run_job(job: Job) -> Outcome:
-    """Run one trial and write its CSV (and figure); a trial that cannot start is an Outcome with an error."""
+    """Run one trial; return its log, summary and figure (the parent writes the files).
+
+    A trial that cannot start (BadInput: e.g. a start the arm cannot reach)
+    is an Outcome with an error."""
     cfg = job.exp.config
-    os.makedirs(job.out_dir, exist_ok=True)
     if job.realtime:
         from droid.sim.experiment.realtime import run_trial_realtime
 
+        os.makedirs(job.out_dir, exist_ok=True)
         result = run_trial_realtime(cfg, job.out_dir)
     else:
         from droid.sim.experiment.trial import run_trial
@@ -105,17 +162,46 @@ def run_job(job: Job) -> Outcome:
             result = run_trial(cfg)
         except BadInput as exc:
             return Outcome(job.exp, None, str(exc))
-    base = os.path.join(job.out_dir, job.exp.id)
-    report.write_csv(base + ".csv", result.rows)
+        except Exception as exc:  # noqa: BLE001 -- one trial's failure must not end the sweep: exit 1, named
+            return Outcome(job.exp, None, f"the trial failed: {type(exc).__name__}: {exc}")
     summary = report.summarize(result.rows, trial_id=job.exp.id, stop_reason=result.stop_reason,
                                stop_detail=result.stop_detail, stop_s_mm=result.stop_s_mm,
-                               camera_to_tcp_mm=result.camera_to_tcp_mm)
-    if job.figures:
-        early = not result.stop_reason.startswith(STOP_END)
-        report.figure(base + ".png", result.rows, cfg.title or job.exp.id, cfg.panels,
-                      settle_s_mm=summary.settle_s_mm, stop_s_mm=result.stop_s_mm if early else math.nan,
-                      stop_label=result.stop_reason if early else "")
-    return Outcome(job.exp, summary, sim_s=result.sim_s, wall_s=result.wall_s)
+                               camera_to_tcp_mm=result.camera_to_tcp_mm, commanded_mm_s=cfg.speed_mm_s)
+    png, why = render_figure(result.rows, cfg, summary, result) if job.figures else (None, "")
+    return Outcome(job.exp, summary, sim_s=result.sim_s, wall_s=result.wall_s, rows=tuple(result.rows),
+                   png=png, figure_error=why)
+
+
+def store(job: Job, o: Outcome) -> None:
+    """Write a trial's files: CSV, PNG, and for a plan trial its JSON record (last: its results exist)."""
+    os.makedirs(job.out_dir, exist_ok=True)
+    base = os.path.join(job.out_dir, job.exp.id)
+    if o.summary is None:
+        return
+    report.write_csv(base + ".csv", o.rows)
+    if o.png is not None:
+        _write_atomic(base + ".png", o.png)
+    if isinstance(job.exp, PlanTrial):
+        record = {"trial_id": job.exp.id, "index": job.exp.index, "params": job.exp.params,
+                  "summary": o.summary.as_dict(), "sim_s": o.sim_s}
+        _write_atomic(base + ".json", json.dumps(_json_safe(record), indent=1).encode())
+
+
+def _write_atomic(path: str, data: bytes) -> None:
+    tmp = path + ".part"
+    with open(tmp, "wb") as f:
+        f.write(data)
+    os.replace(tmp, path)
+
+
+def _json_safe(v):
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    if isinstance(v, dict):
+        return {k: _json_safe(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_json_safe(x) for x in v]
+    return v
 
 
 def _worker_init() -> None:
@@ -123,12 +209,17 @@ def _worker_init() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def _cost(exp: Experiment) -> float:
+def _cost(exp) -> float:
     """Relative cost of a trial: its simulated duration (run length / speed) [s]."""
+    length = exp.config.length_mm or _seam_length_mm(exp.config.workpiece or "step_input")
+    return length / exp.config.speed_mm_s
+
+
+@functools.lru_cache(maxsize=64)
+def _seam_length_mm(workpiece: str) -> float:
     from droid.sim.workpiece import load_workpiece
 
-    length = exp.config.length_mm or load_workpiece(exp.config.workpiece).length_mm
-    return length / exp.config.speed_mm_s
+    return load_workpiece(workpiece).length_mm
 
 
 def _progress(total: int):
@@ -143,21 +234,33 @@ def _emit(line: str) -> None:
     tqdm.write(line, file=sys.stdout)
 
 
-def run_jobs(jobs: list[Job], workers: int) -> list[Outcome]:
-    """Run the jobs (in a pool when workers > 1), printing each summary line as it comes."""
+def run_jobs(jobs: list[Job], workers: int, dask: str | None = None) -> list[Outcome]:
+    """Run the jobs (a pool when workers > 1, or a Dask cluster), storing and printing each as it comes."""
     outcomes: list[Outcome] = []
+    warned: set[str] = set()
 
-    def done(o: Outcome) -> None:
+    def done(job: Job, o: Outcome) -> None:
+        store(job, o)
         outcomes.append(o)
+        if o.figure_error and o.figure_error not in warned:
+            warned.add(o.figure_error)
+            print(f"{PROG}: {o.figure_error}", file=sys.stderr)
         if o.summary is not None:
             _emit(report.summary_line(o.summary))
         else:
             print(f"{PROG}: {o.exp.id}: {o.error}", file=sys.stderr)
 
+    if not jobs:
+        return outcomes
+    if dask is not None:
+        from droid.sim.experiment.cluster import run_on_dask
+
+        run_on_dask(jobs, dask, workers, run_job, done, _progress)
+        return outcomes
     if workers <= 1 or len(jobs) == 1:
         with _progress(len(jobs)) as bar:
             for job in jobs:
-                done(run_job(job))
+                done(job, run_job(job))
                 bar.update()
         return outcomes
     methods = multiprocessing.get_all_start_methods()
@@ -169,10 +272,11 @@ def run_jobs(jobs: list[Job], workers: int) -> list[Outcome]:
         pool = ctx.Pool(min(workers, len(jobs)), initializer=_worker_init)  # before the bar's monitor thread
     finally:
         signal.signal(signal.SIGINT, previous)
+    by_id = {job.exp.id: job for job in jobs}
     try:
         with _progress(len(jobs)) as bar:
             for o in pool.imap_unordered(run_job, jobs, chunksize=1):
-                done(o)
+                done(by_id[o.exp.id], o)
                 bar.update()
         pool.close()
     except BaseException:
@@ -233,31 +337,168 @@ def write_exp4_std(d: str, outcomes: list[Outcome], figures: bool) -> list[str]:
     files = [os.path.join(d, "std.csv")]
     report.write_std_csv(files[0], grid, stds)
     if figures:
-        files.append(os.path.join(d, "std.png"))
         ids = ", ".join(o.exp.id for o in outcomes)
-        report.std_figure(files[1], grid, stds, f"Experiment 4: standard deviation across runs {ids}")
+        try:
+            report.std_figure(os.path.join(d, "std.png"), grid, stds,
+                              f"Experiment 4: standard deviation across runs {ids}")
+            files.append(os.path.join(d, "std.png"))
+        except ImportError:
+            print(f"{PROG}: exp4: {NO_MATPLOTLIB}", file=sys.stderr)
     return files
+
+
+# ---------------------------------------------------------------- plans
+
+#: results.csv: the summary columns after the trial's parameters (report.Summary fields, + sim_s).
+RESULT_COLUMNS = ("rows", "settled_rows", "settle_s_mm", "rms_lateral_mm", "max_lateral_mm", "rms_depth_mm",
+                  "max_depth_mm", "end_s_mm", "seam_lost", "lost_s_mm", "stop_reason", "stop_detail",
+                  "stop_s_mm", "sim_s", "error")
+
+
+def _cell(v) -> str:
+    """A results.csv cell: floats as repr (they read back exactly), NaN/None blank, booleans yes/no."""
+    if v is None:
+        return ""
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, float):
+        return "" if not math.isfinite(v) else repr(v)
+    return str(v)
+
+
+def read_record(out_dir: str, trial: PlanTrial) -> dict | None:
+    """A plan trial's stored record (its .json), or None when its results do not exist (or differ)."""
+    path = os.path.join(out_dir, trial.id + ".json")
+    try:
+        with open(path) as f:
+            rec = json.load(f)
+    except (OSError, ValueError):
+        return None
+    if rec.get("trial_id") != trial.id or rec.get("params") != _json_safe(trial.params):
+        return None
+    if not os.path.isfile(os.path.join(out_dir, trial.id + ".csv")):
+        return None
+    return rec
+
+
+def write_results(out_dir: str, plan: Plan, errors: dict[str, str]) -> str:
+    """results.csv: one row per trial of the plan, in plan order (trials without results: blank figures)."""
+    path = os.path.join(out_dir, "results.csv")
+    tmp = path + ".part"
+    with open(tmp, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(("index", "trial_id") + FIELDS + RESULT_COLUMNS)
+        for t in plan.trials:
+            rec = read_record(out_dir, t)
+            row = [t.index, t.id] + [_cell(t.params[k]) for k in FIELDS]
+            if rec is None:
+                why = errors.get(t.id, "not run")
+                row += [""] * (len(RESULT_COLUMNS) - 1) + [why]
+            else:
+                su = rec["summary"]
+                figures = {k: su.get(k) for k in RESULT_COLUMNS if k in su}
+                figures["sim_s"] = rec.get("sim_s")
+                row += [_cell(figures.get(k)) for k in RESULT_COLUMNS[:-1]] + [""]
+            w.writerow(row)
+    os.replace(tmp, path)
+    return path
+
+
+def cmd_run_plan(args) -> int:
+    for flag, value in (("--realtime", args.realtime), ("--seed", args.seed), ("--sensor", args.sensor),
+                        ("--arm", args.arm), ("--length", args.length)):
+        if value not in (None, False):
+            raise BadInput(f"{flag} does not apply to --plan (set it in the plan's [defaults] or [sweep])")
+    if args.ids:
+        raise BadInput(f"give experiment IDs or --plan, not both (got {' '.join(args.ids)})")
+    dask = _check_dask(args.dask)
+    plan = load_plan(args.plan)
+    out_dir = os.path.join(args.out, plan.name)
+    try:
+        os.makedirs(out_dir, exist_ok=True)
+    except OSError as exc:
+        raise BadInput(f"--out {args.out}: {exc.strerror}") from None
+    figures = not args.no_figures
+    todo = list(plan.trials)
+    skipped = 0
+    if args.resume:
+        todo = [t for t in plan.trials if read_record(out_dir, t) is None]
+        skipped = len(plan.trials) - len(todo)
+        print(f"{PROG}: {plan.name}: {skipped} of {len(plan.trials)} trial(s) have results; "
+              f"running {len(todo)}", file=sys.stderr)
+    jobs = [Job(t, out_dir, figures) for t in todo]
+    workers = args.jobs or os.cpu_count() or 1
+    jobs.sort(key=lambda j: (-_cost(j.exp), j.exp.index))  # longest first: the pool ends together
+    t0 = time.perf_counter()
+    outcomes: list[Outcome] = []
+    try:
+        outcomes = run_jobs(jobs, workers, dask)
+    finally:  # also on Ctrl-C: results.csv shows what has results so far (a --resume completes it)
+        errors = {o.exp.id: f"error: {o.error}" for o in outcomes if o.summary is None}
+        results = write_results(out_dir, plan, errors)
+    wall = time.perf_counter() - t0
+    failed = [o.exp.id for o in outcomes if o.summary is None]
+    sim = sum(o.sim_s for o in outcomes if o.summary is not None)
+    where = f"Dask {dask}" if dask else f"{workers} worker(s)"
+    print(f"{PROG}: {plan.name}: {len(outcomes)} trial(s) run, {skipped} resumed, {sim:.0f} s simulated in "
+          f"{wall:.1f} s wall on {where}; results: {results}", file=sys.stderr)
+    if failed:
+        print(f"{PROG}: {len(failed)} trial(s) could not run: {', '.join(failed)}", file=sys.stderr)
+        return 1
+    return 0
+
+
+_DASK_ADDRESS = re.compile(r"(?:(?:tcp|tls|inproc|ws|wss|ucx)://)?[A-Za-z0-9_.\-\[\]:]+:[0-9]{1,5}")
+
+
+def _check_dask(address: str | None) -> str | None:
+    """``--dask``: ``local`` or a scheduler address (``tcp://host:8786``); BadInput otherwise."""
+    if address is None or address == "local":
+        return address
+    if not _DASK_ADDRESS.fullmatch(address):
+        raise BadInput(f"--dask {address!r}: expected a scheduler address such as tcp://HOST:8786, or local")
+    try:
+        import distributed  # noqa: F401
+    except ImportError:
+        raise BadInput("--dask needs Dask distributed: pip install 'droid[cluster]'") from None
+    return address
 
 
 # ---------------------------------------------------------------- main
 
-def cmd_list(names: Sequence[str]) -> int:
+def cmd_list(names: Sequence[str], plan_spec: str | None = None) -> int:
+    if plan_spec is not None:
+        if names:
+            raise BadInput(f"give experiment IDs or --plan, not both (got {' '.join(names)})")
+        plan = load_plan(plan_spec)
+        print(f"# {plan.name}: {len(plan.trials)} trial(s)" + (f" -- {plan.description}" if plan.description else ""))
+        for t in plan.trials:
+            print(t.describe())
+        return 0
     for e in resolve(names or ["all"]):
         print(e.describe())
     return 0
 
 
 def cmd_run(args) -> int:
-    picked = [with_seed(e, args.seed) for e in resolve(args.ids)]
-    overrides = {}
-    if args.sensor:
-        overrides["sensor"] = args.sensor
+    if args.plan is not None:
+        return cmd_run_plan(args)
+    if not args.ids:
+        raise BadInput("experiment IDs are required (an ID, a table or all), or --plan FILE")
+    if args.resume:
+        raise BadInput("--resume applies to --plan runs")
+    dask = _check_dask(args.dask)
+    if dask and args.realtime:
+        raise BadInput("--realtime runs on this host's process cell, not on --dask")
+    picked = [with_seed(e, DEFAULT_SEED if args.seed is None else args.seed) for e in resolve(args.ids)]
+    overrides = {"sensor": args.sensor or DEFAULT_SENSOR}
     if args.arm:
         overrides["arm"] = args.arm
+    if getattr(args, "mode", None):
+        overrides["mode"] = args.mode
     if args.length:
         overrides["length_mm"] = args.length
-    if overrides:
-        picked = [replace(e, config=replace(e.config, **overrides)) for e in picked]
+    picked = [replace(e, config=replace(e.config, **overrides)) for e in picked]
     figures = not args.no_figures
     try:
         os.makedirs(args.out, exist_ok=True)
@@ -265,15 +506,16 @@ def cmd_run(args) -> int:
         raise BadInput(f"--out {args.out}: {exc.strerror}") from None
     jobs = [Job(e, os.path.join(args.out, e.table), figures, args.realtime) for e in picked]
     workers = 1 if args.realtime else (args.jobs or os.cpu_count() or 1)
-    if workers > 1:
+    if workers > 1 or dask:
         jobs.sort(key=lambda j: -_cost(j.exp))  # longest first: the pool ends together
     t0 = time.perf_counter()
-    outcomes = run_jobs(jobs, workers)
+    outcomes = run_jobs(jobs, workers, dask)
     files = write_tables(args.out, outcomes, figures)
     wall = time.perf_counter() - t0
     failed = [o.exp.id for o in outcomes if o.summary is None]
     sim = sum(o.sim_s for o in outcomes if o.summary is not None)
-    print(f"{PROG}: {len(outcomes)} trial(s), {sim:.0f} s simulated in {wall:.1f} s wall on {workers} worker(s); "
+    where = f"Dask {dask}" if dask else f"{workers} worker(s)"
+    print(f"{PROG}: {len(outcomes)} trial(s), {sim:.0f} s simulated in {wall:.1f} s wall on {where}; "
           f"tables: {', '.join(f for f in files if f.endswith('summary.md')) or 'none'}", file=sys.stderr)
     if failed:
         print(f"{PROG}: {len(failed)} trial(s) could not run: {', '.join(failed)}", file=sys.stderr)
@@ -285,7 +527,7 @@ def cmd_run(args) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.command == "list":
-        return cmd_list(args.ids)
+        return cmd_list(args.ids, args.plan)
     return cmd_run(args)
 
 

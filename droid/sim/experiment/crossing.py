@@ -26,6 +26,7 @@ class SeamCrossing:
 
     def __init__(self, workpiece: Workpiece) -> None:
         self.workpiece = workpiece
+        self._seam3d = None if workpiece.planar else workpiece.seam  # a 3-D seam (issue 15): sampled
         self._segs = []
         for seg in workpiece._all:  # the seam's segments and the two straight extensions
             h = seg.heading0_rad
@@ -71,6 +72,8 @@ class SeamCrossing:
 
     def measure(self, T_W_F: np.ndarray) -> ToolReading | None:
         """Deviation of the seam seen from frame F (as tool_sensor.measure), or None (no crossing)."""
+        if self._seam3d is not None:
+            return self._seam3d.measure(T_W_F)
         found = self.crossings(T_W_F)
         if not found:
             return None

@@ -103,7 +103,8 @@ def run_trial_realtime(cfg: TrialConfig, out_dir) -> TrialResult:
                     "--length", f"{length:g}", "--yaw-gain", f"{cfg.yaw_gain:g}",
                     "--pitch-gain", f"{cfg.pitch_gain:g}", "--delay", str(cfg.delay_cycles),
                     "--delay-at", f"{cfg.delay_at_mm:g}", "--dead-zone", str(cfg.dead_zone_cycles),
-                    "--lost-cycles", str(cfg.lost_cycles), "--wrist", cfg.wrist, "--log", str(log), "--quiet", *c]
+                    "--lost-cycles", str(cfg.lost_cycles), "--wrist", cfg.wrist, "--log", str(log), "--quiet", *c,
+                    "--mode", cfg.mode]
             limit = 3.0 * length / cfg.speed_mm_s + 120.0  # the tool advances at ~half the nominal speed
             st = _run(args, limit, "droid-seamtrack")
         finally:

@@ -105,6 +105,8 @@ class LeadSensor:
         wp = self.workpiece
         if m is None or not (-wp.lead_in_mm <= m.s_mm <= wp.length_mm + wp.lead_out_mm):
             return None
+        if wp.gaps and wp.in_gap(m.s_mm):  # a gap: no feature to find (issue 15)
+            return None
         if abs(m.lateral_mm) > self.y_limit_mm or abs(m.height_mm) > self.x_limit_mm:
             return None
         return _Values(m.height_mm + IDEAL_SIGMA_X_MM * noise[0], m.lateral_mm + IDEAL_SIGMA_Y_MM * noise[1],

@@ -7,12 +7,19 @@ what                  when             does
 ====================  ===============  ==================================================
 Reis arm              every tick       ``fast`` (arm_fast: planner + analytic servo) or
                                        ``full`` (arm_full: every Reis core + the plant)
-GMF1                  --               holds the workpiece still at its start pose
-lead sensor           odd ticks        the frame the next cycle reads (sensors.LeadSensor)
-tool-tip sensor       ticks 5 mod 6    the sample the next log row shows
-seam-tracking core    even ticks       droid.tasks.seam.SeamTracker: Status poses +
-                      (30 Hz)          the lead reading -> Reis cart command (2 ticks)
-log                   every 6th tick   one CSV row (10 Hz, thesis §6.1)
+GMF1                  every tick       holds the workpiece still at its start pose, or drifts at
+                                       ``holder_mm_s`` (the holder-moving test of plus mode)
+lead sensor           the tick before  the frame the next cycle reads (sensors.LeadSensor),
+                      each cycle       stamped with its capture tick; ``latency_cycles`` holds
+                                       every reading back that many cycles
+tool-tip sensor       the tick before  the sample the next log row shows
+                      each log row
+tracking cycle        every tick:      droid.tasks.seam.cycle.TrackingCycle -- the same code as
+                      poses; every     droid-seamtrack: pose histories, cycle counting from the
+                      cycle_ticks      heartbeat, the reading placed with the poses of its
+                      (30 Hz): step    capture, the core of the mode (thesis, listing, plus)
+                                       -> Reis cart command (one cycle of ticks)
+log                   every log_ticks  one CSV row (10 Hz, thesis §6.1)
 ====================  ===============  ==================================================
 
 Within a tick the order is: arm (its state at the tick), sensors (the true
@@ -25,6 +32,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import deque
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -36,14 +44,15 @@ from droid.sim.experiment.geometry import TrialGeometry, trial_geometry
 from droid.sim.experiment.sensors import DEFAULT_NOISE, SENSOR_MODELS, LeadSensor, tool_reading
 from droid.sim.lockstep import ORDER_DEVICE, ORDER_TASK, ORDER_WORLD, Scheduler
 from droid.sim.mvs_camera import CameraNoise
-from droid.tasks.seam.core import DEAD_ZONE_CYCLES, LOST_CYCLES, SeamParams, SeamTracker
+from droid.tasks.seam.core import DEAD_ZONE_CYCLES, LOST_CYCLES, MAX_SPEED_MM_S, MODE_THESIS, MODES, SeamParams
+from droid.tasks.seam.cycle import TrackingCycle
 from droid.tasks.seam.delay import INVALID_READING, Reading
 from droid.tasks.seam.report import COLUMNS, SETTLE_EXTRA_MM, log_row  # noqa: F401 (columns; settling)
 
 ARM_MODELS = ("fast", "full")
 HEARTBEAT_HZ = 60.0
-CYCLE_TICKS = 2  # one 30 Hz seam-tracking cycle = 2 heartbeat ticks (cart_time_count)
-LOG_TICKS = 6  # 10 Hz log
+CYCLE_TICKS = 2  # one 30 Hz seam-tracking cycle = 2 heartbeat ticks (cart_time_count; TrackingCycle.cycle_ticks)
+LOG_TICKS = 6  # 10 Hz log (TrackingCycle.log_ticks)
 #: Time limit of a trial: this many times run length / nominal speed, + 30 s.  The tool
 #: advances at only ~47 % of the nominal speed (the core targets ``vel`` mm ahead of the
 #: tool pose the Status reports, which trails the command: servo lag and Status sampling),
@@ -74,10 +83,15 @@ class TrialConfig:
     fast_params: FastArmParams = FastArmParams()
     title: str = ""
     panels: str = "errors"  # "errors" (Figs 6.5-6.13) or "angles" (Figs 6.17-6.35: yaw/pitch panels)
+    mode: str = MODE_THESIS  # tracking mode: thesis, listing, plus (docs/seamtrack.md)
+    holder_mm_s: tuple = (0.0, 0.0, 0.0)  # the GMF1 wrist centre drifting at this global velocity [mm/s]
+    latency_cycles: int = 0  # constant extra latency of every lead reading [30 Hz cycles] (stamped)
 
     def __post_init__(self) -> None:
         if self.arm not in ARM_MODELS:
             raise BadInput(f"unknown arm model {self.arm!r} (known: {', '.join(ARM_MODELS)})")
+        if self.mode not in MODES:
+            raise BadInput(f"unknown mode {self.mode!r} (known: {', '.join(MODES)})")
         if self.sensor not in SENSOR_MODELS:
             raise BadInput(f"unknown sensor model {self.sensor!r} (known: {', '.join(SENSOR_MODELS)})")
         for name in ("speed_mm_s", "yaw_gain", "pitch_gain", "delay_at_mm"):
@@ -86,6 +100,13 @@ class TrialConfig:
                 raise BadInput(f"trial {self.trial_id}: {name} must be a finite number, got {v!r}")
         if self.speed_mm_s <= 0:
             raise BadInput(f"trial {self.trial_id}: speed must be > 0 mm/s")
+        if self.speed_mm_s > MAX_SPEED_MM_S:
+            raise BadInput(f"trial {self.trial_id}: speed {self.speed_mm_s:g} mm/s is beyond what the arm can do "
+                           f"(at most {MAX_SPEED_MM_S:g} mm/s)")
+        if len(self.holder_mm_s) != 3 or not all(math.isfinite(v) for v in self.holder_mm_s):
+            raise BadInput(f"trial {self.trial_id}: holder_mm_s must be 3 finite numbers [mm/s]")
+        if not isinstance(self.latency_cycles, int) or self.latency_cycles < 0:
+            raise BadInput(f"trial {self.trial_id}: latency_cycles must be an integer >= 0")
 
 
 @dataclass
@@ -103,6 +124,7 @@ class TrialResult:
     camera_to_tcp_mm: float = 100.0
     frames: int = 0
     valid_frames: int = 0
+    dropped: int = 0  # lead readings dropped by the tracking cycle (instant outside the pose history)
 
     def column(self, name: str) -> np.ndarray:
         """One numeric column of the log as a float array."""
@@ -128,7 +150,7 @@ def run_trial(cfg: TrialConfig, layout=None) -> TrialResult:
     length = cfg.length_mm if cfg.length_mm is not None else default_length_mm(geo)
     params = SeamParams(speed_mm_s=cfg.speed_mm_s, yaw_gain=cfg.yaw_gain, pitch_gain=cfg.pitch_gain,
                         dead_zone_cycles=cfg.dead_zone_cycles, lost_cycles=cfg.lost_cycles, length_mm=length,
-                        delay_cycles=cfg.delay_cycles, delay_at_mm=cfg.delay_at_mm)
+                        delay_cycles=cfg.delay_cycles, delay_at_mm=cfg.delay_at_mm, mode=cfg.mode)
     sched = Scheduler(HEARTBEAT_HZ)
     if cfg.arm == "fast":
         arm = FastArm(geo.reis, geo.q_reis_start_deg, cfg.fast_params)
@@ -137,43 +159,67 @@ def run_trial(cfg: TrialConfig, layout=None) -> TrialResult:
 
         arm = FullArm(sched, geo.reis, geo.q_reis_start_deg, seed=cfg.seed)
         arm.prepare()
-    core = SeamTracker(params, geo.wrist.T_wcp_tool, geo.wrist.T_wcp_sensor, geo.reis)
+    try:
+        cyc = TrackingCycle(params, geo.wrist.T_wcp_tool, geo.wrist.T_wcp_sensor, geo.reis,
+                            heartbeat_hz=HEARTBEAT_HZ)
+    except ValueError as exc:
+        raise BadInput(f"trial {cfg.trial_id}: {exc}") from None
     lead = LeadSensor(geo.workpiece, cfg.sensor, cfg.noise, seed=cfg.seed)
     result = TrialResult(cfg, camera_to_tcp_mm=L)
-    T_hold = geo.T_global_hold6  # the holder does not move
-    T_W_g = inv_homo(T_hold @ geo.T_hold6_W)
+    T_hold0 = geo.T_global_hold6
+    v_hold = np.asarray(cfg.holder_mm_s, float)
+    moving_holder = bool(np.any(v_hold != 0.0))
     T_wcp_sensor, T_wcp_tool = geo.wrist.T_wcp_sensor, geo.wrist.T_wcp_tool
     crossing = lead.crossing
     t0_tick = sched.tick
-    state = {"lead": INVALID_READING, "tool": None, "out": None, "done": False, "s0": None}
+    ct, lt = cyc.cycle_ticks, cyc.log_ticks
+    state = {"lead": INVALID_READING, "lead_tick": 0, "tool": None, "out": None, "done": False,
+             "T_hold": T_hold0, "T_W_g": inv_homo(T_hold0 @ geo.T_hold6_W)}
+    in_flight: deque = deque()  # (reading, Status tick) of the constant extra latency
+
+    def hold_at(k: int) -> None:
+        """The holder's pose at trial tick k (it drifts at ``holder_mm_s``)."""
+        if moving_holder:
+            T = T_hold0.copy()
+            T[:3, 3] += v_hold * (k / HEARTBEAT_HZ)
+            state["T_hold"], state["T_W_g"] = T, inv_homo(T @ geo.T_hold6_W)
 
     def s_of(m) -> float:
         return m.s_mm + L  # seam progress of the tool: 0 at the start (tool at s = -CAMERA_TO_TCP)
 
     def sensors(tick: int) -> None:
         k = tick - t0_tick
-        if k % CYCLE_TICKS == 1:
+        hold_at(k)
+        T_W_g = state["T_W_g"]
+        if k % ct == ct - 1:  # the frame the next cycle reads (it reaches the Status next tick)
             T_true = arm.true_wcp()
-            state["lead"] = lead.read(T_W_g @ T_true @ T_wcp_sensor)
-            if k % LOG_TICKS == LOG_TICKS - 1:
-                state["tool"] = tool_reading(T_W_g @ T_true @ T_wcp_tool, crossing)
+            r = lead.read(T_W_g @ T_true @ T_wcp_sensor)
+            if r.valid:
+                r = replace(r, stamp_tick=float(tick))  # the MVS world's frame stamp: its capture tick
+            in_flight.append((r, tick + 1))
+            while len(in_flight) > cfg.latency_cycles:
+                state["lead"], state["lead_tick"] = in_flight.popleft()
+        if k % lt == lt - 1:
+            state["tool"] = tool_reading(T_W_g @ arm.true_wcp() @ T_wcp_tool, crossing)
 
     def task(tick: int) -> None:
         if state["done"]:
             return
         k = tick - t0_tick
-        if k % CYCLE_TICKS == 0 and k > 0:
-            out = core.step(T_hold, arm.status_pose(), state["lead"], arm.status_joints())
+        T_reis = arm.status_pose()
+        cyc.remember(tick, T_reis, tick, state["T_hold"])
+        if k >= ct and cyc.due(tick):
+            out = cyc.step(state["T_hold"], T_reis, tick, state["lead"], state["lead_tick"], arm.status_joints())
             state["out"] = out
             if out.stop is not None:
                 state["done"] = True
-                m = tool_reading(T_W_g @ arm.true_wcp() @ T_wcp_tool, crossing)
+                m = tool_reading(state["T_W_g"] @ arm.true_wcp() @ T_wcp_tool, crossing)
                 result.stop_reason, result.stop_detail = out.stop.reason, out.stop.detail
                 result.stop_s_mm = s_of(m) if m is not None else math.nan
                 result.stop_t_s = (sched.t_ns / 1e9)
                 return
-            arm.command_cart(out.reis_cmd, CYCLE_TICKS)
-        if k % LOG_TICKS == 0 and k > 0:
+            arm.command_cart(out.reis_cmd, ct)
+        if k >= 1 and cyc.log_due(tick):
             result.rows.append(_row(sched.t_ns / 1e9 - t_start, state["lead"], state["tool"], state["out"], L,
                                     s_of))
 
@@ -187,11 +233,12 @@ def run_trial(cfg: TrialConfig, layout=None) -> TrialResult:
     if not state["done"]:
         result.stop_reason, result.stop_detail = "timeout", f"no end within {limit_s:.0f} s"
         result.stop_t_s = sched.t_ns / 1e9
-        m = tool_reading(T_W_g @ arm.true_wcp() @ T_wcp_tool, crossing)
+        m = tool_reading(state["T_W_g"] @ arm.true_wcp() @ T_wcp_tool, crossing)
         result.stop_s_mm = s_of(m) if m is not None else math.nan
     result.stop_t_s -= t_start
     result.sim_s = sched.t_ns / 1e9 - t_start
     result.frames, result.valid_frames = lead.frames, lead.valid
+    result.dropped = cyc.dropped
     result.wall_s = time.perf_counter() - wall0
     return result
 

@@ -25,7 +25,7 @@ import time
 from droid.brain.databases import open_local
 from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
 from droid.brain.rt import PeriodicTimer, now_ns, try_sched_fifo
-from droid.cli import BadInput, positive_float, run
+from droid.cli import BadInput, bounded_float, run
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.subunits.gmf1.config import gmf1_config
@@ -37,7 +37,6 @@ PROG = "droid-gmf1-encoder"
 REOPEN_MIN_S = 0.1
 REOPEN_MAX_S = 2.0
 CHECK_EVERY_S = 1.0  # how often to check that the cards are still the objects we mapped
-FIFO_PRIORITY = 45  # below the Reis servo (60), watchdog (55), heartbeat and world (50)
 
 
 class CardSession:
@@ -95,7 +94,7 @@ class CardSession:
 def main(argv=None) -> int:
     ap = parser(PROG, "Read the GMF1 encoder cards at 120 Hz and keep the Status pose fresh.")
     ap.add_argument("subunit", help="the GMF1 subunit, e.g. gmf1")
-    ap.add_argument("--rate", type=positive_float, default=None, metavar="HZ",
+    ap.add_argument("--rate", type=bounded_float(0.0, 10_000.0, "Hz", lo_open=True), default=None, metavar="HZ",
                     help="read rate [Hz] (default: the cell file's encoder_hz, 120)")
     args = ap.parse_args(argv)
     cell = open_cell(args)
@@ -107,7 +106,7 @@ def main(argv=None) -> int:
     model = load_robot(sub.robot).with_base(pose_to_T(*sub.base))
     core = EncoderCore(model, rate)
     Stop.install()
-    try_sched_fifo(priority=FIFO_PRIORITY, wanted=cell.sched_fifo, prog=PROG)
+    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     status = open_local(cell, sub, "ctrl_status")
     station = EncoderStation(core, status)
     cards = CardSession(cfg.encoders)

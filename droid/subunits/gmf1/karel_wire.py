@@ -44,9 +44,12 @@ import math
 import re
 from dataclasses import dataclass
 
+from droid.brain.serial_line import BITS_PER_BYTE  # noqa: F401  (kw.BITS_PER_BYTE for its users)
+from droid.brain.serial_line import LineSplitter as _SerialLineSplitter
+
 # -- line format ---------------------------------------------------------------
 BAUD = 9600  # thesis §4.2.4: "a RS-232 25-pin serial port which has a bandwidth of 9600 bps"
-BITS_PER_BYTE = 10  # 8N1: start + 8 data + stop
+# BITS_PER_BYTE (8N1: start + 8 data + stop) is droid.brain.serial_line's, imported above
 REQUEST_END = b"\r"
 REPLY_END = b"\r\n"
 MAX_LINE = 120  # bytes, terminator excluded (a KAREL STRING buffer)
@@ -84,7 +87,6 @@ MAX_ABS_DEG = 3600.0
 _NUMBER = re.compile(rb"^[+-]?(?:\d+(?:\.\d*)?|\.\d+)$")
 _ID = re.compile(rb"^\d{1,10}$")
 _SEP = re.compile(rb"[ \t]+")
-_ENDS = re.compile(rb"[\r\n]")
 
 
 class WireError(ValueError):
@@ -127,6 +129,17 @@ def fields(line: bytes) -> list[bytes]:
     return [f for f in _SEP.split(line.strip(b" \t")) if f]
 
 
+def _word(field: bytes, what: str, known: tuple, hint: str, unknown: str | None = None) -> str:
+    """The first field of a request or reply as one of ``known``; WireError otherwise."""
+    try:
+        word = field.decode("ascii")
+    except UnicodeDecodeError:
+        raise WireError(f"{what} is not ASCII") from None
+    if word not in known:
+        raise WireError(f"{unknown or 'unknown ' + what} {word[:12]!r}{hint}")
+    return word
+
+
 def parse_request(line: bytes) -> Request:
     """Parse one request line (without its terminator).  Raises :class:`WireError`."""
     if len(line) > MAX_LINE:
@@ -134,12 +147,7 @@ def parse_request(line: bytes) -> Request:
     f = fields(line)
     if not f:
         raise WireError("empty line")
-    try:
-        verb = f[0].decode("ascii")
-    except UnicodeDecodeError:
-        raise WireError("verb is not ASCII") from None
-    if verb not in VERBS:
-        raise WireError(f"unknown verb {verb[:12]!r} (known: {', '.join(VERBS)})")
+    verb = _word(f[0], "verb", VERBS, f" (known: {', '.join(VERBS)})")
     if len(f) < 2:
         raise WireError(f"{verb} needs an id")
     cmd_id = _parse_id(f[1])
@@ -228,12 +236,7 @@ def parse_reply(line: bytes) -> Reply:
     f = fields(line)
     if len(f) < 2:
         raise WireError(f"reply {line[:20]!r} has fewer than 2 fields")
-    try:
-        kind = f[0].decode("ascii")
-    except UnicodeDecodeError:
-        raise WireError("reply kind is not ASCII") from None
-    if kind not in REPLY_KINDS:
-        raise WireError(f"unknown reply {kind[:12]!r}")
+    kind = _word(f[0], "reply kind", REPLY_KINDS, "", unknown="unknown reply")
     if kind == ERR and f[1] == b"0":
         cmd_id = 0
     else:
@@ -280,51 +283,16 @@ def format_reply(r: Reply) -> bytes:
 
 
 # -- splitting a byte stream into lines ---------------------------------------------------------
-class LineSplitter:
-    """Accumulates bytes; returns complete lines (CR or LF ends a line, empty lines skipped).
+class LineSplitter(_SerialLineSplitter):
+    """The KAREL line splitter: CR or LF ends a line, empty lines are skipped.
 
-    A partial line longer than :data:`MAX_LINE` is thrown away up to its end
-    and counted in ``overlong`` (the receiver then answers/records LONG).
+    A partial line longer than :data:`MAX_LINE` is returned at once (cut to
+    ``MAX_LINE + 1`` bytes, so the parser answers LONG), the rest of it is
+    thrown away up to its end, and ``overlong`` counts it.  The one splitter
+    of the cell's serial lines (:class:`droid.brain.serial_line.LineSplitter`)
+    with the KAREL policy.
     """
 
     def __init__(self, max_line: int = MAX_LINE) -> None:
+        super().__init__(max_line, b"\r\n", skip_empty=True, early_overlong=True)
         self.max_line = max_line
-        self._buf = bytearray()
-        self._discarding = False
-        self.overlong = 0
-
-    def feed(self, data: bytes) -> list[bytes]:
-        """Add ``data``; returns the lines it completed (without terminators)."""
-        if not data:
-            return []
-        self._buf += data
-        parts = _ENDS.split(bytes(self._buf))
-        tail = parts.pop()  # the unterminated rest
-        out = []
-        for p in parts:
-            if self._discarding:
-                self._discarding = False  # the end of the overlong line
-                continue
-            if len(p) > self.max_line:
-                self.overlong += 1
-                out.append(p[: self.max_line + 1])  # the parser rejects it as LONG
-                continue
-            if p:
-                out.append(p)
-        if len(tail) > self.max_line:
-            if not self._discarding:
-                self.overlong += 1
-                out.append(tail[: self.max_line + 1])
-            self._discarding = True
-            tail = b""
-        self._buf = bytearray(tail)
-        return out
-
-    @property
-    def pending(self) -> int:
-        """Bytes of the unfinished line."""
-        return len(self._buf)
-
-    def clear(self) -> None:
-        self._buf.clear()
-        self._discarding = False

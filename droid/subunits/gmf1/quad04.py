@@ -5,9 +5,11 @@ refused with the expected form)::
 
     shm://NAME                  a POSIX shared-memory object /NAME holding the
                                 register map (droid-sim's twin of the card)
-    mem://PATH?offset=N         MAP_SIZE bytes at byte ``offset`` (decimal or 0x
+    mem:///PATH?offset=N        MAP_SIZE bytes at byte ``offset`` (decimal or 0x
                                 hex) of a file or memory device, e.g. a UIO
                                 window of a real adapter; tests use a temp file
+
+Both are opened by :mod:`droid.subunits.regmap` (the same handlers as the VME driver).
 
 The register layout is :mod:`droid.subunits.gmf1.quad04_map`.  Nothing here
 knows whether the card is simulated.
@@ -24,23 +26,15 @@ failure the encoder program retries.
 """
 from __future__ import annotations
 
-import mmap
-import os
-import re
-from urllib.parse import parse_qs, urlsplit
-
 import numpy as np
-import posix_ipc
 
-from droid.cli import BadInput, RuntimeFailure
+from droid.cli import BadInput
 from droid.subunits.gmf1 import quad04_map as qm
+from droid.subunits.regmap import URL_FORMS, MapUnavailable, identity_changed, open_region, parse_url
 
-URL_FORMS = "shm://NAME or mem://PATH?offset=N"
-_SHM_NAME = re.compile(r"^[A-Za-z0-9._-]{1,200}$")
-
-
-class CardUnavailable(RuntimeFailure):
-    """The card's memory is not there (object missing, file unreadable): retry later."""
+#: the card's memory is not there (object missing, file unreadable): retry later
+#: (the register-map error every driver shares, droid.subunits.regmap)
+CardUnavailable = MapUnavailable
 
 
 class Quad04Card:
@@ -93,12 +87,7 @@ class Quad04Card:
 
     def replaced(self) -> bool:
         """True if the object behind the map was removed or replaced since it was opened."""
-        if self._identity is None:
-            return False
-        try:
-            return self._identity() != self.identity
-        except OSError:
-            return True
+        return identity_changed(self._identity, self.identity)
 
     def close(self) -> None:
         if self._mv is not None:
@@ -145,16 +134,16 @@ class Quad04Bank:
             c.close()
 
 
-# -- opening by URL ---------------------------------------------------------------------
+# -- opening by URL (droid.subunits.regmap: one table of shm:// / mem:// handlers) -------------
 def open_card(url: str) -> Quad04Card:
     """Open one card by URL (see the module docstring)."""
-    if not isinstance(url, str):
-        raise BadInput(f"encoder card URL must be a string ({URL_FORMS})")
-    if url.startswith("shm://"):
-        return _open_shm(url)
-    if url.startswith("mem://"):
-        return _open_mem(url)
-    raise BadInput(f"encoder card URL {url!r}: unknown scheme (expected {URL_FORMS})")
+    region = open_region(url, qm.MAP_SIZE, "encoder card", hint="is droid-sim up?")
+    try:
+        return Quad04Card(region.buf, url, closer=region.close, identity=region.identity,
+                          opened_as=region.opened_as)
+    except BaseException:
+        region.close()
+        raise
 
 
 def open_bank(urls: list[str]) -> Quad04Bank:
@@ -174,114 +163,5 @@ def open_bank(urls: list[str]) -> Quad04Bank:
 
 def check_url(url: str) -> str:
     """Validate a card URL's form without opening it; returns it (BadInput if malformed)."""
-    if isinstance(url, str) and url.startswith("shm://"):
-        _shm_name(url)
-        return url
-    if isinstance(url, str) and url.startswith("mem://"):
-        _mem_parts(url)
-        return url
-    raise BadInput(f"encoder card URL {url!r}: expected {URL_FORMS}")
-
-
-def _shm_name(url: str) -> str:
-    name = url[len("shm://"):]
-    if not _SHM_NAME.match(name):
-        raise BadInput(f"encoder card URL {url!r}: bad shared-memory name (letters, digits, '.', '_', '-'; "
-                       f"expected shm://NAME)")
-    return name
-
-
-def _open_shm(url: str) -> Quad04Card:
-    name = _shm_name(url)
-    try:
-        shm = posix_ipc.SharedMemory("/" + name)
-    except posix_ipc.ExistentialError:
-        raise CardUnavailable(f"encoder card {url}: no such shared-memory object (is droid-sim up?)") from None
-    except posix_ipc.PermissionsError as exc:
-        raise CardUnavailable(f"encoder card {url}: {exc}") from None
-    try:
-        if shm.size < qm.MAP_SIZE:
-            raise BadInput(f"encoder card {url}: object is {shm.size} bytes, a card map is {qm.MAP_SIZE}")
-        region = mmap.mmap(shm.fd, qm.MAP_SIZE)
-        inode = os.fstat(shm.fd).st_ino
-    finally:
-        shm.close_fd()
-    path = f"/dev/shm/{name}"
-
-    def identity():
-        return os.stat(path).st_ino
-
-    try:
-        return Quad04Card(region, url, closer=region.close, identity=identity, opened_as=inode)
-    except BaseException:
-        region.close()
-        raise
-
-
-def _mem_parts(url: str) -> tuple[str, int]:
-    parts = urlsplit(url)
-    path = parts.netloc + parts.path
-    if not path:
-        raise BadInput(f"encoder card URL {url!r}: no path (expected mem://PATH?offset=N)")
-    try:
-        query = parse_qs(parts.query, keep_blank_values=True, strict_parsing=bool(parts.query))
-    except ValueError:
-        raise BadInput(f"encoder card URL {url!r}: bad query (expected mem://PATH?offset=N)") from None
-    unknown = set(query) - {"offset"}
-    if unknown:
-        raise BadInput(f"encoder card URL {url!r}: unknown option(s) {', '.join(sorted(unknown))} "
-                       f"(expected mem://PATH?offset=N)")
-    offset = 0
-    if "offset" in query:
-        vals = query["offset"]
-        try:
-            if len(vals) != 1:
-                raise ValueError
-            offset = int(vals[0], 0)
-        except ValueError:
-            raise BadInput(f"encoder card URL {url!r}: offset must be one integer "
-                           f"(decimal or 0x hex)") from None
-        if offset < 0:
-            raise BadInput(f"encoder card URL {url!r}: offset must be >= 0")
-    return path, offset
-
-
-def _open_mem(url: str) -> Quad04Card:
-    path, offset = _mem_parts(url)
-    try:
-        fd = os.open(path, os.O_RDWR | getattr(os, "O_CLOEXEC", 0))
-    except FileNotFoundError:
-        raise CardUnavailable(f"encoder card {url}: {path} does not exist") from None
-    except OSError as exc:
-        raise CardUnavailable(f"encoder card {url}: cannot open {path} ({exc.strerror})") from None
-    try:
-        st = os.fstat(fd)
-        if st.st_size and st.st_size < offset + qm.MAP_SIZE:
-            raise BadInput(f"encoder card {url}: {path} is {st.st_size} bytes, too short for a card "
-                           f"at offset {offset}")
-        gran = mmap.ALLOCATIONGRANULARITY
-        base = offset - offset % gran
-        delta = offset - base
-        try:
-            region = mmap.mmap(fd, delta + qm.MAP_SIZE, offset=base)
-        except (OSError, ValueError) as exc:
-            raise CardUnavailable(f"encoder card {url}: cannot map {path} ({exc})") from None
-        inode = (st.st_dev, st.st_ino)
-    finally:
-        os.close(fd)
-
-    def identity():
-        s = os.stat(path)
-        return (s.st_dev, s.st_ino)
-
-    view = memoryview(region)[delta: delta + qm.MAP_SIZE]
-
-    def closer():
-        view.release()
-        region.close()
-
-    try:
-        return Quad04Card(view, url, closer=closer, identity=identity, opened_as=inode)
-    except BaseException:
-        closer()
-        raise
+    parse_url(url, "encoder card")
+    return url

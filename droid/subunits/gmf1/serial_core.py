@@ -30,6 +30,10 @@ Commands (a new command = a new ``cmd_id``):
   so are targets outside the workspace or the joint limits (checked with the
   model's IK and pick, the same as the controller's).
 
+Stop (a NORMAL command with STOP_TICKS, written by a task that gave up): the
+pending command is dropped and nothing new is sent; a move already sent runs to
+its end (the KAREL server has no abort).
+
 Drop policy: while a command is in flight (sent, not DONE) newer commands wait
 as one *pending* command; a newer one replaces it and the replaced one is
 counted in ``dropped`` (as are cmd_ids skipped between two ticks).  The pending
@@ -65,7 +69,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from droid.brain.layouts import (CARTSPACE, CMD_FAILED, CMD_OK, CMD_REFUSED, HOME_MODE, JSPACE, NORMAL_MODE,
-                                 OFF)
+                                 OFF, STOP_TICKS)
 from droid.kinematics import RobotModel, Unreachable
 from droid.kinematics.transforms import T_to_pose, inv_homo
 from droid.subunits.gmf1 import karel_wire as kw
@@ -116,6 +120,12 @@ class CommandSnapshot:
     joint_ticks: int
     encoder_cmd_ext: np.ndarray  # joint target [counts wrt home]
     link_alive: bool = True
+
+
+def is_stop(cmd: CommandSnapshot) -> bool:
+    """A NORMAL command whose time count is STOP_TICKS (layouts: a task gave up)."""
+    ticks = cmd.joint_ticks if cmd.coord == JSPACE else cmd.cart_ticks
+    return cmd.cmd_mode == NORMAL_MODE and ticks == STOP_TICKS
 
 
 def snapshot_command(rec) -> CommandSnapshot:
@@ -171,6 +181,7 @@ class SerialCore:
         self.rx = kw.LineSplitter()
         self.flight: _Flight | None = None
         self.pending: CommandSnapshot | None = None
+        self.stops = 0  # stop commands taken (pending dropped)
         self.last_seen: int | None = None
         self.fault = True  # no port yet
         self.next_tx_tick = 0  # hold-off after a BUSY answer
@@ -401,6 +412,11 @@ class SerialCore:
             return
         if self.pending is not None:
             self.dropped += 1  # superseded before it could be sent
+        if is_stop(cmd):  # drop what waits; the KAREL server cannot abort a move in flight
+            self.pending = None
+            self.stops += 1
+            self.status.update(cmd_id=cmd.cmd_id, cmd_result=CMD_OK, cmd_mode=cmd.cmd_mode, coord=cmd.coord)
+            return
         self.pending = cmd
 
     def _send(self, tick: int, st: StatusView, out: SerialOut) -> None:

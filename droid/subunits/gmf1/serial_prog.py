@@ -23,7 +23,7 @@ from droid.brain.curve import CurveHost
 from droid.brain.databases import open_local
 from droid.brain.heartbeat import TickSubscriber
 from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
-from droid.cli import BadInput, positive_int, run
+from droid.cli import BadInput, bounded_int, run
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.subunits.gmf1.config import gmf1_config
@@ -47,7 +47,7 @@ def main(argv=None) -> int:
     ap = parser(PROG, "Send the newest GMF1 command to the Fanuc KAREL server over its serial line.")
     ap.add_argument("subunit", help="the GMF1 subunit, e.g. gmf1")
     ap.add_argument("--serial", metavar="URL", default=None, help="serial port (default: the cell file's)")
-    ap.add_argument("--baud", type=positive_int, default=None, help="baud rate (default: the cell file's, 9600)")
+    ap.add_argument("--baud", type=bounded_int(1, 4_000_000, "baud"), default=None, help="baud rate (default: the cell file's, 9600)")
     args = ap.parse_args(argv)
     cell = open_cell(args)
     sub = cell.subunit(args.subunit)

@@ -22,22 +22,20 @@ from __future__ import annotations
 
 import mmap
 import os
-import re
 import threading
 import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from urllib.parse import urlsplit
 
 import numpy as np
 import posix_ipc
 
-from droid.cli import BadInput, RuntimeFailure
+from droid.cli import RuntimeFailure
+from droid.subunits.regmap import parse_url
 from droid.subunits.mvs.wire import (COLUMNS, DSP_LAYOUT_VERSION, DSP_MAGIC, DSP_RECORD,
                                      RETRACE_SUFFIX, ROWS)
 
 URL_FORMS = "shm://NAME or inproc://NAME"
-_NAME = re.compile(r"[A-Za-z0-9_.\-]{1,200}")
 #: Attempts at an untorn copy of one frame.
 COPY_RETRIES = 100
 #: Poll period while waiting for a board to appear [s].
@@ -54,16 +52,9 @@ class DspFrame:
 
 
 def parse_dsp_url(url: str) -> tuple[str, str]:
-    """(scheme, NAME) of a DSP URL; BadInput names the expected form."""
-    parts = urlsplit(url)
-    name = (parts.netloc + parts.path).lstrip("/")
-    if parts.scheme not in ("shm", "inproc"):
-        raise BadInput(f"DSP URL {url!r}: unknown scheme (expected {URL_FORMS})")
-    if parts.query or parts.fragment:
-        raise BadInput(f"DSP URL {url!r}: takes no options (expected {URL_FORMS})")
-    if not _NAME.fullmatch(name):
-        raise BadInput(f"DSP URL {url!r}: NAME must be 1-200 of A-Z a-z 0-9 _ . - (expected {URL_FORMS})")
-    return parts.scheme, name
+    """(scheme, NAME) of a DSP URL; BadInput names the expected form (droid.subunits.regmap's checks)."""
+    scheme, name, _ = parse_url(url, "DSP", ("shm", "inproc"), URL_FORMS)
+    return scheme, name
 
 
 class DspBoard(ABC):

@@ -51,12 +51,13 @@ import tomllib
 from dataclasses import dataclass
 
 import numpy as np
-import serial
 
-from droid.cli import ArgumentParser, BadInput, RuntimeFailure, finite_float, positive_float, positive_int, run
+from droid.brain.serial_port import PortLink, serial_opener
+from droid.cli import ArgumentParser, BadInput, MAX_WAIT_S, RuntimeFailure, bounded_float, bounded_int, run
 from droid.subunits.mvs.calibration import MvsCalibration
 from droid.subunits.mvs.dsp import open_dsp
 from droid.subunits.mvs.feature import Feature, FeatureParams, extract
+from droid.brain.sensor_line import stamp_ms_of
 from droid.subunits.mvs.protocol import format_line
 from droid.subunits.mvs.wire import COLUMNS, DEFAULT_BAUD, FRAME_RATE_HZ, MIN_BAUD, NO_STRIPE, ROWS
 
@@ -88,9 +89,10 @@ class SensorCore:
         self.valid += self.last is not None
         return self.last
 
-    def step(self, rows: np.ndarray) -> bytes:
-        """One frame -> the line to send ("x,y,roll\\n" or "invalid\\n")."""
-        return format_line(self.process(rows))
+    def step(self, rows: np.ndarray, stamp_ms: int | None = None) -> bytes:
+        """One frame -> the line to send ("x,y,roll\\n" or "invalid\\n"); with ``stamp_ms`` the
+        frame's capture stamp as the line's optional fourth field (droid.brain.sensor_line)."""
+        return format_line(self.process(rows), stamp_ms)
 
     @property
     def invalid(self) -> int:
@@ -162,28 +164,19 @@ def replay(source: str, core: SensorCore, pixels: bool, out=None) -> None:
             stream.close()
 
 
-def _open_serial(url: str, baud: int):
-    try:
-        return serial.serial_for_url(url, baudrate=baud, write_timeout=WRITE_TIMEOUT_S)
-    except ValueError as exc:
-        raise BadInput(f"serial {url}: {exc}") from None
-    except serial.SerialException as exc:
-        raise RuntimeFailure(f"cannot open serial {url}: {exc}") from None
-
-
-def _open_serial_waiting(url: str, baud: int, wait_s: float, stop: threading.Event):
-    """Open the port, retrying for up to ``wait_s`` [s] while it is not there yet (None if stopped)."""
+def _open_serial_waiting(link: PortLink, url: str, wait_s: float, stop: threading.Event) -> bool:
+    """Open the port, retrying for up to ``wait_s`` [s] while it is not there yet (False if stopped)."""
     deadline = time.monotonic() + wait_s
     while not stop.is_set():
-        try:
-            return _open_serial(url, baud)
-        except RuntimeFailure as exc:
-            if time.monotonic() >= deadline:
-                if wait_s > 0:
-                    raise RuntimeFailure(f"{exc} (waited {wait_s:g} s; is droid-sim running?)") from None
-                raise
-            stop.wait(APPEAR_POLL_S)
-    return None
+        if link.open():
+            return True
+        if time.monotonic() >= deadline:
+            why = f"cannot open serial {url}: {link.last_error}"
+            if wait_s > 0:
+                raise RuntimeFailure(f"{why} (waited {wait_s:g} s; is droid-sim running?)")
+            raise RuntimeFailure(why)
+        stop.wait(APPEAR_POLL_S)
+    return False
 
 
 def _open_board(url: str, wait_s: float, stop: threading.Event):
@@ -215,12 +208,16 @@ def live(args, core: SensorCore, ready=None, beat=None, reopen: bool = False) ->
     handlers = {}
     if threading.current_thread() is threading.main_thread():
         handlers = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
-    record = board = port = None
-    timeouts = missed = overruns = lost = reopened = 0
+    record = board = None
+    # the cell's one serial port (droid.brain.serial_port): a write that times out is an
+    # overrun (the line is slower than the frames), any other error closes the port
+    port = PortLink(serial_opener(args.serial, args.baud, write_timeout_s=WRITE_TIMEOUT_S),
+                    write_timeout_keeps_open=True)
+    timeouts = missed = lost = reopened = 0
     t0 = time.monotonic()
     try:
         board = _open_board(args.dsp, wait_s, stop)
-        port = _open_serial_waiting(args.serial, args.baud, max(0.0, deadline - time.monotonic()), stop)
+        _open_serial_waiting(port, args.serial, max(0.0, deadline - time.monotonic()), stop)
         if args.record:
             try:
                 record = open(args.record, "w")
@@ -231,6 +228,7 @@ def live(args, core: SensorCore, ready=None, beat=None, reopen: bool = False) ->
         t0 = time.monotonic()
         while not stop.is_set() and (args.count is None or core.frames < args.count):
             frame = board.wait_frame(args.retrace_timeout)
+            t_frame_ns = time.monotonic_ns()  # the retrace: the frame's capture, on the cell's clock
             if stop.is_set():
                 break
             if frame is None:
@@ -238,46 +236,37 @@ def live(args, core: SensorCore, ready=None, beat=None, reopen: bool = False) ->
                 line = format_line(None)
             else:
                 missed += frame.missed
-                line = core.step(frame.rows)
+                line = core.step(frame.rows, stamp_ms_of(t_frame_ns) if getattr(args, "stamp", False) else None)
                 if record is not None:
                     try:
                         record.write(format_frame_line(frame.rows) + "\n")
                     except OSError as exc:
                         raise RuntimeFailure(f"cannot write {args.record}: {exc.strerror}") from None
-            if port is None:
-                try:
-                    port = _open_serial(args.serial, args.baud)
+            if not port.is_open:
+                if port.open():
                     reopened += 1
-                except RuntimeFailure:
+                else:
                     lost += 1
-            if port is not None:
-                try:
-                    port.write(line)
-                except serial.SerialTimeoutException:
-                    overruns += 1
-                except serial.SerialException as exc:
-                    if not reopen:
-                        raise RuntimeFailure(f"serial {args.serial}: {exc}") from None
-                    print(f"{PROG}: serial {args.serial}: {exc}; reopening", file=sys.stderr, flush=True)
-                    port.close()
-                    port = None
-                    lost += 1
+            if port.is_open and not port.write(line) and not port.is_open:
+                if not reopen:
+                    raise RuntimeFailure(f"serial {args.serial}: {port.last_error}")
+                print(f"{PROG}: serial {args.serial}: {port.last_error}; reopening", file=sys.stderr, flush=True)
+                lost += 1
             if beat is not None:
-                beat(core.frames, overruns + timeouts + lost)
+                beat(core.frames, port.write_timeouts + timeouts + lost)
     finally:
         elapsed = max(time.monotonic() - t0, 1e-9)
         for sig, old in handlers.items():
             signal.signal(sig, old)
         if record is not None:
             record.close()
-        if port is not None:
-            port.close()
+        port.close()
         if board is not None:
             board.close()
     reopen_note = f", {lost} lines lost with the port, {reopened} reopens" if reopen else ""
     print(f"{PROG}: {core.frames} frames in {elapsed:.2f} s = {core.frames / elapsed:.1f} frames/s "
           f"({core.valid} valid, {core.invalid} invalid, {missed} missed, {timeouts} retrace timeouts, "
-          f"{overruns} serial overruns{reopen_note})", file=sys.stderr)
+          f"{port.write_timeouts} serial overruns{reopen_note})", file=sys.stderr)
     return 0
 
 
@@ -288,18 +277,21 @@ def build_parser() -> ArgumentParser:
                         "board, port, baud and calibration from [subunits.NAME]")
     parser.add_argument("--cell", metavar="FILE", default=None,
                         help="cell file (with a subunit; default: $DROID_CELL, else the built-in simulated cell)")
-    parser.add_argument("--ready-fd", type=int, default=None, help=argparse.SUPPRESS)
+    parser.add_argument("--ready-fd", type=bounded_int(0, 1 << 20), default=None, help=argparse.SUPPRESS)
     parser.add_argument("--dsp", metavar="URL", help="DSP board: shm://NAME or inproc://NAME")
     parser.add_argument("--serial", metavar="URL", help="serial port URL or device (pyserial serial_for_url)")
-    parser.add_argument("--baud", type=positive_int, default=None,
+    parser.add_argument("--baud", type=bounded_int(1, 4_000_000, "baud"), default=None,
                         help=f"baud rate, >= {MIN_BAUD} (default {DEFAULT_BAUD})")
-    parser.add_argument("--count", type=positive_int, help="stop after N frames")
-    parser.add_argument("--retrace-timeout", type=positive_float, default=6 / FRAME_RATE_HZ, metavar="S",
+    parser.add_argument("--count", type=bounded_int(1, 10**12), help="stop after N frames")
+    parser.add_argument("--retrace-timeout", type=bounded_float(0.0, 60.0, "s", lo_open=True), default=6 / FRAME_RATE_HZ, metavar="S",
                         help="send 'invalid' when no retrace comes within S seconds (default 0.1)")
-    parser.add_argument("--board-wait", type=finite_float, default=None, metavar="S",
+    parser.add_argument("--board-wait", type=bounded_float(0.0, MAX_WAIT_S, "s"), default=None, metavar="S",
                         help="wait up to S seconds for the DSP board (and in a cell the serial port) "
                         f"to appear (default 5; in a cell {CELL_WAIT_S:g})")
     parser.add_argument("--record", metavar="FILE", help="also write each frame to FILE (replay format)")
+    parser.add_argument("--stamp", action="store_true",
+                        help="append each frame's capture stamp (CLOCK_MONOTONIC ms mod 100000) to its line "
+                             "(issue 12; only where the Brain shares this host's clock)")
     parser.add_argument("--replay", metavar="FILE", help="process recorded frames from FILE ('-' = stdin)")
     parser.add_argument("--pixels", action="store_true", help="with --replay: print 'row,col' of the step")
     parser.add_argument("--calib", metavar="FILE", help="calibration TOML (keys of MvsCalibration)")
@@ -309,8 +301,10 @@ def build_parser() -> ArgumentParser:
 def apply_cell(args):
     """Fill unset live options from the cell file's ``[subunits.NAME]``; returns (cell, subunit)."""
     from droid.brain.cellfile import load_cell
+    from droid.brain.program import use_cell
 
     cell = load_cell(args.cell)
+    use_cell(cell)
     sub = cell.subunit(args.subunit)
     where = f"{cell.path}: [subunits.{sub.name}]"
     if sub.cls != "line_laser":
@@ -347,8 +341,8 @@ def cell_calibration(sub, where: str) -> MvsCalibration:
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     if args.replay is not None:
-        if args.dsp or args.serial or args.record or args.count or args.subunit or args.cell:
-            raise BadInput("--replay takes no --dsp, --serial, --record, --count, --cell or subunit")
+        if args.dsp or args.serial or args.record or args.count or args.subunit or args.cell or args.stamp:
+            raise BadInput("--replay takes no --dsp, --serial, --record, --count, --stamp, --cell or subunit")
         replay(args.replay, SensorCore(load_calibration(args.calib)), args.pixels)
         return 0
     if args.pixels:
@@ -382,7 +376,7 @@ def live_in_cell(args, core: SensorCore, cell, sub) -> int:
 
     # In a cell that asks for SCHED_FIFO the sensor is part of the tracking loop's chain
     # (frame -> line -> Brain Status -> droid-seamtrack, §5.4): below the Brain's programs.
-    try_sched_fifo(priority=48, wanted=cell.sched_fifo, prog=PROG)
+    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
     failed = True
 

@@ -16,6 +16,9 @@ controller's Command and Status records and
 * every tick ``plan_joint_cmd()``: the next way-point
   ``int + (ext - int) / joint_time_count``, ``joint_time_count -= 1``,
   ``busy = joint_time_count`` (the thesis listing);
+* a NORMAL command with 0 ticks (``STOP_TICKS``) is a stop: the move in
+  progress ends at its current way-point and the arm holds there (a task
+  that gives up writes one: issue 16);
 * in JOG, HOME or OFF mode follows the arm (the next NORMAL move starts from
   where the arm is, e.g. after droid-jog);
 * cancels the move and holds where the arm is if the Brain link is lost
@@ -39,7 +42,7 @@ from droid.cli import run
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.brain.layouts import (CMD_FAILED, CMD_OK, CMD_REFUSED, FAULT_BRAKING, FAULT_SERVO,
-                                 FAULT_WATCHDOG, JSPACE, NORMAL_MODE)
+                                 FAULT_WATCHDOG, JSPACE, NORMAL_MODE, STOP_TICKS)
 from droid.kinematics import RobotModel, Unreachable
 
 N = 6
@@ -135,18 +138,26 @@ class PlannerCore:
             self.plan_id = new_id
             out.plan_id = new_id
             out.cmd_id = new_id
-            try:
-                target = self._resolve(cmd)
-            except Unreachable as exc:
-                self.refused += 1
-                out.cmd_result = CMD_REFUSED
-                out.note = f"refused command {new_id}: {exc}"
-            else:
-                ticks = int(cmd["joint_time_count"] if int(cmd["coord"]) == JSPACE else cmd["cart_time_count"])
-                self.ext_counts = target
-                self.time_count = max(ticks, 1)
+            ticks = int(cmd["joint_time_count"] if int(cmd["coord"]) == JSPACE else cmd["cart_time_count"])
+            if ticks == STOP_TICKS:  # a stop: end the move in progress where it is and hold (issue 16)
+                if self.time_count > 0:
+                    out.note = f"command {self.active_id} stopped by command {new_id}"
+                self.ext_counts = self.int_counts.copy()
+                self.time_count = 0
                 self.active_id = new_id
                 out.cmd_result = CMD_OK
+            else:
+                try:
+                    target = self._resolve(cmd)
+                except Unreachable as exc:
+                    self.refused += 1
+                    out.cmd_result = CMD_REFUSED
+                    out.note = f"refused command {new_id}: {exc}"
+                else:
+                    self.ext_counts = target
+                    self.time_count = max(ticks, 1)
+                    self.active_id = new_id
+                    out.cmd_result = CMD_OK
         # plan_joint_cmd(): the next interpolated way-point (thesis §4.1.7 listing)
         if self.time_count > 1:
             step = (self.ext_counts - self.int_counts) / self.time_count
@@ -185,7 +196,7 @@ PROG = "droid-planner"
 def main(argv=None) -> int:
     args, cell, sub = subunit_program(PROG, "Plan an arm's joint and cartesian commands into per-tick way-points (thesis §4.1.7).", argv, arm=True)
     model = load_robot(sub.robot).with_base(pose_to_T(*sub.base))
-    try_sched_fifo(priority=51, wanted=cell.sched_fifo, prog=PROG)
+    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     ctrl_command = open_local(cell, sub, "ctrl_command")
     ctrl_status = open_local(cell, sub, "ctrl_status")
     ctx = zmq.Context()

@@ -143,7 +143,7 @@ class ServoAgentCore:
 def main(argv=None) -> int:
     args, cell, sub = subunit_program(PROG, "Relay an arm's controller database to its servo at 60 Hz, and the servo's status back.", argv, arm=True)
     ep = reis_endpoints(cell, sub)
-    try_sched_fifo(priority=54, wanted=cell.sched_fifo, prog=PROG)
+    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     ctrl_command = open_local(cell, sub, "ctrl_command")
     ctrl_status = open_local(cell, sub, "ctrl_status")
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")

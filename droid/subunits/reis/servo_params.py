@@ -97,8 +97,11 @@ class ServoParams:
     target_max_counts: SixInt = field(default_factory=_default("target_max_counts"))
 
     # starved queue (§4.1.5.1): coast this many ticks at the commanded velocity
-    # waiting for a late command, then brake at brake_decel to zero and hold
-    starve_grace_ticks: int = 3
+    # waiting for a late command, then brake at brake_decel to zero and hold.
+    # 7 ticks (14 ms) rides through a 10 ms stall of the command stream (the
+    # stream runs up to a tick ahead of the queue; host stalls measured here:
+    # 2-7 ms, some 10 ms under load -- docs/benchmarks.md, issue 16)
+    starve_grace_ticks: int = 7
     brake_decel_counts_per_tick2: Six = (2.0, 2.0, 2.0, 4.0, 4.0, 4.0)  # 5e5 / 1e6 counts/s^2
 
     # supervision

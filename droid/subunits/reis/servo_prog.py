@@ -58,7 +58,7 @@ def open_vme_waiting(url: str, wait_s: float):
 def main(argv=None) -> int:
     args, cell, sub = subunit_program(PROG, "Run the 500 Hz servo loop of a Reis arm on its VME interface cards.", argv, arm=True)
     ep = reis_endpoints(cell, sub)
-    try_sched_fifo(priority=60, wanted=cell.sched_fifo, prog=PROG)
+    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
     ctx = zmq.Context()
     curve = CurveHost(ctx, cell, sub.host)
@@ -72,13 +72,7 @@ def main(argv=None) -> int:
     timer = None
     failed = False
     try:
-        curve.server(pull, ep.servo)
-        curve.server(pub, ep.servo_status)
-        try:
-            pull.bind(cell.bind_endpoint(ep.servo))
-            pub.bind(cell.bind_endpoint(ep.servo_status))
-        except zmq.ZMQError as exc:
-            raise RuntimeFailure(f"cannot bind {ep.servo} / {ep.servo_status}: {exc}") from None
+        curve.bind(cell, (pull, ep.servo), (pub, ep.servo_status))
         bus = open_vme_waiting(ep.vme, OPEN_WAIT_S)
         bus.zero_dacs()
         try:  # the arm's robot file: gains, home switches, limits; plus droid-calibrate's offsets

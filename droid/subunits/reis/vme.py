@@ -15,14 +15,10 @@ message.  The driver only moves data; it never decides (ros2_control style).
 """
 from __future__ import annotations
 
-import mmap
-import os
-import re
 import struct
 from typing import Callable, Sequence
-from urllib.parse import parse_qsl, urlsplit
 
-from droid.cli import BadInput, RuntimeFailure
+from droid.subunits.regmap import MapUnavailable, MapUrlError, open_region
 from droid.subunits.reis import vme_map as vm
 
 _ENCODERS = struct.Struct(vm.ENCODERS_FORMAT)
@@ -30,18 +26,10 @@ _DACS = struct.Struct(vm.DACS_FORMAT)
 _U16 = struct.Struct(vm.U16_FORMAT)
 _I16 = struct.Struct(vm.I16_FORMAT)
 
-SHM_FORM = "shm://NAME (NAME: letters, digits, '.', '_', '-')"
-MEM_FORM = "mem:///PATH?offset=0xADDR (PATH absolute, e.g. mem:///dev/uio0?offset=0x0)"
-URL_FORMS = f"{SHM_FORM} or {MEM_FORM}"
-_SHM_NAME = re.compile(r"^[A-Za-z0-9._-]{1,200}$")
-
-
-class VmeUrlError(BadInput, ValueError):
-    """A malformed or unsupported VME URL (exit code 2 in a shell)."""
-
-
-class VmeOpenError(RuntimeFailure, OSError):
-    """The URL is well formed but the register map cannot be opened (exit code 1)."""
+#: the register-map errors shared by every driver (droid.subunits.regmap), under the names
+#: this driver has always used
+VmeUrlError = MapUrlError
+VmeOpenError = MapUnavailable
 
 
 class VmeBus:
@@ -172,75 +160,12 @@ class VmeBus:
         return f"VmeBus({self.url!r}, {state})"
 
 
-# -- URL handlers -----------------------------------------------------------------
-def _open_shm(url: str, parts) -> VmeBus:
-    # shm://NAME : POSIX shared-memory object /NAME, at least MAP_SIZE bytes.
-    import posix_ipc
-
-    if parts.query or parts.path or parts.fragment:
-        raise VmeUrlError(f"{url}: shm URLs take no path or options; expected {SHM_FORM}")
-    name = parts.netloc
-    if not _SHM_NAME.match(name):
-        raise VmeUrlError(f"{url}: bad shared-memory name; expected {SHM_FORM}")
-    try:
-        shm = posix_ipc.SharedMemory("/" + name)
-    except posix_ipc.ExistentialError:
-        raise VmeOpenError(f"{url}: no shared-memory object /{name} (is droid-sim running?)") from None
-    except posix_ipc.PermissionsError as exc:
-        raise VmeOpenError(f"{url}: {exc}") from None
-    try:
-        if shm.size < vm.MAP_SIZE:
-            raise VmeOpenError(f"{url}: /{name} has {shm.size} bytes, need {vm.MAP_SIZE}")
-        region = mmap.mmap(shm.fd, vm.MAP_SIZE)
-    finally:
-        shm.close_fd()
-    return VmeBus(region, closer=region.close, url=url)
-
-
-def _open_mem(url: str, parts) -> VmeBus:
-    # mem:///PATH?offset=0xADDR : mmap of a device or regular file at byte ADDR.
-    if parts.netloc or not parts.path.startswith("/") or parts.fragment:
-        raise VmeUrlError(f"{url}: expected {MEM_FORM}")
-    offset = 0
-    for key, value in parse_qsl(parts.query, keep_blank_values=True, strict_parsing=False):
-        if key != "offset":
-            raise VmeUrlError(f"{url}: unknown option {key!r}; expected {MEM_FORM}")
-        try:
-            offset = int(value, 0)
-        except ValueError:
-            raise VmeUrlError(f"{url}: offset {value!r} is not an integer; expected {MEM_FORM}") from None
-        if offset < 0:
-            raise VmeUrlError(f"{url}: offset must be >= 0; expected {MEM_FORM}")
-    page_base = offset - offset % mmap.ALLOCATIONGRANULARITY
-    length = offset - page_base + vm.MAP_SIZE
-    try:
-        fd = os.open(parts.path, os.O_RDWR | os.O_SYNC)
-    except OSError as exc:
-        raise VmeOpenError(f"{url}: cannot open {parts.path}: {exc.strerror}") from None
-    try:
-        if os.path.isfile(parts.path) and os.fstat(fd).st_size < offset + vm.MAP_SIZE:
-            raise VmeOpenError(f"{url}: {parts.path} is shorter than offset + {vm.MAP_SIZE} bytes")
-        region = mmap.mmap(fd, length, offset=page_base)
-    except OSError as exc:
-        raise VmeOpenError(f"{url}: cannot map {parts.path}: {exc}") from None
-    finally:
-        os.close(fd)
-    window = memoryview(region)[offset - page_base:]
-
-    def closer() -> None:
-        window.release()
-        region.close()
-
-    return VmeBus(window, closer=closer, url=url)
-
-
-SCHEMES: dict[str, Callable[[str, object], VmeBus]] = {"shm": _open_shm, "mem": _open_mem}
-
-
+# -- opening by URL (droid.subunits.regmap: one table of shm:// / mem:// handlers) --------
 def open_vme(url: str) -> VmeBus:
     """Open the register map named by ``url`` (see the module docstring for the forms)."""
-    parts = urlsplit(url)
-    handler = SCHEMES.get(parts.scheme)
-    if handler is None or "://" not in url:
-        raise VmeUrlError(f"{url!r}: unsupported VME URL; expected {URL_FORMS}")
-    return handler(url, parts)
+    region = open_region(url, vm.MAP_SIZE, "VME")
+    try:
+        return VmeBus(region.buf, closer=region.close, url=url)
+    except BaseException:
+        region.close()
+        raise

@@ -35,7 +35,7 @@ PROG = "droid-watchdog"
 def main(argv=None) -> int:
     args, cell, sub = subunit_program(PROG, "Kick a Reis arm's watchdog timers while its servo is alive.", argv, arm=True)
     ep = reis_endpoints(cell, sub)
-    try_sched_fifo(priority=55, wanted=cell.sched_fifo, prog=PROG)
+    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
     ctx = zmq.Context()
     sub_sock = ctx.socket(zmq.SUB)

@@ -76,6 +76,11 @@ DEAD_ZONE_CYCLES = 30
 #: 32 mm at 64 mm/s of straight-on travel on zero data).
 LOST_CYCLES = 15
 
+#: Fastest travel speed a run accepts [mm/s] (ASSUMED: the thesis gives no Reis TCP speed
+#: limit; plus mode tracks the step track at 400 mm/s in lockstep with the fast arm model,
+#: whose joints are speed-limited as the servo's).  A faster request is refused up front.
+MAX_SPEED_MM_S = 500.0
+
 STOP_END = "end of seam"
 STOP_LOST = "seam lost"
 STOP_UNREACHABLE = "unreachable"
@@ -95,6 +100,15 @@ PHASE_DEAD_ZONE = "dead zone"  # the sensor is not read yet (still the initial s
 PHASE_INITIAL = "initial"  # the tool heads for the point where the sensor started
 PHASE_TRACKING = "tracking"
 
+#: Tracking modes (docs/seamtrack.md "Modes"): ``thesis`` -- the listing's tracker with the
+#: patch read as §5.2 describes it (the tool projected onto the nearest patch segment, ``vel``
+#: stepped along the patch); ``listing`` -- the literal port of the listing's ``interpolate()``;
+#: ``plus`` -- the seam-map tracker of droid.tasks.seam.plus.
+MODE_THESIS = "thesis"
+MODE_LISTING = "listing"
+MODE_PLUS = "plus"
+MODES = (MODE_THESIS, MODE_LISTING, MODE_PLUS)
+
 
 @dataclass(frozen=True)
 class SeamParams:
@@ -111,14 +125,26 @@ class SeamParams:
     max_queue: int = MAX_QUEUE
     cycle_hz: float = CYCLE_HZ
     runaway_factor: float = RUNAWAY_FACTOR  # 0 = no runaway guard
+    mode: str = MODE_THESIS  # MODES
+    accel_mm_s2: float = 200.0  # plus mode: travel acceleration limit from rest [mm/s^2]
+    gap_mm: float = 30.0  # plus mode: longest stretch of seam bridged by extrapolation [mm]
 
     def __post_init__(self) -> None:
         for name in ("speed_mm_s", "yaw_gain", "pitch_gain", "delay_at_mm", "cycle_hz", "runaway_factor"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v)):
                 raise ValueError(f"{name} must be a finite number, got {v!r}")
+        if self.mode not in MODES:
+            raise ValueError(f"unknown mode {self.mode!r} (known: {', '.join(MODES)})")
+        if not (isinstance(self.accel_mm_s2, (int, float)) and self.accel_mm_s2 > 0):
+            raise ValueError(f"acceleration must be > 0 mm/s^2, got {self.accel_mm_s2!r}")
+        if not (isinstance(self.gap_mm, (int, float)) and self.gap_mm > 0):
+            raise ValueError(f"the bridged gap must be > 0 mm, got {self.gap_mm!r}")
         if self.speed_mm_s <= 0:
             raise ValueError(f"speed must be > 0 mm/s, got {self.speed_mm_s!r}")
+        if self.speed_mm_s > MAX_SPEED_MM_S:
+            raise ValueError(f"speed {self.speed_mm_s:g} mm/s is beyond what the arm can do "
+                             f"(at most {MAX_SPEED_MM_S:g} mm/s)")
         if self.runaway_factor < 0:
             raise ValueError("runaway_factor must be >= 0")
         if self.cycle_hz <= 0:
@@ -277,6 +303,68 @@ class SeamTracker:
     def interpolate(self, vel_mm: float) -> np.ndarray:
         """§5.2/Figure 5.4: the target tool pose w.r.t. the GMF1 wrist, ``vel_mm`` further along the patch.
 
+        ``thesis`` mode: :meth:`interpolate_thesis`; ``listing`` mode: :meth:`interpolate_listing`.
+        """
+        if self.p.mode == MODE_LISTING:
+            return self.interpolate_listing(vel_mm)
+        return self.interpolate_thesis(vel_mm)
+
+    def interpolate_thesis(self, vel_mm: float) -> np.ndarray:
+        """§5.2 as the text describes the patch: it holds the seam "from the point directly
+        below the current camera position to the current tool tip location".
+
+        The tool point is projected onto the nearest segment of the patch (the whole patch
+        is searched: no bracketing test that fails once the tool is off the recorded path by
+        more than the points' spacing); the target is ``vel_mm`` further along the patch
+        from that projection, walking the segments toward the camera (the front's
+        position if the patch ends first).  ``tcp_idx`` becomes the index of the older end
+        of the tool's segment, so everything from the camera to the tool is kept.  The
+        orientation is the patch's front, as the listing.
+        """
+        s = self.s
+        seam = s.seam_pos
+        tool = self.Ttool7_hold[:3, 3]
+        out = np.array(s.seam_front)
+        n = len(seam)
+        if n < 2:
+            d = np.asarray(seam[0]) - tool if n else np.zeros(3)
+            dist = float(np.linalg.norm(d))
+            out[:3, 3] = tool + (d * min(1.0, vel_mm / dist) if dist > 1e-9 else 0.0)
+            return out
+        P = np.asarray(seam, float)  # index 0 newest
+        a, b = P[1:], P[:-1]  # segment j: from the older a[j] = seam[j+1] to the newer b[j] = seam[j]
+        ab = b - a
+        L2 = np.einsum("ij,ij->i", ab, ab)
+        u = np.einsum("ij,ij->i", tool - a, ab) / np.where(L2 > 1e-18, L2, 1.0)
+        u = np.clip(np.where(L2 > 1e-18, u, 0.0), 0.0, 1.0)
+        foot = a + u[:, None] * ab
+        d2 = np.einsum("ij,ij->i", foot - tool, foot - tool)
+        j = int(np.argmin(d2))
+        pos = foot[j]
+        left = float(vel_mm)
+        target = None
+        while True:
+            seg = P[j] - pos
+            ls = float(np.linalg.norm(seg))
+            if ls >= left and ls > 1e-12:
+                target = pos + seg * (left / ls)
+                break
+            left -= ls
+            pos = P[j]
+            if j == 0:
+                target = pos  # the patch ends at the camera's newest point
+                break
+            j -= 1
+        out[:3, 3] = target
+        idx = int(np.argmin(d2)) + 1
+        s.tcp_idx = min(max(idx, 1), self.p.max_queue)
+        if not s.initial_done and s.tcp_idx - 1 < s.pushes - 1:
+            s.initial_done = True  # the tool has passed the point where the sensor started
+        return out
+
+    def interpolate_listing(self, vel_mm: float) -> np.ndarray:
+        """The literal port of the listing's ``interpolate()`` (``--mode listing``).
+
         Walks the patch from ``tcp_idx`` toward the camera for the two frames
         bounding the tool point (or the first one closer than ``vel``), then
         steps ``vel`` from the tool point toward the newer one.  The
@@ -345,7 +433,7 @@ class SeamTracker:
         return self.s.stop
 
     def step(self, T_global_hold6, T_global_reis6, reading: Reading, q_reis_deg=None,
-             elapsed_cycles: float = 1.0, T_global_reis6_sensed=None) -> CycleOutput:
+             elapsed_cycles: float = 1.0, T_global_reis6_sensed=None, T_global_hold6_sensed=None) -> CycleOutput:
         """One 30 Hz cycle.
 
         ``T_global_hold6``, ``T_global_reis6``: the GMF1 and Reis wrist-centre
@@ -359,7 +447,8 @@ class SeamTracker:
         reading (eq. 5.3 places the reading with the camera pose of its own
         instant; a real-time shell whose readings arrive later than the pose
         passes the pose of the reading's time -- an addition; None: the
-        current pose, as the listing).
+        current pose, as the listing); ``T_global_hold6_sensed``: the GMF1 pose at
+        that instant (None: the current one).
         """
         s = self.s
         cycle = s.cycle
@@ -396,8 +485,10 @@ class SeamTracker:
             s.invalid_run = 0 if used.valid else s.invalid_run + 1
             if s.invalid_run > self.p.lost_cycles:
                 return self._stop(cycle, STOP_LOST, f"lead sensor invalid for {s.invalid_run} cycles")
+        hold_inv = self._hold_inv if T_global_hold6_sensed is None else inv_homo(np.asarray(T_global_hold6_sensed,
+                                                                                           float))
         self._T6tool_hold_sensed = None if T_global_reis6_sensed is None else \
-            self._hold_inv @ np.asarray(T_global_reis6_sensed, float)
+            hold_inv @ np.asarray(T_global_reis6_sensed, float)
         yaw, pitch = self.update_seam_wrt_holder(used)
         target = self.interpolate(self.p.step_mm)
         reis_cmd = self.gen_tool_robot_wcp(target)

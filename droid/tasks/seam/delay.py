@@ -32,7 +32,10 @@ class Reading:
     ``x_mm`` depth, ``y_mm`` lateral, ``roll_rad`` the surface roll about S's
     z; ``valid`` False for an invalid reading (Table 3.3: homed = 1).
     ``zeroed`` marks the zero data the transport-delay buffer inserts (valid
-    zeros, not a sensor failure).
+    zeros, not a sensor failure).  ``stamp_tick``: the instant the frame was
+    captured [heartbeat ticks] when the reading carries it (a stamped sensor
+    line, or the lockstep harness); None: the tracking cycle assumes its
+    Status tick minus ``SENSOR_LAG_TICKS`` (droid.tasks.seam.cycle).
     """
 
     x_mm: float = 0.0
@@ -40,6 +43,7 @@ class Reading:
     roll_rad: float = 0.0
     valid: bool = True
     zeroed: bool = False
+    stamp_tick: float | None = None  # capture instant [heartbeat ticks], when known (issue 12)
 
 
 ZERO_READING = Reading(0.0, 0.0, 0.0, True, True)

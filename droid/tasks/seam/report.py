@@ -177,6 +177,8 @@ class Summary:
     stop_reason: str
     stop_detail: str
     stop_s_mm: float
+    travel_speed_mm_s: float = math.nan  # achieved: the slope of s_mm over t_s after settling [mm/s]
+    commanded_mm_s: float = math.nan  # the commanded travel speed [mm/s] (NaN: not given)
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -190,7 +192,8 @@ def _rms_max(v: np.ndarray) -> tuple[float, float]:
 
 
 def summarize(rows: Sequence[Sequence], *, trial_id: str = "", stop_reason: str = "", stop_detail: str = "",
-              stop_s_mm: float = math.nan, camera_to_tcp_mm: float = DEFAULT_CAMERA_TO_TCP_MM) -> Summary:
+              stop_s_mm: float = math.nan, camera_to_tcp_mm: float = DEFAULT_CAMERA_TO_TCP_MM,
+              commanded_mm_s: float = math.nan) -> Summary:
     """RMS and max tool error after settling, and how and where the run ended (see the module docstring).
 
     ``stop_s_mm``: the seam length at which the run stopped; a ``stop_reason``
@@ -205,11 +208,17 @@ def summarize(rows: Sequence[Sequence], *, trial_id: str = "", stop_reason: str 
     rms_dep, max_dep = _rms_max(dep)
     finite_s = s[np.isfinite(s)]
     lost = stop_reason == STOP_LOST
+    speed = math.nan
+    if rows and int(after.sum()) >= 3:
+        t = column(rows, "t_s")[after]
+        if np.ptp(t) > 0:
+            speed = float(np.polyfit(t, s[after], 1)[0])
     return Summary(trial_id=trial_id, rows=len(rows), settle_s_mm=settle, settled_rows=int(after.sum()),
                    rms_lateral_mm=rms_lat, max_lateral_mm=max_lat, rms_depth_mm=rms_dep, max_depth_mm=max_dep,
                    end_s_mm=float(finite_s.max()) if finite_s.size else math.nan, seam_lost=lost,
                    lost_s_mm=float(stop_s_mm) if lost else math.nan, stop_reason=stop_reason,
-                   stop_detail=stop_detail, stop_s_mm=float(stop_s_mm))
+                   stop_detail=stop_detail, stop_s_mm=float(stop_s_mm), travel_speed_mm_s=speed,
+                   commanded_mm_s=float(commanded_mm_s))
 
 
 def _mm(v: float) -> str:
@@ -229,7 +238,11 @@ def summary_line(summary: Summary) -> str:
     else:
         end = f"{su.stop_reason or 'no stop reason'}{where}; seam not lost"
     detail = f" ({su.stop_detail})" if su.stop_detail and not su.stop_reason.startswith("end of seam") else ""
-    return f"{head}{errors}; {end}{detail}"
+    speed = ""
+    if not math.isnan(su.commanded_mm_s):
+        got = "n/a" if math.isnan(su.travel_speed_mm_s) else f"{su.travel_speed_mm_s:.1f} mm/s"
+        speed = f"; travel speed {got} (commanded {su.commanded_mm_s:g} mm/s)"
+    return f"{head}{errors}{speed}; {end}{detail}"
 
 
 # ---------------------------------------------------------------- summary tables

@@ -1,0 +1,328 @@
+"""Sweep plans: a researcher's own experiment as a TOML file (issue 15).
+
+    name = "gains"                      # the output directory's name: letters, digits, _ . -
+    description = "..."                 # optional
+    [defaults]                          # optional: a value for every trial
+    position = "iii"
+    speed_mm_s = 16
+    [sweep]                             # each key a list; the trials are their cartesian product
+    yaw_gain = [0.1, 0.15, 0.2]
+    delay_cycles = [0, 1, 2]
+
+Keys of ``[defaults]`` and ``[sweep]`` (the fields of
+:class:`droid.sim.experiment.trial.TrialConfig`, :data:`FIELDS`):
+
+================  ==========================================================
+``workpiece``      a bundled name (``step_input``) or a path, relative to the plan file
+``position``       a start position of the layout: i .. vii (thesis §6.1.2)
+``speed_mm_s``     travel speed [mm/s], > 0
+``yaw_gain``       proportional gains (§5.5), finite
+``pitch_gain``
+``delay_cycles``   a transport delay of this many 30 Hz cycles, integer >= 0 (§6.2.5)
+``delay_at_mm``    where the delay starts [mm], >= 0
+``wrist``          a wrist of the layout: standard, extension30 (§6.2.7)
+``mode``           the tracking mode (passed to TrialConfig(mode=...) when it has one)
+``arm``            fast | full (the Reis model)
+``sensor``         ideal | camera (the lead sensor model)
+``seed``           the trial's seed, integer >= 0 (used as given)
+``length_mm``      the tool's run length [mm], > 0 (default: the seam's length)
+================  ==========================================================
+
+Unset keys take :data:`BUILTIN_DEFAULTS`.  The trials are the product of
+the ``[sweep]`` lists in the order written (the last key varies fastest).
+Each trial's ID is a hash of its parameters (:func:`trial_id`), so it is the
+same whatever else the plan sweeps, which is what ``--resume`` relies on.
+
+Bad input raises :class:`~droid.cli.BadInput` with one line naming the plan,
+the key and the value.
+"""
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import math
+import os
+import re
+import tomllib
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+from droid.cli import BadInput
+
+PLAN_DIR = Path(__file__).parent / "plans"
+
+FIELDS = ("workpiece", "position", "speed_mm_s", "yaw_gain", "pitch_gain", "delay_cycles", "delay_at_mm",
+          "wrist", "mode", "arm", "sensor", "seed", "length_mm")
+
+#: Values of keys a plan leaves unset (as TrialConfig's, but the sweeps' lead sensor "ideal";
+#: workpiece None: the position's own; length_mm None: the seam's length; mode None: TrialConfig's).
+BUILTIN_DEFAULTS = {"workpiece": None, "position": "i", "speed_mm_s": 16.0, "yaw_gain": 0.15,
+                    "pitch_gain": 0.25, "delay_cycles": 0, "delay_at_mm": 150.0, "wrist": "standard",
+                    "mode": None, "arm": "fast", "sensor": "ideal", "seed": 1, "length_mm": None}
+
+_TOP_KEYS = ("name", "description", "defaults", "sweep")
+_NAME = re.compile(r"[A-Za-z0-9_.-]+")
+
+
+@dataclass(frozen=True)
+class PlanTrial:
+    """One trial of a plan: its ID, its parameters (FIELDS -> value) and its TrialConfig."""
+
+    id: str
+    index: int  # 0-based position in the plan's product
+    params: dict
+    config: object  # TrialConfig
+    table: str  # the plan's name (the output subdirectory)
+
+    def describe(self) -> str:
+        """One line: index, ID and the swept parameters."""
+        shown = " ".join(f"{k}={_show(v)}" for k, v in self.params.items() if v is not None)
+        return f"{self.index:4d} {self.id}  {shown}"
+
+
+@dataclass(frozen=True)
+class Plan:
+    name: str
+    description: str
+    source: str
+    defaults: dict
+    sweep: dict  # key -> list of values, in file order
+    trials: tuple[PlanTrial, ...]
+
+
+def _show(v) -> str:
+    return f"{v:g}" if isinstance(v, float) else str(v)
+
+
+def trial_id(params: dict) -> str:
+    """A stable ID from the trial's parameters: ``t`` + 10 hex digits of their SHA-256."""
+    canon = json.dumps({k: params[k] for k in sorted(params)}, sort_keys=True, separators=(",", ":"))
+    return "t" + hashlib.sha256(canon.encode()).hexdigest()[:10]
+
+
+def bundled_plans() -> list[str]:
+    """Names of the example plans shipped in droid/sim/experiment/plans/."""
+    return sorted(p.stem for p in PLAN_DIR.glob("*.toml"))
+
+
+def resolve_plan_path(spec: str) -> Path:
+    """A plan by path, or by the name of a bundled example plan."""
+    path = Path(spec)
+    if path.is_file():
+        return path
+    if os.sep not in spec and not spec.endswith(".toml") and (PLAN_DIR / f"{spec}.toml").is_file():
+        return PLAN_DIR / f"{spec}.toml"
+    raise BadInput(f"plan file not found: {spec} (bundled plans: {', '.join(bundled_plans())})")
+
+
+def _trial_config_fields() -> set[str]:
+    from droid.sim.experiment.trial import TrialConfig
+
+    return {f.name for f in fields(TrialConfig)}
+
+
+class _Checker:
+    """Type and range checks of one plan's values; each failure names plan, key and value."""
+
+    def __init__(self, source: str, plan_dir: Path) -> None:
+        from droid.sim.experiment.sensors import SENSOR_MODELS
+        from droid.sim.experiment.trial import ARM_MODELS
+        from droid.tasks.seam.layout import load_layout
+
+        self.source = source
+        self.plan_dir = plan_dir
+        self.layout = load_layout()
+        self.arms = ARM_MODELS
+        self.sensors = SENSOR_MODELS
+        self._workpieces: dict[str, str] = {}
+
+    def bad(self, where: str, key: str, value, why: str) -> BadInput:
+        return BadInput(f"plan {self.source}: {where}{key} = {_toml(value)}: {why}")
+
+    def check(self, where: str, key: str, value):
+        """The value, normalised (ints of float keys become floats; workpiece paths resolved)."""
+        def is_num(v) -> bool:
+            return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+        def is_int(v) -> bool:
+            return isinstance(v, int) and not isinstance(v, bool)
+
+        def choice(options) -> str:
+            if not isinstance(value, str):
+                raise self.bad(where, key, value, "must be a string")
+            if value not in options:
+                raise self.bad(where, key, value, f"unknown (known: {', '.join(options)})")
+            return value
+
+        if key in ("speed_mm_s", "length_mm"):
+            if not is_num(value):
+                raise self.bad(where, key, value, "must be a finite number")
+            if value <= 0:
+                raise self.bad(where, key, value, "must be > 0")
+            return float(value)
+        if key in ("yaw_gain", "pitch_gain", "delay_at_mm"):
+            if not is_num(value):
+                raise self.bad(where, key, value, "must be a finite number")
+            if key == "delay_at_mm" and value < 0:
+                raise self.bad(where, key, value, "must be >= 0")
+            return float(value)
+        if key in ("delay_cycles", "seed"):
+            if not is_int(value):
+                raise self.bad(where, key, value, "must be an integer")
+            if value < 0 or value >= 2 ** 31:
+                raise self.bad(where, key, value, "must be within [0, 2**31)")
+            return int(value)
+        if key == "position":
+            return choice(list(self.layout.positions))
+        if key == "wrist":
+            return choice(sorted(self.layout.wrists))
+        if key == "arm":
+            return choice(self.arms)
+        if key == "sensor":
+            return choice(self.sensors)
+        if key == "mode":
+            if not isinstance(value, str) or not value:
+                raise self.bad(where, key, value, "must be a non-empty string")
+            if "mode" not in _trial_config_fields():
+                raise self.bad(where, key, value, "this droid's TrialConfig has no tracking mode "
+                                                  "(a newer droid-experiment is needed)")
+            return value
+        if key == "workpiece":
+            if not isinstance(value, str) or not value:
+                raise self.bad(where, key, value, "must be a bundled workpiece name or a path")
+            return self.workpiece(where, value)
+        raise AssertionError(key)
+
+    def resolved(self, value: str | None) -> str | None:
+        """The spec load_workpiece takes for a checked workpiece value (a path made absolute)."""
+        return None if value is None else self._workpieces[value]
+
+    def workpiece(self, where: str, value: str) -> str:
+        """Check a workpiece (a bundled name, or a path relative to the plan) by loading it.
+
+        Returns the value as written (the trial's parameter, hashed into its
+        ID); :meth:`resolved` gives the spec the trial loads."""
+        if value in self._workpieces:
+            return value
+        from droid.sim.workpiece import WORKPIECE_DIR, load_workpiece
+
+        is_path = os.sep in value or value.endswith(".toml")
+        if is_path:
+            path = Path(value) if os.path.isabs(value) else self.plan_dir / value
+            if not path.is_file():
+                raise self.bad(where, "workpiece", value, f"file not found ({path})")
+            spec = str(path.resolve())
+        else:
+            if not (WORKPIECE_DIR / f"{value}.toml").is_file():
+                from droid.sim.workpiece import bundled_workpieces
+
+                raise self.bad(where, "workpiece", value,
+                               f"no such bundled workpiece (bundled: {', '.join(bundled_workpieces())})")
+            spec = value
+        try:
+            load_workpiece(spec)
+        except BadInput as exc:
+            raise self.bad(where, "workpiece", value, str(exc)) from None
+        self._workpieces[value] = spec
+        return value
+
+
+def _toml(value) -> str:
+    """A value as the plan wrote it (TOML-ish: strings quoted, lists bracketed)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return json.dumps(value)
+    if isinstance(value, list):
+        return "[" + ", ".join(_toml(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{...}"
+    return str(value)
+
+
+def load_plan(spec: str | os.PathLike) -> Plan:
+    """Read and validate a plan (a path or a bundled plan's name); BadInput names plan, key and value."""
+    path = resolve_plan_path(os.fspath(spec))
+    source = str(path)
+    try:
+        with open(path, "rb") as f:
+            data = tomllib.load(f)
+    except tomllib.TOMLDecodeError as exc:
+        raise BadInput(f"plan {source}: not valid TOML: {exc}") from None
+    except OSError as exc:
+        raise BadInput(f"plan {source}: {exc.strerror}") from None
+    return plan_from_dict(data, source, path.resolve().parent)
+
+
+def plan_from_dict(data: dict, source: str = "<plan>", plan_dir: Path | None = None) -> Plan:
+    """Validate a parsed plan and expand its trials (see the module docstring)."""
+    def bad(msg: str) -> BadInput:
+        return BadInput(f"plan {source}: {msg}")
+
+    for key in data:
+        if key not in _TOP_KEYS:
+            raise bad(f"{key} = {_toml(data[key])}: unknown key (expected one of {', '.join(_TOP_KEYS)})")
+    name = data.get("name")
+    if not isinstance(name, str) or not _NAME.fullmatch(name):
+        raise bad(f"name = {_toml(name) if name is not None else '(missing)'}: needs a name of letters, "
+                  "digits, _ . - (the output directory)")
+    description = data.get("description", "")
+    if not isinstance(description, str):
+        raise bad(f"description = {_toml(description)}: must be a string")
+    defaults_raw = data.get("defaults", {})
+    sweep_raw = data.get("sweep", {})
+    for table, raw in (("defaults", defaults_raw), ("sweep", sweep_raw)):
+        if not isinstance(raw, dict):
+            raise bad(f"{table} = {_toml(raw)}: must be a table [{table}]")
+    checker = _Checker(source, plan_dir or Path.cwd())
+    defaults: dict = {}
+    for key, value in defaults_raw.items():
+        if key not in FIELDS:
+            raise bad(f"[defaults] {key} = {_toml(value)}: unknown key (expected one of {', '.join(FIELDS)})")
+        defaults[key] = checker.check("[defaults] ", key, value)
+    sweep: dict = {}
+    for key, values in sweep_raw.items():
+        if key not in FIELDS:
+            raise bad(f"[sweep] {key} = {_toml(values)}: unknown key (expected one of {', '.join(FIELDS)})")
+        if key in defaults:
+            raise bad(f"[sweep] {key} = {_toml(values)}: also set in [defaults] (give it in one of them)")
+        if not isinstance(values, list):
+            raise bad(f"[sweep] {key} = {_toml(values)}: must be a list of values")
+        if not values:
+            raise bad(f"[sweep] {key} = []: empty list (give at least one value)")
+        checked = [checker.check("[sweep] ", key, v) for v in values]
+        seen = set()
+        for raw_v, v in zip(values, checked):
+            if v in seen:
+                raise bad(f"[sweep] {key} = {_toml(values)}: {_toml(raw_v)} appears twice")
+            seen.add(v)
+        sweep[key] = checked
+    base = {**BUILTIN_DEFAULTS, **defaults}
+    trials = []
+    ids: set[str] = set()
+    keys = list(sweep)
+    for index, combo in enumerate(itertools.product(*(sweep[k] for k in keys))):
+        params = {**base, **dict(zip(keys, combo))}
+        params = {k: params[k] for k in FIELDS}
+        tid = trial_id(params)
+        if tid in ids:  # a hash collision within one plan: 10 hex digits make this ~1e-9 at 10^3 trials
+            raise bad(f"two trials have the same ID {tid}")
+        ids.add(tid)
+        try:
+            config = trial_config(tid, {**params, "workpiece": checker.resolved(params["workpiece"])}, name)
+        except BadInput as exc:  # TrialConfig's own checks (e.g. a mode it does not know)
+            shown = ", ".join(f"{k} = {_toml(params[k])}" for k in keys)
+            raise bad(f"trial {index} ({shown}): {exc}") from None
+        trials.append(PlanTrial(tid, index, params, config, name))
+    return Plan(name, description, source, defaults, sweep, tuple(trials))
+
+
+def trial_config(tid: str, params: dict, plan_name: str = ""):
+    """The TrialConfig of a plan trial (``mode`` passed only when set)."""
+    from droid.sim.experiment.trial import TrialConfig
+
+    kw = {k: v for k, v in params.items() if not (k == "mode" and v is None)}
+    piece = f", {Path(params['workpiece']).stem}" if params.get("workpiece") else ""
+    title = f"{plan_name} {tid}: {_show(params['speed_mm_s'])} mm/s, position {params['position']}{piece}"
+    return TrialConfig(trial_id=tid, title=title, **kw)

@@ -1,0 +1,101 @@
+"""droid-joystick SUBUNIT: read a joystick device into the subunit's Status (thesis §3.4).
+
+The joystick is a subunit of class ``joystick`` like any other (thesis §7:
+"sensors such as the profiling sensor and the joystick controller could be
+used on any of the two robots through the standard interface"): this program
+reads the device named by the subunit's ``device`` URL
+(:mod:`droid.subunits.joystick.driver`) ``rate_hz`` times a second (default
+100) and writes axes, buttons and ``valid`` into its ``ctrl_status`` record;
+``droid-agent`` serves that record to the Brain's ``droid-remote``, which
+copies it into the Brain's Status, where ``droid-snoop`` and ``droid-jog
+--joystick`` read it.  A device that cannot be read sets ``valid = 0``
+(stick centred, buttons released) and the DEVICE fault, and is reopened
+every ``REOPEN_S`` seconds.
+
+Cell file::
+
+    [subunits.joy]
+    class = "joystick"
+    host = "brain"
+    device = "js://{run}/joy.js"      # or js:///dev/input/js0, evdev:///dev/input/event3
+    rate_hz = 100.0
+    programs = ["droid-joystick", "droid-agent"]
+"""
+from __future__ import annotations
+
+import sys
+import time
+
+
+from droid.brain.databases import open_local
+from droid.brain.layouts import FAULT_DEVICE
+from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
+from droid.brain.rt import PeriodicTimer
+from droid.cli import BadInput, run
+from droid.subunits.joystick.driver import JoystickDevice, open_joystick
+
+PROG = "droid-joystick"
+DEFAULT_RATE_HZ = 100.0
+REOPEN_S = 0.5
+
+
+def joystick_options(sub) -> tuple[str, float]:
+    """(device URL, rate [Hz]) of a joystick subunit; BadInput names the key."""
+    where = f"[subunits.{sub.name}]"
+    if sub.cls != "joystick":
+        raise BadInput(f"{sub.name} is a {sub.cls} subunit, not a joystick")
+    url = sub.options.get("device")
+    if not isinstance(url, str) or not url:
+        raise BadInput(f"{where} a joystick needs 'device' (e.g. \"js:///dev/input/js0\")")
+    rate = sub.options.get("rate_hz", DEFAULT_RATE_HZ)
+    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not 1.0 <= rate <= 1000.0:
+        raise BadInput(f"{where} rate_hz must be a number in [1, 1000] Hz")
+    return url, float(rate)
+
+
+def record_fields(dev: JoystickDevice) -> dict:
+    """The ctrl_status fields of the device's state now."""
+    st = dev.state
+    return dict(axes=st.axes, buttons=st.buttons, valid=int(st.valid), events=st.events & 0xFFFFFFFF,
+                n_axes=st.n_axes, n_buttons=st.n_buttons, fault=0 if st.valid else FAULT_DEVICE,
+                updated_ns=time.monotonic_ns())
+
+
+@run
+def main(argv=None) -> int:
+    args, cell, sub = subunit_program(PROG, "Read a joystick device into its subunit's Status.", argv)
+    url, rate = joystick_options(sub)
+    dev = open_joystick(url)
+    status = open_local(cell, sub, "ctrl_status")
+    presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
+    timer = PeriodicTimer(int(round(1e9 / rate)))
+    reopen_every = max(1, int(REOPEN_S * rate))
+    cycles = 0
+    try:
+        dev.poll()
+        if dev.fd < 0:
+            print(f"{PROG}: {dev.last_error}; retrying every {REOPEN_S:g} s", file=sys.stderr, flush=True)
+        status.update(**record_fields(dev))
+        presence.ready()
+        notify_ready(args.ready_fd)
+        while not Stop.requested:
+            if not timer.wait(0.5):
+                continue
+            cycles += 1
+            was_open = dev.fd >= 0
+            if was_open or cycles % reopen_every == 0:
+                dev.poll()
+            if was_open and dev.fd < 0:
+                print(f"{PROG}: {dev.last_error}; reopening", file=sys.stderr, flush=True)
+            status.update(**record_fields(dev))
+            presence.beat(0, cycles, timer.overruns, timer.lateness_max_ns)
+    finally:
+        dev.close()
+        timer.close()
+        status.close()
+        presence.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,241 @@
+"""One seam-tracking cycle for real time and lockstep (issue 12 item 1; thesis §5.5, Figure 5.9).
+
+Everything the seam-tracking program does around the core, apart from I/O,
+lives here and is called unchanged by ``droid-seamtrack`` (the real-time
+shell, droid/tasks/seamtrack.py) and by the lockstep trial
+(droid/sim/experiment/trial.py):
+
+* **cycle counting** from the cell's ``heartbeat_hz``: one 30 Hz tracking
+  cycle every ``heartbeat_hz / 30`` ticks, one 10 Hz log row every
+  ``heartbeat_hz / 10`` ticks (§6.1).  A heartbeat that is not a whole
+  multiple of the two rates cannot serve them: :func:`cycle_ticks_for`
+  refuses it (``ValueError``; the shells turn it into exit 2) rather than
+  running at another rate than the one the gains and the speed assume;
+* **the pose histories**: the Reis and the GMF1 Status poses of every tick,
+  stored under their Status's own tick (:class:`PoseHistory`);
+* **associating a reading with a pose**: a lead reading that reached the
+  Status at tick m was taken at ``m - SENSOR_LAG_TICKS`` (or at its own
+  capture stamp, when the sensor line carries one); a Status pose of tick n
+  shows the arm at ``n - STATUS_AGE_TICKS``.  The reading is placed with both
+  robots' poses interpolated at its capture instant (eq. 5.3 places the
+  reading with the camera pose of its own instant).  A reading whose instant
+  lies outside the history, or in the future, is dropped and counted
+  (``TrackingCycle.dropped``);
+* **elapsed cycles** between two Status poses (a late Status spans more than
+  one cycle: the runaway guard scales with it);
+* the core: :class:`droid.tasks.seam.core.SeamTracker` (modes ``thesis`` and
+  ``listing``) or :class:`droid.tasks.seam.plus.PlusTracker` (mode ``plus``).
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import replace
+import numpy as np
+
+from droid.tasks.seam.core import MODE_PLUS, CycleOutput, SeamParams, SeamTracker
+from droid.tasks.seam.delay import INVALID_READING, Reading
+
+#: The 10 Hz log of §6.1 [Hz].
+LOG_HZ = 10.0
+#: A lead reading that reaches the Brain's Status at tick m left the camera about a tick
+#: earlier (the MVS program, 20 characters at 19200 baud, the remote's tick; docs/mvs.md).
+SENSOR_LAG_TICKS = 1
+#: The Reis Status of tick n holds the servo's 125 Hz encoder sample before n - 1/2 tick
+#: (the servo agent copies it half a tick before the heartbeat, docs/reis.md): on average
+#: the arm at n - 0.5 tick - 4 ms, 0.74 tick at 60 Hz.
+STATUS_AGE_TICKS = 0.75
+#: Pose history [ticks]: a 16-cycle transport delay plus an 8-cycle constant latency and margin.
+POSE_HISTORY_TICKS = 128
+
+
+def cycle_ticks_for(heartbeat_hz: float, rate_hz: float) -> int:
+    """Heartbeat ticks per period of ``rate_hz``; refuses a heartbeat that cannot serve it."""
+    if not (isinstance(heartbeat_hz, (int, float)) and math.isfinite(heartbeat_hz) and heartbeat_hz > 0):
+        raise ValueError(f"heartbeat must be a positive rate, got {heartbeat_hz!r} Hz")
+    ratio = heartbeat_hz / rate_hz
+    n = int(round(ratio))
+    if n < 1 or abs(ratio - n) > 1e-6 * max(1.0, ratio):
+        raise ValueError(f"a heartbeat of {heartbeat_hz:g} Hz cannot serve the {rate_hz:g} Hz seam-tracking "
+                         f"rate (it must be a whole multiple of {rate_hz:g} Hz, e.g. 60 Hz)")
+    return n
+
+
+def _rot_log(R: np.ndarray) -> np.ndarray:
+    """Rotation vector of a rotation matrix [rad]."""
+    c = max(-1.0, min(1.0, (float(np.trace(R)) - 1.0) / 2.0))
+    a = math.acos(c)
+    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    if a < 1e-9:
+        return w / 2.0
+    return w * (a / (2.0 * math.sin(a)))
+
+
+def _rot_exp(v: np.ndarray) -> np.ndarray:
+    a = float(np.linalg.norm(v))
+    if a < 1e-12:
+        return np.eye(3)
+    k = v / a
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + math.sin(a) * K + (1.0 - math.cos(a)) * (K @ K)
+
+
+def interpolate_pose(T0: np.ndarray, T1: np.ndarray, u: float) -> np.ndarray:
+    """The pose a fraction ``u`` (0..1) of the way from ``T0`` to ``T1`` (translation linear,
+    rotation along the geodesic)."""
+    out = np.eye(4)
+    out[:3, 3] = T0[:3, 3] + u * (T1[:3, 3] - T0[:3, 3])
+    out[:3, :3] = T0[:3, :3] @ _rot_exp(u * _rot_log(T0[:3, :3].T @ T1[:3, :3]))
+    return out
+
+
+class PoseHistory:
+    """Poses stamped with their time [ticks, may be fractional], oldest first, ``span`` ticks kept."""
+
+    def __init__(self, span_ticks: float = POSE_HISTORY_TICKS) -> None:
+        self.span = float(span_ticks)
+        self._items: deque[tuple[float, np.ndarray]] = deque()
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def add(self, t: float, T) -> None:
+        """Remember ``T`` at time ``t``; a time not after the newest replaces nothing (ignored)."""
+        t = float(t)
+        if self._items and t <= self._items[-1][0]:
+            return
+        self._items.append((t, np.asarray(T, float).copy()))
+        while self._items and self._items[0][0] < t - self.span:
+            self._items.popleft()
+
+    @property
+    def newest(self) -> tuple[float, np.ndarray] | None:
+        return self._items[-1] if self._items else None
+
+    def at(self, t: float) -> np.ndarray | None:
+        """The pose at time ``t``, interpolated between its neighbours; None when ``t`` lies
+        before the oldest or after the newest entry (no extrapolation)."""
+        items = self._items
+        if not items or t < items[0][0] or t > items[-1][0]:
+            return None
+        for i in range(len(items) - 1, -1, -1):
+            ti, Ti = items[i]
+            if ti <= t:
+                if ti == t or i == len(items) - 1:
+                    return Ti.copy()
+                tj, Tj = items[i + 1]
+                return interpolate_pose(Ti, Tj, (t - ti) / (tj - ti))
+        return None
+
+
+class TrackingCycle:
+    """The tracking cycle of both shells (see the module docstring).
+
+    Per heartbeat tick the shell calls :meth:`remember` with the Status poses
+    (and their Status ticks); when :meth:`due` says so it calls :meth:`step`
+    and writes the command it returns for ``cycle_ticks`` ticks; when
+    :meth:`log_due` says so it logs a row.
+    """
+
+    def __init__(self, params: SeamParams, T_wcp_tool, T_wcp_sensor, reis_model=None,
+                 heartbeat_hz: float = 60.0, sensor_lag_ticks: float = SENSOR_LAG_TICKS,
+                 status_age_ticks: float = STATUS_AGE_TICKS) -> None:
+        self.heartbeat_hz = float(heartbeat_hz)
+        self.cycle_ticks = cycle_ticks_for(heartbeat_hz, params.cycle_hz)
+        self.log_ticks = cycle_ticks_for(heartbeat_hz, LOG_HZ)
+        self.params = params
+        self.sensor_lag_ticks = float(sensor_lag_ticks)
+        self.status_age_ticks = float(status_age_ticks)
+        if params.mode == MODE_PLUS:
+            from droid.tasks.seam.plus import PlusTracker
+
+            self.core = PlusTracker(params, T_wcp_tool, T_wcp_sensor, reis_model)
+        else:
+            self.core = SeamTracker(params, T_wcp_tool, T_wcp_sensor, reis_model)
+        self.reis_poses = PoseHistory()
+        self.hold_poses = PoseHistory()
+        self.dropped = 0  # readings whose instant lies outside the pose history (or in the future)
+        self._next_cycle: int | None = None
+        self._next_log: int | None = None
+        self._status_tick: int | None = None
+        self.last: CycleOutput | None = None
+
+    @property
+    def camera_to_tcp_mm(self) -> float:
+        return self.core.camera_to_tcp_mm
+
+    @property
+    def stopped(self):
+        return self.core.stopped
+
+    # -- counting ------------------------------------------------------------
+    def due(self, tick: int) -> bool:
+        """A tracking cycle runs at this tick (the first tick asked, then every ``cycle_ticks``;
+        a late wake-up that skipped ticks still steps once)."""
+        if self._next_cycle is None or tick >= self._next_cycle:
+            self._next_cycle = tick + self.cycle_ticks
+            return True
+        return False
+
+    def log_due(self, tick: int) -> bool:
+        """A 10 Hz log row is due at this tick (the first ``log_ticks - 1`` ticks after the first ask)."""
+        if self._next_log is None:
+            self._next_log = tick + self.log_ticks - 1
+        if tick >= self._next_log:
+            self._next_log = tick + self.log_ticks
+            return True
+        return False
+
+    # -- the pose histories ----------------------------------------------------
+    def remember(self, reis_tick: int, T_global_reis6, hold_tick: int | None = None, T_global_hold6=None) -> None:
+        """Keep the Reis (and GMF1) Status poses under the times they show the arm at."""
+        self.reis_poses.add(reis_tick - self.status_age_ticks, T_global_reis6)
+        if T_global_hold6 is not None:
+            self.hold_poses.add((reis_tick if hold_tick is None else hold_tick) - self.status_age_ticks,
+                                T_global_hold6)
+
+    def capture_tick(self, status_tick: int, stamp_tick: float | None = None) -> float:
+        """The instant a reading was taken [ticks]: its own stamp, else its Status tick - the lag."""
+        return float(stamp_tick) if stamp_tick is not None else status_tick - self.sensor_lag_ticks
+
+    def locate(self, reading: Reading):
+        """Both robots' poses (Reis, GMF1; global 4x4) at the instant ``reading.stamp_tick``,
+        or None -- the reading dropped and counted -- when that instant lies in the future or
+        before the history.  A GMF1 without a history: None in its place (the current pose)."""
+        t_c = reading.stamp_tick
+        if t_c is None or not len(self.reis_poses):
+            return (None, None)
+        sensed = self.reis_poses.at(t_c)
+        newest_t, newest_T = self.reis_poses.newest
+        if sensed is None and newest_t < t_c <= newest_t + self.status_age_ticks + 0.5:
+            sensed = newest_T  # newer than the newest Status shows: the newest pose
+        if sensed is None:
+            self.dropped += 1
+            return None
+        hold = None
+        if len(self.hold_poses):
+            hold = self.hold_poses.at(t_c)
+            if hold is None:
+                hold = self.hold_poses.newest[1]
+        return sensed, hold
+
+    # -- one cycle -------------------------------------------------------------
+    def step(self, T_global_hold6, T_global_reis6, reis_tick: int, reading: Reading, reading_status_tick: int,
+             q_reis_deg=None) -> CycleOutput:
+        """One tracking cycle: the reading placed with the poses of its instant, the core stepped."""
+        elapsed = 1.0 if self._status_tick is None else max(1.0, (reis_tick - self._status_tick) / self.cycle_ticks)
+        self._status_tick = reis_tick
+        sensed = sensed_hold = None
+        if reading.valid:
+            reading = replace(reading, stamp_tick=self.capture_tick(reading_status_tick, reading.stamp_tick))
+            if self.params.mode != MODE_PLUS:  # the thesis's cores place the fresh reading now
+                located = self.locate(reading)
+                if located is None:
+                    reading = INVALID_READING
+                else:
+                    sensed, sensed_hold = located
+        out = self.core.step(T_global_hold6, T_global_reis6, reading, q_reis_deg, elapsed_cycles=elapsed,
+                             T_global_reis6_sensed=sensed, T_global_hold6_sensed=sensed_hold,
+                             **({"locate": self.locate} if self.params.mode == MODE_PLUS else {}))
+        self.last = out
+        return out

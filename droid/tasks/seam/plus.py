@@ -1,0 +1,194 @@
+"""Plus mode: a seam-map tracker that holds its speed and its seam (issue 12 item 4).
+
+Not the thesis's algorithm (that is ``thesis``/``listing``, droid.tasks.seam.core);
+it keeps the thesis's frames (eq. 5.1-5.5, 5.10-5.11: the seam in the holder's
+wrist frame, the command through the holder's pose) and replaces the patch by a
+seam map (droid.tasks.seam.seammap).  Per 30 Hz cycle:
+
+1. the tool point in the holder's wrist frame from the Status poses (eq. 5.5,
+   5.10) -- the holder's pose is read every cycle, so a moving holder moves
+   the map with it;
+2. the lead reading, after the transport-delay buffer of §6.2.5, is placed
+   with the Reis and GMF1 poses *of its own capture instant*
+   (``locate``: droid.tasks.seam.cycle) and enters the map.  A delayed or
+   late reading lands where it was taken, so transport delay cannot feed
+   back into the loop (immune by construction); the delay buffer's zero data
+   carry no capture instant and are not measurements: skipped;
+3. the commanded arc length ``s_cmd`` advances at the commanded travel speed
+   -- from rest with the acceleration limit ``SeamParams.accel_mm_s2`` --
+   independent of where the arm is: the tool is *told* to be at the map's
+   point of ``s_cmd`` each cycle (feed-forward of the seam's position,
+   direction and curvature through the map's local fit), so the achieved
+   speed is the commanded one once the arm follows;
+4. the tool frame: x (the tool axis) along the map's surface normal at
+   ``s_cmd`` (normal to the surface, with its roll); z in the surface's
+   tangent plane, toward the map point one CAMERA_TO_TCP chord ahead, so the
+   lead sensor turns about the tool axis as the seam curves and its laser
+   line stays on the seam (on a straight seam that is the seam tangent at the
+   tool point);
+5. integral action on depth: the measured tool point's depth from the map
+   (along the normal, at the tool's own arc length) is integrated and taken
+   off the command, which removes a steady depth error of the arm;
+6. stops: the run length reached (end of seam), the lead sensor invalid for
+   more than ``lost_cycles`` cycles or ``s_cmd`` beyond the map's bridged gap
+   (seam lost), an unreachable command, a runaway (as the thesis modes).
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+
+import numpy as np
+
+from droid.kinematics import RobotModel, Unreachable
+from droid.kinematics.transforms import inv_homo
+from droid.tasks.seam.core import (PHASE_DEAD_ZONE, PHASE_INITIAL, PHASE_TRACKING, RUNAWAY_MIN_MM,
+                                   RUNAWAY_WINDOW, STOP_END, STOP_LOST, STOP_RUNAWAY, STOP_UNREACHABLE,
+                                   CycleOutput, SeamParams, Stop, _seam_transform)
+from droid.tasks.seam.delay import DELAY_OFF, INVALID_READING, Reading, TransportDelay
+from droid.tasks.seam.seammap import SeamMap, chord_point
+
+#: Integral gain on the tool's depth error [1/cycle] (time constant ~0.7 s at 30 Hz).
+DEPTH_KI = 0.05
+#: Largest depth correction the integrator may apply [mm].
+DEPTH_LIMIT_MM = 3.0
+
+
+class PlusTracker:
+    """The plus-mode core; the same ``step`` interface as :class:`SeamTracker` (see the module docstring)."""
+
+    def __init__(self, params: SeamParams, T_wcp_tool, T_wcp_sensor, reis_model: RobotModel | None = None):
+        self.p = params
+        self.T67tool = np.asarray(T_wcp_tool, float)
+        self.Tcamera_6 = np.asarray(T_wcp_sensor, float)
+        self.T67tool_inv = inv_homo(self.T67tool)
+        self.camera_to_tcp_mm = float(np.linalg.norm(self.Tcamera_6[:3, 3] - self.T67tool[:3, 3]))
+        if not self.camera_to_tcp_mm > 0:
+            raise ValueError("the sensor's measuring point coincides with the tool point")
+        self.reis_model = reis_model
+        self.delay = TransportDelay(params.delay_cycles, params.delay_at_mm)
+        self.map = SeamMap(gap_mm=params.gap_mm)
+        self.cycle = 0
+        self.s_cmd = 0.0  # commanded arc length along the map [mm]
+        self.v = 0.0  # commanded travel speed now [mm/s]
+        self.s_tool = 0.0  # the measured tool's arc length [mm]
+        self.depth_bias_mm = 0.0
+        self.travel_mm = 0.0
+        self.last_tool = None
+        self.invalid_run = 0
+        self.q_prev = None
+        self.hold_cmd = None
+        self.stop: Stop | None = None
+        self.recent: deque = deque(maxlen=RUNAWAY_WINDOW)
+        self.used_readings = 0
+
+    @property
+    def stopped(self) -> Stop | None:
+        return self.stop
+
+    def _stop(self, cycle: int, reason: str, detail: str) -> CycleOutput:
+        self.stop = Stop(reason, detail, self.travel_mm, cycle)
+        return self._stopped_output(cycle)
+
+    def _stopped_output(self, cycle: int) -> CycleOutput:
+        return CycleOutput(cycle=cycle, reis_cmd=None, gmf1_cmd=None, stop=self.stop, phase=PHASE_TRACKING,
+                           travel_mm=self.travel_mm, yaw_rad=0.0, pitch_rad=0.0, reading=INVALID_READING,
+                           delay_state=DELAY_OFF, tcp_idx=0, queue_len=self.map.size)
+
+    def step(self, T_global_hold6, T_global_reis6, reading: Reading, q_reis_deg=None, elapsed_cycles: float = 1.0,
+             T_global_reis6_sensed=None, T_global_hold6_sensed=None, locate=None) -> CycleOutput:
+        """One 30 Hz cycle (see the module docstring); ``locate(reading)`` gives the (Reis, GMF1)
+        global poses of the reading's capture instant or None (dropped); without it the sensed
+        poses passed (or the current ones) are used."""
+        cycle = self.cycle
+        self.cycle += 1
+        if self.stop is not None:
+            return self._stopped_output(cycle)
+        T_hold = np.asarray(T_global_hold6, float)
+        hold_inv = inv_homo(T_hold)
+        T_tool_H = hold_inv @ np.asarray(T_global_reis6, float) @ self.T67tool  # eq. 5.10, 5.5
+        tool = T_tool_H[:3, 3].copy()
+        moved = 0.0
+        if self.last_tool is not None:
+            moved = float(np.linalg.norm(tool - self.last_tool))
+            self.travel_mm += moved
+        self.last_tool = tool
+        in_dead_zone = cycle < self.p.dead_zone_cycles
+        if self.p.runaway_factor > 0 and not in_dead_zone:
+            self.recent.append((moved, max(1.0, elapsed_cycles)))
+            total = sum(m for m, _ in self.recent)
+            limit = max(self.p.runaway_factor * self.p.step_mm * sum(e for _, e in self.recent), RUNAWAY_MIN_MM)
+            if total > limit:
+                return self._stop(cycle, STOP_RUNAWAY, f"the tool moved {total:.1f} mm in {len(self.recent)} "
+                                                       f"cycles (limit {limit:.1f} mm)")
+        if self.q_prev is None and q_reis_deg is not None:
+            self.q_prev = np.asarray(q_reis_deg, float)
+        if self.travel_mm >= self.p.length_mm:
+            return self._stop(cycle, STOP_END, f"run length {self.p.length_mm:g} mm reached")
+        if self.map.size == 0:  # the initial straight section: from the tool's start point (§6.1.1)
+            self.map.seed(tool, T_tool_H[:3, 0], T_tool_H[:3, 2])
+            self.T_start_H = T_tool_H.copy()
+            self.hold_cmd = T_hold.copy()
+
+        # -- the reading, placed where it was taken -------------------------------
+        if not reading.valid:
+            reading = INVALID_READING
+        used, delay_state = self.delay.filter(reading, self.travel_mm)
+        if not used.zeroed:
+            if used.valid:
+                located = locate(used) if locate is not None else (T_global_reis6_sensed, T_global_hold6_sensed)
+                if located is not None:
+                    reis_s = np.asarray(T_global_reis6 if located[0] is None else located[0], float)
+                    hold_s_inv = hold_inv if located[1] is None else inv_homo(np.asarray(located[1], float))
+                    frame = hold_s_inv @ reis_s @ self.Tcamera_6 @ _seam_transform(used)  # eq. 5.1/5.3
+                    self.map.add(frame[:3, 3], frame[:3, 0])
+                    self.used_readings += 1
+            if not in_dead_zone:
+                self.invalid_run = 0 if used.valid else self.invalid_run + 1
+                if self.invalid_run > self.p.lost_cycles:
+                    return self._stop(cycle, STOP_LOST, f"lead sensor invalid for {self.invalid_run} cycles")
+
+        # -- travel: the commanded speed, from rest with the acceleration limit -----
+        dt = 1.0 / self.p.cycle_hz
+        if self.map.first_reading_s is not None:  # nothing sensed yet: stand at the start
+            self.v = min(self.p.speed_mm_s, self.v + self.p.accel_mm_s2 * dt)
+        s_next = self.s_cmd + self.v * dt
+        f = self.map.fit(s_next)
+        if f is None:
+            return self._stop(cycle, STOP_LOST, f"no seam mapped within {self.p.gap_mm:g} mm ahead of the tool "
+                                                f"(map ends at {self.map.front_s:.1f} mm)")
+        self.s_cmd = s_next
+
+        # -- integral action on depth (the measured tool against the map) ----------
+        self.s_tool = self.map.project(tool, self.s_tool)
+        ft = self.map.fit(self.s_tool)
+        if ft is not None and not in_dead_zone:
+            e_depth = float((tool - ft.p) @ ft.n)  # + : the tool is below the seam (into the surface)
+            self.depth_bias_mm = float(np.clip(self.depth_bias_mm + DEPTH_KI * e_depth, -DEPTH_LIMIT_MM,
+                                               DEPTH_LIMIT_MM))
+
+        # -- the tool frame: normal to the surface, the sensor aimed at the seam ahead ----
+        x = f.n
+        ahead = chord_point(self.map, f.s_mm, f.p, self.camera_to_tcp_mm)
+        z = (ahead.p - f.p) if ahead is not None else f.t
+        z = z - x * float(z @ x)
+        z = z / max(float(np.linalg.norm(z)), 1e-12)
+        y = np.cross(z, x)
+        T_target = np.eye(4)
+        T_target[:3, 0], T_target[:3, 1], T_target[:3, 2] = x, y, z
+        T_target[:3, 3] = f.p - self.depth_bias_mm * x
+        aim_rad = math.atan2(float(np.cross(f.t, z) @ x), float(f.t @ z))
+        reis_cmd = T_hold @ T_target @ self.T67tool_inv  # eq. 5.11
+        q = None
+        if self.reis_model is not None:
+            try:
+                q = self.reis_model.ik(reis_cmd, self.q_prev if self.q_prev is not None else np.zeros(6))
+            except (Unreachable, ValueError) as exc:
+                return self._stop(cycle, STOP_UNREACHABLE, str(exc))
+            self.q_prev = q
+        first = self.map.first_reading_s
+        phase = PHASE_DEAD_ZONE if in_dead_zone else (
+            PHASE_TRACKING if first is not None and self.s_cmd >= first else PHASE_INITIAL)
+        return CycleOutput(cycle=cycle, reis_cmd=reis_cmd, gmf1_cmd=self.hold_cmd, stop=None, phase=phase,
+                           travel_mm=self.travel_mm, yaw_rad=aim_rad, pitch_rad=0.0, reading=used,
+                           delay_state=delay_state, tcp_idx=0, queue_len=self.map.size, q_reis_deg=q)

@@ -1,0 +1,215 @@
+"""droid-experiment run/list --plan (issue 15): plans, stable IDs, results.csv, --resume, SIGINT, bad input."""
+import csv
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import fields
+
+import pytest
+
+from droid.sim.experiment.cli import main
+from droid.sim.experiment.plan import FIELDS, bundled_plans, load_plan
+from droid.sim.experiment.trial import TrialConfig
+
+PROG = [sys.executable, "-m", "droid.sim.experiment.cli"]
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def run_cli(*args, timeout=600):  # a hang guard only
+    return subprocess.run(PROG + list(args), capture_output=True, text=True, timeout=timeout)
+
+
+def write_plan(path, text):
+    path.write_text(text)
+    return str(path)
+
+
+SMALL = """
+name = "small"
+[defaults]
+position = "i"
+length_mm = 160
+sensor = "ideal"
+[sweep]
+speed_mm_s = [16, 32]
+delay_cycles = [0, 3]
+"""
+
+
+def read_results(path):
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_bundled_plans_load_and_sweep200_has_200_trials():
+    assert {"gains_delays", "sweep200"} <= set(bundled_plans())
+    plan = load_plan("sweep200")
+    assert len(plan.trials) == 200
+    assert len({t.id for t in plan.trials}) == 200
+    for name in bundled_plans():
+        assert load_plan(name).trials
+
+
+def test_list_prints_every_trial_with_stable_ids(tmp_path, capsys):
+    plan = write_plan(tmp_path / "p.toml", SMALL)
+    assert main(["list", "--plan", plan]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("# small: 4 trial(s)")
+    assert len(lines) == 5
+    assert "speed_mm_s=16" in lines[1] and "delay_cycles=0" in lines[1]
+    assert "speed_mm_s=32" in lines[4] and "delay_cycles=3" in lines[4]  # the last key varies fastest
+    ids = [ln.split()[1] for ln in lines[1:]]
+    # a trial's ID depends on its parameters only: sweeping one more speed keeps the others' IDs
+    more = write_plan(tmp_path / "q.toml", SMALL.replace("[16, 32]", "[16, 24, 32]"))
+    again = {t.id for t in load_plan(more).trials}
+    assert set(ids) <= again and len(again) == 6
+
+
+def test_plan_run_writes_trial_files_and_a_tidy_results_table(tmp_path):
+    plan = write_plan(tmp_path / "p.toml", SMALL)
+    out = tmp_path / "out"
+    p = run_cli("run", "--plan", plan, "--out", str(out), "--jobs", "2")
+    assert p.returncode == 0, p.stderr
+    d = out / "small"
+    rows = read_results(d / "results.csv")
+    assert [r["index"] for r in rows] == ["0", "1", "2", "3"]
+    assert list(rows[0])[:2 + len(FIELDS)] == ["index", "trial_id", *FIELDS]
+    for r in rows:
+        tid = r["trial_id"]
+        assert (d / f"{tid}.csv").is_file() and (d / f"{tid}.json").is_file()
+        assert (d / f"{tid}.png").read_bytes()[:8] == PNG_MAGIC
+        assert r["stop_reason"] == "end of seam" and r["error"] == ""
+        assert 150 <= float(r["stop_s_mm"]) <= 175
+        assert float(r["rms_lateral_mm"]) >= 0
+        assert tid in p.stdout  # a summary line per trial
+    assert {(r["speed_mm_s"], r["delay_cycles"]) for r in rows} == {("16.0", "0"), ("16.0", "3"),
+                                                                       ("32.0", "0"), ("32.0", "3")}
+    # the same plan again gives the same table, value for value (lockstep, seeded)
+    p2 = run_cli("run", "--plan", plan, "--out", str(tmp_path / "again"), "--no-figures")
+    assert p2.returncode == 0, p2.stderr
+    assert (tmp_path / "again" / "small" / "results.csv").read_text() == (d / "results.csv").read_text()
+
+
+def test_resume_skips_trials_whose_results_exist(tmp_path):
+    plan = write_plan(tmp_path / "p.toml", SMALL)
+    out = tmp_path / "out"
+    assert run_cli("run", "--plan", plan, "--out", str(out), "--no-figures").returncode == 0
+    d = out / "small"
+    full = (d / "results.csv").read_text()
+    first = read_results(d / "results.csv")[1]["trial_id"]
+    os.unlink(d / f"{first}.json")
+    stamp = {p.name: p.stat().st_mtime_ns for p in d.glob("*.json")}
+    p = run_cli("run", "--plan", plan, "--out", str(out), "--no-figures", "--resume")
+    assert p.returncode == 0, p.stderr
+    assert "3 of 4 trial(s) have results; running 1" in p.stderr
+    assert [ln.split(":")[0] for ln in p.stdout.splitlines()] == [first]
+    assert {n: d.joinpath(n).stat().st_mtime_ns for n in stamp} == stamp  # the others untouched
+    assert (d / "results.csv").read_text() == full
+
+
+def test_sigint_then_resume_gives_the_uninterrupted_results(tmp_path):
+    """Ctrl-C mid-sweep: exit 130, no worker left, results.csv so far; --resume completes it
+    to exactly the table of one uninterrupted run."""
+    text = SMALL.replace('sensor = "ideal"', 'sensor = "camera"').replace(
+        "[16, 32]", "[8, 12, 16, 24, 32]").replace("[0, 3]", "[0, 1, 2, 3]")  # 20 trials, ~0.5 s each
+    plan = write_plan(tmp_path / "p.toml", text)
+    ref = tmp_path / "ref"
+    assert run_cli("run", "--plan", plan, "--out", str(ref), "--no-figures", "--jobs", "2").returncode == 0
+    out = tmp_path / "out"
+    proc = subprocess.Popen(PROG + ["run", "--plan", plan, "--out", str(out), "--no-figures", "--jobs", "2"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    d = out / "small"
+    deadline = time.monotonic() + 300
+    while len(list(d.glob("*.json"))) < 2 and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.01)
+    os.killpg(proc.pid, signal.SIGINT)  # as a terminal's Ctrl-C: the whole process group
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    done = len(list(d.glob("*.json")))
+    assert 2 <= done < 20, "the run ended before the interrupt: nothing was tested"
+    partial = read_results(d / "results.csv")
+    assert sum(r["error"] == "" for r in partial) == done
+    p = run_cli("run", "--plan", plan, "--out", str(out), "--no-figures", "--jobs", "2", "--resume")
+    assert p.returncode == 0, p.stderr
+    assert f"{done} of 20 trial(s) have results" in p.stderr
+    assert (d / "results.csv").read_text() == (ref / "small" / "results.csv").read_text()
+
+
+def test_a_trial_that_cannot_run_exits_1_and_is_listed(tmp_path):
+    plan = write_plan(tmp_path / "p.toml", """
+name = "reach"
+[defaults]
+length_mm = 120
+speed_mm_s = 32
+position = "iii"
+[sweep]
+wrist = ["standard", "extension30"]
+""")
+    p = run_cli("run", "--plan", plan, "--out", str(tmp_path / "o"), "--no-figures")
+    assert p.returncode == 1, p.stderr
+    assert "the arm1 cannot reach the start" in p.stderr and "j5" in p.stderr and "max 135 deg" in p.stderr
+    rows = read_results(tmp_path / "o" / "reach" / "results.csv")
+    assert rows[0]["error"] == "" and rows[1]["error"].startswith("error: position iii: the arm1 cannot reach")
+
+
+@pytest.mark.parametrize("body, key, value", [
+    ('name = "x"\ncolour = "red"\n', "colour", '"red"'),
+    ('name = "x"\n[sweep]\nspeed = [1, 2]\n', "speed", "[1, 2]"),
+    ('name = "x"\n[sweep]\nspeed_mm_s = []\n', "speed_mm_s", "[]"),
+    ('name = "x"\n[sweep]\nspeed_mm_s = 16\n', "speed_mm_s", "16"),
+    ('name = "x"\n[sweep]\nspeed_mm_s = [16, "fast"]\n', "speed_mm_s", '"fast"'),
+    ('name = "x"\n[sweep]\nspeed_mm_s = [-4]\n', "speed_mm_s", "-4"),
+    ('name = "x"\n[sweep]\ndelay_cycles = [1.5]\n', "delay_cycles", "1.5"),
+    ('name = "x"\n[sweep]\nseed = [true]\n', "seed", "true"),
+    ('name = "x"\n[defaults]\nposition = "ix"\n', "position", '"ix"'),
+    ('name = "x"\n[defaults]\nsensor = "laser"\n', "sensor", '"laser"'),
+    ('name = "x"\n[defaults]\nyaw_gain = nan\n', "yaw_gain", "nan"),
+    ('name = "x"\n[sweep]\nworkpiece = ["no_such_piece"]\n', "workpiece", '"no_such_piece"'),
+    ('name = "x"\n[sweep]\nworkpiece = ["missing/piece.toml"]\n', "workpiece", '"missing/piece.toml"'),
+    ('name = "x"\n[defaults]\nspeed_mm_s = 8\n[sweep]\nspeed_mm_s = [16]\n', "speed_mm_s", "[16]"),
+    ('name = "x y"\n', "name", '"x y"'),
+    ('name = "x"\n[sweep\n', "", ""),
+])
+def test_bad_plans_exit_2_with_one_line_naming_plan_key_and_value(tmp_path, capsys, body, key, value):
+    plan = write_plan(tmp_path / "bad.toml", body)
+    out = tmp_path / "out"
+    assert main(["run", "--plan", plan, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1, err
+    assert plan in err and key in err and value in err, err
+    assert not out.exists()  # nothing run, nothing written
+    assert main(["list", "--plan", plan]) == 2
+
+
+def test_missing_plan_and_flags_that_do_not_apply_exit_2(tmp_path, capsys):
+    assert main(["run", "--plan", str(tmp_path / "nope.toml")]) == 2
+    assert "plan file not found" in capsys.readouterr().err
+    plan = write_plan(tmp_path / "p.toml", SMALL)
+    for extra in (["--seed", "3"], ["--sensor", "camera"], ["1.1"], ["--dask", "not an address"]):
+        assert main(["run", "--plan", plan, "--out", str(tmp_path / "o")] + extra) == 2
+        assert len(capsys.readouterr().err.strip().splitlines()) == 1
+    assert main(["run", "1.1", "--resume", "--out", str(tmp_path / "o")]) == 2
+
+
+def test_mode_is_passed_through_or_refused(tmp_path, capsys):
+    plan = write_plan(tmp_path / "p.toml", 'name = "m"\n[sweep]\nmode = ["thesis"]\n')
+    if "mode" in {f.name for f in fields(TrialConfig)}:
+        trial = load_plan(plan).trials[0]
+        assert trial.config.mode == "thesis" and trial.params["mode"] == "thesis"
+    else:
+        assert main(["list", "--plan", plan]) == 2
+        err = capsys.readouterr().err
+        assert "mode" in err and "no tracking mode" in err and plan in err
+
+
+def test_a_workpiece_path_is_relative_to_the_plan(tmp_path):
+    src = os.path.join(os.path.dirname(load_plan.__code__.co_filename), "..", "workpieces", "step_input.toml")
+    (tmp_path / "pieces").mkdir()
+    (tmp_path / "pieces" / "mine.toml").write_text(open(src).read().replace('name = "step_input"',
+                                                                             'name = "mine"'))
+    plan = write_plan(tmp_path / "p.toml", 'name = "w"\n[sweep]\nworkpiece = ["pieces/mine.toml"]\n')
+    t = load_plan(plan).trials[0]
+    assert t.params["workpiece"] == "pieces/mine.toml"
+    assert t.config.workpiece == str((tmp_path / "pieces" / "mine.toml").resolve())
