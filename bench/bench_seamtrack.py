@@ -14,7 +14,7 @@ processes (the matrix figure: total simulated seconds per wall second).
 
 Timing is measured here, never in tests: the machine is shared, so the
 figures depend on its load (see docs/benchmarks.md).  Usage:
-PYTHONPATH=. python bench/bench_seamtrack.py [--speeds 4,16,64] [--positions i,iii,vii]
+PYTHONPATH=. python bench/bench_seamtrack.py [--speeds 4,16,64] [--positions i,iii,vii] [--arm fast|full]
 [--sensors camera,ideal] [--seed N] [--stages] [--jobs N] [--json]
 """
 from __future__ import annotations
@@ -62,18 +62,18 @@ def _workpiece(position: str) -> str:
 
 def one_trial(job: tuple) -> dict:
     """Run one configuration (position, speed [mm/s], sensor, seed, stages?) and return its figures."""
-    position, speed, sensor, seed, stages = job
+    position, speed, sensor, seed, stages, arm = job
     acc: dict = defaultdict(float)
     if stages:
         _install_stage_timers(acc)
     cfg = trial.TrialConfig(f"{position}-{speed:g}-{sensor}", position, speed, workpiece=_workpiece(position),
-                            sensor=sensor, seed=seed)
+                            sensor=sensor, seed=seed, arm=arm)
     r = trial.run_trial(cfg)
     s = r.column("s_mm")
     after = s > AFTER_MM
     lat, dep = r.column("tool_lateral_mm")[after], r.column("tool_depth_mm")[after]
     rms = (lambda v: float(np.sqrt(np.nanmean(v ** 2))) if np.isfinite(v).any() else math.nan)
-    return {"position": position, "speed_mm_s": speed, "sensor": sensor, "seed": seed,
+    return {"position": position, "speed_mm_s": speed, "sensor": sensor, "seed": seed, "arm": arm,
             "sim_s": round(r.sim_s, 3), "wall_s": round(r.wall_s, 4), "speedup_x": round(r.speedup, 1),
             "stop": r.stop_reason, "rms_lateral_mm": round(rms(lat), 4), "rms_depth_mm": round(rms(dep), 5),
             "stages_s": {k: round(v, 4) for k, v in acc.items()}}
@@ -93,11 +93,13 @@ def main(argv=None) -> int:
     parser.add_argument("--positions", default="i,iii,vii", help="start positions, comma-separated")
     parser.add_argument("--sensors", default="camera,ideal", help="lead sensor models, comma-separated")
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--arm", choices=trial.ARM_MODELS, default="fast",
+                        help="Reis model: fast (analytic servo) or full (every core + the Pinocchio plant)")
     parser.add_argument("--stages", action="store_true", help="time the stages too (slightly slower)")
     parser.add_argument("--jobs", type=positive_int, default=1, help="processes to run the trials on")
     parser.add_argument("--json", action="store_true", help="one JSON object a trial, then a summary")
     args = parser.parse_args(argv)
-    jobs = [(p, v, s, args.seed, args.stages) for s in _csv(args.sensors, str, "sensors")
+    jobs = [(p, v, s, args.seed, args.stages, args.arm) for s in _csv(args.sensors, str, "sensors")
             for p in _csv(args.positions, str, "positions") for v in _csv(args.speeds, float, "speeds")]
     for p in {j[0] for j in jobs}:
         load_layout().position(p)  # a bad position fails before any trial runs

@@ -46,6 +46,12 @@ class Gearing:
     direction: np.ndarray  # (6,) +1/-1
     coupling: np.ndarray  # (6, 6)
     encoder_bits: int = 16
+    encoder_counts_per_rev: object = 4000.0  # (6,) motor encoder counts per motor revolution
+
+    @property
+    def reduction(self) -> np.ndarray:
+        """Gear ratios (motor revolutions per joint revolution), (6,)."""
+        return self.counts_per_deg * 360.0 / self.encoder_counts_per_rev
 
     def __post_init__(self) -> None:
         cpd = np.asarray(self.counts_per_deg, float)
@@ -65,6 +71,10 @@ class Gearing:
         object.__setattr__(self, "direction", _readonly(direc.copy()))
         object.__setattr__(self, "coupling", _readonly(coup.copy()))
         object.__setattr__(self, "encoder_bits", int(self.encoder_bits))
+        cpr = np.broadcast_to(np.asarray(self.encoder_counts_per_rev, float), (6,)).copy()
+        if not np.all(np.isfinite(cpr)) or np.any(cpr <= 0):
+            raise ValueError("gearing: encoder_counts_per_rev must be > 0")
+        object.__setattr__(self, "encoder_counts_per_rev", _readonly(cpr))
 
     @classmethod
     def from_table(cls, table: dict) -> "Gearing":
@@ -92,6 +102,7 @@ class Gearing:
             direction=direction,
             coupling=coupling,
             encoder_bits=int(table.get("encoder_bits", 16)),
+            encoder_counts_per_rev=cpr,
         )
 
     @cached_property

@@ -78,6 +78,8 @@ class RobotModel:
     dh: DhTable | None = None
     base: np.ndarray = field(default_factory=lambda: np.eye(4))
     source: str = ""
+    dynamics: object = None  # droid.kinematics.dynamics.Dynamics, or None (no [dynamics] table)
+    servo_gains: object = None  # droid.kinematics.dynamics.ServoGains, or None (no [servo] table)
 
     def __post_init__(self) -> None:
         for name in ("joint_min_deg", "joint_max_deg", "home_switch_deg", "vmax_deg_s", "weights"):

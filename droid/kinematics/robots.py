@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from .dh import DhTable, fk_dh
+from .dynamics import dynamics_from_table, servo_from_table
 from .gearing import Gearing
 from .model import RobotModel
 from .opw import OpwParams
@@ -31,7 +32,8 @@ DH_CHECK_TOL = 1e-6
 #: joint vectors used for the check (seeded, plus the zero pose).
 DH_CHECK_SAMPLES = 32
 
-_TOP_KEYS = {"name", "description", "assumed", "source", "dh", "opw", "gearing", "limits", "home", "planner"}
+_TOP_KEYS = {"name", "description", "assumed", "source", "dh", "opw", "gearing", "limits", "home", "planner",
+             "servo", "dynamics"}
 _KEYS = {
     "dh": {"convention", "theta_offset_deg", "d_mm", "a_mm", "alpha_deg"},
     "opw": {"a1_mm", "a2_mm", "b_mm", "c1_mm", "c2_mm", "c3_mm", "c4_mm", "offsets_deg", "signs"},
@@ -50,7 +52,8 @@ _REQUIRED = {
 
 
 class RobotFileError(ValueError):
-    """A robot name that is not bundled, or a robot file that is missing or malformed."""
+    """A robot name that is not bundled, or a robot file that is missing or malformed
+    (programs turn it into a :class:`droid.cli.BadInput`: exit 2 with the message)."""
 
 
 def list_robots() -> list[str]:
@@ -195,6 +198,8 @@ def model_from_dict(data: dict, source: str = "") -> RobotModel:
 
     home = _table(data, "home")
     planner = _table(data, "planner")
+    dynamics = dynamics_from_table(data["dynamics"]) if "dynamics" in data else None
+    servo = servo_from_table(data["servo"]) if "servo" in data else None
     return RobotModel(
         name=name,
         description=description,
@@ -211,6 +216,8 @@ def model_from_dict(data: dict, source: str = "") -> RobotModel:
         weights=_six("planner", "weights", planner["weights"]),
         dh=dh,
         source=source,
+        dynamics=dynamics,
+        servo_gains=servo,
     )
 
 

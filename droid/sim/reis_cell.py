@@ -8,7 +8,7 @@ shared memory and ZeroMQ:
 ====================  ========  ============================================
 core                  rate      process it stands for
 ====================  ========  ============================================
-ReisPlant             2 kHz     droid-sim (the robot behind the VME map)
+ReisPlant             500 Hz    droid-sim (the robot behind the VME map; 4 substeps of 0.5 ms)
 WatchdogCore          50 Hz     droid-watchdog
 ServoCore             500 Hz    droid-servo
 ServoAgentCore        60 Hz     droid-servo-agent (own timer, half a period out of phase)
@@ -42,7 +42,9 @@ from droid.subunits.reis.servo_params import ServoParams
 from droid.subunits.reis.vme import VmeBus
 from droid.subunits.reis.watchdog import WatchdogCore
 
-PLANT_HZ = 2000
+PLANT_HZ = 500  # plant advances per second; each integrates 1/PLANT_HZ in 0.5 ms substeps.  The
+# DACs change only at servo ticks and the encoders are read only there, so stepping the plant
+# once per servo tick (just before it) is exact; it saves three quarters of the register traffic.
 SERVO_HZ = 500
 WATCHDOG_HZ = 50
 AGENT_HZ = 60
@@ -53,15 +55,21 @@ class LockstepArm:
 
     def __init__(self, sched: Scheduler, name: str = "arm1", robot: str = "reis_v15",
                  base=(0, 0, 0, 0, 0, 0), seed: int = 1, plant_params: ReisPlantParams | None = None,
-                 **plant_kw) -> None:
+                 home_offset_deg=None, **plant_kw) -> None:
         self.sched = sched
         self.name = name
         self.model = load_robot(robot).with_base(pose_to_T(*base))
-        self.plant = ReisPlant(plant_params or ReisPlantParams(), seed, **plant_kw)
+        # servo, servo agent, planner and plant read the same robot file (issue 13)
+        pp = plant_params if plant_params is not None else ReisPlantParams(robot=robot)
+        if pp.robot != robot:
+            raise ValueError(f"arm {name}: the controller's robot file {robot!r} and the plant's {pp.robot!r} differ")
+        self.plant = ReisPlant(pp, seed, **plant_kw)
         self.bus = VmeBus.from_buffer(self.plant.regs)
-        self.servo = ServoCore(ServoParams())
+        self.home_offset_deg = np.zeros(6) if home_offset_deg is None else np.asarray(home_offset_deg, float)
+        self.servo_params = ServoParams.from_robot(robot, home_offset_deg)
+        self.servo = ServoCore(self.servo_params)
         self.watchdog = WatchdogCore()
-        self.agent = ServoAgentCore()
+        self.agent = ServoAgentCore(params=self.servo_params)
         self.planner = PlannerCore(self.model)
         self.brain_status = MemoryDatabase(f"{name}.status", ARM_STATUS_LAYOUT)
         self.brain_command = MemoryDatabase(f"{name}.command", ARM_COMMAND_LAYOUT)
@@ -144,13 +152,30 @@ class LockstepArm:
                 fields.update(x=T[0, 3], y=T[1, 3], z=T[2, 3], R=T[:3, :3])
             self.brain_status.update(tick=tick, stale=0, **fields)
 
+    def restart_servo(self, home_offset_deg=None) -> None:
+        """Restart droid-servo with calibrated switch positions (the robot file's plus
+        ``home_offset_deg``): the new servo starts unhomed, as a restarted program does."""
+        self.home_offset_deg = np.zeros(6) if home_offset_deg is None else np.asarray(home_offset_deg, float)
+        self.servo_params = ServoParams.from_robot(self.model, home_offset_deg)
+        self.servo = ServoCore(self.servo_params)
+        self._inbox.clear()
+
     # -- what a task program sees --------------------------------------------
     def wcp_from_counts(self, counts) -> np.ndarray:
         return self.model.fk(self.model.gearing.counts_to_joints(np.asarray(counts, float)))
 
     def wcp_global(self) -> np.ndarray:
-        """The true wrist-centre pose [mm] (the world's arm-twin interface)."""
-        return self.model.fk(self.plant.joint_deg)
+        """The true wrist-centre pose [mm, global frame] (the world's arm-twin interface): the
+        true arm (its D-H errors) at its true link angles (after the drives' deflection)."""
+        if self.plant.params.dh_error.zero:
+            return self.model.fk(self.plant.joint_deg)
+        return self.model.base @ self.plant.wcp_true()
+
+    def truth(self) -> dict:
+        """The world's truth about this arm, as ``droid-sim truth ARM --json`` prints it."""
+        from droid.sim.truth import truth_dict
+
+        return truth_dict(self.name, self.plant.time_s, self.plant.joint_deg, self.wcp_global()[:3, 3])
 
     @property
     def status(self):
@@ -199,3 +224,42 @@ class LockstepArm:
     def move_done(self, cmd_id: int, max_s: float) -> bool:
         return self.run_until(lambda: int(self.status["cmd_id"]) == cmd_id and int(self.status["busy"]) == 0,
                               max_s)
+
+
+def arms_from_cell(sched: Scheduler, cell, seed: int | None = None) -> dict[str, LockstepArm]:
+    """The cell file's Reis arms (its ``reis_vme`` world devices) as lockstep arms on ``sched``.
+
+    Each arm reads its subunit's robot file and base; its plant carries the device table's
+    world errors (``home_error_deg``, ``calibration_seed``, ``link_error_mm``,
+    ``twist_error_deg``; droid.sim.reis_world), and a device naming a different robot file
+    than its subunit is refused, as droid-sim refuses it.
+    """
+    from droid.cli import BadInput
+    from droid.sim.reis_world import _OPTIONS, world_errors
+    from droid.subunits.reis.robot_file import read_offsets
+
+    arms = {}
+    world_seed = int(cell.world.get("seed", 0)) if seed is None else seed
+    for name, opts in cell.world.get("devices", {}).items():
+        if not isinstance(opts, dict) or opts.get("type") != "reis_vme":
+            continue
+        opts = {k: v for k, v in opts.items() if k != "type"}
+        where = f"{cell.path}: [world.devices.{name}]"
+        unknown = set(opts) - _OPTIONS
+        if unknown:
+            raise BadInput(f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
+        sub = cell.subunit(opts.get("subunit", name))
+        if "robot" in opts and opts["robot"] != sub.robot:
+            raise BadInput(f"{where}: the world's robot file {opts['robot']!r} differs from the controller's "
+                           f"{sub.robot!r} ([subunits.{sub.name}] robot): one arm, one robot file")
+        model = load_robot(sub.robot)
+        home_error, dh_error = world_errors(where, model, opts)
+        pp = ReisPlantParams(robot=sub.robot, home_error_deg=home_error, dh_error=dh_error)
+        try:  # droid-calibrate's offsets, where droid-servo finds them
+            offsets = read_offsets(cell, sub.name)
+        except ValueError as exc:
+            raise BadInput(str(exc)) from None
+        arms[sub.name] = LockstepArm(sched, sub.name, robot=sub.robot, base=tuple(sub.base),
+                                     seed=int(opts.get("seed", world_seed)), plant_params=pp,
+                                     home_offset_deg=offsets)
+    return arms

@@ -1,62 +1,147 @@
-"""The Reis Robotstar V15 in droid-sim: its plant behind a shared-memory VME register map.
+"""The Reis arm in droid-sim: its plant behind a shared-memory VME register map.
 
 Device type ``reis_vme`` (cell file)::
 
     [world.devices.arm1]
     type = "reis_vme"
-    subunit = "arm1"        # whose [subunits.arm1] vme URL and base pose to use (default: the device name)
+    subunit = "arm1"        # whose [subunits.arm1] vme URL, robot file and base pose to use (default: the device name)
     seed = 7                # power-up encoder values and joint positions (default: the world seed)
+    robot = "reis_v15"      # optional: must name the subunit's robot file (a cell whose controller and
+                            # world name different robot files for one arm is refused, with both names)
+    # the world is not the model (issue 13) -- errors the controller does not know:
+    home_error_deg = [0, 0.3, -0.2, 0.1, 0.4, 0]   # true switch minus the robot file's [deg], or
+    calibration_seed = 3                            # random errors of documented size (below)
+    link_error_mm = [0, 0.5, 0, -0.3, 0, 0]         # D-H d_i (d_mm, joints with d != 0) or a_i (a_mm) errors
+    twist_error_deg = [0.02, 0, 0, 0, 0, 0]         # D-H alpha errors [deg]
+
+``calibration_seed = N`` draws, seeded: home-switch errors uniform in +-0.5 deg
+on joints 2-5 (joints 1 and 6 are arbitrary by definition, thesis §4.1.1.4:
+their zeros are set by the workspace centre and an inclinometer) and 0 on 1
+and 6; length errors uniform +-0.5 mm on the non-zero D-H lengths; twist errors
+uniform +-0.02 deg (machining tolerances of a welded/cast arm).  Explicit keys
+override the drawn values.
+
+``link_error_mm`` entry i changes the non-zero one of d_i and a_i of the D-H table
+(Table 4.1: d1, a2, d4).
 
 droid-servo and droid-watchdog open the same bytes with ``open_vme(url)``.
 The device also implements the arm-twin interface of the world:
-``wcp_global()`` — the true wrist-centre pose [mm] in the global frame, used
-by the camera twin.
+``wcp_global()`` -- the true wrist-centre pose [mm] in the global frame, used
+by the camera twin -- and publishes its truth through the world's door
+(:mod:`droid.sim.truth`; ``droid-sim truth ARM --json``).
 """
 from __future__ import annotations
 
 import numpy as np
 
 from droid.cli import BadInput
-from droid.kinematics import load_robot
+from droid.kinematics import RobotFileError, load_robot
 from droid.kinematics.transforms import pose_to_T
+from droid.sim.reis_dynamics import DhError
 from droid.sim.reis_plant import ReisPlant, ReisPlantParams
+from droid.sim.truth import TruthDoor, door_name
 from droid.sim.vme_shm import SharedVmeMap
 from droid.sim.world import Device
 from droid.subunits.reis.endpoints import reis_endpoints
 
+HOME_ERROR_MAX_DEG = 0.5  # calibration_seed: home-switch errors, joints 2-5
+LINK_ERROR_MAX_MM = 0.5  # calibration_seed: D-H length errors
+TWIST_ERROR_MAX_DEG = 0.02  # calibration_seed: D-H twist errors
+_OPTIONS = {"subunit", "seed", "robot", "home_error_deg", "calibration_seed", "link_error_mm", "twist_error_deg"}
+
 
 class ReisDevice(Device):
-    def __init__(self, name: str, shared: SharedVmeMap, plant: ReisPlant, model) -> None:
+    def __init__(self, name: str, shared: SharedVmeMap, plant: ReisPlant, model, door: TruthDoor | None = None) -> None:
         self.name = name
         self.shared = shared
         self.plant = plant
         self.model = model
+        self.door = door
 
     def advance(self, dt_s: float) -> None:
         self.plant.advance(dt_s)
+        if self.door is not None:
+            self.door.write(self.plant.time_s, self.plant.joint_deg, self.wcp_global()[:3, 3])
 
     def wcp_global(self) -> np.ndarray:
-        return self.model.fk(self.plant.joint_deg)
+        """The true wrist-centre pose (4x4, mm, global frame): the true arm at its true angles."""
+        return self.model.base @ self.plant.wcp_true()
 
     def close(self) -> None:
         close = getattr(self.plant, "close", None)
         if close is not None:
             close()
+        if self.door is not None:
+            self.door.close()
         self.shared.close()
+
+
+def _six(where: str, key: str, value) -> tuple:
+    if (not isinstance(value, list) or len(value) != 6
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in value)):
+        raise BadInput(f"{where} {key}: expected a list of 6 numbers")
+    return tuple(float(v) for v in value)
+
+
+def world_errors(where: str, model, options: dict) -> tuple[tuple, DhError]:
+    """(home_error_deg, DhError) from a device table (see the module docstring)."""
+    home = [0.0] * 6
+    length = [0.0] * 6
+    twist = [0.0] * 6
+    if "calibration_seed" in options:
+        seed = options["calibration_seed"]
+        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+            raise BadInput(f"{where} calibration_seed: expected an integer >= 0")
+        rng = np.random.default_rng(seed)
+        home = [0.0] + list(rng.uniform(-HOME_ERROR_MAX_DEG, HOME_ERROR_MAX_DEG, 4)) + [0.0]
+        length = list(rng.uniform(-LINK_ERROR_MAX_MM, LINK_ERROR_MAX_MM, 6))
+        twist = list(rng.uniform(-TWIST_ERROR_MAX_DEG, TWIST_ERROR_MAX_DEG, 6))
+    if "home_error_deg" in options:
+        home = list(_six(where, "home_error_deg", options["home_error_deg"]))
+        if max(abs(v) for v in home) > 5.0:
+            raise BadInput(f"{where} home_error_deg: errors above 5 deg are not calibration errors")
+    if "link_error_mm" in options:
+        length = list(_six(where, "link_error_mm", options["link_error_mm"]))
+        if max(abs(v) for v in length) > 10.0:
+            raise BadInput(f"{where} link_error_mm: errors above 10 mm are not calibration errors")
+    if "twist_error_deg" in options:
+        twist = list(_six(where, "twist_error_deg", options["twist_error_deg"]))
+        if max(abs(v) for v in twist) > 1.0:
+            raise BadInput(f"{where} twist_error_deg: errors above 1 deg are not calibration errors")
+    dh = model.dh
+    d_err = [e if dh is not None and dh.d_mm[i] != 0 else 0.0 for i, e in enumerate(length)]
+    a_err = [e if dh is not None and dh.d_mm[i] == 0 and dh.a_mm[i] != 0 else 0.0 for i, e in enumerate(length)]
+    return tuple(home), DhError(d_mm=tuple(d_err), a_mm=tuple(a_err), alpha_deg=tuple(twist))
 
 
 def make_reis(world, name: str, options: dict) -> ReisDevice:
     cell = world.cell
+    where = f"{cell.path}: [world.devices.{name}]"
+    unknown = set(options) - _OPTIONS
+    if unknown:
+        raise BadInput(f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
     sub = cell.subunit(options.get("subunit", name))
+    if "robot" in options and options["robot"] != sub.robot:
+        raise BadInput(f"{where}: the world's robot file {options['robot']!r} differs from the controller's "
+                       f"{sub.robot!r} ([subunits.{sub.name}] robot): one arm, one robot file")
     url = reis_endpoints(cell, sub).vme
     if not url.startswith("shm://"):
-        raise BadInput(f"[world.devices.{name}] the simulated VME map needs a shm:// URL, got {url!r}")
+        raise BadInput(f"{where} the simulated VME map needs a shm:// URL, got {url!r}")
     seed = int(options.get("seed", world.seed))
-    shared = SharedVmeMap.create(url[len("shm://"):], replace=True)
     try:
-        plant = ReisPlant(ReisPlantParams(), seed, regs=shared.buf)
         model = load_robot(sub.robot).with_base(pose_to_T(*sub.base))
+    except RobotFileError as exc:
+        raise BadInput(str(exc)) from None
+    if model.dynamics is None or model.dh is None:
+        raise BadInput(f"{model.source}: [dynamics] and [dh] are needed to simulate the arm")
+    home_error, dh_error = world_errors(where, model, options)
+    params = ReisPlantParams(robot=sub.robot, home_error_deg=home_error, dh_error=dh_error)
+    shared = SharedVmeMap.create(url[len("shm://"):], replace=True)
+    door = None
+    try:
+        plant = ReisPlant(params, seed, regs=shared.buf)
+        door = TruthDoor.create(door_name(cell.name, sub.name))
     except BaseException:
         shared.close()
         raise
-    return ReisDevice(name, shared, plant, model)
+    return ReisDevice(name, shared, plant, model, door)

@@ -24,7 +24,7 @@ from typing import Any
 
 from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
-from droid.cli import BadInput, bounded_int, run
+from droid.cli import BadInput, RuntimeFailure, bounded_int, run
 
 PROG = "droid-sim"
 DEFAULT_RATE_HZ = 1000.0
@@ -101,6 +101,38 @@ def build_world(cell, seed: int | None = None) -> World:
     return w
 
 
+def truth_main(argv) -> int:
+    """``droid-sim truth ARM --json [--cell FILE]``: the running world's truth about one arm."""
+    import json
+
+    import posix_ipc
+
+    from droid.sim.truth import TruthDoor, door_name, truth_dict
+
+    ap = parser(f"{PROG} truth", "Print an arm's true joint angles and wrist-centre position (the world's truth).")
+    ap.add_argument("arm", help="the arm's subunit name (e.g. arm1)")
+    ap.add_argument("--json", action="store_true", help="one JSON object (the only format)")
+    args = ap.parse_args(argv)
+    cell = open_cell(args)
+    sub = cell.subunit(args.arm)  # BadInput for an unknown subunit
+    if not getattr(sub, "robot", None):
+        raise BadInput(f"{args.arm!r} is not an arm")
+    try:
+        door = TruthDoor.open(door_name(cell.name, sub.name))
+    except posix_ipc.ExistentialError:
+        raise RuntimeFailure(f"no truth for {sub.name}: droid-sim is not running cell {cell.name!r} "
+                             f"or simulates no {sub.name}") from None
+    try:
+        got = door.read()
+    finally:
+        door.close()
+    if got is None:
+        raise RuntimeFailure(f"no truth for {sub.name} yet (the world has not stepped)")
+    t_s, q, wcp = got
+    print(json.dumps(truth_dict(sub.name, t_s, q, wcp)))
+    return 0
+
+
 #: World time integrated at most per wake-up [s], and the most it owes after a stall
 #: before it drops the rest [s]; see main().
 MAX_STEP_PER_WAKE_S = 0.004
@@ -109,7 +141,11 @@ MAX_OWED_S = 0.1
 
 @run
 def main(argv=None) -> int:
-    ap = parser(PROG, "Run the simulated hardware of a cell (robots, controllers, sensors).")
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] == "truth":
+        return truth_main(argv[1:])
+    ap = parser(PROG, "Run the simulated hardware of a cell (robots, controllers, sensors). "
+                      "'droid-sim truth ARM --json' prints an arm's ground truth from the running world.")
     ap.add_argument("--seed", type=bounded_int(0, 2**32 - 1), default=None, help="random seed (default: the cell file's)")
     args = ap.parse_args(argv)
     cell = open_cell(args)

@@ -4,11 +4,13 @@ import numpy as np
 from droid.brain import layouts as L
 from droid.sim.lockstep import Scheduler
 from droid.sim.reis_cell import LockstepArm
+from droid.sim.reis_plant import ReisPlantParams
 
 
 def make(seed=1):
     s = Scheduler(60.0)
-    return s, LockstepArm(s, seed=seed)
+    # rigid drives: count-level arrival checks (the compliant arm: test_plant_dynamics.py)
+    return s, LockstepArm(s, seed=seed, plant_params=ReisPlantParams(compliance=False))
 
 
 def test_home_then_joint_and_cartesian_moves_reach_their_targets():

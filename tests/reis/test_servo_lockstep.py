@@ -33,8 +33,15 @@ from droid.subunits.reis.servo_planner import braking_distance_counts, braking_t
 NEAR_SWITCH_OFFSET_DEG = (0.4, -0.3, 0.3, -0.4, 0.3, -0.3)
 
 
+#: The servo's count logic is checked on rigid drives (motor and link angles agree, so a
+#: count-exact homing and positioning are measurable); the compliant arm's homing and
+#: positioning (harmonic-drive deflection under gravity) are in test_plant_dynamics.py.
+RIGID = ReisPlantParams(compliance=False)
+
+
 def make_cell(seed=0, near_switch=True, **kw):
     """A lockstep cell; by default powered up near the switches (fast homing)."""
+    kw.setdefault("plant_params", RIGID)
     if near_switch and "initial_joint_deg" not in kw:
         kw["near_switch_offset_deg"] = NEAR_SWITCH_OFFSET_DEG
     return make_reis_cell(seed=seed, **kw)
@@ -86,7 +93,7 @@ def test_homing_from_random_power_up_finds_the_switches(seed):
 
 
 def test_homing_backs_off_an_active_switch_and_goes_wrist_first():
-    pp = ReisPlantParams()
+    pp = RIGID
     ls = make_cell(seed=5, plant_params=pp)  # joints 1,3,5 start past (on) their switch
     start_on = ls.plant.limit_switches
     assert start_on == (True, False, True, False, True, False)
@@ -160,8 +167,9 @@ def test_joint_move_reaches_its_target_along_the_planned_ramp(homed_cell):
     assert np.all(step * np.sign(goal - cmd[0]) >= 0)
     assert not tr.starved.any()
     assert np.all(np.abs(step) <= np.asarray(ls.servo.params.max_speed_counts_per_tick))
-    # following error stays small during the move (peak speed 75 deg/s on joint 6)
-    assert np.abs(tr.following_error).max() <= 50
+    # following error stays small during the move (peak speed 75 deg/s on joint 6; its
+    # breakaway from stiction under the sensor head's off-axis weight peaks at ~55 counts)
+    assert np.abs(tr.following_error).max() <= 60
 
 
 def test_following_error_bounded_during_a_fast_move(homed_cell):
@@ -218,7 +226,9 @@ def test_starved_queue_brakes_to_a_stop_and_holds():
     for j in range(6):
         assert np.all(vel_cmd[stop[j]:, j] == 0)
     settle = i0 + int(stop.max()) + 150  # 0.3 s after the profile stopped
-    assert np.all(np.abs(tr.encoder_pos[settle:] - tr.encoder_cmd[-1]) <= 1)  # and holds
+    # and holds, within the derived tolerance (the wrist now carries gravity against Coulomb
+    # friction: the integral walks a stuck joint back in steps of a count or two)
+    assert np.all(np.abs(tr.encoder_pos[settle:] - tr.encoder_cmd[-1]) <= POSITION_TOL_COUNTS)
     assert tr.braking[i0] and not tr.braking[-1] and tr.starved[-1]
 
 

@@ -37,3 +37,30 @@ def load_gearing(path: str | Path | None = None) -> Gearing:
 def joint_to_counts_tuple(gearing: Gearing) -> tuple[tuple[float, ...], ...]:
     """M [counts per joint degree] as a hashable 6x6 tuple (for frozen dataclasses)."""
     return tuple(tuple(float(x) for x in row) for row in gearing.joint_to_counts_matrix)
+
+
+def offset_file(cell, arm: str) -> Path:
+    """Where homing finds an arm's calibrated home offsets: ``<run_dir>/<arm>.home_offset.json``
+    (written by droid-calibrate, thesis §4.1.1.4; read by droid-servo at start)."""
+    return Path(cell.run_dir) / f"{arm}.home_offset.json"
+
+
+def read_offsets(cell, arm: str) -> list[float] | None:
+    """The calibrated home offsets of ``arm`` [deg] (true switch minus the robot file's), or None
+    if the arm was not calibrated.  Raises ValueError for a malformed file."""
+    import json
+    import math
+
+    p = offset_file(cell, arm)
+    if not p.is_file():
+        return None
+    try:
+        off = json.loads(p.read_text())["home_offset_deg"]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"{p}: bad calibration file: {exc}") from None
+    if (not isinstance(off, list) or len(off) != 6
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in off)):
+        raise ValueError(f"{p}: home_offset_deg must be 6 numbers")
+    if max(abs(v) for v in off) > 5.0:
+        raise ValueError(f"{p}: home offsets above 5 deg are not calibration offsets")
+    return [float(v) for v in off]

@@ -129,6 +129,16 @@ class ServoCore:
         return self._queue.braking
 
     @property
+    def home_edge_joints_deg(self) -> np.ndarray | None:
+        """The joint angles [deg, servo frame] at each joint's switch edge of the last homing
+        (row i: the pose when joint i's edge was found), or None before homing.  Calibration
+        uses them to know the pose -- and so the drives' load -- of each edge (§4.1.1.4)."""
+        if self._zero is None:
+            return None
+        minv = np.linalg.inv(np.asarray(self.params.joint_to_counts, float))
+        return (np.asarray(self._homing.edges, float) - self._zero) @ minv.T
+
+    @property
     def zero_counts(self) -> tuple[int, ...] | None:
         """Encoder zero [extended counts] found by homing, or None."""
         return None if self._zero is None else tuple(int(x) for x in self._zero)

@@ -38,7 +38,8 @@ from droid.brain.layouts import (CMD_FAILED, CMD_OK, FAULT_BRAKING, FAULT_SERVO,
                                  HOMED, JOG_MODE, NORMAL_MODE, OFF)
 from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
-from droid.cli import run
+from droid.cli import BadInput, run
+from droid.kinematics import RobotFileError
 from droid.subunits.reis import servo_wire as sw
 from droid.subunits.reis.endpoints import reis_endpoints
 from droid.subunits.reis.servo_params import Fault, Mode, ServoParams
@@ -198,7 +199,10 @@ def main(argv=None) -> int:
     sub_sock.setsockopt(zmq.LINGER, 0)
     curve.client(sub_sock, ep.servo_status, sub.host)
     sub_sock.connect(ep.servo_status)
-    core = ServoAgentCore(cell.stale_ticks)
+    try:
+        core = ServoAgentCore(cell.stale_ticks, params=ServoParams.from_robot(sub.robot))
+    except RobotFileError as exc:
+        raise BadInput(str(exc)) from None
     timer = PeriodicTimer(int(round(1e9 / COMMAND_HZ)))
     fresh_ns = int(3 * 1e9 / COMMAND_HZ)
     try:

@@ -14,17 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
-from droid.subunits.reis.robot_file import joint_to_counts_tuple, load_gearing
+from droid.kinematics import load_robot
+from droid.subunits.reis.robot_file import DEFAULT_ROBOT, joint_to_counts_tuple, load_gearing
 
 Six = tuple[float, float, float, float, float, float]
 SixInt = tuple[int, int, int, int, int, int]
-
-COUNTS_PER_DEG = 100 * 4000 / 360  # nominal, for the defaults below only
-
-
-def _deg(values) -> SixInt:
-    return tuple(int(round(v * COUNTS_PER_DEG)) for v in values)  # type: ignore[return-value]
-
 
 class Mode(IntEnum):
     """Command modes (thesis Table 4.3 cmd_mode, plus NORMAL for absolute moves)."""
@@ -44,17 +38,38 @@ class Fault(IntEnum):
     HOME_SWITCH_NOT_FOUND = 3  # homing travelled home_search_limit_counts without a switch edge
 
 
-def _reis_joint_to_counts() -> tuple[tuple[float, ...], ...]:
-    return joint_to_counts_tuple(load_gearing())
+def robot_servo_fields(model) -> dict:
+    """The fields of :class:`ServoParams` a robot file defines (gearing, home, gains, limits)."""
+    m = model.gearing.joint_to_counts_matrix
+    cpd = np.abs(np.diag(m))
+    dirs = tuple(int(np.sign(d) * s) for d, s in zip(np.diag(m), model.home_search_dir))
+    out = dict(
+        joint_to_counts=joint_to_counts_tuple(model.gearing),
+        encoder_bits=int(model.gearing.encoder_bits),
+        home_switch_deg=tuple(float(x) for x in model.home_switch_deg),
+        home_search_dir=dirs,
+        max_speed_counts_per_tick=tuple(int(round(v * c / 500.0)) for v, c in zip(model.vmax_deg_s, cpd)),
+        target_min_counts=tuple(int(x) for x in model.counts_min),
+        target_max_counts=tuple(int(x) for x in model.counts_max),
+    )
+    g = model.servo_gains
+    if g is not None:
+        out.update(kp_dac_per_count=g.kp_dac_per_count, ki_dac_per_count_tick=g.ki_dac_per_count_tick,
+                   kd_dac_per_count_per_tick=g.kd_dac_per_count_per_tick, integral_limit_dac=g.integral_limit_dac)
+    return out
+
+
+def _default(key: str):
+    return lambda: robot_servo_fields(load_robot(DEFAULT_ROBOT))[key]
 
 
 @dataclass(frozen=True)
 class ServoParams:
     """Constants of :class:`droid.subunits.reis.servo.ServoCore`."""
 
-    joint_to_counts: tuple[tuple[float, ...], ...] = field(default_factory=_reis_joint_to_counts)
+    joint_to_counts: tuple[tuple[float, ...], ...] = field(default_factory=_default("joint_to_counts"))
     """M [counts per joint degree], counts = M @ q_deg (droid.kinematics.gearing)."""
-    encoder_bits: int = 16
+    encoder_bits: int = field(default_factory=_default("encoder_bits"))
     servo_rate_hz: float = 500.0
     command_rate_hz: float = 60.0
     # thesis §4.1.4: 8 way-points per command ("500Hz/60Hz ~ 8"); DROID's ramps span
@@ -63,20 +78,23 @@ class ServoParams:
     queue_steps: int = 8
 
     # PID, per tick (§4.1.5.1): dac = kp*e + sum(ki*e) + kd*(e - e_prev), e in counts
-    kp_dac_per_count: Six = (14.0, 12.0, 5.0, 2.0, 2.0, 1.0)
-    ki_dac_per_count_tick: Six = (0.45, 0.40, 0.18, 0.07, 0.07, 0.035)
-    kd_dac_per_count_per_tick: Six = (120.0, 105.0, 42.0, 16.0, 16.0, 8.0)
-    integral_limit_dac: Six = (800.0, 800.0, 800.0, 400.0, 400.0, 400.0)
+    # the gains are the robot file's [servo] table
+    kp_dac_per_count: Six = field(default_factory=_default("kp_dac_per_count"))
+    ki_dac_per_count_tick: Six = field(default_factory=_default("ki_dac_per_count_tick"))
+    kd_dac_per_count_per_tick: Six = field(default_factory=_default("kd_dac_per_count_per_tick"))
+    integral_limit_dac: Six = field(default_factory=_default("integral_limit_dac"))
     dac_min_counts: int = -2048  # servo_cmd limits (anti-windup, §4.1.5.1)
     dac_max_counts: int = 2047
 
     # planner (§4.1.5.2) and limits
-    max_speed_counts_per_tick: SixInt = (222, 222, 222, 444, 444, 444)  # 100/100/100/200/200/200 deg/s
+    # the robot file's [limits] vmax_deg_s at 500 Hz (V15: 100/100/100/200/200/250 deg/s)
+    max_speed_counts_per_tick: SixInt = field(default_factory=_default("max_speed_counts_per_tick"))
     # JOG targets also change speed by at most this (NORMAL way-points are the
     # planner's business): 5e5 / 1e6 counts/s^2, 450 / 900 joint deg/s^2
     jog_accel_counts_per_tick2: Six = (2.0, 2.0, 2.0, 4.0, 4.0, 4.0)
-    target_min_counts: SixInt = _deg((-160, -100, -120, -260, -120, -340))  # home-relative
-    target_max_counts: SixInt = _deg((160, 100, 120, 260, 120, 340))
+    # home-relative target limits: the robot file's encoder limits (joint_to_act()'s J*_MIN/J*_MAX)
+    target_min_counts: SixInt = field(default_factory=_default("target_min_counts"))
+    target_max_counts: SixInt = field(default_factory=_default("target_max_counts"))
 
     # starved queue (§4.1.5.1): coast this many ticks at the commanded velocity
     # waiting for a late command, then brake at brake_decel to zero and hold.
@@ -92,10 +110,13 @@ class ServoParams:
 
     # homing (§4.1.5.3)
     home_order: tuple[int, ...] = (5, 4, 3, 2, 1, 0)  # wrist first, 0-based joints
-    home_switch_deg: Six = (2.0, -3.0, 4.0, -2.5, 3.5, -5.0)  # known switch positions (calibration)
-    home_search_dir: tuple[int, ...] = (-1, 1, 1, -1, 1, 1)  # count direction that activates the switch
+    # the robot file's [home]: known switch positions [deg] (plus any calibration offsets,
+    # droid-calibrate), and the count direction that activates each switch
+    home_switch_deg: Six = field(default_factory=_default("home_switch_deg"))
+    home_search_dir: tuple[int, ...] = field(default_factory=_default("home_search_dir"))
     home_speed_counts_per_tick: int = 20  # "moderate speed"
-    home_settle_ticks: int = 100  # rest after the switch is found, before the fine approach
+    home_settle_ticks: int = 250  # rest after the switch is found, before the fine approach: 0.5 s, so the
+    # links stop ringing on the compliant drives (~10 Hz, ~10 % damping: 0.2 s left ~30 % of it)
     home_fine_counts_per_tick: int = 1  # the final single-count approach
     home_search_limit_counts: int = 400_000  # ~360 joint degrees per phase
 
@@ -121,8 +142,24 @@ class ServoParams:
         return 1.0 / self.servo_rate_hz
 
     @classmethod
+    def from_robot(cls, robot, home_offset_deg=None, **overrides) -> "ServoParams":
+        """The servo of an arm: a bundled robot name, a ``.toml`` path or a RobotModel
+        (raises :class:`droid.kinematics.RobotFileError` for a bad file).  ``home_offset_deg``
+        (6, from droid-calibrate) is added to the robot file's switch positions: the switches'
+        calibrated positions, which homing uses."""
+        model = load_robot(robot) if isinstance(robot, (str, Path)) else robot
+        fields = robot_servo_fields(model)
+        if home_offset_deg is not None:
+            off = np.asarray(home_offset_deg, float)
+            if off.shape != (6,) or not np.all(np.isfinite(off)):
+                raise ValueError("home_offset_deg: expected 6 finite numbers")
+            fields["home_switch_deg"] = tuple(float(a + b) for a, b in zip(fields["home_switch_deg"], off))
+        return cls(**{**fields, **overrides})
+
+    @classmethod
     def for_robot_file(cls, path: str | Path, **overrides) -> "ServoParams":
-        """Defaults with the gearing (and search directions) of a robot data file."""
+        """Defaults with the gearing (and search directions) of a robot data file (gearing only:
+        for files without the other tables; :meth:`from_robot` reads everything)."""
         gearing = load_gearing(path)
         dirs = tuple(int(np.sign(d)) for d in np.diag(gearing.joint_to_counts_matrix))
         return replace(cls(), joint_to_counts=joint_to_counts_tuple(gearing), home_search_dir=dirs, **overrides)

@@ -27,11 +27,13 @@ import zmq
 from droid.brain.curve import CurveHost
 from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
-from droid.cli import RuntimeFailure, run
+from droid.cli import BadInput, RuntimeFailure, run
+from droid.kinematics import RobotFileError
 from droid.subunits.reis import servo_wire as sw
 from droid.subunits.reis.brake_log import BrakeRecorder
 from droid.subunits.reis.endpoints import reis_endpoints
 from droid.subunits.reis.servo import ServoCore
+from droid.subunits.reis.robot_file import read_offsets
 from droid.subunits.reis.servo_params import ServoParams
 from droid.subunits.reis.vme import VmeOpenError, open_vme
 
@@ -73,7 +75,10 @@ def main(argv=None) -> int:
         curve.bind(cell, (pull, ep.servo), (pub, ep.servo_status))
         bus = open_vme_waiting(ep.vme, OPEN_WAIT_S)
         bus.zero_dacs()
-        core = ServoCore(ServoParams())
+        try:  # the arm's robot file: gains, home switches, limits; plus droid-calibrate's offsets
+            core = ServoCore(ServoParams.from_robot(sub.robot, read_offsets(cell, sub.name)))
+        except (RobotFileError, ValueError) as exc:
+            raise BadInput(str(exc)) from None
         timer = PeriodicTimer(int(round(1e9 / SERVO_HZ)))
         presence.ready()
         notify_ready(args.ready_fd)

@@ -1,0 +1,225 @@
+"""Dynamics and servo data of a robot file: the ``[dynamics]`` and ``[servo]`` tables.
+
+A robot file (docs/kinematics.md) is the single source of an arm: the
+kinematics and gearing the planner uses, the home switches and gains the servo
+uses, and the physical data the plant twin integrates (thesis §2.3: DC servo
+motors through 100:1 harmonic drives, servo amplifiers fed by +-5 V DACs, a
+passive pneumatic balancer on link 2).  This module only *parses and checks*
+the data; the rigid-body model is built from it in :mod:`droid.sim.reis_dynamics`
+(Pinocchio), never here (kinematics imports no simulator).
+
+Every value carries its provenance in the table's ``source`` sub-table: the key
+maps to a string that starts with ``thesis`` (the thesis states it),
+``datasheet:`` (followed by the source) or ``assumed:`` (followed by the
+reasoning).  A key without provenance, an unknown key, or a non-physical value
+(a mass <= 0, an inertia that is not positive definite or violates the
+triangle inequality, a stiffness <= 0, ...) is a :class:`ValueError` naming
+the key and the reason; :func:`droid.kinematics.robots.load_robot` prefixes
+the file name.
+
+Units are in the key names: kg, mm (centres of mass), kg m^2, N m, N m s/rad,
+A, V, rad.  Per-joint lists have 6 entries, joint 1 first.  Link *i* is the
+body moved by joint *i*; its centre of mass ``link_com_mm[i]`` and inertia
+``link_inertia_kgm2[i]`` (about the centre of mass: Ixx Iyy Izz Ixy Ixz Iyz)
+are expressed in the D-H frame *i* (the frame at the end of ``A_i``, eq. 4.1).
+Motor-side quantities (rotor inertia, friction, torque constant) are per
+motor; the gear ratio is the ``[gearing]`` reduction (not repeated here).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+PROVENANCE = ("thesis", "datasheet:", "assumed:")
+
+#: [dynamics] keys -> shape ("6": six numbers, "6x3", "6x6": six rows, "1": one number)
+DYNAMICS_KEYS = {
+    "gravity_mps2": "1",
+    "link_mass_kg": "6",
+    "link_com_mm": "6x3",
+    "link_inertia_kgm2": "6x6",
+    "rotor_inertia_kgm2": "6",
+    "torque_constant_nm_per_a": "6",
+    "amp_gain_a_per_v": "6",
+    "amp_current_limit_a": "6",
+    "motor_no_load_speed_rad_s": "6",
+    "dac_full_scale_v": "1",
+    "hd_stiffness_nm_per_rad": "6",
+    "hd_damping_nm_s_per_rad": "6",
+    "coulomb_friction_nm": "6",
+    "viscous_friction_nm_s_per_rad": "6",
+    "brake_torque_nm": "6",
+    "balancer_moment_nm": "1",
+    "hard_stop_margin_deg": "1",
+}
+#: keys that must be > 0 element-wise (the others must be >= 0, gravity and the balancer any sign >= 0)
+POSITIVE = {"link_mass_kg", "rotor_inertia_kgm2", "torque_constant_nm_per_a", "amp_gain_a_per_v",
+            "amp_current_limit_a", "dac_full_scale_v", "hd_stiffness_nm_per_rad",
+            "motor_no_load_speed_rad_s"}
+
+#: [servo] keys (PID per servo tick, thesis §4.1.5.1; counts are motor encoder counts)
+SERVO_KEYS = {
+    "kp_dac_per_count": "6",
+    "ki_dac_per_count_tick": "6",
+    "kd_dac_per_count_per_tick": "6",
+    "integral_limit_dac": "6",
+}
+
+
+@dataclass(frozen=True, eq=False)
+class Dynamics:
+    """The physical data of an arm (see the module docstring for units and frames)."""
+
+    gravity_mps2: float
+    link_mass_kg: np.ndarray  # (6,)
+    link_com_mm: np.ndarray  # (6, 3), D-H frame i
+    link_inertia_kgm2: np.ndarray  # (6, 3, 3), about the COM, D-H frame i axes
+    rotor_inertia_kgm2: np.ndarray  # (6,) motor side
+    torque_constant_nm_per_a: np.ndarray
+    amp_gain_a_per_v: np.ndarray
+    amp_current_limit_a: np.ndarray
+    motor_no_load_speed_rad_s: np.ndarray  # back-EMF: the amplifier's torque fades to 0 at this speed
+    dac_full_scale_v: float
+    hd_stiffness_nm_per_rad: np.ndarray  # joint side
+    hd_damping_nm_s_per_rad: np.ndarray  # joint side
+    coulomb_friction_nm: np.ndarray  # motor side
+    viscous_friction_nm_s_per_rad: np.ndarray  # motor side
+    brake_torque_nm: np.ndarray  # motor side, holding brake with the amplifiers off
+    balancer_moment_nm: float  # joint 2: tau = balancer_moment_nm * sin(q2) against gravity
+    hard_stop_margin_deg: float  # mechanical stops this far outside the joint limits
+    source: dict
+
+    @property
+    def motor_torque_limit_nm(self) -> np.ndarray:
+        """Largest motor torque [N m] the amplifier delivers (current limit x k_t)."""
+        return self.torque_constant_nm_per_a * self.amp_current_limit_a
+
+    @property
+    def torque_per_volt_nm_per_v(self) -> np.ndarray:
+        return self.torque_constant_nm_per_a * self.amp_gain_a_per_v
+
+
+@dataclass(frozen=True)
+class ServoGains:
+    """The PID gains of the servo (thesis §4.1.5.1), per servo tick."""
+
+    kp_dac_per_count: tuple
+    ki_dac_per_count_tick: tuple
+    kd_dac_per_count_per_tick: tuple
+    integral_limit_dac: tuple
+    source: dict
+
+
+def _shape(table: str, key: str, value, shape: str) -> np.ndarray:
+    def num(v):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise ValueError(f"[{table}] {key}: expected finite numbers")
+        return float(v)
+
+    if shape == "1":
+        return np.array(num(value))
+    if not isinstance(value, list) or len(value) != 6:
+        raise ValueError(f"[{table}] {key}: expected a list of 6 " + ("numbers" if shape == "6" else "rows"))
+    if shape == "6":
+        return np.array([num(v) for v in value])
+    width = int(shape.split("x")[1])
+    rows = []
+    for row in value:
+        if not isinstance(row, list) or len(row) != width:
+            raise ValueError(f"[{table}] {key}: expected 6 rows of {width} numbers")
+        rows.append([num(v) for v in row])
+    return np.array(rows)
+
+
+def _provenance(table: str, data: dict, keys: dict) -> dict:
+    src = data.get("source")
+    if not isinstance(src, dict):
+        raise ValueError(f"[{table}.source]: missing (every value needs 'thesis', 'datasheet: ...' or 'assumed: ...')")
+    unknown = set(src) - set(keys)
+    if unknown:
+        raise ValueError(f"[{table}.source]: unknown key(s) {', '.join(sorted(unknown))}")
+    for key in keys:
+        text = src.get(key)
+        if not isinstance(text, str) or not text.startswith(PROVENANCE):
+            raise ValueError(f"[{table}.source] {key}: missing provenance (start with 'thesis', "
+                             f"'datasheet: <source>' or 'assumed: <reasoning>')")
+        if text.startswith(("datasheet:", "assumed:")) and len(text.split(":", 1)[1].strip()) < 3:
+            raise ValueError(f"[{table}.source] {key}: say which datasheet / why it is assumed")
+    return dict(src)
+
+
+def _parse(table: str, data, keys: dict) -> tuple[dict, dict]:
+    if not isinstance(data, dict):
+        raise ValueError(f"[{table}] must be a table")
+    unknown = set(data) - set(keys) - {"source"}
+    if unknown:
+        raise ValueError(f"[{table}]: unknown key(s) {', '.join(sorted(unknown))}")
+    missing = set(keys) - set(data)
+    if missing:
+        raise ValueError(f"[{table}]: missing key(s) {', '.join(sorted(missing))}")
+    values = {k: _shape(table, k, data[k], shape) for k, shape in keys.items()}
+    return values, _provenance(table, data, keys)
+
+
+def inertia_matrix(six) -> np.ndarray:
+    """3x3 inertia [kg m^2] from (Ixx, Iyy, Izz, Ixy, Ixz, Iyz)."""
+    xx, yy, zz, xy, xz, yz = (float(v) for v in six)
+    return np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
+
+
+def check_inertia(i: int, inertia: np.ndarray) -> None:
+    """Raise ValueError unless the inertia of link i+1 is positive definite and physical."""
+    w = np.linalg.eigvalsh(inertia)
+    if np.min(w) <= 0.0:
+        raise ValueError(f"[dynamics] link_inertia_kgm2: link {i + 1}: inertia is not positive definite "
+                         f"(principal moments {', '.join(f'{x:.4g}' for x in w)})")
+    a, b, c = sorted(w)
+    if c > a + b + 1e-9 * c:
+        raise ValueError(f"[dynamics] link_inertia_kgm2: link {i + 1}: principal moments violate the triangle "
+                         f"inequality ({a:.4g} + {b:.4g} < {c:.4g}): no rigid body has them")
+
+
+def dynamics_from_table(data) -> Dynamics:
+    """Parse and check a ``[dynamics]`` table."""
+    v, src = _parse("dynamics", data, DYNAMICS_KEYS)
+    for key, arr in v.items():
+        if key in POSITIVE and np.any(arr <= 0):
+            raise ValueError(f"[dynamics] {key}: must be > 0 (non-physical)")
+        if key not in POSITIVE and np.any(arr < 0) and key != "link_com_mm" and key != "link_inertia_kgm2":
+            raise ValueError(f"[dynamics] {key}: must be >= 0 (non-physical)")
+    inertias = np.array([inertia_matrix(row) for row in v["link_inertia_kgm2"]])
+    for i, inertia in enumerate(inertias):
+        check_inertia(i, inertia)
+    return Dynamics(
+        gravity_mps2=float(v["gravity_mps2"]),
+        link_mass_kg=v["link_mass_kg"],
+        link_com_mm=v["link_com_mm"],
+        link_inertia_kgm2=inertias,
+        rotor_inertia_kgm2=v["rotor_inertia_kgm2"],
+        torque_constant_nm_per_a=v["torque_constant_nm_per_a"],
+        amp_gain_a_per_v=v["amp_gain_a_per_v"],
+        amp_current_limit_a=v["amp_current_limit_a"],
+        motor_no_load_speed_rad_s=v["motor_no_load_speed_rad_s"],
+        dac_full_scale_v=float(v["dac_full_scale_v"]),
+        hd_stiffness_nm_per_rad=v["hd_stiffness_nm_per_rad"],
+        hd_damping_nm_s_per_rad=v["hd_damping_nm_s_per_rad"],
+        coulomb_friction_nm=v["coulomb_friction_nm"],
+        viscous_friction_nm_s_per_rad=v["viscous_friction_nm_s_per_rad"],
+        brake_torque_nm=v["brake_torque_nm"],
+        balancer_moment_nm=float(v["balancer_moment_nm"]),
+        hard_stop_margin_deg=float(v["hard_stop_margin_deg"]),
+        source=src,
+    )
+
+
+def servo_from_table(data) -> ServoGains:
+    """Parse and check a ``[servo]`` table (gains >= 0, integral limits > 0)."""
+    v, src = _parse("servo", data, SERVO_KEYS)
+    for key, arr in v.items():
+        if np.any(arr < 0):
+            raise ValueError(f"[servo] {key}: gains must be >= 0")
+    if np.any(v["integral_limit_dac"] <= 0):
+        raise ValueError("[servo] integral_limit_dac: must be > 0")
+    return ServoGains(**{k: tuple(float(x) for x in arr) for k, arr in v.items()}, source=src)
