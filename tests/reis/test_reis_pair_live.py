@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from droid.brain.shmdb import cell_objects
+from droid.kinematics import load_robot
 from tests.brain.cellutil import droid, make_cell_file
 
 pytestmark = pytest.mark.integration
@@ -22,16 +23,18 @@ def test_both_arms_home_move_and_the_world_tells_the_truth(tmp_path, cell_name):
     out = droid("droid.brain.launcher", "up", "--cell", str(path), timeout=180)
     try:
         assert out.returncode == 0, out.stdout + out.stderr
-        for arm in ("arm1", "arm2"):
+        goal_deg = [20, 10, 15, 5, 30, -10]
+        for arm, robot in (("arm1", "reis_v15"), ("arm2", "reis_class_b")):
+            counts = load_robot(robot).gearing.joints_to_counts_int(np.asarray(goal_deg, float))
             droid("droid.tasks.home", arm, "--cell", str(path), timeout=180, check=True)
-            droid("droid.tasks.move", arm, "joint", "20", "10", "15", "5", "30", "-10", "2", "--cell", str(path),
-                  timeout=60, check=True)
+            droid("droid.tasks.move", arm, "joint", *(str(int(c)) for c in counts), "3", "--cell", str(path),
+                  timeout=60, check=True)  # droid-move's joint targets are encoder counts
         t = droid("droid.sim.world", "truth", "arm2", "--json", "--cell", str(path))
         assert t.returncode == 0, t.stderr
         truth = json.loads(t.stdout)
         # arm2's switches are off by the cell's home_error_deg: the true angles differ from the
         # commanded ones by about that (plus the drives' deflection, < 0.3 deg)
-        err = np.asarray(truth["q_deg"]) - [20, 10, 15, 5, 30, -10]
+        err = np.asarray(truth["q_deg"]) - goal_deg
         assert np.all(np.abs(err - [0.0, 0.2, -0.15, 0.1, -0.3, 0.0]) < 0.35), err
         assert len(truth["wcp_mm"]) == 3
     finally:
