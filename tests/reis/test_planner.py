@@ -147,7 +147,6 @@ def test_servo_agent_never_sends_a_stale_far_way_point():
     d = agent.step(cmd, rep, True)
     assert d.message is not None and d.message.counts == (1100,) * 6
     cmd["encoder_cmd_int"] = [9000, 1000, 1000, 1000, 1000, 1000]  # 8000 counts ahead: stale
-    cmd["brain_tick"] = cmd["planner_tick"] = 101  # the planner's next way-point
     d = agent.step(cmd, rep, True)
     assert d.message is None and d.fault_bits & L.FAULT_BRAKING
 
@@ -174,49 +173,3 @@ def test_a_stop_command_ends_the_move_where_its_way_point_is_and_holds():
     for _ in range(31):
         out = core.step(cmd, st)
     assert list(out.encoder_cmd_int) == [0] * 6
-
-
-def _agent_normal(planner_tick, target, time_left=30):
-    from droid.subunits.reis import servo_wire as sw
-
-    cmd = L.new_record(L.CTRL_COMMAND_LAYOUT)
-    cmd["link_alive"], cmd["cmd_mode"] = 1, L.NORMAL_MODE
-    cmd["brain_tick"] = cmd["planner_tick"] = planner_tick
-    cmd["encoder_cmd_int"], cmd["joint_time_count"] = target, time_left
-    rep = sw.ServoReport(tick=1, mode=3, homed=True, homing_joint=-1, starved=False, braking=False, fault=0,
-                         amps_on=True, encoder_pos=tuple(target), encoder_cmd=tuple(target),
-                         following_error=(0,) * 6, dac=(0,) * 6)
-    return cmd, rep
-
-
-def test_servo_agent_bridges_one_late_way_point_then_falls_silent_so_the_servo_brakes():
-    """Issue 16 (safety finding 1): without new way-points the agent extrapolates one period
-    at the planner's velocity, then sends nothing, so the servo stops through its braking
-    profile -- never by a frozen way-point (an abrupt stop)."""
-    from droid.subunits.reis.servo_agent import ServoAgentCore
-
-    agent = ServoAgentCore()
-    sent = []
-    for k in range(3):  # a move at 100 counts a period
-        cmd, rep = _agent_normal(200 + k, [1000 + 100 * k] * 6)
-        sent.append(agent.step(cmd, rep, True).message.counts[0])
-    assert sent == [1000, 1100, 1200]
-    cmd, rep = _agent_normal(202, [1200] * 6)  # the planner's tick did not advance
-    d = agent.step(cmd, rep, True)
-    assert d.message is not None and d.message.counts == (1300,) * 6  # extrapolated, not frozen
-    d = agent.step(cmd, rep, True)  # still nothing new: silence, the servo coasts then brakes
-    assert d.message is None and "coasts, then brakes" in d.why
-    cmd, rep = _agent_normal(203, [1400] * 6)  # the planner is back
-    assert agent.step(cmd, rep, True).message.counts == (1400,) * 6
-
-
-def test_servo_agent_holds_the_target_at_the_end_of_a_move_when_a_way_point_is_late():
-    from droid.subunits.reis.servo_agent import ServoAgentCore
-
-    agent = ServoAgentCore()
-    for k in range(2):
-        cmd, rep = _agent_normal(300 + k, [5000 + 50 * k] * 6, time_left=1 - k)
-        agent.step(cmd, rep, True)
-    cmd, rep = _agent_normal(301, [5050] * 6, time_left=0)
-    d = agent.step(cmd, rep, True)
-    assert d.message.counts == (5050,) * 6  # no overshoot past the end of the move

@@ -16,9 +16,7 @@ What it sends each period (:class:`ServoAgentCore`), by the Command record's
 * OFF — ``OFF`` (amplifier outputs zero).
 
 It sends *nothing* — so the servo's cache empties and it brakes to a stop —
-when the planner produced no new way-point for more than one period (one
-period is bridged by extrapolation; at a move's end the target is held), when
-the Brain link is dead (``link_alive = 0``), when the planner stopped
+when the Brain link is dead (``link_alive = 0``), when the planner stopped
 refreshing its way-point (``planner_tick`` more than ``stale_ticks`` behind
 the relayed ``brain_tick``), or, after the servo braked, until the planner
 has re-anchored its way-point at the stopped position.
@@ -48,9 +46,6 @@ PROG = "droid-servo-agent"
 COMMAND_HZ = 60.0
 STARTUP_GRACE_PERIODS = 120  # 2 s for the servo's first status message
 MY_FAULTS = FAULT_BRAKING | FAULT_SERVO  # FAULT_WATCHDOG is droid-watchdog's
-#: Periods without a new planner way-point bridged by extrapolating its velocity (rides
-#: through a relayed tick a period late); then the agent falls silent and the servo brakes.
-EXTRAPOLATE_PERIODS = 1
 BRAIN_TO_SERVO_MODE = {OFF: Mode.OFF, JOG_MODE: Mode.JOG, HOME_MODE: Mode.HOME, NORMAL_MODE: Mode.NORMAL}
 
 
@@ -76,44 +71,11 @@ class ServoAgentCore:
         self.max_step = (np.asarray(p.max_speed_counts_per_tick, float) * p.servo_rate_hz / p.command_rate_hz
                          * 2.0 + resume_window_counts)
         self.seq = 0
-        self.last_planner_tick: int | None = None
-        self.sent: list[np.ndarray] = []  # the last NORMAL way-points sent, consecutive periods
-        self.extrapolated = 0  # periods bridged since the planner's last new way-point
         self.jog_id: int | None = None  # last JOG cmd_id applied
         self.home_id: int | None = None
         self.periods = 0
 
     def step(self, cmd, report: sw.ServoReport | None, report_fresh: bool) -> AgentDecision:
-        d = self._decide(cmd, report, report_fresh)
-        m = d.message
-        if m is not None and m.mode == int(Mode.NORMAL):
-            self.sent = (self.sent + [np.asarray(m.counts, np.int64)])[-2:]
-        else:
-            self.sent = []  # the next extrapolation needs two consecutive NORMAL periods again
-        return d
-
-    def _bridge(self, cmd, target: np.ndarray) -> tuple[np.ndarray | None, str]:
-        """The way-point to send when the planner produced none this period (issue 16).
-
-        A fresh planner way-point is sent as it is.  Without one -- a planner a period
-        late, or a silent Brain link (the planner is ticked by the relayed ticks) -- the
-        agent extrapolates the planner's velocity for up to ``EXTRAPOLATE_PERIODS``
-        periods, then sends nothing: the servo coasts ``starve_grace_ticks`` and stops
-        through its braking profile (§4.1.5.1), never by a frozen way-point.  At the end
-        of a move (the plan has < 2 ticks left) the last way-point is held instead."""
-        planner_tick = int(cmd["planner_tick"])
-        if planner_tick != self.last_planner_tick:
-            self.last_planner_tick = planner_tick
-            self.extrapolated = 0
-            return target, ""
-        if int(cmd["joint_time_count"]) < 2 and self.sent:
-            return self.sent[-1], ""
-        if len(self.sent) < 2 or self.extrapolated >= EXTRAPOLATE_PERIODS:
-            return None, "no new way-point from the planner: the servo coasts, then brakes"
-        self.extrapolated += 1
-        return self.sent[-1] + (self.sent[-1] - self.sent[-2]), ""
-
-    def _decide(self, cmd, report: sw.ServoReport | None, report_fresh: bool) -> AgentDecision:
         status: dict = {}
         faults = 0
         self.periods += 1
@@ -166,9 +128,7 @@ class ServoAgentCore:
                 brain_tick, planner_tick = int(cmd["brain_tick"]), int(cmd["planner_tick"])
                 if brain_tick - planner_tick > self.stale_ticks:
                     return AgentDecision(None, status, faults, "planner silent")
-                target, why = self._bridge(cmd, np.asarray(cmd["encoder_cmd_int"], np.int64))
-                if target is None:
-                    return AgentDecision(None, status, faults, why)
+                target = np.asarray(cmd["encoder_cmd_int"], np.int64)
                 if report.starved and np.any(np.abs(target - np.asarray(report.encoder_pos)) > self.resume_window):
                     return AgentDecision(None, status, faults, "waiting for the planner to re-anchor")
                 if np.any(np.abs(target - np.asarray(report.encoder_cmd)) > self.max_step):
