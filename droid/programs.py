@@ -38,7 +38,7 @@ PROGRAMS: dict[str, str] = {
     "droid-experiment": "droid.sim.experiment.cli",
     # the world
     "droid-sim": "droid.sim.world",
-    "droid-calibrate": "droid.sim.calibrate",
+    "droid-calibrate": "droid.sim.reis.calibrate",
     # tools
     "droid-fault": "droid.faults.cli",
     # observers (docs/observe.md)
