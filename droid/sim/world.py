@@ -32,7 +32,7 @@ DEFAULT_RATE_HZ = 1000.0
 # type -> (module, factory function)
 DEVICE_TYPES: dict[str, tuple[str, str]] = {
     "reis_vme": ("droid.sim.reis.world", "make_reis"),
-    "karel_s400": ("droid.sim.karel", "make_karel"),
+    "karel_s400": ("droid.sim.gmf1.karel", "make_karel"),
     "fixed_arm": ("droid.sim.mvs_world", "fixed_arm"),
     "mvs_camera": ("droid.sim.mvs_world", "mvs_camera"),
     "tool_sensor": ("droid.sim.mvs_world", "tool_sensor"),
