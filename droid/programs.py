@@ -28,7 +28,7 @@ PROGRAMS: dict[str, str] = {
     "droid-watchdog": "droid.subunits.reis.watchdog_prog",
     "droid-mvs": "droid.subunits.mvs.sensor",
     "droid-joystick": "droid.subunits.joystick.prog",
-    "droid-mvs-board": "droid.sim.mvs_dsp",
+    "droid-mvs-board": "droid.sim.mvs.dsp",
     # tasks
     "droid-snoop": "droid.tasks.snoop",
     "droid-move": "droid.tasks.move",

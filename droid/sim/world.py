@@ -33,9 +33,9 @@ DEFAULT_RATE_HZ = 1000.0
 DEVICE_TYPES: dict[str, tuple[str, str]] = {
     "reis_vme": ("droid.sim.reis.world", "make_reis"),
     "karel_s400": ("droid.sim.gmf1.karel", "make_karel"),
-    "fixed_arm": ("droid.sim.mvs_world", "fixed_arm"),
-    "mvs_camera": ("droid.sim.mvs_world", "mvs_camera"),
-    "tool_sensor": ("droid.sim.mvs_world", "tool_sensor"),
+    "fixed_arm": ("droid.sim.mvs.arm", "fixed_arm"),
+    "mvs_camera": ("droid.sim.mvs.devices", "mvs_camera"),
+    "tool_sensor": ("droid.sim.mvs.devices", "tool_sensor"),
     "serial_cable": ("droid.sim.serial_cable", "serial_cable"),
     "joystick": ("droid.sim.joystick", "make_joystick"),
 }
