@@ -37,7 +37,7 @@ DEVICE_TYPES: dict[str, tuple[str, str]] = {
     "mvs_camera": ("droid.sim.mvs.devices", "mvs_camera"),
     "tool_sensor": ("droid.sim.mvs.devices", "tool_sensor"),
     "serial_cable": ("droid.sim.serial_cable", "serial_cable"),
-    "joystick": ("droid.sim.joystick", "make_joystick"),
+    "joystick": ("droid.sim.joystick.device", "make_joystick"),
 }
 
 
