@@ -1,6 +1,6 @@
 """Benchmark of the MVS feature extraction: detection, accuracy and time per frame.
 
-Synthetic lap joints (droid.sim.mvs_camera.lap_joint_profile_mm: a 2 mm
+Synthetic lap joints (droid.sim.mvs.camera.lap_joint_profile_mm: a 2 mm
 square-edged step, random feature position within +-10 mm depth and +-15 mm
 lateral, random roll within +-0.25 rad, either polarity) are quantised with
 the camera twin's noise (sub-pixel jitter, spurious rows) and extracted.
@@ -26,8 +26,8 @@ import time
 
 import numpy as np
 
-from droid.sim.mvs_camera import CameraNoise, MvsCamera, lap_joint_profile_mm, quantise
-from droid.sim.tool_sensor import measure, pose_for_reading
+from droid.sim.mvs.camera import CameraNoise, MvsCamera, lap_joint_profile_mm, quantise
+from droid.sim.mvs.tool_sensor import measure, pose_for_reading
 from droid.sim.workpiece import load_workpiece
 from droid.subunits.mvs.calibration import MvsCalibration
 from droid.subunits.mvs.feature import extract

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from droid.brain.cellfile import builtin_cell_path, load_cell
 from droid.sim.lockstep import Scheduler
-from droid.sim.mvs_world import mvs_lockstep
+from droid.sim.mvs.lockstep import mvs_lockstep
 from droid.sim.world import build_world
 
 

@@ -20,7 +20,7 @@ import time
 import numpy as np
 
 from droid.cli import ArgumentParser, positive_float, run
-from droid.sim.reis_lockstep import make_reis_cell, min_jerk_waypoints, run_homing, waypoint_commander
+from droid.sim.reis.lockstep import make_reis_cell, min_jerk_waypoints, run_homing, waypoint_commander
 from droid.subunits.reis.servo_params import Mode
 
 MOVE_DEG = np.array([60.0, 45.0, -50.0, 90.0, 70.0, 120.0])

@@ -31,7 +31,7 @@ import numpy as np
 
 from droid.cli import ArgumentParser, BadInput, positive_int, run
 from droid.sim.experiment import arm_fast, sensors, trial
-from droid.sim.mvs_camera import MvsCamera
+from droid.sim.mvs.camera import MvsCamera
 from droid.subunits.mvs.sensor import SensorCore
 from droid.tasks.seam.core import SeamTracker
 from droid.tasks.seam.layout import load_layout

@@ -28,7 +28,7 @@ PROGRAMS: dict[str, str] = {
     "droid-watchdog": "droid.subunits.reis.watchdog_prog",
     "droid-mvs": "droid.subunits.mvs.sensor",
     "droid-joystick": "droid.subunits.joystick.prog",
-    "droid-mvs-board": "droid.sim.mvs_dsp",
+    "droid-mvs-board": "droid.sim.mvs.dsp",
     # tasks
     "droid-snoop": "droid.tasks.snoop",
     "droid-move": "droid.tasks.move",
@@ -38,7 +38,7 @@ PROGRAMS: dict[str, str] = {
     "droid-experiment": "droid.sim.experiment.cli",
     # the world
     "droid-sim": "droid.sim.world",
-    "droid-calibrate": "droid.sim.calibrate",
+    "droid-calibrate": "droid.sim.reis.calibrate",
     # tools
     "droid-fault": "droid.faults.cli",
     # observers (docs/observe.md)

@@ -172,7 +172,7 @@ class Seam3D:
 
     def measure(self, T_W_F: np.ndarray):
         """The seam seen from frame F (tool_sensor.measure's reading), or None when it does not cross F's x-y plane."""
-        from droid.sim.tool_sensor import ToolReading
+        from droid.sim.mvs.tool_sensor import ToolReading
 
         t = np.asarray(T_W_F, float)
         s = self.crossing_s(t)

@@ -235,7 +235,7 @@ class Workpiece:
         """T_W_seam (4x4, mm): the nominal sensor frame on the seam foot at arc length s.
 
         Origin on the foot, x into the surface (-normal), y the left lateral,
-        z the direction of travel (droid.sim.tool_sensor.seam_frame)."""
+        z the direction of travel (droid.sim.mvs.tool_sensor.seam_frame)."""
         if not self.planar:
             return self.seam3d.seam_frame(s_mm)
         xy, heading = self.point_at(s_mm)

@@ -31,13 +31,13 @@ DEFAULT_RATE_HZ = 1000.0
 
 # type -> (module, factory function)
 DEVICE_TYPES: dict[str, tuple[str, str]] = {
-    "reis_vme": ("droid.sim.reis_world", "make_reis"),
-    "karel_s400": ("droid.sim.karel", "make_karel"),
-    "fixed_arm": ("droid.sim.mvs_world", "fixed_arm"),
-    "mvs_camera": ("droid.sim.mvs_world", "mvs_camera"),
-    "tool_sensor": ("droid.sim.mvs_world", "tool_sensor"),
+    "reis_vme": ("droid.sim.reis.world", "make_reis"),
+    "karel_s400": ("droid.sim.gmf1.karel", "make_karel"),
+    "fixed_arm": ("droid.sim.mvs.arm", "fixed_arm"),
+    "mvs_camera": ("droid.sim.mvs.devices", "mvs_camera"),
+    "tool_sensor": ("droid.sim.mvs.devices", "tool_sensor"),
     "serial_cable": ("droid.sim.serial_cable", "serial_cable"),
-    "joystick": ("droid.sim.joystick", "make_joystick"),
+    "joystick": ("droid.sim.joystick.device", "make_joystick"),
 }
 
 
@@ -107,7 +107,7 @@ def truth_main(argv) -> int:
 
     import posix_ipc
 
-    from droid.sim.truth import TruthDoor, door_name, truth_dict
+    from droid.sim.reis.truth import TruthDoor, door_name, truth_dict
 
     ap = parser(f"{PROG} truth", "Print an arm's true joint angles and wrist-centre position (the world's truth).")
     ap.add_argument("arm", help="the arm's subunit name (e.g. arm1)")

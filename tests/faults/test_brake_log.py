@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from droid.sim.reis_lockstep import make_reis_cell, min_jerk_waypoints, run_homing
-from droid.sim.reis_plant import ReisPlantParams
+from droid.sim.reis.lockstep import make_reis_cell, min_jerk_waypoints, run_homing
+from droid.sim.reis.plant import ReisPlantParams
 from droid.subunits.reis.brake_log import BrakeRecorder
 from droid.subunits.reis.servo_params import Mode
 from droid.subunits.reis.servo_planner import braking_ticks

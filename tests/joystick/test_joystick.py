@@ -14,7 +14,7 @@ from droid.brain.databases import brain_layouts, local_layouts
 from droid.brain.layouts import JOYSTICK_STATUS_LAYOUT, LAYOUTS, new_record
 from droid.cli import BadInput
 from droid.kinematics import load_robot
-from droid.sim.joystick import JoystickDevice, JoystickTwin
+from droid.sim.joystick.device import JoystickDevice, JoystickTwin
 from droid.subunits.joystick.driver import EvdevParser, JoystickState, JsParser, open_joystick
 from droid.subunits.joystick.prog import joystick_options, record_fields
 from droid.tasks.snoop import status_dict, status_text

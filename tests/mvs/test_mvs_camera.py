@@ -8,9 +8,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from droid.sim.mvs_camera import CameraNoise, MvsCamera
-from droid.sim.mvs_frames import rot_y, translation
-from droid.sim.tool_sensor import measure, pose_for_reading, seam_frame
+from droid.sim.mvs.camera import CameraNoise, MvsCamera
+from droid.sim.mvs.frames import rot_y, translation
+from droid.sim.mvs.tool_sensor import measure, pose_for_reading, seam_frame
 from droid.sim.workpiece import load_workpiece
 from droid.subunits.mvs.calibration import MvsCalibration
 from droid.subunits.mvs.feature import extract
@@ -144,7 +144,7 @@ def test_calibration_maps_the_field_of_view():
 def reference_profile_mm(camera, T_W_S):
     """MvsCamera.profile_mm in its straightforward form (before the speed work): every segment
     projected for every hit through Workpiece.nearest_many, the heights through heights_from."""
-    from droid.sim.mvs_frames import apply
+    from droid.sim.mvs.frames import apply
 
     wp = camera.workpiece
     origins_s = np.stack([np.full(ROWS, -camera.standoff_mm), camera._y_rows, np.zeros(ROWS)], axis=1)
@@ -181,7 +181,7 @@ CAMERAS = {name: MvsCamera(load_workpiece(name)) for name in ("step_input", "ram
 def test_local_nearest_search_renders_the_reference_frames_bit_for_bit(name, s, dx, dy, dz, yaw, tilt, roll):
     """Only the segments near the frame are projected; the depths are the full search's, bit for bit,
     anywhere along both workpieces (ends, the 5 degree turn, the arc), off the seam and tilted."""
-    from droid.sim.mvs_frames import rot_x, rot_z
+    from droid.sim.mvs.frames import rot_x, rot_z
 
     camera = CAMERAS[name]
     pose = seam_frame(camera.workpiece, min(s, camera.workpiece.length_mm + 60.0)) @ translation(dx, dy, dz) \

@@ -162,7 +162,7 @@ def test_sensor_in_a_cell_takes_board_port_and_calibration_from_the_cell(tmp_pat
 
     # a calibration with twice the lateral scale doubles the y the sensor reports
     path = sensor_cell(tmp_path, cell_name, "[subunits.mvs.calibration]\nlateral_mm_per_row = 0.4\n")
-    board = subprocess.Popen([sys.executable, "-m", "droid.sim.mvs_dsp", f"shm://droid.{cell_name}.mvs.dsp",
+    board = subprocess.Popen([sys.executable, "-m", "droid.sim.mvs.dsp", f"shm://droid.{cell_name}.mvs.dsp",
                               "--lateral", "2", "--jitter", "0.3"], cwd=ROOT, stdout=subprocess.PIPE,
                              stderr=subprocess.DEVNULL, text=True)
     end = PtyEnd(str(tmp_path / "run" / "mvs.sensor.tty"))

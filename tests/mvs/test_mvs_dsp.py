@@ -11,9 +11,9 @@ import posix_ipc
 import pytest
 
 from droid.cli import BadInput, RuntimeFailure
-from droid.sim.mvs_camera import MvsCamera
-from droid.sim.mvs_dsp import MvsDspTwin, ShmDspWriter, open_dsp_writer
-from droid.sim.tool_sensor import pose_for_reading
+from droid.sim.mvs.camera import MvsCamera
+from droid.sim.mvs.dsp import MvsDspTwin, ShmDspWriter, open_dsp_writer
+from droid.sim.mvs.tool_sensor import pose_for_reading
 from droid.sim.workpiece import load_workpiece
 from droid.subunits.mvs.dsp import open_dsp, parse_dsp_url
 from droid.subunits.mvs.wire import DSP_RECORD, ROWS
@@ -140,7 +140,7 @@ def test_inproc_board_between_two_objects_and_threads(cell_name):
 
 
 def test_twin_renders_delivers_and_drops(cell_name):
-    from droid.sim.mvs_camera import CameraNoise
+    from droid.sim.mvs.camera import CameraNoise
 
     wp = load_workpiece("step_input")
     url = f"inproc://{cell_name}"
@@ -162,7 +162,7 @@ def test_twin_renders_delivers_and_drops(cell_name):
 def test_board_in_another_process(board_name):
     """A writer subprocess (the stand-alone board) and this process's reader."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "droid.sim.mvs_dsp", f"shm://{board_name}", "--jitter", "0",
+        [sys.executable, "-m", "droid.sim.mvs.dsp", f"shm://{board_name}", "--jitter", "0",
          "--lateral", "2.0", "--rate", "120"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,
         env={**os.environ, "PYTHONPATH": REPO})

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from droid.cli import BadInput
-from droid.sim.mvs_camera import CameraNoise, lap_joint_profile_mm, quantise
+from droid.sim.mvs.camera import CameraNoise, lap_joint_profile_mm, quantise
 from droid.subunits.mvs.calibration import MvsCalibration
 from droid.subunits.mvs.feature import Feature, analyse, extract
 from droid.subunits.mvs.wire import COLUMNS, ROWS

@@ -189,7 +189,7 @@ def test_the_sensor_status_keeps_the_capture_age():
 
 def test_the_sensor_core_appends_the_capture_stamp_only_when_asked():
     from droid.brain.sensor_line import parse_line
-    from droid.sim.mvs_camera import CameraNoise, lap_joint_profile_mm, quantise
+    from droid.sim.mvs.camera import CameraNoise, lap_joint_profile_mm, quantise
     from droid.subunits.mvs.calibration import MvsCalibration
     from droid.subunits.mvs.sensor import SensorCore
 

@@ -12,8 +12,8 @@ import time
 import numpy as np
 import pytest
 
-from droid.sim.mvs_camera import CameraNoise, MvsCamera
-from droid.sim.tool_sensor import pose_for_reading
+from droid.sim.mvs.camera import CameraNoise, MvsCamera
+from droid.sim.mvs.tool_sensor import pose_for_reading
 from droid.sim.workpiece import load_workpiece
 from droid.subunits.mvs.calibration import MvsCalibration
 from droid.subunits.mvs.protocol import SensorClientCore, parse_line
@@ -141,7 +141,7 @@ def board(cell_name):
     """A stand-alone simulated board in a subprocess, sensor seeing (x, y) = (1, 3) mm."""
     name = f"droid.{cell_name}.mvs.dsp"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "droid.sim.mvs_dsp", f"shm://{name}", "--lateral", "3", "--depth", "1",
+        [sys.executable, "-m", "droid.sim.mvs.dsp", f"shm://{name}", "--lateral", "3", "--depth", "1",
          "--spurious", "0.05", "--speed", "16"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO, env=ENV)
     try:

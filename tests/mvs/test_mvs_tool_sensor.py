@@ -8,8 +8,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from droid.sim.mvs_frames import rot_y, rot_z, translation
-from droid.sim.tool_sensor import measure, pose_for_reading, seam_frame
+from droid.sim.mvs.frames import rot_y, rot_z, translation
+from droid.sim.mvs.tool_sensor import measure, pose_for_reading, seam_frame
 from droid.sim.workpiece import load_workpiece
 
 STEP = load_workpiece("step_input")

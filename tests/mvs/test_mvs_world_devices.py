@@ -14,8 +14,11 @@ from droid.brain.sensor_line import SensorClientCore, parse_line
 from droid.cli import BadInput
 from droid.kinematics.transforms import pose_to_T
 from droid.sim.lockstep import ORDER_WORLD, Scheduler
-from droid.sim.mvs_world import FixedArm, FrameClock, Mount, mvs_lockstep
-from droid.sim.tool_sensor import pose_for_reading
+from droid.sim.mvs.arm import FixedArm
+from droid.sim.mvs.clock import FrameClock
+from droid.sim.mvs.lockstep import mvs_lockstep
+from droid.sim.mvs.mounts import Mount
+from droid.sim.mvs.tool_sensor import pose_for_reading
 from droid.sim.workpiece import load_workpiece
 from droid.sim.world import build_world
 from droid.subunits.mvs.calibration import MvsCalibration
@@ -134,7 +137,7 @@ def test_tool_sensor_device_writes_height_lateral_roll_lines(world_cell):
 
 
 def test_tool_sensor_is_invalid_off_the_workpiece(world_cell):
-    from droid.sim.mvs_world import ToolSensorCore
+    from droid.sim.mvs.devices import ToolSensorCore
 
     core = ToolSensorCore(STEP)
     assert core.step(pose_for_reading(STEP, 20.0, 0.5, -1.0)) == b"0.500,-1.000,0.00000\n"
@@ -277,7 +280,7 @@ def test_lockstep_ideal_sensor_reads_the_exact_geometry_and_agrees_with_the_came
 
 
 def test_ideal_sensor_is_invalid_outside_the_field_of_view():
-    from droid.sim.mvs_world import IdealSensorCore
+    from droid.sim.mvs.devices import IdealSensorCore
 
     core = IdealSensorCore(STEP, MvsCalibration())
     assert core.step(pose_for_reading(STEP, 70.0, 2.0, 23.0)) == b"2.000,23.000,0.00000\n"

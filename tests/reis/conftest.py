@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import pytest
 
-from droid.sim.reis_plant import ReisPlantParams
-from droid.sim.reis_lockstep import make_reis_cell, run_homing
+from droid.sim.reis.plant import ReisPlantParams
+from droid.sim.reis.lockstep import make_reis_cell, run_homing
 
 # power-up pose a little off the home switches (both sides), so homing takes ~3 s simulated
 NEAR_SWITCH_OFFSET_DEG = (0.4, -0.3, 0.3, -0.4, 0.3, -0.3)

@@ -10,8 +10,8 @@ import numpy as np
 
 from droid.brain.cellfile import load_cell
 from droid.sim.lockstep import Scheduler
-from droid.sim.reis_cell import arms_from_cell
-from droid.sim.reis_world import world_errors
+from droid.sim.reis.cell import arms_from_cell
+from droid.sim.reis.world import world_errors
 
 CELL = Path(__file__).resolve().parents[2] / "droid" / "cells" / "reis_pair.toml"
 #: Issue 13's target is 0.02 deg.  The estimate also carries the error of the homing it was
@@ -30,7 +30,7 @@ def _cell(tmp_path, name: str, world_table: str) -> Path:
 
 
 def _calibrate(path, arm="arm2", *extra):
-    return subprocess.run([sys.executable, "-m", "droid.sim.calibrate", arm, "--cell", str(path), *extra],
+    return subprocess.run([sys.executable, "-m", "droid.sim.reis.calibrate", arm, "--cell", str(path), *extra],
                           capture_output=True, text=True, timeout=900)
 
 

@@ -6,7 +6,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from droid.sim.reis_plant import ReisPlant, ReisPlantParams
+from droid.sim.reis.plant import ReisPlant, ReisPlantParams
 from droid.subunits.reis import vme_map as vm
 from droid.subunits.reis.vme import VmeBus
 

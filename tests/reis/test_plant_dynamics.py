@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from droid.kinematics import RobotFileError, load_robot
-from droid.sim.reis_dynamics import DhError, RigidBody
-from droid.sim.reis_plant import ReisPlant, ReisPlantParams
+from droid.sim.reis.dynamics import DhError, RigidBody
+from droid.sim.reis.plant import ReisPlant, ReisPlantParams
 from droid.subunits.reis.servo_params import ServoParams
 from droid.subunits.reis.vme import VmeBus
 
@@ -131,7 +131,7 @@ def test_non_physical_dynamics_are_refused_naming_file_key_and_reason(tmp_path, 
 
 
 def test_the_experimental_exact_integrator_follows_the_reference_on_a_joint_move():
-    from droid.sim.reis_lockstep import (LockstepRates, ReisLockstep, min_jerk_waypoints, run_homing,
+    from droid.sim.reis.lockstep import (LockstepRates, ReisLockstep, min_jerk_waypoints, run_homing,
                                          waypoint_commander)
     from droid.subunits.reis.servo import ServoCore
     from droid.subunits.reis.servo_params import Mode

@@ -2,8 +2,8 @@
 zero-fills before writing, so droid-servo read encoder registers as 0 and faulted)."""
 import multiprocessing as mp
 
-from droid.sim.reis_plant import ReisPlant
-from droid.sim.vme_shm import SharedVmeMap
+from droid.sim.reis.plant import ReisPlant
+from droid.sim.reis.vme_shm import SharedVmeMap
 from droid.subunits.reis.vme import open_vme
 
 CTX = mp.get_context("fork")

@@ -156,7 +156,7 @@ def test_realtime_trial_agrees_with_lockstep(cell):
     after homing and the same joint move, the encoder positions agree within 5 counts
     per joint and the wrist centres within 0.1 mm."""
     from droid.sim.lockstep import Scheduler
-    from droid.sim.reis_cell import LockstepArm
+    from droid.sim.reis.cell import LockstepArm
 
     target = [20000, -15000, 12000, 30000, 25000, -40000]
     assert droid("droid.tasks.home", "arm1", "--cell", str(cell), timeout=200).returncode == 0

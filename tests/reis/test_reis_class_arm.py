@@ -11,7 +11,7 @@ from droid.brain.cellfile import load_cell
 from droid.brain import layouts as L
 from droid.cli import BadInput
 from droid.sim.lockstep import Scheduler
-from droid.sim.reis_cell import arms_from_cell
+from droid.sim.reis.cell import arms_from_cell
 
 CELL = Path(__file__).resolve().parents[2] / "droid" / "cells" / "reis_pair.toml"
 

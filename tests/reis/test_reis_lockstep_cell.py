@@ -3,8 +3,8 @@ import numpy as np
 
 from droid.brain import layouts as L
 from droid.sim.lockstep import Scheduler
-from droid.sim.reis_cell import LockstepArm
-from droid.sim.reis_plant import ReisPlantParams
+from droid.sim.reis.cell import LockstepArm
+from droid.sim.reis.plant import ReisPlantParams
 
 
 def make(seed=1):

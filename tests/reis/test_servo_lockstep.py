@@ -1,7 +1,7 @@
 """The servo core driving the simulated arm in lockstep (thesis §4.1.5).
 
 Plant at 2 kHz, servo at 500 Hz, watchdog at 50 Hz, commands at 60 Hz, all on
-a 6 kHz virtual clock (droid.sim.reis_lockstep).
+a 6 kHz virtual clock (droid.sim.reis.lockstep).
 
 Position tolerance.  The wrist-centre point (WCP) depends on joints 1-3 only;
 its lever arms are at most 1140 mm (joints 1 and 2: 600 + 540 mm) and 540 mm
@@ -19,14 +19,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from droid.sim.reis_lockstep import (
+from droid.sim.reis.lockstep import (
     constant_commander,
     make_reis_cell,
     min_jerk_waypoints,
     run_homing,
     waypoint_commander,
 )
-from droid.sim.reis_plant import ReisPlantParams
+from droid.sim.reis.plant import ReisPlantParams
 from droid.subunits.reis.servo_params import Fault, Mode, ServoParams
 from droid.subunits.reis.servo_planner import braking_distance_counts, braking_ticks
 

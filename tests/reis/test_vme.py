@@ -9,8 +9,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from droid.cli import EXIT_BAD_INPUT, EXIT_RUNTIME
-from droid.sim.reis_plant import ReisPlant
-from droid.sim.vme_shm import SharedVmeMap
+from droid.sim.reis.plant import ReisPlant
+from droid.sim.reis.vme_shm import SharedVmeMap
 from droid.subunits.reis import vme_map as vm
 from droid.subunits.reis.vme import VmeBus, VmeOpenError, VmeUrlError, open_vme
 

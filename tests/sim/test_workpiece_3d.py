@@ -11,9 +11,9 @@ import pytest
 
 from droid.cli import BadInput
 from droid.sim.experiment.sensors import LeadSensor
-from droid.sim.mvs_camera import CameraNoise, MvsCamera
+from droid.sim.mvs.camera import CameraNoise, MvsCamera
 from droid.sim.seam3d import TACK_WIDTH_MM
-from droid.sim.tool_sensor import measure, pose_for_reading
+from droid.sim.mvs.tool_sensor import measure, pose_for_reading
 from droid.sim.workpiece import WORKPIECE_DIR, Workpiece, bundled_workpieces, load_workpiece
 from droid.subunits.mvs.sensor import SensorCore
 

@@ -1,7 +1,7 @@
 """The ``fast`` Reis model for the trial harness: the real planner chain, an analytic servo.
 
 What a cartesian command goes through in the real-time cell (docs/reis.md,
-thesis §4.1.5-4.1.8, and droid.sim.reis_cell which runs those cores in
+thesis §4.1.5-4.1.8, and droid.sim.reis.cell which runs those cores in
 lockstep), and what this model keeps:
 
 1. the task writes the Brain Command at tick k; the remote/agent copy it into

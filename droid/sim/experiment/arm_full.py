@@ -1,6 +1,6 @@
 """The ``full`` Reis model for the trial harness: every core of the real-time Reis subunit.
 
-:class:`droid.sim.reis_cell.LockstepArm` runs the plant (2 kHz joint
+:class:`droid.sim.reis.cell.LockstepArm` runs the plant (2 kHz joint
 dynamics behind the VME register map), the 500 Hz servo core (PID, queue,
 braking), the watchdog, the servo agent, the planner and the remote's FK on
 the trial's scheduler.  A trial first homes the arm (the servo's homing from
@@ -18,7 +18,7 @@ import numpy as np
 from droid.cli import RuntimeFailure
 from droid.kinematics.transforms import T_to_pose
 from droid.sim.lockstep import Scheduler
-from droid.sim.reis_cell import LockstepArm
+from droid.sim.reis.cell import LockstepArm
 
 HOME_TIMEOUT_S = 60.0
 MOVE_S = 4.0  # the move from home to the start pose

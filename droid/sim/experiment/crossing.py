@@ -1,12 +1,12 @@
 """Where a sensor's laser sheet crosses the seam, in closed form (the tool-tip sensor's geometry, fast).
 
-:func:`droid.sim.tool_sensor.measure` finds the seam point in a frame's x-y
+:func:`droid.sim.mvs.tool_sensor.measure` finds the seam point in a frame's x-y
 plane (the laser sheet) by a damped Newton search over the arc length, with
 a nearest-point search per step (~0.2 ms).  The seam is lines and circular
 arcs in W's z = 0 plane, so the crossing has a closed form per segment:
 linear in the arc length on a line, ``A cos(phi) + B sin(phi) = K`` on an
 arc.  :class:`SeamCrossing` solves those (scalar math, ~15 us) and returns
-the same :class:`~droid.sim.tool_sensor.ToolReading`: of several crossings
+the same :class:`~droid.sim.mvs.tool_sensor.ToolReading`: of several crossings
 the one nearest to the frame's origin (a test checks it against ``measure``).
 """
 from __future__ import annotations
@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from droid.sim.tool_sensor import ToolReading
+from droid.sim.mvs.tool_sensor import ToolReading
 from droid.sim.workpiece import Workpiece
 
 _EPS = 1e-12

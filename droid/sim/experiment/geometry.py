@@ -19,7 +19,7 @@ import numpy as np
 from droid.cli import BadInput
 from droid.kinematics import RobotModel, Unreachable, load_robot
 from droid.kinematics.transforms import inv_homo
-from droid.sim.tool_sensor import seam_frame
+from droid.sim.mvs.tool_sensor import seam_frame
 from droid.sim.workpiece import Workpiece, load_workpiece
 from droid.tasks.seam.layout import Layout, Wrist, load_layout
 

@@ -1,7 +1,7 @@
 """The two sensors of a trial: the lead MVS sensor and the tool-tip measuring sensor (thesis §5.3-5.4, §6.1).
 
 Lead sensor (``camera`` model): the camera/DSP twin renders the
-240 stripe columns for the sensor's true pose (:class:`~droid.sim.mvs_camera.MvsCamera`,
+240 stripe columns for the sensor's true pose (:class:`~droid.sim.mvs.camera.MvsCamera`,
 the renderer of the real-time cell's camera twin), droid-mvs's core extracts the feature
 (droid.subunits.mvs.feature, Strauss's method) and formats the serial line,
 the Brain's parser reads it back (rounded to the line's 3 and 5 decimals):
@@ -30,8 +30,8 @@ import numpy as np
 
 from droid.brain.sensor_line import Garbled, format_line, parse_line
 from droid.sim.experiment.crossing import SeamCrossing
-from droid.sim.mvs_camera import CameraNoise, MvsCamera
-from droid.sim.tool_sensor import ToolReading
+from droid.sim.mvs.camera import CameraNoise, MvsCamera
+from droid.sim.mvs.tool_sensor import ToolReading
 from droid.sim.workpiece import Workpiece
 from droid.subunits.mvs.calibration import MvsCalibration
 from droid.subunits.mvs.feature import FeatureParams

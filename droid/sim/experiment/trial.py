@@ -43,7 +43,7 @@ from droid.sim.experiment.arm_fast import FastArm, FastArmParams
 from droid.sim.experiment.geometry import TrialGeometry, trial_geometry
 from droid.sim.experiment.sensors import DEFAULT_NOISE, SENSOR_MODELS, LeadSensor, tool_reading
 from droid.sim.lockstep import ORDER_DEVICE, ORDER_TASK, ORDER_WORLD, Scheduler
-from droid.sim.mvs_camera import CameraNoise
+from droid.sim.mvs.camera import CameraNoise
 from droid.tasks.seam.core import DEAD_ZONE_CYCLES, LOST_CYCLES, MAX_SPEED_MM_S, MODE_THESIS, MODES, SeamParams
 from droid.tasks.seam.cycle import TrackingCycle
 from droid.tasks.seam.delay import INVALID_READING, Reading

@@ -21,7 +21,7 @@ joystick is any Linux input device, chosen by URL in the cell file
 Options follow ``?``: ``evdev:///dev/input/event3?min=0&max=255``.  An
 unknown scheme or option is refused with the expected form (exit 2).
 
-droid-sim's twin (:mod:`droid.sim.joystick`) writes js_event records into a
+droid-sim's twin (:mod:`droid.sim.joystick.device`) writes js_event records into a
 pseudo-terminal published at a path, so the simulated cell uses
 ``js://{run}/joy.js``: the same driver, the same bytes.
 

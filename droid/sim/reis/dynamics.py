@@ -2,7 +2,7 @@
 
 Pinocchio (``import pinocchio as pin``; PyPI ``pin``) is the field's standard
 rigid-body library (Featherstone's algorithms in C++): the plant twin
-(:mod:`droid.sim.reis_plant`) asks it for the joint-space inverse mass matrix
+(:mod:`droid.sim.reis.plant`) asks it for the joint-space inverse mass matrix
 ``M(q)^-1`` (``computeMinverse``) and the bias torques ``C(q, qd) qd + g(q)``
 (``nonLinearEffects``), which give the configuration-dependent inertia, the
 coupling between joints and gravity.

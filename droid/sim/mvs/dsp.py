@@ -8,7 +8,7 @@ URL the sensor program is given (``shm://NAME`` or ``inproc://NAME``).
 Run as a program it is a small stand-alone world for the sensor alone (tests,
 demos): the sensor sweeps along a workpiece's seam at a fixed offset::
 
-    python -m droid.sim.mvs_dsp shm://droid.demo.mvs.dsp --workpiece step_input \\
+    python -m droid.sim.mvs.dsp shm://droid.demo.mvs.dsp --workpiece step_input \\
         --lateral 2 --speed 16
 
 It prints ``ready`` on stdout once the board exists and removes it on
@@ -27,8 +27,8 @@ import numpy as np
 import posix_ipc
 
 from droid.cli import ArgumentParser, BadInput, bounded_float, bounded_int, run
-from droid.sim.mvs_camera import CameraNoise, MvsCamera
-from droid.sim.tool_sensor import pose_for_reading
+from droid.sim.mvs.camera import CameraNoise, MvsCamera
+from droid.sim.mvs.tool_sensor import pose_for_reading
 from droid.sim.workpiece import load_workpiece
 from droid.subunits.mvs.dsp import forget_inproc_channel, inproc_channel, parse_dsp_url
 from droid.subunits.mvs.wire import (COLUMNS, DSP_LAYOUT_VERSION, DSP_MAGIC, DSP_RECORD,

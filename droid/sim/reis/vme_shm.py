@@ -1,7 +1,7 @@
 """The simulated Reis register map as a POSIX shared-memory object.
 
 droid-sim creates ``/NAME`` (MAP_SIZE bytes, :mod:`droid.subunits.reis.vme_map`)
-and runs a :class:`droid.sim.reis_plant.ReisPlant` on it; droid-servo and
+and runs a :class:`droid.sim.reis.plant.ReisPlant` on it; droid-servo and
 droid-watchdog open the same bytes with ``open_vme("shm://NAME")``::
 
     with SharedVmeMap.create("droid.mycell.arm1.vme") as shared:

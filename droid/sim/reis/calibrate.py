@@ -131,7 +131,7 @@ class Predictor:
     """What the controller expects to see: its robot file's kinematics and drive deflection."""
 
     def __init__(self, model) -> None:
-        from droid.sim.reis_dynamics import RigidBody
+        from droid.sim.reis.dynamics import RigidBody
 
         self.model = model.with_base(np.eye(4))
         dyn = model.dynamics
@@ -242,7 +242,7 @@ def calibrate_arm(arm, seed: int = 0) -> dict:
 def main(argv=None) -> int:
     from droid.brain.program import open_cell, parser
     from droid.sim.lockstep import Scheduler
-    from droid.sim.reis_cell import arms_from_cell
+    from droid.sim.reis.cell import arms_from_cell
 
     ap = parser(PROG, "Optical calibration of an arm's home offsets (thesis §4.1.1.4) on the simulated cell.")
     ap.add_argument("robot", metavar="ROBOT", help="the arm's subunit name (e.g. arm1)")

@@ -22,7 +22,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from droid.sim.reis_plant import ReisPlant, ReisPlantParams
+from droid.sim.reis.plant import ReisPlant, ReisPlantParams
 from droid.subunits.reis.servo import ServoCore
 from droid.subunits.reis.servo_params import Mode, ServoParams
 from droid.subunits.reis.vme import VmeBus

@@ -31,7 +31,7 @@ from droid.brain.shmdb import MemoryDatabase
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.sim.lockstep import ORDER_DEVICE, ORDER_HEARTBEAT, ORDER_WORLD, Scheduler
-from droid.sim.reis_plant import ReisPlant, ReisPlantParams
+from droid.sim.reis.plant import ReisPlant, ReisPlantParams
 from droid.subunits.agent import COMMAND_MAP
 from droid.subunits.reis import servo_wire as sw
 from droid.subunits.reis.planner import PlannerCore
@@ -173,7 +173,7 @@ class LockstepArm:
 
     def truth(self) -> dict:
         """The world's truth about this arm, as ``droid-sim truth ARM --json`` prints it."""
-        from droid.sim.truth import truth_dict
+        from droid.sim.reis.truth import truth_dict
 
         return truth_dict(self.name, self.plant.time_s, self.plant.joint_deg, self.wcp_global()[:3, 3])
 
@@ -231,11 +231,11 @@ def arms_from_cell(sched: Scheduler, cell, seed: int | None = None) -> dict[str,
 
     Each arm reads its subunit's robot file and base; its plant carries the device table's
     world errors (``home_error_deg``, ``calibration_seed``, ``link_error_mm``,
-    ``twist_error_deg``; droid.sim.reis_world), and a device naming a different robot file
+    ``twist_error_deg``; droid.sim.reis.world), and a device naming a different robot file
     than its subunit is refused, as droid-sim refuses it.
     """
     from droid.cli import BadInput
-    from droid.sim.reis_world import _OPTIONS, world_errors
+    from droid.sim.reis.world import _OPTIONS, world_errors
     from droid.subunits.reis.robot_file import read_offsets
 
     arms = {}

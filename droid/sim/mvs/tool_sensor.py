@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from droid.sim.mvs_frames import apply, invert, rot_z, translation
+from droid.sim.mvs.frames import apply, invert, rot_z, translation
 from droid.sim.workpiece import Workpiece
 
 #: Stop the search when the seam point is this close to the sheet [mm].

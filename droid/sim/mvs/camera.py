@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from droid.sim.mvs_frames import apply
+from droid.sim.mvs.frames import apply
 from droid.sim.workpiece import Workpiece
 from droid.subunits.mvs.calibration import MvsCalibration
 from droid.subunits.mvs.wire import COLUMNS, FRAME_RATE_HZ, NO_STRIPE, ROWS

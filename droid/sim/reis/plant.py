@@ -59,7 +59,7 @@ import numpy as np
 import pinocchio as pin
 
 from droid.kinematics import load_robot
-from droid.sim.reis_dynamics import DhError, RigidBody
+from droid.sim.reis.dynamics import DhError, RigidBody
 from droid.subunits.reis import vme_map as vm
 
 Six = tuple[float, float, float, float, float, float]
@@ -159,7 +159,7 @@ class ReisPlant:
     """The robot behind the VME register map.  ``regs`` is the map's bytes.
 
     ``regs`` may be supplied (e.g. an mmap of a POSIX shared-memory object,
-    :mod:`droid.sim.vme_shm`); by default it is a private bytearray.
+    :mod:`droid.sim.reis.vme_shm`); by default it is a private bytearray.
     ``encoder_power_up_counts`` and ``initial_joint_deg`` override the seeded
     power-up values (tests).
     """

@@ -28,7 +28,7 @@ droid-servo and droid-watchdog open the same bytes with ``open_vme(url)``.
 The device also implements the arm-twin interface of the world:
 ``wcp_global()`` -- the true wrist-centre pose [mm] in the global frame, used
 by the camera twin -- and publishes its truth through the world's door
-(:mod:`droid.sim.truth`; ``droid-sim truth ARM --json``).
+(:mod:`droid.sim.reis.truth`; ``droid-sim truth ARM --json``).
 """
 from __future__ import annotations
 
@@ -37,10 +37,10 @@ import numpy as np
 from droid.cli import BadInput
 from droid.kinematics import RobotFileError, load_robot
 from droid.kinematics.transforms import pose_to_T
-from droid.sim.reis_dynamics import DhError
-from droid.sim.reis_plant import ReisPlant, ReisPlantParams
-from droid.sim.truth import TruthDoor, door_name
-from droid.sim.vme_shm import SharedVmeMap
+from droid.sim.reis.dynamics import DhError
+from droid.sim.reis.plant import ReisPlant, ReisPlantParams
+from droid.sim.reis.truth import TruthDoor, door_name
+from droid.sim.reis.vme_shm import SharedVmeMap
 from droid.sim.world import Device
 from droid.subunits.reis.endpoints import reis_endpoints
 
