@@ -47,7 +47,7 @@ from droid.subunits.reis.endpoints import reis_endpoints
 HOME_ERROR_MAX_DEG = 0.5  # calibration_seed: home-switch errors, joints 2-5
 LINK_ERROR_MAX_MM = 0.5  # calibration_seed: D-H length errors
 TWIST_ERROR_MAX_DEG = 0.02  # calibration_seed: D-H twist errors
-_OPTIONS = {"subunit", "seed", "robot", "home_error_deg", "calibration_seed", "link_error_mm", "twist_error_deg"}
+_OPTIONS = {"subunit", "seed", "robot", "home_error_deg", "calibration_seed", "link_error_mm", "twist_error_deg", "compliance"}
 
 
 class ReisDevice(Device):
@@ -135,7 +135,10 @@ def make_reis(world, name: str, options: dict) -> ReisDevice:
     if model.dynamics is None or model.dh is None:
         raise BadInput(f"{model.source}: [dynamics] and [dh] are needed to simulate the arm")
     home_error, dh_error = world_errors(where, model, options)
-    params = ReisPlantParams(robot=sub.robot, home_error_deg=home_error, dh_error=dh_error)
+    compliance = options.get("compliance", True)
+    if not isinstance(compliance, bool):
+        raise BadInput(f"{where} compliance: must be true or false, got {compliance!r}")
+    params = ReisPlantParams(robot=sub.robot, home_error_deg=home_error, dh_error=dh_error, compliance=compliance)
     shared = SharedVmeMap.create(url[len("shm://"):], replace=True)
     door = None
     try:
