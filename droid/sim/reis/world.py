@@ -13,6 +13,7 @@ Device type ``reis_vme`` (cell file)::
     calibration_seed = 3                            # random errors of documented size (below)
     link_error_mm = [0, 0.5, 0, -0.3, 0, 0]         # D-H d_i (d_mm, joints with d != 0) or a_i (a_mm) errors
     twist_error_deg = [0.02, 0, 0, 0, 0, 0]         # D-H alpha errors [deg]
+    compliance = true                               # harmonic-drive compliance (default false: rigid)
 
 ``calibration_seed = N`` draws, seeded: home-switch errors uniform in +-0.5 deg
 on joints 2-5 (joints 1 and 6 are arbitrary by definition, thesis §4.1.1.4:
@@ -135,7 +136,10 @@ def make_reis(world, name: str, options: dict) -> ReisDevice:
     if model.dynamics is None or model.dh is None:
         raise BadInput(f"{model.source}: [dynamics] and [dh] are needed to simulate the arm")
     home_error, dh_error = world_errors(where, model, options)
-    compliance = options.get("compliance", True)
+    # Rigid drives unless the cell asks for compliance = true: with the harmonic drives'
+    # compliance (the robot file's stiffness; lockstep --arm full uses it) the real-time
+    # servo hunts at standstill and a loaded host's cell failed its stop tests (issue 13, open).
+    compliance = options.get("compliance", False)
     if not isinstance(compliance, bool):
         raise BadInput(f"{where} compliance: must be true or false, got {compliance!r}")
     params = ReisPlantParams(robot=sub.robot, home_error_deg=home_error, dh_error=dh_error, compliance=compliance)
