@@ -217,6 +217,21 @@ class _State:
     recent: deque = field(default_factory=lambda: deque(maxlen=RUNAWAY_WINDOW))  # (moved mm, cycles)
 
 
+def mount(tracker, params: SeamParams, T_wcp_tool, T_wcp_sensor, reis_model: RobotModel | None) -> None:
+    """What every tracker core (thesis, listing, plus) keeps of its set-up: the parameters,
+    the tool and sensor transforms on the Reis wrist [mm], the camera-to-tool distance [mm],
+    the Reis model for reachability and the transport-delay buffer (§5.5)."""
+    tracker.p = params
+    tracker.T67tool = np.asarray(T_wcp_tool, float)
+    tracker.Tcamera_6 = np.asarray(T_wcp_sensor, float)
+    tracker.T67tool_inv = inv_homo(tracker.T67tool)
+    tracker.camera_to_tcp_mm = float(np.linalg.norm(tracker.Tcamera_6[:3, 3] - tracker.T67tool[:3, 3]))
+    if not tracker.camera_to_tcp_mm > 0:
+        raise ValueError("the sensor's measuring point coincides with the tool point")
+    tracker.reis_model = reis_model
+    tracker.delay = TransportDelay(params.delay_cycles, params.delay_at_mm)
+
+
 class SeamTracker:
     """The seamtrack core (see the module docstring).
 
@@ -227,15 +242,7 @@ class SeamTracker:
     """
 
     def __init__(self, params: SeamParams, T_wcp_tool, T_wcp_sensor, reis_model: RobotModel | None = None):
-        self.p = params
-        self.T67tool = np.asarray(T_wcp_tool, float)
-        self.Tcamera_6 = np.asarray(T_wcp_sensor, float)
-        self.T67tool_inv = inv_homo(self.T67tool)
-        self.camera_to_tcp_mm = float(np.linalg.norm(self.Tcamera_6[:3, 3] - self.T67tool[:3, 3]))
-        if not self.camera_to_tcp_mm > 0:
-            raise ValueError("the sensor's measuring point coincides with the tool point")
-        self.reis_model = reis_model
-        self.delay = TransportDelay(params.delay_cycles, params.delay_at_mm)
+        mount(self, params, T_wcp_tool, T_wcp_sensor, reis_model)
         self.s = _State(dead_zone=params.dead_zone_cycles)
         # the listing's globals
         self.T06hold = np.eye(4)  # global T (GMF1)6

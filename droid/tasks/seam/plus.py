@@ -42,10 +42,10 @@ import numpy as np
 
 from droid.kinematics import RobotModel, Unreachable
 from droid.kinematics.transforms import inv_homo
-from droid.tasks.seam.core import (PHASE_DEAD_ZONE, PHASE_INITIAL, PHASE_TRACKING, RUNAWAY_MIN_MM,
+from droid.tasks.seam.core import (mount, PHASE_DEAD_ZONE, PHASE_INITIAL, PHASE_TRACKING, RUNAWAY_MIN_MM,
                                    RUNAWAY_WINDOW, STOP_END, STOP_LOST, STOP_RUNAWAY, STOP_UNREACHABLE,
                                    CycleOutput, SeamParams, Stop, _seam_transform)
-from droid.tasks.seam.delay import DELAY_OFF, INVALID_READING, Reading, TransportDelay
+from droid.tasks.seam.delay import DELAY_OFF, INVALID_READING, Reading
 from droid.tasks.seam.seammap import SeamMap, chord_point
 
 #: Integral gain on the tool's depth error [1/cycle] (time constant ~0.7 s at 30 Hz).
@@ -58,15 +58,7 @@ class PlusTracker:
     """The plus-mode core; the same ``step`` interface as :class:`SeamTracker` (see the module docstring)."""
 
     def __init__(self, params: SeamParams, T_wcp_tool, T_wcp_sensor, reis_model: RobotModel | None = None):
-        self.p = params
-        self.T67tool = np.asarray(T_wcp_tool, float)
-        self.Tcamera_6 = np.asarray(T_wcp_sensor, float)
-        self.T67tool_inv = inv_homo(self.T67tool)
-        self.camera_to_tcp_mm = float(np.linalg.norm(self.Tcamera_6[:3, 3] - self.T67tool[:3, 3]))
-        if not self.camera_to_tcp_mm > 0:
-            raise ValueError("the sensor's measuring point coincides with the tool point")
-        self.reis_model = reis_model
-        self.delay = TransportDelay(params.delay_cycles, params.delay_at_mm)
+        mount(self, params, T_wcp_tool, T_wcp_sensor, reis_model)
         self.map = SeamMap(gap_mm=params.gap_mm)
         self.cycle = 0
         self.s_cmd = 0.0  # commanded arc length along the map [mm]
