@@ -235,7 +235,7 @@ def arms_from_cell(sched: Scheduler, cell, seed: int | None = None) -> dict[str,
     than its subunit is refused, as droid-sim refuses it.
     """
     from droid.cli import BadInput
-    from droid.sim.reis.world import _OPTIONS, world_errors
+    from droid.sim.reis.world import device_subunit, world_errors
     from droid.subunits.reis.robot_file import read_offsets
 
     arms = {}
@@ -244,14 +244,7 @@ def arms_from_cell(sched: Scheduler, cell, seed: int | None = None) -> dict[str,
         if not isinstance(opts, dict) or opts.get("type") != "reis_vme":
             continue
         opts = {k: v for k, v in opts.items() if k != "type"}
-        where = f"{cell.path}: [world.devices.{name}]"
-        unknown = set(opts) - _OPTIONS
-        if unknown:
-            raise BadInput(f"{where}: unknown key(s) {', '.join(sorted(unknown))}")
-        sub = cell.subunit(opts.get("subunit", name))
-        if "robot" in opts and opts["robot"] != sub.robot:
-            raise BadInput(f"{where}: the world's robot file {opts['robot']!r} differs from the controller's "
-                           f"{sub.robot!r} ([subunits.{sub.name}] robot): one arm, one robot file")
+        where, sub = device_subunit(cell, name, opts)
         model = load_robot(sub.robot)
         home_error, dh_error = world_errors(where, model, opts)
         pp = ReisPlantParams(robot=sub.robot, home_error_deg=home_error, dh_error=dh_error)

@@ -115,8 +115,9 @@ def world_errors(where: str, model, options: dict) -> tuple[tuple, DhError]:
     return tuple(home), DhError(d_mm=tuple(d_err), a_mm=tuple(a_err), alpha_deg=tuple(twist))
 
 
-def make_reis(world, name: str, options: dict) -> ReisDevice:
-    cell = world.cell
+def device_subunit(cell, name: str, options: dict):
+    """``(where, subunit)`` of a Reis world device's table, checked: no unknown key, and the
+    world's robot file (if named) is the controller's -- one arm, one robot file."""
     where = f"{cell.path}: [world.devices.{name}]"
     unknown = set(options) - _OPTIONS
     if unknown:
@@ -125,6 +126,12 @@ def make_reis(world, name: str, options: dict) -> ReisDevice:
     if "robot" in options and options["robot"] != sub.robot:
         raise BadInput(f"{where}: the world's robot file {options['robot']!r} differs from the controller's "
                        f"{sub.robot!r} ([subunits.{sub.name}] robot): one arm, one robot file")
+    return where, sub
+
+
+def make_reis(world, name: str, options: dict) -> ReisDevice:
+    cell = world.cell
+    where, sub = device_subunit(cell, name, options)
     url = reis_endpoints(cell, sub).vme
     if not url.startswith("shm://"):
         raise BadInput(f"{where} the simulated VME map needs a shm:// URL, got {url!r}")
