@@ -7,7 +7,8 @@ directly (:meth:`wait`) or put in a ``zmq.Poller`` beside sockets.  Reading it
 returns how many periods elapsed; more than one is an overrun, counted.
 
 :func:`try_sched_fifo` asks for SCHED_FIFO when the cell file wants it and the
-OS permits; it never fails the program.
+OS permits, and then locks the program's memory (:func:`lock_memory`); it never
+fails the program.
 """
 from __future__ import annotations
 
@@ -154,17 +155,52 @@ CEILING_PRIORITY = 61
 DEFAULT_FIFO_PRIORITY = 50
 
 
+MCL_CURRENT = 1  # <sys/mman.h>
+MCL_FUTURE = 2
+_libc.mlockall.argtypes = [ctypes.c_int]
+
+
+def lock_memory(prog: str = "droid") -> bool:
+    """Lock every page of this process in RAM, now and in future (``mlockall``).
+
+    A real-time program must not take page faults in its loop (the PREEMPT_RT
+    and cyclictest ``-m`` practice).  On this kind of host it matters more than
+    usual: the kernel's proactive reclaim (DAMON ``pageout``) drops file pages
+    -- the interpreter's and numpy's code -- that were not touched for a minute,
+    so the first move after an idle minute read its code back from disk in
+    the servo's or the world's loop: stalls of tens of ms under I/O load, the
+    world's clock slipped seconds and moves halted short (issue 16).  Locked
+    pages are never reclaimed.  Returns False (with a warning) where the OS
+    refuses, e.g. without root and with a small ``RLIMIT_MEMLOCK``;
+    ``DROID_NO_MLOCK=1`` skips it (for measuring what it buys).
+    """
+    if os.environ.get("DROID_NO_MLOCK") == "1":
+        return False
+    if _libc.mlockall(MCL_CURRENT | MCL_FUTURE) != 0:
+        err = ctypes.get_errno()
+        print(f"{prog}: memory not locked ({os.strerror(err)}); page faults may stall the loop",
+              file=sys.stderr)
+        return False
+    return True
+
+
 def try_sched_fifo(priority: int | None = None, *, wanted: bool = True, prog: str = "droid") -> bool:
     """Switch this process to SCHED_FIFO if wanted and permitted, at ``priority``
-    (default: ``prog``'s entry in :data:`FIFO_PRIORITIES`)."""
+    (default: ``prog``'s entry in :data:`FIFO_PRIORITIES`), and lock its memory
+    (:func:`lock_memory`)."""
     if not wanted:
         return False
     if priority is None:
         priority = FIFO_PRIORITIES.get(prog, DEFAULT_FIFO_PRIORITY)
+    # Lock first, on the normal scheduler: mlockall pages in every mapping (hundreds of MB
+    # for a program with numpy and Pinocchio); done at FIFO priority it kept the cell's
+    # running real-time programs off the CPU while a new one started (a 205 ms stall of
+    # droid-sim measured at start-up, issue 16).
+    lock_memory(prog)
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-        return True
     except (PermissionError, OSError, AttributeError) as exc:
         print(f"{prog}: SCHED_FIFO not available ({exc}); running on the normal scheduler",
               file=sys.stderr)
         return False
+    return True

@@ -167,6 +167,7 @@ def main(argv=None) -> int:
         per_wake = max(1, int(MAX_STEP_PER_WAKE_S * rate))  # steps at most between two servo reads
         max_owed = max(per_wake, int(MAX_OWED_S * rate))
         owed = slipped = 0
+        told_at = -int(rate)
         while not Stop.requested:
             n = timer.wait(0.5)
             if not n:
@@ -180,6 +181,10 @@ def main(argv=None) -> int:
             owed += n
             if owed > max_owed:
                 slipped += owed - max_owed
+                if timer.cycles >= told_at + rate:  # at most once a second: when, and how far
+                    told_at = timer.cycles
+                    print(f"{PROG}: stalled {n * dt * 1e3:.0f} ms at step {timer.cycles}: the world's clock "
+                          f"slipped {(owed - max_owed) * dt * 1e3:.0f} ms", file=sys.stderr, flush=True)
                 owed = max_owed
             for _ in range(min(owed, per_wake)):
                 world.advance(dt)
