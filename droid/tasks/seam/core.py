@@ -167,8 +167,12 @@ class SeamParams:
 
 
 @dataclass(frozen=True)
-class Stop:
-    """Why a run ended, where (tool travel [mm]) and in which cycle."""
+class TrackingStop:
+    """Why a tracking run ended, where (tool travel [mm]) and in which cycle.
+
+    Not :class:`droid.brain.program.Stop` (the SIGTERM/SIGINT flag every program
+    polls): this is the tracking core's verdict, a value the report prints.
+    """
 
     reason: str  # STOP_END, STOP_LOST, STOP_UNREACHABLE, STOP_RUNAWAY
     detail: str
@@ -186,7 +190,7 @@ class CycleOutput:
     cycle: int
     reis_cmd: np.ndarray | None  # Reis WCP command, 4x4 global [mm]; None once stopped
     gmf1_cmd: np.ndarray | None  # GMF1 WCP command, 4x4 global [mm]; None once stopped
-    stop: Stop | None
+    stop: TrackingStop | None
     phase: str
     travel_mm: float  # tool travel since the start, in the holder's wrist frame [mm]
     yaw_rad: float  # the correction applied this cycle (gain included)
@@ -211,7 +215,7 @@ class _State:
     pushes: int = 0
     q_prev: np.ndarray | None = None
     hold_cmd: np.ndarray | None = None
-    stop: Stop | None = None
+    stop: TrackingStop | None = None
     seam_pos: list = field(default_factory=list)  # positions (x, y, z) of the patch, index 0 newest
     seam_front: np.ndarray | None = None  # the newest patch frame (4x4)
     recent: deque = field(default_factory=lambda: deque(maxlen=RUNAWAY_WINDOW))  # (moved mm, cycles)
@@ -436,7 +440,7 @@ class SeamTracker:
 
     # ------------------------------------------------------------ one cycle
     @property
-    def stopped(self) -> Stop | None:
+    def stopped(self) -> TrackingStop | None:
         return self.s.stop
 
     def step(self, T_global_hold6, T_global_reis6, reading: Reading, q_reis_deg=None,
@@ -513,7 +517,7 @@ class SeamTracker:
             tcp_idx=s.tcp_idx, queue_len=len(s.seam_pos), q_reis_deg=q)
 
     def _stop(self, cycle: int, reason: str, detail: str) -> CycleOutput:
-        self.s.stop = Stop(reason, detail, self.s.travel_mm, cycle)
+        self.s.stop = TrackingStop(reason, detail, self.s.travel_mm, cycle)
         return self._stopped_output(cycle)
 
     def _stopped_output(self, cycle: int) -> CycleOutput:

@@ -44,7 +44,7 @@ from droid.kinematics import RobotModel, Unreachable
 from droid.kinematics.transforms import inv_homo
 from droid.tasks.seam.core import (mount, PHASE_DEAD_ZONE, PHASE_INITIAL, PHASE_TRACKING, RUNAWAY_MIN_MM,
                                    RUNAWAY_WINDOW, STOP_END, STOP_LOST, STOP_RUNAWAY, STOP_UNREACHABLE,
-                                   CycleOutput, SeamParams, Stop, _seam_transform)
+                                   CycleOutput, SeamParams, TrackingStop, _seam_transform)
 from droid.tasks.seam.delay import DELAY_OFF, INVALID_READING, Reading
 from droid.tasks.seam.seammap import SeamMap, chord_point
 
@@ -70,16 +70,16 @@ class PlusTracker:
         self.invalid_run = 0
         self.q_prev = None
         self.hold_cmd = None
-        self.stop: Stop | None = None
+        self.stop: TrackingStop | None = None
         self.recent: deque = deque(maxlen=RUNAWAY_WINDOW)
         self.used_readings = 0
 
     @property
-    def stopped(self) -> Stop | None:
+    def stopped(self) -> TrackingStop | None:
         return self.stop
 
     def _stop(self, cycle: int, reason: str, detail: str) -> CycleOutput:
-        self.stop = Stop(reason, detail, self.travel_mm, cycle)
+        self.stop = TrackingStop(reason, detail, self.travel_mm, cycle)
         return self._stopped_output(cycle)
 
     def _stopped_output(self, cycle: int) -> CycleOutput:
