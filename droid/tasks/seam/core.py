@@ -202,6 +202,32 @@ class CycleOutput:
     q_reis_deg: np.ndarray | None = None  # the Reis pick for reis_cmd (None without a model)
 
 
+class RunawayGuard:
+    """The runaway guard every tracker core runs (thesis, listing, plus; docs/safety.md).
+
+    Keeps the tool's travel of the last RUNAWAY_WINDOW cycles; :meth:`check`
+    says why the run must stop (None: it need not) when the tool moved more
+    than ``runaway_factor`` times the commanded step per cycle over that window
+    (and more than RUNAWAY_MIN_MM): an oscillating, unstable loop.  A late
+    Status counts as ``elapsed_cycles`` cycles of time.
+    """
+
+    def __init__(self, params: "SeamParams") -> None:
+        self.p = params
+        self.recent: deque = deque(maxlen=RUNAWAY_WINDOW)  # (moved mm, cycles)
+
+    def check(self, moved_mm: float, elapsed_cycles: float) -> str | None:
+        """Add one cycle's travel [mm]; the stop detail if the tool ran away, else None."""
+        if self.p.runaway_factor <= 0:
+            return None
+        self.recent.append((moved_mm, max(1.0, elapsed_cycles)))
+        moved = sum(m for m, _ in self.recent)
+        limit_mm = max(self.p.runaway_factor * self.p.step_mm * sum(e for _, e in self.recent), RUNAWAY_MIN_MM)
+        if moved > limit_mm:
+            return f"the tool moved {moved:.1f} mm in {len(self.recent)} cycles (limit {limit_mm:.1f} mm)"
+        return None
+
+
 @dataclass
 class _State:
     cycle: int = 0
@@ -218,7 +244,7 @@ class _State:
     stop: TrackingStop | None = None
     seam_pos: list = field(default_factory=list)  # positions (x, y, z) of the patch, index 0 newest
     seam_front: np.ndarray | None = None  # the newest patch frame (4x4)
-    recent: deque = field(default_factory=lambda: deque(maxlen=RUNAWAY_WINDOW))  # (moved mm, cycles)
+    runaway: RunawayGuard | None = None  # set by SeamTracker from its parameters
 
 
 def mount(tracker, params: SeamParams, T_wcp_tool, T_wcp_sensor, reis_model: RobotModel | None) -> None:
@@ -247,7 +273,7 @@ class SeamTracker:
 
     def __init__(self, params: SeamParams, T_wcp_tool, T_wcp_sensor, reis_model: RobotModel | None = None):
         mount(self, params, T_wcp_tool, T_wcp_sensor, reis_model)
-        self.s = _State(dead_zone=params.dead_zone_cycles)
+        self.s = _State(dead_zone=params.dead_zone_cycles, runaway=RunawayGuard(params))
         # the listing's globals
         self.T06hold = np.eye(4)  # global T (GMF1)6
         self.T6tool_hold = np.eye(4)  # (GMF1)6 T (Reis)6
@@ -476,13 +502,10 @@ class SeamTracker:
             moved_mm = math.sqrt(float(d.dot(d)))  # np.linalg.norm(d), without its overhead
             s.travel_mm += moved_mm
         s.last_tool = tool
-        if self.p.runaway_factor > 0 and s.dead_zone == 0:  # (in the dead zone the arm may still settle)
-            s.recent.append((moved_mm, max(1.0, elapsed_cycles)))
-            moved = sum(m for m, _ in s.recent)
-            limit_mm = max(self.p.runaway_factor * self.p.step_mm * sum(e for _, e in s.recent), RUNAWAY_MIN_MM)
-            if moved > limit_mm:
-                return self._stop(cycle, STOP_RUNAWAY, f"the tool moved {moved:.1f} mm in {len(s.recent)} "
-                                                       f"cycles (limit {limit_mm:.1f} mm)")
+        if s.dead_zone == 0:  # (in the dead zone the arm may still settle)
+            runaway = s.runaway.check(moved_mm, elapsed_cycles)
+            if runaway:
+                return self._stop(cycle, STOP_RUNAWAY, runaway)
         if s.q_prev is None and q_reis_deg is not None:
             s.q_prev = np.asarray(q_reis_deg, float)
         if s.travel_mm >= self.p.length_mm:

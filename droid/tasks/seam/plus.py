@@ -36,14 +36,13 @@ seam map (droid.tasks.seam.seammap).  Per 30 Hz cycle:
 from __future__ import annotations
 
 import math
-from collections import deque
 
 import numpy as np
 
 from droid.kinematics import RobotModel, Unreachable
 from droid.kinematics.transforms import inv_homo
-from droid.tasks.seam.core import (mount, PHASE_DEAD_ZONE, PHASE_INITIAL, PHASE_TRACKING, RUNAWAY_MIN_MM,
-                                   RUNAWAY_WINDOW, STOP_END, STOP_LOST, STOP_RUNAWAY, STOP_UNREACHABLE,
+from droid.tasks.seam.core import (mount, PHASE_DEAD_ZONE, PHASE_INITIAL, PHASE_TRACKING, RunawayGuard,
+                                   STOP_END, STOP_LOST, STOP_RUNAWAY, STOP_UNREACHABLE,
                                    CycleOutput, SeamParams, TrackingStop, _seam_transform)
 from droid.tasks.seam.delay import DELAY_OFF, INVALID_READING, Reading
 from droid.tasks.seam.seammap import SeamMap, chord_point
@@ -71,7 +70,7 @@ class PlusTracker:
         self.q_prev = None
         self.hold_cmd = None
         self.stop: TrackingStop | None = None
-        self.recent: deque = deque(maxlen=RUNAWAY_WINDOW)
+        self.runaway = RunawayGuard(params)
         self.used_readings = 0
 
     @property
@@ -106,13 +105,10 @@ class PlusTracker:
             self.travel_mm += moved
         self.last_tool = tool
         in_dead_zone = cycle < self.p.dead_zone_cycles
-        if self.p.runaway_factor > 0 and not in_dead_zone:
-            self.recent.append((moved, max(1.0, elapsed_cycles)))
-            total = sum(m for m, _ in self.recent)
-            limit = max(self.p.runaway_factor * self.p.step_mm * sum(e for _, e in self.recent), RUNAWAY_MIN_MM)
-            if total > limit:
-                return self._stop(cycle, STOP_RUNAWAY, f"the tool moved {total:.1f} mm in {len(self.recent)} "
-                                                       f"cycles (limit {limit:.1f} mm)")
+        if not in_dead_zone:
+            runaway = self.runaway.check(moved, elapsed_cycles)
+            if runaway:
+                return self._stop(cycle, STOP_RUNAWAY, runaway)
         if self.q_prev is None and q_reis_deg is not None:
             self.q_prev = np.asarray(q_reis_deg, float)
         if self.travel_mm >= self.p.length_mm:
