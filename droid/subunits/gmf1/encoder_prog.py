@@ -23,7 +23,8 @@ import sys
 import time
 
 from droid.brain.databases import open_local
-from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
+from droid.brain.program import (ErrorLine, Presence, Stop, close_all, notify_ready, open_cell, parser,
+                                 presence_key)
 from droid.brain.rt import PeriodicTimer, now_ns, try_sched_fifo
 from droid.cli import BadInput, bounded_float, run
 from droid.kinematics import load_robot
@@ -117,7 +118,7 @@ def main(argv=None) -> int:
         timer = PeriodicTimer(int(round(1e9 / rate)))
         presence.ready()
         notify_ready(args.ready_fd)
-        last_error = ""
+        errors = ErrorLine(PROG)
         had_bank = False
         while not Stop.requested:
             if not timer.wait(0.5):
@@ -138,19 +139,12 @@ def main(argv=None) -> int:
                     cards.drop(t_s, f"read failed: {exc}")
                     station.fault()
                     had_bank = False
-            if cards.last_error != last_error:
-                last_error = cards.last_error
-                print(f"{PROG}: {last_error}", file=sys.stderr)
+            errors.update(cards.last_error)
             presence.beat(0, timer.cycles, timer.overruns, timer.lateness_max_ns)
         print(f"{PROG}: {station.refreshes} refreshes, {core.homings} homings, {timer.overruns} overruns, "
               f"worst lateness {timer.lateness_max_ns / 1e3:.0f} us", file=sys.stderr)
     finally:
-        cards.close()
-        if timer is not None:
-            timer.close()
-        status.close()
-        if presence is not None:
-            presence.close()
+        close_all(cards, timer, status, presence)
     return 0
 
 

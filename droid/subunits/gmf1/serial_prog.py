@@ -22,7 +22,8 @@ import zmq
 from droid.brain.curve import CurveHost
 from droid.brain.databases import open_local
 from droid.brain.heartbeat import TickSubscriber
-from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
+from droid.brain.program import (ErrorLine, Presence, Stop, close_all, notify_ready, open_cell, parser,
+                                 presence_key)
 from droid.cli import BadInput, bounded_int, run
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T
@@ -73,7 +74,7 @@ def main(argv=None) -> int:
         link.open()  # a missing port is a fault, not a start-up failure
         presence.ready()
         notify_ready(args.ready_fd)
-        last_error = ""
+        errors = ErrorLine(PROG, f"serial {url}: ")
         opens = link.opens
         cycles = 0
         while not Stop.requested:
@@ -82,10 +83,7 @@ def main(argv=None) -> int:
                 continue
             station.cycle(t.tick)
             cycles += 1
-            if link.last_error != last_error:
-                last_error = link.last_error
-                if last_error:
-                    print(f"{PROG}: serial {url}: {last_error}", file=sys.stderr)
+            errors.update(link.last_error)
             if link.opens != opens:
                 opens = link.opens
                 print(f"{PROG}: serial {url} open", file=sys.stderr)
@@ -94,16 +92,7 @@ def main(argv=None) -> int:
               f"{core.refused}, failed {core.failed}, garbled {core.garbled}, timeouts {core.timeouts}, "
               f"busy rejects {core.busy_rejects}, port opens {link.opens}", file=sys.stderr)
     finally:
-        link.close()
-        if ticks is not None:
-            ticks.close()
-        if ctx is not None:
-            ctx.term()
-        ctrl_command.close()
-        if ctrl_status is not None:
-            ctrl_status.close()
-        if presence is not None:
-            presence.close()
+        close_all(link, ticks, ctx and ctx.term, ctrl_command, ctrl_status, presence)
     return 0
 
 
