@@ -140,11 +140,9 @@ class SeamParams:
             raise ValueError(f"acceleration must be > 0 mm/s^2, got {self.accel_mm_s2!r}")
         if not (isinstance(self.gap_mm, (int, float)) and self.gap_mm > 0):
             raise ValueError(f"the bridged gap must be > 0 mm, got {self.gap_mm!r}")
-        if self.speed_mm_s <= 0:
-            raise ValueError(f"speed must be > 0 mm/s, got {self.speed_mm_s!r}")
-        if self.speed_mm_s > MAX_SPEED_MM_S:
-            raise ValueError(f"speed {self.speed_mm_s:g} mm/s is beyond what the arm can do "
-                             f"(at most {MAX_SPEED_MM_S:g} mm/s)")
+        why = speed_problem(self.speed_mm_s)
+        if why:
+            raise ValueError(why)
         if self.runaway_factor < 0:
             raise ValueError("runaway_factor must be >= 0")
         if self.cycle_hz <= 0:
@@ -164,6 +162,16 @@ class SeamParams:
     def step_mm(self) -> float:
         """The listing's ``vel``: distance the tool target advances per cycle [mm]."""
         return self.speed_mm_s / self.cycle_hz
+
+
+def speed_problem(speed_mm_s: float) -> str | None:
+    """Why a commanded travel speed [mm/s] cannot be tracked (None: it can): it must be > 0 and at
+    most MAX_SPEED_MM_S.  SeamParams and the experiments' TrialConfig both ask here."""
+    if speed_mm_s <= 0:
+        return f"speed must be > 0 mm/s, got {speed_mm_s!r}"
+    if speed_mm_s > MAX_SPEED_MM_S:
+        return f"speed {speed_mm_s:g} mm/s is beyond what the arm can do (at most {MAX_SPEED_MM_S:g} mm/s)"
+    return None
 
 
 @dataclass(frozen=True)
