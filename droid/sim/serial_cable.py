@@ -180,6 +180,13 @@ class BytePacer(PacedLine):
         super().push(data[:n], self.t_s if t_s is None else t_s)
         return n
 
+    def push_whole(self, data: bytes) -> bool:
+        """Queue all of ``data``, or nothing (False) when it does not fit (a line dropped whole)."""
+        if len(data) > self.room:
+            return False
+        self.push(data)
+        return True
+
     def advance(self, dt_s: float) -> bytes:
         """The bytes transmitted during the next ``dt_s`` seconds."""
         self.t_s += max(0.0, dt_s)
@@ -209,10 +216,9 @@ class PacedPipe:
     def write(self, data: bytes, t_ns: int) -> bool:
         """Queue ``data`` at time ``t_ns``; False (and nothing queued) if it does not fit."""
         self._advance_to(t_ns)
-        if len(data) > self.pacer.room:
+        if not self.pacer.push_whole(data):
             self.dropped_writes += 1
             return False
-        self.pacer.push(data)
         return True
 
     def read(self, t_ns: int) -> bytes:
@@ -500,10 +506,10 @@ class PacedPtyOutput:
         self.lost_bytes = 0
 
     def write(self, data: bytes) -> bool:
-        if len(data) > self.pacer.room:
+        """Queue a whole line; False (counted in ``dropped_writes``) when the transmitter is full."""
+        if not self.pacer.push_whole(data):
             self.dropped_writes += 1
             return False
-        self.pacer.push(data)
         return True
 
     def advance(self, dt_s: float) -> None:
