@@ -127,15 +127,19 @@ class Presence:
             unlink_database(self.name)
 
 
-def subunit_program(prog: str, description: str, argv=None, *, arm: bool = False):
+def subunit_program(prog: str, description: str, argv=None, *, arm: bool = False, options=None,
+                    example: str = "arm1"):
     """Common start of a program serving one subunit: parse ``[--cell FILE] SUBUNIT``,
     load the cell, check the subunit (an arm if ``arm``), install the stop handler.
+    ``options(ap)`` adds the program's own options to the parser.
 
     Returns ``(args, cell, sub)``; bad input raises BadInput (exit 2)."""
     from droid.cli import BadInput
 
     ap = parser(prog, description)
-    ap.add_argument("subunit", help="arm subunit, e.g. arm1" if arm else "subunit name, e.g. arm1")
+    ap.add_argument("subunit", help=f"arm subunit, e.g. {example}" if arm else f"subunit name, e.g. {example}")
+    if options is not None:
+        options(ap)
     args = ap.parse_args(argv)
     cell = open_cell(args)
     sub = cell.subunit(args.subunit)

@@ -22,9 +22,8 @@ import zmq
 from droid.brain.curve import CurveHost
 from droid.brain.databases import open_local
 from droid.brain.heartbeat import TickSubscriber
-from droid.brain.program import (ErrorLine, Presence, Stop, close_all, notify_ready, open_cell, parser,
-                                 presence_key)
-from droid.cli import BadInput, bounded_int, run
+from droid.brain.program import ErrorLine, Presence, Stop, close_all, notify_ready, presence_key, subunit_program
+from droid.cli import bounded_int, run
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.subunits.gmf1.config import gmf1_config
@@ -45,21 +44,19 @@ def build_core(cell, sub, cfg, baud: int) -> SerialCore:
 
 @run
 def main(argv=None) -> int:
-    ap = parser(PROG, "Send the newest GMF1 command to the Fanuc KAREL server over its serial line.")
-    ap.add_argument("subunit", help="the GMF1 subunit, e.g. gmf1")
-    ap.add_argument("--serial", metavar="URL", default=None, help="serial port (default: the cell file's)")
-    ap.add_argument("--baud", type=bounded_int(1, 4_000_000, "baud"), default=None, help="baud rate (default: the cell file's, 9600)")
-    args = ap.parse_args(argv)
-    cell = open_cell(args)
-    sub = cell.subunit(args.subunit)
-    if not sub.is_arm:
-        raise BadInput(f"{sub.name} is not an arm subunit")
+    def options(ap):
+        ap.add_argument("--serial", metavar="URL", default=None, help="serial port (default: the cell file's)")
+        ap.add_argument("--baud", type=bounded_int(1, 4_000_000, "baud"), default=None,
+                        help="baud rate (default: the cell file's, 9600)")
+
+    # tick-driven like the agent (no SCHED_FIFO): the 9600-baud line sets its pace
+    args, cell, sub = subunit_program(PROG, "Send the newest GMF1 command to the Fanuc KAREL server over its serial "
+                                      "line.", argv, arm=True, options=options, example="gmf1")
     cfg = gmf1_config(cell, sub)
     url = args.serial or cfg.serial
     baud = args.baud or cfg.baud
     link = PortLink(serial_opener(url, baud))
     core = build_core(cell, sub, cfg, baud)
-    Stop.install()  # tick-driven like the agent (no SCHED_FIFO): the 9600-baud line sets its pace
     ctrl_command = open_local(cell, sub, "ctrl_command")
     ctrl_status = None
     ctx = None
