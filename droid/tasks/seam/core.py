@@ -210,29 +210,41 @@ class CycleOutput:
     q_reis_deg: np.ndarray | None = None  # the Reis pick for reis_cmd (None without a model)
 
 
-class RunawayGuard:
-    """The runaway guard every tracker core runs (thesis, listing, plus; docs/safety.md).
+class TravelGuard:
+    """The tool's travel and the two stops it decides, as every tracker core (thesis, listing, plus) keeps them.
 
-    Keeps the tool's travel of the last RUNAWAY_WINDOW cycles; :meth:`check`
-    says why the run must stop (None: it need not) when the tool moved more
-    than ``runaway_factor`` times the commanded step per cycle over that window
-    (and more than RUNAWAY_MIN_MM): an oscillating, unstable loop.  A late
-    Status counts as ``elapsed_cycles`` cycles of time.
+    :meth:`step` adds the tool's move since the last cycle (holder's wrist
+    frame [mm]) to ``travel_mm`` and says why the run must stop (None: it need
+    not): ``runaway`` when, outside the dead zone, the tool moved more than
+    ``runaway_factor`` times the commanded step per cycle over the last
+    RUNAWAY_WINDOW cycles (and more than RUNAWAY_MIN_MM) -- an oscillating,
+    unstable loop (docs/safety.md); a late Status counts as ``elapsed_cycles``
+    cycles of time; ``end of seam`` when ``length_mm`` is travelled.
     """
 
     def __init__(self, params: "SeamParams") -> None:
         self.p = params
+        self.travel_mm = 0.0
+        self.last_tool: np.ndarray | None = None
         self.recent: deque = deque(maxlen=RUNAWAY_WINDOW)  # (moved mm, cycles)
 
-    def check(self, moved_mm: float, elapsed_cycles: float) -> str | None:
-        """Add one cycle's travel [mm]; the stop detail if the tool ran away, else None."""
-        if self.p.runaway_factor <= 0:
-            return None
-        self.recent.append((moved_mm, max(1.0, elapsed_cycles)))
-        moved = sum(m for m, _ in self.recent)
-        limit_mm = max(self.p.runaway_factor * self.p.step_mm * sum(e for _, e in self.recent), RUNAWAY_MIN_MM)
-        if moved > limit_mm:
-            return f"the tool moved {moved:.1f} mm in {len(self.recent)} cycles (limit {limit_mm:.1f} mm)"
+    def step(self, tool, elapsed_cycles: float, guard_runaway: bool) -> tuple[str, str] | None:
+        """One cycle's tool position [mm]; (stop reason, detail) or None."""
+        moved_mm = 0.0
+        if self.last_tool is not None:
+            d = tool - self.last_tool
+            moved_mm = math.sqrt(float(d.dot(d)))  # np.linalg.norm(d), without its overhead
+            self.travel_mm += moved_mm
+        self.last_tool = tool
+        if guard_runaway and self.p.runaway_factor > 0:
+            self.recent.append((moved_mm, max(1.0, elapsed_cycles)))
+            moved = sum(m for m, _ in self.recent)
+            limit_mm = max(self.p.runaway_factor * self.p.step_mm * sum(e for _, e in self.recent), RUNAWAY_MIN_MM)
+            if moved > limit_mm:
+                return STOP_RUNAWAY, f"the tool moved {moved:.1f} mm in {len(self.recent)} cycles " \
+                                     f"(limit {limit_mm:.1f} mm)"
+        if self.travel_mm >= self.p.length_mm:
+            return STOP_END, f"run length {self.p.length_mm:g} mm reached"
         return None
 
 
@@ -242,8 +254,6 @@ class _State:
     dead_zone: int = DEAD_ZONE_CYCLES
     first: bool = True
     tcp_idx: int = 0
-    travel_mm: float = 0.0
-    last_tool: np.ndarray | None = None
     invalid_run: int = 0
     initial_done: bool = False
     pushes: int = 0
@@ -252,7 +262,12 @@ class _State:
     stop: TrackingStop | None = None
     seam_pos: list = field(default_factory=list)  # positions (x, y, z) of the patch, index 0 newest
     seam_front: np.ndarray | None = None  # the newest patch frame (4x4)
-    runaway: RunawayGuard | None = None  # set by SeamTracker from its parameters
+    travel: TravelGuard | None = None  # set by SeamTracker from its parameters
+
+    @property
+    def travel_mm(self) -> float:
+        """Tool travel since the start [mm]."""
+        return self.travel.travel_mm
 
 
 def mount(tracker, params: SeamParams, T_wcp_tool, T_wcp_sensor, reis_model: RobotModel | None) -> None:
@@ -281,7 +296,7 @@ class SeamTracker:
 
     def __init__(self, params: SeamParams, T_wcp_tool, T_wcp_sensor, reis_model: RobotModel | None = None):
         mount(self, params, T_wcp_tool, T_wcp_sensor, reis_model)
-        self.s = _State(dead_zone=params.dead_zone_cycles, runaway=RunawayGuard(params))
+        self.s = _State(dead_zone=params.dead_zone_cycles, travel=TravelGuard(params))
         # the listing's globals
         self.T06hold = np.eye(4)  # global T (GMF1)6
         self.T6tool_hold = np.eye(4)  # (GMF1)6 T (Reis)6
@@ -504,20 +519,11 @@ class SeamTracker:
         self.tool_robot_wcp_wrt_holder(T_global_reis6)
         self.toolpt_wrt_holder()
         tool = self.Ttool7_hold[:3, 3].copy()
-        moved_mm = 0.0
-        if s.last_tool is not None:
-            d = tool - s.last_tool
-            moved_mm = math.sqrt(float(d.dot(d)))  # np.linalg.norm(d), without its overhead
-            s.travel_mm += moved_mm
-        s.last_tool = tool
-        if s.dead_zone == 0:  # (in the dead zone the arm may still settle)
-            runaway = s.runaway.check(moved_mm, elapsed_cycles)
-            if runaway:
-                return self._stop(cycle, STOP_RUNAWAY, runaway)
+        stop = s.travel.step(tool, elapsed_cycles, guard_runaway=s.dead_zone == 0)  # (the arm may settle first)
+        if stop:
+            return self._stop(cycle, *stop)
         if s.q_prev is None and q_reis_deg is not None:
             s.q_prev = np.asarray(q_reis_deg, float)
-        if s.travel_mm >= self.p.length_mm:
-            return self._stop(cycle, STOP_END, f"run length {self.p.length_mm:g} mm reached")
 
         in_dead_zone = s.dead_zone > 0
         if not reading.valid:
