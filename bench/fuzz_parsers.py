@@ -32,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numpy as np  # noqa: E402
 
 from droid.brain import wire  # noqa: E402
-from droid.brain.sensor_line import Garbled, Reading, SensorClientCore, parse_line  # noqa: E402
+from droid.brain.sensor_line import Garbled, LineReading, SensorClientCore, parse_line  # noqa: E402
 from droid.cli import BadInput  # noqa: E402
 from droid.subunits.gmf1 import karel_wire as kw  # noqa: E402
 from droid.subunits.reis import servo_wire as sw  # noqa: E402
@@ -101,7 +101,7 @@ def t_sensor_line(rng, lines):
         if isinstance(r, Garbled):
             ref += 1
         else:
-            assert isinstance(r, Reading)
+            assert isinstance(r, LineReading)
             if r.valid:
                 assert all(np.isfinite([r.x_mm, r.y_mm, r.roll_rad])) and abs(r.roll_rad) <= 3.14160
             acc += 1

@@ -50,6 +50,33 @@ class RuntimeFailure(DroidError):
     exit_code = EXIT_RUNTIME
 
 
+def open_input(path, what: str = "", error: type[DroidError] = BadInput, *, missing: str = "not found"):
+    """``path`` opened for reading (binary); ``error`` with one line ``<what> <path>: <why>`` when it
+    is missing (``missing``), a directory or unreadable.  The one place input files are opened."""
+    name = f"{what} {os.fspath(path)}" if what else os.fspath(path)
+    try:
+        return open(path, "rb")
+    except FileNotFoundError:
+        raise error(f"{name}: {missing}") from None
+    except IsADirectoryError:
+        raise error(f"{name}: is a directory") from None
+    except OSError as exc:
+        raise error(f"{name}: cannot read ({exc.strerror or exc})") from None
+
+
+def read_toml(path, what: str) -> dict:
+    """A TOML file (cell, layout, plan, workpiece, calibration, ...) as a dict; :class:`BadInput`
+    ``<what> <path>: <why>`` when it is missing, a directory, unreadable, not UTF-8 or not TOML.
+    (droid.kinematics reads robot files itself: it imports nothing else of droid, DESIGN §7.)"""
+    import tomllib
+
+    with open_input(path, what) as f:
+        try:
+            return tomllib.load(f)
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            raise BadInput(f"{what} {os.fspath(path)}: not valid TOML ({exc})") from None
+
+
 def droid_version() -> str:
     """The installed package's version (its metadata), else ``droid.__version__``."""
     try:

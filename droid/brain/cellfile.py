@@ -15,12 +15,11 @@ from __future__ import annotations
 
 import math
 import os
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from droid.cli import BadInput
+from droid.cli import BadInput, read_toml
 from droid.brain.classes import CLASSES, SubunitClass
 from droid.brain.curve import CurveConfig, parse_curve_table
 from droid.brain.wire import LIVENESS_TICKS
@@ -171,19 +170,7 @@ def _pose(v: list) -> str | None:
 def load_cell(path: str | os.PathLike | None = None) -> Cell:
     """Read and validate a cell file (default: $DROID_CELL or the built-in sim cell)."""
     p = Path(path) if path is not None else default_cell_path()
-    try:
-        text = p.read_text()
-    except FileNotFoundError:
-        raise BadInput(f"cell file {p} not found") from None
-    except IsADirectoryError:
-        raise BadInput(f"cell file {p} is a directory") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise BadInput(f"cell file {p}: cannot read ({exc})") from None
-    try:
-        raw = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise BadInput(f"cell file {p}: not valid TOML ({exc})") from None
-    return parse_cell(raw, p)
+    return parse_cell(read_toml(p, "cell file"), p)
 
 
 def parse_cell(raw: dict[str, Any], p: Path) -> Cell:

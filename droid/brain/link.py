@@ -105,7 +105,7 @@ class HeartbeatWatch:
     remote then sets ``stale`` and FAULT_HEARTBEAT); the next tick clears it.
     """
 
-    def __init__(self, period_ns: int, stale_ticks: int = 3) -> None:
+    def __init__(self, period_ns: int, stale_ticks: int = LIVENESS_TICKS) -> None:
         if period_ns <= 0 or stale_ticks < 1:
             raise ValueError("need period_ns > 0 and stale_ticks >= 1")
         self.limit_ns = int(period_ns) * stale_ticks

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 import signal
+import sys
 import time
 
 from droid.brain.cellfile import Cell, load_cell
@@ -126,15 +127,19 @@ class Presence:
             unlink_database(self.name)
 
 
-def subunit_program(prog: str, description: str, argv=None, *, arm: bool = False):
+def subunit_program(prog: str, description: str, argv=None, *, arm: bool = False, options=None,
+                    example: str = "arm1"):
     """Common start of a program serving one subunit: parse ``[--cell FILE] SUBUNIT``,
     load the cell, check the subunit (an arm if ``arm``), install the stop handler.
+    ``options(ap)`` adds the program's own options to the parser.
 
     Returns ``(args, cell, sub)``; bad input raises BadInput (exit 2)."""
     from droid.cli import BadInput
 
     ap = parser(prog, description)
-    ap.add_argument("subunit", help="arm subunit, e.g. arm1" if arm else "subunit name, e.g. arm1")
+    ap.add_argument("subunit", help=f"arm subunit, e.g. {example}" if arm else f"subunit name, e.g. {example}")
+    if options is not None:
+        options(ap)
     args = ap.parse_args(argv)
     cell = open_cell(args)
     sub = cell.subunit(args.subunit)
@@ -142,3 +147,41 @@ def subunit_program(prog: str, description: str, argv=None, *, arm: bool = False
         raise BadInput(f"{sub.name} is a {sub.cls} subunit, not an arm")
     Stop.install()
     return args, cell, sub
+
+
+def close_all(*resources) -> None:
+    """Close what a shell opened, in this order, at its exit (the ``finally`` of ``main``).
+
+    Each item is an object with ``close()``, a callable (e.g. a ZeroMQ
+    context's ``term``), or None for what was never opened.  Every item is
+    closed even when an earlier one raised; the first error is raised after.
+    """
+    first: BaseException | None = None
+    for r in resources:
+        if r is None:
+            continue
+        try:
+            r.close() if hasattr(r, "close") else r()
+        except BaseException as exc:  # noqa: BLE001 - close the rest first, then re-raise
+            first = first or exc
+    if first is not None:
+        raise first
+
+
+class ErrorLine:
+    """A device error said once on stderr each time it changes (a persisting fault is not repeated).
+
+    ``update(error)`` prints ``PROG: <prefix><error>`` when ``error`` differs
+    from the last one and is not empty.
+    """
+
+    def __init__(self, prog: str, prefix: str = "") -> None:
+        self.prog = prog
+        self.prefix = prefix
+        self.last = ""
+
+    def update(self, error: str) -> None:
+        if error != self.last:
+            self.last = error
+            if error:
+                print(f"{self.prog}: {self.prefix}{error}", file=sys.stderr)

@@ -83,8 +83,15 @@ def seam_transform(x_mm: float, y_mm: float, roll_rad: float) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class Reading:
-    """One line from the sensor; invalid readings carry zeros."""
+class LineReading:
+    """One line from the sensor, as the wire carries it; invalid readings carry zeros.
+
+    Not :class:`droid.tasks.seam.delay.Reading`, the seam tracker's input: that
+    one carries the capture instant in heartbeat ticks and the delay buffer's
+    ``zeroed`` mark; this one the line's own ``stamp_ms`` (mod
+    ``STAMP_MODULO_MS``) and its age at reception.  The Brain's Status sits
+    between them (droid.brain.sensor_link fills it, the tracker reads it).
+    """
 
     valid: bool
     x_mm: float = 0.0
@@ -98,7 +105,7 @@ class Reading:
         return seam_transform(self.x_mm, self.y_mm, self.roll_rad)
 
 
-INVALID = Reading(valid=False)
+INVALID = LineReading(valid=False)
 
 
 @dataclass(frozen=True)
@@ -137,8 +144,8 @@ def format_line(feature, stamp_ms: int | None = None) -> bytes:
     return f"{x:.{X_DECIMALS}f},{y:.{X_DECIMALS}f},{roll:.{ROLL_DECIMALS}f}{stamp}".encode() + LINE_END
 
 
-def parse_line(line: bytes) -> Reading | Garbled:
-    """Parse one line (its ``\\n`` and ``\\r`` optional) into a Reading or Garbled."""
+def parse_line(line: bytes) -> LineReading | Garbled:
+    """Parse one line (its ``\\n`` and ``\\r`` optional) into a LineReading or Garbled."""
     body = bytes(line)
     if body.endswith(LINE_END):
         body = body[:-1]
@@ -153,7 +160,7 @@ def parse_line(line: bytes) -> Reading | Garbled:
     if abs(roll) > _ROLL_LIMIT:
         return Garbled(body, "roll beyond pi")
     stamp = m.group(4)
-    return Reading(valid=True, x_mm=x, y_mm=y, roll_rad=roll, stamp_ms=None if stamp is None else int(stamp))
+    return LineReading(valid=True, x_mm=x, y_mm=y, roll_rad=roll, stamp_ms=None if stamp is None else int(stamp))
 
 
 class LineSplitter(_SerialLineSplitter):
@@ -189,7 +196,7 @@ class SensorClientCore:
         self.invalid = 0  # "invalid" lines and garbled lines
         self.garbled = 0
         self.feeds_since_line = 0
-        self.latest: Reading = INVALID
+        self.latest: LineReading = INVALID
         self.stamp_dropped = 0  # stamped readings dropped: from the future, too old or out of order
         self._last_capture_ms: int | None = None  # unwrapped capture time of the last stamped line [ms]
 
@@ -198,7 +205,7 @@ class SensorClientCore:
         """True when no line has arrived for more than ``stale_after_feeds`` feeds."""
         return self.feeds_since_line > self.stale_after_feeds
 
-    def _check_stamp(self, r: Reading, now_ns: int | None) -> Reading:
+    def _check_stamp(self, r: LineReading, now_ns: int | None) -> LineReading:
         """A stamped reading with its age at ``now_ns``, or INVALID (dropped, counted)."""
         if now_ns is None:
             return r
@@ -209,9 +216,9 @@ class SensorClientCore:
             self.stamp_dropped += 1  # from the future (wraps to a huge age), too old, or out of order
             return INVALID
         self._last_capture_ms = capture
-        return Reading(True, r.x_mm, r.y_mm, r.roll_rad, r.stamp_ms, age)
+        return LineReading(True, r.x_mm, r.y_mm, r.roll_rad, r.stamp_ms, age)
 
-    def feed(self, data: bytes, now_ns: int | None = None) -> Reading:
+    def feed(self, data: bytes, now_ns: int | None = None) -> LineReading:
         """Take the bytes read this tick; return the newest reading (INVALID when stale).
 
         ``now_ns``: CLOCK_MONOTONIC at reception [ns], for stamped lines (None: stamps

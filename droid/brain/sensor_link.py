@@ -49,8 +49,9 @@ import numpy as np
 
 from droid.brain.cellfile import Cell, Subunit
 from droid.brain.layouts import FAULT_DEVICE, FAULT_HEARTBEAT, FAULT_LINK, NO_CAPTURE_AGE
-from droid.brain.sensor_line import DEFAULT_BAUD, INVALID, MIN_BAUD, Reading, SensorClientCore
+from droid.brain.sensor_line import DEFAULT_BAUD, INVALID, MIN_BAUD, LineReading, SensorClientCore
 from droid.brain.serial_port import ReopeningPort
+from droid.brain.wire import LIVENESS_TICKS
 from droid.cli import BadInput
 
 LINK_AGENT = "agent"
@@ -100,7 +101,7 @@ def serial_link_options(cell: Cell, sub: Subunit) -> SerialLinkOptions:
     return SerialLinkOptions(url, baud)
 
 
-def seam_status_fields(reading: Reading) -> dict:
+def seam_status_fields(reading: LineReading) -> dict:
     """x, y, z, R, homed of Table 3.3 for one reading (R = Rz(roll); homed = invalid flag)."""
     if not reading.valid:
         return {"x": 0.0, "y": 0.0, "z": 0.0, "R": np.eye(3), "homed": 1}
@@ -117,7 +118,7 @@ class SensorStatusCore:
     after a (re)open the link stays stale until the first new line.
     """
 
-    def __init__(self, stale_ticks: int = 3) -> None:
+    def __init__(self, stale_ticks: int = LIVENESS_TICKS) -> None:
         if stale_ticks < 1:
             raise ValueError("stale_ticks must be >= 1")
         self.client = SensorClientCore(stale_after_feeds=stale_ticks - 1)

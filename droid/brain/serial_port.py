@@ -18,6 +18,7 @@ from typing import Callable
 
 import serial
 
+from droid.brain.wire import LIVENESS_TICKS, MAX_BACKOFF_TICKS
 from droid.cli import BadInput
 
 READ_ROUNDS = 64  # socket:// reports at most 1 byte in_waiting: bound the loop
@@ -163,7 +164,8 @@ class ReopeningPort:
     URL it rejects as malformed is a :class:`BadInput`.
     """
 
-    def __init__(self, url: str, baud: int, *, min_backoff_ticks: int = 3, max_backoff_ticks: int = 120,
+    def __init__(self, url: str, baud: int, *, min_backoff_ticks: int = LIVENESS_TICKS,
+                 max_backoff_ticks: int = MAX_BACKOFF_TICKS,
                  max_read_bytes: int | None = None, opener=None) -> None:
         self.url = url
         self.baud = baud

@@ -33,7 +33,7 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from droid.brain.layouts import Layout
-from droid.cli import BadInput
+from droid.cli import BadInput, open_input
 from droid.observe import schemas
 
 PROFILE = "droid"
@@ -197,15 +197,7 @@ def read_recording(path: str | os.PathLike, *, allow_truncated: bool = False) ->
     """Read and check a DROID recording; :class:`BadRecording` (exit 2) with a one-line reason for a
     missing, foreign, future-version or truncated file (``allow_truncated``: keep what survives)."""
     p = str(path)
-    try:
-        f = open(p, "rb")
-    except FileNotFoundError:
-        raise BadRecording(f"{p}: no such file") from None
-    except IsADirectoryError:
-        raise BadRecording(f"{p}: is a directory") from None
-    except OSError as exc:
-        raise BadRecording(f"{p}: cannot read ({exc.strerror})") from None
-    with f:
+    with open_input(p, "", BadRecording, missing="no such file") as f:
         if f.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
             raise BadRecording(f"{p}: not an MCAP file")
         f.seek(0)

@@ -56,13 +56,12 @@ from __future__ import annotations
 
 import math
 import os
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from droid.cli import BadInput
+from droid.cli import BadInput, read_toml
 
 WORKPIECE_DIR = Path(__file__).parent / "workpieces"
 
@@ -707,11 +706,4 @@ def load_workpiece(spec: str | os.PathLike) -> Workpiece:
         path = WORKPIECE_DIR / f"{text}.toml"
         if not path.is_file():
             raise BadInput(f"unknown workpiece {text!r} (bundled: {', '.join(bundled_workpieces())})")
-    try:
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
-    except tomllib.TOMLDecodeError as exc:
-        raise BadInput(f"workpiece {path}: not valid TOML: {exc}") from None
-    except OSError as exc:
-        raise BadInput(f"workpiece {path}: {exc.strerror}") from None
-    return Workpiece.from_dict(data, source=str(path))
+    return Workpiece.from_dict(read_toml(path, "workpiece"), source=str(path))

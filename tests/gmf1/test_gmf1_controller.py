@@ -6,7 +6,7 @@ from hypothesis import given, settings, strategies as st
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import T_to_pose
 from droid.sim.gmf1.controller import KarelController, KarelParams, Motion
-from droid.sim.gmf1.pacing import PacedLine
+from droid.sim.serial_cable import PacedLine
 from droid.subunits.gmf1 import karel_wire as kw
 
 MODEL = load_robot("fanuc_s400")

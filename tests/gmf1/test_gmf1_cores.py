@@ -247,20 +247,14 @@ def test_a_garbled_line_is_a_visible_fault_even_when_good_lines_follow():
 
 def test_gmf1_programs_do_not_import_the_world():
     """DESIGN §7: nothing outside droid/sim imports droid.sim (the programs reach the twin by URL)."""
-    import ast
     import pathlib
 
     import droid.subunits.gmf1 as pkg
+    from tests.layering import droid_imports, within
 
     bad = []
     for path in pathlib.Path(pkg.__file__).parent.glob("*.py"):
-        for node in ast.walk(ast.parse(path.read_text())):
-            names = []
-            if isinstance(node, ast.Import):
-                names = [a.name for a in node.names]
-            elif isinstance(node, ast.ImportFrom) and node.module:
-                names = [node.module]
-            bad += [f"{path.name}: {n}" for n in names if n == "droid.sim" or n.startswith("droid.sim.")]
+        bad += [f"{path.name}: {n}" for n in droid_imports(path) if within(n, ("droid.sim",))]
     assert bad == []
 
 

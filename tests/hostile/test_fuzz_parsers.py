@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from droid.brain import wire
 from droid.brain.names import NameSpaceCore
-from droid.brain.sensor_line import Garbled, Reading, SensorClientCore, parse_line
+from droid.brain.sensor_line import Garbled, LineReading, SensorClientCore, parse_line
 from droid.cli import BadInput
 from droid.subunits.gmf1 import karel_wire as kw
 from droid.subunits.reis import servo_wire as sw
@@ -28,7 +28,7 @@ LINES = st.one_of(st.binary(max_size=160), st.lists(TOKENS, max_size=14).map(b""
 @given(LINES)
 def test_sensor_line_never_raises(line):
     r = parse_line(line)
-    assert isinstance(r, (Reading, Garbled))
+    assert isinstance(r, (LineReading, Garbled))
     if r.valid:
         assert all(math.isfinite(v) for v in (r.x_mm, r.y_mm, r.roll_rad)) and abs(r.roll_rad) <= math.pi + 1e-5
 

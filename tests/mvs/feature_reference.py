@@ -38,6 +38,7 @@ simulated noise asks for:
    through the upper surface's visible edge when the edge overhangs it.  For
    an unrolled surface that is simply the lower line at the crossing row.
 """
+# Deliberate copy of droid/subunits/mvs/feature.py (frozen at 05e3b11): the bit-for-bit reference, not shared code.
 from __future__ import annotations
 
 import math

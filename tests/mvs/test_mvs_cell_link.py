@@ -17,7 +17,7 @@ from droid.brain.cellfile import parse_cell
 from droid.brain.layouts import FAULT_DEVICE, FAULT_LINK
 from droid.brain.sensor_link import (SensorStatusCore, SerialPortReader, link_kind, seam_status_fields,
                                      serial_link_options)
-from droid.brain.sensor_line import INVALID, Reading
+from droid.brain.sensor_line import INVALID, LineReading
 from droid.cli import BadInput
 
 LINE = b"1.250,-3.500,0.10000\n"
@@ -125,7 +125,7 @@ def test_status_core_never_raises_and_stays_consistent(steps):
 
 
 def test_seam_status_fields_match_the_reading_transform():
-    r = Reading(True, 2.0, -1.0, -0.3)
+    r = LineReading(True, 2.0, -1.0, -0.3)
     f = seam_status_fields(r)
     T = r.transform()
     assert np.allclose(f["R"], T[:3, :3]) and (f["x"], f["y"], f["z"]) == tuple(T[:3, 3])

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from droid.subunits.mvs.protocol import (INVALID, Garbled, LineSplitter, Reading, SensorClientCore,
+from droid.subunits.mvs.protocol import (INVALID, Garbled, LineSplitter, LineReading, SensorClientCore,
                                          format_line, parse_line, seam_transform)
 from droid.subunits.mvs.wire import MAX_LINE_BYTES
 
@@ -34,23 +34,23 @@ rad = st.floats(-math.pi, math.pi, allow_nan=False)
 
 @given(x=mm, y=mm, roll=rad)
 def test_format_then_parse_round_trips(x, y, roll):
-    line = format_line(Reading(True, x, y, roll))
+    line = format_line(LineReading(True, x, y, roll))
     assert line.endswith(b"\n") and len(line) <= MAX_LINE_BYTES
     got = parse_line(line)
-    assert isinstance(got, Reading) and got.valid
+    assert isinstance(got, LineReading) and got.valid
     assert (got.x_mm, got.y_mm, got.roll_rad) == pytest.approx((x, y, roll), abs=1e-5 + 5e-4)
     assert grammar_ok(line[:-1])
 
 
 def test_invalid_line():
     assert format_line(None) == b"invalid\n"
-    assert parse_line(b"invalid\n") == INVALID == Reading(False, 0.0, 0.0, 0.0)
+    assert parse_line(b"invalid\n") == INVALID == LineReading(False, 0.0, 0.0, 0.0)
     assert parse_line(b"invalid\r\n") == INVALID
 
 
 @pytest.mark.parametrize("x,y,roll", [(math.nan, 0, 0), (0, math.inf, 0), (10000.0, 0, 0), (0, 0, 3.2)])
 def test_unsendable_features_go_as_invalid(x, y, roll):
-    assert format_line(Reading(True, x, y, roll)) == b"invalid\n"
+    assert format_line(LineReading(True, x, y, roll)) == b"invalid\n"
 
 
 @pytest.mark.parametrize("line", [
@@ -67,7 +67,7 @@ def test_lines_off_the_grammar_are_garbled(line):
 @given(st.binary(max_size=64))
 def test_random_bytes_never_raise_and_valid_only_if_grammatical(data):
     got = parse_line(data)
-    assert isinstance(got, (Reading, Garbled))
+    assert isinstance(got, (LineReading, Garbled))
     if got.valid:
         body = data[:-1] if data.endswith(b"\n") else data
         assert grammar_ok(body)
@@ -103,8 +103,8 @@ def test_client_core_returns_the_newest_reading_and_counts():
     core = SensorClientCore(stale_after_feeds=2)
     assert core.feed(b"") == INVALID  # nothing yet
     r = core.feed(b"1.000,2.000,0.10000\n3.000,-4.000,-0.20000\n5.0")
-    assert r == Reading(True, 3.0, -4.0, -0.2)
-    assert core.feed(b"00,6.000,0.00000\n") == Reading(True, 5.0, 6.0, 0.0)
+    assert r == LineReading(True, 3.0, -4.0, -0.2)
+    assert core.feed(b"00,6.000,0.00000\n") == LineReading(True, 5.0, 6.0, 0.0)
     assert core.feed(b"invalid\n") == INVALID
     assert core.feed(b"garbage\n") == INVALID
     assert core.feed(b"x" * 500 + b"\n") == INVALID
@@ -128,7 +128,7 @@ def test_client_core_never_raises_and_garbage_is_never_valid(chunks):
 
 
 def test_seam_transform_is_table_3_3_record():
-    t = Reading(True, 1.5, -2.0, 0.3).transform()
+    t = LineReading(True, 1.5, -2.0, 0.3).transform()
     assert t[0:3, 3] == pytest.approx([1.5, -2.0, 0.0])
     assert t[0:3, 0:3] @ [0, 1, 0] == pytest.approx([-math.sin(0.3), math.cos(0.3), 0])  # along the surface
     assert t[0:3, 0:3] @ [0, 0, 1] == pytest.approx([0, 0, 1])  # still along the travel direction
@@ -138,7 +138,7 @@ def test_seam_transform_is_table_3_3_record():
 # -- capture stamps (issue 12 item 2) ------------------------------------------------------
 
 def test_a_stamped_line_round_trips_and_a_plain_thesis_line_still_parses():
-    from droid.brain.sensor_line import Reading as LineReading, format_line, parse_line, stamp_ms_of
+    from droid.brain.sensor_line import LineReading, format_line, parse_line, stamp_ms_of
 
     f = LineReading(True, -1.25, 3.5, 0.01)
     line = format_line(f, stamp_ms_of(123_456_789_000_000))
@@ -154,7 +154,7 @@ def test_a_stamped_line_round_trips_and_a_plain_thesis_line_still_parses():
 
 def test_stamps_from_the_future_too_old_or_out_of_order_are_dropped_and_counted():
     from droid.brain.sensor_line import SensorClientCore, format_line, stamp_ms_of
-    from droid.brain.sensor_line import Reading as LineReading
+    from droid.brain.sensor_line import LineReading
 
     c = SensorClientCore(stale_after_feeds=100)
     f = LineReading(True, 0.5, -0.25, 0.0)
@@ -171,7 +171,7 @@ def test_stamps_from_the_future_too_old_or_out_of_order_are_dropped_and_counted(
 
 def test_the_sensor_status_keeps_the_capture_age():
     from droid.brain.layouts import NO_CAPTURE_AGE, SENSOR_STATUS_LAYOUT
-    from droid.brain.sensor_line import Reading as LineReading, format_line, stamp_ms_of
+    from droid.brain.sensor_line import LineReading, format_line, stamp_ms_of
     from droid.brain.sensor_link import SensorStatusCore
 
     assert SENSOR_STATUS_LAYOUT.version == 2 and "capture_age_us" in SENSOR_STATUS_LAYOUT.dtype.names

@@ -58,20 +58,12 @@ def test_seam_map_from_valid_lead_readings():
 
 def test_observers_import_only_brain_kinematics_and_the_seam_layout():
     """DESIGN §7: observers read the Brain's databases like a task; never a device or the simulator."""
-    import ast
-    from pathlib import Path
+    from tests.layering import DROID, droid_imports, within
 
     may = ("droid.brain", "droid.kinematics", "droid.cli", "droid.observe", "droid.tasks.seam.layout")
-    for path in (Path(__file__).resolve().parents[2] / "droid" / "observe").rglob("*.py"):
-        for node in ast.walk(ast.parse(path.read_text())):
-            names = []
-            if isinstance(node, ast.Import):
-                names = [a.name for a in node.names]
-            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-                names = [node.module]
-            for n in names:
-                if n == "droid" or n.startswith("droid."):
-                    assert any(n == m or n.startswith(m + ".") for m in may), (path, n)
+    for path in (DROID / "observe").rglob("*.py"):
+        for n in droid_imports(path):
+            assert within(n, may), (path, n)
 
 
 def test_observers_never_write_a_command():

@@ -1,7 +1,6 @@
 """Queue + cache + braking without the plant (thesis §4.1.5.1)."""
 from __future__ import annotations
 
-import ast
 from pathlib import Path
 
 import numpy as np
@@ -123,18 +122,13 @@ def test_speed_limit_applies_per_command_period():
 
 def test_servo_side_never_imports_the_simulator():
     """DESIGN §7: nothing outside droid/sim imports droid.sim."""
+    from tests.layering import droid_imports, within
+
     root = Path(__file__).resolve().parents[2] / "droid"
     for path in root.rglob("*.py"):
         if path.is_relative_to(root / "sim"):
             continue
-        tree = ast.parse(path.read_text())
-        for node in ast.walk(tree):
-            names = []
-            if isinstance(node, ast.Import):
-                names = [a.name for a in node.names]
-            elif isinstance(node, ast.ImportFrom) and node.module:
-                names = [node.module]
-            assert not any(n == "droid.sim" or n.startswith("droid.sim.") for n in names), path
+        assert not any(within(n, ("droid.sim",)) for n in droid_imports(path)), path
 
 
 def test_encoder_jump_threshold_scales_with_a_stalled_loop():

@@ -1,5 +1,4 @@
 """droid.tasks.seam.report: the log's CSV, the summary after settling, figures, the exp-4 std (issue 7)."""
-import ast
 import math
 import subprocess
 import sys
@@ -135,16 +134,11 @@ TASK_MAY_IMPORT = ("droid.brain", "droid.kinematics", "droid.cli", "droid.tasks"
 
 def test_tasks_import_only_brain_kinematics_cli_and_tasks():
     """DESIGN §7: a task sees the Brain's databases, never a device or the simulator."""
+    from tests.layering import droid_imports, within
+
     for path in TASKS.rglob("*.py"):
-        for node in ast.walk(ast.parse(path.read_text())):
-            names = []
-            if isinstance(node, ast.Import):
-                names = [a.name for a in node.names]
-            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-                names = [node.module]
-            for n in names:
-                if n == "droid" or n.startswith("droid."):
-                    assert any(n == m or n.startswith(m + ".") for m in TASK_MAY_IMPORT), (path, n)
+        for n in droid_imports(path):
+            assert within(n, TASK_MAY_IMPORT), (path, n)
 
 
 def test_report_import_does_not_load_matplotlib_or_the_simulator():

@@ -441,12 +441,17 @@ def cmd_run_plan(args) -> int:
     finally:  # also on Ctrl-C: results.csv shows what has results so far (a --resume completes it)
         errors = {o.exp.id: f"error: {o.error}" for o in outcomes if o.summary is None}
         results = write_results(out_dir, plan, errors)
+    return _report(outcomes, t0, workers, dask, f"{plan.name}: {len(outcomes)} trial(s) run, {skipped} resumed",
+                   f"results: {results}")
+
+
+def _report(outcomes: list[Outcome], t0: float, workers: int, dask: str | None, head: str, tail: str) -> int:
+    """The one stderr line after a run or a --plan run (and the trials that failed); the exit status."""
     wall = time.perf_counter() - t0
     failed = [o.exp.id for o in outcomes if o.summary is None]
     sim = sum(o.sim_s for o in outcomes if o.summary is not None)
     where = f"Dask {dask}" if dask else f"{workers} worker(s)"
-    print(f"{PROG}: {plan.name}: {len(outcomes)} trial(s) run, {skipped} resumed, {sim:.0f} s simulated in "
-          f"{wall:.1f} s wall on {where}; results: {results}", file=sys.stderr)
+    print(f"{PROG}: {head}, {sim:.0f} s simulated in {wall:.1f} s wall on {where}; {tail}", file=sys.stderr)
     if failed:
         print(f"{PROG}: {len(failed)} trial(s) could not run: {', '.join(failed)}", file=sys.stderr)
         return 1
@@ -518,16 +523,8 @@ def cmd_run(args) -> int:
     t0 = time.perf_counter()
     outcomes = run_jobs(jobs, workers, dask)
     files = write_tables(args.out, outcomes, figures)
-    wall = time.perf_counter() - t0
-    failed = [o.exp.id for o in outcomes if o.summary is None]
-    sim = sum(o.sim_s for o in outcomes if o.summary is not None)
-    where = f"Dask {dask}" if dask else f"{workers} worker(s)"
-    print(f"{PROG}: {len(outcomes)} trial(s), {sim:.0f} s simulated in {wall:.1f} s wall on {where}; "
-          f"tables: {', '.join(f for f in files if f.endswith('summary.md')) or 'none'}", file=sys.stderr)
-    if failed:
-        print(f"{PROG}: {len(failed)} trial(s) could not run: {', '.join(failed)}", file=sys.stderr)
-        return 1
-    return 0
+    return _report(outcomes, t0, workers, dask, f"{len(outcomes)} trial(s)",
+                   f"tables: {', '.join(f for f in files if f.endswith('summary.md')) or 'none'}")
 
 
 @run

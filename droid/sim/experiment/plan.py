@@ -44,11 +44,10 @@ import json
 import math
 import os
 import re
-import tomllib
 from dataclasses import dataclass, fields
 from pathlib import Path
 
-from droid.cli import BadInput
+from droid.cli import BadInput, read_toml
 
 PLAN_DIR = Path(__file__).parent / "plans"
 
@@ -245,14 +244,7 @@ def load_plan(spec: str | os.PathLike) -> Plan:
     """Read and validate a plan (a path or a bundled plan's name); BadInput names plan, key and value."""
     path = resolve_plan_path(os.fspath(spec))
     source = str(path)
-    try:
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
-    except tomllib.TOMLDecodeError as exc:
-        raise BadInput(f"plan {source}: not valid TOML: {exc}") from None
-    except OSError as exc:
-        raise BadInput(f"plan {source}: {exc.strerror}") from None
-    return plan_from_dict(data, source, path.resolve().parent)
+    return plan_from_dict(read_toml(path, "plan"), source, path.resolve().parent)
 
 
 def plan_from_dict(data: dict, source: str = "<plan>", plan_dir: Path | None = None) -> Plan:

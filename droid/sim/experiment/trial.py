@@ -44,7 +44,7 @@ from droid.sim.experiment.geometry import TrialGeometry, trial_geometry
 from droid.sim.experiment.sensors import DEFAULT_NOISE, SENSOR_MODELS, LeadSensor, tool_reading
 from droid.sim.lockstep import ORDER_DEVICE, ORDER_TASK, ORDER_WORLD, Scheduler
 from droid.sim.mvs.camera import CameraNoise
-from droid.tasks.seam.core import DEAD_ZONE_CYCLES, LOST_CYCLES, MAX_SPEED_MM_S, MODE_THESIS, MODES, SeamParams
+from droid.tasks.seam.core import DEAD_ZONE_CYCLES, LOST_CYCLES, MODE_THESIS, MODES, SeamParams, speed_problem
 from droid.tasks.seam.cycle import TrackingCycle
 from droid.tasks.seam.delay import INVALID_READING, Reading
 from droid.tasks.seam.report import COLUMNS, SETTLE_EXTRA_MM, log_row  # noqa: F401 (columns; settling)
@@ -98,11 +98,9 @@ class TrialConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v)):
                 raise BadInput(f"trial {self.trial_id}: {name} must be a finite number, got {v!r}")
-        if self.speed_mm_s <= 0:
-            raise BadInput(f"trial {self.trial_id}: speed must be > 0 mm/s")
-        if self.speed_mm_s > MAX_SPEED_MM_S:
-            raise BadInput(f"trial {self.trial_id}: speed {self.speed_mm_s:g} mm/s is beyond what the arm can do "
-                           f"(at most {MAX_SPEED_MM_S:g} mm/s)")
+        why = speed_problem(self.speed_mm_s)
+        if why:
+            raise BadInput(f"trial {self.trial_id}: {why}")
         if len(self.holder_mm_s) != 3 or not all(math.isfinite(v) for v in self.holder_mm_s):
             raise BadInput(f"trial {self.trial_id}: holder_mm_s must be 3 finite numbers [mm/s]")
         if not isinstance(self.latency_cycles, int) or self.latency_cycles < 0:

@@ -6,7 +6,7 @@ serial interface and translates the data into cartesian move commands"; its
 RS-232 at 9600 baud.  This core is that controller as a pure object: bytes in
 at a time, bytes out at a time, joint angles at a time; no I/O, no clock.
 
-* The line (:class:`~droid.sim.gmf1.pacing.PacedLine`, both ways): request
+* The line (:class:`~droid.sim.serial_cable.PacedLine`, both ways): request
   bytes arrive at 9600 baud however fast the host wrote them; replies leave at
   9600 baud.
 * The interpreter: a request line is read when its terminator arrives.  Each
@@ -40,7 +40,7 @@ import numpy as np
 from droid.kinematics import RobotModel, Unreachable
 from droid.kinematics.transforms import pose_to_T
 from droid.subunits.gmf1 import karel_wire as kw
-from droid.sim.gmf1.pacing import PacedLine
+from droid.sim.serial_cable import PacedLine
 
 _TERM = re.compile(rb"[\r\n]")
 

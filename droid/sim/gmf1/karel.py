@@ -39,7 +39,7 @@ from droid.kinematics import Unreachable, load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.sim.gmf1.cards import Quad04Twin, SharedCard
 from droid.sim.gmf1.controller import KarelController, KarelParams
-from droid.sim.gmf1.transport import PtyTransport, TcpTransport
+from droid.sim.serial_cable import PtyEnd, TcpEnd
 from droid.sim.world import Device
 from droid.subunits.gmf1.config import gmf1_config
 
@@ -176,7 +176,7 @@ def make_karel(world, name: str, options: dict) -> KarelDevice:
         twin.update(model.gearing.joints_to_counts(controller.q_deg))
         if cfg.serial.startswith("socket://"):
             try:
-                transport = TcpTransport(cfg.serial)
+                transport = TcpEnd(cfg.serial)
             except ValueError as exc:
                 raise BadInput(f"{where} {exc}") from None
             except OSError as exc:
@@ -186,7 +186,7 @@ def make_karel(world, name: str, options: dict) -> KarelDevice:
                            f"not {cfg.serial!r}")
         else:
             try:
-                transport = PtyTransport(cfg.serial)
+                transport = PtyEnd(cfg.serial)
             except OSError as exc:
                 raise RuntimeFailure(f"{where} cannot publish the serial port at {cfg.serial}: "
                                      f"{exc.strerror}") from None

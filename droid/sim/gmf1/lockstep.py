@@ -27,7 +27,7 @@ from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.sim.gmf1.cards import Quad04Twin
 from droid.sim.gmf1.controller import KarelController, KarelParams
-from droid.sim.gmf1.transport import MemorySerialPair
+from droid.sim.serial_cable import MemorySerialPair
 from droid.sim.gmf1.karel import DEFAULT_START_DEG, KarelDevice
 from droid.sim.lockstep import ORDER_DEVICE, ORDER_HEARTBEAT, ORDER_WORLD, Scheduler
 from droid.subunits.agent import CommandCopier

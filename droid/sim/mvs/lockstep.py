@@ -15,6 +15,7 @@ from droid.brain.layouts import SENSOR_STATUS_LAYOUT
 from droid.brain.sensor_line import DEFAULT_BAUD, format_line
 from droid.brain.sensor_link import SensorStatusCore
 from droid.brain.shmdb import MemoryDatabase
+from droid.brain.wire import LIVENESS_TICKS
 from droid.cli import BadInput
 from droid.sim.device_options import DeviceOptions
 from droid.sim.mvs.devices import IdealSensorCore, MvsCameraDevice, ToolSensorDevice, build_camera, tool_parts
@@ -52,7 +53,7 @@ class MvsLockstep:
 
 
 def mvs_lockstep(scheduler, devices: Mapping[str, Any], camera: dict[str, Any],
-                 tool: dict[str, Any] | None = None, *, seed: int = 0, stale_ticks: int = 3,
+                 tool: dict[str, Any] | None = None, *, seed: int = 0, stale_ticks: int = LIVENESS_TICKS,
                  baud: int = DEFAULT_BAUD, sensor_calibration: dict | None = None,
                  retrace_timeout_s: float = 0.1, ideal_sensor: bool = False,
                  name: str = "lockstep") -> MvsLockstep:

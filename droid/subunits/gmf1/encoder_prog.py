@@ -23,7 +23,7 @@ import sys
 import time
 
 from droid.brain.databases import open_local
-from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
+from droid.brain.program import ErrorLine, Presence, Stop, close_all, notify_ready, presence_key, subunit_program
 from droid.brain.rt import PeriodicTimer, now_ns, try_sched_fifo
 from droid.cli import BadInput, bounded_float, run
 from droid.kinematics import load_robot
@@ -92,20 +92,16 @@ class CardSession:
 
 @run
 def main(argv=None) -> int:
-    ap = parser(PROG, "Read the GMF1 encoder cards at 120 Hz and keep the Status pose fresh.")
-    ap.add_argument("subunit", help="the GMF1 subunit, e.g. gmf1")
-    ap.add_argument("--rate", type=bounded_float(0.0, 10_000.0, "Hz", lo_open=True), default=None, metavar="HZ",
-                    help="read rate [Hz] (default: the cell file's encoder_hz, 120)")
-    args = ap.parse_args(argv)
-    cell = open_cell(args)
-    sub = cell.subunit(args.subunit)
-    if not sub.is_arm:
-        raise BadInput(f"{sub.name} is not an arm subunit")
+    def options(ap):
+        ap.add_argument("--rate", type=bounded_float(0.0, 10_000.0, "Hz", lo_open=True), default=None, metavar="HZ",
+                        help="read rate [Hz] (default: the cell file's encoder_hz, 120)")
+
+    args, cell, sub = subunit_program(PROG, "Read the GMF1 encoder cards at 120 Hz and keep the Status pose fresh.",
+                                      argv, arm=True, options=options, example="gmf1")
     cfg = gmf1_config(cell, sub)
     rate = args.rate or cfg.encoder_hz
     model = load_robot(sub.robot).with_base(pose_to_T(*sub.base))
     core = EncoderCore(model, rate)
-    Stop.install()
     try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     status = open_local(cell, sub, "ctrl_status")
     station = EncoderStation(core, status)
@@ -117,7 +113,7 @@ def main(argv=None) -> int:
         timer = PeriodicTimer(int(round(1e9 / rate)))
         presence.ready()
         notify_ready(args.ready_fd)
-        last_error = ""
+        errors = ErrorLine(PROG)
         had_bank = False
         while not Stop.requested:
             if not timer.wait(0.5):
@@ -138,19 +134,12 @@ def main(argv=None) -> int:
                     cards.drop(t_s, f"read failed: {exc}")
                     station.fault()
                     had_bank = False
-            if cards.last_error != last_error:
-                last_error = cards.last_error
-                print(f"{PROG}: {last_error}", file=sys.stderr)
+            errors.update(cards.last_error)
             presence.beat(0, timer.cycles, timer.overruns, timer.lateness_max_ns)
         print(f"{PROG}: {station.refreshes} refreshes, {core.homings} homings, {timer.overruns} overruns, "
               f"worst lateness {timer.lateness_max_ns / 1e3:.0f} us", file=sys.stderr)
     finally:
-        cards.close()
-        if timer is not None:
-            timer.close()
-        status.close()
-        if presence is not None:
-            presence.close()
+        close_all(cards, timer, status, presence)
     return 0
 
 

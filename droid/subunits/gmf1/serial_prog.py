@@ -22,8 +22,8 @@ import zmq
 from droid.brain.curve import CurveHost
 from droid.brain.databases import open_local
 from droid.brain.heartbeat import TickSubscriber
-from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
-from droid.cli import BadInput, bounded_int, run
+from droid.brain.program import ErrorLine, Presence, Stop, close_all, notify_ready, presence_key, subunit_program
+from droid.cli import bounded_int, run
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.subunits.gmf1.config import gmf1_config
@@ -44,21 +44,19 @@ def build_core(cell, sub, cfg, baud: int) -> SerialCore:
 
 @run
 def main(argv=None) -> int:
-    ap = parser(PROG, "Send the newest GMF1 command to the Fanuc KAREL server over its serial line.")
-    ap.add_argument("subunit", help="the GMF1 subunit, e.g. gmf1")
-    ap.add_argument("--serial", metavar="URL", default=None, help="serial port (default: the cell file's)")
-    ap.add_argument("--baud", type=bounded_int(1, 4_000_000, "baud"), default=None, help="baud rate (default: the cell file's, 9600)")
-    args = ap.parse_args(argv)
-    cell = open_cell(args)
-    sub = cell.subunit(args.subunit)
-    if not sub.is_arm:
-        raise BadInput(f"{sub.name} is not an arm subunit")
+    def options(ap):
+        ap.add_argument("--serial", metavar="URL", default=None, help="serial port (default: the cell file's)")
+        ap.add_argument("--baud", type=bounded_int(1, 4_000_000, "baud"), default=None,
+                        help="baud rate (default: the cell file's, 9600)")
+
+    # tick-driven like the agent (no SCHED_FIFO): the 9600-baud line sets its pace
+    args, cell, sub = subunit_program(PROG, "Send the newest GMF1 command to the Fanuc KAREL server over its serial "
+                                      "line.", argv, arm=True, options=options, example="gmf1")
     cfg = gmf1_config(cell, sub)
     url = args.serial or cfg.serial
     baud = args.baud or cfg.baud
     link = PortLink(serial_opener(url, baud))
     core = build_core(cell, sub, cfg, baud)
-    Stop.install()  # tick-driven like the agent (no SCHED_FIFO): the 9600-baud line sets its pace
     ctrl_command = open_local(cell, sub, "ctrl_command")
     ctrl_status = None
     ctx = None
@@ -73,7 +71,7 @@ def main(argv=None) -> int:
         link.open()  # a missing port is a fault, not a start-up failure
         presence.ready()
         notify_ready(args.ready_fd)
-        last_error = ""
+        errors = ErrorLine(PROG, f"serial {url}: ")
         opens = link.opens
         cycles = 0
         while not Stop.requested:
@@ -82,10 +80,7 @@ def main(argv=None) -> int:
                 continue
             station.cycle(t.tick)
             cycles += 1
-            if link.last_error != last_error:
-                last_error = link.last_error
-                if last_error:
-                    print(f"{PROG}: serial {url}: {last_error}", file=sys.stderr)
+            errors.update(link.last_error)
             if link.opens != opens:
                 opens = link.opens
                 print(f"{PROG}: serial {url} open", file=sys.stderr)
@@ -94,16 +89,7 @@ def main(argv=None) -> int:
               f"{core.refused}, failed {core.failed}, garbled {core.garbled}, timeouts {core.timeouts}, "
               f"busy rejects {core.busy_rejects}, port opens {link.opens}", file=sys.stderr)
     finally:
-        link.close()
-        if ticks is not None:
-            ticks.close()
-        if ctx is not None:
-            ctx.term()
-        ctrl_command.close()
-        if ctrl_status is not None:
-            ctrl_status.close()
-        if presence is not None:
-            presence.close()
+        close_all(link, ticks, ctx and ctx.term, ctrl_command, ctrl_status, presence)
     return 0
 
 

@@ -7,8 +7,8 @@ module and docs/mvs.md "Serial line grammar".
 """
 from __future__ import annotations
 
-from droid.brain.sensor_line import (INVALID, Garbled, LineSplitter, Reading, SensorClientCore,
+from droid.brain.sensor_line import (INVALID, Garbled, LineSplitter, LineReading, SensorClientCore,
                                      format_line, parse_line, seam_transform)
 
-__all__ = ["INVALID", "Garbled", "LineSplitter", "Reading", "SensorClientCore", "format_line",
+__all__ = ["INVALID", "Garbled", "LineSplitter", "LineReading", "SensorClientCore", "format_line",
            "parse_line", "seam_transform"]

@@ -47,13 +47,13 @@ import signal
 import sys
 import threading
 import time
-import tomllib
 from dataclasses import dataclass
 
 import numpy as np
 
 from droid.brain.serial_port import PortLink, serial_opener
-from droid.cli import ArgumentParser, BadInput, MAX_WAIT_S, RuntimeFailure, bounded_float, bounded_int, run
+from droid.cli import (ArgumentParser, BadInput, MAX_WAIT_S, RuntimeFailure, bounded_float, bounded_int, read_toml,
+                       run)
 from droid.subunits.mvs.calibration import MvsCalibration
 from droid.subunits.mvs.dsp import open_dsp
 from droid.subunits.mvs.feature import Feature, FeatureParams, extract
@@ -103,13 +103,7 @@ def load_calibration(path: str | None) -> MvsCalibration:
     """The calibration from ``--calib FILE``, or the defaults."""
     if path is None:
         return MvsCalibration()
-    try:
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
-    except OSError as exc:
-        raise BadInput(f"calibration {path}: {exc.strerror}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise BadInput(f"calibration {path}: not valid TOML: {exc}") from None
+    data = read_toml(path, "calibration")
     table = data.get("calibration", data)
     if not isinstance(table, dict):
         raise BadInput(f"calibration {path}: [calibration] must be a table")

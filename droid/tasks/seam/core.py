@@ -140,11 +140,9 @@ class SeamParams:
             raise ValueError(f"acceleration must be > 0 mm/s^2, got {self.accel_mm_s2!r}")
         if not (isinstance(self.gap_mm, (int, float)) and self.gap_mm > 0):
             raise ValueError(f"the bridged gap must be > 0 mm, got {self.gap_mm!r}")
-        if self.speed_mm_s <= 0:
-            raise ValueError(f"speed must be > 0 mm/s, got {self.speed_mm_s!r}")
-        if self.speed_mm_s > MAX_SPEED_MM_S:
-            raise ValueError(f"speed {self.speed_mm_s:g} mm/s is beyond what the arm can do "
-                             f"(at most {MAX_SPEED_MM_S:g} mm/s)")
+        why = speed_problem(self.speed_mm_s)
+        if why:
+            raise ValueError(why)
         if self.runaway_factor < 0:
             raise ValueError("runaway_factor must be >= 0")
         if self.cycle_hz <= 0:
@@ -166,9 +164,23 @@ class SeamParams:
         return self.speed_mm_s / self.cycle_hz
 
 
+def speed_problem(speed_mm_s: float) -> str | None:
+    """Why a commanded travel speed [mm/s] cannot be tracked (None: it can): it must be > 0 and at
+    most MAX_SPEED_MM_S.  SeamParams and the experiments' TrialConfig both ask here."""
+    if speed_mm_s <= 0:
+        return f"speed must be > 0 mm/s, got {speed_mm_s!r}"
+    if speed_mm_s > MAX_SPEED_MM_S:
+        return f"speed {speed_mm_s:g} mm/s is beyond what the arm can do (at most {MAX_SPEED_MM_S:g} mm/s)"
+    return None
+
+
 @dataclass(frozen=True)
-class Stop:
-    """Why a run ended, where (tool travel [mm]) and in which cycle."""
+class TrackingStop:
+    """Why a tracking run ended, where (tool travel [mm]) and in which cycle.
+
+    Not :class:`droid.brain.program.Stop` (the SIGTERM/SIGINT flag every program
+    polls): this is the tracking core's verdict, a value the report prints.
+    """
 
     reason: str  # STOP_END, STOP_LOST, STOP_UNREACHABLE, STOP_RUNAWAY
     detail: str
@@ -186,7 +198,7 @@ class CycleOutput:
     cycle: int
     reis_cmd: np.ndarray | None  # Reis WCP command, 4x4 global [mm]; None once stopped
     gmf1_cmd: np.ndarray | None  # GMF1 WCP command, 4x4 global [mm]; None once stopped
-    stop: Stop | None
+    stop: TrackingStop | None
     phase: str
     travel_mm: float  # tool travel since the start, in the holder's wrist frame [mm]
     yaw_rad: float  # the correction applied this cycle (gain included)
@@ -198,23 +210,64 @@ class CycleOutput:
     q_reis_deg: np.ndarray | None = None  # the Reis pick for reis_cmd (None without a model)
 
 
+class TravelGuard:
+    """The tool's travel and the two stops it decides, as every tracker core (thesis, listing, plus) keeps them.
+
+    :meth:`step` adds the tool's move since the last cycle (holder's wrist
+    frame [mm]) to ``travel_mm`` and says why the run must stop (None: it need
+    not): ``runaway`` when, outside the dead zone, the tool moved more than
+    ``runaway_factor`` times the commanded step per cycle over the last
+    RUNAWAY_WINDOW cycles (and more than RUNAWAY_MIN_MM) -- an oscillating,
+    unstable loop (docs/safety.md); a late Status counts as ``elapsed_cycles``
+    cycles of time; ``end of seam`` when ``length_mm`` is travelled.
+    """
+
+    def __init__(self, params: "SeamParams") -> None:
+        self.p = params
+        self.travel_mm = 0.0
+        self.last_tool: np.ndarray | None = None
+        self.recent: deque = deque(maxlen=RUNAWAY_WINDOW)  # (moved mm, cycles)
+
+    def step(self, tool, elapsed_cycles: float, guard_runaway: bool) -> tuple[str, str] | None:
+        """One cycle's tool position [mm]; (stop reason, detail) or None."""
+        moved_mm = 0.0
+        if self.last_tool is not None:
+            d = tool - self.last_tool
+            moved_mm = math.sqrt(float(d.dot(d)))  # np.linalg.norm(d), without its overhead
+            self.travel_mm += moved_mm
+        self.last_tool = tool
+        if guard_runaway and self.p.runaway_factor > 0:
+            self.recent.append((moved_mm, max(1.0, elapsed_cycles)))
+            moved = sum(m for m, _ in self.recent)
+            limit_mm = max(self.p.runaway_factor * self.p.step_mm * sum(e for _, e in self.recent), RUNAWAY_MIN_MM)
+            if moved > limit_mm:
+                return STOP_RUNAWAY, f"the tool moved {moved:.1f} mm in {len(self.recent)} cycles " \
+                                     f"(limit {limit_mm:.1f} mm)"
+        if self.travel_mm >= self.p.length_mm:
+            return STOP_END, f"run length {self.p.length_mm:g} mm reached"
+        return None
+
+
 @dataclass
 class _State:
     cycle: int = 0
     dead_zone: int = DEAD_ZONE_CYCLES
     first: bool = True
     tcp_idx: int = 0
-    travel_mm: float = 0.0
-    last_tool: np.ndarray | None = None
     invalid_run: int = 0
     initial_done: bool = False
     pushes: int = 0
     q_prev: np.ndarray | None = None
     hold_cmd: np.ndarray | None = None
-    stop: Stop | None = None
+    stop: TrackingStop | None = None
     seam_pos: list = field(default_factory=list)  # positions (x, y, z) of the patch, index 0 newest
     seam_front: np.ndarray | None = None  # the newest patch frame (4x4)
-    recent: deque = field(default_factory=lambda: deque(maxlen=RUNAWAY_WINDOW))  # (moved mm, cycles)
+    travel: TravelGuard | None = None  # set by SeamTracker from its parameters
+
+    @property
+    def travel_mm(self) -> float:
+        """Tool travel since the start [mm]."""
+        return self.travel.travel_mm
 
 
 def mount(tracker, params: SeamParams, T_wcp_tool, T_wcp_sensor, reis_model: RobotModel | None) -> None:
@@ -243,7 +296,7 @@ class SeamTracker:
 
     def __init__(self, params: SeamParams, T_wcp_tool, T_wcp_sensor, reis_model: RobotModel | None = None):
         mount(self, params, T_wcp_tool, T_wcp_sensor, reis_model)
-        self.s = _State(dead_zone=params.dead_zone_cycles)
+        self.s = _State(dead_zone=params.dead_zone_cycles, travel=TravelGuard(params))
         # the listing's globals
         self.T06hold = np.eye(4)  # global T (GMF1)6
         self.T6tool_hold = np.eye(4)  # (GMF1)6 T (Reis)6
@@ -436,7 +489,7 @@ class SeamTracker:
 
     # ------------------------------------------------------------ one cycle
     @property
-    def stopped(self) -> Stop | None:
+    def stopped(self) -> TrackingStop | None:
         return self.s.stop
 
     def step(self, T_global_hold6, T_global_reis6, reading: Reading, q_reis_deg=None,
@@ -466,23 +519,11 @@ class SeamTracker:
         self.tool_robot_wcp_wrt_holder(T_global_reis6)
         self.toolpt_wrt_holder()
         tool = self.Ttool7_hold[:3, 3].copy()
-        moved_mm = 0.0
-        if s.last_tool is not None:
-            d = tool - s.last_tool
-            moved_mm = math.sqrt(float(d.dot(d)))  # np.linalg.norm(d), without its overhead
-            s.travel_mm += moved_mm
-        s.last_tool = tool
-        if self.p.runaway_factor > 0 and s.dead_zone == 0:  # (in the dead zone the arm may still settle)
-            s.recent.append((moved_mm, max(1.0, elapsed_cycles)))
-            moved = sum(m for m, _ in s.recent)
-            limit_mm = max(self.p.runaway_factor * self.p.step_mm * sum(e for _, e in s.recent), RUNAWAY_MIN_MM)
-            if moved > limit_mm:
-                return self._stop(cycle, STOP_RUNAWAY, f"the tool moved {moved:.1f} mm in {len(s.recent)} "
-                                                       f"cycles (limit {limit_mm:.1f} mm)")
+        stop = s.travel.step(tool, elapsed_cycles, guard_runaway=s.dead_zone == 0)  # (the arm may settle first)
+        if stop:
+            return self._stop(cycle, *stop)
         if s.q_prev is None and q_reis_deg is not None:
             s.q_prev = np.asarray(q_reis_deg, float)
-        if s.travel_mm >= self.p.length_mm:
-            return self._stop(cycle, STOP_END, f"run length {self.p.length_mm:g} mm reached")
 
         in_dead_zone = s.dead_zone > 0
         if not reading.valid:
@@ -513,7 +554,7 @@ class SeamTracker:
             tcp_idx=s.tcp_idx, queue_len=len(s.seam_pos), q_reis_deg=q)
 
     def _stop(self, cycle: int, reason: str, detail: str) -> CycleOutput:
-        self.s.stop = Stop(reason, detail, self.s.travel_mm, cycle)
+        self.s.stop = TrackingStop(reason, detail, self.s.travel_mm, cycle)
         return self._stopped_output(cycle)
 
     def _stopped_output(self, cycle: int) -> CycleOutput:

@@ -36,6 +36,10 @@ class Reading:
     captured [heartbeat ticks] when the reading carries it (a stamped sensor
     line, or the lockstep harness); None: the tracking cycle assumes its
     Status tick minus ``SENSOR_LAG_TICKS`` (droid.tasks.seam.cycle).
+
+    Not :class:`droid.brain.sensor_line.LineReading` (one parsed "x,y,roll"
+    line, stamped in ms mod the stamp modulo): the tracker reads the Brain's
+    sensor Status, not the line.
     """
 
     x_mm: float = 0.0

@@ -30,13 +30,12 @@ from __future__ import annotations
 
 import math
 import os
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from droid.cli import BadInput
+from droid.cli import BadInput, read_toml
 from droid.kinematics.transforms import inv_homo, pose_to_T, roty, rotx, rotz, trans
 
 BUNDLED_LAYOUT = Path(__file__).resolve().parents[2] / "cells" / "seamtrack_layout.toml"
@@ -267,15 +266,4 @@ def layout_from_dict(data: dict, source: str = "<dict>") -> Layout:
 def load_layout(path: str | os.PathLike | None = None) -> Layout:
     """Read a layout file (default: the bundled seamtrack_layout.toml).  Raises BadInput."""
     p = Path(path) if path is not None else BUNDLED_LAYOUT
-    try:
-        with open(p, "rb") as f:
-            data = tomllib.load(f)
-    except FileNotFoundError:
-        raise BadInput(f"layout file {p} not found") from None
-    except IsADirectoryError:
-        raise BadInput(f"layout file {p} is a directory") from None
-    except OSError as exc:
-        raise BadInput(f"layout file {p}: cannot read ({exc.strerror or exc})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise BadInput(f"layout file {p}: not valid TOML ({exc})") from None
-    return layout_from_dict(data, source=str(p))
+    return layout_from_dict(read_toml(p, "layout file"), source=str(p))

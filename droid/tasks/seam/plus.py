@@ -36,15 +36,14 @@ seam map (droid.tasks.seam.seammap).  Per 30 Hz cycle:
 from __future__ import annotations
 
 import math
-from collections import deque
 
 import numpy as np
 
 from droid.kinematics import RobotModel, Unreachable
 from droid.kinematics.transforms import inv_homo
-from droid.tasks.seam.core import (mount, PHASE_DEAD_ZONE, PHASE_INITIAL, PHASE_TRACKING, RUNAWAY_MIN_MM,
-                                   RUNAWAY_WINDOW, STOP_END, STOP_LOST, STOP_RUNAWAY, STOP_UNREACHABLE,
-                                   CycleOutput, SeamParams, Stop, _seam_transform)
+from droid.tasks.seam.core import (mount, PHASE_DEAD_ZONE, PHASE_INITIAL, PHASE_TRACKING, TravelGuard,
+                                   STOP_LOST, STOP_UNREACHABLE,
+                                   CycleOutput, SeamParams, TrackingStop, _seam_transform)
 from droid.tasks.seam.delay import DELAY_OFF, INVALID_READING, Reading
 from droid.tasks.seam.seammap import SeamMap, chord_point
 
@@ -65,21 +64,24 @@ class PlusTracker:
         self.v = 0.0  # commanded travel speed now [mm/s]
         self.s_tool = 0.0  # the measured tool's arc length [mm]
         self.depth_bias_mm = 0.0
-        self.travel_mm = 0.0
-        self.last_tool = None
         self.invalid_run = 0
         self.q_prev = None
         self.hold_cmd = None
-        self.stop: Stop | None = None
-        self.recent: deque = deque(maxlen=RUNAWAY_WINDOW)
+        self.stop: TrackingStop | None = None
+        self.travel = TravelGuard(params)
         self.used_readings = 0
 
     @property
-    def stopped(self) -> Stop | None:
+    def stopped(self) -> TrackingStop | None:
         return self.stop
 
+    @property
+    def travel_mm(self) -> float:
+        """Tool travel since the start [mm]."""
+        return self.travel.travel_mm
+
     def _stop(self, cycle: int, reason: str, detail: str) -> CycleOutput:
-        self.stop = Stop(reason, detail, self.travel_mm, cycle)
+        self.stop = TrackingStop(reason, detail, self.travel_mm, cycle)
         return self._stopped_output(cycle)
 
     def _stopped_output(self, cycle: int) -> CycleOutput:
@@ -100,23 +102,12 @@ class PlusTracker:
         hold_inv = inv_homo(T_hold)
         T_tool_H = hold_inv @ np.asarray(T_global_reis6, float) @ self.T67tool  # eq. 5.10, 5.5
         tool = T_tool_H[:3, 3].copy()
-        moved = 0.0
-        if self.last_tool is not None:
-            moved = float(np.linalg.norm(tool - self.last_tool))
-            self.travel_mm += moved
-        self.last_tool = tool
         in_dead_zone = cycle < self.p.dead_zone_cycles
-        if self.p.runaway_factor > 0 and not in_dead_zone:
-            self.recent.append((moved, max(1.0, elapsed_cycles)))
-            total = sum(m for m, _ in self.recent)
-            limit = max(self.p.runaway_factor * self.p.step_mm * sum(e for _, e in self.recent), RUNAWAY_MIN_MM)
-            if total > limit:
-                return self._stop(cycle, STOP_RUNAWAY, f"the tool moved {total:.1f} mm in {len(self.recent)} "
-                                                       f"cycles (limit {limit:.1f} mm)")
+        stop = self.travel.step(tool, elapsed_cycles, guard_runaway=not in_dead_zone)
+        if stop:
+            return self._stop(cycle, *stop)
         if self.q_prev is None and q_reis_deg is not None:
             self.q_prev = np.asarray(q_reis_deg, float)
-        if self.travel_mm >= self.p.length_mm:
-            return self._stop(cycle, STOP_END, f"run length {self.p.length_mm:g} mm reached")
         if self.map.size == 0:  # the initial straight section: from the tool's start point (§6.1.1)
             self.map.seed(tool, T_tool_H[:3, 0], T_tool_H[:3, 2])
             self.T_start_H = T_tool_H.copy()
