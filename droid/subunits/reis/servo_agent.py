@@ -32,8 +32,7 @@ import zmq
 
 from droid.brain.curve import CurveHost
 from droid.brain.databases import open_local
-from droid.brain.layouts import (CMD_FAILED, CMD_OK, FAULT_BRAKING, FAULT_SERVO, HOME_MODE,
-                                 HOMED, JOG_MODE, NORMAL_MODE, OFF)
+from droid.brain.layouts import CMD_FAILED, CMD_OK, FAULT_BRAKING, FAULT_SERVO, HOME_MODE, HOMED, OFF
 from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import BadInput, run
@@ -46,7 +45,6 @@ PROG = "droid-servo-agent"
 COMMAND_HZ = 60.0
 STARTUP_GRACE_PERIODS = 120  # 2 s for the servo's first status message
 MY_FAULTS = FAULT_BRAKING | FAULT_SERVO  # FAULT_WATCHDOG is droid-watchdog's
-BRAIN_TO_SERVO_MODE = {OFF: Mode.OFF, JOG_MODE: Mode.JOG, HOME_MODE: Mode.HOME, NORMAL_MODE: Mode.NORMAL}
 
 
 @dataclass
@@ -104,8 +102,9 @@ class ServoAgentCore:
                                                         f"(command OFF to clear)")
         if not int(cmd["link_alive"]):
             return AgentDecision(None, status, faults, "Brain link lost")
-        servo_mode = BRAIN_TO_SERVO_MODE.get(mode)
-        if servo_mode is None:
+        try:
+            servo_mode = Mode(mode)  # the servo message carries cmd_mode's own numbers
+        except ValueError:
             return AgentDecision(None, status, faults, f"unknown command mode {mode}")
         counts = (0,) * 6
         if servo_mode == Mode.HOME:
