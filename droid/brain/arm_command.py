@@ -48,3 +48,10 @@ def stop(command) -> int:
     """A stop (STOP_TICKS, issue 16): the move in progress ends where it is."""
     return write_command(command, coord=JSPACE, cmd_mode=NORMAL_MODE, joint_time_count=STOP_TICKS,
                          cart_time_count=STOP_TICKS)
+
+
+def set_normal(command) -> None:
+    """After homing the command mode becomes NORMAL (thesis §3.3); no new command (no cmd_id)."""
+    with command.locked() as c:
+        c["cmd_mode"] = NORMAL_MODE
+        command.mark_written()

@@ -186,9 +186,7 @@ class BrainArm:
 
     def set_normal(self) -> None:
         """After homing the command mode becomes NORMAL (thesis §3.3); no new command."""
-        with self.command.locked() as c:
-            c["cmd_mode"] = NORMAL_MODE
-            self.command.mark_written()
+        arm_command.set_normal(self.command)
 
     # -- waiting -----------------------------------------------------------
     def wait(self, pred, timeout_s: float, what: str):

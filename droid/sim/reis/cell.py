@@ -30,8 +30,9 @@ import numpy as np
 
 from droid.brain import arm_command
 from droid.brain.classes import ARM6R
+from droid.brain.wire import LIVENESS_TICKS
 from droid.brain.layouts import (ARM_COMMAND_LAYOUT, ARM_STATUS_LAYOUT, CTRL_COMMAND_LAYOUT,
-                                 CTRL_STATUS_LAYOUT, JOG_MODE, JSPACE, NORMAL_MODE)
+                                 CTRL_STATUS_LAYOUT, JOG_MODE, JSPACE)
 from droid.brain.remote import RemoteStation, StatusTranslator
 from droid.brain.shmdb import MemoryDatabase
 from droid.kinematics import load_robot
@@ -53,7 +54,7 @@ PLANT_HZ = 500  # plant advances per second; each integrates 1/PLANT_HZ in 0.5 m
 # once per servo tick (just before it) is exact; it saves three quarters of the register traffic.
 SERVO_HZ = 500
 WATCHDOG_HZ = 50
-STALE_TICKS = 3  # the cell file's default stale_ticks
+STALE_TICKS = LIVENESS_TICKS  # the cell file's default stale_ticks
 
 
 class LockstepArm:
@@ -184,7 +185,7 @@ class LockstepArm:
         return arm_command.ticks_for(seconds, self.sched.heartbeat_hz)
 
     def set_normal(self) -> None:
-        self.brain_command.update(cmd_mode=NORMAL_MODE)
+        arm_command.set_normal(self.brain_command)
 
     def run_until(self, pred, max_s: float, step_s: float = 0.05) -> bool:
         """Advance virtual time until ``pred()`` or ``max_s`` simulated seconds."""
