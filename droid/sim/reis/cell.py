@@ -128,7 +128,6 @@ class LockstepArm:
     def _tick(self, tick: int) -> None:
         t_ns = self.sched.t_ns
         self.remote.on_tick(tick)
-        relay = None
         if self.alive["link"]:  # the remote sends the Brain's command; the agent copies it in
             self.reis_agent.on_command(self.remote.command_payload(), tick, t_ns)
             relay = tick
@@ -137,8 +136,7 @@ class LockstepArm:
         if self.alive["planner"] and relay is not None:
             self.planner.cycle(relay)
         if self.alive["link"]:  # the reply: controller Status -> Brain Status, with FK (§4.1.8)
-            reply = self.ctrl_status.raw_bytes()
-            self.remote.on_reply(tick, reply, t_ns)
+            self.remote.on_reply(tick, self.ctrl_status.raw_bytes(), t_ns)
 
     def restart_servo(self, home_offset_deg=None) -> None:
         """(Re)start droid-servo with calibrated switch positions (the robot file's plus
