@@ -155,3 +155,27 @@ def test_arm_commands_are_in_heartbeat_ticks():
     assert int(c["cart_time_count"]) == 45 and int(c["coord"]) == L.CARTSPACE and int(c["sent"]) == 1
     arm_command.stop(cmd)
     assert int(cmd.read()["joint_time_count"]) == L.STOP_TICKS == int(cmd.read()["cart_time_count"])
+
+
+def test_the_shells_and_lockstep_call_the_same_stations():
+    """Each cycle is written once: the real-time program builds its station, LockstepArm builds
+    the same ones and keeps no copy of a shell's rules (field lists, fault sets, freshness)."""
+    import inspect
+
+    from droid.brain import remote
+    from droid.sim.reis import cell
+    from droid.subunits import agent
+    from droid.subunits.reis import planner, servo_agent, servo_prog, watchdog_prog
+
+    shells = {servo_prog: "ServoStation(", watchdog_prog: "WatchdogStation(", servo_agent: "ServoAgentStation(",
+              planner: "PlannerStation(", agent: "AgentStation(", remote: "RemoteStation("}
+    lockstep = inspect.getsource(cell)
+    for module, station in shells.items():
+        main = inspect.getsource(module)[inspect.getsource(module).index("def main"):]
+        if module is agent:
+            main = inspect.getsource(agent.agent_main)
+        assert station in main, module.__name__
+        assert station in lockstep, station
+    for copy in ("MY_FAULTS", "COMMAND_MAP", "copy_fields", '"encoder_cmd", "busy"', "3e9", "STATUS_EVERY_TICKS",
+                 "unpack_status", "pack_command", "counts_to_joints(np.asarray(st"):
+        assert copy not in lockstep, copy
