@@ -5,20 +5,21 @@ virtual time (:class:`droid.sim.lockstep.Scheduler`), joined by in-memory databa
 (:class:`~droid.brain.shmdb.MemoryDatabase`) and in-memory messages (the same bytes)
 instead of shared memory and ZeroMQ:
 
-=========================  ========  ============================================
-station                    rate      process it stands for
-=========================  ========  ============================================
-ReisPlant                  500 Hz    droid-sim (the robot behind the VME map; 4 substeps of 0.5 ms)
-WatchdogStation            50 Hz     droid-watchdog
-ServoStation               500 Hz    droid-servo
-ServoAgentStation          60 Hz     droid-servo-agent (own timer, half a period out of phase)
-RemoteStation + AgentStation  tick   droid-remote + droid-reis-agent (Brain Command -> controller)
-PlannerStation             tick      droid-planner (on the agent's relayed tick)
-RemoteStation              tick      droid-remote (controller Status -> Brain Status, FK)
-=========================  ========  ============================================
+==========================  ========  ==============================================
+station                     rate      process it stands for
+==========================  ========  ==============================================
+ReisPlant                   500 Hz    droid-sim (the robot behind the VME map; 4 substeps of 0.5 ms)
+WatchdogStation             50 Hz     droid-watchdog
+ServoStation                500 Hz    droid-servo
+ServoAgentStation           60 Hz     droid-servo-agent (own timer, half a period out of phase)
+RemoteStation, AgentStation tick      droid-remote, droid-reis-agent (Brain Command -> controller)
+PlannerStation              tick      droid-planner (on the agent's relayed tick)
+RemoteStation               tick      droid-remote (the reply: controller Status -> Brain Status, FK)
+==========================  ========  ==============================================
 
-Only the transport and the clock are lockstep's own: the agent's reply is taken after
-the planner's cycle of the same tick, where the real-time cell would carry it on the next.
+Only the transport and the clock are lockstep's own.  One ordering is too: the reply
+carries the Status after the planner's cycle of the same tick, where the real-time agent
+replies before its relayed tick reaches the planner (so its reply shows the previous plan).
 
 Task programs use :class:`LockstepArm` like BrainArm uses the shared
 databases: ``command_joint``, ``command_cart`` (ticks, as BrainArm's), ``command_home``

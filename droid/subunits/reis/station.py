@@ -5,21 +5,14 @@ so both modes run exactly the same code between the messages, the VME cards,
 the records and the cores (DESIGN §10 "one cycle, two runners"); the shells
 only open the sockets, the driver and the databases, and keep time:
 
-=======================  ===================  ===========================================
-station                  program              cycle
-=======================  ===================  ===========================================
-:class:`ServoStation`    droid-servo          500 Hz: command messages in (§4.1.5.2); encoders
-                                              and switches -> :class:`ServoCore` -> DACs; a
-                                              status message every ``STATUS_EVERY_TICKS``
-:class:`WatchdogStation` droid-watchdog       50 Hz: the servo's status messages in; kick the
-                                              watchdog registers (§2.3); AMP_STATUS -> the
-                                              WATCHDOG fault bit of ctrl_status
-:class:`ServoAgentStation`  droid-servo-agent 60 Hz: ctrl_command + the servo's newest fresh
-                                              status -> one command message; status and fault
-                                              bits -> ctrl_status (§4.1.6)
-:class:`PlannerStation`  droid-planner        per relayed tick: ctrl_command + ctrl_status ->
-                                              way-point, busy (§4.1.7)
-=======================  ===================  ===========================================
+* :class:`ServoStation` -- droid-servo, 500 Hz: command messages in (§4.1.5.2); encoders
+  and switches -> :class:`ServoCore` -> DACs; a status message every ``STATUS_EVERY_TICKS``;
+* :class:`WatchdogStation` -- droid-watchdog, 50 Hz: the servo's status messages in; kick
+  the watchdog registers (§2.3, §4.1.4); AMP_STATUS -> the WATCHDOG fault bit of ctrl_status;
+* :class:`ServoAgentStation` -- droid-servo-agent, 60 Hz: ctrl_command + the servo's newest
+  fresh status -> one command message; status fields and fault bits -> ctrl_status (§4.1.6);
+* :class:`PlannerStation` -- droid-planner, per relayed tick: ctrl_command + ctrl_status ->
+  way-point, busy (§4.1.7).
 
 The agent copier (droid-reis-agent) is :class:`droid.subunits.agent.AgentStation`, the
 remote's cycle :class:`droid.brain.remote.RemoteStation`.
