@@ -31,7 +31,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
-from droid.kinematics.transforms import T_to_pose  # noqa: E402
+from droid.kinematics.transforms import T_to_pose, pose_to_T  # noqa: E402
 
 BASE_Q = np.array([0.0, 10.0, 10.0, 0.0, 40.0, 20.0])
 
@@ -62,14 +62,14 @@ def bench_lockstep(moves: int) -> None:
     g.run_ticks(2)
     g.home()
     start = T_to_pose(g.model.fk(BASE_Q))
-    cid = g.command_cart(start, 1.0)
+    cid = g.command_cart(pose_to_T(*start), g.ticks_for(1.0))
     g.run_until(lambda: g.done(cid), 20)
     for label, pause_s in (("back to back", 0.0), ("isolated, 0.5 s idle before", 0.5)):
         lat, net = [], []
         for tgt in targets(g.model, moves):
             g.sched.run_for(pause_s)
             t0 = g.t_s
-            cid = g.command_cart(tgt, 1 / 60)
+            cid = g.command_cart(pose_to_T(*tgt), g.ticks_for(1 / 60))
             g.run_until(lambda: g.done(cid), 20)
             dt = g.t_s - t0
             lat.append(dt * 1e3)
@@ -95,7 +95,7 @@ def bench_lockstep(moves: int) -> None:
 def bench_realtime(moves: int) -> None:
     from droid.brain.cellfile import builtin_cell_path, load_cell
     from droid.brain.databases import open_brain, open_local
-    from droid.brain.layouts import CARTSPACE, NORMAL_MODE
+    from droid.brain import arm_command
     from droid.kinematics import load_robot
     from droid.kinematics.transforms import pose_to_T
 
@@ -134,12 +134,7 @@ def bench_realtime(moves: int) -> None:
                 while int(status.read()["busy"]):
                     time.sleep(0.001)
                 t0 = time.monotonic()
-                with command.locked() as c:
-                    cid = (int(c["cmd_id"]) + 1) & 0xFFFFFFFF or 1
-                    c["x"], c["y"], c["z"], c["R"] = T[0, 3], T[1, 3], T[2, 3], T[:3, :3]
-                    c["cart_time_count"] = 1
-                    c["coord"], c["cmd_mode"], c["sent"], c["cmd_id"] = CARTSPACE, NORMAL_MODE, 1, cid
-                    command.mark_written()
+                cid = arm_command.cart(command, T, 1)
                 deadline = t0 + 10
                 while time.monotonic() < deadline:
                     r = status.read()

@@ -56,9 +56,11 @@ CARTSPACE = 1  # coord: cartesian space
 class CmdMode(IntEnum):
     """Command modes (Command/Status ``cmd_mode``, thesis §3.3 and Table 4.3): the one definition.
 
-    The Brain's records, the agent and every task use these numbers; the Reis
-    servo's own message wire should too (its ``servo_params.Mode`` still numbers
-    HOME and JOG the other way round and is mapped in the servo agent)."""
+    The thesis names the modes but prints no numbers: Tables 3.2 and 4.3 give
+    ``cmd_mode`` as "OFF, HOME_MODE, JOG_MODE", and §3.3 adds NORMAL ("its command
+    mode becomes NORMAL" after homing).  These numbers are DROID's.  The Brain's
+    records, the agents, every task and the Reis servo's command message
+    (``servo_params.Mode`` is this class; ``servo_wire`` DSC2/DSS2) use them."""
 
     OFF = 0
     JOG = 1  # relative encoder counts; works before homing (§3.4)

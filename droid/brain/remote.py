@@ -27,10 +27,10 @@ import zmq
 from droid.brain import wire
 from droid.brain.cellfile import Subunit
 from droid.brain.curve import CurveHost
-from droid.brain.databases import brain_layouts, local_layouts, open_brain
+from droid.brain.databases import brain_layouts, open_brain
 from droid.brain.heartbeat import TickSubscriber
 from droid.brain.layouts import ARM_COMMAND_LAYOUT, FAULT_HEARTBEAT, FAULT_LINK, LayoutError, check_header
-from droid.brain.link import HeartbeatWatch, RemoteLinkCore
+from droid.brain.link import HeartbeatWatch, RemoteAction, RemoteLinkCore
 from droid.brain.names import NameClient
 from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
 from droid.brain.rt import try_sched_fifo
@@ -55,22 +55,69 @@ class ArmPose:
 
 
 class StatusTranslator:
-    """Agent reply (the subunit side's status record) -> Brain Status fields (the class's copy_fields)."""
+    """Agent reply (the subunit side's status record) -> Brain Status fields (the class's copy_fields).
 
-    def __init__(self, sub: Subunit, fk=None) -> None:
-        self.sub = sub
-        self.reply_layout = local_layouts(sub)["ctrl_status"]
-        self.fields = sub.kind.copy_fields
+    ``kind`` is the subunit's :class:`~droid.brain.classes.SubunitClass`; ``fk`` (arms) maps
+    encoder counts to the WCP pose, added to the fields once the arm is homed (§4.1.8)."""
+
+    def __init__(self, name: str, kind, fk=None) -> None:
+        self.name = name
+        self.reply_layout = kind.local["ctrl_status"]
+        self.fields = kind.copy_fields
         self.fk = fk
 
+    @classmethod
+    def for_subunit(cls, sub: Subunit) -> "StatusTranslator":
+        return cls(sub.name, sub.kind, ArmPose(sub) if sub.kind.kinematic else None)
+
     def __call__(self, payload: bytes) -> dict:
-        check_header(payload, self.reply_layout, f"reply from {self.sub.name}")
+        check_header(payload, self.reply_layout, f"reply from {self.name}")
         rec = np.frombuffer(payload, dtype=self.reply_layout.dtype, count=1)[0]
         out = {f: rec[f] for f in self.fields}
         if self.fk is not None and int(rec["homed"]):
             T = self.fk(rec["encoder_pos"])
             out.update(x=T[0, 3], y=T[1, 3], z=T[2, 3], R=T[:3, :3])
         return out
+
+
+class RemoteStation:
+    """droid-remote's cycle for an agent-linked subunit, transport aside (thesis §3.2, §4.1.8).
+
+    Per heartbeat tick :meth:`on_tick` counts the missed reply (``stale`` and FAULT_LINK in
+    the Brain's Status after ``stale_ticks``) and :meth:`command_payload` is the Command
+    record to send; per reply :meth:`on_reply` writes the translated Status fields and, once
+    the agent acknowledged the very command that was sent, clears ``sent`` (Table 3.2).
+    ``status``/``command`` are the Brain's records (``command`` None for sensors).
+    """
+
+    def __init__(self, status, command, translate: StatusTranslator, stale_ticks: int) -> None:
+        self.status = status
+        self.command = command
+        self.translate = translate
+        self.core = RemoteLinkCore(stale_ticks)
+        self.sent_cmd_id: int | None = None
+
+    def on_tick(self, tick: int) -> RemoteAction:
+        act = self.core.on_tick(tick)
+        if act.became_stale:
+            self.status.update(stale=1, fault=int(self.status.read()["fault"]) | FAULT_LINK)
+        return act
+
+    def command_payload(self) -> bytes:
+        payload = self.command.raw_bytes() if self.command is not None else b""
+        self.sent_cmd_id = _cmd_id(payload)
+        return payload
+
+    def on_reply(self, tick: int, payload: bytes, now_ns: int) -> bool:
+        """The agent's reply for ``tick``; True if it answered the pending command and was
+        written.  Raises LayoutError for a record of a foreign layout."""
+        fields = self.translate(payload)
+        if not self.core.on_reply(tick):
+            return False
+        self.status.update(tick=tick, updated_ns=now_ns, stale=0, **fields)
+        if self.command is not None:
+            _ack_sent(self.command, self.sent_cmd_id)
+        return True
 
 
 @run
@@ -82,19 +129,17 @@ def main(argv=None) -> int:
         return serve_serial(cell, sub, args.ready_fd, PROG)
     status = open_brain(cell, sub, "status")
     command = open_brain(cell, sub, "command") if "command" in brain_layouts(sub) else None
-    fk = ArmPose(sub) if sub.kind.kinematic else None
-    translate = StatusTranslator(sub, fk)
     ctx = zmq.Context()
     curve = CurveHost(ctx, cell, cell.brain_host)
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
     names = NameClient(ctx, cell.names, curve=curve, server_host=cell.brain_host)
     ticks = TickSubscriber(ctx, cell.heartbeat, curve, cell.brain_host)
-    core = RemoteLinkCore(cell.stale_ticks)
+    station = RemoteStation(status, command, StatusTranslator.for_subunit(sub), cell.stale_ticks)
+    core = station.core
     watch = HeartbeatWatch.for_rate(cell.heartbeat_hz, cell.stale_ticks)
     dealer = None
     endpoint = None
     bad_frames = 0
-    sent_cmd_id = None
 
     def connect() -> None:
         nonlocal dealer, endpoint
@@ -130,16 +175,12 @@ def main(argv=None) -> int:
                     if watch.on_tick(time.monotonic_ns()):  # the heartbeat is back: the reply clears stale
                         status.update(fault=int(status.read()["fault"]) & ~FAULT_HEARTBEAT)
                     last_tick = t.tick
-                    act = core.on_tick(t.tick)
-                    if act.became_stale:
-                        status.update(stale=1, fault=int(status.read()["fault"]) | FAULT_LINK)
+                    act = station.on_tick(t.tick)
                     if act.reconnect or dealer is None:
                         connect()
                     if dealer is not None:
-                        payload = command.raw_bytes() if command is not None else b""
-                        sent_cmd_id = _cmd_id(payload)
                         try:
-                            dealer.send_multipart(wire.pack_link(wire.KIND_CMD, t.tick, payload),
+                            dealer.send_multipart(wire.pack_link(wire.KIND_CMD, t.tick, station.command_payload()),
                                                   zmq.NOBLOCK)
                         except zmq.Again:
                             pass
@@ -151,14 +192,10 @@ def main(argv=None) -> int:
                         break
                     try:
                         tick, payload = wire.unpack_link(frames, wire.KIND_STA)
-                        fields = translate(payload)
+                        station.on_reply(tick, payload, time.monotonic_ns())
                     except (wire.BadFrame, LayoutError):
                         bad_frames += 1
                         continue
-                    if core.on_reply(tick):
-                        status.update(tick=tick, updated_ns=time.monotonic_ns(), stale=0, **fields)
-                        if command is not None:
-                            _ack_sent(command, sent_cmd_id)
             presence.beat(last_tick, core.replies, ticks.monitor.missed,
                           bad_frames=bad_frames + ticks.bad_frames)
     finally:

@@ -68,6 +68,53 @@ class CommandCopier:
             self.db.mark_written()
 
 
+class AgentStation:
+    """The agent's cycle, transport aside: a command from the remote is copied into the
+    controller's Command record (if the subunit has one) and answered with the Status
+    record's bytes; between commands :meth:`on_timer` watches the Brain link (§3.2).
+
+    When the Brain has been silent for ``stale_ticks`` periods the link is declared dead:
+    ``link_alive = 0`` in the Command record, FAULT_LINK in the Status record, and from
+    then on the agent ticks the subunit's programs from its own clock (tick numbers follow
+    time, like the heartbeat's) so that the planner cancels the interrupted move.  The next
+    command clears FAULT_LINK.  Times [ns] are the caller's clock (monotonic or virtual).
+    """
+
+    def __init__(self, status, ctrl_command, period_ns: int, stale_ticks: int) -> None:
+        self.status = status
+        self.ctrl_command = ctrl_command
+        self.copier = CommandCopier(ctrl_command) if ctrl_command is not None else None
+        self.link = AgentLinkCore(period_ns, stale_ticks)
+        self.period_ns = period_ns
+        self.alive = False  # the Brain link as last declared
+
+    def on_command(self, payload: bytes, tick: int, now_ns: int) -> bytes:
+        """A command for ``tick`` (the Brain's Command record); returns the reply (the Status
+        record).  Raises LayoutError for a record of a foreign layout (nothing is copied)."""
+        if self.copier is not None:
+            self.copier(payload, tick)
+        self.link.on_command(tick, now_ns)
+        if not self.alive:
+            _set_fault(self.status, FAULT_LINK, False)
+            self.alive = True
+        return self.status.raw_bytes()
+
+    def on_timer(self, now_ns: int) -> int | None:
+        """Once a heartbeat period: declare a silent link dead; while it is, return the local
+        tick to relay to the subunit's programs (None while the Brain is heard)."""
+        if self.alive and not self.link.alive(now_ns):
+            self.alive = False
+            if self.ctrl_command is not None:
+                self.ctrl_command.update(link_alive=0)
+            _set_fault(self.status, FAULT_LINK, True)
+        if self.alive or self.link.last_cmd_ns is None:
+            return None
+        local = self.link.last_tick + (now_ns - self.link.last_cmd_ns) // self.period_ns
+        if self.ctrl_command is not None:
+            self.ctrl_command.update(brain_tick=local)
+        return local
+
+
 def agent_main(prog: str, argv=None) -> int:
     ap = parser(prog, "Serve a subunit to its Brain-side remote: commands in, status out, ticks relayed.")
     ap.add_argument("subunit", help="subunit name, e.g. arm1")
@@ -79,7 +126,6 @@ def agent_main(prog: str, argv=None) -> int:
     layouts = local_layouts(sub)
     status = open_local(cell, sub, "ctrl_status")
     ctrl_cmd = open_local(cell, sub, "ctrl_command") if "ctrl_command" in layouts else None
-    copier = CommandCopier(ctrl_cmd) if ctrl_cmd is not None else None
     ctx = zmq.Context()
     curve = CurveHost(ctx, cell, sub.host)
     presence = Presence(cell.name, presence_key(prog, sub.name), f"{prog} {sub.name}")
@@ -89,10 +135,10 @@ def agent_main(prog: str, argv=None) -> int:
     relay = ctx.socket(zmq.PUB)
     relay.setsockopt(zmq.LINGER, 0)
     names = None
-    link = AgentLinkCore(cell.period_ns, cell.stale_ticks)
+    station = AgentStation(status, ctrl_cmd, cell.period_ns, cell.stale_ticks)
+    link = station.link
     timer = PeriodicTimer(cell.period_ns)  # checks Brain-link liveness between commands
     bad_frames = 0
-    was_alive = False
     try:
         cell.run_dir.mkdir(parents=True, exist_ok=True)
         curve.bind(cell, (router, sub.agent), (relay, sub.relay))
@@ -118,33 +164,17 @@ def agent_main(prog: str, argv=None) -> int:
                     ident, body = frames[0], frames[1:]
                     try:
                         tick, payload = wire.unpack_link(body, wire.KIND_CMD)
-                        if copier is not None:
-                            copier(payload, tick)
+                        reply = station.on_command(payload, tick, now)
                     except (wire.BadFrame, LayoutError):
                         bad_frames += 1
                         continue
-                    link.on_command(tick, now)
-                    if not was_alive:
-                        _set_fault(status, FAULT_LINK, False)
-                        was_alive = True
-                    reply = status.raw_bytes()
                     router.send_multipart([ident] + wire.pack_link(wire.KIND_STA, tick, reply))
                     relay.send(wire.pack_tick(wire.Tick(tick, now, cell.period_ns)))
             if timer.fd in events:
                 timer.consume()
                 names.keepalive()
-                if was_alive and not link.alive(now):
-                    was_alive = False
-                    if ctrl_cmd is not None:
-                        ctrl_cmd.update(link_alive=0)
-                    _set_fault(status, FAULT_LINK, True)
-                if not was_alive and link.last_cmd_ns is not None:
-                    # The Brain is silent: keep ticking the local programs so that the
-                    # planner sees link_alive = 0 and cancels its move (the arm brakes
-                    # and stays stopped).  Tick numbers follow time, like the heartbeat's.
-                    local = link.last_tick + (now - link.last_cmd_ns) // cell.period_ns
-                    if ctrl_cmd is not None:
-                        ctrl_cmd.update(brain_tick=local)
+                local = station.on_timer(now)
+                if local is not None:
                     relay.send(wire.pack_tick(wire.Tick(local, now, cell.period_ns)))
             presence.beat(link.last_tick, link.commands, timer.overruns, bad_frames=bad_frames)
     finally:

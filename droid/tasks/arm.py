@@ -18,10 +18,10 @@ import time
 import numpy as np
 
 from droid.brain.cellfile import Cell
-from droid.brain.databases import open_brain, write_command
-from droid.brain.layouts import (CARTSPACE, CMD_OK, CMD_REFUSED, FAULT_DEVICE, FAULT_NAMES,
-                                 FAULT_SERVO, FAULT_WATCHDOG, HOME_MODE,
-                                 JOG_MODE, JSPACE, NORMAL_MODE, STOP_TICKS)
+from droid.brain import arm_command
+from droid.brain.databases import open_brain
+from droid.brain.layouts import (CMD_OK, CMD_REFUSED, FAULT_DEVICE, FAULT_NAMES, FAULT_SERVO,
+                                 FAULT_WATCHDOG, NORMAL_MODE)
 from droid.cli import MAX_MOVE_S, BadInput, RuntimeFailure
 from droid.kinematics import Unreachable, load_robot
 from droid.kinematics.transforms import pose_to_T
@@ -85,8 +85,7 @@ class BrainArm:
         later -- e.g. when a cut link comes back (no "orphan moves", issue 16)."""
         if self.live_cmd is None or self.command is None:
             return
-        self.stopped_cmd = self._write(coord=JSPACE, cmd_mode=NORMAL_MODE, joint_time_count=STOP_TICKS,
-                                       cart_time_count=STOP_TICKS)
+        self.stopped_cmd = arm_command.stop(self.command)
         self.live_cmd = None
 
     # -- reading ---------------------------------------------------------
@@ -115,7 +114,7 @@ class BrainArm:
     def ticks_for(self, seconds: float) -> int:
         if not (math.isfinite(seconds) and 0 < seconds <= MAX_MOVE_S):
             raise BadInput(f"move time must be in (0, {MAX_MOVE_S:g}] s, got {seconds!r}")
-        ticks = int(round(seconds * self.hb_hz))
+        ticks = arm_command.ticks_for(seconds, self.hb_hz)
         if ticks < 1:
             raise BadInput(f"move time {seconds:g} s is shorter than one heartbeat tick")
         return ticks
@@ -167,30 +166,27 @@ class BrainArm:
                                f"{float(np.max(dq / vmax)):.2f} s")
 
     # -- commanding --------------------------------------------------------
-    def _write(self, **fields) -> int:
-        self.live_cmd = write_command(self.command, **fields)
-        return self.live_cmd
+    def _written(self, cmd_id: int) -> int:
+        self.live_cmd = cmd_id
+        return cmd_id
 
     def command_joint(self, counts, ticks: int, mode: int = NORMAL_MODE) -> int:
-        return self._write(encoder_pos=np.asarray(counts, np.int32), joint_time_count=int(ticks),
-                           coord=JSPACE, cmd_mode=mode)
+        """A joint command [encoder counts] in ``ticks`` heartbeat ticks (:mod:`droid.brain.arm_command`)."""
+        return self._written(arm_command.joint(self.command, counts, ticks, mode))
 
     def command_cart(self, T, ticks: int) -> int:
-        T = np.asarray(T, float)
-        return self._write(x=T[0, 3], y=T[1, 3], z=T[2, 3], R=T[:3, :3], cart_time_count=int(ticks),
-                           coord=CARTSPACE, cmd_mode=NORMAL_MODE)
+        """A cartesian command (WCP 4x4, global, mm) in ``ticks`` heartbeat ticks."""
+        return self._written(arm_command.cart(self.command, T, ticks))
 
     def command_jog(self, delta_counts, ticks: int = 1) -> int:
-        return self.command_joint(delta_counts, ticks, mode=JOG_MODE)
+        return self._written(arm_command.jog(self.command, delta_counts, ticks))
 
     def command_home(self) -> int:
-        return self._write(cmd_mode=HOME_MODE, coord=JSPACE)
+        return self._written(arm_command.home(self.command))
 
     def set_normal(self) -> None:
         """After homing the command mode becomes NORMAL (thesis §3.3); no new command."""
-        with self.command.locked() as c:
-            c["cmd_mode"] = NORMAL_MODE
-            self.command.mark_written()
+        arm_command.set_normal(self.command)
 
     # -- waiting -----------------------------------------------------------
     def wait(self, pred, timeout_s: float, what: str):

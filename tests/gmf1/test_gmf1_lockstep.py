@@ -5,9 +5,10 @@ Virtual time only: these are verdicts on behaviour (counts, states, positions), 
 import numpy as np
 import pytest
 
-from droid.brain.layouts import (CMD_FAILED, CMD_OK, CMD_REFUSED, FAULT_DEVICE, HOME_MODE, JOG_MODE, JSPACE)
+from droid.brain import arm_command
+from droid.brain.layouts import CMD_FAILED, CMD_OK, CMD_REFUSED, FAULT_DEVICE, HOME_MODE
 from droid.brain.remote import ArmPose
-from droid.kinematics.transforms import T_to_pose
+from droid.kinematics.transforms import T_to_pose, pose_to_T
 from droid.sim.gmf1.lockstep import Gmf1Lockstep
 from droid.subunits.gmf1 import karel_wire as kw
 
@@ -51,7 +52,7 @@ def test_cart_move_at_the_controllers_pace_while_status_refreshes_at_120_hz(home
     moves_before = g.controller.accepted
     refreshes_before = g.encoder.refreshes
     t0 = g.t_s
-    cmd_id = g.command_cart(TARGET, 2.0)
+    cmd_id = g.command_cart(pose_to_T(*TARGET), g.ticks_for(2.0))
     busy_seen = []
     assert g.run_until(lambda: busy_seen.append(int(g.status()["busy"])) or g.done(cmd_id), 20)
     elapsed = g.t_s - t0
@@ -78,7 +79,7 @@ def test_intermediate_commands_are_dropped_and_the_newest_wins(homed):
     ids = []
     for k in range(120):  # a new command every tick for 2 s (60 Hz), as a streaming task would
         p = base + np.array([0, 0.5 * k, 0, 0, 0, 0])
-        ids.append(g.command_cart(p, 0.1))
+        ids.append(g.command_cart(pose_to_T(*p), g.ticks_for(0.1)))
         g.run_ticks(1)
     last = ids[-1]
     assert g.run_until(lambda: g.done(last), 20)
@@ -95,7 +96,7 @@ def test_intermediate_commands_are_dropped_and_the_newest_wins(homed):
 def test_cart_command_before_homing_is_refused_and_nothing_moves(g):
     g.run_ticks(10)
     q0 = g.controller.q_deg.copy()
-    cmd_id = g.command_cart(TARGET, 1.0)
+    cmd_id = g.command_cart(pose_to_T(*TARGET), g.ticks_for(1.0))
     g.run_ticks(30)
     s = g.status()
     assert int(s["cmd_id"]) == cmd_id and int(s["cmd_result"]) == CMD_REFUSED and int(s["busy"]) == 0
@@ -106,10 +107,10 @@ def test_cart_command_before_homing_is_refused_and_nothing_moves(g):
 def test_unreachable_and_jog_commands_are_refused(homed):
     g = homed
     accepted = g.controller.accepted
-    cmd_id = g.command_cart([9000, 0, 0, 0, 0, 0], 1.0)
+    cmd_id = g.command_cart(pose_to_T(*[9000, 0, 0, 0, 0, 0]), g.ticks_for(1.0))
     g.run_ticks(5)
     assert int(g.status()["cmd_id"]) == cmd_id and int(g.status()["cmd_result"]) == CMD_REFUSED
-    cmd_id = g._write(encoder_pos=np.full(6, 10, np.int32), joint_time_count=1, coord=JSPACE, cmd_mode=JOG_MODE)
+    cmd_id = arm_command.jog(g.brain_command, np.full(6, 10, np.int32), 1)
     g.run_ticks(5)
     assert int(g.status()["cmd_id"]) == cmd_id and int(g.status()["cmd_result"]) == CMD_REFUSED
     assert g.controller.accepted == accepted
@@ -118,7 +119,7 @@ def test_unreachable_and_jog_commands_are_refused(homed):
 def test_joint_command_goes_as_jmove(homed):
     g = homed
     counts = g.model.gearing.joints_to_counts_int([5, 10, -5, 20, 30, -10]).astype(np.int32)
-    cmd_id = g.command_joint(counts, 1.0)
+    cmd_id = g.command_joint(counts, g.ticks_for(1.0))
     assert g.run_until(lambda: g.done(cmd_id), 10)
     s = g.status()
     assert int(s["cmd_result"]) == CMD_OK
@@ -128,7 +129,7 @@ def test_joint_command_goes_as_jmove(homed):
 
 def test_status_pose_agrees_with_the_remotes_forward_kinematics(homed):
     g = homed
-    cmd_id = g.command_cart(TARGET, 1.0)
+    cmd_id = g.command_cart(pose_to_T(*TARGET), g.ticks_for(1.0))
     g.run_ticks(40)  # mid-move
     s = g.status()
     T = ArmPose(g.sub)(s["encoder_pos"])
@@ -145,7 +146,7 @@ def test_garbled_reply_line_gives_a_clear_fault_that_clears(homed):
     assert g.serial_core.garbled == 1
     # the program checks the link (STAT) and the fault clears at the answer
     assert g.run_until(lambda: not int(g.status()["fault"]) & FAULT_DEVICE, 2.0)
-    cmd_id = g.command_cart(TARGET, 0.5)
+    cmd_id = g.command_cart(pose_to_T(*TARGET), g.ticks_for(0.5))
     assert g.run_until(lambda: g.done(cmd_id), 10)
     assert int(g.status()["cmd_result"]) == CMD_OK
 
@@ -161,13 +162,13 @@ def test_garbled_done_is_recovered_by_a_probe(homed):
         real_write(data.replace(b"O", b"#"))
 
     dev.write = mangle
-    cmd_id = g.command_cart(TARGET, 0.5)
+    cmd_id = g.command_cart(pose_to_T(*TARGET), g.ticks_for(0.5))
     assert g.run_until(lambda: int(g.status()["cmd_id"]) == cmd_id and int(g.status()["cmd_result"]) != CMD_OK, 15)
     s = g.status()
     assert int(s["cmd_result"]) == CMD_FAILED and int(s["busy"]) == 0 and int(s["fault"]) & FAULT_DEVICE
     dev.write = real_write
     assert g.run_until(lambda: not int(g.status()["fault"]) & FAULT_DEVICE, 5)
-    cmd2 = g.command_cart(np.array(TARGET) + [0, 20, 0, 0, 0, 0], 0.5)
+    cmd2 = g.command_cart(pose_to_T(*np.array(TARGET) + [0, 20, 0, 0, 0, 0]), g.ticks_for(0.5))
     assert g.run_until(lambda: g.done(cmd2), 10)
     assert int(g.status()["cmd_result"]) == CMD_OK
 
@@ -176,7 +177,7 @@ def test_stalled_controller_fails_the_move_and_stays_safe(homed):
     g = homed
     g.device.halted = True
     q = g.controller.q_deg.copy()
-    cmd_id = g.command_cart(TARGET, 1.0)
+    cmd_id = g.command_cart(pose_to_T(*TARGET), g.ticks_for(1.0))
     g.run_ticks(20)
     assert int(g.status()["busy"]) >= 1  # the command is out; no answer yet
     assert g.run_until(lambda: int(g.status()["cmd_result"]) == CMD_FAILED, 10)
@@ -184,7 +185,7 @@ def test_stalled_controller_fails_the_move_and_stays_safe(homed):
     assert int(s["fault"]) & FAULT_DEVICE and int(s["busy"]) == 0 and int(s["cmd_id"]) == cmd_id
     np.testing.assert_array_equal(g.controller.q_deg, q)
     # more commands while stalled are held, not sent blind
-    cmd2 = g.command_cart(np.array(TARGET) + [0, 10, 0, 0, 0, 0], 0.5)
+    cmd2 = g.command_cart(pose_to_T(*np.array(TARGET) + [0, 10, 0, 0, 0, 0]), g.ticks_for(0.5))
     g.run_ticks(240)
     assert int(g.status()["cmd_id"]) == cmd_id
     assert g.serial_core.timeouts >= 2
@@ -200,7 +201,7 @@ def test_vanished_port_is_a_fault_and_is_reopened(homed):
     g.pair.vanish()
     g.run_ticks(3)
     assert not g.link.is_open and int(g.status()["fault"]) & FAULT_DEVICE
-    cmd_id = g.command_cart(TARGET, 0.5)
+    cmd_id = g.command_cart(pose_to_T(*TARGET), g.ticks_for(0.5))
     g.run_ticks(120)  # back-off reopen attempts fail meanwhile, never an exception
     assert int(g.status()["fault"]) & FAULT_DEVICE and int(g.status()["busy"]) == 1
     g.pair.restore()
@@ -211,7 +212,7 @@ def test_vanished_port_is_a_fault_and_is_reopened(homed):
 
 def test_port_vanishing_mid_move(homed):
     g = homed
-    cmd_id = g.command_cart(TARGET, 2.0)
+    cmd_id = g.command_cart(pose_to_T(*TARGET), g.ticks_for(2.0))
     g.run_ticks(30)
     g.pair.vanish()
     g.run_ticks(30)
@@ -238,7 +239,7 @@ def test_same_seed_same_run():
         g = Gmf1Lockstep(seed=5)
         g.run_ticks(2)
         g.home()
-        cmd_id = g.command_cart(TARGET, 1.0)
+        cmd_id = g.command_cart(pose_to_T(*TARGET), g.ticks_for(1.0))
         g.run_until(lambda: g.done(cmd_id), 10)
         return g.t_s, g.status().tobytes(), g.controller.q_deg.tobytes()
 
@@ -258,7 +259,7 @@ def test_requests_on_the_line_follow_the_grammar(homed):
         return port_write(data)
 
     g.link.write = spy
-    cmd_id = g.command_cart(TARGET, 0.5)
+    cmd_id = g.command_cart(pose_to_T(*TARGET), g.ticks_for(0.5))
     assert g.run_until(lambda: g.done(cmd_id), 10)
     lines = kw.LineSplitter().feed(bytes(seen))
     reqs = [kw.parse_request(ln) for ln in lines]

@@ -169,7 +169,7 @@ def test_realtime_trial_agrees_with_lockstep(cell):
     sched = Scheduler(60.0)
     arm = LockstepArm(sched, seed=1)  # the sim cell's world seed
     assert arm.home()
-    assert arm.move_done(arm.command_joint(target, 2.0), 6)
+    assert arm.move_done(arm.command_joint(target, arm.ticks_for(2.0)), 6)
     sched.run_for(1.0)
     ls = np.asarray(arm.status["encoder_pos"])
     assert np.all(np.abs(rt - ls) <= 5), (rt, ls)

@@ -37,7 +37,7 @@ def test_both_arms_home_move_and_arrive_in_lockstep():
     for n, a in arms.items():
         T = a.model.fk([20.0, 10.0, 15.0, 5.0, 30.0, -10.0])
         targets[n] = T
-        ids[n] = a.command_cart(T, 2.0)
+        ids[n] = a.command_cart(T, a.ticks_for(2.0))
     assert a1.run_until(lambda: all(int(a.status["cmd_id"]) == ids[n] and not int(a.status["busy"])
                                     for n, a in arms.items()), 8.0)
     s.run_for(0.5)

@@ -16,10 +16,10 @@ def make(seed=1):
 def test_home_then_joint_and_cartesian_moves_reach_their_targets():
     s, arm = make()
     assert arm.home()
-    cid = arm.command_joint([0, 0, 0, 0, 0, 0], 1.5)
+    cid = arm.command_joint([0, 0, 0, 0, 0, 0], arm.ticks_for(1.5))
     assert arm.move_done(cid, 5)
     T = arm.model.fk([20.0, 10.0, 15.0, 5.0, 30.0, -10.0])
-    cid = arm.command_cart(T, 2.0)
+    cid = arm.command_cart(T, arm.ticks_for(2.0))
     assert arm.move_done(cid, 6)
     s.run_for(0.5)  # settle
     err = np.linalg.norm(arm.wcp_global()[:3, 3] - T[:3, 3])
@@ -32,7 +32,7 @@ def test_deterministic_for_a_seed():
     for _ in range(2):
         s, arm = make(seed=5)
         arm.home()
-        arm.move_done(arm.command_joint([3000, -2000, 1000, 0, 4000, 0], 1.0), 4)
+        arm.move_done(arm.command_joint([3000, -2000, 1000, 0, 4000, 0], arm.ticks_for(1.0)), 4)
         runs.append((arm.plant.joint_deg.copy(), s.t_ns))
     assert np.array_equal(runs[0][0], runs[1][0]) and runs[0][1] == runs[1][1]
 
@@ -41,7 +41,7 @@ def test_link_loss_brakes_and_the_arm_stays_until_a_new_command():
     s, arm = make()
     assert arm.home()
     start = arm.plant.joint_deg.copy()
-    cid = arm.command_joint([40000, 0, 0, 0, 0, 60000], 6.0)
+    cid = arm.command_joint([40000, 0, 0, 0, 0, 60000], arm.ticks_for(6.0))
     s.run_for(1.5)
     arm.alive["link"] = False
     s.run_for(1.0)
@@ -53,7 +53,7 @@ def test_link_loss_brakes_and_the_arm_stays_until_a_new_command():
     s.run_for(2.0)
     assert np.allclose(arm.plant.joint_deg, stopped, atol=0.02)  # stays until a new command
     assert int(arm.status["cmd_result"]) == L.CMD_FAILED and int(arm.status["cmd_id"]) == cid
-    assert arm.move_done(arm.command_joint([40000, 0, 0, 0, 0, 60000], 4.0), 8)
+    assert arm.move_done(arm.command_joint([40000, 0, 0, 0, 0, 60000], arm.ticks_for(4.0)), 8)
 
 
 def test_dead_servo_trips_the_watchdog_latch():

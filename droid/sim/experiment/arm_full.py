@@ -41,13 +41,13 @@ class FullArm:
         if not self.arm.home(HOME_TIMEOUT_S):
             raise RuntimeFailure("full arm model: homing did not finish")
         counts = np.rint(self.model.gearing.joints_to_counts(self.q_start)).astype(np.int32)
-        cmd = self.arm.command_joint(counts, MOVE_S)
+        cmd = self.arm.command_joint(counts, self.arm.ticks_for(MOVE_S))
         if not self.arm.move_done(cmd, MOVE_S + 5.0):
             raise RuntimeFailure("full arm model: the move to the start pose did not finish")
         self.sched.run_for(SETTLE_S)
 
     def command_cart(self, T_global_wcp, ticks: int) -> None:
-        self.arm.command_cart(T_global_wcp, ticks / self.sched.heartbeat_hz)
+        self.arm.command_cart(T_global_wcp, ticks)
 
     def status_pose(self) -> np.ndarray:
         st = self.arm.status

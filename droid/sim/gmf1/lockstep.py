@@ -20,8 +20,8 @@ from __future__ import annotations
 import numpy as np
 
 from droid.brain.cellfile import Cell, load_cell
-from droid.brain.layouts import (ARM_COMMAND_LAYOUT, CARTSPACE, CTRL_COMMAND_LAYOUT, CTRL_STATUS_LAYOUT,
-                                 HOME_MODE, JOG_MODE, JSPACE, NORMAL_MODE)
+from droid.brain import arm_command
+from droid.brain.layouts import ARM_COMMAND_LAYOUT, CTRL_COMMAND_LAYOUT, CTRL_STATUS_LAYOUT, JOG_MODE, JSPACE, NORMAL_MODE
 from droid.brain.shmdb import MemoryDatabase
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T
@@ -102,32 +102,21 @@ class Gmf1Lockstep:
         if self.serial_running:
             self.serial.cycle(tick)
 
-    # -- the Brain side (what droid-move / droid-home write) ------------------------
-    def _write(self, **fields) -> int:
-        with self.brain_command.locked() as c:
-            cmd_id = (int(c["cmd_id"]) + 1) & 0xFFFFFFFF or 1
-            for k, v in fields.items():
-                c[k] = v
-            c["cmd_id"] = cmd_id
-            c["sent"] = 1
-            self.brain_command.mark_written()
-        return cmd_id
+    # -- the Brain side (what droid-move / droid-home write: droid.brain.arm_command) ----------
+    def command_cart(self, T, ticks: int) -> int:
+        """A cartesian move of the WCP to ``T`` (4x4, global frame, mm) in ``ticks`` heartbeat ticks."""
+        return arm_command.cart(self.brain_command, T, ticks)
 
-    def command_cart(self, pose_global, seconds: float) -> int:
-        """A cartesian move: x y z [mm], ZYZ A B C [deg] in the global frame, in ``seconds``."""
-        T = pose_to_T(*pose_global)
-        return self._write(x=T[0, 3], y=T[1, 3], z=T[2, 3], R=T[:3, :3],
-                           cart_time_count=int(round(seconds * self.cell.heartbeat_hz)),
-                           coord=CARTSPACE, cmd_mode=NORMAL_MODE)
-
-    def command_joint(self, counts, seconds: float) -> int:
-        """A joint move: encoder counts wrt home, in ``seconds``."""
-        return self._write(encoder_pos=np.asarray(counts, np.int32),
-                           joint_time_count=int(round(seconds * self.cell.heartbeat_hz)),
-                           coord=JSPACE, cmd_mode=NORMAL_MODE)
+    def command_joint(self, counts, ticks: int) -> int:
+        """A joint move: encoder counts wrt home, in ``ticks`` heartbeat ticks."""
+        return arm_command.joint(self.brain_command, counts, ticks)
 
     def command_home(self) -> int:
-        return self._write(cmd_mode=HOME_MODE, coord=JSPACE)
+        return arm_command.home(self.brain_command)
+
+    def ticks_for(self, seconds: float) -> int:
+        """``seconds`` [s] as heartbeat ticks of the cell."""
+        return arm_command.ticks_for(seconds, self.cell.heartbeat_hz)
 
     # -- running ------------------------------------------------------------------------
     def status(self):

@@ -187,7 +187,7 @@ def calibrate_arm(arm, seed: int = 0) -> dict:
     meas = []
     for screen_name, q_cmd in thesis_sequence():
         counts = np.rint(gearing.joints_to_counts(np.asarray(q_cmd, float))).astype(np.int32)
-        cid = arm.command_joint(counts, MOVE_S)
+        cid = arm.command_joint(counts, arm.ticks_for(MOVE_S))
         if not arm.move_done(cid, MOVE_S + 6.0):
             raise RuntimeFailure(f"{arm.name}: the move to {list(q_cmd)} did not finish")
         arm.sched.run_for(SETTLE_S)
@@ -198,7 +198,7 @@ def calibrate_arm(arm, seed: int = 0) -> dict:
         q_servo = gearing.counts_to_joints(np.asarray(arm.status["encoder_pos"], float))
         meas.append((screen, q_servo, cam.read(truth)))
     # joint 6 by the inclinometer, at the home pose (tool axis horizontal)
-    cid = arm.command_joint(np.zeros(6, np.int32), MOVE_S)
+    cid = arm.command_joint(np.zeros(6, np.int32), arm.ticks_for(MOVE_S))
     arm.move_done(cid, MOVE_S + 6.0)
     arm.sched.run_for(SETTLE_S)
     incl = inclinometer_deg(arm.plant.wcp_true()) + np.random.default_rng(seed + 1).normal(0.0, 0.005)

@@ -1,44 +1,52 @@
-"""The Reis subunit in lockstep: every program core of the real-time cell, in one process.
+"""The Reis subunit in lockstep: every program cycle of the real-time cell, in one process.
 
-The same cores as the processes of ``droid-cell up``, on virtual time
-(:class:`droid.sim.lockstep.Scheduler`), joined by in-memory databases
-(:class:`~droid.brain.shmdb.MemoryDatabase`) and in-memory messages instead of
-shared memory and ZeroMQ:
+The same stations (read -> core.step -> write) as the processes of ``droid-cell up``, on
+virtual time (:class:`droid.sim.lockstep.Scheduler`), joined by in-memory databases
+(:class:`~droid.brain.shmdb.MemoryDatabase`) and in-memory messages (the same bytes)
+instead of shared memory and ZeroMQ:
 
-====================  ========  ============================================
-core                  rate      process it stands for
-====================  ========  ============================================
-ReisPlant             500 Hz    droid-sim (the robot behind the VME map; 4 substeps of 0.5 ms)
-WatchdogCore          50 Hz     droid-watchdog
-ServoCore             500 Hz    droid-servo
-ServoAgentCore        60 Hz     droid-servo-agent (own timer, half a period out of phase)
-(command copy)        tick      droid-remote + droid-reis-agent (Brain Command -> controller)
-PlannerCore           tick      droid-planner
-StatusTranslator      tick      droid-remote (controller Status -> Brain Status, FK)
-====================  ========  ============================================
+==========================  ========  ==============================================
+station                     rate      process it stands for
+==========================  ========  ==============================================
+ReisPlant                   500 Hz    droid-sim (the robot behind the VME map; 4 substeps of 0.5 ms)
+WatchdogStation             50 Hz     droid-watchdog
+ServoStation                500 Hz    droid-servo
+ServoAgentStation           60 Hz     droid-servo-agent (own timer, half a period out of phase)
+RemoteStation, AgentStation tick      droid-remote, droid-reis-agent (Brain Command -> controller)
+PlannerStation              tick      droid-planner (on the agent's relayed tick)
+RemoteStation               tick      droid-remote (the reply: controller Status -> Brain Status, FK)
+==========================  ========  ==============================================
+
+Only the transport and the clock are lockstep's own.  One ordering is too: the reply
+carries the Status after the planner's cycle of the same tick, where the real-time agent
+replies before its relayed tick reaches the planner (so its reply shows the previous plan).
 
 Task programs use :class:`LockstepArm` like BrainArm uses the shared
-databases: ``command_joint``, ``command_cart``, ``command_home`` write the
-Brain's Command record; ``status`` is the Brain's Status record.
+databases: ``command_joint``, ``command_cart`` (ticks, as BrainArm's), ``command_home``
+write the Brain's Command record; ``status`` is the Brain's Status record.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from droid.brain.layouts import (ARM_COMMAND_LAYOUT, ARM_STATUS_LAYOUT, CARTSPACE, CTRL_COMMAND_LAYOUT,
-                                 CTRL_STATUS_LAYOUT, HOME_MODE, JOG_MODE, JSPACE, NORMAL_MODE)
+from droid.brain import arm_command
+from droid.brain.classes import ARM6R
+from droid.brain.wire import LIVENESS_TICKS
+from droid.brain.layouts import (ARM_COMMAND_LAYOUT, ARM_STATUS_LAYOUT, CTRL_COMMAND_LAYOUT,
+                                 CTRL_STATUS_LAYOUT, JOG_MODE, JSPACE)
+from droid.brain.remote import RemoteStation, StatusTranslator
 from droid.brain.shmdb import MemoryDatabase
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.sim.lockstep import ORDER_DEVICE, ORDER_HEARTBEAT, ORDER_WORLD, Scheduler
 from droid.sim.reis.plant import ReisPlant, ReisPlantParams
-from droid.subunits.agent import COMMAND_MAP
-from droid.subunits.reis import servo_wire as sw
+from droid.subunits.agent import AgentStation
 from droid.subunits.reis.planner import PlannerCore
-from droid.subunits.reis.planner import apply as apply_plan
 from droid.subunits.reis.servo import ServoCore
-from droid.subunits.reis.servo_agent import MY_FAULTS, ServoAgentCore
+from droid.subunits.reis.servo_agent import COMMAND_HZ as AGENT_HZ
+from droid.subunits.reis.servo_agent import ServoAgentCore
 from droid.subunits.reis.servo_params import ServoParams
+from droid.subunits.reis.station import PlannerStation, ServoAgentStation, ServoStation, WatchdogStation
 from droid.subunits.reis.vme import VmeBus
 from droid.subunits.reis.watchdog import WatchdogCore
 
@@ -47,11 +55,11 @@ PLANT_HZ = 500  # plant advances per second; each integrates 1/PLANT_HZ in 0.5 m
 # once per servo tick (just before it) is exact; it saves three quarters of the register traffic.
 SERVO_HZ = 500
 WATCHDOG_HZ = 50
-AGENT_HZ = 60
+STALE_TICKS = LIVENESS_TICKS  # the cell file's default stale_ticks
 
 
 class LockstepArm:
-    """One Reis arm, all of its programs' cores, on a scheduler."""
+    """One Reis arm, all of its programs' stations, on a scheduler."""
 
     def __init__(self, sched: Scheduler, name: str = "arm1", robot: str = "reis_v15",
                  base=(0, 0, 0, 0, 0, 0), seed: int = 1, plant_params: ReisPlantParams | None = None,
@@ -65,21 +73,21 @@ class LockstepArm:
             raise ValueError(f"arm {name}: the controller's robot file {robot!r} and the plant's {pp.robot!r} differ")
         self.plant = ReisPlant(pp, seed, **plant_kw)
         self.bus = VmeBus.from_buffer(self.plant.regs)
-        self.home_offset_deg = np.zeros(6) if home_offset_deg is None else np.asarray(home_offset_deg, float)
-        self.servo_params = ServoParams.from_robot(robot, home_offset_deg)
-        self.servo = ServoCore(self.servo_params)
-        self.watchdog = WatchdogCore()
-        self.agent = ServoAgentCore(params=self.servo_params)
-        self.planner = PlannerCore(self.model)
         self.brain_status = MemoryDatabase(f"{name}.status", ARM_STATUS_LAYOUT)
         self.brain_command = MemoryDatabase(f"{name}.command", ARM_COMMAND_LAYOUT)
         self.ctrl_status = MemoryDatabase(f"{name}.ctrl_status", CTRL_STATUS_LAYOUT)
         self.ctrl_command = MemoryDatabase(f"{name}.ctrl_command", CTRL_COMMAND_LAYOUT)
         for db in (self.brain_command, self.ctrl_command):
             db.update(cmd_mode=JOG_MODE, coord=JSPACE)
-        self._inbox: list[bytes] = []  # servo-agent -> servo messages (ZeroMQ PUSH/PULL)
-        self._report: bytes | None = None  # servo -> agent/watchdog (ZeroMQ PUB/SUB)
-        self._report_t = 0
+        self.restart_servo(home_offset_deg)
+        self.watchdog = WatchdogStation(WatchdogCore(), self.bus, self.ctrl_status)
+        self.agent = ServoAgentStation(ServoAgentCore(STALE_TICKS, params=self.servo_params),
+                                       self.ctrl_command, self.ctrl_status, AGENT_HZ)
+        self.planner = PlannerStation(PlannerCore(self.model), self.ctrl_command, self.ctrl_status)
+        period_ns = int(round(1e9 / sched.heartbeat_hz))
+        self.reis_agent = AgentStation(self.ctrl_status, self.ctrl_command, period_ns, STALE_TICKS)
+        self.remote = RemoteStation(self.brain_status, self.brain_command,
+                                    StatusTranslator(name, ARM6R, self.wcp_from_counts), STALE_TICKS)
         self.alive = {"servo": True, "watchdog": True, "agent": True, "planner": True, "link": True}
         p = 1e9
         sched.every(PLANT_HZ, self._plant, f"{name}.plant", order=ORDER_WORLD)
@@ -89,76 +97,55 @@ class LockstepArm:
                     phase_ns=int(p / AGENT_HZ / 2))
         sched.on_tick(self._tick, f"{name}.tick", order=ORDER_HEARTBEAT)
 
-    # -- the cores, as their processes run them -------------------------------
+    @property
+    def servo(self) -> ServoCore:
+        return self.servo_station.core
+
+    # -- the stations, as their processes run them; only the transport is lockstep's ------
     def _plant(self, t_ns: int) -> None:
         self.plant.advance(1.0 / PLANT_HZ)
 
     def _servo(self, t_ns: int) -> None:
         if not self.alive["servo"]:
             return
-        for msg in self._inbox:
-            c = sw.unpack_command(msg)
-            self.servo.command(c.mode, c.counts)
+        for msg in self._inbox:  # ZeroMQ PUSH/PULL from the servo agent
+            self.servo_station.take(msg)
         self._inbox.clear()
-        dacs = self.servo.step(self.bus.read_encoders_raw(), self.bus.read_limit_switches())
-        self.bus.write_dacs(dacs)
-        if self.servo.tick % sw.STATUS_EVERY_TICKS == 0:
-            self._report = sw.pack_status(self.servo.status(), self.bus.amps_powered)
-            self._report_t = t_ns
+        report = self.servo_station.cycle()
+        if report is not None:  # ZeroMQ PUB/SUB to the servo agent and the watchdog
+            self.watchdog.take(report)
+            self.agent.take(report, t_ns)
 
     def _watchdog(self, t_ns: int) -> None:
-        if not self.alive["watchdog"] or self._report is None:
-            return
-        rep = sw.unpack_status(self._report)
-        kick = self.watchdog.step(rep.tick, bool(rep.fault))
-        if kick is not None:
-            self.bus.write_watchdog(*kick)
+        if self.alive["watchdog"]:
+            self.watchdog.cycle()
 
     def _servo_agent(self, t_ns: int) -> None:
-        if not self.alive["agent"]:
-            return
-        rep = sw.unpack_status(self._report) if self._report is not None else None
-        fresh = rep is not None and t_ns - self._report_t < 3e9 / AGENT_HZ
-        d = self.agent.step(self.ctrl_command.read(), rep, fresh)
-        if d.message is not None:
-            self._inbox.append(sw.pack_command(d.message))
-        with self.ctrl_status.locked() as st:
-            for k, v in d.status.items():
-                st[k] = v
-            st["fault"] = (int(st["fault"]) & ~MY_FAULTS) | d.fault_bits
+        if self.alive["agent"]:
+            msg = self.agent.cycle(t_ns)
+            if msg is not None:
+                self._inbox.append(msg)
 
     def _tick(self, tick: int) -> None:
-        if self.alive["link"]:
-            # droid-remote sends the Brain's command; droid-reis-agent copies it in
-            cmd = self.brain_command.read()
-            with self.ctrl_command.locked() as c:
-                for src, dst in COMMAND_MAP.items():
-                    c[dst] = cmd[src]
-                c["brain_tick"] = tick
-                c["link_alive"] = 1
-            self.brain_command.update(sent=0)
-        else:
-            self.ctrl_command.update(link_alive=0, brain_tick=tick)
-        if self.alive["planner"]:
-            out = self.planner.step(self.ctrl_command.read(), self.ctrl_status.read())
-            apply_plan(out, self.ctrl_command, self.ctrl_status, tick)
-        if self.alive["link"]:
-            # the reply: controller Status -> Brain Status, with forward kinematics (§4.1.8)
-            st = self.ctrl_status.read()
-            fields = {f: st[f] for f in ("encoder_pos", "encoder_cmd", "busy", "homed", "fault", "cmd_mode",
-                                          "coord", "cmd_id", "cmd_result")}
-            if int(st["homed"]):
-                T = self.wcp_from_counts(st["encoder_pos"])
-                fields.update(x=T[0, 3], y=T[1, 3], z=T[2, 3], R=T[:3, :3])
-            self.brain_status.update(tick=tick, stale=0, **fields)
+        t_ns = self.sched.t_ns
+        self.remote.on_tick(tick)
+        if self.alive["link"]:  # the remote sends the Brain's command; the agent copies it in
+            self.reis_agent.on_command(self.remote.command_payload(), tick, t_ns)
+            relay = tick
+        else:  # the agent's own timer: the link dies after stale_ticks; then local ticks
+            relay = self.reis_agent.on_timer(t_ns)
+        if self.alive["planner"] and relay is not None:
+            self.planner.cycle(relay)
+        if self.alive["link"]:  # the reply: controller Status -> Brain Status, with FK (§4.1.8)
+            self.remote.on_reply(tick, self.ctrl_status.raw_bytes(), t_ns)
 
     def restart_servo(self, home_offset_deg=None) -> None:
-        """Restart droid-servo with calibrated switch positions (the robot file's plus
+        """(Re)start droid-servo with calibrated switch positions (the robot file's plus
         ``home_offset_deg``): the new servo starts unhomed, as a restarted program does."""
         self.home_offset_deg = np.zeros(6) if home_offset_deg is None else np.asarray(home_offset_deg, float)
         self.servo_params = ServoParams.from_robot(self.model, home_offset_deg)
-        self.servo = ServoCore(self.servo_params)
-        self._inbox.clear()
+        self.servo_station = ServoStation(ServoCore(self.servo_params), self.bus)
+        self._inbox: list[bytes] = []  # servo-agent -> servo messages (ZeroMQ PUSH/PULL)
 
     # -- what a task program sees --------------------------------------------
     def wcp_from_counts(self, counts) -> np.ndarray:
@@ -181,28 +168,23 @@ class LockstepArm:
     def status(self):
         return self.brain_status.read()
 
-    def _write(self, **fields) -> int:
-        with self.brain_command.locked() as c:
-            cmd_id = int(c["cmd_id"]) + 1
-            for k, v in fields.items():
-                c[k] = v
-            c["cmd_id"], c["sent"] = cmd_id, 1
-        return cmd_id
-
     def command_home(self) -> int:
-        return self._write(cmd_mode=HOME_MODE, coord=JSPACE)
+        return arm_command.home(self.brain_command)
 
-    def command_joint(self, counts, seconds: float) -> int:
-        return self._write(encoder_pos=np.asarray(counts, np.int32), coord=JSPACE, cmd_mode=NORMAL_MODE,
-                           joint_time_count=int(round(seconds * self.sched.heartbeat_hz)))
+    def command_joint(self, counts, ticks: int) -> int:
+        """A joint move to ``counts`` [encoder counts wrt home] in ``ticks`` heartbeat ticks."""
+        return arm_command.joint(self.brain_command, counts, ticks)
 
-    def command_cart(self, T, seconds: float) -> int:
-        T = np.asarray(T, float)
-        return self._write(x=T[0, 3], y=T[1, 3], z=T[2, 3], R=T[:3, :3], coord=CARTSPACE,
-                           cmd_mode=NORMAL_MODE, cart_time_count=int(round(seconds * self.sched.heartbeat_hz)))
+    def command_cart(self, T, ticks: int) -> int:
+        """A cartesian move of the WCP to ``T`` (4x4, global frame, mm) in ``ticks`` heartbeat ticks."""
+        return arm_command.cart(self.brain_command, T, ticks)
+
+    def ticks_for(self, seconds: float) -> int:
+        """``seconds`` [s] as heartbeat ticks of this arm's scheduler."""
+        return arm_command.ticks_for(seconds, self.sched.heartbeat_hz)
 
     def set_normal(self) -> None:
-        self.brain_command.update(cmd_mode=NORMAL_MODE)
+        arm_command.set_normal(self.brain_command)
 
     def run_until(self, pred, max_s: float, step_s: float = 0.05) -> bool:
         """Advance virtual time until ``pred()`` or ``max_s`` simulated seconds."""

@@ -1,18 +1,21 @@
 """Lockstep runner for the Reis arm: plant, servo, watchdog and commands on virtual time.
 
-Time is an integer count of base ticks at the least common multiple of the
-rates (6 kHz for 2000/500/50/60 Hz), never the wall clock.  At each base tick
-the due parties run in rate order, as the real-time cell would see them:
+A bench for the servo alone (no agents, no databases), on the one lockstep
+scheduler, :class:`droid.sim.lockstep.Scheduler`.  Its public time is an
+integer count of base ticks at the least common multiple of the rates (6 kHz
+for 2000/500/50/60 Hz), never the wall clock.  At each instant the due
+parties run in this order, as the real-time cell would see them:
 
 1. the 60 Hz command source (the servo agent's role) calls ``servo.command``;
-2. the 50 Hz watchdog core writes the watchdog registers (or not);
-3. the 500 Hz servo core reads encoders/switches and writes the DACs;
+2. the 50 Hz watchdog station writes the watchdog registers (or not);
+3. the 500 Hz servo station reads encoders/switches and writes the DACs;
 
-and the plant is advanced (in 2 kHz substeps) up to the current tick before
+and the plant is advanced (in 2 kHz substeps) up to the current instant before
 anyone touches the register map, so every core sees the world as it is at
 that instant and the world integrates the outputs written at that instant.
-The cores talk to the plant only through :class:`VmeBus` over ``plant.regs``:
-the same bytes a real-time shell would reach through ``shm://``.
+The stations (:mod:`droid.subunits.reis.station`, the same as droid-servo's and
+droid-watchdog's) talk to the plant only through :class:`VmeBus` over
+``plant.regs``: the same bytes a real-time shell would reach through ``shm://``.
 """
 from __future__ import annotations
 
@@ -22,9 +25,11 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from droid.sim.lockstep import ORDER_DEVICE, Scheduler
 from droid.sim.reis.plant import ReisPlant, ReisPlantParams
 from droid.subunits.reis.servo import ServoCore
 from droid.subunits.reis.servo_params import Mode, ServoParams
+from droid.subunits.reis.station import ServoStation, WatchdogStation
 from droid.subunits.reis.vme import VmeBus
 from droid.subunits.reis.watchdog import WatchdogCore
 
@@ -66,7 +71,8 @@ class Trace:
 
 
 class ReisLockstep:
-    """Steps a :class:`ReisPlant`, a :class:`ServoCore` and a :class:`WatchdogCore`."""
+    """Steps a :class:`ReisPlant`, a :class:`ServoCore` and a :class:`WatchdogCore` on a
+    :class:`~droid.sim.lockstep.Scheduler` (``self.sched``)."""
 
     def __init__(
         self,
@@ -78,10 +84,10 @@ class ReisLockstep:
         self.rates = rates if rates is not None else LockstepRates()
         r = self.rates
         base = r.base_hz
-        self._every = {k: base // getattr(r, k) for k in ("plant_hz", "servo_hz", "watchdog_hz", "command_hz")}
-        if any(base % getattr(r, k) for k in self._every):
+        every = {k: base // getattr(r, k) for k in ("plant_hz", "servo_hz", "watchdog_hz", "command_hz")}
+        if any(base % getattr(r, k) for k in every):
             raise ValueError("rates must divide the base rate")
-        if self._every["servo_hz"] % self._every["plant_hz"] or self._every["watchdog_hz"] % self._every["plant_hz"]:
+        if every["servo_hz"] % every["plant_hz"] or every["watchdog_hz"] % every["plant_hz"]:
             raise ValueError("plant rate must be a multiple of the servo and watchdog rates")
         if abs(plant.params.substep_s * r.plant_hz - 1.0) > 1e-9:
             raise ValueError(f"plant substep {plant.params.substep_s} s does not match {r.plant_hz} Hz")
@@ -90,63 +96,74 @@ class ReisLockstep:
         self.servo = servo
         self.watchdog = watchdog if watchdog is not None else WatchdogCore()
         self.bus = VmeBus.from_buffer(plant.regs)
+        self.servo_station = ServoStation(servo, self.bus)
+        self.watchdog_station = WatchdogStation(self.watchdog, self.bus)
         self.tick = 0  # base ticks done
         self._plant_tick = 0  # plant substeps done
         self.command_index = 0
         self.servo_running = True  # False: the servo "process" is dead (DACs keep their last value)
         self.watchdog_running = True
+        self._commander: Commander | None = None
+        self._rows: list[tuple] | None = None
+        # one scheduler; equal instants in the order command, watchdog, servo
+        self.sched = Scheduler(heartbeat_hz=r.command_hz)
+        self._command_task = self.sched.every(r.command_hz, self._command, "command", order=ORDER_DEVICE)
+        self._watchdog_task = self.sched.every(r.watchdog_hz, self._watchdog, "watchdog", order=ORDER_DEVICE + 1)
+        self._servo_task = self.sched.every(r.servo_hz, self._servo, "servo", order=ORDER_DEVICE + 2)
 
     @property
     def time_s(self) -> float:
         return self.tick / self.base_hz
 
-    def _advance_plant_to(self, base_tick: int) -> None:
-        target = base_tick // self._every["plant_hz"]
+    def _advance_plant(self, k: int, rate_hz: int) -> None:
+        """Bring the plant to the instant ``k / rate_hz`` [s] (a whole number of substeps)."""
+        target = k * self.rates.plant_hz // rate_hz
         n = target - self._plant_tick
         if n > 0:
             self.plant.advance(n * self.plant.params.substep_s)
             self._plant_tick = target
 
+    def _command(self, t_ns: int) -> None:
+        if self._commander is None:
+            return
+        cmd = self._commander(self.command_index, self._command_task.k / self.rates.command_hz)
+        self.command_index += 1
+        if cmd is not None:
+            self.servo.command(*cmd)
+
+    def _watchdog(self, t_ns: int) -> None:
+        if not self.watchdog_running:
+            return
+        self._advance_plant(self._watchdog_task.k, self.rates.watchdog_hz)
+        self.watchdog_station.observe(self.servo.tick, bool(self.servo.fault))
+        self.watchdog_station.cycle()
+
+    def _servo(self, t_ns: int) -> None:
+        if not self.servo_running:
+            return
+        k = self._servo_task.k
+        self._advance_plant(k, self.rates.servo_hz)
+        st = self.servo_station
+        st.cycle()
+        if self._rows is not None:
+            self._rows.append(self._row(k / self.rates.servo_hz, st.raw, st.dacs))
+
     def run(self, seconds: float, commander: Commander | None = None, record: bool = True) -> Trace | None:
         """Run ``seconds`` of virtual time; ``commander`` is called at the command rate."""
         end = self.tick + int(round(seconds * self.base_hz))
-        ev = self._every
-        rows: list[tuple] = []
-        k = self.tick
-        while k < end:
-            if k % ev["command_hz"] == 0 and commander is not None:
-                cmd = commander(self.command_index, k / self.base_hz)
-                self.command_index += 1
-                if cmd is not None:
-                    self.servo.command(*cmd)
-            if k % ev["watchdog_hz"] == 0 and self.watchdog_running:
-                self._advance_plant_to(k)
-                s = self.servo
-                kick = self.watchdog.step(s.tick, bool(s.fault))
-                if kick is not None:
-                    self.bus.write_watchdog(*kick)
-            if k % ev["servo_hz"] == 0 and self.servo_running:
-                self._advance_plant_to(k)
-                raw = self.bus.read_encoders_raw()
-                dacs = self.servo.step(raw, self.bus.read_limit_switches())
-                self.bus.write_dacs(dacs)
-                if record:
-                    rows.append(self._row(k, raw, dacs))
-            k = self._next_event(k, commander is not None)
-            k = min(k, end)
-        self._advance_plant_to(end)
+        self._commander, self._rows = commander, ([] if record else None)
+        try:  # every instant before ``end`` (the end instant is the next run's first)
+            self.sched.run_until((end * 10**9 + self.base_hz // 2) // self.base_hz - 1)
+        finally:
+            rows, self._commander, self._rows = self._rows, None, None
+        self._advance_plant(end, self.base_hz)
         self.tick = end
         return self._trace(rows) if record else None
 
-    def _next_event(self, k: int, commands: bool) -> int:
-        ev = self._every
-        periods = [ev["servo_hz"], ev["watchdog_hz"]] + ([ev["command_hz"]] if commands else [])
-        return min(k + p - k % p for p in periods)
-
-    def _row(self, k: int, raw, dacs) -> tuple:
+    def _row(self, t_s: float, raw, dacs) -> tuple:
         s, p = self.servo, self.plant
         return (
-            k / self.base_hz,
+            t_s,
             s.encoder_pos,
             s.encoder_cmd,
             s.following_error,

@@ -189,6 +189,21 @@ def apply(out: PlanOutput, ctrl_command, ctrl_status, tick: int) -> None:
         ctrl_status.update(**fields)
 
 
+class PlannerStation:
+    """droid-planner's cycle, once per relayed heartbeat tick: read both records, step the
+    core, write the plan (:func:`apply`).  Returns the tick's :class:`PlanOutput`."""
+
+    def __init__(self, core: PlannerCore, ctrl_command, ctrl_status) -> None:
+        self.core = core
+        self.ctrl_command = ctrl_command
+        self.ctrl_status = ctrl_status
+
+    def cycle(self, tick: int) -> PlanOutput:
+        out = self.core.step(self.ctrl_command.read(), self.ctrl_status.read())
+        apply(out, self.ctrl_command, self.ctrl_status, tick)
+        return out
+
+
 PROG = "droid-planner"
 
 
@@ -203,6 +218,7 @@ def main(argv=None) -> int:
     ticks = TickSubscriber(ctx, sub.relay, CurveHost(ctx, cell, sub.host), sub.host)
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
     core = PlannerCore(model)
+    station = PlannerStation(core, ctrl_command, ctrl_status)
     try:
         presence.ready()
         notify_ready(args.ready_fd)
@@ -213,8 +229,7 @@ def main(argv=None) -> int:
                 presence.beat(last, core.refused, ticks.monitor.missed, bad_frames=ticks.bad_frames)
                 continue
             last = t.tick
-            out = core.step(ctrl_command.read(), ctrl_status.read())
-            apply(out, ctrl_command, ctrl_status, t.tick)
+            out = station.cycle(t.tick)
             if out.note:
                 print(f"{PROG} {sub.name}: {out.note}", file=sys.stderr, flush=True)
             presence.beat(last, core.refused, ticks.monitor.missed, bad_frames=ticks.bad_frames)

@@ -32,8 +32,7 @@ import zmq
 
 from droid.brain.curve import CurveHost
 from droid.brain.databases import open_local
-from droid.brain.layouts import (CMD_FAILED, CMD_OK, FAULT_BRAKING, FAULT_SERVO, HOME_MODE,
-                                 HOMED, JOG_MODE, NORMAL_MODE, OFF)
+from droid.brain.layouts import CMD_FAILED, CMD_OK, FAULT_BRAKING, FAULT_SERVO, HOME_MODE, HOMED, OFF
 from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import BadInput, run
@@ -46,7 +45,6 @@ PROG = "droid-servo-agent"
 COMMAND_HZ = 60.0
 STARTUP_GRACE_PERIODS = 120  # 2 s for the servo's first status message
 MY_FAULTS = FAULT_BRAKING | FAULT_SERVO  # FAULT_WATCHDOG is droid-watchdog's
-BRAIN_TO_SERVO_MODE = {OFF: Mode.OFF, JOG_MODE: Mode.JOG, HOME_MODE: Mode.HOME, NORMAL_MODE: Mode.NORMAL}
 
 
 @dataclass
@@ -104,8 +102,9 @@ class ServoAgentCore:
                                                         f"(command OFF to clear)")
         if not int(cmd["link_alive"]):
             return AgentDecision(None, status, faults, "Brain link lost")
-        servo_mode = BRAIN_TO_SERVO_MODE.get(mode)
-        if servo_mode is None:
+        try:
+            servo_mode = Mode(mode)  # the servo message carries cmd_mode's own numbers
+        except ValueError:
             return AgentDecision(None, status, faults, f"unknown command mode {mode}")
         counts = (0,) * 6
         if servo_mode == Mode.HOME:
@@ -139,6 +138,46 @@ class ServoAgentCore:
         return AgentDecision(sw.ServoCommand(self.seq, int(servo_mode), counts), status, faults)
 
 
+class ServoAgentStation:
+    """droid-servo-agent's cycle: ``take`` each servo status message, ``cycle`` at 60 Hz.
+
+    A status is *fresh* for three command periods after it arrived; the cycle reads the
+    Command record, steps :class:`ServoAgentCore` and writes its status fields and its own
+    fault bits (``MY_FAULTS``; FAULT_WATCHDOG is droid-watchdog's) into the Status record
+    under one lock.  It returns the command message to send, or None (the servo brakes).
+    Time ``now_ns`` is the caller's clock [ns]: CLOCK_MONOTONIC, or lockstep's virtual time.
+    """
+
+    def __init__(self, core: ServoAgentCore, ctrl_command, ctrl_status, command_hz: float = COMMAND_HZ) -> None:
+        self.core = core
+        self.ctrl_command = ctrl_command
+        self.ctrl_status = ctrl_status
+        self.fresh_ns = int(3 * 1e9 / command_hz)  # [ns]
+        self.report: sw.ServoReport | None = None
+        self.report_ns = 0
+        self.bad_frames = 0
+        self.last: AgentDecision | None = None
+
+    def take(self, msg: bytes, now_ns: int) -> None:
+        """One status message of the servo, arrived at ``now_ns`` (malformed: counted, dropped)."""
+        try:
+            self.report = sw.unpack_status(msg)
+        except sw.BadServoMessage:
+            self.bad_frames += 1
+            return
+        self.report_ns = now_ns
+
+    def cycle(self, now_ns: int) -> bytes | None:
+        fresh = self.report is not None and now_ns - self.report_ns < self.fresh_ns
+        d = self.last = self.core.step(self.ctrl_command.read(), self.report, fresh)
+        with self.ctrl_status.locked() as st:
+            for k, v in d.status.items():
+                st[k] = v
+            st["fault"] = (int(st["fault"]) & ~MY_FAULTS) | d.fault_bits
+            self.ctrl_status.mark_written()
+        return sw.pack_command(d.message) if d.message is not None else None
+
+
 @run
 def main(argv=None) -> int:
     args, cell, sub = subunit_program(PROG, "Relay an arm's controller database to its servo at 60 Hz, and the servo's status back.", argv, arm=True)
@@ -164,42 +203,31 @@ def main(argv=None) -> int:
     except RobotFileError as exc:
         raise BadInput(str(exc)) from None
     timer = PeriodicTimer(int(round(1e9 / COMMAND_HZ)))
-    fresh_ns = int(3 * 1e9 / COMMAND_HZ)
+    station = ServoAgentStation(core, ctrl_command, ctrl_status)
     try:
         presence.ready()
         notify_ready(args.ready_fd)
-        report, report_ns = None, 0
-        bad_frames = 0
         last_why = ""
         while not Stop.requested:
             if not timer.wait(0.5):
                 continue
             while True:
                 try:
-                    report = sw.unpack_status(sub_sock.recv(zmq.NOBLOCK))
-                    report_ns = time.monotonic_ns()
+                    station.take(sub_sock.recv(zmq.NOBLOCK), time.monotonic_ns())
                 except zmq.Again:
                     break
-                except sw.BadServoMessage:
-                    bad_frames += 1
-                    continue
-            fresh = report is not None and time.monotonic_ns() - report_ns < fresh_ns
-            d = core.step(ctrl_command.read(), report, fresh)
-            if d.message is not None:
+            msg = station.cycle(time.monotonic_ns())
+            if msg is not None:
                 try:
-                    push.send(sw.pack_command(d.message), zmq.NOBLOCK)
+                    push.send(msg, zmq.NOBLOCK)
                 except zmq.Again:
                     pass
-            with ctrl_status.locked() as st:
-                for k, v in d.status.items():
-                    st[k] = v
-                st["fault"] = (int(st["fault"]) & ~MY_FAULTS) | d.fault_bits
-                ctrl_status.mark_written()
-            if d.why != last_why:
-                if d.why:
-                    print(f"{PROG} {sub.name}: not commanding the servo: {d.why}", file=sys.stderr, flush=True)
-                last_why = d.why
-            presence.beat(0, timer.cycles, timer.overruns, timer.lateness_max_ns, bad_frames=bad_frames)
+            why = station.last.why
+            if why != last_why:
+                if why:
+                    print(f"{PROG} {sub.name}: not commanding the servo: {why}", file=sys.stderr, flush=True)
+                last_why = why
+            presence.beat(0, timer.cycles, timer.overruns, timer.lateness_max_ns, bad_frames=station.bad_frames)
     finally:
         timer.close()
         push.close(0)

@@ -14,19 +14,20 @@ from pathlib import Path
 
 import numpy as np
 
+from droid.brain.layouts import CmdMode
 from droid.kinematics import load_robot
 from droid.subunits.reis.robot_file import DEFAULT_ROBOT, joint_to_counts_tuple, load_gearing
 
 Six = tuple[float, float, float, float, float, float]
 SixInt = tuple[int, int, int, int, int, int]
 
-class Mode(IntEnum):
-    """Command modes (thesis Table 4.3 cmd_mode, plus NORMAL for absolute moves)."""
-
-    OFF = 0  # servo disabled: DACs 0, targets follow the encoders (bumpless restart)
-    HOME = 1  # run the homing state machine (§4.1.5.3)
-    JOG = 2  # encoder command is relative to the last command (§4.1.5.2)
-    NORMAL = 3  # encoder command is absolute, relative to home (needs homed)
+#: The servo's command modes are the controller's ``cmd_mode`` numbers (Table 4.3, thesis §3.3):
+#: one definition, :class:`droid.brain.layouts.CmdMode` (OFF 0, JOG 1, HOME 2, NORMAL 3).  The
+#: servo agent passes ``cmd_mode`` through to the servo message unchanged.
+#: OFF: servo disabled, DACs 0, targets follow the encoders (bumpless restart); HOME: run the
+#: homing state machine (§4.1.5.3); JOG: the encoder command is relative to the last command
+#: (§4.1.5.2); NORMAL: absolute, relative to home (needs homed).
+Mode = CmdMode
 
 
 class Fault(IntEnum):

@@ -29,12 +29,12 @@ from droid.brain.program import Presence, Stop, notify_ready, presence_key, subu
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import BadInput, RuntimeFailure, run
 from droid.kinematics import RobotFileError
-from droid.subunits.reis import servo_wire as sw
 from droid.subunits.reis.brake_log import BrakeRecorder
 from droid.subunits.reis.endpoints import reis_endpoints
 from droid.subunits.reis.servo import ServoCore
 from droid.subunits.reis.robot_file import read_offsets
 from droid.subunits.reis.servo_params import ServoParams
+from droid.subunits.reis.station import ServoStation
 from droid.subunits.reis.vme import VmeOpenError, open_vme
 
 PROG = "droid-servo"
@@ -82,7 +82,7 @@ def main(argv=None) -> int:
         timer = PeriodicTimer(int(round(1e9 / SERVO_HZ)))
         presence.ready()
         notify_ready(args.ready_fd)
-        bad = 0
+        station = ServoStation(core, bus)
         halts = BrakeRecorder()
         lateness_us = np.zeros(LATENESS_WINDOW, np.float32)  # the last minute of wake-ups
         n_late = 0
@@ -98,20 +98,14 @@ def main(argv=None) -> int:
                     msg = pull.recv(zmq.NOBLOCK)
                 except zmq.Again:
                     break
-                try:
-                    c = sw.unpack_command(msg)
-                    arrived = core.command(c.mode, c.counts) or arrived
-                except (sw.BadServoMessage, ValueError):
-                    bad += 1
+                arrived = station.take(msg) or arrived
             try:
-                raw = bus.read_encoders_raw()
                 fault_before = core.fault
-                dacs = core.step(raw, bus.read_limit_switches(), periods)
-                bus.write_dacs(dacs)
+                report = station.cycle(periods)
                 if core.fault != fault_before:
                     s = core.status()
                     print(f"{PROG} {sub.name}: fault {s.fault.name} at servo tick {s.tick}: raw encoders "
-                          f"{raw}, positions {s.encoder_pos}, following error {s.following_error}, "
+                          f"{station.raw}, positions {s.encoder_pos}, following error {s.following_error}, "
                           f"{timer.overruns} overruns so far; registers re-read now: "
                           f"{bus.read_encoders_raw()}", file=sys.stderr, flush=True)
             except (OSError, ValueError) as exc:
@@ -120,9 +114,9 @@ def main(argv=None) -> int:
             event = halts.step(core.tick, arrived, core.starved, core.encoder_pos, core.homing)
             if event is not None:
                 print(f"{PROG} {sub.name}: halt {json.dumps(event.as_dict())}", file=sys.stderr, flush=True)
-            if core.tick % sw.STATUS_EVERY_TICKS == 0:
-                pub.send(sw.pack_status(core.status(), bus.amps_powered), zmq.NOBLOCK)
-            presence.beat(0, timer.cycles, timer.overruns, timer.lateness_max_ns, bad_frames=bad)
+            if report is not None:
+                pub.send(report, zmq.NOBLOCK)
+            presence.beat(0, timer.cycles, timer.overruns, timer.lateness_max_ns, bad_frames=station.bad_frames)
         if n_late:
             w = lateness_us[: min(n_late, LATENESS_WINDOW)]
             print(f"{PROG} {sub.name}: {timer.cycles} cycles, {timer.overruns} overruns "

@@ -6,9 +6,9 @@ a shared database: the servo agent sends it one command message per 60 Hz
 period (ZeroMQ PUSH -> the servo's PULL), and the servo publishes its status
 (PUB) every few servo ticks for the servo agent and the watchdog.
 
-Command  ``<4s I i 6i``   b"DSC1", seq, mode (Mode), encoder command [counts]
+Command  ``<4s I i 6i``   b"DSC2", seq, mode (CmdMode), encoder command [counts]
 Status   ``<4s Q i i i i i i i 6i 6i 6i 6h``
-         b"DSS1", servo tick, mode, homed, homing joint (-1 none), starved,
+         b"DSS2", servo tick, mode (CmdMode), homed, homing joint (-1 none), starved,
          braking, fault, amplifiers powered, encoder_pos, encoder_cmd,
          following_error [counts], DACs
 """
@@ -17,8 +17,11 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 
-CMD_MAGIC = b"DSC1"
-STATUS_MAGIC = b"DSS1"
+# Version 2: ``mode`` carries droid.brain.layouts.CmdMode's numbers (JOG 1, HOME 2; version 1
+# numbered the servo's own HOME 1, JOG 2): a servo and agent of different versions refuse
+# each other's messages (counted as bad frames, the servo brakes) instead of swapping modes.
+CMD_MAGIC = b"DSC2"
+STATUS_MAGIC = b"DSS2"
 _CMD = struct.Struct("<4sIi6i")
 _STATUS = struct.Struct("<4sQiiiiiii6i6i6i6h")
 STATUS_EVERY_TICKS = 4  # the servo publishes at 500/4 = 125 Hz
@@ -31,7 +34,7 @@ class BadServoMessage(ValueError):
 @dataclass(frozen=True)
 class ServoCommand:
     seq: int
-    mode: int  # droid.subunits.reis.servo_params.Mode
+    mode: int  # droid.brain.layouts.CmdMode (= servo_params.Mode)
     counts: tuple[int, ...]
 
 

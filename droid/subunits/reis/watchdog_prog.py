@@ -18,14 +18,12 @@ import zmq
 
 from droid.brain.curve import CurveHost
 from droid.brain.databases import open_local
-from droid.brain.layouts import FAULT_WATCHDOG
 from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import run
-from droid.subunits.reis import servo_wire as sw
-from droid.subunits.reis import vme_map as vm
 from droid.subunits.reis.endpoints import reis_endpoints
 from droid.subunits.reis.servo_prog import OPEN_WAIT_S, open_vme_waiting
+from droid.subunits.reis.station import WatchdogStation
 from droid.subunits.reis.watchdog import WatchdogCore, WatchdogParams
 
 PROG = "droid-watchdog"
@@ -48,46 +46,27 @@ def main(argv=None) -> int:
     bus = None
     timer = None
     status = open_local(cell, sub, "ctrl_status")
-    amps_reported = None
     try:
         bus = open_vme_waiting(ep.vme, OPEN_WAIT_S)
+        station = WatchdogStation(core, bus, status)
         timer = PeriodicTimer(int(round(1e9 / params.rate_hz)))
         presence.ready()
         notify_ready(args.ready_fd)
-        heartbeat = None
-        bad_frames = 0
-        fault = False
         reported = False
         while not Stop.requested:
             if not timer.wait(0.5):
                 continue
             while True:
                 try:
-                    rep = sw.unpack_status(sub_sock.recv(zmq.NOBLOCK))
+                    station.take(sub_sock.recv(zmq.NOBLOCK))
                 except zmq.Again:
                     break
-                except sw.BadServoMessage:
-                    bad_frames += 1
-                    continue
-                heartbeat, fault = rep.tick, bool(rep.fault)
-            # The amplifiers are powered only once the servo runs and holds the arm
-            # (§4.1.4: "the operator can safely enable the servo motors without
-            # having unwanted motion"): no kick before its first status message.
-            kick = core.step(heartbeat, fault) if heartbeat is not None else None
-            if kick is not None:
-                bus.write_watchdog(*kick)
-            latched = bool(bus.read_amp_status() & vm.AMP_STATUS_WATCHDOG_FAULT)
-            if latched != amps_reported:
-                amps_reported = latched
-                with status.locked() as st:
-                    f = int(st["fault"])
-                    st["fault"] = (f | FAULT_WATCHDOG) if latched else (f & ~FAULT_WATCHDOG)
-                    status.mark_written()
-            elif heartbeat is not None and not reported:
+            station.cycle()
+            if core.servo_dead and not reported:
                 reported = True
                 print(f"{PROG} {sub.name}: servo dead or faulted: stopped kicking; the amplifiers "
                       f"will latch off until the controller's power is cycled", file=sys.stderr, flush=True)
-            presence.beat(0, timer.cycles, timer.overruns, timer.lateness_max_ns, bad_frames=bad_frames)
+            presence.beat(0, timer.cycles, timer.overruns, timer.lateness_max_ns, bad_frames=station.bad_frames)
     finally:
         if bus is not None:
             bus.close()

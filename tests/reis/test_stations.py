@@ -1,0 +1,181 @@
+"""The program cycles shared by the real-time shells and lockstep (issue 17 item 1): stations.
+
+Each station is driven here with in-memory records, fake drivers and hand-made
+messages -- what a shell or LockstepArm hands it -- and checked on what it writes.
+"""
+import numpy as np
+
+from droid.brain import arm_command
+from droid.brain import layouts as L
+from droid.brain.classes import ARM6R
+from droid.brain.remote import RemoteStation, StatusTranslator
+from droid.brain.shmdb import MemoryDatabase
+from droid.subunits.agent import AgentStation
+from droid.subunits.reis import servo_wire as sw
+from droid.subunits.reis import vme_map as vm
+from droid.subunits.reis.servo import ServoCore
+from droid.subunits.reis.servo_agent import ServoAgentCore
+from droid.subunits.reis.servo_params import Mode, ServoParams
+from droid.subunits.reis.station import ServoAgentStation, ServoStation, WatchdogStation
+from droid.subunits.reis.watchdog import WatchdogCore
+
+P = 16_666_667  # heartbeat period [ns]
+
+
+def report(tick=4, fault=0, homed=True, pos=(1000,) * 6) -> bytes:
+    return sw.pack_status(sw.ServoReport(tick=tick, mode=int(Mode.NORMAL), homed=homed, homing_joint=-1,
+                                         starved=False, braking=False, fault=fault, amps_on=True,
+                                         encoder_pos=pos, encoder_cmd=pos, following_error=(0,) * 6,
+                                         dac=(0,) * 6))
+
+
+class FakeBus:
+    def __init__(self):
+        self.kicks, self.dacs, self.amp_status = [], [], 0
+
+    def write_watchdog(self, a, b):
+        self.kicks.append((a, b))
+
+    def read_amp_status(self):
+        return self.amp_status
+
+    def read_encoders_raw(self):
+        return (0,) * 6
+
+    def read_limit_switches(self):
+        return (False,) * 6
+
+    def write_dacs(self, dacs):
+        self.dacs.append(dacs)
+
+    amps_powered = True
+
+
+def test_servo_modes_are_the_records_cmd_mode_numbers():
+    assert Mode is L.CmdMode
+    agent = ServoAgentCore()
+    cmd = L.new_record(L.CTRL_COMMAND_LAYOUT)
+    cmd["link_alive"], cmd["cmd_mode"], cmd["cmd_id"] = 1, L.HOME_MODE, 7
+    d = agent.step(cmd, sw.unpack_status(report(homed=False)), True)
+    assert d.message.mode == int(L.HOME_MODE) == 2  # passed through, no mapping table
+    old = b"DSC1" + sw.pack_command(d.message)[4:]  # a servo message of the old numbering
+    st = ServoStation(ServoCore(ServoParams()), FakeBus())
+    assert not st.take(old) and st.bad_frames == 1
+
+
+def test_servo_station_reads_steps_writes_and_reports_every_few_ticks():
+    bus = FakeBus()
+    st = ServoStation(ServoCore(ServoParams()), bus)
+    reports = [st.cycle() for _ in range(2 * sw.STATUS_EVERY_TICKS)]
+    assert len(bus.dacs) == 2 * sw.STATUS_EVERY_TICKS
+    sent = [r for r in reports if r is not None]
+    assert len(sent) == 2 and sw.unpack_status(sent[-1]).tick == st.core.tick
+    assert st.take(sw.pack_command(sw.ServoCommand(1, int(Mode.JOG), (5,) * 6)))
+
+
+def test_watchdog_station_kicks_only_after_the_servo_spoke_and_reports_the_latch():
+    status = MemoryDatabase("ctrl_status", L.CTRL_STATUS_LAYOUT)
+    bus = FakeBus()
+    wd = WatchdogStation(WatchdogCore(), bus, status)
+    assert not wd.cycle() and bus.kicks == []  # no kick before the servo's first status
+    wd.take(b"garbage")
+    assert wd.bad_frames == 1
+    for tick in (4, 8, 12):
+        wd.take(report(tick=tick))
+        assert wd.cycle()
+    assert len(bus.kicks) == 3 and not int(status.read()["fault"]) & L.FAULT_WATCHDOG
+    bus.amp_status = vm.AMP_STATUS_WATCHDOG_FAULT
+    wd.cycle()
+    assert int(status.read()["fault"]) & L.FAULT_WATCHDOG
+    bus.amp_status = 0
+    wd.cycle()
+    assert not int(status.read()["fault"]) & L.FAULT_WATCHDOG
+
+
+def test_servo_agent_station_needs_a_fresh_status_and_keeps_the_watchdogs_fault_bit():
+    cmd = MemoryDatabase("ctrl_command", L.CTRL_COMMAND_LAYOUT)
+    status = MemoryDatabase("ctrl_status", L.CTRL_STATUS_LAYOUT)
+    cmd.update(link_alive=1, cmd_mode=L.JOG_MODE, cmd_id=0)
+    status.update(fault=L.FAULT_WATCHDOG)
+    st = ServoAgentStation(ServoAgentCore(), cmd, status, command_hz=60.0)
+    st.take(report(), 1_000_000_000)
+    msg = st.cycle(1_000_000_000 + 3 * P - 2)  # fresh for three command periods
+    assert msg is not None and sw.unpack_command(msg).mode == Mode.JOG
+    assert int(status.read()["fault"]) == L.FAULT_WATCHDOG
+    assert st.cycle(1_000_000_000 + 3 * P) is None  # silent servo: nothing sent, FAULT_SERVO
+    assert int(status.read()["fault"]) == L.FAULT_WATCHDOG | L.FAULT_SERVO
+    assert list(status.read()["encoder_pos"]) == [1000] * 6
+
+
+def test_agent_station_copies_replies_and_declares_a_silent_link_dead():
+    brain_cmd = MemoryDatabase("command", L.ARM_COMMAND_LAYOUT)
+    ctrl_cmd = MemoryDatabase("ctrl_command", L.CTRL_COMMAND_LAYOUT)
+    status = MemoryDatabase("ctrl_status", L.CTRL_STATUS_LAYOUT)
+    agent = AgentStation(status, ctrl_cmd, P, 3)
+    cid = arm_command.joint(brain_cmd, [1, 2, 3, 4, 5, 6], 90)
+    reply = agent.on_command(brain_cmd.raw_bytes(), 10, 0)
+    c = ctrl_cmd.read()
+    assert list(c["encoder_cmd_ext"]) == [1, 2, 3, 4, 5, 6] and int(c["joint_time_count"]) == 90
+    assert int(c["cmd_id"]) == cid and int(c["brain_tick"]) == 10 and int(c["link_alive"]) == 1
+    assert reply == status.raw_bytes()
+    assert agent.on_timer(2 * P) is None and int(ctrl_cmd.read()["link_alive"]) == 1
+    assert agent.on_timer(3 * P) == 13  # dead: local ticks follow time
+    assert int(ctrl_cmd.read()["link_alive"]) == 0 and int(status.read()["fault"]) & L.FAULT_LINK
+    assert int(ctrl_cmd.read()["brain_tick"]) == 13
+    agent.on_command(brain_cmd.raw_bytes(), 14, 4 * P)
+    assert not int(status.read()["fault"]) & L.FAULT_LINK and int(ctrl_cmd.read()["link_alive"]) == 1
+
+
+def test_remote_station_translates_acknowledges_and_marks_a_silent_agent_stale():
+    brain_status = MemoryDatabase("status", L.ARM_STATUS_LAYOUT)
+    brain_cmd = MemoryDatabase("command", L.ARM_COMMAND_LAYOUT)
+    ctrl_status = MemoryDatabase("ctrl_status", L.CTRL_STATUS_LAYOUT)
+    T = np.eye(4)
+    T[:3, 3] = (100.0, 200.0, 300.0)
+    remote = RemoteStation(brain_status, brain_cmd, StatusTranslator("arm1", ARM6R, lambda counts: T), 3)
+    cid = arm_command.home(brain_cmd)
+    remote.on_tick(1)
+    assert remote.command_payload() == brain_cmd.raw_bytes()
+    ctrl_status.update(homed=L.HOMED, busy=4, cmd_id=cid, encoder_pos=[7] * 6)
+    assert remote.on_reply(1, ctrl_status.raw_bytes(), 123)
+    s = brain_status.read()
+    assert int(s["busy"]) == 4 and int(s["cmd_id"]) == cid and float(s["z"]) == 300.0
+    assert int(s["updated_ns"]) == 123 and int(s["tick"]) == 1 and int(s["stale"]) == 0
+    assert int(brain_cmd.read()["sent"]) == 0  # the agent acknowledged that very command
+    for tick in range(2, 6):
+        remote.on_tick(tick)
+    assert int(brain_status.read()["stale"]) == 1 and int(brain_status.read()["fault"]) & L.FAULT_LINK
+
+
+def test_arm_commands_are_in_heartbeat_ticks():
+    cmd = MemoryDatabase("command", L.ARM_COMMAND_LAYOUT)
+    assert arm_command.ticks_for(1.5, 60.0) == 90
+    arm_command.cart(cmd, np.eye(4), 45)
+    c = cmd.read()
+    assert int(c["cart_time_count"]) == 45 and int(c["coord"]) == L.CARTSPACE and int(c["sent"]) == 1
+    arm_command.stop(cmd)
+    assert int(cmd.read()["joint_time_count"]) == L.STOP_TICKS == int(cmd.read()["cart_time_count"])
+
+
+def test_the_shells_and_lockstep_call_the_same_stations():
+    """Each cycle is written once: the real-time program builds its station, LockstepArm builds
+    the same ones and keeps no copy of a shell's rules (field lists, fault sets, freshness)."""
+    import inspect
+
+    from droid.brain import remote
+    from droid.sim.reis import cell
+    from droid.subunits import agent
+    from droid.subunits.reis import planner, servo_agent, servo_prog, watchdog_prog
+
+    shells = {servo_prog: "ServoStation(", watchdog_prog: "WatchdogStation(", servo_agent: "ServoAgentStation(",
+              planner: "PlannerStation(", agent: "AgentStation(", remote: "RemoteStation("}
+    lockstep = inspect.getsource(cell)
+    for module, station in shells.items():
+        main = inspect.getsource(module)[inspect.getsource(module).index("def main"):]
+        if module is agent:
+            main = inspect.getsource(agent.agent_main)
+        assert station in main, module.__name__
+        assert station in lockstep, station
+    for copy in ("MY_FAULTS", "COMMAND_MAP", "copy_fields", '"encoder_cmd", "busy"', "3e9", "STATUS_EVERY_TICKS",
+                 "unpack_status", "pack_command", "counts_to_joints(np.asarray(st"):
+        assert copy not in lockstep, copy
