@@ -107,6 +107,21 @@ def test_servo_agent_station_needs_a_fresh_status_and_keeps_the_watchdogs_fault_
     assert list(status.read()["encoder_pos"]) == [1000] * 6
 
 
+def test_servo_agent_station_does_not_blame_the_servo_for_its_own_stall():
+    """A cycle that itself runs late (the whole host stalled) judges the servo's silence
+    only over the time the agent was awake; past that the servo is silent again."""
+    cmd = MemoryDatabase("ctrl_command", L.CTRL_COMMAND_LAYOUT)
+    status = MemoryDatabase("ctrl_status", L.CTRL_STATUS_LAYOUT)
+    cmd.update(link_alive=1, cmd_mode=L.JOG_MODE, cmd_id=0)
+    st = ServoAgentStation(ServoAgentCore(), cmd, status, command_hz=60.0)
+    st.take(report(), 1_000_000_000)
+    stall = 200_000_000  # [ns]
+    assert st.cycle(1_000_000_000 + stall, late_ns=stall) is not None
+    assert not int(status.read()["fault"]) & L.FAULT_SERVO
+    assert st.cycle(1_000_000_000 + stall + 3 * P, late_ns=0) is None
+    assert int(status.read()["fault"]) & L.FAULT_SERVO
+
+
 def test_agent_station_copies_replies_and_declares_a_silent_link_dead():
     brain_cmd = MemoryDatabase("command", L.ARM_COMMAND_LAYOUT)
     ctrl_cmd = MemoryDatabase("ctrl_command", L.CTRL_COMMAND_LAYOUT)

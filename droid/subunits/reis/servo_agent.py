@@ -167,8 +167,12 @@ class ServoAgentStation:
             return
         self.report_ns = now_ns
 
-    def cycle(self, now_ns: int) -> bytes | None:
-        fresh = self.report is not None and now_ns - self.report_ns < self.fresh_ns
+    def cycle(self, now_ns: int, late_ns: int = 0) -> bytes | None:
+        """One 60 Hz period.  ``late_ns``: how late this cycle itself runs [ns] (a stalled
+        host): the servo's silence is judged only over time the agent was awake to hear it,
+        so a stall of the whole host is not taken for a dead servo (issue 16; the servo
+        judges the stall itself: its queue runs dry and it brakes)."""
+        fresh = self.report is not None and now_ns - self.report_ns < self.fresh_ns + max(0, late_ns)
         d = self.last = self.core.step(self.ctrl_command.read(), self.report, fresh)
         with self.ctrl_status.locked() as st:
             for k, v in d.status.items():
@@ -209,14 +213,16 @@ def main(argv=None) -> int:
         notify_ready(args.ready_fd)
         last_why = ""
         while not Stop.requested:
-            if not timer.wait(0.5):
+            n = timer.wait(0.5)
+            if not n:
                 continue
             while True:
                 try:
                     station.take(sub_sock.recv(zmq.NOBLOCK), time.monotonic_ns())
                 except zmq.Again:
                     break
-            msg = station.cycle(time.monotonic_ns())
+            now = time.monotonic_ns()
+            msg = station.cycle(now, late_ns=now - (timer.deadline_ns - (n - 1) * timer.period_ns))
             if msg is not None:
                 try:
                     push.send(msg, zmq.NOBLOCK)
