@@ -10,8 +10,8 @@ experiments' default arm model (``fast``), N seeds each, both modes:
 * ``step_V`` (V = 4, 16, 32, 64, 128 mm/s): the step track (position i) over
   ``--step-length`` mm -- seam lost or not, lateral max (the 5 degree corner
   at 100 mm);
-* ``r25_16``: an R25 arc (a workpiece of 20 mm surfaces, written to a
-  temporary file) at 16 mm/s -- tracked to its end or not;
+* ``r25_16``: an R25 arc (the bundled ``ramp_r25``, 20 mm surfaces) at
+  16 mm/s -- tracked to its end or not;
 * ``delay16``: the step track at 16 mm/s with a 16-cycle transport delay at
   150 mm (§6.2.5) against the same trial without: the lateral RMS ratio;
 * every trial: the achieved travel speed after settling / the commanded one.
@@ -48,39 +48,9 @@ def one(mode: str, seed: int, **kw) -> dict:
             "end": su.stop_reason, "wall_s": r.wall_s}
 
 
-R25_TOML = """name = "ramp_r25"
-description = "300 mm straight, 90 deg arc of radius 25 mm, 300 mm straight, 20 mm wide surfaces"
-step_mm = 2.0
-width_mm = 20.0
-upper_side = "left"
-lead_in_mm = 10.0
-lead_out_mm = 10.0
-[[segment]]
-type = "line"
-length_mm = 300.0
-[[segment]]
-type = "arc"
-radius_mm = 25.0
-angle_deg = 90.0
-[[segment]]
-type = "line"
-length_mm = 300.0
-"""
-
-
-def r25_file() -> str:
-    """The R25 arc workpiece (20 mm surfaces) as a file of its own (not a bundled workpiece)."""
-    import tempfile
-
-    path = os.path.join(tempfile.gettempdir(), f"bench_ramp_r25_{os.getpid()}.toml")
-    with open(path, "w") as f:
-        f.write(R25_TOML)
-    return path
-
-
 def trials(speeds, step_length):
     yield "r200_64", dict(position="vii", workpiece="ramp_r200", speed_mm_s=64.0)
-    yield "r25_16", dict(position="vii", workpiece=r25_file(), speed_mm_s=16.0)
+    yield "r25_16", dict(position="vii", workpiece="ramp_r25", speed_mm_s=16.0)
     for v in speeds:
         yield f"step_{v:g}", dict(position="i", speed_mm_s=float(v), length_mm=step_length)
     yield "nodelay16", dict(position="i", speed_mm_s=16.0, length_mm=step_length)

@@ -81,35 +81,10 @@ def test_bad_trial_configs_are_refused(kw):
         TrialConfig(**args)
 
 
-R25 = """name = "ramp_r25"
-description = "300 mm straight, 90 deg arc of radius 25 mm, 300 mm straight, 20 mm wide surfaces"
-step_mm = 2.0
-width_mm = 20.0
-upper_side = "left"
-lead_in_mm = 10.0
-lead_out_mm = 10.0
-
-[[segment]]
-type = "line"
-length_mm = 300.0
-
-[[segment]]
-type = "arc"
-radius_mm = 25.0
-angle_deg = 90.0
-
-[[segment]]
-type = "line"
-length_mm = 300.0
-"""
-
-
-def test_plus_tracks_an_r25_arc_to_its_end(tmp_path):
+def test_plus_tracks_an_r25_arc_to_its_end():
     """The sensor, 100 mm ahead, turns about the tool axis to keep its laser line on a 25 mm
-    arc (a workpiece with 20 mm surfaces): tracked to the seam's end at 16 mm/s."""
-    wp = tmp_path / "ramp_r25.toml"
-    wp.write_text(R25)
-    r, su = run(position="vii", workpiece=str(wp), speed_mm_s=16.0)
+    arc (the bundled ``ramp_r25``, 20 mm surfaces): tracked to the seam's end at 16 mm/s."""
+    r, su = run(position="vii", workpiece="ramp_r25", speed_mm_s=16.0)
     assert su.stop_reason == "end of seam" and not su.seam_lost, su.stop_detail
     assert su.end_s_mm >= 300.0 + 25.0 * np.pi / 2 + 250.0  # past the arc, on the far straight
     assert su.rms_lateral_mm <= 0.5 and su.max_lateral_mm <= 1.0
