@@ -91,12 +91,17 @@ class ArmDynamics:
         self.ff = np.asarray(sv.velocity_feedforward, float)
         self.dt = 1.0 / sv.servo_rate_hz
         self.vmax = np.radians(np.asarray(model.vmax_deg_s, float))
+        self._inv_K = 1.0 / self.K
+        self._inv_ti = 1.0 / self.ti
+        self._N_over_w0 = self.N / self.w0_motor
+        self._N_over_smooth = self.N / COULOMB_SMOOTH_RAD_S
         self.q = np.radians(np.asarray(q0_deg, float)).copy()
         self.qd = np.zeros(6)
         self.integ = np.zeros(6)  # velocity-loop integral [rad/s]
         self.t_s = 0.0
         self._t_model = -math.inf
         self._q_ref_prev: np.ndarray | None = None
+        self._rest_ref = None  # the reference [deg] the arm came to rest on (None: not at rest)
         self._update_model()
         # at power-up the arm stands on its reference with the integral holding gravity
         self.tau = self.g.copy()
@@ -108,6 +113,7 @@ class ArmDynamics:
         M = self.body.mass(self.q) + np.diag(self.J_rotor)
         self.Minv = np.linalg.inv(M)
         self.Jdiag = np.diag(M).copy()
+        self._Jwv = self.Jdiag * self.wv  # the velocity loop's gain [N m s/rad]
         g = self.body.gravity(self.q)
         g[1] -= -self.balancer * math.sin(self.q[1])  # the balancer carries part of joint 2's load
         self.g = g
@@ -129,8 +135,13 @@ class ArmDynamics:
 
     def advance(self, t_s: float, q_ref_deg) -> bool:
         """Servo steps up to ``t_s`` [s] toward ``q_ref_deg``; True when the arm moved."""
+        if self._rest_ref is not None and (q_ref_deg is self._rest_ref or np.array_equal(q_ref_deg, self._rest_ref)):
+            self.t_s = t_s  # at rest on an unchanged reference: nothing moves (a cheap lockstep)
+            return False
+        self._rest_ref = None
         q_ref = np.radians(np.asarray(q_ref_deg, float))
         if self.at_rest(q_ref):
+            self._rest_ref = q_ref_deg
             self.t_s = t_s
             return False
         prev = self._q_ref_prev if self._q_ref_prev is not None else q_ref
@@ -145,22 +156,26 @@ class ArmDynamics:
         return True
 
     def _step(self, q_ref: np.ndarray, w_ref: np.ndarray) -> None:
+        """One servo period (plain ufuncs on 6-vectors: np.clip is slow on small arrays)."""
         dt = self.dt
         if self.t_s + 1e-12 >= self._t_model + MODEL_PERIOD_S:
             self._update_model()
-        q_m = self.q + self.tau / self.K  # what the motor encoders read
-        w_cmd = np.clip(self.ff * w_ref + self.kp * (q_ref - q_m), -self.vmax, self.vmax)
-        e = w_cmd - self.qd
-        tau_cmd = self.Jdiag * self.wv * (e + self.integ / self.ti)
-        w_motor = np.abs(self.qd) * self.N
-        limit = self.tau_max * np.clip(1.0 - w_motor / self.w0_motor, 0.0, 1.0)
-        tau = np.clip(tau_cmd, -limit, limit)
+        qd = self.qd
+        q_m = self.q + self.tau * self._inv_K  # what the motor encoders read
+        w_cmd = self.ff * w_ref + self.kp * (q_ref - q_m)
+        w_cmd = np.maximum(np.minimum(w_cmd, self.vmax), -self.vmax)  # the rate limit
+        e = w_cmd - qd
+        tau_cmd = self._Jwv * (e + self.integ * self._inv_ti)
+        limit = self.tau_max * np.maximum(1.0 - np.abs(qd) * self._N_over_w0, 0.0)  # back-EMF
+        tau = np.maximum(np.minimum(tau_cmd, limit), -limit)
         free = tau == tau_cmd
-        self.integ = np.where(free, self.integ + e * dt, self.integ)  # anti-windup
-        self.saturated_steps += int(not np.all(free))
-        friction = self.coulomb * np.tanh(self.qd * self.N / COULOMB_SMOOTH_RAD_S) + self.viscous * self.qd
-        qdd = self.Minv @ (tau - self.g - friction)
-        self.qd = self.qd + qdd * dt
-        self.q = self.q + self.qd * dt
+        if free.all():
+            self.integ = self.integ + e * dt
+        else:  # anti-windup: no integration on a saturated joint
+            self.integ = np.where(free, self.integ + e * dt, self.integ)
+            self.saturated_steps += 1
+        friction = self.coulomb * np.tanh(qd * self._N_over_smooth) + self.viscous * qd
+        self.qd = qd = qd + (self.Minv @ (tau - self.g - friction)) * dt
+        self.q = self.q + qd * dt
         self.tau = tau
         self.steps += 1
