@@ -18,8 +18,9 @@ GMF1                  its own rates    ``holder="gmf1"`` (default): the Fanuc tw
 lead sensor           the tick before  the frame the next cycle reads (sensors.LeadSensor),
                       each cycle       stamped with its capture tick; ``latency_cycles`` holds
                                        every reading back that many cycles
-tool-tip sensor       the tick before  the sample the next log row shows
-                      each log row
+tool-tip sensor       the tick before  the sample the next log row shows (the lead sensor's
+                      each log row     noise model, sensors.ToolTipSensor; the truth --
+                                       sensors.tool_reading -- gives the seam progress)
 tracking cycle        every tick:      droid.tasks.seam.cycle.TrackingCycle -- the same code as
                       poses; every     droid-seamtrack: pose histories, cycle counting from the
                       cycle_ticks      heartbeat, the reading placed with the poses of its
@@ -47,7 +48,7 @@ from droid.cli import BadInput
 from droid.kinematics.transforms import inv_homo
 from droid.sim.experiment.arm_fast import FastArm, FastArmParams
 from droid.sim.experiment.geometry import TrialGeometry, trial_geometry
-from droid.sim.experiment.sensors import DEFAULT_NOISE, SENSOR_MODELS, LeadSensor, tool_reading
+from droid.sim.experiment.sensors import DEFAULT_NOISE, SENSOR_MODELS, LeadSensor, ToolTipSensor, tool_reading
 from droid.sim.lockstep import ORDER_DEVICE, ORDER_TASK, ORDER_WORLD, Scheduler
 from droid.sim.mvs.camera import CameraNoise
 from droid.tasks.seam.core import DEAD_ZONE_CYCLES, LOST_CYCLES, MAX_SPEED_MM_S, MODE_THESIS, MODES, SeamParams
@@ -94,6 +95,7 @@ class TrialConfig:
     holder_mm_s: tuple = (0.0, 0.0, 0.0)  # the GMF1 wrist centre drifting at this global velocity [mm/s]
     latency_cycles: int = 0  # constant extra latency of every lead reading [30 Hz cycles] (stamped)
     holder: str = "gmf1"  # the workpiece holder: gmf1 (its controller and encoder path) or fixed
+    tool_noise: bool = True  # the tool-tip sensor through the lead sensor's noise model (False: exact)
 
     def __post_init__(self) -> None:
         if self.holder not in HOLDER_MODELS:
@@ -183,6 +185,7 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None) -> Trial
     except ValueError as exc:
         raise BadInput(f"trial {cfg.trial_id}: {exc}") from None
     lead = LeadSensor(geo.workpiece, cfg.sensor, cfg.noise, seed=cfg.seed)
+    tool_sensor = ToolTipSensor(lead.crossing, cfg.noise if cfg.tool_noise else CameraNoise(), seed=cfg.seed)
     result = TrialResult(cfg, camera_to_tcp_mm=L)
     T_hold0 = geo.T_global_hold6
     v_hold = np.asarray(cfg.holder_mm_s, float)
@@ -224,7 +227,7 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None) -> Trial
             while len(in_flight) > cfg.latency_cycles:
                 state["lead"], state["lead_tick"] = in_flight.popleft()
         if k % lt == lt - 1:
-            state["tool"] = tool_reading(T_W_g @ arm.true_wcp() @ T_wcp_tool, crossing)
+            state["tool"] = tool_sensor.read(T_W_g @ arm.true_wcp() @ T_wcp_tool)
 
     recorder = None
     if record is not None:

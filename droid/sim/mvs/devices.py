@@ -43,7 +43,11 @@ World devices (``[world.devices.NAME]``, built through droid.sim.world.DEVICE_TY
     the workpiece's extent).  Options: ``serial`` (the symlink the Brain
     opens, e.g. ``"{run}/tool.brain.tty"``), ``baud`` (19200), ``workpiece``,
     ``tool_robot``, ``holder_robot``, ``tool_pose`` (T_wcp_tool),
-    ``workpiece_mount``, ``rate_hz``.
+    ``workpiece_mount``, ``rate_hz``, ``seed`` (default: [world] seed + 1) and
+    ``[..noise]`` -- the lead sensor's noise keys (jitter_px,
+    spurious_fraction, drop_probability), turned into the ideal sensor
+    model's equivalent scatter (``tool_sensor.ToolNoise.like_camera``;
+    default: none, exact).
 
 :func:`droid.sim.mvs.lockstep.mvs_lockstep` runs the same chain (camera twin ->
 sensor core -> paced line -> the Brain's link core -> Status) on a lockstep
@@ -64,7 +68,7 @@ from droid.sim.mvs.camera import CameraNoise, MvsCamera
 from droid.sim.mvs.clock import FrameClock
 from droid.sim.mvs.dsp import MvsDspTwin, open_dsp_writer
 from droid.sim.mvs.mounts import Mount
-from droid.sim.mvs.tool_sensor import ToolReading, measure
+from droid.sim.mvs.tool_sensor import ToolNoise, ToolReading, measure, noisy
 from droid.sim.serial_cable import PacedPtyOutput
 from droid.sim.workpiece import Workpiece, load_workpiece
 from droid.sim.world import Device
@@ -110,11 +114,14 @@ class ToolSensorCore:
     """The tool-tip measuring sensor as a core (§6.1): T_W_tool -> one serial line.
 
     The line is ``height,lateral,roll`` in the MVS grammar (x = height
-    deviation [mm], y = lateral deviation [mm], roll [rad]), or ``invalid``.
+    deviation [mm], y = lateral deviation [mm], roll [rad]), or ``invalid``;
+    the values through ``noise`` (seeded by ``seed``: deterministic).
     """
 
-    def __init__(self, workpiece: Workpiece) -> None:
+    def __init__(self, workpiece: Workpiece, noise: ToolNoise = ToolNoise(), seed: int = 0) -> None:
         self.workpiece = workpiece
+        self.noise = noise
+        self.rng = np.random.default_rng(seed)
         self.last: ToolReading | None = None
         self.lines = 0
         self.valid = 0
@@ -128,7 +135,7 @@ class ToolSensorCore:
         return m
 
     def step(self, T_W_tool: np.ndarray) -> bytes:
-        self.last = self.reading(T_W_tool)
+        self.last = noisy(self.reading(T_W_tool), self.noise, self.rng)
         values = None if self.last is None else _LineValues(self.last.height_mm, self.last.lateral_mm,
                                                             self.last.roll_rad)
         line = format_line(values)
@@ -145,7 +152,7 @@ class IdealSensorCore(ToolSensorCore):
     """
 
     def __init__(self, workpiece: Workpiece, calib: MvsCalibration) -> None:
-        super().__init__(workpiece)
+        super().__init__(workpiece)  # exact: lockstep's ideal_sensor has no noise
         ys = calib.lateral_of(np.array([0.0, ROWS - 1.0]))
         xs = (np.array([0.0, COLUMNS - 1.0]) - calib.column_at_origin) * calib.depth_mm_per_column
         self.y_range_mm = (float(ys.min()), float(ys.max()))
@@ -199,9 +206,7 @@ def _positive(v) -> str | None:
     return None if v > 0 else "must be > 0"
 
 
-def build_camera(opts: DeviceOptions, dsp_url: str) -> MvsCameraDevice:
-    mount = _mount(opts, "sensor_pose")
-    workpiece = _workpiece(opts)
+def _camera_noise(opts: DeviceOptions) -> CameraNoise:
     noise_table = opts.get("noise", dict, {})
     known = {f.name for f in fields(CameraNoise)}
     if set(noise_table) - known:
@@ -212,6 +217,13 @@ def build_camera(opts: DeviceOptions, dsp_url: str) -> MvsCameraDevice:
     except (TypeError, ValueError):
         raise opts.bad("jitter_px must be >= 0, spurious_fraction and drop_probability within [0, 1]",
                        "noise") from None
+    return noise
+
+
+def build_camera(opts: DeviceOptions, dsp_url: str) -> MvsCameraDevice:
+    mount = _mount(opts, "sensor_pose")
+    workpiece = _workpiece(opts)
+    noise = _camera_noise(opts)
     calib = MvsCalibration.from_table(opts.get("calibration", dict, {}), source=f"{opts.where} calibration")
     standoff = opts.get("standoff_mm", float, DEFAULT_STANDOFF_MM, check=_positive)
     rate = opts.get("rate_hz", float, FRAME_RATE_HZ, check=_positive)
@@ -229,7 +241,9 @@ def mvs_camera(world, name: str, options: dict[str, Any]) -> MvsCameraDevice:
 
 def tool_parts(opts: DeviceOptions) -> tuple[Mount, ToolSensorCore, float]:
     mount = _mount(opts, "tool_pose")
-    core = ToolSensorCore(_workpiece(opts))
+    noise = ToolNoise.like_camera(_camera_noise(opts))
+    seed = opts.get("seed", int, int(getattr(opts.world, "seed", 0)) + 1)
+    core = ToolSensorCore(_workpiece(opts), noise, seed)
     rate = opts.get("rate_hz", float, FRAME_RATE_HZ, check=_positive)
     return mount, core, rate
 
