@@ -138,6 +138,9 @@ class TrialResult:
     valid_frames: int = 0
     dropped: int = 0  # lead readings dropped by the tracking cycle (instant outside the pose history)
     holder_moved_mm: float = 0.0  # how far the holder's wrist centre moved during the trial (its Status) [mm]
+    tool_seam_mm: list = field(default_factory=list)  # tool-tip readings placed at their capture (the
+    # tracking cycle's place_tool): the measured seam points in the workpiece frame W [mm], one a log row
+    tool_dropped: int = 0  # tool-tip readings whose capture instant lay outside the pose history
 
     def column(self, name: str) -> np.ndarray:
         """One numeric column of the log as a float array."""
@@ -191,10 +194,11 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None) -> Trial
     v_hold = np.asarray(cfg.holder_mm_s, float)
     moving_holder = bool(np.any(v_hold != 0.0))
     T_wcp_sensor, T_wcp_tool = geo.wrist.T_wcp_sensor, geo.wrist.T_wcp_tool
+    T_W_hold6 = inv_homo(geo.T_hold6_W)  # the holder's wrist-centre frame -> the workpiece frame W
     crossing = lead.crossing
     t0_tick = sched.tick
     ct, lt = cyc.cycle_ticks, cyc.log_ticks
-    state = {"lead": INVALID_READING, "lead_tick": 0, "tool": None, "out": None, "done": False,
+    state = {"lead": INVALID_READING, "lead_tick": 0, "tool": None, "tool_tick": 0, "out": None, "done": False,
              "T_hold": T_hold0, "T_W_g": inv_homo(T_hold0 @ geo.T_hold6_W)}
     in_flight: deque = deque()  # (reading, Status tick) of the constant extra latency
 
@@ -228,6 +232,7 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None) -> Trial
                 state["lead"], state["lead_tick"] = in_flight.popleft()
         if k % lt == lt - 1:
             state["tool"] = tool_sensor.read(T_W_g @ arm.true_wcp() @ T_wcp_tool)
+            state["tool_tick"] = tick  # its capture stamp
 
     recorder = None
     if record is not None:
@@ -256,6 +261,12 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None) -> Trial
                 return
             arm.command_cart(out.reis_cmd, ct)
         if k >= 1 and cyc.log_due(tick):
+            tool = state["tool"]
+            if tool is not None:  # placed with the poses of its capture, as droid-seamtrack's log does
+                placed = cyc.place_tool(Reading(tool.height_mm, tool.lateral_mm, tool.roll_rad, True,
+                                                stamp_tick=float(state["tool_tick"])), tick, T_wcp_tool)
+                if placed is not None:
+                    result.tool_seam_mm.append((T_W_hold6 @ np.append(placed.seam_in_hold_mm, 1.0))[:3])
             result.rows.append(_row(sched.t_ns / 1e9 - t_start, state["lead"], state["tool"], state["out"], L,
                                     s_of))
 
@@ -281,6 +292,7 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None) -> Trial
     result.sim_s = sched.t_ns / 1e9 - t_start
     result.frames, result.valid_frames = lead.frames, lead.valid
     result.dropped = cyc.dropped
+    result.tool_dropped = cyc.tool_dropped
     if holder is not None:
         result.holder_moved_mm = float(np.linalg.norm(holder.status_pose()[:3, 3] - T_hold_start[:3, 3]))
     elif moving_holder:

@@ -47,7 +47,10 @@ World devices (``[world.devices.NAME]``, built through droid.sim.world.DEVICE_TY
     ``[..noise]`` -- the lead sensor's noise keys (jitter_px,
     spurious_fraction, drop_probability), turned into the ideal sensor
     model's equivalent scatter (``tool_sensor.ToolNoise.like_camera``;
-    default: none, exact).
+    default: none, exact), ``stamp`` (true: each line carries its capture
+    time, ``x,y,roll,ms`` -- CLOCK_MONOTONIC ms modulo 100000 at the
+    measurement, the clock the Brain shares on one host, as
+    ``droid-mvs --stamp``; default false: the thesis's plain lines).
 
 :func:`droid.sim.mvs.lockstep.mvs_lockstep` runs the same chain (camera twin ->
 sensor core -> paced line -> the Brain's link core -> Status) on a lockstep
@@ -57,12 +60,13 @@ Scheduler.  ``fixed_arm`` is :mod:`droid.sim.mvs.arm`, the mounts
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
 
-from droid.brain.sensor_line import DEFAULT_BAUD, format_line
+from droid.brain.sensor_line import DEFAULT_BAUD, format_line, stamp_ms_of
 from droid.sim.device_options import DeviceOptions
 from droid.sim.mvs.camera import CameraNoise, MvsCamera
 from droid.sim.mvs.clock import FrameClock
@@ -118,9 +122,11 @@ class ToolSensorCore:
     the values through ``noise`` (seeded by ``seed``: deterministic).
     """
 
-    def __init__(self, workpiece: Workpiece, noise: ToolNoise = ToolNoise(), seed: int = 0) -> None:
+    def __init__(self, workpiece: Workpiece, noise: ToolNoise = ToolNoise(), seed: int = 0,
+                 stamp: bool = False) -> None:
         self.workpiece = workpiece
         self.noise = noise
+        self.stamp = stamp
         self.rng = np.random.default_rng(seed)
         self.last: ToolReading | None = None
         self.lines = 0
@@ -134,11 +140,13 @@ class ToolSensorCore:
             return None
         return m
 
-    def step(self, T_W_tool: np.ndarray) -> bytes:
+    def step(self, T_W_tool: np.ndarray, t_ns: int | None = None) -> bytes:
+        """The line of a measurement at ``T_W_tool``; stamped with ``t_ns`` [ns, the capture
+        instant on the cell's clock] when the core stamps and it is given."""
         self.last = noisy(self.reading(T_W_tool), self.noise, self.rng)
         values = None if self.last is None else _LineValues(self.last.height_mm, self.last.lateral_mm,
                                                             self.last.roll_rad)
-        line = format_line(values)
+        line = format_line(values, stamp_ms_of(t_ns) if (self.stamp and t_ns is not None) else None)
         self.lines += 1
         self.valid += not line.startswith(b"invalid")
         return line
@@ -171,20 +179,23 @@ class IdealSensorCore(ToolSensorCore):
 class ToolSensorDevice(Device):
     """The tool-tip sensor in the world: core + mount + a paced serial output."""
 
-    def __init__(self, name: str, mount: Mount, core: ToolSensorCore, output, rate_hz: float = FRAME_RATE_HZ) -> None:
+    def __init__(self, name: str, mount: Mount, core: ToolSensorCore, output, rate_hz: float = FRAME_RATE_HZ,
+                 clock_ns=time.monotonic_ns) -> None:
         self.name = name
         self.mount = mount
         self.core = core
         self.output = output
         self.clock = FrameClock(rate_hz)
+        self.clock_ns = clock_ns  # the capture stamp's clock (the cell's CLOCK_MONOTONIC in real time)
 
-    def line(self) -> bytes:
-        """Measure now and return the line (for lockstep, which delivers it itself)."""
-        return self.core.step(self.mount.T_W())
+    def line(self, t_ns: int | None = None) -> bytes:
+        """Measure now and return the line, stamped with ``t_ns`` [ns] when the core stamps (for
+        lockstep, which delivers it itself on virtual time)."""
+        return self.core.step(self.mount.T_W(), t_ns)
 
     def advance(self, dt_s: float) -> None:
         if self.clock.advance(dt_s):
-            self.output.write(self.line())
+            self.output.write(self.line(self.clock_ns() if self.core.stamp else None))
         self.output.advance(dt_s)
 
     def close(self) -> None:
@@ -243,7 +254,8 @@ def tool_parts(opts: DeviceOptions) -> tuple[Mount, ToolSensorCore, float]:
     mount = _mount(opts, "tool_pose")
     noise = ToolNoise.like_camera(_camera_noise(opts))
     seed = opts.get("seed", int, int(getattr(opts.world, "seed", 0)) + 1)
-    core = ToolSensorCore(_workpiece(opts), noise, seed)
+    stamp = opts.get("stamp", bool, False)
+    core = ToolSensorCore(_workpiece(opts), noise, seed, stamp)
     rate = opts.get("rate_hz", float, FRAME_RATE_HZ, check=_positive)
     return mount, core, rate
 
