@@ -24,14 +24,14 @@ programs' cores (serial, encoder, the agent's command copy).
   which places the workpiece for the sensors.
 
 The Fanuc's cell set-up (serial line, encoder cards and rates) is the
-default cell's ``[subunits.gmf1]`` (droid/cells/sim.toml); the robot file and
+built-in cell's ``[subunits.gmf1]`` (droid/cells/sim.toml); the robot file and
 the base come from the trial's layout.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from droid.brain.cellfile import load_cell
+from droid.brain.cellfile import builtin_cell_path, load_cell
 from droid.cli import RuntimeFailure
 from droid.kinematics.transforms import T_to_pose
 from droid.sim.gmf1.controller import KarelParams
@@ -55,8 +55,9 @@ class Gmf1Holder:
                  world_hz: float = WORLD_HZ) -> None:
         self.sched = sched
         self.q_hold = np.asarray(q_hold_deg, float)
-        self.g = Gmf1Lockstep(load_cell(None), subunit, world_hz=world_hz, seed=seed, start_deg=np.zeros(6),
-                              params=KarelParams(dynamics=True), sched=sched, robot=fanuc_model.name,
+        cell = load_cell(builtin_cell_path())  # the built-in cell's gmf1 set-up, whatever $DROID_CELL says
+        self.g = Gmf1Lockstep(cell, subunit, world_hz=world_hz, seed=seed, start_deg=np.zeros(6),
+                              params=KarelParams(dynamics=True), sched=sched, robot=str(fanuc_model.source),
                               base_T=fanuc_model.base)
         self.model = self.g.model
         self._q_seen = None
