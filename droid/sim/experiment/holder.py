@@ -18,7 +18,9 @@ programs' cores (serial, encoder, the agent's command copy).
 * :meth:`drift` (the holder-moving trials): one cartesian MOVE of the wrist
   centre at a constant velocity [mm/s] for a given time, through KAREL (its
   ramps, its joint interpolation, its 6 Hz interpreter and its latency).
-* :meth:`status_pose`: the pose the tracker reads (the encoder program's
+* :meth:`hold`: the tracker's one hold command at its first cycle
+(gen_hold_robot_wcp: a MOVE to the pose the GMF1 has; not sent while it
+drifts); :meth:`status_pose`: the pose the tracker reads (the encoder program's
   forward kinematics of the motor-side counts, global frame);
   :meth:`true_wcp`: the world's truth (the links, after the reducers' twist),
   which places the workpiece for the sensors.
@@ -82,6 +84,11 @@ class Gmf1Holder:
         T = self.status_pose()
         T[:3, 3] += np.asarray(v_mm_s, float) * seconds
         return self.g.command_cart(T_to_pose(T), seconds)
+
+    def hold(self, T_global_wcp, seconds: float) -> int:
+        """The tracker's hold command (gen_hold_robot_wcp, sent once as droid-seamtrack does): a
+        cartesian MOVE to ``T_global_wcp`` (4x4, mm) -- the pose it has -- in ``seconds``."""
+        return self.g.command_cart(T_to_pose(np.asarray(T_global_wcp, float)), seconds)
 
     def status_pose(self) -> np.ndarray:
         """The GMF1 Status's wrist-centre pose (4x4, mm, global): what the tracker reads."""

@@ -260,6 +260,8 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None) -> Trial
                 result.stop_t_s = (sched.t_ns / 1e9)
                 return
             arm.command_cart(out.reis_cmd, ct)
+            if holder is not None and out.cycle == 0 and not moving_holder and out.gmf1_cmd is not None:
+                holder.hold(out.gmf1_cmd, ct / HEARTBEAT_HZ)  # gen_hold_robot_wcp, as droid-seamtrack
         if k >= 1 and cyc.log_due(tick):
             tool = state["tool"]
             if tool is not None:  # placed with the poses of its capture, as droid-seamtrack's log does
