@@ -59,6 +59,17 @@ POSITIVE = {"link_mass_kg", "rotor_inertia_kgm2", "torque_constant_nm_per_a", "a
             "amp_current_limit_a", "dac_full_scale_v", "hd_stiffness_nm_per_rad",
             "motor_no_load_speed_rad_s"}
 
+#: [axis_servo] keys: an arm whose own controller closes the joint loops (the Fanuc's, thesis
+#: §2.4, §4.2: DROID sends it poses, never torques) -- a cascade of a position loop and a PI
+#: velocity loop per joint, as industrial controllers of the time ran them.
+AXIS_SERVO_KEYS = {
+    "position_gain_per_s": "6",
+    "velocity_bandwidth_hz": "6",
+    "velocity_integral_time_s": "6",
+    "velocity_feedforward": "6",
+    "servo_rate_hz": "1",
+}
+
 #: [servo] keys (PID per servo tick, thesis §4.1.5.1; counts are motor encoder counts)
 SERVO_KEYS = {
     "kp_dac_per_count": "6",
@@ -109,6 +120,21 @@ class ServoGains:
     ki_dac_per_count_tick: tuple
     kd_dac_per_count_per_tick: tuple
     integral_limit_dac: tuple
+    source: dict
+
+
+@dataclass(frozen=True)
+class AxisServo:
+    """The joint loops of an arm's own controller (``[axis_servo]``): per joint a position loop
+    ``w_cmd = ff * w_ref + kp (q_ref - q)`` [rad/s] and a PI velocity loop of bandwidth
+    ``velocity_bandwidth_hz`` (the torque ``J w_v (e + integral(e) / Ti)``), run at
+    ``servo_rate_hz``."""
+
+    position_gain_per_s: np.ndarray
+    velocity_bandwidth_hz: np.ndarray
+    velocity_integral_time_s: np.ndarray
+    velocity_feedforward: np.ndarray
+    servo_rate_hz: float
     source: dict
 
 
@@ -212,6 +238,24 @@ def dynamics_from_table(data) -> Dynamics:
         hard_stop_margin_deg=float(v["hard_stop_margin_deg"]),
         source=src,
     )
+
+
+def axis_servo_from_table(data) -> AxisServo:
+    """Parse and check an ``[axis_servo]`` table (gains, bandwidths, times, rate > 0; feed-forward 0..1)."""
+    v, src = _parse("axis_servo", data, AXIS_SERVO_KEYS)
+    for key in ("position_gain_per_s", "velocity_bandwidth_hz", "velocity_integral_time_s", "servo_rate_hz"):
+        if np.any(v[key] <= 0):
+            raise ValueError(f"[axis_servo] {key}: must be > 0 (non-physical)")
+    if np.any(v["velocity_feedforward"] < 0) or np.any(v["velocity_feedforward"] > 1):
+        raise ValueError("[axis_servo] velocity_feedforward: must lie within [0, 1]")
+    # the twin integrates the velocity loop explicitly at the servo rate: it must be well inside it
+    if np.any(2 * math.pi * v["velocity_bandwidth_hz"] / v["servo_rate_hz"] > 0.5):
+        raise ValueError("[axis_servo] velocity_bandwidth_hz: must be below servo_rate_hz / (4 pi) "
+                         "(a loop that fast cannot be run at that rate)")
+    return AxisServo(position_gain_per_s=v["position_gain_per_s"], velocity_bandwidth_hz=v["velocity_bandwidth_hz"],
+                     velocity_integral_time_s=v["velocity_integral_time_s"],
+                     velocity_feedforward=v["velocity_feedforward"], servo_rate_hz=float(v["servo_rate_hz"]),
+                     source=src)
 
 
 def servo_from_table(data) -> ServoGains:

@@ -80,6 +80,7 @@ class RobotModel:
     source: str = ""
     dynamics: object = None  # droid.kinematics.dynamics.Dynamics, or None (no [dynamics] table)
     servo_gains: object = None  # droid.kinematics.dynamics.ServoGains, or None (no [servo] table)
+    axis_servo: object = None  # droid.kinematics.dynamics.AxisServo, or None (no [axis_servo] table)
 
     def __post_init__(self) -> None:
         for name in ("joint_min_deg", "joint_max_deg", "home_switch_deg", "vmax_deg_s", "weights"):

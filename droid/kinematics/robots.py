@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from .dh import DhTable, fk_dh
-from .dynamics import dynamics_from_table, servo_from_table
+from .dynamics import axis_servo_from_table, dynamics_from_table, servo_from_table
 from .gearing import Gearing
 from .model import RobotModel
 from .opw import OpwParams
@@ -33,7 +33,7 @@ DH_CHECK_TOL = 1e-6
 DH_CHECK_SAMPLES = 32
 
 _TOP_KEYS = {"name", "description", "assumed", "source", "dh", "opw", "gearing", "limits", "home", "planner",
-             "servo", "dynamics"}
+             "servo", "dynamics", "axis_servo"}
 _KEYS = {
     "dh": {"convention", "theta_offset_deg", "d_mm", "a_mm", "alpha_deg"},
     "opw": {"a1_mm", "a2_mm", "b_mm", "c1_mm", "c2_mm", "c3_mm", "c4_mm", "offsets_deg", "signs"},
@@ -200,6 +200,9 @@ def model_from_dict(data: dict, source: str = "") -> RobotModel:
     planner = _table(data, "planner")
     dynamics = dynamics_from_table(data["dynamics"]) if "dynamics" in data else None
     servo = servo_from_table(data["servo"]) if "servo" in data else None
+    axis_servo = axis_servo_from_table(data["axis_servo"]) if "axis_servo" in data else None
+    if axis_servo is not None and dynamics is None:
+        raise ValueError("[axis_servo]: needs a [dynamics] table (the loops drive the arm's dynamics)")
     return RobotModel(
         name=name,
         description=description,
@@ -218,6 +221,7 @@ def model_from_dict(data: dict, source: str = "") -> RobotModel:
         source=source,
         dynamics=dynamics,
         servo_gains=servo,
+        axis_servo=axis_servo,
     )
 
 

@@ -81,6 +81,8 @@ class TrialRecorder:
             r["tick"] = tick
             r["updated_ns"] = t_ns
         _pose_into(self.s_arm, arm.status_pose())
+        if state.get("T_hold") is not None:  # the holder's Status pose (it moves in holder-moving trials)
+            _pose_into(self.s_hold, state["T_hold"])
         self.s_arm["encoder_pos"] = self.reis.gearing.joints_to_counts_int(np.asarray(arm.status_joints(), float))
         out = state.get("out")
         if out is not None and out.reis_cmd is not None and out.cycle != self._cycle:

@@ -277,12 +277,20 @@ class Tracker:
         return None
 
     def log(self, t_s: float) -> None:
+        """One 10 Hz row.  A tool-tip reading is placed at its capture instant (its stamp, else its
+        Status tick minus the lag; TrackingCycle.place_tool): the row's travel is the tool's then."""
         tool = None
-        if self.tool_db is not None:
-            rec = self.tool_db.read()
-            tool = None if (int(rec["stale"]) or int(rec["homed"])) else reading_of(rec)
         out = self.out
         travel = out.travel_mm if out is not None else 0.0
+        if self.tool_db is not None:
+            rec = self.tool_db.read()
+            tool = None if (int(rec["stale"]) or int(rec["homed"])) else reading_of(rec, self.cell.period_ns)
+            if tool is not None:
+                placed = self.cyc.place_tool(tool, int(rec["tick"]), self.wrist.T_wcp_tool)
+                if placed is None:
+                    tool = None  # its instant lies outside the pose history: dropped, counted
+                elif math.isfinite(placed.travel_mm):
+                    travel = placed.travel_mm
         self.rows.append(report.log_row(
             s_mm=travel, t_s=t_s, lead=self.lead,
             tool=None if tool is None else (tool.y_mm, tool.x_mm, tool.roll_rad),

@@ -123,6 +123,8 @@ def test_socket_url(tmp_path, cell_name):
     ("wcp = [800, 0, 1000, 0, 0, 0]", "", "out of reach"),
     ("wcp = [800, 0, 1200, 0, 0, 0]\nstart_deg = [0, 0, 0, 0, 0, 0]", "", "not both"),
     ("cycle_hz = -1", "", "cycle_hz"),
+    ('dynamics = "yes"', "", "dynamics must be true or false"),
+    ("inpos_deg = 0", "", "inpos_deg"),
     ("", 'encoders = ["mem:///tmp/x", "shm://a"]', "shm://"),
     ("", 'encoders = ["shm://a"]', "encoders"),
     ("", 'serial = "loop://"', "pty path or socket"),
@@ -166,3 +168,15 @@ def test_power_up_wrist_centre_pose(tmp_path, cell_name):
                                    atol=1e-9)
     finally:
         world.close()
+
+
+def test_the_twin_runs_the_robot_files_dynamics_unless_told_not_to(tmp_path, cell_name):
+    """fanuc_s400.toml has [dynamics] and [axis_servo]: the device's arm follows KAREL's path
+    through them by default; ``dynamics = false`` is the ideal arm on the path."""
+    for device, on in (("", True), ("dynamics = false", False)):
+        world = build_world(cell_file(tmp_path, cell_name, device=device))
+        try:
+            c = world.devices["gmf1"].controller
+            assert c.p.dynamics is on and (c.arm is not None) is on
+        finally:
+            world.close()

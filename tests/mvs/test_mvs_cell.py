@@ -77,10 +77,11 @@ def test_sensor_reports_the_seam_under_a_stationary_arm(cell):
     counts = [r["valid_count"] for r in recs]
     assert counts == sorted(counts) and counts[-1] > counts[0]  # readings keep coming
     assert recs[-1]["tick"] > recs[0]["tick"]
-    # the tool tip sits on the seam's height, 3 mm to its right: exact geometry
+    # the tool tip sits on the seam's height, 3 mm to its right: the geometry through the lead
+    # sensor's noise model (the default cell's: sigmas 0.012 mm height, 0.056 mm lateral; 5 sigma)
     tool = wait_for(lambda: fresh_valid(cell, "tool", 3), what="fresh valid tool readings")
     for r in tool:
-        assert (r["x"], r["y"]) == pytest.approx((0.0, LATERAL_MM), abs=1e-3)
+        assert r["x"] == pytest.approx(0.0, abs=0.06) and r["y"] == pytest.approx(LATERAL_MM, abs=0.3)
         assert r["garbled_count"] == 0 and r["invalid_count"] == 0
     plain = droid(SNOOP, "mvs", "--count", "1", "--cell", str(cell))
     assert plain.returncode == 0 and plain.stdout.startswith("mvs tick ") and "valid" in plain.stdout

@@ -124,8 +124,12 @@ def test_tool_sensor_device_writes_height_lateral_roll_lines(world_cell):
             data += port.read(port.in_waiting or 1)
         newest = client.feed(data)
         assert client.lines >= 59 and client.valid == client.lines and client.garbled == 0
-        # x = height deviation (tip above the seam), y = lateral deviation, roll
-        assert (newest.x_mm, newest.y_mm, newest.roll_rad) == pytest.approx((1.0, 3.0, 0.0), abs=1e-3)
+        # x = height deviation (tip above the seam), y = lateral deviation, roll -- through the lead
+        # sensor's noise model (the default cell's: 0.5 px; sigmas 0.012 mm, 0.056 mm, 0.0005 rad)
+        assert newest.x_mm == pytest.approx(1.0, abs=0.06) and newest.y_mm == pytest.approx(3.0, abs=0.3)
+        assert newest.roll_rad == pytest.approx(0.0, abs=0.003)
+        ys = [float(v.split(b",")[1]) for v in data.split(b"\n") if v.count(b",") >= 2]
+        assert np.std(ys) > 0.01 and abs(np.mean(ys) - 3.0) < 0.05  # scattered, about the truth
         tool = world.devices["tool_sensor"]
         assert tool.output.dropped_writes == 0 and tool.output.lost_bytes == 0
         assert tool.core.last.s_mm == pytest.approx(-5.0, abs=1e-6)  # 100 mm behind the sensor's 95 mm

@@ -213,3 +213,26 @@ def test_a_workpiece_path_is_relative_to_the_plan(tmp_path):
     t = load_plan(plan).trials[0]
     assert t.params["workpiece"] == "pieces/mine.toml"
     assert t.config.workpiece == str((tmp_path / "pieces" / "mine.toml").resolve())
+
+
+R25_PLAN = """
+name = "r25"
+[defaults]
+workpiece = "ramp_r25"
+position = "vii"
+mode = "plus"
+speed_mm_s = 16
+sensor = "camera"
+"""
+
+
+def test_droid_experiment_tracks_the_bundled_r25_arc_to_its_end_in_plus_mode(tmp_path):
+    """Issue 12's target "an arc of R25 (a workpiece with narrower surfaces) at 16 mm/s tracked
+    to its end", through droid-experiment (generous margins: the seam's end, under 1 mm)."""
+    plan = write_plan(tmp_path / "r25.toml", R25_PLAN)
+    p = run_cli("run", "--plan", plan, "--out", str(tmp_path / "out"), "--no-figures", "--jobs", "1")
+    assert p.returncode == 0, p.stderr
+    (row,) = read_results(tmp_path / "out" / "r25" / "results.csv")
+    assert row["stop_reason"] == "end of seam" and row["error"] == ""
+    assert float(row["stop_s_mm"]) >= 300.0 + 25.0 * 3.14159 / 2 + 250.0  # past the arc, on the far straight
+    assert float(row["rms_lateral_mm"]) <= 0.5 and float(row["max_lateral_mm"]) <= 1.0

@@ -39,12 +39,29 @@ def test_plus_tracks_the_r200_ramp_at_64_mm_s_under_half_a_millimetre():
     assert travel_speed(r) == pytest.approx(64.0, rel=0.05)
 
 
-def test_plus_stays_on_the_seam_while_the_holder_moves():
-    """The GMF1 drifts at (1, -1, 0.5) mm/s during the whole trial (≈ 50 mm over the R200
-    ramp at 32 mm/s): plus mode reads the holder's pose every cycle."""
-    r, su = run(position="vii", workpiece="ramp_r200", speed_mm_s=32.0, holder_mm_s=(1.0, -1.0, 0.5))
+@pytest.mark.parametrize("holder", ["gmf1", "fixed"])
+def test_plus_stays_on_the_seam_while_the_holder_moves(holder):
+    """The holder moves the workpiece at (1, -1, 0.5) mm/s during the whole trial (≈ 40 mm over
+    the R200 ramp at 32 mm/s): plus mode reads the holder's pose every cycle.  ``gmf1``: one
+    slow cartesian MOVE through the Fanuc's KAREL controller (its path, latency and arm
+    dynamics), the tracker reading the pose from the GMF1's Status (encoder cards -> FK), the
+    sensors seeing the true pose; ``fixed``: the exact pose drifting (no controller)."""
+    r, su = run(position="vii", workpiece="ramp_r200", speed_mm_s=32.0, holder_mm_s=(1.0, -1.0, 0.5),
+                holder=holder)
     assert su.stop_reason == "end of seam", su.stop_detail
+    assert r.holder_moved_mm >= 20.0  # it did move, well beyond the tolerances below
     assert su.rms_lateral_mm <= 0.5 and su.max_lateral_mm <= 1.0 and su.rms_depth_mm <= 0.5
+
+
+def test_a_still_gmf1_holder_changes_nothing_against_an_exact_holder():
+    """The GMF1 in the loop (homed, moved to the holding pose through KAREL, read through its
+    encoders) holds still: the same trial as with an exact holder within 0.05 mm."""
+    a = run(position="i", speed_mm_s=16.0, length_mm=250.0, holder="gmf1")
+    b = run(position="i", speed_mm_s=16.0, length_mm=250.0, holder="fixed")
+    assert a[0].holder_moved_mm < 0.01
+    assert a[1].stop_reason == b[1].stop_reason == "end of seam"
+    assert abs(a[1].rms_lateral_mm - b[1].rms_lateral_mm) <= 0.05
+    assert abs(a[1].rms_depth_mm - b[1].rms_depth_mm) <= 0.05
 
 
 def test_plus_is_immune_to_a_16_cycle_transport_delay_and_an_8_cycle_latency():
@@ -73,7 +90,7 @@ def test_thesis_mode_tracks_the_r200_ramp_where_the_listing_loses_it():
 @pytest.mark.parametrize("kw", [dict(mode="nosuch"), dict(mode="plus", speed_mm_s=0.0),
                                 dict(mode="plus", speed_mm_s=-3.0), dict(mode="plus", speed_mm_s=900.0),
                                 dict(latency_cycles=-1),
-                                dict(holder_mm_s=(1.0, 2.0))])
+                                dict(holder_mm_s=(1.0, 2.0)), dict(holder="nosuch")])
 def test_bad_trial_configs_are_refused(kw):
     args = dict(trial_id="bad", position="i", speed_mm_s=16.0)
     args.update(kw)

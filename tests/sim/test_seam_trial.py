@@ -58,7 +58,9 @@ REFERENCE = [
 
 @pytest.mark.parametrize("kw,ref", REFERENCE, ids=["i-16-camera", "vii-64-camera", "iii-16-ideal"])
 def test_tracking_result_is_the_reference(kw, ref):
-    r = run_trial(TrialConfig("ref", seed=2, mode="listing", **kw))  # the literal port the numbers pin
+    # the literal port the numbers pin, with the exact holder and tool-tip sensor they were pinned
+    # with (issue 13 puts the GMF1's controller and the lead sensor's noise there by default)
+    r = run_trial(TrialConfig("ref", seed=2, mode="listing", holder="fixed", tool_noise=False, **kw))
     s = r.column("s_mm")
     after = s > 150
     lat, dep = r.column("tool_lateral_mm")[after], r.column("tool_depth_mm")[after]

@@ -11,10 +11,14 @@ the sensor frame (``tool_sensor.measure``, in closed form:
 feature extraction can use, plus Gaussian noise of the size the camera chain
 shows (docs/bench-mvs.md), through the same serial-line rounding.
 
-Tool-tip sensor: exact geometry (``tool_sensor.measure`` at the tool frame, closed form),
-"virtually at the tool tip" (§6.1): lateral and height deviation and roll.
-It reports along the seam's straight extensions too (before the seam start
-the tool is still on the extension at the start of a trial).
+Tool-tip sensor (:class:`ToolTipSensor`): the geometry at the tool frame
+(``tool_sensor.measure``, closed form), "virtually at the tool tip" (§6.1):
+lateral and height deviation and roll, through the lead sensor's noise model
+(``tool_sensor.ToolNoise.like_camera`` of the trial's camera noise: the
+``ideal`` model's scatter, seeded apart from the lead sensor).  It reports
+along the seam's straight extensions too (before the seam start the tool is
+still on the extension at the start of a trial).  :func:`tool_reading` is the
+exact geometry -- the trial's truth (seam progress, the stop position).
 
 Timing (as in the real-time cell, docs/mvs.md): a frame taken at tick k
 reaches the Brain's Status within the next tick; the 30 Hz seam-tracking
@@ -31,7 +35,8 @@ import numpy as np
 from droid.brain.sensor_line import Garbled, format_line, parse_line
 from droid.sim.experiment.crossing import SeamCrossing
 from droid.sim.mvs.camera import CameraNoise, MvsCamera
-from droid.sim.mvs.tool_sensor import ToolReading
+from droid.sim.mvs.tool_sensor import (SIGMA_HEIGHT_MM, SIGMA_LATERAL_MM, SIGMA_ROLL_RAD, ToolNoise, ToolReading,
+                                       noisy)
 from droid.sim.workpiece import Workpiece
 from droid.subunits.mvs.calibration import MvsCalibration
 from droid.subunits.mvs.feature import FeatureParams
@@ -45,9 +50,9 @@ SENSOR_MODELS = ("camera", "ideal")
 DEFAULT_NOISE = CameraNoise(jitter_px=0.5, spurious_fraction=0.02, drop_probability=0.0)
 
 #: ``ideal`` model: noise sigmas of the camera chain at 0.5 px jitter (docs/bench-mvs.md).
-IDEAL_SIGMA_Y_MM = 0.056
-IDEAL_SIGMA_X_MM = 0.012
-IDEAL_SIGMA_ROLL_RAD = 0.0005
+IDEAL_SIGMA_Y_MM = SIGMA_LATERAL_MM
+IDEAL_SIGMA_X_MM = SIGMA_HEIGHT_MM
+IDEAL_SIGMA_ROLL_RAD = SIGMA_ROLL_RAD
 
 
 @dataclass(frozen=True)
@@ -119,3 +124,19 @@ def tool_reading(T_W_tool: np.ndarray, crossing: SeamCrossing) -> ToolReading | 
     if m is None or not all(math.isfinite(v) for v in (m.lateral_mm, m.height_mm, m.roll_rad, m.s_mm)):
         return None
     return m
+
+
+#: The tool-tip sensor's random stream is the trial seed's second one (the lead sensor's the first).
+TOOL_STREAM = 2
+
+
+class ToolTipSensor:
+    """The tool-tip measuring sensor of a trial: exact geometry through the lead sensor's noise."""
+
+    def __init__(self, crossing: SeamCrossing, noise: CameraNoise = DEFAULT_NOISE, seed: int = 0) -> None:
+        self.crossing = crossing
+        self.noise = ToolNoise.like_camera(noise)
+        self.rng = np.random.default_rng([int(seed), TOOL_STREAM])
+
+    def read(self, T_W_tool: np.ndarray) -> ToolReading | None:
+        return noisy(tool_reading(T_W_tool, self.crossing), self.noise, self.rng)

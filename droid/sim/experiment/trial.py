@@ -7,13 +7,20 @@ what                  when             does
 ====================  ===============  ==================================================
 Reis arm              every tick       ``fast`` (arm_fast: planner + analytic servo) or
                                        ``full`` (arm_full: every Reis core + the plant)
-GMF1                  every tick       holds the workpiece still at its start pose, or drifts at
-                                       ``holder_mm_s`` (the holder-moving test of plus mode)
+GMF1                  its own rates    ``holder="gmf1"`` (default): the Fanuc twin (KAREL, its
+                                       path, the arm of its robot file) and the GMF1 programs'
+                                       cores (experiment.holder); homed and moved to the holding
+                                       pose first, the tracker reads its Status pose, the sensors
+                                       see its true pose; with ``holder_mm_s`` one cartesian
+                                       MOVE through KAREL at that velocity from the start.
+                                       ``"fixed"``: the exact holding pose, drifting at
+                                       ``holder_mm_s`` (no controller, no encoders)
 lead sensor           the tick before  the frame the next cycle reads (sensors.LeadSensor),
                       each cycle       stamped with its capture tick; ``latency_cycles`` holds
                                        every reading back that many cycles
-tool-tip sensor       the tick before  the sample the next log row shows
-                      each log row
+tool-tip sensor       the tick before  the sample the next log row shows (the lead sensor's
+                      each log row     noise model, sensors.ToolTipSensor; the truth --
+                                       sensors.tool_reading -- gives the seam progress)
 tracking cycle        every tick:      droid.tasks.seam.cycle.TrackingCycle -- the same code as
                       poses; every     droid-seamtrack: pose histories, cycle counting from the
                       cycle_ticks      heartbeat, the reading placed with the poses of its
@@ -41,7 +48,7 @@ from droid.cli import BadInput
 from droid.kinematics.transforms import inv_homo
 from droid.sim.experiment.arm_fast import FastArm, FastArmParams
 from droid.sim.experiment.geometry import TrialGeometry, trial_geometry
-from droid.sim.experiment.sensors import DEFAULT_NOISE, SENSOR_MODELS, LeadSensor, tool_reading
+from droid.sim.experiment.sensors import DEFAULT_NOISE, SENSOR_MODELS, LeadSensor, ToolTipSensor, tool_reading
 from droid.sim.lockstep import ORDER_DEVICE, ORDER_TASK, ORDER_WORLD, Scheduler
 from droid.sim.mvs.camera import CameraNoise
 from droid.tasks.seam.core import DEAD_ZONE_CYCLES, LOST_CYCLES, MODE_THESIS, MODES, SeamParams, speed_problem
@@ -50,6 +57,7 @@ from droid.tasks.seam.delay import INVALID_READING, Reading
 from droid.tasks.seam.report import COLUMNS, SETTLE_EXTRA_MM, log_row  # noqa: F401 (columns; settling)
 
 ARM_MODELS = ("fast", "full")
+HOLDER_MODELS = ("gmf1", "fixed")  # the GMF1 through its controller and encoders, or an exact pose
 HEARTBEAT_HZ = 60.0
 CYCLE_TICKS = 2  # one 30 Hz seam-tracking cycle = 2 heartbeat ticks (cart_time_count; TrackingCycle.cycle_ticks)
 LOG_TICKS = 6  # 10 Hz log (TrackingCycle.log_ticks)
@@ -86,8 +94,12 @@ class TrialConfig:
     mode: str = MODE_THESIS  # tracking mode: thesis, listing, plus (docs/seamtrack.md)
     holder_mm_s: tuple = (0.0, 0.0, 0.0)  # the GMF1 wrist centre drifting at this global velocity [mm/s]
     latency_cycles: int = 0  # constant extra latency of every lead reading [30 Hz cycles] (stamped)
+    holder: str = "gmf1"  # the workpiece holder: gmf1 (its controller and encoder path) or fixed
+    tool_noise: bool = True  # the tool-tip sensor through the lead sensor's noise model (False: exact)
 
     def __post_init__(self) -> None:
+        if self.holder not in HOLDER_MODELS:
+            raise BadInput(f"unknown holder model {self.holder!r} (known: {', '.join(HOLDER_MODELS)})")
         if self.arm not in ARM_MODELS:
             raise BadInput(f"unknown arm model {self.arm!r} (known: {', '.join(ARM_MODELS)})")
         if self.mode not in MODES:
@@ -123,6 +135,10 @@ class TrialResult:
     frames: int = 0
     valid_frames: int = 0
     dropped: int = 0  # lead readings dropped by the tracking cycle (instant outside the pose history)
+    holder_moved_mm: float = 0.0  # how far the holder's wrist centre moved during the trial (its Status) [mm]
+    tool_seam_mm: list = field(default_factory=list)  # tool-tip readings placed at their capture (the
+    # tracking cycle's place_tool): the measured seam points in the workpiece frame W [mm], one a log row
+    tool_dropped: int = 0  # tool-tip readings whose capture instant lay outside the pose history
 
     def column(self, name: str) -> np.ndarray:
         """One numeric column of the log as a float array."""
@@ -158,27 +174,41 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None) -> Trial
 
         arm = FullArm(sched, geo.reis, geo.q_reis_start_deg, seed=cfg.seed)
         arm.prepare()
+    holder = None
+    if cfg.holder == "gmf1":
+        from droid.sim.experiment.holder import Gmf1Holder
+
+        holder = Gmf1Holder(sched, geo.fanuc, geo.q_hold_deg, seed=cfg.seed)
+        holder.prepare()
     try:
         cyc = TrackingCycle(params, geo.wrist.T_wcp_tool, geo.wrist.T_wcp_sensor, geo.reis,
                             heartbeat_hz=HEARTBEAT_HZ)
     except ValueError as exc:
         raise BadInput(f"trial {cfg.trial_id}: {exc}") from None
     lead = LeadSensor(geo.workpiece, cfg.sensor, cfg.noise, seed=cfg.seed)
+    tool_sensor = ToolTipSensor(lead.crossing, cfg.noise if cfg.tool_noise else CameraNoise(), seed=cfg.seed)
     result = TrialResult(cfg, camera_to_tcp_mm=L)
     T_hold0 = geo.T_global_hold6
     v_hold = np.asarray(cfg.holder_mm_s, float)
     moving_holder = bool(np.any(v_hold != 0.0))
     T_wcp_sensor, T_wcp_tool = geo.wrist.T_wcp_sensor, geo.wrist.T_wcp_tool
+    T_W_hold6 = inv_homo(geo.T_hold6_W)  # the holder's wrist-centre frame -> the workpiece frame W
     crossing = lead.crossing
     t0_tick = sched.tick
     ct, lt = cyc.cycle_ticks, cyc.log_ticks
-    state = {"lead": INVALID_READING, "lead_tick": 0, "tool": None, "out": None, "done": False,
+    state = {"lead": INVALID_READING, "lead_tick": 0, "tool": None, "tool_tick": 0, "out": None, "done": False,
              "T_hold": T_hold0, "T_W_g": inv_homo(T_hold0 @ geo.T_hold6_W)}
     in_flight: deque = deque()  # (reading, Status tick) of the constant extra latency
 
     def hold_at(k: int) -> None:
-        """The holder's pose at trial tick k (it drifts at ``holder_mm_s``)."""
-        if moving_holder:
+        """The holder's pose at trial tick k: the GMF1's Status pose (the tracker's) and its true
+        pose (the sensors'); a fixed holder drifts at ``holder_mm_s``."""
+        if holder is not None:
+            state["T_hold"] = holder.status_pose()
+            T_true = holder.true_wcp()
+            if T_true is not state.get("T_true"):
+                state["T_true"], state["T_W_g"] = T_true, inv_homo(T_true @ geo.T_hold6_W)
+        elif moving_holder:
             T = T_hold0.copy()
             T[:3, 3] += v_hold * (k / HEARTBEAT_HZ)
             state["T_hold"], state["T_W_g"] = T, inv_homo(T @ geo.T_hold6_W)
@@ -199,7 +229,8 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None) -> Trial
             while len(in_flight) > cfg.latency_cycles:
                 state["lead"], state["lead_tick"] = in_flight.popleft()
         if k % lt == lt - 1:
-            state["tool"] = tool_reading(T_W_g @ arm.true_wcp() @ T_wcp_tool, crossing)
+            state["tool"] = tool_sensor.read(T_W_g @ arm.true_wcp() @ T_wcp_tool)
+            state["tool_tick"] = tick  # its capture stamp
 
     recorder = None
     if record is not None:
@@ -227,11 +258,25 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None) -> Trial
                 result.stop_t_s = (sched.t_ns / 1e9)
                 return
             arm.command_cart(out.reis_cmd, ct)
+            if holder is not None and out.cycle == 0 and not moving_holder and out.gmf1_cmd is not None:
+                holder.hold(out.gmf1_cmd, ct / HEARTBEAT_HZ)  # gen_hold_robot_wcp, as droid-seamtrack
         if k >= 1 and cyc.log_due(tick):
+            tool = state["tool"]
+            if tool is not None:  # placed with the poses of its capture, as droid-seamtrack's log does
+                placed = cyc.place_tool(Reading(tool.height_mm, tool.lateral_mm, tool.roll_rad, True,
+                                                stamp_tick=float(state["tool_tick"])), tick, T_wcp_tool)
+                if placed is not None:
+                    result.tool_seam_mm.append((T_W_hold6 @ np.append(placed.seam_in_hold_mm, 1.0))[:3])
             result.rows.append(_row(sched.t_ns / 1e9 - t_start, state["lead"], state["tool"], state["out"], L,
                                     s_of))
 
     t_start = sched.t_ns / 1e9
+    T_hold_start = T_hold0
+    if holder is not None:
+        hold_at(0)
+        T_hold_start = state["T_hold"]
+        if moving_holder:  # one slow cartesian MOVE through KAREL, lasting longer than any trial
+            holder.drift(v_hold, TIME_LIMIT_FACTOR * length / cfg.speed_mm_s + 30.0)
     sched.on_tick(lambda tick: arm.tick(), "arm", order=ORDER_WORLD)
     sched.on_tick(sensors, "sensors", order=ORDER_DEVICE)
     sched.on_tick(task, "seamtrack", order=ORDER_TASK)
@@ -247,6 +292,11 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None) -> Trial
     result.sim_s = sched.t_ns / 1e9 - t_start
     result.frames, result.valid_frames = lead.frames, lead.valid
     result.dropped = cyc.dropped
+    result.tool_dropped = cyc.tool_dropped
+    if holder is not None:
+        result.holder_moved_mm = float(np.linalg.norm(holder.status_pose()[:3, 3] - T_hold_start[:3, 3]))
+    elif moving_holder:
+        result.holder_moved_mm = float(np.linalg.norm(v_hold) * result.sim_s)
     if recorder is not None:
         recorder.close()
     result.wall_s = time.perf_counter() - wall0

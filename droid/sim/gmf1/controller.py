@@ -25,6 +25,16 @@ at a time, bytes out at a time, joint angles at a time; no I/O, no clock.
   slower.  ``ACK id seconds`` gives the planned duration; ``DONE id`` follows
   when the move ends.
 * Poses are in the robot's BASE frame (the model without a base transform).
+* The arm (``KarelParams.dynamics``): False -- an ideal arm on the
+  interpolated path (``q_deg`` is the trajectory); True -- the arm of the
+  robot file's ``[dynamics]`` and ``[axis_servo]`` follows the path through
+  the controller's joint loops (:class:`droid.sim.gmf1.dynamics.ArmDynamics`:
+  gravity, inertia, friction, amplifier limits, reducer compliance), lagging
+  it by v / kp and settling after DONE; ``q_deg`` is then the true link
+  angles, ``q_motor_deg`` what the encoders count, ``q_cmd_deg`` the path.
+  DONE then waits for the in-position check (every motor within
+  ``inpos_deg`` of the path's end, as a controller's "fine" termination
+  does), and the controller counts as moving until then.
 
 The controller is always calibrated (its own joint angles are absolute); DROID's
 notion of "homed" is about the encoder cards (droid-gmf1-encoder).
@@ -56,10 +66,12 @@ class KarelParams:
     joint_speed_fraction: float = 0.5  # of the robot model's vmax_deg_s
     ramp_s: float = 0.3  # acceleration and deceleration time of the trapezoid
     line_capacity_bytes: int = 4096  # bytes the host may have in flight (its tty buffer)
+    dynamics: bool = False  # the arm of the robot file's [dynamics]/[axis_servo] follows the path (else ideal)
+    inpos_deg: float = 1e-4  # with dynamics: DONE once the path has ended and every motor is this close [deg]
 
     def __post_init__(self) -> None:
         for name in ("baud", "cycle_hz", "speed_mm_s", "joint_speed_fraction", "ramp_s",
-                     "line_capacity_bytes"):
+                     "line_capacity_bytes", "inpos_deg"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"karel: {name} must be a finite number > 0, got {v!r}")
@@ -121,9 +133,17 @@ class KarelController:
     def __init__(self, model: RobotModel, params: KarelParams | None = None, q0_deg=None) -> None:
         self.model = model
         self.p = params or KarelParams()
-        self.q_deg = np.zeros(6) if q0_deg is None else np.asarray(q0_deg, float).copy()
-        if self.q_deg.shape != (6,) or not model.within_limits(self.q_deg):
+        self.q_cmd_deg = np.zeros(6) if q0_deg is None else np.asarray(q0_deg, float).copy()
+        if self.q_cmd_deg.shape != (6,) or not model.within_limits(self.q_cmd_deg):
             raise ValueError("karel: the power-up joint angles must be 6 values inside the joint limits")
+        self.arm = None
+        if self.p.dynamics:
+            from droid.sim.gmf1.dynamics import ArmDynamics
+
+            self.arm = ArmDynamics(model, self.q_cmd_deg)
+        self._done_pending: tuple[int, float] | None = None  # (motion id, path end [s]): DONE after in-position
+        self.q_deg = self.q_cmd_deg.copy()  # the links (the truth)
+        self.q_motor_deg = self.q_cmd_deg.copy()  # what the encoder cards count [joint deg]
         self.home_deg = np.zeros(6)
         self.rx = PacedLine(self.p.baud, self.p.line_capacity_bytes)
         self.tx = PacedLine(self.p.baud, 1 << 16)
@@ -162,11 +182,24 @@ class KarelController:
         self._release_replies(t_s)
         if self.motion is not None:
             m = self.motion
-            self.q_deg = m.q_at(t_s)
-            self.moved = True
+            self.q_cmd_deg = m.q_at(t_s)
+            if self.arm is None:
+                self.q_deg = self.q_cmd_deg
+                self.q_motor_deg = self.q_cmd_deg
+                self.moved = True
             if t_s >= m.t_end:
                 self.motion = None
                 self.completed += 1
+        if self.arm is not None:
+            if self.arm.advance(t_s, self.q_cmd_deg):
+                self.q_deg = self.arm.q_deg
+                self.q_motor_deg = self.arm.q_motor_deg
+                self.moved = True
+            pending = self._done_pending
+            if pending is not None and t_s >= pending[1] and self.in_position():
+                self._done_pending = None
+                self._queue_reply(t_s, kw.Reply(kw.DONE, pending[0]))
+                self._release_replies(t_s)
         self.t_s = t_s
 
     def _take_bytes(self, data: bytes, start_bits: int) -> None:
@@ -197,10 +230,17 @@ class KarelController:
 
     # -- the interpreter ----------------------------------------------------------------
     def moving_at(self, t_s: float) -> bool:
+        if self._done_pending is not None:
+            return True
         return self.motion is not None and t_s < self.motion.t_end
 
+    def in_position(self) -> bool:
+        """Every motor within ``inpos_deg`` of the path [deg] (always, for the ideal arm)."""
+        return float(np.max(np.abs(self.q_motor_deg - self.q_cmd_deg))) <= self.p.inpos_deg
+
     def q_at(self, t_s: float) -> np.ndarray:
-        return self.motion.q_at(t_s) if self.motion is not None else self.q_deg
+        """The interpolated path at ``t_s`` [deg] (the controller plans from it, not from the arm)."""
+        return self.motion.q_at(t_s) if self.motion is not None else self.q_cmd_deg
 
     def _line(self, line: bytes, t_line: float) -> None:
         self.lines += 1
@@ -237,7 +277,9 @@ class KarelController:
         duration = max(self.min_duration_s(q_now, q_goal), req.duration_s or 0.0)
         # the previous motion (if any) has ended by t_line: settle on its goal first
         if self.motion is not None:
-            self.q_deg = self.motion.q1.copy()
+            self.q_cmd_deg = self.motion.q1.copy()
+            if self.arm is None:
+                self.q_deg = self.q_motor_deg = self.q_cmd_deg
             self.motion = None
             self.completed += 1
         self.motion = Motion(q_now, q_goal, t_reply, duration, self.p.ramp_s, req.cmd_id)
@@ -245,7 +287,10 @@ class KarelController:
         self.last_duration_s = duration
         self.accepted += 1
         self._queue_reply(t_reply, kw.Reply(kw.ACK, req.cmd_id, seconds=duration))
-        self._queue_reply(t_reply + duration, kw.Reply(kw.DONE, req.cmd_id))
+        if self.arm is None:
+            self._queue_reply(t_reply + duration, kw.Reply(kw.DONE, req.cmd_id))
+        else:
+            self._done_pending = (req.cmd_id, t_reply + duration)
 
     def _goal(self, req: kw.Request, q_now: np.ndarray) -> np.ndarray:
         if req.verb == kw.HOME:

@@ -15,6 +15,10 @@ Device type ``karel_s400`` (cell file)::
     joint_speed_fraction = 0.5        # of the robot model's joint velocity limits
     ramp_s = 0.3                      # trapezoid ramps
     reply_delay_s = 0.03              # line read -> reply
+    dynamics = true                   # the arm of the robot file's [dynamics]/[axis_servo] follows
+                                      # KAREL's path (default: true when the file has both tables;
+                                      # false: an ideal arm on the path)
+    inpos_deg = 1e-4                  # with dynamics: DONE waits for every motor this close [deg]
 
 The serial port is the subunit's ``serial`` key: a path (default
 ``{run}/NAME.tty``) becomes a symlink to a fresh pseudo-terminal's slave;
@@ -45,8 +49,8 @@ from droid.subunits.gmf1.config import gmf1_config
 
 DEFAULT_START_DEG = (10.0, 15.0, 5.0, 0.0, 30.0, 0.0)
 OPTIONS = ("subunit", "seed", "start_deg", "wcp", "cycle_hz", "speed_mm_s", "joint_speed_fraction", "ramp_s",
-           "reply_delay_s")
-PARAM_OPTIONS = ("cycle_hz", "speed_mm_s", "joint_speed_fraction", "ramp_s", "reply_delay_s")
+           "reply_delay_s", "dynamics", "inpos_deg")
+PARAM_OPTIONS = ("cycle_hz", "speed_mm_s", "joint_speed_fraction", "ramp_s", "reply_delay_s", "inpos_deg")
 
 
 class KarelDevice(Device):
@@ -84,7 +88,7 @@ class KarelDevice(Device):
             self.transport.write(out)
         if c.moved:
             c.moved = False
-            self.twin.update(self._gearing.joints_to_counts(c.q_deg))
+            self.twin.update(self._gearing.joints_to_counts(c.q_motor_deg))
         else:
             self.twin.update(None)
 
@@ -102,8 +106,21 @@ class KarelDevice(Device):
             self.transport = None
 
 
-def karel_params(options: dict, where: str) -> KarelParams:
+def karel_params(options: dict, where: str, model=None) -> KarelParams:
+    """The controller's parameters from a device table; ``dynamics`` defaults to whether ``model``
+    (the robot file) has the ``[dynamics]`` and ``[axis_servo]`` tables the arm twin needs."""
     kw = {}
+    has_dynamics = model is not None and model.dynamics is not None and model.axis_servo is not None
+    if "dynamics" in options:
+        v = options["dynamics"]
+        if not isinstance(v, bool):
+            raise BadInput(f"{where} dynamics must be true or false, got {v!r}")
+        if v and not has_dynamics:
+            raise BadInput(f"{where} dynamics = true needs [dynamics] and [axis_servo] in the robot file"
+                           + (f" {model.name}" if model is not None else ""))
+        kw["dynamics"] = v
+    else:
+        kw["dynamics"] = has_dynamics
     for key in PARAM_OPTIONS:
         if key in options:
             v = options[key]
@@ -155,7 +172,7 @@ def make_karel(world, name: str, options: dict) -> KarelDevice:
         raise BadInput(f"{where} subunit {sub.name} is not an arm")
     cfg = gmf1_config(cell, sub)
     model = load_robot(sub.robot)
-    params = karel_params(options, where)
+    params = karel_params(options, where, model)
     if cfg.baud != params.baud:
         params = dataclasses.replace(params, baud=cfg.baud)
     model_global = model.with_base(pose_to_T(*sub.base))
@@ -173,7 +190,7 @@ def make_karel(world, name: str, options: dict) -> KarelDevice:
             cards.append(SharedCard(url[len("shm://"):]))
         twin = Quad04Twin([c.buf for c in cards], np.random.default_rng(seed))
         controller = KarelController(model, params, q0)
-        twin.update(model.gearing.joints_to_counts(controller.q_deg))
+        twin.update(model.gearing.joints_to_counts(controller.q_motor_deg))
         if cfg.serial.startswith("socket://"):
             try:
                 transport = TcpEnd(cfg.serial)

@@ -44,21 +44,27 @@ class Gmf1Lockstep:
     """The GMF1 subunit and its Fanuc twin on virtual time; see the module docstring."""
 
     def __init__(self, cell: Cell | None = None, subunit: str = "gmf1", *, world_hz: float = 1000.0,
-                 seed: int = 1, start_deg=DEFAULT_START_DEG, params: KarelParams | None = None) -> None:
+                 seed: int = 1, start_deg=DEFAULT_START_DEG, params: KarelParams | None = None,
+                 sched: Scheduler | None = None, robot: str | None = None, base_T=None) -> None:
+        """``sched``: put the subunit on this scheduler (a trial's) instead of its own; ``robot``
+        and ``base_T`` (4x4, mm): the robot file and base pose instead of the cell's subunit's."""
         self.cell = cell if cell is not None else load_cell(None)
         self.sub = self.cell.subunit(subunit)
         cfg = gmf1_config(self.cell, self.sub)
         self.cfg = cfg
-        model_base = load_robot(self.sub.robot)
-        self.model = model_base.with_base(pose_to_T(*self.sub.base))
-        self.sched = Scheduler(self.cell.heartbeat_hz)
+        model_base = load_robot(robot or self.sub.robot)
+        self.model = model_base.with_base(pose_to_T(*self.sub.base) if base_T is None else np.asarray(base_T, float))
+        if sched is not None and sched.heartbeat_hz != self.cell.heartbeat_hz:
+            raise ValueError(f"gmf1 lockstep: the scheduler's heartbeat {sched.heartbeat_hz:g} Hz is not the "
+                             f"cell's {self.cell.heartbeat_hz:g} Hz")
+        self.sched = sched if sched is not None else Scheduler(self.cell.heartbeat_hz)
         self.world_hz = float(world_hz)
         # the world: controller + serial pair + cards
         self.pair = MemorySerialPair()
         self.card_bufs = [bytearray(MAP_SIZE), bytearray(MAP_SIZE)]
         twin = Quad04Twin(self.card_bufs, np.random.default_rng(seed))
         controller = KarelController(model_base, params or KarelParams(baud=cfg.baud), np.asarray(start_deg, float))
-        twin.update(model_base.gearing.joints_to_counts(controller.q_deg))
+        twin.update(model_base.gearing.joints_to_counts(controller.q_motor_deg))
         self.device = KarelDevice(self.sub.name, controller, twin, self.pair.device, self.model)
         self.controller = controller
         # the databases

@@ -43,7 +43,14 @@ World devices (``[world.devices.NAME]``, built through droid.sim.world.DEVICE_TY
     the workpiece's extent).  Options: ``serial`` (the symlink the Brain
     opens, e.g. ``"{run}/tool.brain.tty"``), ``baud`` (19200), ``workpiece``,
     ``tool_robot``, ``holder_robot``, ``tool_pose`` (T_wcp_tool),
-    ``workpiece_mount``, ``rate_hz``.
+    ``workpiece_mount``, ``rate_hz``, ``seed`` (default: [world] seed + 1) and
+    ``[..noise]`` -- the lead sensor's noise keys (jitter_px,
+    spurious_fraction, drop_probability), turned into the ideal sensor
+    model's equivalent scatter (``tool_sensor.ToolNoise.like_camera``;
+    default: none, exact), ``stamp`` (true: each line carries its capture
+    time, ``x,y,roll,ms`` -- CLOCK_MONOTONIC ms modulo 100000 at the
+    measurement, the clock the Brain shares on one host, as
+    ``droid-mvs --stamp``; default false: the thesis's plain lines).
 
 :func:`droid.sim.mvs.lockstep.mvs_lockstep` runs the same chain (camera twin ->
 sensor core -> paced line -> the Brain's link core -> Status) on a lockstep
@@ -53,18 +60,19 @@ Scheduler.  ``fixed_arm`` is :mod:`droid.sim.mvs.arm`, the mounts
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
 
-from droid.brain.sensor_line import DEFAULT_BAUD, format_line
+from droid.brain.sensor_line import DEFAULT_BAUD, format_line, stamp_ms_of
 from droid.sim.device_options import DeviceOptions
 from droid.sim.mvs.camera import CameraNoise, MvsCamera
 from droid.sim.mvs.clock import FrameClock
 from droid.sim.mvs.dsp import MvsDspTwin, open_dsp_writer
 from droid.sim.mvs.mounts import Mount
-from droid.sim.mvs.tool_sensor import ToolReading, measure
+from droid.sim.mvs.tool_sensor import ToolNoise, ToolReading, measure, noisy
 from droid.sim.serial_cable import PacedPtyOutput
 from droid.sim.workpiece import Workpiece, load_workpiece
 from droid.sim.world import Device
@@ -110,11 +118,16 @@ class ToolSensorCore:
     """The tool-tip measuring sensor as a core (§6.1): T_W_tool -> one serial line.
 
     The line is ``height,lateral,roll`` in the MVS grammar (x = height
-    deviation [mm], y = lateral deviation [mm], roll [rad]), or ``invalid``.
+    deviation [mm], y = lateral deviation [mm], roll [rad]), or ``invalid``;
+    the values through ``noise`` (seeded by ``seed``: deterministic).
     """
 
-    def __init__(self, workpiece: Workpiece) -> None:
+    def __init__(self, workpiece: Workpiece, noise: ToolNoise = ToolNoise(), seed: int = 0,
+                 stamp: bool = False) -> None:
         self.workpiece = workpiece
+        self.noise = noise
+        self.stamp = stamp
+        self.rng = np.random.default_rng(seed)
         self.last: ToolReading | None = None
         self.lines = 0
         self.valid = 0
@@ -127,11 +140,13 @@ class ToolSensorCore:
             return None
         return m
 
-    def step(self, T_W_tool: np.ndarray) -> bytes:
-        self.last = self.reading(T_W_tool)
+    def step(self, T_W_tool: np.ndarray, t_ns: int | None = None) -> bytes:
+        """The line of a measurement at ``T_W_tool``; stamped with ``t_ns`` [ns, the capture
+        instant on the cell's clock] when the core stamps and it is given."""
+        self.last = noisy(self.reading(T_W_tool), self.noise, self.rng)
         values = None if self.last is None else _LineValues(self.last.height_mm, self.last.lateral_mm,
                                                             self.last.roll_rad)
-        line = format_line(values)
+        line = format_line(values, stamp_ms_of(t_ns) if (self.stamp and t_ns is not None) else None)
         self.lines += 1
         self.valid += not line.startswith(b"invalid")
         return line
@@ -145,7 +160,7 @@ class IdealSensorCore(ToolSensorCore):
     """
 
     def __init__(self, workpiece: Workpiece, calib: MvsCalibration) -> None:
-        super().__init__(workpiece)
+        super().__init__(workpiece)  # exact: lockstep's ideal_sensor has no noise
         ys = calib.lateral_of(np.array([0.0, ROWS - 1.0]))
         xs = (np.array([0.0, COLUMNS - 1.0]) - calib.column_at_origin) * calib.depth_mm_per_column
         self.y_range_mm = (float(ys.min()), float(ys.max()))
@@ -164,20 +179,23 @@ class IdealSensorCore(ToolSensorCore):
 class ToolSensorDevice(Device):
     """The tool-tip sensor in the world: core + mount + a paced serial output."""
 
-    def __init__(self, name: str, mount: Mount, core: ToolSensorCore, output, rate_hz: float = FRAME_RATE_HZ) -> None:
+    def __init__(self, name: str, mount: Mount, core: ToolSensorCore, output, rate_hz: float = FRAME_RATE_HZ,
+                 clock_ns=time.monotonic_ns) -> None:
         self.name = name
         self.mount = mount
         self.core = core
         self.output = output
         self.clock = FrameClock(rate_hz)
+        self.clock_ns = clock_ns  # the capture stamp's clock (the cell's CLOCK_MONOTONIC in real time)
 
-    def line(self) -> bytes:
-        """Measure now and return the line (for lockstep, which delivers it itself)."""
-        return self.core.step(self.mount.T_W())
+    def line(self, t_ns: int | None = None) -> bytes:
+        """Measure now and return the line, stamped with ``t_ns`` [ns] when the core stamps (for
+        lockstep, which delivers it itself on virtual time)."""
+        return self.core.step(self.mount.T_W(), t_ns)
 
     def advance(self, dt_s: float) -> None:
         if self.clock.advance(dt_s):
-            self.output.write(self.line())
+            self.output.write(self.line(self.clock_ns() if self.core.stamp else None))
         self.output.advance(dt_s)
 
     def close(self) -> None:
@@ -199,9 +217,7 @@ def _positive(v) -> str | None:
     return None if v > 0 else "must be > 0"
 
 
-def build_camera(opts: DeviceOptions, dsp_url: str) -> MvsCameraDevice:
-    mount = _mount(opts, "sensor_pose")
-    workpiece = _workpiece(opts)
+def _camera_noise(opts: DeviceOptions) -> CameraNoise:
     noise_table = opts.get("noise", dict, {})
     known = {f.name for f in fields(CameraNoise)}
     if set(noise_table) - known:
@@ -212,6 +228,13 @@ def build_camera(opts: DeviceOptions, dsp_url: str) -> MvsCameraDevice:
     except (TypeError, ValueError):
         raise opts.bad("jitter_px must be >= 0, spurious_fraction and drop_probability within [0, 1]",
                        "noise") from None
+    return noise
+
+
+def build_camera(opts: DeviceOptions, dsp_url: str) -> MvsCameraDevice:
+    mount = _mount(opts, "sensor_pose")
+    workpiece = _workpiece(opts)
+    noise = _camera_noise(opts)
     calib = MvsCalibration.from_table(opts.get("calibration", dict, {}), source=f"{opts.where} calibration")
     standoff = opts.get("standoff_mm", float, DEFAULT_STANDOFF_MM, check=_positive)
     rate = opts.get("rate_hz", float, FRAME_RATE_HZ, check=_positive)
@@ -229,7 +252,10 @@ def mvs_camera(world, name: str, options: dict[str, Any]) -> MvsCameraDevice:
 
 def tool_parts(opts: DeviceOptions) -> tuple[Mount, ToolSensorCore, float]:
     mount = _mount(opts, "tool_pose")
-    core = ToolSensorCore(_workpiece(opts))
+    noise = ToolNoise.like_camera(_camera_noise(opts))
+    seed = opts.get("seed", int, int(getattr(opts.world, "seed", 0)) + 1)
+    stamp = opts.get("stamp", bool, False)
+    core = ToolSensorCore(_workpiece(opts), noise, seed, stamp)
     rate = opts.get("rate_hz", float, FRAME_RATE_HZ, check=_positive)
     return mount, core, rate
 

@@ -149,7 +149,7 @@ def mvs_lockstep(scheduler, devices: Mapping[str, Any], camera: dict[str, Any],
     scheduler.on_tick(link_task(run.mvs), f"{name}.mvs_link")
     if run.tool is not None:
         tool_dev, tool_chain = run.tool, run.tool_chain
-        scheduler.every(tool_dev.clock.rate_hz, lambda t_ns: tool_chain.pipe.write(tool_dev.line(), t_ns),
+        scheduler.every(tool_dev.clock.rate_hz, lambda t_ns: tool_chain.pipe.write(tool_dev.line(t_ns), t_ns),
                         f"{name}.tool_sensor", order=ORDER_WORLD)
         scheduler.on_tick(link_task(tool_chain), f"{name}.tool_link")
     return run

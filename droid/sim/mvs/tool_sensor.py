@@ -2,7 +2,10 @@
 
 The thesis measures tracking error with a second MVS sensor placed virtually
 at the tool tip: the lateral and height deviation from the seam [mm] and the
-surface roll [rad], at 60 Hz, measuring only.  Here it is exact geometry.
+surface roll [rad], at 60 Hz, measuring only.  Here it is the exact geometry
+(:func:`measure`) seen through the lead sensor's noise model
+(:class:`ToolNoise`, :func:`noisy`): the tool-tip sensor is a second MVS, so
+its readings scatter as the lead sensor's do (issue 13 item 5).
 
 The tool frame T is read like the sensor frame S (docs/mvs.md): x along the
 tool axis toward the surface (depth), y lateral, z the travel direction; its
@@ -31,6 +34,14 @@ import numpy as np
 from droid.sim.mvs.frames import apply, invert, rot_z, translation
 from droid.sim.workpiece import Workpiece
 
+#: The lead sensor's reading scatter through the camera chain at REFERENCE_JITTER_PX of stripe
+#: jitter (0.5 px, 2-10 % spurious rows: the feature extraction rejects the spurious rows;
+#: docs/bench-mvs.md): the ``ideal`` lead sensor model's sigmas (droid.sim.experiment.sensors).
+REFERENCE_JITTER_PX = 0.5
+SIGMA_HEIGHT_MM = 0.012  # x (depth): the column direction, fitted over many rows
+SIGMA_LATERAL_MM = 0.056  # y: the step's row, placed between rows
+SIGMA_ROLL_RAD = 0.0005
+
 #: Stop the search when the seam point is this close to the sheet [mm].
 TOLERANCE_MM = 1e-9
 MAX_ITERATIONS = 50
@@ -44,6 +55,47 @@ class ToolReading:
     height_mm: float
     roll_rad: float
     s_mm: float
+
+
+@dataclass(frozen=True)
+class ToolNoise:
+    """The lead sensor's noise model, as the ideal sensor model states it: Gaussian scatter of
+    the reading [mm, mm, rad] and lost frames.  :meth:`like_camera` scales the camera chain's
+    scatter at :data:`REFERENCE_JITTER_PX` with a :class:`~droid.sim.mvs.camera.CameraNoise`'s
+    stripe jitter and takes its drop probability (its spurious rows are the feature
+    extraction's to reject; their effect is inside the reference sigmas).  The default: exact."""
+
+    sigma_height_mm: float = 0.0
+    sigma_lateral_mm: float = 0.0
+    sigma_roll_rad: float = 0.0
+    drop_probability: float = 0.0
+
+    def __post_init__(self) -> None:
+        vals = (self.sigma_height_mm, self.sigma_lateral_mm, self.sigma_roll_rad, self.drop_probability)
+        if not all(math.isfinite(v) and v >= 0 for v in vals) or self.drop_probability > 1:
+            raise ValueError(f"bad tool-sensor noise {self}")
+
+    @classmethod
+    def like_camera(cls, noise) -> "ToolNoise":
+        k = float(noise.jitter_px) / REFERENCE_JITTER_PX
+        return cls(SIGMA_HEIGHT_MM * k, SIGMA_LATERAL_MM * k, SIGMA_ROLL_RAD * k, float(noise.drop_probability))
+
+    @property
+    def exact(self) -> bool:
+        return not (self.sigma_height_mm or self.sigma_lateral_mm or self.sigma_roll_rad or self.drop_probability)
+
+
+def noisy(m: ToolReading | None, noise: ToolNoise, rng: np.random.Generator) -> ToolReading | None:
+    """``m`` through the noise model: four random numbers drawn every call (None or not, exact
+    or not), so a seeded run is reproducible whatever the readings are.  ``s_mm`` (the seam
+    coordinate, the truth's) is not a measurement and stays."""
+    z = rng.standard_normal(3)
+    lost = rng.random() < noise.drop_probability
+    if m is None or lost:
+        return None
+    return ToolReading(lateral_mm=m.lateral_mm + noise.sigma_lateral_mm * z[1],
+                       height_mm=m.height_mm + noise.sigma_height_mm * z[0],
+                       roll_rad=m.roll_rad + noise.sigma_roll_rad * z[2], s_mm=m.s_mm)
 
 
 def seam_frame(workpiece: Workpiece, s_mm: float) -> np.ndarray:

@@ -87,6 +87,8 @@ class EncoderCore:
         self.fault = False
         self.resets = 0
         self.homings = 0
+        self._fk_key: bytes | None = None  # the counts of the last FK, and its Status fields
+        self._fk_fields: dict = {}
 
     def restart(self) -> None:
         """The cards were replaced (re-opened onto another object): forget the counter history."""
@@ -124,7 +126,10 @@ class EncoderCore:
         pos = np.clip(self.extended, _I32_MIN, _I32_MAX).astype(np.int32)
         out.fields["encoder_pos"] = pos
         if homed and self.zeroing is None:
-            T = self.model.fk(self.model.gearing.counts_to_joints(pos.astype(float)))
-            out.fields.update(x=T[0, 3], y=T[1, 3], z=T[2, 3], R=T[:3, :3])
+            key = pos.tobytes()
+            if key != self._fk_key:  # the FK of unchanged counts is the last one (an arm at rest)
+                T = self.model.fk(self.model.gearing.counts_to_joints(pos.astype(float)))
+                self._fk_key, self._fk_fields = key, dict(x=T[0, 3], y=T[1, 3], z=T[2, 3], R=T[:3, :3])
+            out.fields.update(self._fk_fields)
         out.fault = self.fault
         return out

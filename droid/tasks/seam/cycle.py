@@ -23,6 +23,15 @@ shell, droid/tasks/seamtrack.py) and by the lockstep trial
   (``TrackingCycle.dropped``);
 * **elapsed cycles** between two Status poses (a late Status spans more than
   one cycle: the runaway guard scales with it);
+* **the tool-tip sensor's readings** (issue 12 item 2, §6.1's measuring
+  sensor) placed the same way: :meth:`TrackingCycle.place_tool` gives a
+  reading's capture instant (its stamp, else its Status tick minus the lag),
+  both robots' poses then, the tool's travel then (from the cycles' travel,
+  each stored under the instant its Status pose shows) and the measured seam
+  point in the holder's wrist-centre frame; a reading whose instant lies in
+  the future or before the history is dropped and counted
+  (``TrackingCycle.tool_dropped``).  The tool-tip sensor only measures:
+  nothing of it reaches the core;
 * the core: :class:`droid.tasks.seam.core.SeamTracker` (modes ``thesis`` and
   ``listing``) or :class:`droid.tasks.seam.plus.PlusTracker` (mode ``plus``).
 """
@@ -30,9 +39,10 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import replace
+from dataclasses import dataclass, replace
 import numpy as np
 
+from droid.brain.sensor_line import seam_transform
 from droid.tasks.seam.core import MODE_PLUS, CycleOutput, SeamParams, SeamTracker
 from droid.tasks.seam.delay import INVALID_READING, Reading
 
@@ -128,6 +138,47 @@ class PoseHistory:
         return None
 
 
+class ValueHistory:
+    """Numbers stamped with their time [ticks], oldest first, ``span`` ticks kept; read linearly
+    interpolated, held at the ends (NaN while empty)."""
+
+    def __init__(self, span_ticks: float = POSE_HISTORY_TICKS) -> None:
+        self.span = float(span_ticks)
+        self._t: deque[float] = deque()
+        self._v: deque[float] = deque()
+
+    def __len__(self) -> int:
+        return len(self._t)
+
+    def add(self, t: float, v: float) -> None:
+        t = float(t)
+        if self._t and t <= self._t[-1]:
+            return
+        self._t.append(t)
+        self._v.append(float(v))
+        while self._t and self._t[0] < t - self.span:
+            self._t.popleft()
+            self._v.popleft()
+
+    def at(self, t: float) -> float:
+        if not self._t:
+            return math.nan
+        return float(np.interp(t, self._t, self._v))
+
+
+@dataclass(frozen=True)
+class PlacedTool:
+    """A tool-tip reading at its capture instant ``tick`` [ticks]: both robots' poses then
+    (global 4x4 [mm]), the tool's travel then [mm] (NaN before the first cycle), and the
+    measured seam point in the holder's wrist-centre frame [mm]."""
+
+    tick: float
+    T_global_reis6: np.ndarray
+    T_global_hold6: np.ndarray
+    travel_mm: float
+    seam_in_hold_mm: np.ndarray
+
+
 class TrackingCycle:
     """The tracking cycle of both shells (see the module docstring).
 
@@ -155,6 +206,8 @@ class TrackingCycle:
         self.reis_poses = PoseHistory()
         self.hold_poses = PoseHistory()
         self.dropped = 0  # readings whose instant lies outside the pose history (or in the future)
+        self.tool_dropped = 0  # tool-tip readings likewise (place_tool)
+        self.travel = ValueHistory()  # the tool's travel [mm] at the instants the cycles saw
         self._next_cycle: int | None = None
         self._next_log: int | None = None
         self._status_tick: int | None = None
@@ -238,4 +291,30 @@ class TrackingCycle:
                              T_global_reis6_sensed=sensed, T_global_hold6_sensed=sensed_hold,
                              **({"locate": self.locate} if self.params.mode == MODE_PLUS else {}))
         self.last = out
+        self.travel.add(reis_tick - self.status_age_ticks, out.travel_mm)
         return out
+
+    # -- the tool-tip sensor (measuring only) ------------------------------------
+    def place_tool(self, reading: Reading, status_tick: int, T_wcp_tool) -> "PlacedTool | None":
+        """A tool-tip reading (x height, y lateral [mm], roll [rad]; its own ``stamp_tick`` or None)
+        that reached its Status at ``status_tick``, placed at its capture instant; None when it is
+        invalid, or -- dropped and counted in ``tool_dropped`` -- when its instant lies in the
+        future or before the pose history."""
+        if not reading.valid:
+            return None
+        t_c = self.capture_tick(status_tick, reading.stamp_tick)
+        T_reis = self.reis_poses.at(t_c)
+        if T_reis is None and len(self.reis_poses):
+            newest_t, newest_T = self.reis_poses.newest
+            if newest_t < t_c <= newest_t + self.status_age_ticks + 0.5:
+                T_reis = newest_T  # newer than the newest Status shows: the newest pose
+        if T_reis is None:
+            self.tool_dropped += 1
+            return None
+        T_hold = self.hold_poses.at(t_c) if len(self.hold_poses) else None
+        if T_hold is None:
+            T_hold = self.hold_poses.newest[1] if len(self.hold_poses) else np.eye(4)
+        T_seam = np.linalg.inv(T_hold) @ T_reis @ np.asarray(T_wcp_tool, float) @ seam_transform(
+            reading.x_mm, reading.y_mm, reading.roll_rad)
+        return PlacedTool(tick=t_c, T_global_reis6=T_reis, T_global_hold6=T_hold, travel_mm=self.travel.at(t_c),
+                          seam_in_hold_mm=T_seam[:3, 3].copy())
