@@ -5,6 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+
+from droid.kinematics.transforms import pose_to_T
 import pytest
 
 from droid.kinematics import RobotFileError, load_robot
@@ -54,7 +56,7 @@ def test_a_dynamic_gmf1_homes_moves_and_reports_done_only_in_position():
     g.home()
     s = g.status()
     assert int(s["homed"]) == 1 and np.all(np.abs(s["encoder_pos"]) <= 1)
-    cmd_id = g.command_cart(TARGET, 2.0)
+    cmd_id = g.command_cart(pose_to_T(*TARGET), g.ticks_for(2.0))
     lag = []
 
     def watch():

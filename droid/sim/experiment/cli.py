@@ -211,7 +211,10 @@ def _json_safe(v):
 
 def _worker_init() -> None:
     # Ctrl-C reaches the whole process group: only the parent handles it (and terminates the pool).
+    # A forked worker starts with SIGINT blocked (the parent's mask while it forks): ignore it,
+    # then unblock, so a Ctrl-C pending from the start-up is dropped here.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
 
 
 def _cost(exp) -> float:
@@ -270,25 +273,29 @@ def run_jobs(jobs: list[Job], workers: int, dask: str | None = None) -> list[Out
         return outcomes
     methods = multiprocessing.get_all_start_methods()
     ctx = multiprocessing.get_context("fork" if "fork" in methods else None)
-    # Workers ignore SIGINT from their first instruction (inherited at fork; the initializer
-    # keeps it so under spawn); the parent turns Ctrl-C into terminating the pool.
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        pool = ctx.Pool(min(workers, len(jobs)), initializer=_worker_init)  # before the bar's monitor thread
-    finally:
-        signal.signal(signal.SIGINT, previous)
+    # SIGINT is blocked while the workers fork (they inherit the mask; the initializer makes
+    # them ignore it), and unblocked once the pool exists: a Ctrl-C that comes during the
+    # start-up waits for that moment and then stops the pool -- it is neither lost (an
+    # ignored signal was, issue 16) nor able to kill a half-made pool.
+    previous_mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    pool = None
     by_id = {job.exp.id: job for job in jobs}
     try:
+        pool = ctx.Pool(min(workers, len(jobs)), initializer=_worker_init)  # before the bar's monitor thread
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous_mask)  # a pending Ctrl-C is raised here
         with _progress(len(jobs)) as bar:
             for o in pool.imap_unordered(run_job, jobs, chunksize=1):
                 done(by_id[o.exp.id], o)
                 bar.update()
         pool.close()
     except BaseException:
-        pool.terminate()  # SIGINT or an error: stop every worker now
+        if pool is not None:
+            pool.terminate()  # SIGINT or an error: stop every worker now
         raise
     finally:
-        pool.join()
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous_mask)
+        if pool is not None:
+            pool.join()
     return outcomes
 
 

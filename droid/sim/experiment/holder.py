@@ -35,7 +35,6 @@ import numpy as np
 
 from droid.brain.cellfile import builtin_cell_path, load_cell
 from droid.cli import RuntimeFailure
-from droid.kinematics.transforms import T_to_pose
 from droid.sim.gmf1.controller import KarelParams
 from droid.sim.gmf1.lockstep import Gmf1Lockstep
 from droid.sim.lockstep import Scheduler
@@ -73,7 +72,7 @@ class Gmf1Holder:
         except RuntimeError:
             raise RuntimeFailure("the GMF1 did not home") from None
         counts = np.rint(self.model.gearing.joints_to_counts(self.q_hold)).astype(np.int32)
-        cmd = self.g.command_joint(counts, MOVE_S)
+        cmd = self.g.command_joint(counts, self.g.ticks_for(MOVE_S))
         if not self.g.run_until(lambda: self.g.done(cmd), MOVE_TIMEOUT_S):
             raise RuntimeFailure("the GMF1 did not reach the holding pose")
         self.sched.run_for(SETTLE_S)
@@ -83,12 +82,12 @@ class Gmf1Holder:
         frame, orientation kept) lasting ``seconds``; returns the command id."""
         T = self.status_pose()
         T[:3, 3] += np.asarray(v_mm_s, float) * seconds
-        return self.g.command_cart(T_to_pose(T), seconds)
+        return self.g.command_cart(T, self.g.ticks_for(seconds))
 
     def hold(self, T_global_wcp, seconds: float) -> int:
         """The tracker's hold command (gen_hold_robot_wcp, sent once as droid-seamtrack does): a
         cartesian MOVE to ``T_global_wcp`` (4x4, mm) -- the pose it has -- in ``seconds``."""
-        return self.g.command_cart(T_to_pose(np.asarray(T_global_wcp, float)), seconds)
+        return self.g.command_cart(np.asarray(T_global_wcp, float), self.g.ticks_for(seconds))
 
     def status_pose(self) -> np.ndarray:
         """The GMF1 Status's wrist-centre pose (4x4, mm, global): what the tracker reads."""
