@@ -431,7 +431,8 @@ class ReisPlant:
             G[18:24, 6:12] = minv
             phi, gam = _zoh((F, G), dt)
             g_m = gam[:, 0:6].copy()  # the state's response to a motor torque held over the step
-            got = self._disc[dt] = (phi, gam, g_m, g_m[6:12].copy(), np.diag(g_m[6:12]).copy())
+            # one product per step: [Phi | Gamma] @ [x; tau_motor; tau_link]
+            got = self._disc[dt] = (np.hstack((phi, gam)), g_m, np.diag(g_m[6:12]).copy())
         return got
 
     def _system_matrices(self, minv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -456,26 +457,28 @@ class ReisPlant:
 
     def _step_exact(self, dt: float, drive, tau_c) -> None:
         """One zero-order-hold step of ``dt`` (see the module docstring and :data:`EXACT_BOUND_DEG`)."""
-        phi, gam, g_m, g_w, g_wd = self._discretise(dt)
+        pg, g_m, g_wd = self._discretise(dt)
         omega, q, qd = self._omega, self._q, self._qd
-        x = np.concatenate((self._theta, omega, q, qd))
         if self._amps_on:  # back-EMF at the step's start speed
             fade = self._tau_max_w0 * omega
             drive = np.minimum(np.maximum(drive, -self._tau_max - fade), self._tau_max - fade)
-        tau_link = -pin.nonLinearEffects(self._pin_model, self._pin_data, q, qd)  # -(C qd + g), a new array
+        tau_link = pin.nonLinearEffects(self._pin_model, self._pin_data, q, qd)  # C qd + g (Pinocchio's buffer)
+        nl = -tau_link[1]
         if self._bal:
-            tau_link[1] -= self._bal * math.sin(q[1])
-        free = phi @ x + gam @ np.concatenate((drive, tau_link))  # the step without Coulomb friction
+            nl -= self._bal * math.sin(q[1])
+        z = np.concatenate((self._theta, omega, q, qd, drive, -tau_link))
+        z[31] = nl
+        free = pg @ z  # the step without Coulomb friction
         # Coulomb friction (Karnopp): kinetic where the motor moves and keeps its direction;
         # where it is at rest or would reverse, the friction that ends the step at rest, if it
         # is within +-tau_c (stiction), else tau_c against the would-be motion.
         kinetic = -tau_c * np.sign(omega)  # 0 for a motor at rest
-        w_end = free[6:12]
-        keeps = (w_end + g_w @ kinetic) * omega > 0.0  # moving, and still the same way with kinetic friction
+        x = free + g_m @ kinetic
+        keeps = x[6:12] * omega > 0.0  # moving, and still the same way with kinetic friction
         if keeps.all():
-            x = free + g_m @ kinetic
             self._theta, self._omega, self._q, self._qd = x[0:6], x[6:12], x[12:18], x[18:24]
             return
+        w_end = free[6:12]
         stick = -w_end / g_wd  # per motor (the 1 % coupling neglected here)
         held = np.abs(stick) <= tau_c
         fric = np.where(keeps, kinetic, np.where(held, stick, -tau_c * np.sign(w_end)))
