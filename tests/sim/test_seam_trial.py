@@ -11,7 +11,7 @@ THESIS_COLUMNS = ["s_mm", "lead_lateral_mm", "lead_depth_mm", "lead_roll_rad", "
 
 
 def short_trial(seed=1):
-    return run_trial(TrialConfig("smoke", "i", 16.0, length_mm=300, seed=seed))
+    return run_trial(TrialConfig("smoke", "i", 16.0, length_mm=300, seed=seed, arm="fast"))
 
 
 def test_short_step_input_trial_tracks_to_the_end():
@@ -58,7 +58,7 @@ REFERENCE = [
 
 @pytest.mark.parametrize("kw,ref", REFERENCE, ids=["i-16-camera", "vii-64-camera", "iii-16-ideal"])
 def test_tracking_result_is_the_reference(kw, ref):
-    r = run_trial(TrialConfig("ref", seed=2, mode="listing", **kw))  # the literal port the numbers pin
+    r = run_trial(TrialConfig("ref", seed=2, mode="listing", arm="fast", **kw))  # the literal port the numbers pin
     s = r.column("s_mm")
     after = s > 150
     lat, dep = r.column("tool_lateral_mm")[after], r.column("tool_depth_mm")[after]
