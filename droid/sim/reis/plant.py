@@ -432,7 +432,7 @@ class ReisPlant:
             phi, gam = _zoh((F, G), dt)
             g_m = gam[:, 0:6].copy()  # the state's response to a motor torque held over the step
             # one product per step: [Phi | Gamma] @ [x; tau_motor; tau_link]
-            got = self._disc[dt] = (np.hstack((phi, gam)), g_m, np.diag(g_m[6:12]).copy())
+            got = self._disc[dt] = (np.hstack((phi, gam)), g_m, np.diag(g_m[6:12]).tolist())
         return got
 
     def _system_matrices(self, minv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -478,17 +478,26 @@ class ReisPlant:
         if keeps.all():
             self._theta, self._omega, self._q, self._qd = x[0:6], x[6:12], x[12:18], x[18:24]
             return
-        w_end = free[6:12]
-        stick = -w_end / g_wd  # per motor (the 1 % coupling neglected here)
-        held = np.abs(stick) <= tau_c
-        fric = np.where(keeps, kinetic, np.where(held, stick, -tau_c * np.sign(w_end)))
+        # a motor at rest or reversing (most steps: the wrist motors stand still while the main
+        # axes track); per motor in plain floats -- six of them are cheaper than a dozen numpy calls
+        w_end, keep, kin = free[6:12].tolist(), keeps.tolist(), kinetic.tolist()
+        fric, rest = [0.0] * 6, []
+        for j, (tc, gw) in enumerate(zip(tau_c.tolist(), g_wd)):
+            if keep[j]:
+                fric[j] = kin[j]
+                continue
+            stick = -w_end[j] / gw  # the friction that ends the step at rest (the 1 % coupling neglected)
+            if -tc <= stick <= tc:
+                fric[j] = stick
+                rest.append(j)
+            else:
+                fric[j] = -tc if w_end[j] > 0.0 else tc
         x = free + g_m @ fric
-        at_rest = held & ~keeps
-        # a motor held by stiction stays where it was (else it would creep by the part-step
-        # motion the held friction allows within the step)
-        self._theta = np.where(at_rest, self._theta, x[0:6])
-        self._omega = np.where(at_rest, 0.0, x[6:12])
-        self._q, self._qd = x[12:18], x[18:24]
+        theta, omega = x[0:6], x[6:12]
+        if rest:  # a motor held by stiction stays where it was (else it would creep by the part-step
+            theta[rest] = self._theta[rest]  # motion the held friction allows within the step)
+            omega[rest] = 0.0
+        self._theta, self._omega, self._q, self._qd = theta, omega, x[12:18], x[18:24]
 
     def _steps_rigid(self, n: int, h: float, drive, tau_c) -> None:
         A, AinvT = self._A, self._AinvT
