@@ -3,7 +3,9 @@
 Lockstep trials (droid.sim.experiment.trial.run_trial) with the ``camera`` lead
 sensor chain (the camera twin's render with 0.5 px stripe jitter and 2 %
 spurious rows, the real MVS feature extraction, the serial line) and the
-experiments' default arm model (``fast``), N seeds each, both modes:
+experiments' default arm model (``full`` since issue 13: every Reis core and the
+plant twin, homed before each trial; ``--arm fast`` for the analytic one), N seeds
+each, both modes:
 
 * ``r200_64``: the R200 ramp (position vii) at 64 mm/s -- lateral RMS / max,
   steady depth error (|mean tool depth| after settling);
@@ -18,7 +20,7 @@ experiments' default arm model (``fast``), N seeds each, both modes:
 
 Prints one markdown table of mean +- SD over the seeds (and ``--json``).
 Usage: PYTHONPATH=. python bench/bench_seamtrack_plus.py [--seeds 20] [--modes thesis,plus]
-[--speeds 4,16,32,64,128] [--step-length 400] [--json]
+[--speeds 4,16,32,64,128] [--step-length 400] [--arm full|fast] [--jobs N] [--json]
 """
 from __future__ import annotations
 
@@ -31,9 +33,14 @@ import time
 import numpy as np
 
 from droid.cli import ArgumentParser, BadInput, positive_float, positive_int, run
-from droid.sim.experiment.trial import TrialConfig, run_trial
+from droid.sim.experiment.trial import ARM_MODELS, TrialConfig, run_trial
 from droid.tasks.seam.core import MODES
 from droid.tasks.seam.report import column, summarize
+
+
+def _one(job: tuple) -> dict:
+    mode, seed, kw = job
+    return one(mode, seed, **kw)
 
 
 def one(mode: str, seed: int, **kw) -> dict:
@@ -64,6 +71,8 @@ def build_parser() -> ArgumentParser:
     p.add_argument("--speeds", default="4,16,32,64,128", help="step-track speeds [mm/s]")
     p.add_argument("--step-length", type=positive_float, default=400.0, help="step-track run length [mm]")
     p.add_argument("--trials", default=None, help="only these trials (comma-separated names, e.g. r25_16)")
+    p.add_argument("--arm", choices=ARM_MODELS, default=TrialConfig.arm, help="Reis model (default: full)")
+    p.add_argument("--jobs", type=positive_int, default=1, help="processes to run the trials on (default 1)")
     p.add_argument("--json", action="store_true", help="also print the raw figures as JSON")
     return p
 
@@ -94,13 +103,19 @@ def main(argv=None) -> int:
     names = [n for n, _ in trials(speeds, a.step_length) if only is None or n in only]
     if not names:
         raise BadInput(f"--trials: none of {a.trials!r} is a trial of this bench")
-    for name, kw in trials(speeds, a.step_length):
-        if name not in names:
-            continue
-        for m in modes:
-            res[(name, m)] = [one(m, seed, **kw) for seed in range(1, a.seeds + 1)]
+    jobs = [((name, m), (m, seed, dict(kw, arm=a.arm))) for name, kw in trials(speeds, a.step_length)
+            if name in names for m in modes for seed in range(1, a.seeds + 1)]
+    if a.jobs > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(a.jobs) as pool:
+            out = list(pool.map(_one, [j for _, j in jobs]))
+    else:
+        out = [_one(j) for _, j in jobs]
+    for (key, _), r in zip(jobs, out):
+        res.setdefault(key, []).append(r)
     wall = time.perf_counter() - t0
-    print(f"# bench_seamtrack_plus: {a.seeds} seeds, {platform.node()} ({os.cpu_count()} CPUs), "
+    print(f"# bench_seamtrack_plus: {a.seeds} seeds, arm {a.arm}, {a.jobs} process(es), {platform.node()} ({os.cpu_count()} CPUs), "
           f"load {os.getloadavg()[0]:.2f}, {time.strftime('%Y-%m-%d %H:%M')} , {wall:.0f} s wall")
     print()
     print("| trial | mode | lateral RMS [mm] | lateral max [mm] | steady depth [mm] | speed / commanded "

@@ -23,7 +23,7 @@ def run_cli(*args, timeout=900):  # a hang guard only (DESIGN §8: timing never 
 
 def test_one_short_trial_writes_csv_png_summary_line_and_tables(tmp_path):
     out = tmp_path / "exp"
-    p = run_cli("run", "1.13", "--length", "260", "--out", str(out), "--jobs", "1")
+    p = run_cli("run", "1.13", "--length", "260", "--out", str(out), "--jobs", "1", "--arm", "fast")  # the CLI's plumbing; the fast arm keeps it quick (the default full arm: test_full_arm_trial.py)
     assert p.returncode == 0, p.stderr
     d = out / "table6.1"
     assert sorted(f.name for f in d.iterdir()) == ["1.13.csv", "1.13.png", "summary.csv", "summary.md"]
@@ -45,7 +45,8 @@ def test_one_short_trial_writes_csv_png_summary_line_and_tables(tmp_path):
 
 def test_exp4_writes_the_standard_deviations_across_its_runs(tmp_path):
     out = tmp_path / "exp"
-    p = run_cli("run", "exp4", "--length", "200", "--out", str(out), "--jobs", "2", "--no-figures", "--seed", "5")
+    p = run_cli("run", "exp4", "--length", "200", "--out", str(out), "--jobs", "2", "--no-figures", "--seed", "5",
+                "--arm", "fast")
     assert p.returncode == 0, p.stderr
     d = out / "exp4"
     assert sorted(f.name for f in d.iterdir()) == ["4.1.csv", "4.2.csv", "4.3.csv", "4.4.csv", "std.csv",
@@ -131,7 +132,7 @@ def _session_pids(sid):
 
 def test_sigint_stops_the_pool_and_exits_130(tmp_path):
     # Ctrl-C goes to the whole foreground process group: send SIGINT to the session's group.
-    p = subprocess.Popen(PROG + ["run", "1.1", "1.2", "1.6", "--out", str(tmp_path), "--jobs", "2", "--no-figures"],
+    p = subprocess.Popen(PROG + ["run", "1.1", "1.2", "1.6", "--out", str(tmp_path), "--jobs", "2", "--no-figures", "--arm", "fast"],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
         deadline = time.monotonic() + 300  # hang guards only

@@ -22,6 +22,7 @@ name = "dask"
 length_mm = 140
 sensor = "ideal"
 seed = 3
+arm = "fast"
 [sweep]
 position = ["i", "iii"]
 speed_mm_s = [16, 32]
@@ -100,7 +101,7 @@ def test_dask_local_runs_a_local_cluster(tmp_path):
 
 
 def test_experiment_ids_run_on_dask_too(tmp_path):
-    p = subprocess.run(PROG + ["run", "1.1", "1.2", "--length", "150", "--out", str(tmp_path / "o"), "--dask", "local",
+    p = subprocess.run(PROG + ["run", "1.1", "1.2", "--length", "150", "--arm", "fast", "--out", str(tmp_path / "o"), "--dask", "local",
                                "--jobs", "2", "--no-figures"], capture_output=True, text=True, timeout=600)
     assert p.returncode == 0, p.stderr
     rows = (tmp_path / "o" / "table6.1" / "summary.csv").read_text().splitlines()

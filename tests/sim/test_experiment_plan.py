@@ -32,6 +32,7 @@ name = "small"
 position = "i"
 length_mm = 160
 sensor = "ideal"
+arm = "fast"
 [sweep]
 speed_mm_s = [16, 32]
 delay_cycles = [0, 3]
@@ -144,6 +145,7 @@ name = "reach"
 length_mm = 120
 speed_mm_s = 32
 position = "iii"
+arm = "fast"
 [sweep]
 wrist = ["standard", "extension30"]
 """)

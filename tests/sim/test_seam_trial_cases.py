@@ -8,7 +8,7 @@ from droid.sim.experiment.trial import TrialConfig, run_trial
 def test_transport_delay_run_zeroes_then_delays_and_keeps_tracking():
     """§6.2.5: at 150 mm the sensor data are zero for N cycles, then N cycles late; a short
     delay (2 cycles at 8 mm/s, experiment 3.22) has almost no effect (Figure 6.23)."""
-    r = run_trial(TrialConfig("3.22", "iii", 8.0, delay_cycles=2, delay_at_mm=150.0, length_mm=260.0, seed=2))
+    r = run_trial(TrialConfig("3.22", "iii", 8.0, delay_cycles=2, delay_at_mm=150.0, length_mm=260.0, seed=2, arm="fast"))
     assert r.stop_reason == "end of seam", r.stop_detail
     state = [row[15] for row in r.rows]
     travel = r.column("travel_mm")
@@ -23,7 +23,7 @@ def test_transport_delay_run_zeroes_then_delays_and_keeps_tracking():
 def test_seam_loss_run_stops_where_the_lead_sensor_runs_off_the_seam():
     """The run length is longer than the seam: the lead sensor, 100 mm ahead of the tool,
     runs off the workpiece's end and the run stops as 'seam lost' -- not later."""
-    r = run_trial(TrialConfig("loss", "i", 32.0, length_mm=2000.0, seed=1))
+    r = run_trial(TrialConfig("loss", "i", 32.0, length_mm=2000.0, seed=1, arm="fast"))
     assert r.stop_reason == "seam lost", (r.stop_reason, r.stop_detail)
     # s_mm is the tool's travel, 0 where the sensor starts on the seam start: the sensor runs
     # off 700 mm of seam + 10 mm of lead-out, then LOST_CYCLES + 1 cycles of 32/30 mm pass
@@ -40,7 +40,7 @@ def test_the_ideal_sensor_model_gives_the_camera_chains_numbers():
 
     out = {}
     for sensor in ("camera", "ideal"):
-        r = run_trial(TrialConfig("agree", "iii", 16.0, length_mm=260.0, seed=5, sensor=sensor))
+        r = run_trial(TrialConfig("agree", "iii", 16.0, length_mm=260.0, seed=5, sensor=sensor, arm="fast"))
         out[sensor] = summarize(r.rows, stop_reason=r.stop_reason, camera_to_tcp_mm=r.camera_to_tcp_mm)
     cam, ideal = out["camera"], out["ideal"]
     assert cam.stop_reason == ideal.stop_reason == "end of seam"

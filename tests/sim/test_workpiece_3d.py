@@ -226,7 +226,7 @@ def test_a_bad_workpiece_in_a_plan_exits_2_naming_plan_key_and_file(tmp_path):
 def test_a_trial_runs_on_every_example_with_the_layouts_default_mount(name):
     from droid.sim.experiment.trial import TrialConfig, run_trial
 
-    r = run_trial(TrialConfig(trial_id="x", position="i", workpiece=name, speed_mm_s=32, length_mm=260,
+    r = run_trial(TrialConfig(trial_id="x", position="i", workpiece=name, speed_mm_s=32, length_mm=260, arm="fast",
                               sensor="ideal"))
     assert r.stop_reason in ("end of seam", "seam lost")
     s = r.column("s_mm")

@@ -8,8 +8,9 @@ a random power-up pose, §4.1.5.3) and moves it to the start pose with a joint
 command, then the seam-tracking core drives it with cartesian commands
 through the Brain Command record, exactly as droid-seamtrack does.
 
-A few times slower than the fast model (docs/benchmarks.md): the reference for the
-``fast`` model (droid.sim.experiment.arm_fast), not the experiment default.
+The experiments' default arm model (issue 13 item 5): every repetition homes from its own
+seeded power-up pose, so experiment 4 measures repeatability.  ~5-10x slower than the
+``fast`` model (droid.sim.experiment.arm_fast; docs/benchmarks.md).
 """
 from __future__ import annotations
 

@@ -86,7 +86,8 @@ def build_parser() -> ArgumentParser:
                    help="lead sensor model (default: ideal -- the seam in the field of view with the camera "
                         "chain's noise, ~3x faster; camera: the MVS camera twin and feature code)")
     r.add_argument("--arm", choices=ARM_MODELS, default=None,
-                   help="Reis model (default: fast; full runs every Reis core and the plant)")
+                   help="Reis model (default: full -- every Reis core and the plant twin, homed before each trial; "
+                        "fast: one second-order loop per joint, ~10x faster)")
     r.add_argument("--mode", choices=MODES, default=None,
                    help="tracker: thesis (default, §5.2's patch), listing (the literal port), plus "
                         "(seam map, holds the speed; docs/seamtrack.md)")

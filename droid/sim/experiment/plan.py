@@ -58,7 +58,7 @@ FIELDS = ("workpiece", "position", "speed_mm_s", "yaw_gain", "pitch_gain", "dela
 #: workpiece None: the position's own; length_mm None: the seam's length; mode None: TrialConfig's).
 BUILTIN_DEFAULTS = {"workpiece": None, "position": "i", "speed_mm_s": 16.0, "yaw_gain": 0.15,
                     "pitch_gain": 0.25, "delay_cycles": 0, "delay_at_mm": 150.0, "wrist": "standard",
-                    "mode": None, "arm": "fast", "sensor": "ideal", "seed": 1, "length_mm": None}
+                    "mode": None, "arm": "full", "sensor": "ideal", "seed": 1, "length_mm": None}
 
 _TOP_KEYS = ("name", "description", "defaults", "sweep")
 _NAME = re.compile(r"[A-Za-z0-9_.-]+")

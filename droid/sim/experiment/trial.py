@@ -5,8 +5,9 @@ Composition on a :class:`droid.sim.lockstep.Scheduler` (60 Hz heartbeat):
 ====================  ===============  ==================================================
 what                  when             does
 ====================  ===============  ==================================================
-Reis arm              every tick       ``fast`` (arm_fast: planner + analytic servo) or
-                                       ``full`` (arm_full: every Reis core + the plant)
+Reis arm              every tick       ``full`` (arm_full, the default: every Reis core + the
+                                       plant twin, homed from its power-up pose first) or
+                                       ``fast`` (arm_fast: planner + analytic servo)
 GMF1                  its own rates    ``holder="gmf1"`` (default): the Fanuc twin (KAREL, its
                                        path, the arm of its robot file) and the GMF1 programs'
                                        cores (experiment.holder); homed and moved to the holding
@@ -83,7 +84,7 @@ class TrialConfig:
     wrist: str = "standard"
     length_mm: float | None = None  # tool travel to the end; None: the workpiece's seam length
     seed: int = 1
-    arm: str = "fast"
+    arm: str = "full"  # the Reis model: full (every core + the plant twin; homes first) or fast
     sensor: str = "camera"
     noise: CameraNoise = DEFAULT_NOISE
     dead_zone_cycles: int = DEAD_ZONE_CYCLES
@@ -130,6 +131,7 @@ class TrialResult:
     stop_s_mm: float = math.nan
     stop_t_s: float = math.nan
     sim_s: float = 0.0
+    prep_s: float = 0.0  # simulated seconds before the trial: the full arm's homing, move to the start, settling
     wall_s: float = 0.0
     camera_to_tcp_mm: float = 100.0
     frames: int = 0
@@ -290,6 +292,7 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None) -> Trial
         result.stop_s_mm = s_of(m) if m is not None else math.nan
     result.stop_t_s -= t_start
     result.sim_s = sched.t_ns / 1e9 - t_start
+    result.prep_s = t_start
     result.frames, result.valid_frames = lead.frames, lead.valid
     result.dropped = cyc.dropped
     result.tool_dropped = cyc.tool_dropped

@@ -22,15 +22,18 @@ position seen at the joint, ``A`` = the gearing with its 1 % coupling,
               limited to [-1 - w/w0, 1 - w/w0] i_max k_t                 (back-EMF: no torque at w0)
     tau_bal = -balancer_moment_nm * sin(q2)                              (link-2 pneumatic balancer)
 
-integrated semi-implicitly at ``substep_s`` with Pinocchio's ABA at every substep
-(``integrator="substep"``, the default), or -- experimental, see ReisPlantParams --
-in one step per :meth:`advance` (``integrator="exact"``): the motor/drive/link system linearised at
-the current mass matrix, ``x' = F x + G [tau_motor; tau_link]``, discretised exactly
-(matrix exponential, refreshed when a joint moved ``relinearise_deg``), with the
-nonlinear torques -- gravity, Coriolis, balancer (Pinocchio ``nonLinearEffects`` at
-the step's start), amplifier saturation and back-EMF, Coulomb friction with
-stiction (Karnopp: a motor at rest stays at rest while the friction needed to hold
-it is below ``coulomb_friction_nm``) -- held over the step (zero-order hold).  Near
+integrated in one step per :meth:`advance` (``integrator="exact"``, the default): the
+motor/drive/link system linearised at the current mass matrix, ``x' = F x + G [tau_motor;
+tau_link]``, discretised exactly (matrix exponential, refreshed when a joint moved
+``relinearise_deg``), with the nonlinear torques -- gravity, Coriolis, balancer (Pinocchio
+``nonLinearEffects`` at the step's start), amplifier saturation and back-EMF, Coulomb friction
+with stiction (Karnopp: a motor at rest stays at rest while the friction needed to hold it is
+below ``coulomb_friction_nm``) -- held over the step (zero-order hold, as the DACs hold the
+amplifier command between servo ticks).  The fastest mode of the linear part is ~115 Hz
+(the drives against the rotors), so the exact discretisation is what makes a 2 ms step
+possible: semi-implicit Euler needs ~0.1 ms substeps to converge on it.  The reference
+(``integrator="substep"``) is semi-implicit Euler with Pinocchio's ABA at every ``substep_s``;
+:data:`EXACT_BOUND_DEG` states how close the two are (a test measures it).  Near
 a mechanical stop or with a jammed motor the substep integrator takes over.  The
 encoders count the motors (motor side, as on the real arm); the limit switches
 and the mechanical stops see the links.  With ``compliance=False`` the drives
@@ -63,8 +66,15 @@ from droid.sim.reis.dynamics import DhError, RigidBody
 from droid.subunits.reis import vme_map as vm
 
 Six = tuple[float, float, float, float, float, float]
+INTEGRATORS = ("exact", "substep")
+#: Tested bound [deg per joint] of the "exact" integrator against the converged "substep"
+#: reference (10 kHz) over a 1 s servo move of all six joints (tests/reis/test_plant_dynamics.py;
+#: measured 0.0035 deg, the reference's own 2 kHz default differs by 0.0105 deg).
+EXACT_BOUND_DEG = 0.01
 MAX_JOINT_SPEED_DEG_PER_S = 360.0  # bound used to skip hard-stop checks far from the stops
 ZERO6: Six = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+# one copy of pre-packed bytes per register block (vm.store's rule: never struct.pack_into on a shared map)
+_ENCODERS, _DACS, _U16 = struct.Struct(vm.ENCODERS_FORMAT), struct.Struct(vm.DACS_FORMAT), struct.Struct(vm.U16_FORMAT)
 
 
 @functools.lru_cache(maxsize=32)
@@ -84,21 +94,28 @@ class ReisPlantParams:
     robot: str = "reis_v15"  # bundled robot name or .toml path: the single source of the arm's data
     substep_s: float = 0.0005  # integration step (2 kHz)
     compliance: bool = True  # harmonic-drive stiffness between motor and link (False: rigid drives)
-    # "substep": the nonlinear equations at every substep_s (ABA each substep) -- the default;
-    # "exact": one zero-order-hold step of the linearised motor/drive/link system per advance
-    # (matrix exponential, M(q) refreshed when q moved relinearise_deg; gravity, Coriolis,
-    # friction, saturation and back-EMF held over the step) -- ~2x faster, EXPERIMENTAL: it
-    # agrees with "substep" within 0.06 deg on a 1 s joint move, but the closed seam-tracking
-    # loop drifts with it (tool lateral RMS 17-36 mm against ~1 mm; docs/reis.md), so it is
-    # not used by default
-    integrator: str = "substep"
-    relinearise_deg: float = 0.5
+    # "exact" (the default): one zero-order-hold step of the linearised motor/drive/link system
+    # per advance -- the linear part (motors, drive springs and dampers, links at M(q)) exact,
+    # M(q) refreshed when a joint moved relinearise_deg; gravity, Coriolis, the balancer, Coulomb
+    # friction (Karnopp), saturation and back-EMF held over the step.  Measured against the
+    # "substep" integration at 10-20 kHz (converged: the two agree within 0.0023 deg) on a 1 s
+    # servo move of every joint: within 0.0035 deg per joint (EXACT_BOUND_DEG is the tested
+    # bound), closer than "substep" at its 2 kHz default (0.0105 deg), at ~1/3 of its cost.
+    # "substep": semi-implicit Euler of the nonlinear equations at every substep_s (Pinocchio's
+    # ABA each substep) -- the reference; converges as substep_s shrinks.  Near a mechanical
+    # stop or with a jammed motor "exact" hands the advance to it.
+    integrator: str = "exact"
+    relinearise_deg: float = 0.5  # "exact": recompute M(q)^-1 and the step's matrices after this joint motion
     balancer: bool = True  # the link-2 pneumatic balancer
     home_error_deg: Six = ZERO6  # true switch position minus the robot file's [deg]
     dh_error: DhError = DhError()  # true link lengths/twists minus the robot file's
     watchdog_timeout_s: float = 0.100  # a watchdog register unchanged this long latches amps off
     initial_joint_deg: Six = ZERO6  # pose at power-up (centre)
     initial_spread_deg: float = 15.0  # power-up pose = centre + seeded uniform +-spread
+
+    def __post_init__(self) -> None:
+        if self.integrator not in INTEGRATORS:
+            raise ValueError(f"unknown integrator {self.integrator!r} (known: {', '.join(INTEGRATORS)})")
 
     @property
     def model(self):
@@ -211,12 +228,18 @@ class ReisPlant:
         self._tau_per_dac = np.asarray(dyn.torque_per_volt_nm_per_v, float) * scale
         self._tau_max = np.asarray(dyn.motor_torque_limit_nm, float)
         self._w0 = np.asarray(dyn.motor_no_load_speed_rad_s, float)
+        self._tau_max_w0 = self._tau_max / self._w0
         self._bal = dyn.balancer_moment_nm if p.balancer else 0.0
         self._sw = np.radians(np.asarray(p.switch_joint_deg, float))
         self._side = np.asarray(p.switch_active_side, float)
         self._stop_min = np.radians(np.asarray(p.hard_stop_min_deg, float))
         self._stop_max = np.radians(np.asarray(p.hard_stop_max_deg, float))
         self._zero6 = np.zeros(6)
+        self._stop_mid = 0.5 * (self._stop_min + self._stop_max)
+        self._stop_half = 0.5 * (self._stop_max - self._stop_min)
+        self._stop_lim: dict = {}  # dt -> half range minus the margin of _near_stop
+        self._bit_weights = np.array([1 << j for j in range(vm.N_JOINTS)], np.int64)
+        self._F0, self._G0 = self._system_matrices(np.zeros((6, 6)))  # the M(q)-free blocks
 
         if initial_joint_deg is None:
             spread = self._rng.uniform(-p.initial_spread_deg, p.initial_spread_deg, vm.N_JOINTS)
@@ -231,7 +254,10 @@ class ReisPlant:
         if not p.compliance:
             self._q = self._A @ self._theta
         self._jammed = np.zeros(6, bool)
+        self._any_jammed = False
+        self._exact = p.compliance and p.integrator == "exact"
         self._lin_q = None  # q [rad] of the current linearisation (exact integrator)
+        self._relin_rad = math.radians(p.relinearise_deg)
         self._disc: dict = {}  # dt -> (Phi, Gamma) at that linearisation
         self.time_s = 0.0
         self._power_up(encoder_power_up_counts)
@@ -250,7 +276,8 @@ class ReisPlant:
         if encoder_counts is None:
             encoder_counts = self._rng.integers(0, vm.ENCODER_MODULUS, vm.N_JOINTS)
         counts = self._floor_counts()
-        self._enc_offset = [(int(e) - c) % vm.ENCODER_MODULUS for e, c in zip(encoder_counts, counts)]
+        self._enc_offset = np.array([(int(e) - c) % vm.ENCODER_MODULUS for e, c in zip(encoder_counts, counts)],
+                                    np.int64)
         # The amplifiers come up off; the first write of both watchdog registers
         # arms the timers and powers them (a watchdog that is not running yet
         # cannot have expired).  From then on a register not rewritten within
@@ -308,7 +335,8 @@ class ReisPlant:
     @property
     def encoder_raw(self) -> tuple[int, ...]:
         """The six 16-bit counter values as the hardware shows them [counts]."""
-        return tuple((c + o) % vm.ENCODER_MODULUS for c, o in zip(self._floor_counts(), self._enc_offset))
+        c = np.floor(self._theta * self._counts_per_rad).astype(np.int64)
+        return tuple(((c + self._enc_offset) % vm.ENCODER_MODULUS).tolist())
 
     def wcp_true(self) -> np.ndarray:
         """The true wrist-centre pose (4x4, mm, robot base frame) of the true arm (with ``dh_error``)."""
@@ -317,6 +345,7 @@ class ReisPlant:
     def jam(self, joint: int, jammed: bool = True) -> None:
         """Fault injection: block motor ``joint`` (0-based) mechanically, or release it."""
         self._jammed[joint] = bool(jammed)
+        self._any_jammed = bool(self._jammed.any())
         if jammed:
             self._omega[joint] = 0.0
 
@@ -334,15 +363,16 @@ class ReisPlant:
         if n < 1 or abs(n * p.substep_s - dt_s) > 1e-9:
             raise ValueError(f"advance({dt_s}) is not a whole number of {p.substep_s} s substeps")
         self._read_inputs(dt_s)
-        dacs = np.array(struct.unpack_from(vm.DACS_FORMAT, self._view, vm.DAC_OFFSET), float)
+        dacs = np.array(_DACS.unpack_from(self._view, vm.DAC_OFFSET), float)
         if self._amps_on:
-            drive = np.clip(np.clip(dacs, vm.DAC_MIN, vm.DAC_MAX) * self._tau_per_dac, -self._tau_max, self._tau_max)
+            drive = np.minimum(np.maximum(np.minimum(np.maximum(dacs, vm.DAC_MIN), vm.DAC_MAX) * self._tau_per_dac,
+                                          -self._tau_max), self._tau_max)
             tau_c = self._tau_c
         else:
             drive = self._zero6
             tau_c = self._tau_c + self._tau_brake
         h = p.substep_s
-        if p.compliance and p.integrator == "exact" and not (self._jammed.any() or self._near_stop(n * h)):
+        if self._exact and not (self._any_jammed or self._near_stop(n * h)):
             self._step_exact(n * h, drive, tau_c)
         elif p.compliance:
             self._steps_compliant(n, h, drive, tau_c)
@@ -389,13 +419,20 @@ class ReisPlant:
     # -- the exact (linearised, zero-order-hold) integrator --------------------------------
     def _discretise(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         q = self._q
-        if self._lin_q is None or np.max(np.abs(q - self._lin_q)) > math.radians(self.params.relinearise_deg):
+        if self._lin_q is None or np.abs(q - self._lin_q).max() > self._relin_rad:
             self._lin_q = q.copy()
             self._disc = {}
             self._minv_lin = self.body.minv(q)
         got = self._disc.get(dt)
         if got is None:
-            got = self._disc[dt] = _zoh(self._system_matrices(self._minv_lin), dt)
+            minv = self._minv_lin
+            F, G = self._F0.copy(), self._G0.copy()
+            F[18:24] = minv @ self._S  # link accelerations from the drive torques: M^-1 (K (A theta - q) + D ..)
+            G[18:24, 6:12] = minv
+            phi, gam = _zoh((F, G), dt)
+            g_m = gam[:, 0:6].copy()  # the state's response to a motor torque held over the step
+            # one product per step: [Phi | Gamma] @ [x; tau_motor; tau_link]
+            got = self._disc[dt] = (np.hstack((phi, gam)), g_m, np.diag(g_m[6:12]).tolist())
         return got
 
     def _system_matrices(self, minv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -419,34 +456,47 @@ class ReisPlant:
         return F, G
 
     def _step_exact(self, dt: float, drive, tau_c) -> None:
-        phi, gam = self._discretise(dt)
-        x = np.concatenate((self._theta, self._omega, self._q, self._qd))
-        omega = self._omega
+        """One zero-order-hold step of ``dt`` (see the module docstring and :data:`EXACT_BOUND_DEG`)."""
+        pg, g_m, g_wd = self._discretise(dt)
+        omega, q, qd = self._omega, self._q, self._qd
         if self._amps_on:  # back-EMF at the step's start speed
-            fade = self._tau_max * (omega / self._w0)
+            fade = self._tau_max_w0 * omega
             drive = np.minimum(np.maximum(drive, -self._tau_max - fade), self._tau_max - fade)
-        tau_link = -self.body.bias(self._q, self._qd)
+        tau_link = pin.nonLinearEffects(self._pin_model, self._pin_data, q, qd)  # C qd + g (Pinocchio's buffer)
+        nl = -tau_link[1]
         if self._bal:
-            tau_link[1] -= self._bal * math.sin(self._q[1])
-        u = np.concatenate((drive, tau_link))
-        free = phi @ x + gam @ u  # the step without Coulomb friction
+            nl -= self._bal * math.sin(q[1])
+        z = np.concatenate((self._theta, omega, q, qd, drive, -tau_link))
+        z[31] = nl
+        free = pg @ z  # the step without Coulomb friction
         # Coulomb friction (Karnopp): kinetic where the motor moves and keeps its direction;
         # where it is at rest or would reverse, the friction that ends the step at rest, if it
         # is within +-tau_c (stiction), else tau_c against the would-be motion.
-        g_w = gam[6:12, 0:6]  # end speeds per unit motor torque held over the step
-        w_end = free[6:12]
-        moving = np.abs(omega) > 1e-9
-        kinetic = -tau_c * np.sign(omega)
-        trial = w_end + g_w @ np.where(moving, kinetic, 0.0)
-        keeps = moving & (np.sign(trial) == np.sign(omega))
-        stick = -w_end / np.diag(g_w)  # per motor (the 1 % coupling neglected here)
-        fric = np.where(keeps, kinetic, np.where(np.abs(stick) <= tau_c, stick, -tau_c * np.sign(w_end)))
-        x = free + gam[:, 0:6] @ fric
-        at_rest = ~keeps & (np.abs(stick) <= tau_c)
-        # a motor held by stiction stays where it was (else it would creep by the part-step
-        # motion the held friction allows within the step)
-        theta = np.where(at_rest, self._theta, x[0:6])
-        omega = np.where(at_rest, 0.0, x[6:12])
+        kinetic = -tau_c * np.sign(omega)  # 0 for a motor at rest
+        x = free + g_m @ kinetic
+        keeps = x[6:12] * omega > 0.0  # moving, and still the same way with kinetic friction
+        if keeps.all():
+            self._theta, self._omega, self._q, self._qd = x[0:6], x[6:12], x[12:18], x[18:24]
+            return
+        # a motor at rest or reversing (most steps: the wrist motors stand still while the main
+        # axes track); per motor in plain floats -- six of them are cheaper than a dozen numpy calls
+        w_end, keep, kin = free[6:12].tolist(), keeps.tolist(), kinetic.tolist()
+        fric, rest = [0.0] * 6, []
+        for j, (tc, gw) in enumerate(zip(tau_c.tolist(), g_wd)):
+            if keep[j]:
+                fric[j] = kin[j]
+                continue
+            stick = -w_end[j] / gw  # the friction that ends the step at rest (the 1 % coupling neglected)
+            if -tc <= stick <= tc:
+                fric[j] = stick
+                rest.append(j)
+            else:
+                fric[j] = -tc if w_end[j] > 0.0 else tc
+        x = free + g_m @ fric
+        theta, omega = x[0:6], x[6:12]
+        if rest:  # a motor held by stiction stays where it was (else it would creep by the part-step
+            theta[rest] = self._theta[rest]  # motion the held friction allows within the step)
+            omega[rest] = 0.0
         self._theta, self._omega, self._q, self._qd = theta, omega, x[12:18], x[18:24]
 
     def _steps_rigid(self, n: int, h: float, drive, tau_c) -> None:
@@ -477,8 +527,10 @@ class ReisPlant:
 
     def _near_stop(self, dt_s: float) -> bool:
         """Could a hard stop engage within ``dt_s``?  (No joint outruns 360 deg/s.)"""
-        margin = math.radians(1.0 + MAX_JOINT_SPEED_DEG_PER_S * dt_s)
-        return bool(np.any(self._q <= self._stop_min + margin) or np.any(self._q >= self._stop_max - margin))
+        lim = self._stop_lim.get(dt_s)
+        if lim is None:
+            lim = self._stop_lim[dt_s] = self._stop_half - math.radians(1.0 + MAX_JOINT_SPEED_DEG_PER_S * dt_s)
+        return bool((np.abs(self._q - self._stop_mid) >= lim).any())
 
     def _apply_stops(self, q, omega, qd):
         """Jammed motors stop dead; links at a hard stop moving outward stop dead."""
@@ -514,15 +566,14 @@ class ReisPlant:
 
     def _write_outputs(self) -> None:
         self._enc_written = self.encoder_raw
-        vm.store(self._view, vm.ENCODER_OFFSET, vm.ENCODERS_FORMAT, *self._enc_written)
-        bits = 0
-        for j, active in enumerate(self.limit_switches):
-            bits |= int(active) << j
-        vm.store(self._view, vm.LIMIT_SWITCH_OFFSET, vm.U16_FORMAT, bits)
+        view = self._view
+        view[vm.ENCODER_OFFSET:vm.ENCODER_OFFSET + _ENCODERS.size] = _ENCODERS.pack(*self._enc_written)
+        bits = int(self._bit_weights @ (self._side * (self._q - self._sw) > 0.0))  # bit j: joint j+1's switch
+        view[vm.LIMIT_SWITCH_OFFSET:vm.LIMIT_SWITCH_OFFSET + 2] = _U16.pack(bits)
         status = (vm.AMP_STATUS_POWERED if self._amps_on else 0) | (
             vm.AMP_STATUS_WATCHDOG_FAULT if self._wd_fault else 0
         )
-        vm.store(self._view, vm.AMP_STATUS_OFFSET, vm.U16_FORMAT, status)
+        view[vm.AMP_STATUS_OFFSET:vm.AMP_STATUS_OFFSET + 2] = _U16.pack(status)
 
     def close(self) -> None:
         """Release the view on ``regs`` (needed before closing an mmap behind it)."""
