@@ -9,6 +9,8 @@ import numpy as np
 from droid.kinematics.transforms import pose_to_T
 import pytest
 
+from tests.robot_files import assert_refused, spoiled
+
 from droid.kinematics import RobotFileError, load_robot
 from droid.sim.gmf1.controller import KarelParams, Motion
 from droid.sim.gmf1.dynamics import ArmDynamics
@@ -77,11 +79,7 @@ def test_a_dynamic_gmf1_homes_moves_and_reports_done_only_in_position():
 
 
 def _bad_file(tmp_path, old, new):
-    text = S400.read_text()
-    assert old in text
-    p = tmp_path / "bad_fanuc.toml"
-    p.write_text(text.replace(old, new, 1))
-    return p
+    return spoiled(S400, tmp_path, old, new)
 
 
 @pytest.mark.parametrize("old, new, words", [
@@ -94,12 +92,7 @@ def _bad_file(tmp_path, old, new):
 ])
 def test_bad_axis_servo_or_dynamics_are_refused_naming_file_and_key(tmp_path, old, new, words):
     p = _bad_file(tmp_path, old, new)
-    with pytest.raises(RobotFileError) as exc:
-        load_robot(str(p))
-    msg = str(exc.value)
-    assert str(p) in msg
-    for w in words:
-        assert w in msg, msg
+    assert_refused(p, words)
 
 
 def test_axis_servo_without_dynamics_is_refused(tmp_path):
