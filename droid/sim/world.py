@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import importlib
 import sys
+import time
 from typing import Any
 
 from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
@@ -65,9 +66,17 @@ class World:
     def add(self, name: str, dev: Device) -> None:
         self.devices[name] = dev
 
+    #: a device step longer than this is reported (it stalls every device of the world) [s]
+    SLOW_STEP_S = 0.02
+
     def advance(self, dt_s: float) -> None:
-        for dev in self.devices.values():
+        for name, dev in self.devices.items():
+            t0 = time.perf_counter()
             dev.advance(dt_s)
+            took = time.perf_counter() - t0
+            if took > self.SLOW_STEP_S:
+                print(f"{PROG}: device {name} took {took * 1e3:.0f} ms for one {dt_s * 1e3:g} ms step "
+                      f"at world time {self.t_s:.3f} s", file=sys.stderr, flush=True)
         self.t_s += dt_s
 
     def close(self) -> None:

@@ -38,6 +38,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from droid.sim.reis.plant import expm
+
 from droid.kinematics import RobotModel, Unreachable
 from droid.subunits.reis.servo_params import ServoParams
 from droid.subunits.reis.servo_wire import STATUS_EVERY_TICKS
@@ -57,17 +59,7 @@ class FastArmParams:
 
 def _transition(wn: float, zeta: float, h: float) -> np.ndarray:
     """State transition of e'' = -wn^2 e - 2 zeta wn e' over h seconds (2x2 matrix exponential)."""
-    a = np.array([[0.0, 1.0], [-wn * wn, -2.0 * zeta * wn]])
-    n = max(0, int(math.ceil(math.log2(max(1e-12, np.abs(a).max() * max(h, 1e-12))))) + 4)
-    m = a * (h / 2 ** n)
-    out = np.eye(2)
-    term = np.eye(2)
-    for k in range(1, 16):
-        term = term @ m / k
-        out = out + term
-    for _ in range(n):
-        out = out @ out
-    return out
+    return expm(np.array([[0.0, 1.0], [-wn * wn, -2.0 * zeta * wn]]) * h)
 
 
 class _Ramp:

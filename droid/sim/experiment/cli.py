@@ -38,10 +38,8 @@ import csv
 import functools
 import json
 import math
-import multiprocessing
 import os
 import re
-import signal
 import sys
 import tempfile
 import time
@@ -122,6 +120,7 @@ class Outcome:
     rows: tuple = ()  # the 10 Hz log (written by the parent: a Dask worker may be another machine)
     png: bytes | None = None  # the figure, rendered by the worker
     figure_error: str = ""  # why there is no figure (one line), e.g. matplotlib missing
+    stored: bool = False  # its files were written by the worker (a local process)
 
 
 #: The one line a figure path ends with when matplotlib is missing (issue 15: never a traceback).
@@ -210,14 +209,6 @@ def _json_safe(v):
     return v
 
 
-def _worker_init() -> None:
-    # Ctrl-C reaches the whole process group: only the parent handles it (and terminates the pool).
-    # A forked worker starts with SIGINT blocked (the parent's mask while it forks): ignore it,
-    # then unblock, so a Ctrl-C pending from the start-up is dropped here.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
-
-
 def _cost(exp) -> float:
     """Relative cost of a trial: its simulated duration (run length / speed) [s]."""
     length = exp.config.length_mm or _seam_length_mm(exp.config.workpiece or "step_input")
@@ -249,7 +240,8 @@ def run_jobs(jobs: list[Job], workers: int, dask: str | None = None) -> list[Out
     warned: set[str] = set()
 
     def done(job: Job, o: Outcome) -> None:
-        store(job, o)
+        if not o.stored:
+            store(job, o)
         outcomes.append(o)
         if o.figure_error and o.figure_error not in warned:
             warned.add(o.figure_error)
@@ -272,32 +264,23 @@ def run_jobs(jobs: list[Job], workers: int, dask: str | None = None) -> list[Out
                 done(job, run_job(job))
                 bar.update()
         return outcomes
-    methods = multiprocessing.get_all_start_methods()
-    ctx = multiprocessing.get_context("fork" if "fork" in methods else None)
-    # SIGINT is blocked while the workers fork (they inherit the mask; the initializer makes
-    # them ignore it), and unblocked once the pool exists: a Ctrl-C that comes during the
-    # start-up waits for that moment and then stops the pool -- it is neither lost (an
-    # ignored signal was, issue 16) nor able to kill a half-made pool.
-    previous_mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-    pool = None
-    by_id = {job.exp.id: job for job in jobs}
-    try:
-        pool = ctx.Pool(min(workers, len(jobs)), initializer=_worker_init)  # before the bar's monitor thread
-        signal.pthread_sigmask(signal.SIG_SETMASK, previous_mask)  # a pending Ctrl-C is raised here
-        with _progress(len(jobs)) as bar:
-            for o in pool.imap_unordered(run_job, jobs, chunksize=1):
-                done(by_id[o.exp.id], o)
-                bar.update()
-        pool.close()
-    except BaseException:
-        if pool is not None:
-            pool.terminate()  # SIGINT or an error: stop every worker now
-        raise
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, previous_mask)
-        if pool is not None:
-            pool.join()
+    from droid.sim.experiment.localpool import run_local
+
+    with _progress(len(jobs)) as bar:
+        def arrived(job: Job, o: Outcome) -> None:
+            done(job, o)
+            bar.update()
+
+        run_local(jobs, workers, _run_and_store, lambda job, why: Outcome(job.exp, None, why), arrived)
     return outcomes
+
+
+def _run_and_store(job: Job) -> Outcome:
+    """A local worker's job: the trial, its files written here (the same disk as the parent's),
+    and a small result back -- no 10 Hz log or figure through the pipe."""
+    o = run_job(job)
+    store(job, o)
+    return replace(o, rows=(), png=None, stored=True)
 
 
 # ---------------------------------------------------------------- tables

@@ -146,8 +146,9 @@ class ReisPlantParams:
         return tuple(float(x) + self.model.dynamics.hard_stop_margin_deg for x in self.model.joint_max_deg)
 
 
-def _expm(m: np.ndarray) -> np.ndarray:
-    """Matrix exponential (scaling and squaring, 18-term Taylor); numpy only."""
+def expm(m: np.ndarray) -> np.ndarray:
+    """Matrix exponential (scaling and squaring, 18-term Taylor); numpy only.  Also the fast
+    arm model's per-joint transition (sim.experiment.arm_fast)."""
     norm = np.max(np.sum(np.abs(m), axis=1))
     k = max(0, int(math.ceil(math.log2(norm))) + 1) if norm > 0.5 else 0
     a = m / (2.0 ** k)
@@ -168,7 +169,7 @@ def _zoh(fg: tuple[np.ndarray, np.ndarray], dt: float) -> tuple[np.ndarray, np.n
     aug = np.zeros((n + m, n + m))
     aug[:n, :n] = F * dt
     aug[:n, n:] = G * dt
-    e = _expm(aug)
+    e = expm(aug)
     return e[:n, :n].copy(), e[:n, n:].copy()
 
 

@@ -37,7 +37,7 @@ from droid.brain.curve import CurveHost
 from droid.brain.databases import open_local
 from droid.brain.heartbeat import TickSubscriber
 from droid.brain.rt import try_sched_fifo
-from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
+from droid.brain.program import close_all, Presence, Stop, notify_ready, presence_key, subunit_program
 from droid.cli import run
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T
@@ -234,11 +234,7 @@ def main(argv=None) -> int:
                 print(f"{PROG} {sub.name}: {out.note}", file=sys.stderr, flush=True)
             presence.beat(last, core.refused, ticks.monitor.missed, bad_frames=ticks.bad_frames)
     finally:
-        ticks.close()
-        ctx.term()
-        ctrl_command.close()
-        ctrl_status.close()
-        presence.close()
+        close_all(ticks, ctx.term, ctrl_command, ctrl_status, presence)
     return 0
 
 

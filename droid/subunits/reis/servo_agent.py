@@ -33,7 +33,7 @@ import zmq
 from droid.brain.curve import CurveHost
 from droid.brain.databases import open_local
 from droid.brain.layouts import CMD_FAILED, CMD_OK, FAULT_BRAKING, FAULT_SERVO, HOME_MODE, HOMED, NORMAL_MODE, OFF
-from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
+from droid.brain.program import close_all, Presence, Stop, notify_ready, presence_key, subunit_program
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import BadInput, run
 from droid.kinematics import RobotFileError
@@ -292,13 +292,7 @@ def main(argv=None) -> int:
                 last_why = why
             presence.beat(0, timer.cycles, timer.overruns, timer.lateness_max_ns, bad_frames=station.bad_frames)
     finally:
-        timer.close()
-        push.close(0)
-        sub_sock.close(0)
-        ctx.term()
-        ctrl_command.close()
-        ctrl_status.close()
-        presence.close()
+        close_all(timer, push, sub_sock, ctx.term, ctrl_command, ctrl_status, presence)  # sockets: LINGER 0
     return 0
 
 
