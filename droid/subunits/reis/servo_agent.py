@@ -32,7 +32,7 @@ import zmq
 
 from droid.brain.curve import CurveHost
 from droid.brain.databases import open_local
-from droid.brain.layouts import CMD_FAILED, CMD_OK, FAULT_BRAKING, FAULT_SERVO, HOME_MODE, HOMED, NORMAL_MODE, OFF
+from droid.brain.layouts import CMD_FAILED, CMD_OK, FAULT_BRAKING, FAULT_SERVO, HOME_MODE, HOMED, OFF
 from droid.brain.program import close_all, Presence, Stop, notify_ready, presence_key, subunit_program
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import BadInput, run
@@ -72,38 +72,6 @@ class ServoAgentCore:
         self.jog_id: int | None = None  # last JOG cmd_id applied
         self.home_id: int | None = None
         self.periods = 0
-        # Braking through the profile when way-points stop coming (issue 16, docs/safety.md
-        # finding 1): the last way-point sent, its velocity and the planner tick it came with.
-        ticks_per_period = p.servo_rate_hz / p.command_rate_hz
-        self.brake_per_period = np.asarray(p.brake_decel_counts_per_tick2, float) * ticks_per_period ** 2
-        self._wp: np.ndarray | None = None  # [counts]
-        self._v = np.zeros(6)  # [counts per command period]
-        self._wp_tick: int | None = None
-
-    def _forget_motion(self) -> None:
-        self._wp, self._v, self._wp_tick = None, np.zeros(6), None
-
-    def _braking(self, ext) -> np.ndarray | None:
-        """The next way-point of a stop through the braking profile: the last velocity less
-        the profile's deceleration (``brake_decel_counts_per_tick2``) for one period, never
-        past the move's target ``ext`` [counts].  None when already at rest."""
-        if self._wp is None or not np.any(self._v):
-            return None
-        speed = np.maximum(np.abs(self._v) - self.brake_per_period, 0.0)
-        v = np.sign(self._v) * speed
-        nxt = self._wp + v
-        ext = np.asarray(ext, float)
-        past = np.sign(v) * (nxt - ext) > 0  # would pass the target: stop on it
-        nxt[past] = ext[past]
-        v[past] = 0.0
-        self._v = np.where(past, 0.0, v)
-        self._wp = nxt
-        return nxt
-
-    def _send(self, mode: Mode, counts, status, faults, why: str = "") -> AgentDecision:
-        self.seq += 1
-        return AgentDecision(sw.ServoCommand(self.seq, int(mode), tuple(int(round(v)) for v in counts)),
-                             status, faults, why)
 
     def step(self, cmd, report: sw.ServoReport | None, report_fresh: bool) -> AgentDecision:
         status: dict = {}
@@ -133,20 +101,12 @@ class ServoAgentCore:
             return AgentDecision(None, status, faults, f"servo fault {Fault(report.fault).name} "
                                                         f"(command OFF to clear)")
         if not int(cmd["link_alive"]):
-            # Way-points stopped with the link: finish the stop through the braking profile
-            # (bounded by the move's target), then fall silent (the servo holds).
-            nxt = self._braking(cmd["encoder_cmd_ext"]) if mode == NORMAL_MODE and report.homed else None
-            if nxt is not None:
-                return self._send(Mode.NORMAL, nxt, status, faults, "Brain link lost: braking")
-            self._forget_motion()
             return AgentDecision(None, status, faults, "Brain link lost")
         try:
             servo_mode = Mode(mode)  # the servo message carries cmd_mode's own numbers
         except ValueError:
             return AgentDecision(None, status, faults, f"unknown command mode {mode}")
         counts = (0,) * 6
-        if servo_mode != Mode.NORMAL or not report.homed:
-            self._forget_motion()
         if servo_mode == Mode.HOME:
             if self.home_id != cmd_id:
                 self.home_id = cmd_id
@@ -165,31 +125,14 @@ class ServoAgentCore:
                 servo_mode = Mode.JOG  # hold where it is until homed
             else:
                 brain_tick, planner_tick = int(cmd["brain_tick"]), int(cmd["planner_tick"])
-                silent = brain_tick - planner_tick > self.stale_ticks
-                if silent or planner_tick == self._wp_tick:
-                    # no new way-point this period (the planner or the Brain paused): one step of
-                    # the braking profile instead of the same way-point again -- re-sending it
-                    # stopped the arm within one period at the planner's deceleration
-                    nxt = self._braking(cmd["encoder_cmd_ext"])
-                    if nxt is not None:
-                        return self._send(Mode.NORMAL, nxt, status, faults,
-                                          "planner silent: braking" if silent else "")
-                    if silent:
-                        self._forget_motion()
-                        return AgentDecision(None, status, faults, "planner silent")
-                    if self._wp is not None:  # at rest where the braking ended: hold there
-                        return self._send(Mode.NORMAL, self._wp, status, faults)
+                if brain_tick - planner_tick > self.stale_ticks:
+                    return AgentDecision(None, status, faults, "planner silent")
                 target = np.asarray(cmd["encoder_cmd_int"], np.int64)
                 if report.starved and np.any(np.abs(target - np.asarray(report.encoder_pos)) > self.resume_window):
-                    self._forget_motion()
                     return AgentDecision(None, status, faults, "waiting for the planner to re-anchor")
                 if np.any(np.abs(target - np.asarray(report.encoder_cmd)) > self.max_step):
                     faults |= FAULT_BRAKING  # tells the planner to re-anchor where the arm is
-                    self._forget_motion()
                     return AgentDecision(None, status, faults, "way-point too far from the servo's target")
-                if self._wp is not None and self._wp_tick is not None:
-                    self._v = target.astype(float) - self._wp
-                self._wp, self._wp_tick = target.astype(float), planner_tick
                 counts = tuple(int(v) for v in target)
         self.seq += 1
         return AgentDecision(sw.ServoCommand(self.seq, int(servo_mode), counts), status, faults)
