@@ -3,25 +3,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from droid.sim.reis.lockstep import make_reis_cell, min_jerk_waypoints, run_homing
-from droid.sim.reis.plant import ReisPlantParams
+from droid.sim.reis.lockstep import homed_rigid_cell, min_jerk_waypoints
 from droid.subunits.reis.brake_log import BrakeRecorder
 from droid.subunits.reis.servo_params import Mode
 from droid.subunits.reis.servo_planner import braking_ticks
 
-NEAR_SWITCH_OFFSET_DEG = (0.4, -0.3, 0.3, -0.4, 0.3, -0.3)
-
-
 def _homed():
-    # rigid drives: the recorder's logic is checked on count-exact motion (on the compliant
-    # arm the links' spring-back after a hard braking stop nudges the motors a few counts,
-    # which the recorder rightly logs as a second, tiny motion)
-    ls = make_reis_cell(seed=21, near_switch_offset_deg=NEAR_SWITCH_OFFSET_DEG,
-                        plant_params=ReisPlantParams(compliance=False))
-    ls.run(0.05)
-    run_homing(ls)
-    assert ls.servo.homed
-    return ls
+    # rigid drives: on the compliant arm the links' spring-back after a hard braking stop nudges
+    # the motors a few counts, which the recorder rightly logs as a second, tiny motion
+    return homed_rigid_cell()
 
 
 def _move(ls, n_commands: int | None, seconds: float = 2.0):

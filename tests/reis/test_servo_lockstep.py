@@ -22,6 +22,7 @@ import pytest
 from droid.sim.reis.lockstep import (
     constant_commander,
     make_reis_cell,
+    NEAR_SWITCH_OFFSET_DEG,
     min_jerk_waypoints,
     run_homing,
     waypoint_commander,
@@ -30,7 +31,6 @@ from droid.sim.reis.plant import ReisPlantParams
 from droid.subunits.reis.servo_params import Fault, Mode, ServoParams
 from droid.subunits.reis.servo_planner import braking_distance_counts, braking_ticks
 
-NEAR_SWITCH_OFFSET_DEG = (0.4, -0.3, 0.3, -0.4, 0.3, -0.3)
 
 
 #: The servo's count logic is checked on rigid drives (motor and link angles agree, so a

@@ -276,3 +276,23 @@ def run_homing(ls: ReisLockstep, max_s: float = 40.0, chunk_s: float = 0.5) -> l
         pieces.append(ls.run(chunk_s, cmd))
         t += chunk_s
     return pieces
+
+
+#: power-up pose a little off the home switches (both sides), so homing takes ~3 s simulated
+NEAR_SWITCH_OFFSET_DEG = (0.4, -0.3, 0.3, -0.4, 0.3, -0.3)
+
+
+def homed_rigid_cell(seed: int = 21):
+    """A Reis lockstep cell on rigid drives, powered up near its switches and homed (the tests'
+    starting point: the servo's count logic is exact there; the compliant arm's links spring
+    back a few counts after a hard stop)."""
+    from droid.sim.reis.plant import ReisPlantParams
+
+    ls = make_reis_cell(seed=seed, near_switch_offset_deg=NEAR_SWITCH_OFFSET_DEG,
+                        plant_params=ReisPlantParams(compliance=False))
+    ls.run(0.05)
+    run_homing(ls)
+    if not ls.servo.homed:
+        raise RuntimeError("the lockstep Reis cell did not home")
+    return ls
+
