@@ -63,12 +63,11 @@ class ReisDevice(Device):
         self._latch_told = False
 
     def advance(self, dt_s: float) -> None:
-        ages_ms = [1e3 * a for a in self.plant._wd_age_s]
         self.plant.advance(dt_s)
         if self.plant._wd_fault and not self._latch_told:  # say why the amplifiers went off (issue 16)
             self._latch_told = True
             print(f"droid-sim: {self.name}: watchdog timers expired at world time {self.plant.time_s:.3f} s "
-                  f"(registers unchanged for {max(ages_ms) + 1e3 * dt_s:.0f} ms > "
+                  f"(registers unchanged for {1e3 * max(self.plant._wd_age_s):.0f} ms > "
                   f"{1e3 * self.plant.params.watchdog_timeout_s:.0f} ms): amplifiers latched off",
                   file=sys.stderr, flush=True)
         if self.door is not None:
