@@ -146,3 +146,31 @@ def host_pair():
         hp.destroy()
         left = set(netns.leftovers()) - before
         assert not left, f"test left network namespaces or links behind: {sorted(left)}"
+
+
+LOG_TAIL_LINES = 25
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    """A live-cell test that fails shows the tail of every program's log of its cell
+    (``<tmp_path>/**/logs/*.log``): a failure one run in many is diagnosed from the
+    run that had it, not from a rerun (issue 16)."""
+    outcome = yield
+    report = outcome.get_result()
+    if report.passed or report.skipped:
+        return
+    tmp_path = item.funcargs.get("tmp_path") if hasattr(item, "funcargs") else None
+    if tmp_path is None:
+        return
+    parts = []
+    for log in sorted(tmp_path.glob("**/logs/*.log")):
+        try:
+            lines = log.read_text(errors="replace").splitlines()
+        except OSError:
+            continue
+        if lines:
+            parts.append(f"--- {log.relative_to(tmp_path)} (last {min(len(lines), LOG_TAIL_LINES)} "
+                         f"of {len(lines)} lines)\n" + "\n".join(lines[-LOG_TAIL_LINES:]))
+    if parts:
+        report.sections.append(("cell logs", "\n".join(parts)))

@@ -147,6 +147,7 @@ def test_servo_agent_never_sends_a_stale_far_way_point():
     d = agent.step(cmd, rep, True)
     assert d.message is not None and d.message.counts == (1100,) * 6
     cmd["encoder_cmd_int"] = [9000, 1000, 1000, 1000, 1000, 1000]  # 8000 counts ahead: stale
+    cmd["brain_tick"], cmd["planner_tick"] = 101, 101  # the planner's next tick
     d = agent.step(cmd, rep, True)
     assert d.message is None and d.fault_bits & L.FAULT_BRAKING
 
@@ -173,3 +174,99 @@ def test_a_stop_command_ends_the_move_where_its_way_point_is_and_holds():
     for _ in range(31):
         out = core.step(cmd, st)
     assert list(out.encoder_cmd_int) == [0] * 6
+
+
+def _moving_agent(v_counts_per_period: float, ext: int):
+    """A servo agent that sent way-points 0, v, 2v (planner ticks 1..3) toward ``ext``."""
+    from droid.subunits.reis import servo_wire as sw
+    from droid.subunits.reis.servo_agent import ServoAgentCore
+
+    agent = ServoAgentCore()
+    cmd = L.new_record(L.CTRL_COMMAND_LAYOUT)
+    cmd["link_alive"], cmd["cmd_mode"] = 1, L.NORMAL_MODE
+    cmd["encoder_cmd_ext"] = [ext] * 6
+    sent = []
+    for k in range(3):
+        cmd["brain_tick"] = cmd["planner_tick"] = k + 1
+        cmd["encoder_cmd_int"] = [int(k * v_counts_per_period)] * 6
+        rep = sw.ServoReport(tick=k, mode=3, homed=True, homing_joint=-1, starved=False, braking=False, fault=0,
+                             amps_on=True, encoder_pos=cmd["encoder_cmd_int"], encoder_cmd=cmd["encoder_cmd_int"],
+                             following_error=(0,) * 6, dac=(0,) * 6)
+        sent.append(agent.step(cmd, rep, True).message.counts[0])
+    return agent, cmd, rep, sent
+
+
+def test_way_points_that_stop_coming_end_in_the_braking_profile_not_at_once():
+    """Issue 16 (docs/safety.md finding 1): when the planner's way-points stop (the Brain link
+    went silent), the agent does not re-send the last one -- the servo would stop within one
+    period at any deceleration -- but decelerates at the servo's braking profile, then holds;
+    once the link is declared lost and the arm is at rest it falls silent."""
+    agent, cmd, rep, sent = _moving_agent(600.0, ext=100_000)
+    assert sent == [0, 600, 1200]
+    out = []
+    for _ in range(30):  # no tick and planner_tick frozen: no new way-point
+        d = agent.step(cmd, rep, True, ticked=False)
+        out.append(d.message.counts[0])
+    steps = np.diff([1200] + out)
+    assert steps[0] < 600 and np.all(steps >= 0) and np.all(np.diff(steps) <= 0)  # slowing, never back
+    decel = agent.brake_per_period[0]
+    assert np.all(np.abs(np.diff(np.concatenate([[600], steps]))) <= decel + 2)  # the profile's rate (rounded counts)
+    assert steps[-1] == 0 and out[-1] == out[-2]  # at rest, held
+    cmd["link_alive"] = 0
+    assert agent.step(cmd, rep, True).message is None  # at rest: silent (the servo holds)
+
+
+def test_a_late_planner_is_bridged_by_one_period_of_its_own_velocity():
+    """The tick came but the planner has not written its way-point yet: one period at the
+    planner's velocity (the next way-point lands where the arm is), then -- still nothing --
+    the braking profile."""
+    agent, cmd, rep, sent = _moving_agent(600.0, ext=100_000)
+    d = agent.step(cmd, rep, True, ticked=True)
+    assert d.message.counts[0] == 1800
+    cmd["brain_tick"] += 1  # caught up: two planner ticks at once
+    cmd["planner_tick"] += 2
+    cmd["encoder_cmd_int"] = [2400] * 6
+    assert agent.step(cmd, rep, True).message.counts[0] == 2400  # on the planner's path again
+    cmd["brain_tick"] += 1  # late again, twice in a row: bridge once, then brake
+    steps = [agent.step(cmd, rep, True, ticked=True).message.counts[0] for _ in range(2)]
+    assert steps[0] == 3000 and 3000 < steps[1] < 3600
+
+
+def test_after_braking_the_arm_waits_for_the_planner_instead_of_backing_up():
+    """The ticks come back after two braking periods: the arm is ahead of the planner's
+    way-points, so a joint the planner still drives the same way holds until they pass it."""
+    agent, cmd, rep, sent = _moving_agent(600.0, ext=100_000)
+    braked = [agent.step(cmd, rep, True, ticked=False).message.counts[0] for _ in range(2)]
+    assert 1200 + 600 + 600 > braked[1] > 1200 + 600  # two slowing periods: ~1200 + 555 + 510
+    out = []
+    for k in range(1, 6):  # the planner resumes at 600 counts a tick from 1200
+        cmd["brain_tick"] += 1
+        cmd["planner_tick"] += 1
+        cmd["encoder_cmd_int"] = [1200 + 600 * k] * 6
+        out.append(agent.step(cmd, rep, True).message.counts[0])
+    assert out[0] == braked[1]  # held, not backed up to 1800
+    assert all(b >= a for a, b in zip([braked[1]] + out, out))  # never backwards
+    assert out[-1] == 1200 + 600 * 5  # back on the planner's way-points once they passed
+
+
+def test_braking_after_silent_way_points_never_passes_the_moves_target():
+    agent, cmd, rep, sent = _moving_agent(600.0, ext=1500)
+    cmd["link_alive"] = 0  # the link is declared lost at once
+    out = [agent.step(cmd, rep, True).message for _ in range(3)]
+    assert out[0].counts[0] == 1500  # 1200 + 600 less the profile would pass 1500: stops on it
+    assert out[1] is None  # at rest on the target: silent
+
+
+def test_servo_agent_refuses_a_heartbeat_that_is_not_its_command_rate(tmp_path, cell_name):
+    """The servo takes one way-point per 60 Hz period and droid-servo-agent cycles on the
+    relayed tick: a cell at another heartbeat is refused before anything opens."""
+    import re
+
+    from tests.brain.cellutil import droid, make_cell_file
+
+    path = make_cell_file(tmp_path, cell_name)
+    path.write_text(re.sub(r"(?m)^heartbeat_hz = .*$", "heartbeat_hz = 30.0", path.read_text()))
+    out = droid("droid.subunits.reis.servo_agent", "arm1", "--cell", str(path))
+    assert out.returncode == 2, out.stderr
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and "heartbeat_hz is 30" in lines[0] and "Traceback" not in out.stderr

@@ -64,3 +64,26 @@ def test_dead_servo_trips_the_watchdog_latch():
     s.run_for(0.5)
     assert not arm.plant.amps_on
     assert int(arm.status["fault"]) & L.FAULT_SERVO
+
+
+def test_a_cut_link_brings_the_arm_to_rest_through_the_braking_profile():
+    """Issue 16, docs/safety.md finding 1: when the Brain's ticks stop mid-move, the servo's
+    commanded speed falls at the braking profile's rate (in the 60 Hz steps in which every
+    way-point reaches the servo), not from full speed to zero within a tick."""
+    s, arm = make()
+    assert arm.home()
+    arm.command_joint([60000, 0, 0, 0, 0, 0], arm.ticks_for(3.0))  # 40 counts per servo tick
+    s.run_for(1.5)
+    arm.alive["link"] = False
+    cmd = []
+    for _ in range(300):  # 0.6 s of servo ticks
+        s.run_for(1.0 / 500)
+        cmd.append(int(arm.servo.encoder_cmd[0]))
+    v = np.diff(cmd)  # [counts per servo tick]
+    p = arm.servo.params
+    step = p.brake_decel_counts_per_tick2[0] * p.servo_rate_hz / p.command_rate_hz  # per period
+    assert abs(v[0]) > 2 * step  # it was moving fast
+    assert np.all(np.abs(np.diff(v)) <= step + 2), np.diff(v)  # never faster than the profile
+    assert np.all(v[-100:] == 0)  # at rest, and it stays
+    stop_ticks = int(np.argmax(v == 0))
+    assert stop_ticks <= 3 * 9 + abs(v[0]) / p.brake_decel_counts_per_tick2[0] + 9

@@ -11,7 +11,7 @@ station                     rate      process it stands for
 ReisPlant                   500 Hz    droid-sim (the robot behind the VME map; 4 substeps of 0.5 ms)
 WatchdogStation             50 Hz     droid-watchdog
 ServoStation                500 Hz    droid-servo
-ServoAgentStation           60 Hz     droid-servo-agent (own timer, half a period out of phase)
+ServoAgentStation           60 Hz     droid-servo-agent (half a period after the relayed tick)
 RemoteStation, AgentStation tick      droid-remote, droid-reis-agent (Brain Command -> controller)
 PlannerStation              tick      droid-planner (on the agent's relayed tick)
 RemoteStation               tick      droid-remote (the reply: controller Status -> Brain Status, FK)
@@ -89,6 +89,7 @@ class LockstepArm:
         self.remote = RemoteStation(self.brain_status, self.brain_command,
                                     StatusTranslator(name, ARM6R, self.wcp_from_counts), STALE_TICKS)
         self.alive = {"servo": True, "watchdog": True, "agent": True, "planner": True, "link": True}
+        self._relayed = True  # a relayed tick since the servo agent's last cycle
         p = 1e9
         sched.every(PLANT_HZ, self._plant, f"{name}.plant", order=ORDER_WORLD)
         sched.every(SERVO_HZ, self._servo, f"{name}.servo", order=ORDER_DEVICE)
@@ -121,8 +122,12 @@ class LockstepArm:
             self.watchdog.cycle()
 
     def _servo_agent(self, t_ns: int) -> None:
+        # droid-servo-agent cycles on the relayed tick once the planner wrote (real time
+        # waits up to a third of a period for it; lockstep's half period is deterministic)
+        # and on its own clock when no tick came: ``ticked`` says which
+        ticked, self._relayed = self._relayed, False
         if self.alive["agent"]:
-            msg = self.agent.cycle(t_ns)
+            msg = self.agent.cycle(t_ns, ticked=ticked)
             if msg is not None:
                 self._inbox.append(msg)
 
@@ -134,6 +139,7 @@ class LockstepArm:
             relay = tick
         else:  # the agent's own timer: the link dies after stale_ticks; then local ticks
             relay = self.reis_agent.on_timer(t_ns)
+        self._relayed |= relay is not None
         if self.alive["planner"] and relay is not None:
             self.planner.cycle(relay)
         if self.alive["link"]:  # the reply: controller Status -> Brain Status, with FK (§4.1.8)

@@ -20,6 +20,17 @@ when the Brain link is dead (``link_alive = 0``), when the planner stopped
 refreshing its way-point (``planner_tick`` more than ``stale_ticks`` behind
 the relayed ``brain_tick``), or, after the servo braked, until the planner
 has re-anchored its way-point at the stopped position.
+
+When the way-points stop while the arm moves (issue 16, docs/safety.md finding 1)
+it never re-sends the last one: the servo would ramp to it and stop within one
+period, at whatever deceleration that takes.  A period whose relayed tick came
+but whose way-point is not written yet (the planner is late) is bridged by one
+period of the planner's own velocity; a period with no tick at all (the Brain
+or its link went silent) steps the velocity down at the servo's braking profile
+(``brake_decel_counts_per_tick2``), never past the move's target
+(``encoder_cmd_ext``), and holds at rest.  So the cycle must run on the relayed
+tick, not on a free-running timer of its own: two free 60 Hz clocks slip a
+period now and then, and a slip would read as a pause.
 """
 from __future__ import annotations
 
@@ -32,9 +43,10 @@ import zmq
 
 from droid.brain.curve import CurveHost
 from droid.brain.databases import open_local
-from droid.brain.layouts import CMD_FAILED, CMD_OK, FAULT_BRAKING, FAULT_SERVO, HOME_MODE, HOMED, OFF
+from droid.brain.layouts import CMD_FAILED, CMD_OK, FAULT_BRAKING, FAULT_SERVO, HOME_MODE, HOMED, NORMAL_MODE, OFF
 from droid.brain.program import close_all, Presence, Stop, notify_ready, presence_key, subunit_program
-from droid.brain.rt import PeriodicTimer, try_sched_fifo
+from droid.brain.heartbeat import TickSubscriber
+from droid.brain.rt import try_sched_fifo
 from droid.cli import BadInput, run
 from droid.kinematics import RobotFileError
 from droid.subunits.reis import servo_wire as sw
@@ -72,8 +84,51 @@ class ServoAgentCore:
         self.jog_id: int | None = None  # last JOG cmd_id applied
         self.home_id: int | None = None
         self.periods = 0
+        # Way-points that stop coming (issue 16, docs/safety.md finding 1): the last way-point
+        # sent [counts], the planner's velocity [counts per planner tick], the tick it came with.
+        ticks_per_period = p.servo_rate_hz / p.command_rate_hz
+        self.brake_per_period = np.asarray(p.brake_decel_counts_per_tick2, float) * ticks_per_period ** 2
+        self._wp: np.ndarray | None = None  # the last way-point sent
+        self._v = np.zeros(6)
+        self._plan: np.ndarray | None = None  # the planner's last way-point
+        self._wp_tick: int | None = None  # ... and its tick
+        self._missed = 0  # periods in a row without a new way-point
+        self._ahead = np.zeros(6)  # per joint: the direction the arm braked in, until the planner passes
 
-    def step(self, cmd, report: sw.ServoReport | None, report_fresh: bool) -> AgentDecision:
+    def _forget_motion(self) -> None:
+        self._wp, self._v, self._plan, self._wp_tick, self._missed = None, np.zeros(6), None, None, 0
+        self._ahead = np.zeros(6)
+
+    def _next_without_way_point(self, ext, ticked: bool) -> np.ndarray | None:
+        """The way-point [counts] of a period without a new one from the planner: the
+        planner's velocity for one period if the tick came (``ticked``: the planner is
+        late) and the period before had its way-point, else that velocity less the braking
+        profile's deceleration (the ticks or the planner stopped).  Never past the move's
+        target ``ext`` [counts].  None when at rest."""
+        self._missed += 1
+        if self._wp is None or not np.any(self._v):
+            return None
+        bridge = ticked and self._missed == 1
+        speed = np.abs(self._v) if bridge else np.maximum(np.abs(self._v) - self.brake_per_period, 0.0)
+        if not bridge:
+            self._ahead = np.where(self._v != 0, np.sign(self._v), self._ahead)
+        v = np.sign(self._v) * speed
+        nxt = self._wp + v
+        ext = np.asarray(ext, float)
+        past = np.sign(v) * (nxt - ext) > 0  # would pass the target: stop on it
+        nxt[past] = ext[past]
+        self._v = np.where(past, 0.0, v)
+        self._wp = nxt
+        return nxt
+
+    def _send(self, mode: Mode, counts, status, faults, why: str = "") -> AgentDecision:
+        self.seq += 1
+        return AgentDecision(sw.ServoCommand(self.seq, int(mode), tuple(int(round(v)) for v in counts)),
+                             status, faults, why)
+
+    def step(self, cmd, report: sw.ServoReport | None, report_fresh: bool, ticked: bool = True) -> AgentDecision:
+        """One period.  ``ticked``: a relayed heartbeat tick came since the last period
+        (False: the Brain or its link is silent, so a missing way-point is a real pause)."""
         status: dict = {}
         faults = 0
         self.periods += 1
@@ -101,12 +156,21 @@ class ServoAgentCore:
             return AgentDecision(None, status, faults, f"servo fault {Fault(report.fault).name} "
                                                         f"(command OFF to clear)")
         if not int(cmd["link_alive"]):
+            # the way-points stopped with the link: finish the stop through the braking
+            # profile (bounded by the move's target), then fall silent (the servo holds)
+            nxt = (self._next_without_way_point(cmd["encoder_cmd_ext"], False)
+                   if mode == NORMAL_MODE and report.homed else None)
+            if nxt is not None:
+                return self._send(Mode.NORMAL, nxt, status, faults, "Brain link lost: braking")
+            self._forget_motion()
             return AgentDecision(None, status, faults, "Brain link lost")
         try:
             servo_mode = Mode(mode)  # the servo message carries cmd_mode's own numbers
         except ValueError:
             return AgentDecision(None, status, faults, f"unknown command mode {mode}")
         counts = (0,) * 6
+        if servo_mode != Mode.NORMAL or not report.homed:
+            self._forget_motion()
         if servo_mode == Mode.HOME:
             if self.home_id != cmd_id:
                 self.home_id = cmd_id
@@ -125,15 +189,40 @@ class ServoAgentCore:
                 servo_mode = Mode.JOG  # hold where it is until homed
             else:
                 brain_tick, planner_tick = int(cmd["brain_tick"]), int(cmd["planner_tick"])
-                if brain_tick - planner_tick > self.stale_ticks:
-                    return AgentDecision(None, status, faults, "planner silent")
+                silent = brain_tick - planner_tick > self.stale_ticks
+                if silent or planner_tick == self._wp_tick:
+                    # no new way-point this period: never the same one again (the servo would
+                    # stop within one period); bridge a late planner, brake if the ticks stopped
+                    nxt = self._next_without_way_point(cmd["encoder_cmd_ext"], ticked and not silent)
+                    if nxt is not None:
+                        return self._send(Mode.NORMAL, nxt, status, faults,
+                                          "planner silent: braking" if silent else "")
+                    if silent:
+                        self._forget_motion()
+                        return AgentDecision(None, status, faults, "planner silent")
+                    if self._wp is not None:  # at rest where the braking ended: hold there
+                        return self._send(Mode.NORMAL, self._wp, status, faults)
                 target = np.asarray(cmd["encoder_cmd_int"], np.int64)
                 if report.starved and np.any(np.abs(target - np.asarray(report.encoder_pos)) > self.resume_window):
+                    self._forget_motion()
                     return AgentDecision(None, status, faults, "waiting for the planner to re-anchor")
                 if np.any(np.abs(target - np.asarray(report.encoder_cmd)) > self.max_step):
                     faults |= FAULT_BRAKING  # tells the planner to re-anchor where the arm is
+                    self._forget_motion()
                     return AgentDecision(None, status, faults, "way-point too far from the servo's target")
-                counts = tuple(int(v) for v in target)
+                if self._plan is not None and self._wp_tick is not None and planner_tick > self._wp_tick:
+                    self._v = (target - self._plan) / (planner_tick - self._wp_tick)
+                send = target.astype(float)
+                if np.any(self._ahead):
+                    # the ticks came back after the arm braked ahead of the planner's way-points:
+                    # a joint the planner still drives the same way waits for them to pass it
+                    # (it does not back up); a joint the planner turned is released
+                    wait = (self._ahead * (send - self._wp) < 0) & (self._ahead * self._v > 0)
+                    send[wait] = self._wp[wait]
+                    self._ahead[~wait] = 0.0
+                self._wp, self._plan = send, target.astype(float)
+                self._wp_tick, self._missed = planner_tick, 0
+                counts = tuple(int(round(v)) for v in send)
         self.seq += 1
         return AgentDecision(sw.ServoCommand(self.seq, int(servo_mode), counts), status, faults)
 
@@ -167,13 +256,14 @@ class ServoAgentStation:
             return
         self.report_ns = now_ns
 
-    def cycle(self, now_ns: int, late_ns: int = 0) -> bytes | None:
+    def cycle(self, now_ns: int, late_ns: int = 0, ticked: bool = True) -> bytes | None:
         """One 60 Hz period.  ``late_ns``: how late this cycle itself runs [ns] (a stalled
         host): the servo's silence is judged only over time the agent was awake to hear it,
         so a stall of the whole host is not taken for a dead servo (issue 16; the servo
-        judges the stall itself: its queue runs dry and it brakes)."""
+        judges the stall itself: its queue runs dry and it brakes).  ``ticked``: a relayed
+        heartbeat tick came since the last cycle (see :meth:`ServoAgentCore.step`)."""
         fresh = self.report is not None and now_ns - self.report_ns < self.fresh_ns + max(0, late_ns)
-        d = self.last = self.core.step(self.ctrl_command.read(), self.report, fresh)
+        d = self.last = self.core.step(self.ctrl_command.read(), self.report, fresh, ticked)
         with self.ctrl_status.locked() as st:
             for k, v in d.status.items():
                 st[k] = v
@@ -182,10 +272,63 @@ class ServoAgentStation:
         return sw.pack_command(d.message) if d.message is not None else None
 
 
+class TickPacer:
+    """When droid-servo-agent cycles: on each relayed heartbeat tick, once the planner has
+    written that tick's way-point (it cycles on the same tick; waited for up to
+    ``PLANNER_WAIT_NS``), and on its own clock when the ticks stop -- first 1.5 periods
+    after the last cycle, then every period -- so that the servo brakes through the
+    profile when the Brain or its link goes silent (thesis §4.1.6's 60 Hz; issue 16)."""
+
+    PLANNER_WAIT_NS = 6_000_000  # [ns] (a third of a period)
+    POLL_NS = 250_000  # [ns]
+
+    def __init__(self, period_ns: int) -> None:
+        self.period_ns = int(period_ns)
+        self.last_ns: int | None = time.monotonic_ns()  # until the first tick: every period
+        self.last_ticked = False
+        self.cycles = 0
+        self.untimed = 0  # cycles on the own clock (no tick came)
+        self.late_max_ns = 0  # [ns] worst gap beyond one period between cycles
+
+    def deadline_ns(self) -> int | None:
+        if self.last_ns is None:
+            return None
+        return self.last_ns + (self.period_ns * 3 // 2 if self.last_ticked else self.period_ns)
+
+    def wait_s(self, now_ns: int) -> float:
+        """How long to wait for a tick [s]."""
+        d = self.deadline_ns()
+        return 0.5 if d is None else min(0.5, max(0.0, (d - now_ns) / 1e9))
+
+    def due(self, now_ns: int) -> bool:
+        """No tick came: is an own-clock cycle due?"""
+        d = self.deadline_ns()
+        return d is not None and now_ns >= d
+
+    def late_ns(self, now_ns: int) -> int:
+        """How far this cycle runs beyond one period after the last [ns]."""
+        return 0 if self.last_ns is None else max(0, now_ns - self.last_ns - self.period_ns)
+
+    def cycled(self, now_ns: int, ticked: bool) -> None:
+        self.late_max_ns = max(self.late_max_ns, self.late_ns(now_ns))
+        self.last_ns, self.last_ticked = now_ns, ticked
+        self.cycles += 1
+        self.untimed += not ticked
+
+    def await_planner(self, ctrl_command, tick: int) -> None:
+        """Wait (polling) until the planner's way-point of ``tick`` is written."""
+        end = time.monotonic_ns() + self.PLANNER_WAIT_NS
+        while int(ctrl_command.read()["planner_tick"]) < tick and time.monotonic_ns() < end:
+            time.sleep(self.POLL_NS / 1e9)
+
+
 @run
 def main(argv=None) -> int:
     args, cell, sub = subunit_program(PROG, "Relay an arm's controller database to its servo at 60 Hz, and the servo's status back.", argv, arm=True)
     ep = reis_endpoints(cell, sub)
+    if abs(cell.heartbeat_hz - COMMAND_HZ) > 1e-9:
+        raise BadInput(f"{PROG}: the Reis servo takes one way-point per {COMMAND_HZ:g} Hz period; "
+                       f"this cell's heartbeat_hz is {cell.heartbeat_hz:g}")
     try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     ctrl_command = open_local(cell, sub, "ctrl_command")
     ctrl_status = open_local(cell, sub, "ctrl_status")
@@ -206,23 +349,27 @@ def main(argv=None) -> int:
         core = ServoAgentCore(cell.stale_ticks, params=ServoParams.from_robot(sub.robot))
     except RobotFileError as exc:
         raise BadInput(str(exc)) from None
-    timer = PeriodicTimer(int(round(1e9 / COMMAND_HZ)))
+    ticks = TickSubscriber(ctx, sub.relay, curve, sub.host)
+    pacer = TickPacer(int(round(1e9 / COMMAND_HZ)))
     station = ServoAgentStation(core, ctrl_command, ctrl_status)
     try:
         presence.ready()
         notify_ready(args.ready_fd)
         last_why = ""
         while not Stop.requested:
-            n = timer.wait(0.5)
-            if not n:
+            t = ticks.wait(pacer.wait_s(time.monotonic_ns()))
+            if t is not None:  # the planner cycles on the same tick: let it write first
+                pacer.await_planner(ctrl_command, t.tick)
+            now = time.monotonic_ns()
+            if t is None and not pacer.due(now):
                 continue
             while True:
                 try:
                     station.take(sub_sock.recv(zmq.NOBLOCK), time.monotonic_ns())
                 except zmq.Again:
                     break
-            now = time.monotonic_ns()
-            msg = station.cycle(now, late_ns=now - (timer.deadline_ns - (n - 1) * timer.period_ns))
+            msg = station.cycle(now, late_ns=pacer.late_ns(now), ticked=t is not None)
+            pacer.cycled(now, t is not None)
             if msg is not None:
                 try:
                     push.send(msg, zmq.NOBLOCK)
@@ -233,9 +380,10 @@ def main(argv=None) -> int:
                 if why:
                     print(f"{PROG} {sub.name}: not commanding the servo: {why}", file=sys.stderr, flush=True)
                 last_why = why
-            presence.beat(0, timer.cycles, timer.overruns, timer.lateness_max_ns, bad_frames=station.bad_frames)
+            presence.beat(t.tick if t is not None else 0, pacer.cycles, pacer.untimed, pacer.late_max_ns,
+                          bad_frames=station.bad_frames + ticks.bad_frames)
     finally:
-        close_all(timer, push, sub_sock, ctx.term, ctrl_command, ctrl_status, presence)  # sockets: LINGER 0
+        close_all(ticks, push, sub_sock, ctx.term, ctrl_command, ctrl_status, presence)  # sockets: LINGER 0
     return 0
 
 
