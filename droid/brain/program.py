@@ -87,12 +87,27 @@ def presence_key(prog: str, subunit: str | None = None) -> str:
     return f"{key}-{subunit}" if subunit else key
 
 
+def process_age_s() -> float | None:
+    """Seconds since this process started (Linux /proc), or None where unknown."""
+    try:
+        with open("/proc/self/stat") as f:
+            start_ticks = int(f.read().rsplit(")", 1)[1].split()[19])
+        with open("/proc/uptime") as f:
+            uptime_s = float(f.read().split()[0])
+        return uptime_s - start_ticks / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return None
+
+
 class Presence:
     """A program's own record in ``/droid.<cell>.proc.<key>`` (for droid-cell status)."""
 
     UPDATE_NS = 100_000_000  # refresh at most every 100 ms
+    SLOW_START_S = 2.0  # a start-up slower than this is said in the program's log [s]
 
     def __init__(self, cell: str, key: str, display: str) -> None:
+        self.display = display
+        self._created = time.monotonic()
         self.name = db_name(cell, "proc", key)
         self.db = Database(self.name, PROC_STATUS_LAYOUT, create=True)
         self.db.update(name=display.encode()[:31], pid=os.getpid(), state=PROC_STARTING,
@@ -115,6 +130,13 @@ class Presence:
 
     def ready(self) -> None:
         self.set_state(PROC_READY)
+        since_record = time.monotonic() - self._created
+        age = process_age_s()
+        if since_record > self.SLOW_START_S or (age is not None and age > self.SLOW_START_S):
+            # a slow start is named in the log: before the record (imports, locking memory)
+            # or after it (opening devices, sockets) -- issue 16's intermittent start-up stall
+            print(f"{self.display}: ready {age if age is not None else float('nan'):.1f} s after the "
+                  f"process started, {since_record:.1f} s after it registered", file=sys.stderr, flush=True)
 
     def close(self, failed: bool = False) -> None:
         """Clean exit removes the record; a failure leaves it marked for status."""
