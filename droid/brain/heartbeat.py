@@ -122,7 +122,6 @@ def main(argv=None) -> int:
     rate = args.rate or cell.heartbeat_hz
     period_ns = int(round(1e9 / rate))
     Stop.install()
-    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     ctx = zmq.Context()
     curve = CurveHost(ctx, cell, cell.brain_host)
     pub = ctx.socket(zmq.PUB)
@@ -138,6 +137,9 @@ def main(argv=None) -> int:
         names.register("heartbeat", cell.heartbeat)
         core = HeartbeatCore(period_ns)
         timer = PeriodicTimer(period_ns)
+        # real time only now: initialising at FIFO priority (imports, models, devices)
+        # starved the running cell's FIFO programs and tripped RT throttling (issue 16)
+        try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
         presence.ready()
         notify_ready(args.ready_fd)
         poller = zmq.Poller()

@@ -124,7 +124,6 @@ class RemoteStation:
 def main(argv=None) -> int:
     args, cell, sub = subunit_program(
         PROG, "Keep one subunit's Brain database in step with its agent, once per heartbeat.", argv)
-    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     if link_kind(cell, sub) == LINK_SERIAL:
         return serve_serial(cell, sub, args.ready_fd, PROG)
     status = open_brain(cell, sub, "status")
@@ -158,6 +157,9 @@ def main(argv=None) -> int:
     try:
         status.update(stale=1, fault=FAULT_LINK)
         connect()
+        # real time only now: initialising at FIFO priority (imports, models, devices)
+        # starved the running cell's FIFO programs and tripped RT throttling (issue 16)
+        try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
         presence.ready()
         notify_ready(args.ready_fd)
         last_tick = 0

@@ -59,8 +59,8 @@ LINK_SERIAL = "serial"
 LINKS = (LINK_AGENT, LINK_SERIAL)
 #: Keys a line_laser subunit's table may carry besides the common ones: the
 #: Brain's link (here) and the sensor program's (droid-mvs: dsp, sensor_serial,
-#: calibration, board_wait).
-LINE_LASER_KEYS = ("link", "serial", "baud", "dsp", "sensor_serial", "calibration", "board_wait")
+#: calibration, board_wait, stamp).
+LINE_LASER_KEYS = ("link", "serial", "baud", "dsp", "sensor_serial", "calibration", "board_wait", "stamp")
 #: Most bytes taken from the port in one tick (the splitter bounds lines anyway).
 MAX_READ_BYTES = 4096
 #: Reopen back-off cap [ticks] (2 s at 60 Hz).

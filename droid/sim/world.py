@@ -162,7 +162,6 @@ def main(argv=None) -> int:
     if not 1.0 <= rate <= 10000.0:
         raise BadInput(f"{cell.path}: [world] rate_hz {rate:g} outside 1..10000 Hz")
     Stop.install()
-    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     presence = Presence(cell.name, presence_key(PROG), PROG)
     world = None
     timer = None
@@ -170,6 +169,9 @@ def main(argv=None) -> int:
         world = build_world(cell, args.seed)
         world.advance(1.0 / rate)  # power up: every register holds a real value before anyone reads
         timer = PeriodicTimer(int(round(1e9 / rate)))
+        # real time only now: initialising at FIFO priority (imports, models, devices)
+        # starved the running cell's FIFO programs and tripped RT throttling (issue 16)
+        try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
         presence.ready()
         notify_ready(args.ready_fd)
         dt = 1.0 / rate

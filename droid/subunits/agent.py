@@ -122,7 +122,6 @@ def agent_main(prog: str, argv=None) -> int:
     cell = open_cell(args)
     sub = cell.subunit(args.subunit)
     Stop.install()
-    try_sched_fifo(wanted=cell.sched_fifo, prog=prog)
     layouts = local_layouts(sub)
     status = open_local(cell, sub, "ctrl_status")
     ctrl_cmd = open_local(cell, sub, "ctrl_command") if "ctrl_command" in layouts else None
@@ -144,6 +143,9 @@ def agent_main(prog: str, argv=None) -> int:
         curve.bind(cell, (router, sub.agent), (relay, sub.relay))
         names = NameClient(ctx, cell.names, curve=curve, server_host=cell.brain_host)
         names.register(sub.name, sub.agent)
+        # real time only now: initialising at FIFO priority (imports, models, devices)
+        # starved the running cell's FIFO programs and tripped RT throttling (issue 16)
+        try_sched_fifo(wanted=cell.sched_fifo, prog=prog)
         presence.ready()
         notify_ready(args.ready_fd)
         poller = zmq.Poller()

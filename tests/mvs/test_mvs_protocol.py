@@ -200,3 +200,32 @@ def test_the_sensor_core_appends_the_capture_stamp_only_when_asked():
     plain, stamped = parse_line(core.step(rows)), parse_line(core.step(rows, 4321))
     assert plain.valid and plain.stamp_ms is None
     assert stamped.valid and stamped.stamp_ms == 4321 and stamped.x_mm == plain.x_mm
+
+
+def test_a_cells_stamp_option_turns_stamps_on_and_a_bad_one_is_refused(tmp_path):
+    """``stamp = true`` in [subunits.mvs] is droid-mvs --stamp (the default cell sets it);
+    a value that is not a boolean is one clear error."""
+    import argparse
+    import re
+
+    import pytest
+
+    from droid.brain.cellfile import builtin_cell_path
+    from droid.cli import BadInput
+    from droid.subunits.mvs.sensor import apply_cell
+
+    def args_for(text):
+        path = tmp_path / "c.toml"
+        path.write_text(text)
+        return argparse.Namespace(cell=str(path), subunit="mvs", dsp=None, serial=None, baud=None,
+                                  board_wait=None, stamp=False)
+
+    text = builtin_cell_path().read_text()
+    args = args_for(text)
+    apply_cell(args)
+    assert args.stamp is True
+    args = args_for(re.sub(r"(?m)^stamp = true(\s+# \"x,y,roll,ms\" lines \(droid-mvs)", r"stamp = false\1", text))
+    apply_cell(args)
+    assert args.stamp is False
+    with pytest.raises(BadInput, match="stamp must be true or false"):
+        apply_cell(args_for(re.sub(r"(?m)^stamp = true(\s+# \"x,y,roll,ms\" lines \(droid-mvs)", r'stamp = "yes"\1', text)))

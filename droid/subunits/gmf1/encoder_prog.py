@@ -102,7 +102,6 @@ def main(argv=None) -> int:
     rate = args.rate or cfg.encoder_hz
     model = load_robot(sub.robot).with_base(pose_to_T(*sub.base))
     core = EncoderCore(model, rate)
-    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     status = open_local(cell, sub, "ctrl_status")
     station = EncoderStation(core, status)
     cards = CardSession(cfg.encoders)
@@ -111,6 +110,9 @@ def main(argv=None) -> int:
     try:
         presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
         timer = PeriodicTimer(int(round(1e9 / rate)))
+        # real time only now: initialising at FIFO priority (imports, models, devices)
+        # starved the running cell's FIFO programs and tripped RT throttling (issue 16)
+        try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
         presence.ready()
         notify_ready(args.ready_fd)
         errors = ErrorLine(PROG)

@@ -31,7 +31,7 @@ In a cell::
 
 takes the board, the serial port, the baud rate and the calibration from the
 cell file's ``[subunits.mvs]`` (``dsp``, ``sensor_serial``, ``baud``,
-``[subunits.mvs.calibration]``, ``board_wait``); options given on the command
+``[subunits.mvs.calibration]``, ``board_wait``, ``stamp``); options given on the command
 line win.  It waits up to ``board_wait`` seconds (default 20) for the DSP
 board and the serial port to appear -- droid-sim creates both, started in
 parallel by ``droid-cell up`` -- then completes the readiness handshake and
@@ -319,6 +319,10 @@ def apply_cell(args):
         args.baud = option("baud", int, DEFAULT_BAUD)
     if args.board_wait is None:
         args.board_wait = option("board_wait", float, CELL_WAIT_S)
+    stamp = opts.get("stamp", False)
+    if not isinstance(stamp, bool):
+        raise BadInput(f"{where} stamp must be true or false, got {stamp!r}")
+    args.stamp = args.stamp or stamp
     if not args.dsp or not args.serial:
         raise BadInput(f"{where} needs dsp = \"<board URL>\" and sensor_serial = \"<port>\" for droid-mvs")
     return cell, sub
@@ -370,11 +374,13 @@ def live_in_cell(args, core: SensorCore, cell, sub) -> int:
 
     # In a cell that asks for SCHED_FIFO the sensor is part of the tracking loop's chain
     # (frame -> line -> Brain Status -> droid-seamtrack, §5.4): below the Brain's programs.
-    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
     failed = True
 
     def ready() -> None:
+        # real time only now: initialising at FIFO priority (imports, models, devices)
+        # starved the running cell's FIFO programs and tripped RT throttling (issue 16)
+        try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
         presence.ready()
         notify_ready(args.ready_fd)
 

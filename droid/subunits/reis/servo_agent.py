@@ -329,7 +329,6 @@ def main(argv=None) -> int:
     if abs(cell.heartbeat_hz - COMMAND_HZ) > 1e-9:
         raise BadInput(f"{PROG}: the Reis servo takes one way-point per {COMMAND_HZ:g} Hz period; "
                        f"this cell's heartbeat_hz is {cell.heartbeat_hz:g}")
-    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     ctrl_command = open_local(cell, sub, "ctrl_command")
     ctrl_status = open_local(cell, sub, "ctrl_status")
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
@@ -353,6 +352,9 @@ def main(argv=None) -> int:
     pacer = TickPacer(int(round(1e9 / COMMAND_HZ)))
     station = ServoAgentStation(core, ctrl_command, ctrl_status)
     try:
+        # real time only now: initialising at FIFO priority (imports, models, devices)
+        # starved the running cell's FIFO programs and tripped RT throttling (issue 16)
+        try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
         presence.ready()
         notify_ready(args.ready_fd)
         last_why = ""

@@ -58,7 +58,6 @@ def open_vme_waiting(url: str, wait_s: float):
 def main(argv=None) -> int:
     args, cell, sub = subunit_program(PROG, "Run the 500 Hz servo loop of a Reis arm on its VME interface cards.", argv, arm=True)
     ep = reis_endpoints(cell, sub)
-    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
     ctx = zmq.Context()
     curve = CurveHost(ctx, cell, sub.host)
@@ -80,6 +79,9 @@ def main(argv=None) -> int:
         except (RobotFileError, ValueError) as exc:
             raise BadInput(str(exc)) from None
         timer = PeriodicTimer(int(round(1e9 / SERVO_HZ)))
+        # real time only now: initialising at FIFO priority (imports, models, devices)
+        # starved the running cell's FIFO programs and tripped RT throttling (issue 16)
+        try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
         presence.ready()
         notify_ready(args.ready_fd)
         station = ServoStation(core, bus)

@@ -33,7 +33,6 @@ PROG = "droid-watchdog"
 def main(argv=None) -> int:
     args, cell, sub = subunit_program(PROG, "Kick a Reis arm's watchdog timers while its servo is alive.", argv, arm=True)
     ep = reis_endpoints(cell, sub)
-    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
     ctx = zmq.Context()
     sub_sock = ctx.socket(zmq.SUB)
@@ -50,6 +49,9 @@ def main(argv=None) -> int:
         bus = open_vme_waiting(ep.vme, OPEN_WAIT_S)
         station = WatchdogStation(core, bus, status)
         timer = PeriodicTimer(int(round(1e9 / params.rate_hz)))
+        # real time only now: initialising at FIFO priority (imports, models, devices)
+        # starved the running cell's FIFO programs and tripped RT throttling (issue 16)
+        try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
         presence.ready()
         notify_ready(args.ready_fd)
         reported = False
