@@ -38,8 +38,16 @@ class Task:
     start_ns: int
     k: int = 0  # calls made
     enabled: bool = True
+    period_ns: int = 0  # the period when it is a whole number of ns (500 Hz, 1 kHz), else 0
+
+    def __post_init__(self) -> None:
+        period = 1e9 / self.rate_hz
+        if period == int(period) and period * (1 << 20) < 2.0 ** 53:  # k * period exact in floats
+            self.period_ns = int(period)
 
     def due(self, k: int) -> int:
+        if self.period_ns and k < (1 << 20):  # the same value as the rounded product, in ints
+            return self.start_ns + k * self.period_ns
         return self.start_ns + int(round(k * 1e9 / self.rate_hz))
 
 

@@ -146,7 +146,7 @@ class ServoCore:
 
     def _frame(self, counts: np.ndarray) -> tuple[int, ...]:
         rel = counts - self._zero if self._zero is not None else counts
-        return tuple(int(x) for x in rel)
+        return tuple(rel.tolist())  # Python ints
 
     @property
     def encoder_pos(self) -> tuple[int, ...]:
@@ -165,7 +165,7 @@ class ServoCore:
         """target - position [counts]."""
         if self._pos is None:
             return (0,) * N
-        return tuple(int(x) for x in self._target - self._pos)
+        return tuple((self._target - self._pos).tolist())
 
     @property
     def dac(self) -> tuple[int, ...]:
