@@ -246,6 +246,7 @@ class ReisPlant:
                     "tau_max_w0": self._tau_max_w0.tolist(), "cpr": np.broadcast_to(self._counts_per_rad, 6).tolist(),
                     "sw": self._sw.tolist(), "side": self._side.tolist(), "stop_mid": self._stop_mid.tolist()}
         self._n_substeps: dict = {}  # dt_s -> substeps per advance (validated once)
+        self._tau_c_list = self._tau_c.tolist()
         self._F0, self._G0 = self._system_matrices(np.zeros((6, 6)))  # the M(q)-free blocks
 
         if initial_joint_deg is None:
@@ -471,10 +472,10 @@ class ReisPlant:
         """One zero-order-hold step of ``dt`` (see the module docstring and :data:`EXACT_BOUND_DEG`)."""
         pg, g_m, g_wd = self._discretise(dt)
         omega, q, qd = self._omega, self._q, self._qd
+        om = omega.tolist()
         if self._amps_on:  # back-EMF at the step's start speed (``drive``: six floats)
             fl = self._fl
-            drive = [min(tm - f, max(-tm - f, d)) for d, tm, f in
-                     zip(drive, fl["tau_max"], [a * b for a, b in zip(fl["tau_max_w0"], omega.tolist())])]
+            drive = [min(tm - a * w, max(-tm - a * w, d)) for d, tm, a, w in zip(drive, fl["tau_max"], fl["tau_max_w0"], om)]
         tau_link = pin.nonLinearEffects(self._pin_model, self._pin_data, q, qd)  # C qd + g (Pinocchio's buffer)
         nl = -tau_link[1]
         if self._bal:
@@ -485,7 +486,7 @@ class ReisPlant:
         # Coulomb friction (Karnopp): kinetic where the motor moves and keeps its direction;
         # where it is at rest or would reverse, the friction that ends the step at rest, if it
         # is within +-tau_c (stiction), else tau_c against the would-be motion.
-        om, tcl = omega.tolist(), tau_c.tolist()
+        tcl = self._tau_c_list if tau_c is self._tau_c else tau_c.tolist()
         if any(om):
             kin = [-tc if w > 0.0 else (tc if w < 0.0 else -0.0) for tc, w in zip(tcl, om)]  # 0 at rest
             x = free + g_m @ kin

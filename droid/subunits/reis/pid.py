@@ -52,9 +52,14 @@ class Pid:
         for j, (e, ep, kp, ki, kd, lim, i0) in enumerate(zip(e_now, prev, self.kp, self.ki, self.kd,
                                                               self.integral_limit, integral)):
             pd = kp * e + kd * (e - ep)
-            candidate = min(lim, max(-lim, i0 + ki * e))
+            candidate = i0 + ki * e  # clipped to +-lim (comparisons: cheaper than min/max calls)
+            if candidate > lim:
+                candidate = lim
+            elif candidate < -lim:
+                candidate = -lim
             u = pd + candidate
             if not ((u > hi and e > 0.0) or (u < lo and e < 0.0)):  # conditional integration
                 integral[j] = i0 = candidate
-            append(min(hi, max(lo, pd + i0)))
+            u = pd + i0
+            append(hi if u > hi else (lo if u < lo else u))
         return out
