@@ -377,8 +377,9 @@ class ReisPlant:
         lo, hi = vm.DAC_MIN, vm.DAC_MAX
         if self._amps_on:
             fl = self._fl
+            dacs = _DACS.unpack_from(self._view, vm.DAC_OFFSET)
             drive = [min(tm, max(-tm, float(min(hi, max(lo, d))) * k))
-                     for d, k, tm in zip(_DACS.unpack_from(self._view, vm.DAC_OFFSET), fl["tau_per_dac"], fl["tau_max"])]
+                     for d, k, tm in zip(dacs, fl["tau_per_dac"], fl["tau_max"])]
             tau_c = self._tau_c
         else:
             drive = ZERO6
@@ -475,7 +476,8 @@ class ReisPlant:
         om = omega.tolist()
         if self._amps_on:  # back-EMF at the step's start speed (``drive``: six floats)
             fl = self._fl
-            drive = [min(tm - a * w, max(-tm - a * w, d)) for d, tm, a, w in zip(drive, fl["tau_max"], fl["tau_max_w0"], om)]
+            drive = [min(tm - a * w, max(-tm - a * w, d))
+                     for d, tm, a, w in zip(drive, fl["tau_max"], fl["tau_max_w0"], om)]
         tau_link = pin.nonLinearEffects(self._pin_model, self._pin_data, q, qd)  # C qd + g (Pinocchio's buffer)
         nl = -tau_link[1]
         if self._bal:
@@ -550,7 +552,8 @@ class ReisPlant:
         """Could a hard stop engage within ``dt_s``?  (No joint outruns 360 deg/s.)"""
         lim = self._stop_lim.get(dt_s)
         if lim is None:
-            lim = self._stop_lim[dt_s] = (self._stop_half - math.radians(1.0 + MAX_JOINT_SPEED_DEG_PER_S * dt_s)).tolist()
+            margin = math.radians(1.0 + MAX_JOINT_SPEED_DEG_PER_S * dt_s)
+            lim = self._stop_lim[dt_s] = (self._stop_half - margin).tolist()
         for qj, mid, lj in zip(self._q.tolist(), self._fl["stop_mid"], lim):
             if abs(qj - mid) >= lj:
                 return True

@@ -246,7 +246,7 @@ class ServoCore:
         six-element target work in place -- at this size a numpy call costs more than the
         arithmetic."""
         self._tick += 1
-        self._read_encoders(encoders_raw, periods if periods > 1 else 1)
+        self._read_encoders(encoders_raw, int(periods) if periods > 1 else 1)
         if self._mode == Mode.OFF or self._fault != Fault.NONE:
             self._hold_here()
             self._pid.reset()
