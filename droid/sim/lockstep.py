@@ -20,21 +20,13 @@ is at that instant.
 from __future__ import annotations
 
 import heapq
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 ORDER_WORLD = 0  # plants, controllers, cameras: the physics first
 ORDER_DEVICE = 10  # device-level programs: servo, encoder reader, sensor program
 ORDER_HEARTBEAT = 20  # the heartbeat tick and everything driven by it
 ORDER_TASK = 30
-
-
-@dataclass(order=True)
-class _Entry:
-    due_ns: int
-    order: int
-    seq: int
-    task: "Task" = field(compare=False)
 
 
 @dataclass
@@ -46,8 +38,16 @@ class Task:
     start_ns: int
     k: int = 0  # calls made
     enabled: bool = True
+    period_ns: int = 0  # the period when it is a whole number of ns (500 Hz, 1 kHz), else 0
+
+    def __post_init__(self) -> None:
+        period = 1e9 / self.rate_hz
+        if period == int(period) and period * (1 << 20) < 2.0 ** 53:  # k * period exact in floats
+            self.period_ns = int(period)
 
     def due(self, k: int) -> int:
+        if self.period_ns and k < (1 << 20):  # the same value as the rounded product, in ints
+            return self.start_ns + k * self.period_ns
         return self.start_ns + int(round(k * 1e9 / self.rate_hz))
 
 
@@ -60,7 +60,9 @@ class Scheduler:
         self.t_ns = 0
         self.tick = 0
         self.heartbeat_hz = heartbeat_hz
-        self._heap: list[_Entry] = []
+        # (due_ns, order, seq, task): plain tuples compare in C (seq is unique, so a task is
+        # never compared) -- a dataclass's __lt__ cost as much as some tasks (issue 13 item 6)
+        self._heap: list[tuple[int, int, int, Task]] = []
         self._seq = 0
         self._tick_fns: list[tuple[int, int, str, Callable[[int], None]]] = []
         self.tasks: dict[str, Task] = {}
@@ -93,7 +95,7 @@ class Scheduler:
 
     def _push(self, task: Task) -> None:
         self._seq += 1
-        heapq.heappush(self._heap, _Entry(task.due(task.k), task.order, self._seq, task))
+        heapq.heappush(self._heap, (task.due(task.k), task.order, self._seq, task))
 
     def _heartbeat(self, t_ns: int) -> None:
         self.tick += 1
@@ -103,16 +105,17 @@ class Scheduler:
     def run_until(self, t_end_ns: int) -> None:
         """Run every task due at or before ``t_end_ns`` [ns], then set the clock there."""
         heap = self._heap
-        while heap and heap[0].due_ns <= t_end_ns:
-            entry = heapq.heappop(heap)
-            task = entry.task
+        pop, push = heapq.heappop, heapq.heappush
+        while heap and heap[0][0] <= t_end_ns:
+            due_ns, order, _, task = pop(heap)
             if not task.enabled:
                 continue
-            self.t_ns = entry.due_ns
-            task.fn(self.t_ns)
+            self.t_ns = due_ns
+            task.fn(due_ns)
             task.k += 1
             if task.enabled:
-                self._push(task)
+                self._seq += 1
+                push(heap, (task.due(task.k), order, self._seq, task))
         self.t_ns = max(self.t_ns, t_end_ns)
 
     def run_for(self, seconds: float) -> None:

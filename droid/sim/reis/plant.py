@@ -240,6 +240,13 @@ class ReisPlant:
         self._stop_half = 0.5 * (self._stop_max - self._stop_min)
         self._stop_lim: dict = {}  # dt -> half range minus the margin of _near_stop
         self._bit_weights = np.array([1 << j for j in range(vm.N_JOINTS)], np.int64)
+        # the same constants as plain floats: the per-advance work on six values is cheaper in
+        # Python floats than in numpy calls (issue 13 item 6; the same IEEE operations, same bits)
+        self._fl = {"tau_per_dac": self._tau_per_dac.tolist(), "tau_max": self._tau_max.tolist(),
+                    "tau_max_w0": self._tau_max_w0.tolist(), "cpr": np.broadcast_to(self._counts_per_rad, 6).tolist(),
+                    "sw": self._sw.tolist(), "side": self._side.tolist(), "stop_mid": self._stop_mid.tolist()}
+        self._n_substeps: dict = {}  # dt_s -> substeps per advance (validated once)
+        self._tau_c_list = self._tau_c.tolist()
         self._F0, self._G0 = self._system_matrices(np.zeros((6, 6)))  # the M(q)-free blocks
 
         if initial_joint_deg is None:
@@ -360,25 +367,30 @@ class ReisPlant:
         """Read DACs/watchdogs from ``regs``, integrate ``dt_s`` (a whole number of
         substeps), write encoders, limit switches and AMP_STATUS."""
         p = self.params
-        n = int(round(dt_s / p.substep_s))
-        if n < 1 or abs(n * p.substep_s - dt_s) > 1e-9:
-            raise ValueError(f"advance({dt_s}) is not a whole number of {p.substep_s} s substeps")
+        n = self._n_substeps.get(dt_s)
+        if n is None:
+            n = int(round(dt_s / p.substep_s))
+            if n < 1 or abs(n * p.substep_s - dt_s) > 1e-9:
+                raise ValueError(f"advance({dt_s}) is not a whole number of {p.substep_s} s substeps")
+            self._n_substeps[dt_s] = n
         self._read_inputs(dt_s)
-        dacs = np.array(_DACS.unpack_from(self._view, vm.DAC_OFFSET), float)
+        lo, hi = vm.DAC_MIN, vm.DAC_MAX
         if self._amps_on:
-            drive = np.minimum(np.maximum(np.minimum(np.maximum(dacs, vm.DAC_MIN), vm.DAC_MAX) * self._tau_per_dac,
-                                          -self._tau_max), self._tau_max)
+            fl = self._fl
+            dacs = _DACS.unpack_from(self._view, vm.DAC_OFFSET)
+            drive = [min(tm, max(-tm, float(min(hi, max(lo, d))) * k))
+                     for d, k, tm in zip(dacs, fl["tau_per_dac"], fl["tau_max"])]
             tau_c = self._tau_c
         else:
-            drive = self._zero6
+            drive = ZERO6
             tau_c = self._tau_c + self._tau_brake
         h = p.substep_s
         if self._exact and not (self._any_jammed or self._near_stop(n * h)):
             self._step_exact(n * h, drive, tau_c)
         elif p.compliance:
-            self._steps_compliant(n, h, drive, tau_c)
+            self._steps_compliant(n, h, np.array(drive), tau_c)
         else:
-            self._steps_rigid(n, h, drive, tau_c)
+            self._steps_rigid(n, h, np.array(drive), tau_c)
         self.time_s += n * h
         self._write_outputs()
 
@@ -420,7 +432,8 @@ class ReisPlant:
     # -- the exact (linearised, zero-order-hold) integrator --------------------------------
     def _discretise(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         q = self._q
-        if self._lin_q is None or np.abs(q - self._lin_q).max() > self._relin_rad:
+        lin, r = self._lin_q, self._relin_rad
+        if lin is None or any(abs(a - b) > r for a, b in zip(q.tolist(), lin.tolist())):
             self._lin_q = q.copy()
             self._disc = {}
             self._minv_lin = self.body.minv(q)
@@ -460,9 +473,11 @@ class ReisPlant:
         """One zero-order-hold step of ``dt`` (see the module docstring and :data:`EXACT_BOUND_DEG`)."""
         pg, g_m, g_wd = self._discretise(dt)
         omega, q, qd = self._omega, self._q, self._qd
-        if self._amps_on:  # back-EMF at the step's start speed
-            fade = self._tau_max_w0 * omega
-            drive = np.minimum(np.maximum(drive, -self._tau_max - fade), self._tau_max - fade)
+        om = omega.tolist()
+        if self._amps_on:  # back-EMF at the step's start speed (``drive``: six floats)
+            fl = self._fl
+            drive = [min(tm - a * w, max(-tm - a * w, d))
+                     for d, tm, a, w in zip(drive, fl["tau_max"], fl["tau_max_w0"], om)]
         tau_link = pin.nonLinearEffects(self._pin_model, self._pin_data, q, qd)  # C qd + g (Pinocchio's buffer)
         nl = -tau_link[1]
         if self._bal:
@@ -473,17 +488,22 @@ class ReisPlant:
         # Coulomb friction (Karnopp): kinetic where the motor moves and keeps its direction;
         # where it is at rest or would reverse, the friction that ends the step at rest, if it
         # is within +-tau_c (stiction), else tau_c against the would-be motion.
-        kinetic = -tau_c * np.sign(omega)  # 0 for a motor at rest
-        x = free + g_m @ kinetic
-        keeps = x[6:12] * omega > 0.0  # moving, and still the same way with kinetic friction
-        if keeps.all():
-            self._theta, self._omega, self._q, self._qd = x[0:6], x[6:12], x[12:18], x[18:24]
-            return
+        tcl = self._tau_c_list if tau_c is self._tau_c else tau_c.tolist()
+        if any(om):
+            kin = [-tc if w > 0.0 else (tc if w < 0.0 else -0.0) for tc, w in zip(tcl, om)]  # 0 at rest
+            x = free + g_m @ kin
+            # moving, and still the same way with kinetic friction
+            keep = [a * w > 0.0 for a, w in zip(x[6:12].tolist(), om)]
+            if all(keep):
+                self._theta, self._omega, self._q, self._qd = x[0:6], x[6:12], x[12:18], x[18:24]
+                return
+        else:  # every motor at rest: no kinetic friction, each one may stick
+            kin, keep = None, (False,) * 6
         # a motor at rest or reversing (most steps: the wrist motors stand still while the main
         # axes track); per motor in plain floats -- six of them are cheaper than a dozen numpy calls
-        w_end, keep, kin = free[6:12].tolist(), keeps.tolist(), kinetic.tolist()
+        w_end = free[6:12].tolist()
         fric, rest = [0.0] * 6, []
-        for j, (tc, gw) in enumerate(zip(tau_c.tolist(), g_wd)):
+        for j, (tc, gw) in enumerate(zip(tcl, g_wd)):
             if keep[j]:
                 fric[j] = kin[j]
                 continue
@@ -496,8 +516,10 @@ class ReisPlant:
         x = free + g_m @ fric
         theta, omega = x[0:6], x[6:12]
         if rest:  # a motor held by stiction stays where it was (else it would creep by the part-step
-            theta[rest] = self._theta[rest]  # motion the held friction allows within the step)
-            omega[rest] = 0.0
+            old = self._theta  # motion the held friction allows within the step)
+            for j in rest:
+                theta[j] = old[j]
+                omega[j] = 0.0
         self._theta, self._omega, self._q, self._qd = theta, omega, x[12:18], x[18:24]
 
     def _steps_rigid(self, n: int, h: float, drive, tau_c) -> None:
@@ -530,8 +552,12 @@ class ReisPlant:
         """Could a hard stop engage within ``dt_s``?  (No joint outruns 360 deg/s.)"""
         lim = self._stop_lim.get(dt_s)
         if lim is None:
-            lim = self._stop_lim[dt_s] = self._stop_half - math.radians(1.0 + MAX_JOINT_SPEED_DEG_PER_S * dt_s)
-        return bool((np.abs(self._q - self._stop_mid) >= lim).any())
+            margin = math.radians(1.0 + MAX_JOINT_SPEED_DEG_PER_S * dt_s)
+            lim = self._stop_lim[dt_s] = (self._stop_half - margin).tolist()
+        for qj, mid, lj in zip(self._q.tolist(), self._fl["stop_mid"], lim):
+            if abs(qj - mid) >= lj:
+                return True
+        return False
 
     def _apply_stops(self, q, omega, qd):
         """Jammed motors stop dead; links at a hard stop moving outward stop dead."""
@@ -566,10 +592,16 @@ class ReisPlant:
             self._wd_fault = True
 
     def _write_outputs(self) -> None:
-        self._enc_written = self.encoder_raw
+        # encoder_raw and the switch bits in plain floats (the same operations as the properties)
+        floor, mod, fl = math.floor, vm.ENCODER_MODULUS, self._fl
+        self._enc_written = enc = tuple([(floor(t * c) + o) % mod for t, c, o in
+                                         zip(self._theta.tolist(), fl["cpr"], self._enc_offset.tolist())])
         view = self._view
-        view[vm.ENCODER_OFFSET:vm.ENCODER_OFFSET + _ENCODERS.size] = _ENCODERS.pack(*self._enc_written)
-        bits = int(self._bit_weights @ (self._side * (self._q - self._sw) > 0.0))  # bit j: joint j+1's switch
+        view[vm.ENCODER_OFFSET:vm.ENCODER_OFFSET + _ENCODERS.size] = _ENCODERS.pack(*enc)
+        bits = 0
+        for j, (a, qj, sw) in enumerate(zip(fl["side"], self._q.tolist(), fl["sw"])):
+            if a * (qj - sw) > 0.0:
+                bits |= 1 << j  # bit j: joint j+1's switch
         view[vm.LIMIT_SWITCH_OFFSET:vm.LIMIT_SWITCH_OFFSET + 2] = _U16.pack(bits)
         status = (vm.AMP_STATUS_POWERED if self._amps_on else 0) | (
             vm.AMP_STATUS_WATCHDOG_FAULT if self._wd_fault else 0

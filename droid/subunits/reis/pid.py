@@ -47,13 +47,19 @@ class Pid:
         self._prev_error = e_now
         lo, hi = self.out_min, self.out_max
         out = []
+        append = out.append
         integral = self._integral
-        for j, e in enumerate(e_now):
-            pd = self.kp[j] * e + self.kd[j] * (e - prev[j])
-            lim = self.integral_limit[j]
-            candidate = min(lim, max(-lim, integral[j] + self.ki[j] * e))
+        for j, (e, ep, kp, ki, kd, lim, i0) in enumerate(zip(e_now, prev, self.kp, self.ki, self.kd,
+                                                              self.integral_limit, integral)):
+            pd = kp * e + kd * (e - ep)
+            candidate = i0 + ki * e  # clipped to +-lim (comparisons: cheaper than min/max calls)
+            if candidate > lim:
+                candidate = lim
+            elif candidate < -lim:
+                candidate = -lim
             u = pd + candidate
             if not ((u > hi and e > 0.0) or (u < lo and e < 0.0)):  # conditional integration
-                integral[j] = candidate
-            out.append(min(hi, max(lo, pd + integral[j])))
+                integral[j] = i0 = candidate
+            u = pd + i0
+            append(hi if u > hi else (lo if u < lo else u))
         return out

@@ -37,7 +37,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from droid.kinematics.gearing import extend_counter
 from droid.subunits.reis.command_queue import CommandQueue
 from droid.subunits.reis.homing import HomePhase, Homing, zero_from_edges
 from droid.subunits.reis.pid import Pid
@@ -84,6 +83,8 @@ class ServoCore:
         self._fault = Fault.NONE
         self._last_command_mode: Mode | None = None
         self._zero: np.ndarray | None = None
+        self._limits: tuple[np.ndarray, np.ndarray] | None = None  # zero + tmin, zero + tmax once homed
+        self._span = 1 << int(p.encoder_bits)  # the counters' range [counts]
         self._tick = 0
         self._pos: np.ndarray | None = None  # extended counts
         self._target = np.zeros(N, np.int64)
@@ -145,7 +146,7 @@ class ServoCore:
 
     def _frame(self, counts: np.ndarray) -> tuple[int, ...]:
         rel = counts - self._zero if self._zero is not None else counts
-        return tuple(int(x) for x in rel)
+        return tuple(rel.tolist())  # Python ints
 
     @property
     def encoder_pos(self) -> tuple[int, ...]:
@@ -164,7 +165,7 @@ class ServoCore:
         """target - position [counts]."""
         if self._pos is None:
             return (0,) * N
-        return tuple(int(x) for x in self._target - self._pos)
+        return tuple((self._target - self._pos).tolist())
 
     @property
     def dac(self) -> tuple[int, ...]:
@@ -229,7 +230,7 @@ class ServoCore:
         self._mode = mode
         goal = self._queue.last_goal + cmd if mode == Mode.JOG else cmd + self._zero
         if self._zero is not None:
-            goal = np.clip(goal, self._zero + self._tmin, self._zero + self._tmax)
+            goal = np.clip(goal, *self._limits)
         self._queue.submit(goal, accel_limit=mode == Mode.JOG)
         return True
 
@@ -238,34 +239,46 @@ class ServoCore:
         """One servo tick: six raw 16-bit counters [counts] and six switch states
         -> six DAC values [DAC counts, -2048..2047].  ``periods`` > 1 after the host
         stalled the loop (timer overrun): the encoders may then legitimately have
-        moved ``periods`` times farther (DESIGN §9: ride through a stall)."""
+        moved ``periods`` times farther (DESIGN §9: ride through a stall).
+
+        The hot loop of the servo program and of every lockstep trial (issue 13 item 6):
+        per-joint work is done in plain Python ints/floats and the few numpy calls on the
+        six-element target work in place -- at this size a numpy call costs more than the
+        arithmetic."""
         self._tick += 1
-        self._read_encoders(encoders_raw, max(1, int(periods)))
+        self._read_encoders(encoders_raw, int(periods) if periods > 1 else 1)
         if self._mode == Mode.OFF or self._fault != Fault.NONE:
             self._hold_here()
             self._pid.reset()
             self._dac = (0,) * N
             return self._dac
-        previous = self._target.copy()
+        previous = self._target
         if self._homing.active:
+            previous = previous.copy()  # homing moves the target in place
             phase = self._homing.step(self._pos, limit_switches, self._target)
             if phase == HomePhase.DONE:
                 self._finish_homing()
             elif phase == HomePhase.FAILED:
                 self._fault = Fault.HOME_SWITCH_NOT_FOUND
         else:
-            self._target = self._queue.next_target(self._tick, self._target, self._vel)
-        if self._zero is not None:
-            np.clip(self._target, self._zero + self._tmin, self._zero + self._tmax, out=self._target)
-        self._vel = self._target - previous
-        error = (self._target - self._pos).tolist()
-        if any(abs(e) > limit for e, limit in zip(error, self._fe_max)):
-            self._fault = Fault.FOLLOWING_ERROR
+            self._target = self._queue.next_target(self._tick, previous, self._vel)
+            if self._target is previous:
+                previous = previous.copy()
+        target = self._target
+        if self._limits is not None:  # the min/max counts once homed: clip in place
+            lo, hi = self._limits
+            np.minimum(np.maximum(target, lo, out=target), hi, out=target)
+        self._vel = target - previous
+        error = (target - self._pos).tolist()
+        for e, limit in zip(error, self._fe_max):
+            if e > limit or -e > limit:
+                self._fault = Fault.FOLLOWING_ERROR
+                break
         if self._fault != Fault.NONE:
             self._pid.reset()
             self._dac = (0,) * N
             return self._dac
-        self._dac = tuple(round(x) for x in self._pid.step(error))
+        self._dac = tuple(map(round, self._pid.step(error)))
         return self._dac
 
     def _read_encoders(self, encoders_raw, periods: int = 1) -> None:
@@ -276,10 +289,20 @@ class ServoCore:
             self._pos = np.asarray(raw, np.int64)
             self._hold_here()
             return
-        bits, jump = self.params.encoder_bits, self.params.max_encoder_step_counts * periods
-        old = self._pos.tolist()
-        new = [extend_counter(p, r, bits) for p, r in zip(old, raw)]
-        if any(abs(n - p) > jump for n, p in zip(new, old)):
+        jump = self.params.max_encoder_step_counts * periods
+        span = self._span
+        half = span >> 1
+        new = []
+        append = new.append
+        jumped = False
+        for p, r in zip(self._pos.tolist(), raw):  # extend_counter, inlined (six calls cost more)
+            delta = (r - p) % span
+            if delta >= half:
+                delta -= span
+            if delta > jump or -delta > jump:
+                jumped = True
+            append(p + delta)
+        if jumped:
             self._fault = Fault.ENCODER_JUMP
         self._pos = np.array(new, np.int64)
 
@@ -292,6 +315,7 @@ class ServoCore:
     # -- homing --------------------------------------------------------------------------
     def _start_homing(self) -> None:
         self._zero = None
+        self._limits = None
         self._mode = Mode.HOME
         self._hold_here()
         self._pid.reset()
@@ -300,5 +324,6 @@ class ServoCore:
     def _finish_homing(self) -> None:
         p = self.params
         self._zero = zero_from_edges(self._homing.edges, p.home_switch_deg, p.joint_to_counts)
+        self._limits = (self._zero + self._tmin, self._zero + self._tmax)
         self._mode = Mode.NORMAL
         self._queue.reset(self._target, self._tick)

@@ -25,6 +25,9 @@ _ENCODERS = struct.Struct(vm.ENCODERS_FORMAT)
 _DACS = struct.Struct(vm.DACS_FORMAT)
 _U16 = struct.Struct(vm.U16_FORMAT)
 _I16 = struct.Struct(vm.I16_FORMAT)
+_SWITCH_MASK = (1 << vm.N_JOINTS) - 1
+# the six switch states of every limit-switch register value (a table lookup per servo tick)
+_SWITCH_STATES = tuple(tuple(bool(bits >> j & 1) for j in range(vm.N_JOINTS)) for bits in range(1 << vm.N_JOINTS))
 
 #: the register-map errors shared by every driver (droid.subunits.regmap), under the names
 #: this driver has always used
@@ -92,8 +95,9 @@ class VmeBus:
         """Write six amplifier commands [DAC counts], clamped to -2048..2047; returns what was written."""
         if len(values) != vm.N_JOINTS:
             raise ValueError(f"write_dacs needs {vm.N_JOINTS} values, got {len(values)}")
-        clamped = tuple(min(vm.DAC_MAX, max(vm.DAC_MIN, int(round(v)))) for v in values)
-        vm.store(self._view, vm.DAC_OFFSET, vm.DACS_FORMAT, *clamped)
+        hi, lo = vm.DAC_MAX, vm.DAC_MIN
+        clamped = tuple([min(hi, max(lo, int(round(v)))) for v in values])
+        self._view[vm.DAC_OFFSET:vm.DAC_OFFSET + _DACS.size] = _DACS.pack(*clamped)  # vm.store's one copy
         return clamped
 
     def read_dacs(self) -> tuple[int, ...]:
@@ -110,8 +114,7 @@ class VmeBus:
 
     def read_limit_switches(self) -> tuple[bool, ...]:
         """Six limit switch states, joint 1 first (True = active)."""
-        bits = self.read_limit_bits()
-        return tuple(bool(bits >> j & 1) for j in range(vm.N_JOINTS))
+        return _SWITCH_STATES[_U16.unpack_from(self._view, vm.LIMIT_SWITCH_OFFSET)[0] & _SWITCH_MASK]
 
     def write_watchdog(self, value0: int, value1: int) -> None:
         """Write both watchdog timer registers (each must change within the timeout)."""
