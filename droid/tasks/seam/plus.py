@@ -53,6 +53,8 @@ DEPTH_KI = 0.05
 DEPTH_LIMIT_MM = 3.0
 #: Half-width of the window the tool's surface normal (the roll) is averaged over [mm].
 NORMAL_HALF_MM = 20.0
+#: The tool frame's tangent comes from the map's fit over this many times its window (±18 mm).
+ORIENT_WIDE = 3.0
 #: Alpha-beta filter of the sensor's aim about the tool axis (per cycle): angle and turn-rate gains.
 AIM_ALPHA = 0.6
 AIM_BETA = 0.1
@@ -180,8 +182,9 @@ class PlusTracker:
                                                DEPTH_LIMIT_MM))
 
         # -- the tool frame: normal to the surface, the sensor aimed at the seam ahead ----
-        x = self.map.normal(f.s_mm, NORMAL_HALF_MM, f.t)
-        t = f.t - x * float(f.t @ x)
+        fo = self.map.fit(f.s_mm, wide=ORIENT_WIDE) or f  # the frame from a wider fit: no jitter of the knots
+        x = self.map.normal(f.s_mm, NORMAL_HALF_MM, fo.t)
+        t = fo.t - x * float(fo.t @ x)
         t = t / max(float(np.linalg.norm(t)), 1e-12)
         ahead = chord_point(self.map, f.s_mm, f.p, self.camera_to_tcp_mm)
         z = (ahead.p - f.p) if ahead is not None else t
