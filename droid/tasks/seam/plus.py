@@ -44,6 +44,7 @@ from droid.kinematics.transforms import inv_homo
 from droid.tasks.seam.core import (mount, PHASE_DEAD_ZONE, PHASE_INITIAL, PHASE_TRACKING, TravelGuard,
                                    STOP_LOST, STOP_UNREACHABLE,
                                    CycleOutput, SeamParams, TrackingStop, _seam_transform)
+from droid.tasks.seam.compliance import StaticDeflection
 from droid.tasks.seam.delay import DELAY_OFF, INVALID_READING, Reading
 from droid.tasks.seam.seammap import SeamMap, chord_point
 
@@ -81,6 +82,10 @@ class PlusTracker:
         self.used_readings = 0
         self.z_aim: np.ndarray | None = None  # the smoothed travel axis (the sensor's aim), holder frame
         self.aim_rate = 0.0  # its turn about the tool axis per cycle [rad]
+        self.defl = None  # the drives' static deflection (params.compliance and a robot file with [dynamics])
+        if params.compliance and reis_model is not None:
+            d = StaticDeflection(reis_model)
+            self.defl = d if d.active else None
 
     @property
     def stopped(self) -> TrackingStop | None:
@@ -99,6 +104,18 @@ class PlusTracker:
         return CycleOutput(cycle=cycle, reis_cmd=None, gmf1_cmd=None, stop=self.stop, phase=PHASE_TRACKING,
                            travel_mm=self.travel_mm, yaw_rad=0.0, pitch_rad=0.0, reading=INVALID_READING,
                            delay_state=DELAY_OFF, tcp_idx=0, queue_len=self.map.size)
+
+    def _link_pose(self, T_status) -> np.ndarray:
+        """The Reis wrist-centre pose of its links: a Status pose (motor-side encoders) corrected
+        for the drives' static deflection (droid.tasks.seam.compliance); unchanged without it."""
+        T = np.asarray(T_status, float)
+        if self.defl is None:
+            return T
+        try:
+            q_m = self.reis_model.ik(T, self.q_prev if self.q_prev is not None else np.zeros(6))
+        except (Unreachable, ValueError):
+            return T
+        return self.reis_model.fk(self.defl.link_deg(q_m))
 
     def _smooth_aim(self, z: np.ndarray, x: np.ndarray) -> np.ndarray:
         """The travel axis toward the sensor's aim point ``z``, smoothed in the plane normal to
@@ -130,6 +147,7 @@ class PlusTracker:
             return self._stopped_output(cycle)
         T_hold = np.asarray(T_global_hold6, float)
         hold_inv = inv_homo(T_hold)
+        T_global_reis6 = self._link_pose(T_global_reis6)
         T_tool_H = hold_inv @ np.asarray(T_global_reis6, float) @ self.T67tool  # eq. 5.10, 5.5
         tool = T_tool_H[:3, 3].copy()
         in_dead_zone = cycle < self.p.dead_zone_cycles
@@ -153,7 +171,7 @@ class PlusTracker:
             if used.valid:
                 located = locate(used) if locate is not None else (T_global_reis6_sensed, T_global_hold6_sensed)
                 if located is not None:
-                    reis_s = np.asarray(T_global_reis6 if located[0] is None else located[0], float)
+                    reis_s = T_global_reis6 if located[0] is None else self._link_pose(located[0])
                     hold_s_inv = hold_inv if located[1] is None else inv_homo(np.asarray(located[1], float))
                     frame = hold_s_inv @ reis_s @ self.Tcamera_6 @ _seam_transform(used)  # eq. 5.1/5.3
                     self.map.add(frame[:3, 3], frame[:3, 0])
@@ -203,6 +221,9 @@ class PlusTracker:
                 q = self.reis_model.ik(reis_cmd, self.q_prev if self.q_prev is not None else np.zeros(6))
             except (Unreachable, ValueError) as exc:
                 return self._stop(cycle, STOP_UNREACHABLE, str(exc))
+            if self.defl is not None:  # the motor angles that put the deflected links there
+                q = self.defl.motor_deg(q)
+                reis_cmd = self.reis_model.fk(q)
             self.q_prev = q
         first = self.map.first_reading_s
         phase = PHASE_DEAD_ZONE if in_dead_zone else (
