@@ -54,6 +54,8 @@ DEPTH_KI = 0.05
 DEPTH_LIMIT_MM = 3.0
 #: Half-width of the window the tool's surface normal (the roll) is averaged over [mm].
 NORMAL_HALF_MM = 20.0
+#: The commanded point comes from the map's fit over this many times its window.
+POSITION_WIDE = 2.0
 #: The tool frame's tangent comes from the map's fit over this many times its window (±18 mm).
 ORIENT_WIDE = 3.0
 #: Alpha-beta filter of the sensor's aim about the tool axis (per cycle): angle and turn-rate gains.
@@ -186,7 +188,7 @@ class PlusTracker:
         if self.map.first_reading_s is not None:  # nothing sensed yet: stand at the start
             self.v = min(self.p.speed_mm_s, self.v + self.p.accel_mm_s2 * dt)
         s_next = self.s_cmd + self.v * dt
-        f = self.map.fit(s_next)
+        f = self.map.fit(s_next, wide=POSITION_WIDE) if s_next <= self.map.front_s else self.map.fit(s_next)
         if f is None:
             return self._stop(cycle, STOP_LOST, f"no seam mapped within {self.p.gap_mm:g} mm ahead of the tool "
                                                 f"(map ends at {self.map.front_s:.1f} mm)")
