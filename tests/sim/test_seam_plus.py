@@ -37,8 +37,8 @@ def test_plus_tracks_the_r200_ramp_at_64_mm_s_under_half_a_millimetre():
     r, su = run(position="vii", workpiece="ramp_r200", speed_mm_s=64.0)
     assert su.stop_reason == "end of seam" and not su.seam_lost, su.stop_detail
     assert su.end_s_mm >= 850.0  # through the arc to the far straight
-    # the full arm: ~0.3 mm RMS, ~1.1 mm max (the fast arm: 0.07 / 0.16 mm)
-    assert su.rms_lateral_mm <= 0.5 and su.max_lateral_mm <= 2.0
+    # the full arm: ~0.07 mm RMS, ~0.2 mm max over 10 seeds (docs/seamtrack.md)
+    assert su.rms_lateral_mm <= 0.5 and su.max_lateral_mm <= 1.0
     assert su.rms_depth_mm <= 0.5
     assert travel_speed(r) == pytest.approx(64.0, rel=0.05)
 
