@@ -10,10 +10,9 @@ from droid.tasks.seam.report import summarize
 
 
 def run(**kw):
-    # the arm these margins were set on; on the default full arm 3 of this file's trials miss them
-    # (R200 at 64 mm/s and R25 at 16 mm/s lose the seam in plus mode; thesis mode on R200 at
-    # 32 mm/s: 0.52 mm lateral RMS) -- docs/seamtrack.md, the tracker's work on the full arm
-    kw.setdefault("arm", "fast")
+    # the experiments' default arm: the Reis's cores and its rigid-body plant with the drives'
+    # compliance (docs/seamtrack.md, "On the full arm")
+    kw.setdefault("arm", "full")
     kw.setdefault("seed", 1)
     kw.setdefault("sensor", "camera")
     r = run_trial(TrialConfig("plus", mode="plus", **kw))
@@ -38,6 +37,7 @@ def test_plus_tracks_the_r200_ramp_at_64_mm_s_under_half_a_millimetre():
     r, su = run(position="vii", workpiece="ramp_r200", speed_mm_s=64.0)
     assert su.stop_reason == "end of seam" and not su.seam_lost, su.stop_detail
     assert su.end_s_mm >= 850.0  # through the arc to the far straight
+    # the full arm: ~0.07 mm RMS, ~0.2 mm max over 10 seeds (docs/seamtrack.md)
     assert su.rms_lateral_mm <= 0.5 and su.max_lateral_mm <= 1.0
     assert su.rms_depth_mm <= 0.5
     assert travel_speed(r) == pytest.approx(64.0, rel=0.05)
@@ -104,8 +104,11 @@ def test_bad_trial_configs_are_refused(kw):
 
 def test_plus_tracks_an_r25_arc_to_its_end():
     """The sensor, 100 mm ahead, turns about the tool axis to keep its laser line on a 25 mm
-    arc (the bundled workpiece ramp_r25, 20 mm surfaces): tracked to the seam's end at 16 mm/s."""
-    r, su = run(position="vii", workpiece="ramp_r25", speed_mm_s=16.0)
+    arc (the bundled workpiece ramp_r25, 20 mm surfaces): tracked to the seam's end at 16 mm/s.
+    On the fast arm: on the full arm the camera chain loses this arc where its laser line meets
+    it at a glancing angle in part of the seeds (seed 1 among them) -- an open shortfall of
+    issue 12's R25 target, docs/seamtrack.md "On the full arm"; the bench reports it."""
+    r, su = run(position="vii", workpiece="ramp_r25", speed_mm_s=16.0, arm="fast")
     assert su.stop_reason == "end of seam" and not su.seam_lost, su.stop_detail
     assert su.end_s_mm >= 300.0 + 25.0 * np.pi / 2 + 250.0  # past the arc, on the far straight
     assert su.rms_lateral_mm <= 0.5 and su.max_lateral_mm <= 1.0
@@ -123,3 +126,18 @@ def test_plus_keeps_the_tool_normal_to_a_rolled_surface():
     roll = r.column("tool_roll_rad")[s > 150.0]
     assert np.isfinite(roll).sum() >= 50
     assert np.degrees(np.nanmax(np.abs(roll))) <= 0.5
+
+
+def test_plus_ends_at_its_run_length_measured_along_the_seam_map():
+    """The run length is the tool's progress along the seam map (the arc length of its foot on
+    the map), not the summed path of the Status tool point: at 4 mm/s the full arm's drives
+    stick and slip and the summed path ran 15-60 % ahead (a 700 mm run ended at 276-602 mm).
+    (Since the tool frame is smoothed the sum happens to agree here too; the pure test of the
+    measure is tests/tasks/test_seam_core.py's jittery arm.)"""
+    r, su = run(position="i", speed_mm_s=4.0, length_mm=150.0)
+    assert su.stop_reason == "end of seam", su.stop_detail
+    # stop_s_mm: the true seam coordinate of the tool when the run stopped (0 at its start)
+    assert r.stop_s_mm == pytest.approx(150.0, abs=5.0)
+    t, s = r.column("t_s"), r.column("s_mm")
+    ok = np.isfinite(s) & (s > 50.0)
+    assert float(np.polyfit(t[ok], s[ok], 1)[0]) == pytest.approx(4.0, rel=0.05)  # and at its speed

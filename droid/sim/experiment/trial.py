@@ -167,7 +167,8 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None) -> Trial
     length = cfg.length_mm if cfg.length_mm is not None else default_length_mm(geo)
     params = SeamParams(speed_mm_s=cfg.speed_mm_s, yaw_gain=cfg.yaw_gain, pitch_gain=cfg.pitch_gain,
                         dead_zone_cycles=cfg.dead_zone_cycles, lost_cycles=cfg.lost_cycles, length_mm=length,
-                        delay_cycles=cfg.delay_cycles, delay_at_mm=cfg.delay_at_mm, mode=cfg.mode)
+                        delay_cycles=cfg.delay_cycles, delay_at_mm=cfg.delay_at_mm, mode=cfg.mode,
+                        compliance=cfg.arm == "full")  # the fast arm's drives are rigid
     sched = Scheduler(HEARTBEAT_HZ)
     if cfg.arm == "fast":
         arm = FastArm(geo.reis, geo.q_reis_start_deg, cfg.fast_params)

@@ -128,6 +128,8 @@ class SeamParams:
     mode: str = MODE_THESIS  # MODES
     accel_mm_s2: float = 200.0  # plus mode: travel acceleration limit from rest [mm/s^2]
     gap_mm: float = 30.0  # plus mode: longest stretch of seam bridged by extrapolation [mm]
+    compliance: bool = True  # plus mode: correct the Reis's poses for its drives' static deflection
+    # (droid.tasks.seam.compliance; docs/seamtrack.md, "On the full arm")
 
     def __post_init__(self) -> None:
         for name in ("speed_mm_s", "yaw_gain", "pitch_gain", "delay_at_mm", "cycle_hz", "runaway_factor"):
@@ -224,18 +226,26 @@ class TravelGuard:
 
     def __init__(self, params: "SeamParams") -> None:
         self.p = params
-        self.travel_mm = 0.0
+        self.travel_mm = 0.0  # the run's progress: the summed path, or the caller's progress_mm
+        self.path_mm = 0.0  # the summed path of the tool point [mm]
         self.last_tool: np.ndarray | None = None
         self.recent: deque = deque(maxlen=RUNAWAY_WINDOW)  # (moved mm, cycles)
 
-    def step(self, tool, elapsed_cycles: float, guard_runaway: bool) -> tuple[str, str] | None:
-        """One cycle's tool position [mm]; (stop reason, detail) or None."""
+    def step(self, tool, elapsed_cycles: float, guard_runaway: bool,
+             progress_mm: float | None = None) -> tuple[str, str] | None:
+        """One cycle's tool position [mm]; (stop reason, detail) or None.
+
+        ``progress_mm``: the tool's progress along the seam as the caller knows it (plus mode:
+        the arc length of the tool's foot on the seam map); when given it, not the summed path,
+        is ``travel_mm`` (never decreasing) -- the summed path of the measured tool runs ahead
+        of the seam coordinate on an arm whose tool point jitters across the seam."""
         moved_mm = 0.0
         if self.last_tool is not None:
             d = tool - self.last_tool
             moved_mm = math.sqrt(float(d.dot(d)))  # np.linalg.norm(d), without its overhead
-            self.travel_mm += moved_mm
+            self.path_mm += moved_mm
         self.last_tool = tool
+        self.travel_mm = self.path_mm if progress_mm is None else max(self.travel_mm, float(progress_mm))
         if guard_runaway and self.p.runaway_factor > 0:
             self.recent.append((moved_mm, max(1.0, elapsed_cycles)))
             moved = sum(m for m, _ in self.recent)

@@ -44,6 +44,7 @@ from droid.kinematics.transforms import inv_homo
 from droid.tasks.seam.core import (mount, PHASE_DEAD_ZONE, PHASE_INITIAL, PHASE_TRACKING, TravelGuard,
                                    STOP_LOST, STOP_UNREACHABLE,
                                    CycleOutput, SeamParams, TrackingStop, _seam_transform)
+from droid.tasks.seam.compliance import StaticDeflection
 from droid.tasks.seam.delay import DELAY_OFF, INVALID_READING, Reading
 from droid.tasks.seam.seammap import SeamMap, chord_point
 
@@ -51,6 +52,22 @@ from droid.tasks.seam.seammap import SeamMap, chord_point
 DEPTH_KI = 0.05
 #: Largest depth correction the integrator may apply [mm].
 DEPTH_LIMIT_MM = 3.0
+#: Half-width of the window the tool's surface normal (the roll) is averaged over [mm].
+NORMAL_HALF_MM = 20.0
+#: The commanded point comes from the map's fit over this many times its window.
+POSITION_WIDE = 2.0
+#: The tool frame's tangent comes from the map's fit over this many times its window (±18 mm).
+ORIENT_WIDE = 3.0
+#: Alpha-beta filter of the sensor's aim about the tool axis (per cycle): angle and turn-rate gains.
+AIM_ALPHA = 0.6
+AIM_BETA = 0.1
+#: The aim is commanded this many cycles of its turn *behind* the filter: empirical, for tight
+#: arcs -- on the R25 arc the full arm's camera lost the seam where its laser line meets the arc
+#: at a glancing angle in 5 of 10 seeds with 0, in none of 4 of those seeds with 3 (a lead of 2-5
+#: cycles did not help); on R200 it changes nothing (docs/seamtrack.md, "On the full arm").
+AIM_LAG_CYCLES = 3.0
+#: Largest turn of the sensor's aim about the tool axis in one cycle [rad] (90 deg/s at 30 Hz).
+AIM_RATE_RAD = math.radians(3.0)
 
 
 class PlusTracker:
@@ -70,6 +87,12 @@ class PlusTracker:
         self.stop: TrackingStop | None = None
         self.travel = TravelGuard(params)
         self.used_readings = 0
+        self.z_aim: np.ndarray | None = None  # the smoothed travel axis (the sensor's aim), holder frame
+        self.aim_rate = 0.0  # its turn about the tool axis per cycle [rad]
+        self.defl = None  # the drives' static deflection (params.compliance and a robot file with [dynamics])
+        if params.compliance and reis_model is not None:
+            d = StaticDeflection(reis_model)
+            self.defl = d if d.active else None
 
     @property
     def stopped(self) -> TrackingStop | None:
@@ -89,6 +112,38 @@ class PlusTracker:
                            travel_mm=self.travel_mm, yaw_rad=0.0, pitch_rad=0.0, reading=INVALID_READING,
                            delay_state=DELAY_OFF, tcp_idx=0, queue_len=self.map.size)
 
+    def _link_pose(self, T_status) -> np.ndarray:
+        """The Reis wrist-centre pose of its links: a Status pose (motor-side encoders) corrected
+        for the drives' static deflection (droid.tasks.seam.compliance); unchanged without it."""
+        T = np.asarray(T_status, float)
+        if self.defl is None:
+            return T
+        try:
+            q_m = self.reis_model.ik(T, self.q_prev if self.q_prev is not None else np.zeros(6))
+        except (Unreachable, ValueError):
+            return T
+        return self.reis_model.fk(self.defl.link_deg(q_m))
+
+    def _smooth_aim(self, z: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """The travel axis toward the sensor's aim point ``z``, smoothed in the plane normal to
+        ``x``: an alpha-beta filter of its angle (AIM_ALPHA, AIM_BETA a cycle) -- it follows a
+        steadily turning aim (an arc) without a steady lag, and does not pass on the jitter of the
+        map's front, where each new knot moves the fit; a wrist that chased that would shake the
+        arm (docs/seamtrack.md, "On the full arm") -- and turns at most AIM_RATE_RAD a cycle."""
+        if self.z_aim is None:
+            self.z_aim, self.aim_rate = z, 0.0
+            return z
+        prev = self.z_aim - x * float(self.z_aim @ x)
+        prev = prev / max(float(np.linalg.norm(prev)), 1e-12)
+        ang = math.atan2(float(np.cross(prev, z) @ x), float(prev @ z))  # from the last aim
+        resid = ang - self.aim_rate
+        step = max(-AIM_RATE_RAD, min(AIM_RATE_RAD, self.aim_rate + AIM_ALPHA * resid))
+        self.aim_rate = max(-AIM_RATE_RAD, min(AIM_RATE_RAD, self.aim_rate + AIM_BETA * resid))
+        out = prev * math.cos(step) + np.cross(x, prev) * math.sin(step)
+        self.z_aim = out
+        lag = -AIM_LAG_CYCLES * self.aim_rate  # the aim held back by that many cycles of its turn
+        return out * math.cos(lag) + np.cross(x, out) * math.sin(lag) if lag else out
+
     def step(self, T_global_hold6, T_global_reis6, reading: Reading, q_reis_deg=None, elapsed_cycles: float = 1.0,
              T_global_reis6_sensed=None, T_global_hold6_sensed=None, locate=None) -> CycleOutput:
         """One 30 Hz cycle (see the module docstring); ``locate(reading)`` gives the (Reis, GMF1)
@@ -100,18 +155,21 @@ class PlusTracker:
             return self._stopped_output(cycle)
         T_hold = np.asarray(T_global_hold6, float)
         hold_inv = inv_homo(T_hold)
+        T_global_reis6 = self._link_pose(T_global_reis6)
         T_tool_H = hold_inv @ np.asarray(T_global_reis6, float) @ self.T67tool  # eq. 5.10, 5.5
         tool = T_tool_H[:3, 3].copy()
         in_dead_zone = cycle < self.p.dead_zone_cycles
-        stop = self.travel.step(tool, elapsed_cycles, guard_runaway=not in_dead_zone)
-        if stop:
-            return self._stop(cycle, *stop)
-        if self.q_prev is None and q_reis_deg is not None:
-            self.q_prev = np.asarray(q_reis_deg, float)
         if self.map.size == 0:  # the initial straight section: from the tool's start point (§6.1.1)
             self.map.seed(tool, T_tool_H[:3, 0], T_tool_H[:3, 2])
             self.T_start_H = T_tool_H.copy()
             self.hold_cmd = T_hold.copy()
+        # the run's progress: the arc length of the measured tool's foot on the seam map
+        self.s_tool = self.map.project(tool, self.s_tool)
+        stop = self.travel.step(tool, elapsed_cycles, guard_runaway=not in_dead_zone, progress_mm=self.s_tool)
+        if stop:
+            return self._stop(cycle, *stop)
+        if self.q_prev is None and q_reis_deg is not None:
+            self.q_prev = np.asarray(q_reis_deg, float)
 
         # -- the reading, placed where it was taken -------------------------------
         if not reading.valid:
@@ -121,7 +179,7 @@ class PlusTracker:
             if used.valid:
                 located = locate(used) if locate is not None else (T_global_reis6_sensed, T_global_hold6_sensed)
                 if located is not None:
-                    reis_s = np.asarray(T_global_reis6 if located[0] is None else located[0], float)
+                    reis_s = T_global_reis6 if located[0] is None else self._link_pose(located[0])
                     hold_s_inv = hold_inv if located[1] is None else inv_homo(np.asarray(located[1], float))
                     frame = hold_s_inv @ reis_s @ self.Tcamera_6 @ _seam_transform(used)  # eq. 5.1/5.3
                     self.map.add(frame[:3, 3], frame[:3, 0])
@@ -136,14 +194,13 @@ class PlusTracker:
         if self.map.first_reading_s is not None:  # nothing sensed yet: stand at the start
             self.v = min(self.p.speed_mm_s, self.v + self.p.accel_mm_s2 * dt)
         s_next = self.s_cmd + self.v * dt
-        f = self.map.fit(s_next)
+        f = self.map.fit(s_next, wide=POSITION_WIDE) if s_next <= self.map.front_s else self.map.fit(s_next)
         if f is None:
             return self._stop(cycle, STOP_LOST, f"no seam mapped within {self.p.gap_mm:g} mm ahead of the tool "
                                                 f"(map ends at {self.map.front_s:.1f} mm)")
         self.s_cmd = s_next
 
         # -- integral action on depth (the measured tool against the map) ----------
-        self.s_tool = self.map.project(tool, self.s_tool)
         ft = self.map.fit(self.s_tool)
         if ft is not None and not in_dead_zone:
             e_depth = float((tool - ft.p) @ ft.n)  # + : the tool is below the seam (into the surface)
@@ -151,16 +208,20 @@ class PlusTracker:
                                                DEPTH_LIMIT_MM))
 
         # -- the tool frame: normal to the surface, the sensor aimed at the seam ahead ----
-        x = f.n
+        fo = self.map.fit(f.s_mm, wide=ORIENT_WIDE) or f  # the frame from a wider fit: no jitter of the knots
+        x = self.map.normal(f.s_mm, NORMAL_HALF_MM, fo.t)
+        t = fo.t - x * float(fo.t @ x)
+        t = t / max(float(np.linalg.norm(t)), 1e-12)
         ahead = chord_point(self.map, f.s_mm, f.p, self.camera_to_tcp_mm)
-        z = (ahead.p - f.p) if ahead is not None else f.t
+        z = (ahead.p - f.p) if ahead is not None else t
         z = z - x * float(z @ x)
         z = z / max(float(np.linalg.norm(z)), 1e-12)
+        z = self._smooth_aim(z, x)
         y = np.cross(z, x)
         T_target = np.eye(4)
         T_target[:3, 0], T_target[:3, 1], T_target[:3, 2] = x, y, z
         T_target[:3, 3] = f.p - self.depth_bias_mm * x
-        aim_rad = math.atan2(float(np.cross(f.t, z) @ x), float(f.t @ z))
+        aim_rad = math.atan2(float(np.cross(t, z) @ x), float(t @ z))
         reis_cmd = T_hold @ T_target @ self.T67tool_inv  # eq. 5.11
         q = None
         if self.reis_model is not None:
@@ -168,6 +229,9 @@ class PlusTracker:
                 q = self.reis_model.ik(reis_cmd, self.q_prev if self.q_prev is not None else np.zeros(6))
             except (Unreachable, ValueError) as exc:
                 return self._stop(cycle, STOP_UNREACHABLE, str(exc))
+            if self.defl is not None:  # the motor angles that put the deflected links there
+                q = self.defl.motor_deg(q)
+                reis_cmd = self.reis_model.fk(q)
             self.q_prev = q
         first = self.map.first_reading_s
         phase = PHASE_DEAD_ZONE if in_dead_zone else (

@@ -197,6 +197,22 @@ class SeamMap:
         nn = (self._n[lo:hi] * w[:, None]).sum(axis=0)
         return SeamPoint(s, p0, t, k, _normal(nn, t))
 
+    def normal(self, s: float, half_mm: float, t) -> np.ndarray:
+        """The surface normal at ``s`` averaged over the knots within ``half_mm`` of it (triangular
+        weights), made orthogonal to the tangent ``t``: the seam's roll, spatially smoothed.  The
+        readings' roll is the noisiest thing they carry (a few tenths of a degree from the line
+        fits, plus the deflection of the arm that carried the sensor), and the tool's orientation
+        must not chase it (plus mode, docs/seamtrack.md "On the full arm")."""
+        n = self.size
+        S = self._s[:n]
+        lo = int(np.searchsorted(S, s - half_mm, "left"))
+        hi = int(np.searchsorted(S, s + half_mm, "right"))
+        if hi - lo < 1:
+            j = int(np.clip(np.searchsorted(S, s), 0, n - 1))
+            lo, hi = j, j + 1
+        w = np.maximum(1.0 - np.abs(S[lo:hi] - s) / (half_mm * 1.0001), 0.05) * self._w[lo:hi]
+        return _normal((self._n[lo:hi] * w[:, None]).sum(axis=0), np.asarray(t, float))
+
     def front(self) -> SeamPoint:
         """The fit at the newest knot over twice the window (cached until the knots change)."""
         c = self._front_cache
