@@ -273,10 +273,11 @@ def main() -> int:
                                 arrival.append(err)
                     if args.seamtrack:
                         r = droid(cell, "droid-home", "gmf1")
-                        r = droid(cell, "droid-seamtrack", "8", "--start", "i", "--length", "100", timeout=300) \
+                        # past the summary's settling window (s > 150 mm), as the README's trial
+                        r = droid(cell, "droid-seamtrack", "16", "--start", "i", "--length", "300", timeout=300) \
                             if r.returncode == 0 else r
                         results["seam"][0 if r.returncode == 0 else 1] += 1
-                        m = re.search(r"lateral[^0-9]*([0-9.]+) mm", r.stdout)
+                        m = re.search(r"tool lateral RMS ([0-9.]+) mm", r.stdout)
                         if r.returncode:
                             failures.append(f"round {rnd} seamtrack: {reason(r)}")
                         elif m:
