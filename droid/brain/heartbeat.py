@@ -136,10 +136,11 @@ def main(argv=None) -> int:
         names = NameClient(ctx, cell.names, curve=curve, server_host=cell.brain_host)
         names.register("heartbeat", cell.heartbeat)
         core = HeartbeatCore(period_ns)
-        timer = PeriodicTimer(period_ns)
-        # real time only now: initialising at FIFO priority (imports, models, devices)
-        # starved the running cell's FIFO programs and tripped RT throttling (issue 16)
+        # real time only now, after the start-up (imports, models and devices at FIFO priority
+        # starved the running programs: issue 16) and before the timer starts (the lock takes
+        # seconds on a cold page cache: a timer started before it begins the loop that far behind)
         try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
+        timer = PeriodicTimer(period_ns)
         presence.ready()
         notify_ready(args.ready_fd)
         poller = zmq.Poller()

@@ -136,6 +136,10 @@ def agent_main(prog: str, argv=None) -> int:
     names = None
     station = AgentStation(status, ctrl_cmd, cell.period_ns, cell.stale_ticks)
     link = station.link
+    # real time only now, after the start-up (imports, models and devices at FIFO priority
+    # starved the running programs: issue 16) and before the timer starts (the lock takes
+    # seconds on a cold page cache: a timer started before it begins the loop that far behind)
+    try_sched_fifo(wanted=cell.sched_fifo, prog=prog)
     timer = PeriodicTimer(cell.period_ns)  # checks Brain-link liveness between commands
     bad_frames = 0
     try:
@@ -143,9 +147,6 @@ def agent_main(prog: str, argv=None) -> int:
         curve.bind(cell, (router, sub.agent), (relay, sub.relay))
         names = NameClient(ctx, cell.names, curve=curve, server_host=cell.brain_host)
         names.register(sub.name, sub.agent)
-        # real time only now: initialising at FIFO priority (imports, models, devices)
-        # starved the running cell's FIFO programs and tripped RT throttling (issue 16)
-        try_sched_fifo(wanted=cell.sched_fifo, prog=prog)
         presence.ready()
         notify_ready(args.ready_fd)
         poller = zmq.Poller()

@@ -109,10 +109,11 @@ def main(argv=None) -> int:
     timer = None
     try:
         presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
-        timer = PeriodicTimer(int(round(1e9 / rate)))
-        # real time only now: initialising at FIFO priority (imports, models, devices)
-        # starved the running cell's FIFO programs and tripped RT throttling (issue 16)
+        # real time only now, after the start-up (imports, models and devices at FIFO priority
+        # starved the running programs: issue 16) and before the timer starts (the lock takes
+        # seconds on a cold page cache: a timer started before it begins the loop that far behind)
         try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
+        timer = PeriodicTimer(int(round(1e9 / rate)))
         presence.ready()
         notify_ready(args.ready_fd)
         errors = ErrorLine(PROG)

@@ -378,8 +378,8 @@ def live_in_cell(args, core: SensorCore, cell, sub) -> int:
     failed = True
 
     def ready() -> None:
-        # real time only now: initialising at FIFO priority (imports, models, devices)
-        # starved the running cell's FIFO programs and tripped RT throttling (issue 16)
+        # real time only now, after the start-up (imports, models and devices at FIFO priority
+        # starved the running programs: issue 16)
         try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
         presence.ready()
         notify_ready(args.ready_fd)

@@ -219,8 +219,8 @@ def main(argv=None) -> int:
     core = PlannerCore(model)
     station = PlannerStation(core, ctrl_command, ctrl_status)
     try:
-        # real time only now: initialising at FIFO priority (imports, models, devices)
-        # starved the running cell's FIFO programs and tripped RT throttling (issue 16)
+        # real time only now, after the start-up (imports, models and devices at FIFO priority
+        # starved the running programs: issue 16)
         try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
         presence.ready()
         notify_ready(args.ready_fd)

@@ -349,12 +349,13 @@ def main(argv=None) -> int:
     except RobotFileError as exc:
         raise BadInput(str(exc)) from None
     ticks = TickSubscriber(ctx, sub.relay, curve, sub.host)
+    # real time only now, after the start-up (imports, models and devices at FIFO priority
+    # starved the running programs: issue 16) and before the timer starts (the lock takes
+    # seconds on a cold page cache: a timer started before it begins the loop that far behind)
+    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     pacer = TickPacer(int(round(1e9 / COMMAND_HZ)))
     station = ServoAgentStation(core, ctrl_command, ctrl_status)
     try:
-        # real time only now: initialising at FIFO priority (imports, models, devices)
-        # starved the running cell's FIFO programs and tripped RT throttling (issue 16)
-        try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
         presence.ready()
         notify_ready(args.ready_fd)
         last_why = ""

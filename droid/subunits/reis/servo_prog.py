@@ -78,10 +78,11 @@ def main(argv=None) -> int:
             core = ServoCore(ServoParams.from_robot(sub.robot, read_offsets(cell, sub.name)))
         except (RobotFileError, ValueError) as exc:
             raise BadInput(str(exc)) from None
-        timer = PeriodicTimer(int(round(1e9 / SERVO_HZ)))
-        # real time only now: initialising at FIFO priority (imports, models, devices)
-        # starved the running cell's FIFO programs and tripped RT throttling (issue 16)
+        # real time only now, after the start-up (imports, models and devices at FIFO priority
+        # starved the running programs: issue 16) and before the timer starts (the lock takes
+        # seconds on a cold page cache: a timer started before it begins the loop that far behind)
         try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
+        timer = PeriodicTimer(int(round(1e9 / SERVO_HZ)))
         presence.ready()
         notify_ready(args.ready_fd)
         station = ServoStation(core, bus)

@@ -48,10 +48,11 @@ def main(argv=None) -> int:
     try:
         bus = open_vme_waiting(ep.vme, OPEN_WAIT_S)
         station = WatchdogStation(core, bus, status)
-        timer = PeriodicTimer(int(round(1e9 / params.rate_hz)))
-        # real time only now: initialising at FIFO priority (imports, models, devices)
-        # starved the running cell's FIFO programs and tripped RT throttling (issue 16)
+        # real time only now, after the start-up (imports, models and devices at FIFO priority
+        # starved the running programs: issue 16) and before the timer starts (the lock takes
+        # seconds on a cold page cache: a timer started before it begins the loop that far behind)
         try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
+        timer = PeriodicTimer(int(round(1e9 / params.rate_hz)))
         presence.ready()
         notify_ready(args.ready_fd)
         reported = False
