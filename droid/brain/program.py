@@ -103,7 +103,7 @@ class Presence:
     """A program's own record in ``/droid.<cell>.proc.<key>`` (for droid-cell status)."""
 
     UPDATE_NS = 100_000_000  # refresh at most every 100 ms
-    SLOW_START_S = 2.0  # a start-up slower than this is said in the program's log [s]
+    SLOW_START_S = 10.0  # a start-up slower than this is said in the program's log [s]
 
     def __init__(self, cell: str, key: str, display: str) -> None:
         self.display = display
