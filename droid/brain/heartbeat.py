@@ -122,6 +122,7 @@ def main(argv=None) -> int:
     rate = args.rate or cell.heartbeat_hz
     period_ns = int(round(1e9 / rate))
     Stop.install()
+    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     ctx = zmq.Context()
     curve = CurveHost(ctx, cell, cell.brain_host)
     pub = ctx.socket(zmq.PUB)
@@ -136,10 +137,6 @@ def main(argv=None) -> int:
         names = NameClient(ctx, cell.names, curve=curve, server_host=cell.brain_host)
         names.register("heartbeat", cell.heartbeat)
         core = HeartbeatCore(period_ns)
-        # real time only now, after the start-up (imports, models and devices at FIFO priority
-        # starved the running programs: issue 16) and before the timer starts (the lock takes
-        # seconds on a cold page cache: a timer started before it begins the loop that far behind)
-        try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
         timer = PeriodicTimer(period_ns)
         presence.ready()
         notify_ready(args.ready_fd)

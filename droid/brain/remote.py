@@ -124,6 +124,7 @@ class RemoteStation:
 def main(argv=None) -> int:
     args, cell, sub = subunit_program(
         PROG, "Keep one subunit's Brain database in step with its agent, once per heartbeat.", argv)
+    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     if link_kind(cell, sub) == LINK_SERIAL:
         return serve_serial(cell, sub, args.ready_fd, PROG)
     status = open_brain(cell, sub, "status")
@@ -157,9 +158,6 @@ def main(argv=None) -> int:
     try:
         status.update(stale=1, fault=FAULT_LINK)
         connect()
-        # real time only now, after the start-up (imports, models and devices at FIFO priority
-        # starved the running programs: issue 16)
-        try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
         presence.ready()
         notify_ready(args.ready_fd)
         last_tick = 0

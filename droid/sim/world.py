@@ -162,16 +162,13 @@ def main(argv=None) -> int:
     if not 1.0 <= rate <= 10000.0:
         raise BadInput(f"{cell.path}: [world] rate_hz {rate:g} outside 1..10000 Hz")
     Stop.install()
+    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     presence = Presence(cell.name, presence_key(PROG), PROG)
     world = None
     timer = None
     try:
         world = build_world(cell, args.seed)
         world.advance(1.0 / rate)  # power up: every register holds a real value before anyone reads
-        # real time only now, after the start-up (imports, models and devices at FIFO priority
-        # starved the running programs: issue 16) and before the timer starts (the lock takes
-        # seconds on a cold page cache: a timer started before it begins the loop that far behind)
-        try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
         timer = PeriodicTimer(int(round(1e9 / rate)))
         presence.ready()
         notify_ready(args.ready_fd)

@@ -122,6 +122,7 @@ def agent_main(prog: str, argv=None) -> int:
     cell = open_cell(args)
     sub = cell.subunit(args.subunit)
     Stop.install()
+    try_sched_fifo(wanted=cell.sched_fifo, prog=prog)
     layouts = local_layouts(sub)
     status = open_local(cell, sub, "ctrl_status")
     ctrl_cmd = open_local(cell, sub, "ctrl_command") if "ctrl_command" in layouts else None
@@ -136,10 +137,6 @@ def agent_main(prog: str, argv=None) -> int:
     names = None
     station = AgentStation(status, ctrl_cmd, cell.period_ns, cell.stale_ticks)
     link = station.link
-    # real time only now, after the start-up (imports, models and devices at FIFO priority
-    # starved the running programs: issue 16) and before the timer starts (the lock takes
-    # seconds on a cold page cache: a timer started before it begins the loop that far behind)
-    try_sched_fifo(wanted=cell.sched_fifo, prog=prog)
     timer = PeriodicTimer(cell.period_ns)  # checks Brain-link liveness between commands
     bad_frames = 0
     try:

@@ -102,6 +102,7 @@ def main(argv=None) -> int:
     rate = args.rate or cfg.encoder_hz
     model = load_robot(sub.robot).with_base(pose_to_T(*sub.base))
     core = EncoderCore(model, rate)
+    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     status = open_local(cell, sub, "ctrl_status")
     station = EncoderStation(core, status)
     cards = CardSession(cfg.encoders)
@@ -109,10 +110,6 @@ def main(argv=None) -> int:
     timer = None
     try:
         presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
-        # real time only now, after the start-up (imports, models and devices at FIFO priority
-        # starved the running programs: issue 16) and before the timer starts (the lock takes
-        # seconds on a cold page cache: a timer started before it begins the loop that far behind)
-        try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
         timer = PeriodicTimer(int(round(1e9 / rate)))
         presence.ready()
         notify_ready(args.ready_fd)

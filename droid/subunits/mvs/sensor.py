@@ -374,13 +374,11 @@ def live_in_cell(args, core: SensorCore, cell, sub) -> int:
 
     # In a cell that asks for SCHED_FIFO the sensor is part of the tracking loop's chain
     # (frame -> line -> Brain Status -> droid-seamtrack, §5.4): below the Brain's programs.
+    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
     failed = True
 
     def ready() -> None:
-        # real time only now, after the start-up (imports, models and devices at FIFO priority
-        # starved the running programs: issue 16)
-        try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
         presence.ready()
         notify_ready(args.ready_fd)
 

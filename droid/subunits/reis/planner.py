@@ -211,6 +211,7 @@ PROG = "droid-planner"
 def main(argv=None) -> int:
     args, cell, sub = subunit_program(PROG, "Plan an arm's joint and cartesian commands into per-tick way-points (thesis §4.1.7).", argv, arm=True)
     model = load_robot(sub.robot).with_base(pose_to_T(*sub.base))
+    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     ctrl_command = open_local(cell, sub, "ctrl_command")
     ctrl_status = open_local(cell, sub, "ctrl_status")
     ctx = zmq.Context()
@@ -219,9 +220,6 @@ def main(argv=None) -> int:
     core = PlannerCore(model)
     station = PlannerStation(core, ctrl_command, ctrl_status)
     try:
-        # real time only now, after the start-up (imports, models and devices at FIFO priority
-        # starved the running programs: issue 16)
-        try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
         presence.ready()
         notify_ready(args.ready_fd)
         last = 0

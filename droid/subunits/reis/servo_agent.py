@@ -329,6 +329,7 @@ def main(argv=None) -> int:
     if abs(cell.heartbeat_hz - COMMAND_HZ) > 1e-9:
         raise BadInput(f"{PROG}: the Reis servo takes one way-point per {COMMAND_HZ:g} Hz period; "
                        f"this cell's heartbeat_hz is {cell.heartbeat_hz:g}")
+    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     ctrl_command = open_local(cell, sub, "ctrl_command")
     ctrl_status = open_local(cell, sub, "ctrl_status")
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
@@ -349,10 +350,6 @@ def main(argv=None) -> int:
     except RobotFileError as exc:
         raise BadInput(str(exc)) from None
     ticks = TickSubscriber(ctx, sub.relay, curve, sub.host)
-    # real time only now, after the start-up (imports, models and devices at FIFO priority
-    # starved the running programs: issue 16) and before the timer starts (the lock takes
-    # seconds on a cold page cache: a timer started before it begins the loop that far behind)
-    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     pacer = TickPacer(int(round(1e9 / COMMAND_HZ)))
     station = ServoAgentStation(core, ctrl_command, ctrl_status)
     try:

@@ -58,6 +58,7 @@ def open_vme_waiting(url: str, wait_s: float):
 def main(argv=None) -> int:
     args, cell, sub = subunit_program(PROG, "Run the 500 Hz servo loop of a Reis arm on its VME interface cards.", argv, arm=True)
     ep = reis_endpoints(cell, sub)
+    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
     ctx = zmq.Context()
     curve = CurveHost(ctx, cell, sub.host)
@@ -78,10 +79,6 @@ def main(argv=None) -> int:
             core = ServoCore(ServoParams.from_robot(sub.robot, read_offsets(cell, sub.name)))
         except (RobotFileError, ValueError) as exc:
             raise BadInput(str(exc)) from None
-        # real time only now, after the start-up (imports, models and devices at FIFO priority
-        # starved the running programs: issue 16) and before the timer starts (the lock takes
-        # seconds on a cold page cache: a timer started before it begins the loop that far behind)
-        try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
         timer = PeriodicTimer(int(round(1e9 / SERVO_HZ)))
         presence.ready()
         notify_ready(args.ready_fd)

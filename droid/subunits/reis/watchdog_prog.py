@@ -33,6 +33,7 @@ PROG = "droid-watchdog"
 def main(argv=None) -> int:
     args, cell, sub = subunit_program(PROG, "Kick a Reis arm's watchdog timers while its servo is alive.", argv, arm=True)
     ep = reis_endpoints(cell, sub)
+    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
     ctx = zmq.Context()
     sub_sock = ctx.socket(zmq.SUB)
@@ -48,10 +49,6 @@ def main(argv=None) -> int:
     try:
         bus = open_vme_waiting(ep.vme, OPEN_WAIT_S)
         station = WatchdogStation(core, bus, status)
-        # real time only now, after the start-up (imports, models and devices at FIFO priority
-        # starved the running programs: issue 16) and before the timer starts (the lock takes
-        # seconds on a cold page cache: a timer started before it begins the loop that far behind)
-        try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
         timer = PeriodicTimer(int(round(1e9 / params.rate_hz)))
         presence.ready()
         notify_ready(args.ready_fd)
