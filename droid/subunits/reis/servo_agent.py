@@ -223,8 +223,7 @@ class ServoAgentCore:
                 self._wp, self._plan = send, target.astype(float)
                 self._wp_tick, self._missed = planner_tick, 0
                 counts = tuple(int(round(v)) for v in send)
-        self.seq += 1
-        return AgentDecision(sw.ServoCommand(self.seq, int(servo_mode), counts), status, faults)
+        return self._send(servo_mode, counts, status, faults)
 
 
 class ServoAgentStation:
