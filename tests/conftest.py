@@ -81,14 +81,50 @@ def tagged_pids(tag: str) -> set[int]:
     return found
 
 
+def locked_kib() -> int:
+    """This process's locked memory [KiB] (VmLck of /proc/self/status)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmLck:"):
+                    return int(line.split()[1])
+    except OSError:
+        pass
+    return 0
+
+
+def scheduler_leak() -> str | None:
+    """What a test left of a real-time program in the pytest process itself (None: nothing).
+
+    A program's ``main()`` called in-process switches the caller to SCHED_FIFO and locks its
+    memory (:func:`droid.brain.rt.try_sched_fifo`).  Left so, every later test -- and every
+    process it starts, cell programs included -- ran at FIFO priority: sixteen programs
+    starting at once on two cores then set off the kernel's RT throttling and latched the
+    arms' watchdogs (issue 16).  The pytest process must stay on the normal scheduler."""
+    leaks = []
+    if os.sched_getscheduler(0) != os.SCHED_OTHER:
+        leaks.append(f"scheduling policy {os.sched_getscheduler(0)} (SCHED_FIFO=1), "
+                     f"priority {os.sched_getparam(0).sched_priority}")
+    kib = locked_kib()
+    if kib:
+        leaks.append(f"{kib} KiB of locked memory")
+    return " and ".join(leaks) or None
+
+
 @pytest.fixture(autouse=True)
 def no_leaks(monkeypatch):
-    """Fail a test that leaves droid shm objects, semaphores or processes behind."""
+    """Fail a test that leaves droid shm objects, semaphores or processes behind, or the
+    pytest process on a real-time scheduler or with locked memory (:func:`scheduler_leak`)."""
+    from droid.brain.rt import normal_scheduler
+
     tag = uuid.uuid4().hex
     monkeypatch.setenv(LEAK_TAG_ENV, tag)
     shm_before = droid_shm_entries()
     kids_before = child_pids()
     yield
+    sched = scheduler_leak()
+    if sched:
+        normal_scheduler()  # do not let one leak run every later test at FIFO priority
     deadline = time.monotonic() + 5.0
     while True:
         leaked_shm = droid_shm_entries() - shm_before
@@ -108,6 +144,7 @@ def no_leaks(monkeypatch):
             pass
     assert not leaked_shm, f"test left shared-memory objects behind: {sorted(leaked_shm)}"
     assert not leaked_kids, f"test left child processes running: {sorted(leaked_kids)}"
+    assert sched is None, f"test left the pytest process with {sched}"
 
 
 @pytest.fixture

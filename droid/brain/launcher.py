@@ -43,6 +43,7 @@ from droid.brain.cellfile import Cell, load_cell
 from droid.brain.databases import create_databases
 from droid.brain.layouts import PROC_STATE_NAMES, PROC_STATUS_LAYOUT
 from droid.brain.program import presence_key, use_cell
+from droid.brain.rt import normal_scheduler
 from droid.brain.shmdb import (Database, NoDatabase, cell_objects, db_name, pid_alive,
                                remove_cell_objects, unlink_database)
 from droid.cli import ArgumentParser, BadInput, RuntimeFailure, run, timeout_s
@@ -119,7 +120,7 @@ def _start(cell: Cell, specs: list[Spec], log_dir: str) -> dict[int, tuple[Spec,
         with open(os.path.join(log_dir, f"{spec.key}.log"), "ab") as log:
             proc = subprocess.Popen(spec.argv, pass_fds=(w,), stdin=subprocess.DEVNULL,
                                     stdout=log, stderr=subprocess.STDOUT,
-                                    start_new_session=True, env=env)
+                                    start_new_session=True, env=env, preexec_fn=normal_scheduler)
         os.close(w)
         spec.pid = proc.pid
         started[r] = (spec, proc)

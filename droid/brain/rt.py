@@ -184,6 +184,28 @@ def lock_memory(prog: str = "droid") -> bool:
     return True
 
 
+_libc.munlockall.argtypes = []
+
+
+def normal_scheduler() -> None:
+    """Put this process back on the normal scheduler (SCHED_OTHER) and unlock its memory.
+
+    A program that asks for SCHED_FIFO is started on the normal scheduler and switches
+    itself (:func:`try_sched_fifo`) once its imports are done.  Whatever starts cell
+    programs calls this in the child before ``exec``: a child of a real-time parent
+    inherits SCHED_FIFO, and sixteen programs importing numpy and Pinocchio at FIFO
+    priority on two cores kept the running world off the CPU until the kernel's RT
+    throttling stopped every real-time task for tens of ms (issue 16).  Best effort:
+    never raises.
+    """
+    try:
+        if os.sched_getscheduler(0) != os.SCHED_OTHER:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except (OSError, AttributeError):
+        pass
+    _libc.munlockall()
+
+
 def try_sched_fifo(priority: int | None = None, *, wanted: bool = True, prog: str = "droid") -> bool:
     """Switch this process to SCHED_FIFO if wanted and permitted, at ``priority``
     (default: ``prog``'s entry in :data:`FIFO_PRIORITIES`), and lock its memory

@@ -144,7 +144,13 @@ def test_link_cut_during_a_move_brakes_the_arm_which_stays_stopped_until_a_new_c
     now = np.asarray(snoop(path)["encoder_pos"])
     assert np.all(np.abs(now - stopped) <= 5), (now, stopped)
     assert np.any(np.abs(now - np.asarray(target)) > 1000)  # the interrupted move was not resumed
-    assert [r for r in halt_records(path) if r["standstill_tick"] >= cut_tick] == [rec]  # nothing moved since
+    # nothing moved since: no later halt record of a commanded motion.  Under load the world
+    # catches up a stall a few ms per servo tick, so the position loop's pull-back of the last
+    # counts of overshoot can show as a blip of 2-3 counts/tick after the arm settled (seen
+    # once: peak 3, no new command); a resumed move would carry a newer command and speed.
+    later = [r for r in halt_records(path) if r["standstill_tick"] > rec["settled_tick"]]
+    assert all(r["last_command_tick"] == rec["last_command_tick"] and r["peak_speed_counts_per_tick"] < 5
+               for r in later), (rec, later)
     # a new command moves the arm again.  One retry: on this shared 2-core VM the 60 Hz chain
     # occasionally gaps long enough for the servo to brake, and the planner then fails the
     # move (exit 1, docs/safety.md finding 6); a recovery that is broken fails both times.
