@@ -46,7 +46,7 @@ def test_launcher_bad_args(args, msg, tmp_path, cell_name):
 
 @pytest.mark.parametrize("args,msg", [
     (["nosuch"], "unknown subunit"),
-    (["arm1", "--rate", "0"], "must be > 0"),
+    (["arm1", "--rate", "0"], "must be >= 0.001 and <= 1000 Hz"),
     (["arm1", "--rate", "inf"], "not a finite number"),
     (["arm1", "--count", "x"], "not an integer"),
     ([], "the following arguments are required"),
