@@ -15,6 +15,8 @@ from tests.brain.cellutil import droid, make_cell_file
     ('[cell]\nname = "a.b"\n[subunits.x]\nclass="arm6r"\nrobot="reis_v15"', "invalid cell name"),
     ('[cell]\nname = "c"\n', "missing 'subunits'"),
     ('[cell]\nname = "c"\nheartbeat_hz = -5\n[subunits.x]\nclass="line_laser"', "heartbeat_hz"),
+    ('[cell]\nname = "c"\nheartbeat_hz = 1e-320\n[subunits.x]\nclass="line_laser"', r"outside \[1, 1000\] Hz"),
+    ('[cell]\nname = "c"\nheartbeat_hz = 1000.5\n[subunits.x]\nclass="line_laser"', r"outside \[1, 1000\] Hz"),
     ('[cell]\nname = "c"\nbogus = 1\n[subunits.x]\nclass="line_laser"', "unknown key"),
     ('[cell]\nname = "c"\n[subunits.x]\nclass="hexapod"', "unknown class"),
     ('[cell]\nname = "c"\n[subunits.x]\nclass="arm6r"', "needs 'robot'"),
