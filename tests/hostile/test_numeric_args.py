@@ -25,8 +25,8 @@ console scripts check that no traceback reaches a user.
 from __future__ import annotations
 
 import argparse
+import io
 import math
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -219,7 +219,7 @@ def test_bad_numbers_exit_2_with_one_line_naming_the_argument(item, no_run, tmp_
     t = action.type
     name = argparse._get_action_name(action)
     monkeypatch.setenv("DROID_CELL", str(make_cell_file(tmp_path, cell_name)))  # a cell that is not up
-    monkeypatch.setattr(sys, "stdin", open(os.devnull))
+    monkeypatch.setattr(sys, "stdin", io.StringIO(""))
     outside = set(_just_outside(t)) if hasattr(t, "span") else set()
     main = cliranges.main_of(prog)
     for value in _bad_values(t):
