@@ -258,7 +258,6 @@ MAX_WAIT_S = 86400.0
 #: The longest move a task accepts [s] (droid-move SECONDS): one hour at the
 #: heartbeat rate is 216 000 ticks, well inside the Command's int32 tick count.
 MAX_MOVE_S = 3600.0
-timeout_s = bounded_float(0.0, MAX_WAIT_S, "s", lo_open=True)
 #: Random seeds: what numpy's and the world's generators take (uint32).
 MAX_SEED = 2**32 - 1
 seed_int = bounded_int(0, MAX_SEED)
@@ -273,10 +272,15 @@ def duration_s(max_s: float = MAX_WAIT_S) -> Callable[[str], float]:
     return bounded_float(0.0, max_s, "s", lo_open=True)
 
 
+#: --timeout of every program: (0, one day] s.
+timeout_s = duration_s()
+
+
 def rate_hz(lo: float, hi: float) -> Callable[[str], float]:
     """argparse type: a rate in [``lo``, ``hi``] Hz, ``lo`` > 0: its period 1/rate is finite and
     fits the timers (1e-320 Hz would be a period of inf s)."""
-    assert lo > 0, "a rate's lower limit must be > 0"
+    if not lo > 0:
+        raise ValueError(f"a rate's lower limit must be > 0 Hz, got {lo!r}")
     return bounded_float(lo, hi, "Hz")
 
 
