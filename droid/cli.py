@@ -102,6 +102,19 @@ class _VersionAction(argparse.Action):
         parser.exit(EXIT_OK)
 
 
+class _RangeHelpFormatter(argparse.HelpFormatter):
+    """--help states every bounded number's range with its unit: ``...; range (0, 1000] Hz``
+    (the range comes from the argument's type, :func:`bounded_float` / :func:`bounded_int`,
+    so the rule and its description are written once)."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        span = getattr(action.type, "span", None)
+        if span and span not in text:
+            text = f"{text}; range {span}" if text else f"range {span}"
+        return text
+
+
 class ArgumentParser(argparse.ArgumentParser):
     """argparse with a one-line error and exit code 2 (never the usage block).
 
@@ -111,9 +124,19 @@ class ArgumentParser(argparse.ArgumentParser):
     """
 
     def __init__(self, *args, version: bool = True, **kwargs) -> None:
+        kwargs.setdefault("formatter_class", _RangeHelpFormatter)
         super().__init__(*args, **kwargs)
         if version and self.add_help:
             self.add_argument("--version", action=_VersionAction, help="print the program's version and exit")
+
+    def _get_values(self, action, arg_strings):
+        # Python 3.11's argparse drops a '--' given as an option's value ("--timeout=--") and
+        # stores [] as the value, which a program then trips over; 3.12 keeps it as the value.
+        if action.option_strings and action.nargs is None and arg_strings == ["--"]:
+            value = self._get_value(action, "--")
+            self._check_value(action, value)
+            return value
+        return super()._get_values(action, arg_strings)
 
     def error(self, message: str) -> None:  # type: ignore[override]
         self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see --help)\n")
@@ -208,6 +231,7 @@ def bounded_float(lo: float, hi: float, unit: str = "", *, lo_open: bool = False
         return value
 
     parse.__name__ = f"number in {span}"
+    parse.span, parse.lo, parse.hi, parse.lo_open, parse.unit, parse.integral = span, lo, hi, lo_open, unit, False
     return parse
 
 
@@ -216,13 +240,16 @@ def bounded_int(lo: int, hi: int, unit: str = "") -> Callable[[str], int]:
     u = f" {unit}" if unit else ""
     rule = f"must be {'> 0' if lo == 1 else f'>= {lo}'} and <= {hi}{u}"
 
+    span = f"[{lo}, {hi}]{u}"
+
     def parse(text: str) -> int:
         value = integer(text)
         if not lo <= value <= hi:
-            raise argparse.ArgumentTypeError(f"{rule}: {text!r} is outside [{lo}, {hi}]{u}")
+            raise argparse.ArgumentTypeError(f"{rule}: {text!r} is outside {span}")
         return value
 
     parse.__name__ = f"integer in [{lo}, {hi}]"
+    parse.span, parse.lo, parse.hi, parse.lo_open, parse.unit, parse.integral = span, lo, hi, False, unit, True
     return parse
 
 
@@ -231,7 +258,30 @@ MAX_WAIT_S = 86400.0
 #: The longest move a task accepts [s] (droid-move SECONDS): one hour at the
 #: heartbeat rate is 216 000 ticks, well inside the Command's int32 tick count.
 MAX_MOVE_S = 3600.0
-timeout_s = bounded_float(0.0, MAX_WAIT_S, "s", lo_open=True)
+#: Random seeds: what numpy's and the world's generators take (uint32).
+MAX_SEED = 2**32 - 1
+seed_int = bounded_int(0, MAX_SEED)
+#: TCP ports.
+tcp_port = bounded_int(1, 65535)
+
+
+def duration_s(max_s: float = MAX_WAIT_S) -> Callable[[str], float]:
+    """argparse type: a duration in (0, ``max_s``] seconds (issue 16: any duration the CLI
+    accepts is carried out; one that is not finite, <= 0 or above the maximum is refused).
+    A positive subnormal such as 1e-320 s is accepted: a wait that ends at once."""
+    return bounded_float(0.0, max_s, "s", lo_open=True)
+
+
+#: --timeout of every program: (0, one day] s.
+timeout_s = duration_s()
+
+
+def rate_hz(lo: float, hi: float) -> Callable[[str], float]:
+    """argparse type: a rate in [``lo``, ``hi``] Hz, ``lo`` > 0: its period 1/rate is finite and
+    fits the timers (1e-320 Hz would be a period of inf s)."""
+    if not lo > 0:
+        raise ValueError(f"a rate's lower limit must be > 0 Hz, got {lo!r}")
+    return bounded_float(lo, hi, "Hz")
 
 
 def run(main: Callable[[Sequence[str] | None], int | None]) -> Callable[..., int]:

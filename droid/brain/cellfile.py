@@ -25,6 +25,10 @@ from droid.brain.curve import CurveConfig, parse_curve_table
 from droid.brain.wire import LIVENESS_TICKS
 from droid.brain.shmdb import check_name_part
 
+#: The heartbeat rates a cell accepts [Hz] ([cell] heartbeat_hz, droid-heartbeat --rate): at
+#: least 1 Hz (the stale rules count ticks), at most 1000 Hz (a 1 ms period).
+HEARTBEAT_HZ_RANGE = (1.0, 1000.0)
+
 SUBUNIT_CLASSES = tuple(CLASSES)  # droid.brain.classes: the classes as data
 DEFAULT_RUN_ROOT = "/tmp/droid"
 ENV_CELL = "DROID_CELL"
@@ -182,8 +186,9 @@ def parse_cell(raw: dict[str, Any], p: Path) -> Cell:
     except BadInput as exc:
         raise BadInput(f"{p}: [cell] {exc}") from None
     hb_hz = c.get("heartbeat_hz", float, 60.0, check=_positive)
-    if hb_hz > 1000:
-        raise BadInput(f"{p}: [cell] heartbeat_hz {hb_hz:g} is above 1000 Hz")
+    lo, hi = HEARTBEAT_HZ_RANGE
+    if not lo <= hb_hz <= hi:
+        raise BadInput(f"{p}: [cell] heartbeat_hz {hb_hz:g} is outside [{lo:g}, {hi:g}] Hz")
     stale = c.get("stale_ticks", int, LIVENESS_TICKS, check=lambda v: None if v >= 1 else "must be >= 1")
     fifo = c.get("sched_fifo", bool, False)
     run_root = os.environ.get(ENV_RUN_ROOT, DEFAULT_RUN_ROOT)

@@ -22,7 +22,8 @@ from droid.brain.curve import CurveHost
 from droid.brain.names import NameClient
 from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
 from droid.brain.rt import PeriodicTimer, now_ns, try_sched_fifo
-from droid.cli import bounded_float, bounded_int, run
+from droid.brain.cellfile import HEARTBEAT_HZ_RANGE
+from droid.cli import bounded_int, rate_hz, run
 
 PROG = "droid-heartbeat"
 
@@ -113,9 +114,9 @@ class TickSubscriber:
 @run
 def main(argv=None) -> int:
     ap = parser(PROG, "Publish the cell's heartbeat tick (default 60 Hz) on absolute deadlines.")
-    ap.add_argument("--rate", type=bounded_float(0.0, 1000.0, "Hz", lo_open=True), default=None, metavar="HZ",
+    ap.add_argument("--rate", type=rate_hz(*HEARTBEAT_HZ_RANGE), default=None, metavar="HZ",
                     help="tick rate [Hz] (default: the cell file's heartbeat_hz)")
-    ap.add_argument("--count", type=bounded_int(0, 2**62), default=0, metavar="N",
+    ap.add_argument("--count", type=bounded_int(0, 2**62, "ticks"), default=0, metavar="N",
                     help="stop after N ticks (default: run until SIGTERM/SIGINT)")
     args = ap.parse_args(argv)
     cell = open_cell(args)

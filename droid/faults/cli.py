@@ -30,28 +30,23 @@ import sys
 from droid.brain.cellfile import load_cell
 from droid.brain.program import Stop
 from droid.brain.rt import try_sched_fifo
-from droid.cli import ArgumentParser, BadInput, DroidError, finite_float, run
+from droid.cli import ArgumentParser, BadInput, DroidError, bounded_float, run, seed_int
 from droid.faults import procs
-from droid.faults.core import LinkFaults
+from droid.faults.core import MAX_LINK_DELAY_MS, LinkFaults
 from droid.faults.proxy import FaultProxy, cell_endpoints, control, endpoint, interpose_table
 
 PROG = "droid-fault"
 
 
-def _probability(text: str) -> float:
-    v = finite_float(text)
-    if not 0.0 <= v <= 1.0:
-        import argparse
-
-        raise argparse.ArgumentTypeError(f"must be between 0 and 1: {text!r}")
-    return v
+_probability = bounded_float(0.0, 1.0)
+_delay_ms = bounded_float(0.0, MAX_LINK_DELAY_MS, "ms")  # LinkFaults' range, refused before the cell is read
 
 
 def _add_link_faults(p) -> None:
-    p.add_argument("--drop", type=_probability, help="probability a message is lost (0..1)")
-    p.add_argument("--duplicate", type=_probability, help="probability a message is delivered twice (0..1)")
-    p.add_argument("--delay-ms", type=finite_float, help="delay added to every message [ms]")
-    p.add_argument("--jitter-ms", type=finite_float, help="uniform extra delay 0..J [ms]")
+    p.add_argument("--drop", type=_probability, help="probability a message is lost")
+    p.add_argument("--duplicate", type=_probability, help="probability a message is delivered twice")
+    p.add_argument("--delay-ms", type=_delay_ms, help="delay added to every message [ms]")
+    p.add_argument("--jitter-ms", type=_delay_ms, help="uniform extra delay 0..J [ms]")
 
 
 def _faults_from(args) -> dict:
@@ -76,7 +71,7 @@ def main(argv=None) -> int:
     p = sp.add_parser("proxy", help="run a fault proxy on one endpoint (until SIGTERM)")
     p.add_argument("label", help="endpoint label, e.g. arm1.agent (droid-fault list)")
     _add_link_faults(p)
-    p.add_argument("--seed", type=int, default=0, help="seed of the per-message decisions (default 0)")
+    p.add_argument("--seed", type=seed_int, default=0, help="seed of the per-message decisions (default 0)")
     p = sp.add_parser("set", help="change the faults of a running proxy")
     p.add_argument("label")
     _add_link_faults(p)

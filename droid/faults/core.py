@@ -13,6 +13,10 @@ from dataclasses import asdict, dataclass, fields, replace
 from droid.cli import BadInput
 
 
+#: The longest delay (and jitter) a faulty link adds to a message [ms]: one minute.
+MAX_LINK_DELAY_MS = 60_000.0
+
+
 @dataclass(frozen=True)
 class LinkFaults:
     """How a link misbehaves, per message.
@@ -34,8 +38,8 @@ class LinkFaults:
                 raise BadInput(f"{name} must be a probability between 0 and 1, got {v!r}")
         for name in ("delay_ms", "jitter_ms"):
             v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and 0.0 <= v <= 60_000):
-                raise BadInput(f"{name} must be between 0 and 60000 ms, got {v!r}")
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and 0.0 <= v <= MAX_LINK_DELAY_MS):
+                raise BadInput(f"{name} must be between 0 and {MAX_LINK_DELAY_MS:g} ms, got {v!r}")
 
     @property
     def clean(self) -> bool:

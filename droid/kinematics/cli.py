@@ -25,7 +25,8 @@ skipped), and one result line is written per vector, in order, flushed per
 read chunk.  For ``ik`` a line holds a pose (6 numbers; the previous line's
 pick — initially ``--prev``, default all zeros — is the previous joint
 vector) or a pose and a previous joint vector (12 numbers).  A line that
-fails (malformed, unreachable or out of limits) yields an error record
+fails (malformed, a number outside the command line's range, unreachable or
+out of limits) yields an error record
 (plain: ``error: line N: reason``; json: ``{"error": ..., "line": N}`` or the
 ik object with ``"pick": null``), processing continues, the chain keeps the
 last good pick, and the exit code is 2 with a one-line summary on stderr.
@@ -35,6 +36,7 @@ unreachable or out-of-limit target.
 """
 from __future__ import annotations
 
+import argparse
 import io
 import json
 import os
@@ -44,7 +46,7 @@ from typing import Iterator, Sequence
 
 import numpy as np
 
-from droid.cli import ArgumentParser, BadInput, bounded_float, parse_finite, run
+from droid.cli import ArgumentParser, BadInput, bounded_float, run
 from droid.kinematics import RobotFileError, list_robots, load_robot
 from droid.kinematics.transforms import T_to_pose, pose_to_T
 
@@ -165,16 +167,22 @@ def _line_chunks(stream, max_lines: int = CHUNK_LINES) -> Iterator[list[str]]:
             yield [raw.decode("utf-8", "replace") for raw in lines[i : i + max_lines]]
 
 
-def _parse_line(text: str, arities: tuple[int, ...]) -> list[float] | None | str:
-    """Numbers on a line; None for a blank/comment line; a reason string if malformed."""
+#: The number types of a stdin line, by position: the command line's ranges (issue 16).
+FK_LINE = (ANGLE_DEG,) * 6
+IK_LINE = (POSE_VALUE,) * 6 + (ANGLE_DEG,) * 6  # a pose, then optionally the previous joint vector
+
+
+def _parse_line(text: str, arities: tuple[int, ...], types) -> list[float] | None | str:
+    """Numbers on a line, each checked by its position's type; None for a blank/comment line;
+    a reason string if malformed or out of range."""
     body = text.split("#", 1)[0].replace(",", " ").split()
     if not body:
         return None
     vals = []
-    for tok in body:
+    for i, tok in enumerate(body):
         try:
-            v = parse_finite(tok)
-        except ValueError as exc:
+            v = types[min(i, len(types) - 1)](tok)
+        except (ValueError, argparse.ArgumentTypeError) as exc:
             return str(exc)
         vals.append(v)
     if len(vals) not in arities:
@@ -207,7 +215,7 @@ def _stream_fk(model, as_json: bool) -> _Failures:
         items = []  # (lineno, vals | reason)
         for text in chunk:
             lineno += 1
-            parsed = _parse_line(text, (6,))
+            parsed = _parse_line(text, (6,), FK_LINE)
             if parsed is not None:
                 items.append((lineno, parsed))
         good = [vals for _, vals in items if not isinstance(vals, str)]
@@ -232,7 +240,7 @@ def _stream_ik(model, prev0: list[float], as_json: bool, show_all: bool) -> _Fai
         items = []
         for text in chunk:
             lineno += 1
-            parsed = _parse_line(text, (6, 12))
+            parsed = _parse_line(text, (6, 12), IK_LINE)
             if parsed is not None:
                 items.append((lineno, parsed))
         good = [vals for _, vals in items if not isinstance(vals, str)]

@@ -34,7 +34,7 @@ import zmq
 from droid.brain.heartbeat import TickSubscriber
 from droid.brain.program import Stop, open_cell, parser
 from droid.brain.rt import try_sched_fifo
-from droid.cli import BadInput, RuntimeFailure, positive_float, run
+from droid.cli import BadInput, RuntimeFailure, duration_s, run
 from droid.observe import schemas
 from droid.observe.events import EventWatcher
 from droid.observe.mcapfile import TOPIC_HEALTH, TOPIC_SCENE, TOPIC_TF, RecordingWriter, cell_meta
@@ -139,7 +139,7 @@ def check_out_path(path: str) -> None:
 def main(argv=None) -> int:
     ap = parser(PROG, "Record a cell's databases, health, events, frames and scene into an MCAP file.")
     ap.add_argument("--out", required=True, metavar="FILE.mcap", help="the recording to write")
-    ap.add_argument("--seconds", type=positive_float, default=None, metavar="S",
+    ap.add_argument("--seconds", type=duration_s(), default=None, metavar="S",
                     help="stop after S seconds (default: until SIGINT/SIGTERM)")
     ap.add_argument("subunits", nargs="*", metavar="SUBUNIT", help="record only these subunits (default: all)")
     args = ap.parse_args(argv)

@@ -30,7 +30,7 @@ import time
 from droid.brain.databases import brain_layouts, open_brain
 from droid.brain.layouts import HEADER_FIELDS
 from droid.brain.program import Presence, Stop, open_cell, parser
-from droid.cli import BadInput, RuntimeFailure, non_negative_int, positive_float, run
+from droid.cli import BadInput, RuntimeFailure, bounded_float, bounded_int, run
 from droid.observe import schemas
 from droid.observe.mcapfile import Recording, db_topic, read_recording, recover
 
@@ -152,15 +152,19 @@ def play(cell, rec: Recording, ticks: range, rate: float, on_tick=None) -> int:
             db.close()
 
 
+#: A heartbeat tick number (the recordings' uint64 ticks; 2**62 ticks is 2.4 billion years at 60 Hz).
+tick = bounded_int(0, 2**62, "ticks")
+
+
 @run
 def main(argv=None) -> int:
     ap = parser(PROG, "Play a DROID recording back into a replay cell, export one database as CSV, or recover it.")
     ap.add_argument("file", metavar="FILE.mcap", help="a recording made by droid-record")
-    ap.add_argument("--rate", type=positive_float, default=1.0, metavar="X",
+    ap.add_argument("--rate", type=bounded_float(0.01, 1000.0, "x"), default=1.0, metavar="X",
                     help="playback speed, x the recorded pace (default 1)")
-    ap.add_argument("--from", dest="t_from", type=non_negative_int, default=None, metavar="TICK",
+    ap.add_argument("--from", dest="t_from", type=tick, default=None, metavar="TICK",
                     help="first heartbeat tick")
-    ap.add_argument("--to", dest="t_to", type=non_negative_int, default=None, metavar="TICK",
+    ap.add_argument("--to", dest="t_to", type=tick, default=None, metavar="TICK",
                     help="last heartbeat tick")
     ap.add_argument("--export", choices=("csv",), default=None, help="write one database as CSV instead of playing")
     ap.add_argument("--subunit", default=None, metavar="NAME", help="with --export: the subunit, e.g. arm1")

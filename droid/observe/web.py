@@ -36,7 +36,7 @@ from pathlib import Path
 from aiohttp import WSMsgType, web
 
 from droid.brain.program import open_cell, parser
-from droid.cli import BadInput, DroidError, RuntimeFailure, positive_float, positive_int, run
+from droid.cli import BadInput, DroidError, RuntimeFailure, rate_hz, run, tcp_port
 from droid.observe.sources import FileSource, LiveSource
 
 PROG = "droid-web"
@@ -210,19 +210,15 @@ async def serve(app: WebApp, bind: str, port: int) -> None:
 @run
 def main(argv=None) -> int:
     ap = parser(PROG, "Serve a read-only live web page of the cell (or of a recording).")
-    ap.add_argument("--port", type=positive_int, default=DEFAULT_PORT, metavar="PORT",
+    ap.add_argument("--port", type=tcp_port, default=DEFAULT_PORT, metavar="PORT",
                     help=f"TCP port (default {DEFAULT_PORT})")
     ap.add_argument("--bind", default="127.0.0.1", metavar="ADDR",
                     help="address to listen on (default 127.0.0.1; any other needs --token)")
     ap.add_argument("--token", default=None, metavar="TOKEN", help="require ?token=TOKEN on every request")
     ap.add_argument("--file", default=None, metavar="F.mcap", help="open a recording instead of the live cell")
-    ap.add_argument("--rate", type=positive_float, default=DEFAULT_RATE_HZ, metavar="HZ",
+    ap.add_argument("--rate", type=rate_hz(0.1, 120.0), default=DEFAULT_RATE_HZ, metavar="HZ",
                     help=f"WebSocket snapshots per second (default {DEFAULT_RATE_HZ:g})")
     args = ap.parse_args(argv)
-    if args.port > 65535:
-        ap.error(f"--port {args.port} is above 65535")
-    if args.rate > 120:
-        ap.error(f"--rate {args.rate:g} is above 120 Hz")
     if args.token is not None and (len(args.token) < 8 or not args.token.isprintable()):
         ap.error("--token must be at least 8 printable characters")
     if not is_loopback(args.bind) and args.token is None:

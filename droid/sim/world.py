@@ -25,7 +25,7 @@ from typing import Any
 
 from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
-from droid.cli import BadInput, RuntimeFailure, bounded_int, run
+from droid.cli import BadInput, RuntimeFailure, run, seed_int
 
 PROG = "droid-sim"
 DEFAULT_RATE_HZ = 1000.0
@@ -155,7 +155,7 @@ def main(argv=None) -> int:
         return truth_main(argv[1:])
     ap = parser(PROG, "Run the simulated hardware of a cell (robots, controllers, sensors). "
                       "'droid-sim truth ARM --json' prints an arm's ground truth from the running world.")
-    ap.add_argument("--seed", type=bounded_int(0, 2**32 - 1), default=None, help="random seed (default: the cell file's)")
+    ap.add_argument("--seed", type=seed_int, default=None, help="random seed (default: the cell file's)")
     args = ap.parse_args(argv)
     cell = open_cell(args)
     rate = float(cell.world.get("rate_hz", DEFAULT_RATE_HZ))

@@ -38,6 +38,9 @@ ARRIVAL_TOL_DEG = 0.05
 #: ... within this long after the arm reported it done [s] (the Status lags a tick
 #: or two and the servo settles the last way-point).
 ARRIVAL_WAIT_S = 1.0
+#: A cartesian target's ZYZ angles A B C [deg] lie within one turn either way (issue 16): an angle
+#: beyond names the same orientation and is refused as a mistake (1e308 deg has no precision left).
+MAX_CART_ANGLE_DEG = 360.0
 
 
 class BrainArm:
@@ -145,6 +148,9 @@ class BrainArm:
         pose = np.asarray(pose, float)
         if pose.shape != (6,) or not np.all(np.isfinite(pose)):
             raise BadInput("a cartesian target is x y z [mm] A B C [ZYZ deg], all finite")
+        if np.any(np.abs(pose[3:]) > MAX_CART_ANGLE_DEG):
+            raise BadInput(f"the angles A B C must be within [-{MAX_CART_ANGLE_DEG:g}, {MAX_CART_ANGLE_DEG:g}] deg, "
+                           f"got {' '.join(f'{a:g}' for a in pose[3:])}")
         T = pose_to_T(*pose)
         try:
             q = self.model.ik(T, np.zeros(6) if q_from_deg is None else q_from_deg)

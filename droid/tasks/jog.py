@@ -43,7 +43,7 @@ import numpy as np
 from droid.brain.databases import open_brain
 from droid.brain.program import open_cell, parser
 from droid.brain.rt import PeriodicTimer
-from droid.cli import MAX_WAIT_S, BadInput, RuntimeFailure, bounded_float, bounded_int, parse_finite, run
+from droid.cli import BadInput, RuntimeFailure, bounded_float, bounded_int, duration_s, parse_finite, run
 from droid.kinematics.transforms import T_to_pose, pose_to_T
 from droid.tasks.arm import BrainArm
 from droid.tasks.stick import StickInput, StickJog
@@ -271,7 +271,7 @@ def main(argv=None) -> int:
                     help="orientation step per key [deg] (default 1)")
     ap.add_argument("--joystick", metavar="SUBUNIT", default=None,
                     help="drive the arm from this joystick subunit (thesis §3.4), e.g. joy")
-    ap.add_argument("--seconds", type=bounded_float(0.0, MAX_WAIT_S, "s", lo_open=True), default=None, metavar="S",
+    ap.add_argument("--seconds", type=duration_s(), default=None, metavar="S",
                     help="with --joystick: stop after S seconds (default: button 7 or Ctrl-C)")
     args = ap.parse_args(argv)
     if args.seconds is not None and args.joystick is None:

@@ -29,7 +29,7 @@ import sys
 
 from droid.brain.program import open_cell, parser
 from droid.cli import MAX_MOVE_S, RuntimeFailure, finite_float, run, timeout_s
-from droid.tasks.arm import BrainArm
+from droid.tasks.arm import MAX_CART_ANGLE_DEG, BrainArm
 
 PROG = "droid-move"
 
@@ -41,7 +41,8 @@ def main(argv=None) -> int:
     ap.add_argument("robot", help="arm subunit, e.g. arm1")
     ap.add_argument("mode", choices=("joint", "cart"), help="joint: E1..E6 [counts]; cart: X Y Z [mm] A B C [deg]")
     ap.add_argument("values", nargs="+", type=finite_float, metavar="V",
-                    help="6 target values, then the move time in seconds")
+                    help=f"6 target values (joint: E1..E6 [counts]; cart: X Y Z [mm] A B C [deg], |A|,|B|,|C| <= "
+                         f"{MAX_CART_ANGLE_DEG:g}), then SECONDS, the move time; range (0, {MAX_MOVE_S:g}] s")
     ap.add_argument("--no-wait", action="store_true", help="return once the command is delivered")
     ap.add_argument("--timeout", type=timeout_s, default=None, metavar="S",
                     help="give up waiting after S seconds (default: 2 x move time + 10 s)")

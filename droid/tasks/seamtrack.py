@@ -43,11 +43,12 @@ from droid.brain.layouts import NO_CAPTURE_AGE
 from droid.brain.heartbeat import TickSubscriber
 from droid.brain.program import Stop, open_cell, parser
 from droid.brain.rt import try_sched_fifo
-from droid.cli import (EXIT_INTERRUPTED, EXIT_OK, EXIT_RUNTIME, BadInput, RuntimeFailure, finite_float,
-                       non_negative_int, positive_float, run)
+from droid.cli import (EXIT_INTERRUPTED, EXIT_OK, EXIT_RUNTIME, BadInput, RuntimeFailure, bounded_float,
+                       bounded_int, run)
 from droid.tasks.arm import STALE_GRACE_S, BrainArm
 from droid.tasks.seam import report
-from droid.tasks.seam.core import DEAD_ZONE_CYCLES, LOST_CYCLES, MODE_THESIS, MODES, STOP_END, SeamParams
+from droid.tasks.seam.core import (DEAD_ZONE_CYCLES, LOST_CYCLES, MAX_CYCLES, MAX_GAIN, MAX_RUN_LENGTH_MM,
+                                   MAX_SPEED_MM_S, MODE_THESIS, MODES, STOP_END, SeamParams)
 from droid.tasks.seam.cycle import SENSOR_LAG_TICKS, TrackingCycle  # noqa: F401 (SENSOR_LAG_TICKS: docs)
 from droid.tasks.seam.delay import INVALID_READING, Reading
 from droid.tasks.seam.layout import POSITION_IDS, load_layout
@@ -65,26 +66,34 @@ SETTLE_TIMEOUT_S = 3.0
 # the lockstep trial.
 
 
+#: argparse types of the run's numbers: the limits live in droid.tasks.seam.core (issue 16).
+speed_mm_s = bounded_float(0.0, MAX_SPEED_MM_S, "mm/s", lo_open=True)
+gain = bounded_float(0.0, MAX_GAIN)
+cycles = bounded_int(0, MAX_CYCLES, "cycles")
+travel_mm = bounded_float(0.0, MAX_RUN_LENGTH_MM, "mm")
+run_length_mm = bounded_float(0.0, MAX_RUN_LENGTH_MM, "mm", lo_open=True)
+
+
 def build_parser():
     ap = parser(PROG, "Track a seam with the tool robot, steered by the lead sensor, at SPEED mm/s "
                       "(thesis §5.5); stops at the end of the seam, on seam loss or on Ctrl-C.")
-    ap.add_argument("speed", type=positive_float, metavar="SPEED", help="travel speed along the seam [mm/s]")
+    ap.add_argument("speed", type=speed_mm_s, metavar="SPEED", help="travel speed along the seam [mm/s]")
     ap.add_argument("--mode", choices=MODES, default=MODE_THESIS,
                     help="tracker: thesis (§5.2's patch, default), listing (the literal port of the "
                          "listing), plus (seam map, holds the speed; docs/seamtrack.md)")
-    ap.add_argument("--yaw-gain", type=finite_float, default=0.15, metavar="K",
+    ap.add_argument("--yaw-gain", type=gain, default=0.15, metavar="K",
                     help="yaw angle gain k_yaw (eq. 5.6; default 0.15, §6.2.1)")
-    ap.add_argument("--pitch-gain", type=finite_float, default=0.25, metavar="K",
+    ap.add_argument("--pitch-gain", type=gain, default=0.25, metavar="K",
                     help="pitch angle gain k_pitch (eq. 5.7; default 0.25)")
-    ap.add_argument("--delay", type=non_negative_int, default=0, metavar="CYCLES",
+    ap.add_argument("--delay", type=cycles, default=0, metavar="CYCLES",
                     help="transport delay [30 Hz cycles] inserted once (§6.2.5; default 0 = none)")
-    ap.add_argument("--delay-at", type=finite_float, default=150.0, metavar="MM",
+    ap.add_argument("--delay-at", type=travel_mm, default=150.0, metavar="MM",
                     help="tool travel at which the transport delay starts [mm] (default 150)")
-    ap.add_argument("--dead-zone", type=non_negative_int, default=DEAD_ZONE_CYCLES, metavar="CYCLES",
+    ap.add_argument("--dead-zone", type=cycles, default=DEAD_ZONE_CYCLES, metavar="CYCLES",
                     help=f"cycles at the start before the sensor is read (default {DEAD_ZONE_CYCLES})")
-    ap.add_argument("--lost-cycles", type=non_negative_int, default=LOST_CYCLES, metavar="CYCLES",
+    ap.add_argument("--lost-cycles", type=bounded_int(1, MAX_CYCLES, "cycles"), default=LOST_CYCLES, metavar="CYCLES",
                     help=f"consecutive invalid readings that count as seam lost (default {LOST_CYCLES})")
-    ap.add_argument("--length", type=positive_float, default=None, metavar="MM",
+    ap.add_argument("--length", type=run_length_mm, default=None, metavar="MM",
                     help="run length: tool travel [mm] at which the seam ends (default: track until "
                          "the lead sensor loses the seam)")
     ap.add_argument("--start", choices=POSITION_IDS, default=None, metavar="POSITION",
@@ -180,7 +189,7 @@ class Tracker:
         try:
             self.params = SeamParams(
                 speed_mm_s=args.speed, yaw_gain=args.yaw_gain, pitch_gain=args.pitch_gain,
-                dead_zone_cycles=args.dead_zone, lost_cycles=max(1, args.lost_cycles),
+                dead_zone_cycles=args.dead_zone, lost_cycles=args.lost_cycles,
                 length_mm=args.length if args.length is not None else math.inf,
                 delay_cycles=args.delay, delay_at_mm=args.delay_at, mode=args.mode)
         except ValueError as exc:

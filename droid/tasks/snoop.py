@@ -22,7 +22,7 @@ from droid.brain.databases import open_brain
 from droid.brain.classes import field_json
 from droid.brain.program import open_cell, parser
 from droid.brain.rt import PeriodicTimer
-from droid.cli import bounded_float, bounded_int, run
+from droid.cli import bounded_int, rate_hz, run
 
 PROG = "droid-snoop"
 
@@ -57,14 +57,12 @@ def status_text(d: dict) -> str:
 def main(argv=None) -> int:
     ap = parser(PROG, "Print a subunit's Status record (default once a second).")
     ap.add_argument("subunit", help="subunit name, e.g. arm1")
-    ap.add_argument("--rate", type=bounded_float(0.0, 1000.0, "Hz", lo_open=True), default=1.0, metavar="HZ",
+    ap.add_argument("--rate", type=rate_hz(0.001, 1000.0), default=1.0, metavar="HZ",
                     help="samples per second (default 1)")
-    ap.add_argument("--count", type=bounded_int(1, 10**9), default=None, metavar="N",
+    ap.add_argument("--count", type=bounded_int(1, 10**9, "samples"), default=None, metavar="N",
                     help="stop after N samples (default: until interrupted)")
     ap.add_argument("--json", action="store_true", help="one JSON object a line")
     args = ap.parse_args(argv)
-    if args.rate > 1000:
-        ap.error(f"--rate {args.rate:g} is above 1000 Hz")
     cell = open_cell(args)
     sub = cell.subunit(args.subunit)
     db = open_brain(cell, sub, "status")

@@ -15,6 +15,8 @@ from tests.brain.cellutil import droid, make_cell_file
     ('[cell]\nname = "a.b"\n[subunits.x]\nclass="arm6r"\nrobot="reis_v15"', "invalid cell name"),
     ('[cell]\nname = "c"\n', "missing 'subunits'"),
     ('[cell]\nname = "c"\nheartbeat_hz = -5\n[subunits.x]\nclass="line_laser"', "heartbeat_hz"),
+    ('[cell]\nname = "c"\nheartbeat_hz = 1e-320\n[subunits.x]\nclass="line_laser"', r"outside \[1, 1000\] Hz"),
+    ('[cell]\nname = "c"\nheartbeat_hz = 1000.5\n[subunits.x]\nclass="line_laser"', r"outside \[1, 1000\] Hz"),
     ('[cell]\nname = "c"\nbogus = 1\n[subunits.x]\nclass="line_laser"', "unknown key"),
     ('[cell]\nname = "c"\n[subunits.x]\nclass="hexapod"', "unknown class"),
     ('[cell]\nname = "c"\n[subunits.x]\nclass="arm6r"', "needs 'robot'"),
@@ -46,7 +48,7 @@ def test_launcher_bad_args(args, msg, tmp_path, cell_name):
 
 @pytest.mark.parametrize("args,msg", [
     (["nosuch"], "unknown subunit"),
-    (["arm1", "--rate", "0"], "must be > 0"),
+    (["arm1", "--rate", "0"], "must be >= 0.001 and <= 1000 Hz"),
     (["arm1", "--rate", "inf"], "not a finite number"),
     (["arm1", "--count", "x"], "not an integer"),
     ([], "the following arguments are required"),

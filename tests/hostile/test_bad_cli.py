@@ -200,7 +200,8 @@ EXTREME = [
     ("droid.tasks.home", ["arm1", "--timeout", "0e0"], "must be > 0"),
     ("droid.tasks.snoop", ["arm1", "--rate", "1e308"], "<= 1000 Hz"),
     ("droid.tasks.snoop", ["arm1", "--rate", "1000.0001"], "<= 1000 Hz"),
-    ("droid.tasks.snoop", ["arm1", "--rate", "-0"], "must be > 0"),
+    ("droid.tasks.snoop", ["arm1", "--rate", "-0"], ">= 0.001"),
+    ("droid.tasks.snoop", ["arm1", "--rate", "1e-320"], ">= 0.001"),
     ("droid.tasks.snoop", ["arm1", "--count", "99999999999999999999999"], "<= 1000000000"),
     ("droid.tasks.jog", ["arm1", "--step", "100001"], "<= 100000 counts"),
     ("droid.tasks.jog", ["arm1", "--step", "-0"], "must be > 0"),
@@ -217,7 +218,7 @@ EXTREME = [
     ("droid.subunits.mvs.sensor", ["--retrace-timeout", "1e308"], "<= 60 s"),
     ("droid.subunits.mvs.sensor", ["--board-wait=-1e-300"], ">= 0"),
     ("droid.subunits.gmf1.serial_prog", ["gmf1", "--baud", "9" * 40], "<= 4000000 baud"),
-    ("droid.subunits.gmf1.encoder_prog", ["gmf1", "--rate", "10000.5"], "<= 10000 Hz"),
+    ("droid.subunits.gmf1.encoder_prog", ["gmf1", "--rate", "2000.5"], "<= 2000 Hz"),
     ("droid.sim.world", ["--seed", "4294967296"], "<= 4294967295"),
     ("droid.sim.world", ["--seed", "-1"], ">= 0"),
 ]

@@ -237,3 +237,22 @@ def test_robots_listing(capsys):
     recs = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
     assert {r["name"] for r in recs} >= {"reis_v15", "fanuc_s400"}
     assert [r["assumed"] for r in recs if r["name"] == "fanuc_s400"] == [True]
+
+
+def test_stdin_numbers_are_held_to_the_command_line_ranges(capsys, monkeypatch):
+    """A stdin line is checked as the same numbers on the command line are (issue 16):
+    joint angles in [-3600, 3600] deg, pose values in [-1e6, 1e6]; -0 is zero."""
+    monkeypatch.setattr(sys, "stdin", io.StringIO("0 0 0 0 0 1e308\n0 0 0 0 0 -3600.0000000000005\n"
+                                                  "0 0 0 0 0 -0\n0 0 0 0 0 5e-324\n"))
+    assert main(["fk", "--robot", "reis_v15"]) == 2
+    cap = capsys.readouterr()
+    out = cap.out.splitlines()
+    assert out[0] == "error: line 1: must be >= -3600 and <= 3600 deg: '1e308' is outside [-3600, 3600] deg"
+    assert out[1].startswith("error: line 2: must be >= -3600") and len(out) == 4
+    assert np.allclose([float(v) for v in out[2].split()], [540, 0, 1325, 0, 90, 180], atol=1e-6)
+    assert "2 input line(s) failed" in cap.err and len(cap.err.strip().splitlines()) == 1
+    monkeypatch.setattr(sys, "stdin", io.StringIO("300 100 1340 0 90 -1e308\n300 100 1340 0 180 0 0 0 0 0 0 4000\n"))
+    assert main(["ik", "--robot", "reis_v15"]) == 2
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].startswith("error: line 1: must be >= -1e+06") and "'-1e308'" in out[0]
+    assert out[1] == "error: line 2: must be >= -3600 and <= 3600 deg: '4000' is outside [-3600, 3600] deg"

@@ -127,7 +127,6 @@ def sensor_cell(tmp_path, cell_name, extra_mvs=""):
     (["arm1"], "[subunits.arm1] is class 'arm6r', not a line_laser sensor"),
     (["nosuch"], "unknown subunit 'nosuch'"),
     (["tool"], "[subunits.tool] needs dsp"),
-    (["mvs", "--baud", "9600"], "needs >= 19200"),
     (["mvs", "--replay", "-"], "--replay takes no"),
 ])
 def test_sensor_in_a_cell_bad_input_exit_2(tmp_path, cell_name, capsys, argv, message):

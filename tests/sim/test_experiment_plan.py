@@ -168,6 +168,12 @@ wrist = ["standard", "extension30"]
     ('name = "x"\n[defaults]\nposition = "ix"\n', "position", '"ix"'),
     ('name = "x"\n[defaults]\nsensor = "laser"\n', "sensor", '"laser"'),
     ('name = "x"\n[defaults]\nyaw_gain = nan\n', "yaw_gain", "nan"),
+    ('name = "x"\n[defaults]\nyaw_gain = 10.5\n', "yaw_gain", "10.5"),  # droid-seamtrack's ranges (issue 16)
+    ('name = "x"\n[sweep]\npitch_gain = [-0.1]\n', "pitch_gain", "-0.1"),
+    ('name = "x"\n[sweep]\nlength_mm = [1e308]\n', "length_mm", "1e+308"),
+    ('name = "x"\n[sweep]\nspeed_mm_s = [500.5]\n', "speed_mm_s", "500.5"),
+    ('name = "x"\n[sweep]\ndelay_cycles = [108001]\n', "delay_cycles", "108001"),
+    ('name = "x"\n[defaults]\ndelay_at_mm = 10000.5\n', "delay_at_mm", "10000.5"),
     ('name = "x"\n[sweep]\nworkpiece = ["no_such_piece"]\n', "workpiece", '"no_such_piece"'),
     ('name = "x"\n[sweep]\nworkpiece = ["missing/piece.toml"]\n', "workpiece", '"missing/piece.toml"'),
     ('name = "x"\n[defaults]\nspeed_mm_s = 8\n[sweep]\nspeed_mm_s = [16]\n', "speed_mm_s", "[16]"),

@@ -46,18 +46,20 @@ import time
 from dataclasses import dataclass, replace
 from typing import Sequence
 
-from droid.cli import ArgumentParser, BadInput, non_negative_int, positive_float, positive_int, run
+from droid.cli import ArgumentParser, BadInput, bounded_float, bounded_int, run
 from droid.sim.experiment.matrix import (EXP4_RUNS, POSITION_LABELS, TABLES, Experiment, experiments, resolve,
                                          valid_forms, with_seed)
 from droid.sim.experiment.plan import FIELDS, Plan, PlanTrial, load_plan
 from droid.sim.experiment.sensors import SENSOR_MODELS
 from droid.sim.experiment.trial import ARM_MODELS
 from droid.tasks.seam import report
-from droid.tasks.seam.core import MODES, STOP_END
+from droid.tasks.seam.core import MAX_RUN_LENGTH_MM, MODES, STOP_END
 
 PROG = "droid-experiment"
 DEFAULT_OUT = os.path.join("out", "experiments")
 DEFAULT_SEED = 1
+#: Most parallel trials --jobs accepts (each is a process; the CPU count is the default).
+MAX_JOBS = 256
 #: The sweeps' lead sensor model: "ideal" gives the camera chain's numbers within 0.04 mm
 #: RMS on every stable trial of the matrix (docs/experiments.md) at ~3x its speed.
 DEFAULT_SENSOR = "ideal"
@@ -76,9 +78,9 @@ def build_parser() -> ArgumentParser:
                    help="run the trials on a Dask cluster: tcp://HOST:8786, or local (a LocalCluster)")
     r.add_argument("--out", default=DEFAULT_OUT, metavar="DIR", help=f"output directory (default {DEFAULT_OUT})")
     r.add_argument("--realtime", action="store_true", help="run on the real-time process cell (one at a time)")
-    r.add_argument("--seed", type=non_negative_int, default=None, metavar="N",
+    r.add_argument("--seed", type=bounded_int(0, 2**31 - 1), default=None, metavar="N",
                    help=f"base seed; each trial's seed is derived from it and the ID (default {DEFAULT_SEED})")
-    r.add_argument("--jobs", type=positive_int, default=None, metavar="N",
+    r.add_argument("--jobs", type=bounded_int(1, MAX_JOBS, "processes"), default=None, metavar="N",
                    help="parallel trials (default: the CPU count)")
     r.add_argument("--sensor", choices=SENSOR_MODELS, default=None,
                    help="lead sensor model (default: ideal -- the seam in the field of view with the camera "
@@ -92,7 +94,8 @@ def build_parser() -> ArgumentParser:
     r.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     r.add_argument("--record", action="store_true",
                    help="also record each lockstep trial as DIR/<table>/<id>.mcap (docs/observe.md)")
-    r.add_argument("--length", type=positive_float, default=None, help=argparse.SUPPRESS)  # run length [mm]
+    r.add_argument("--length", type=bounded_float(0.0, MAX_RUN_LENGTH_MM, "mm", lo_open=True), default=None,
+                   help=argparse.SUPPRESS)  # run length [mm]
     lp = sub.add_parser("list", help="list the experiments with their parameters, one a line")
     lp.add_argument("ids", nargs="*", metavar="ID", help="IDs or tables to list (default: all)")
     lp.add_argument("--plan", metavar="FILE", help="list a sweep plan's trials instead: index, ID, parameters")

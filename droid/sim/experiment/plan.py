@@ -15,17 +15,17 @@ Keys of ``[defaults]`` and ``[sweep]`` (the fields of
 ================  ==========================================================
 ``workpiece``      a bundled name (``step_input``) or a path, relative to the plan file
 ``position``       a start position of the layout: i .. vii (thesis §6.1.2)
-``speed_mm_s``     travel speed [mm/s], > 0
-``yaw_gain``       proportional gains (§5.5), finite
+``speed_mm_s``     travel speed [mm/s], in (0, 500]
+``yaw_gain``       proportional gains (§5.5), in [0, 10]
 ``pitch_gain``
-``delay_cycles``   a transport delay of this many 30 Hz cycles, integer >= 0 (§6.2.5)
-``delay_at_mm``    where the delay starts [mm], >= 0
+``delay_cycles``   a transport delay of this many 30 Hz cycles, integer in [0, 108000] (§6.2.5)
+``delay_at_mm``    where the delay starts [mm], in [0, 10000]
 ``wrist``          a wrist of the layout: standard, extension30 (§6.2.7)
 ``mode``           the tracking mode (passed to TrialConfig(mode=...) when it has one)
 ``arm``            fast | full (the Reis model)
 ``sensor``         ideal | camera (the lead sensor model)
-``seed``           the trial's seed, integer >= 0 (used as given)
-``length_mm``      the tool's run length [mm], > 0 (default: the seam's length)
+``seed``           the trial's seed, integer in [0, 2**31 - 1] (used as given)
+``length_mm``      the tool's run length [mm], in (0, 10000] (default: the seam's length)
 ================  ==========================================================
 
 Unset keys take :data:`BUILTIN_DEFAULTS`.  The trials are the product of
@@ -48,6 +48,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 
 from droid.cli import BadInput, read_toml
+from droid.tasks.seam.core import MAX_CYCLES, MAX_GAIN, MAX_RUN_LENGTH_MM, MAX_SPEED_MM_S
 
 PLAN_DIR = Path(__file__).parent / "plans"
 
@@ -159,18 +160,23 @@ class _Checker:
                 raise self.bad(where, key, value, "must be a finite number")
             if value <= 0:
                 raise self.bad(where, key, value, "must be > 0")
+            hi, unit = (MAX_RUN_LENGTH_MM, "mm") if key == "length_mm" else (MAX_SPEED_MM_S, "mm/s")
+            if value > hi:
+                raise self.bad(where, key, value, f"must be <= {hi:g} {unit}")
             return float(value)
         if key in ("yaw_gain", "pitch_gain", "delay_at_mm"):
             if not is_num(value):
                 raise self.bad(where, key, value, "must be a finite number")
-            if key == "delay_at_mm" and value < 0:
-                raise self.bad(where, key, value, "must be >= 0")
+            hi = MAX_RUN_LENGTH_MM if key == "delay_at_mm" else MAX_GAIN  # droid-seamtrack's ranges
+            if not 0 <= value <= hi:
+                raise self.bad(where, key, value, f"must be within [0, {hi:g}]")
             return float(value)
         if key in ("delay_cycles", "seed"):
             if not is_int(value):
                 raise self.bad(where, key, value, "must be an integer")
-            if value < 0 or value >= 2 ** 31:
-                raise self.bad(where, key, value, "must be within [0, 2**31)")
+            hi = MAX_CYCLES if key == "delay_cycles" else 2 ** 31 - 1
+            if value < 0 or value > hi:
+                raise self.bad(where, key, value, f"must be within [0, {hi}]")
             return int(value)
         if key == "position":
             return choice(list(self.layout.positions))

@@ -26,7 +26,7 @@ import time
 import numpy as np
 import posix_ipc
 
-from droid.cli import ArgumentParser, BadInput, bounded_float, bounded_int, run
+from droid.cli import ArgumentParser, BadInput, bounded_float, bounded_int, rate_hz, run, seed_int
 from droid.sim.mvs.camera import CameraNoise, MvsCamera
 from droid.sim.mvs.tool_sensor import pose_for_reading
 from droid.sim.workpiece import load_workpiece
@@ -159,9 +159,9 @@ def main(argv=None) -> int:
     parser.add_argument("--jitter", type=bounded_float(0.0, 100.0, "px"), default=0.5, help="column jitter sigma [px]")
     parser.add_argument("--spurious", type=bounded_float(0.0, 1.0), default=0.0, help="fraction of spurious rows")
     parser.add_argument("--drop", type=bounded_float(0.0, 1.0), default=0.0, help="probability of a dropped frame")
-    parser.add_argument("--rate", type=bounded_float(0.0, 1000.0, "Hz", lo_open=True), default=FRAME_RATE_HZ, help="frames per second")
-    parser.add_argument("--count", type=bounded_int(1, 10**12), help="stop after this many frames")
-    parser.add_argument("--seed", type=bounded_int(0, 2**32 - 1), default=0)
+    parser.add_argument("--rate", type=rate_hz(0.1, 1000.0), default=FRAME_RATE_HZ, help="frames per second")
+    parser.add_argument("--count", type=bounded_int(1, 10**12, "frames"), help="stop after this many frames")
+    parser.add_argument("--seed", type=seed_int, default=0, help="random seed of the camera noise (default 0)")
     args = parser.parse_args(argv)
     if parse_dsp_url(args.url)[0] != "shm":
         raise BadInput("a stand-alone board needs a shm://NAME URL")

@@ -48,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
-from droid.cli import BadInput, RuntimeFailure, run
+from droid.cli import BadInput, RuntimeFailure, run, seed_int
 from droid.subunits.reis.robot_file import offset_file
 
 PROG = "droid-calibrate"
@@ -246,7 +246,7 @@ def main(argv=None) -> int:
 
     ap = parser(PROG, "Optical calibration of an arm's home offsets (thesis §4.1.1.4) on the simulated cell.")
     ap.add_argument("robot", metavar="ROBOT", help="the arm's subunit name (e.g. arm1)")
-    ap.add_argument("--seed", type=int, default=None, help="world seed (default: the cell file's)")
+    ap.add_argument("--seed", type=seed_int, default=None, help="world seed (default: the cell file's)")
     ap.add_argument("--no-write", action="store_true", help="print the estimate, do not write it")
     args = ap.parse_args(argv)
     cell = open_cell(args)

@@ -24,6 +24,8 @@ from droid.cli import BadInput
 from droid.subunits.gmf1.karel_wire import BAUD
 from droid.subunits.gmf1.quad04 import check_url
 
+#: The encoder read rates a GMF1 accepts [Hz] ([subunits.X] encoder_hz, droid-gmf1-encoder --rate).
+ENCODER_HZ_RANGE = (1.0, 2000.0)
 KEYS = ("serial", "baud", "encoders", "encoder_hz", "reply_timeout_s", "done_margin_s")
 
 
@@ -64,7 +66,7 @@ def gmf1_config(cell: Cell, sub: Subunit) -> Gmf1Config:
     except BadInput as exc:
         raise BadInput(f"{where} encoders: {exc}") from None
     vals = {}
-    for key, default, lo, hi in (("encoder_hz", 120.0, 1.0, 2000.0), ("reply_timeout_s", 1.0, 0.05, 60.0),
+    for key, default, lo, hi in (("encoder_hz", 120.0, *ENCODER_HZ_RANGE), ("reply_timeout_s", 1.0, 0.05, 60.0),
                                  ("done_margin_s", 1.0, 0.0, 600.0)):
         v = o.get(key, default)
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi:

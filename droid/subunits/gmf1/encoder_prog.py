@@ -25,10 +25,10 @@ import time
 from droid.brain.databases import open_local
 from droid.brain.program import ErrorLine, Presence, Stop, close_all, notify_ready, presence_key, subunit_program
 from droid.brain.rt import PeriodicTimer, now_ns, try_sched_fifo
-from droid.cli import BadInput, bounded_float, run
+from droid.cli import BadInput, rate_hz, run
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T
-from droid.subunits.gmf1.config import gmf1_config
+from droid.subunits.gmf1.config import ENCODER_HZ_RANGE, gmf1_config
 from droid.subunits.gmf1.encoder_core import EncoderCore
 from droid.subunits.gmf1.quad04 import CardUnavailable, open_bank
 from droid.subunits.gmf1.station import EncoderStation
@@ -93,7 +93,7 @@ class CardSession:
 @run
 def main(argv=None) -> int:
     def options(ap):
-        ap.add_argument("--rate", type=bounded_float(0.0, 10_000.0, "Hz", lo_open=True), default=None, metavar="HZ",
+        ap.add_argument("--rate", type=rate_hz(*ENCODER_HZ_RANGE), default=None, metavar="HZ",
                         help="read rate [Hz] (default: the cell file's encoder_hz, 120)")
 
     args, cell, sub = subunit_program(PROG, "Read the GMF1 encoder cards at 120 Hz and keep the Status pose fresh.",

@@ -52,8 +52,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from droid.brain.serial_port import PortLink, serial_opener
-from droid.cli import (ArgumentParser, BadInput, MAX_WAIT_S, RuntimeFailure, bounded_float, bounded_int, read_toml,
-                       run)
+from droid.cli import (ArgumentParser, BadInput, MAX_WAIT_S, RuntimeFailure, bounded_float, bounded_int, duration_s,
+                       read_toml, run)
 from droid.subunits.mvs.calibration import MvsCalibration
 from droid.subunits.mvs.dsp import open_dsp
 from droid.subunits.mvs.feature import Feature, FeatureParams, extract
@@ -274,10 +274,10 @@ def build_parser() -> ArgumentParser:
     parser.add_argument("--ready-fd", type=bounded_int(0, 1 << 20), default=None, help=argparse.SUPPRESS)
     parser.add_argument("--dsp", metavar="URL", help="DSP board: shm://NAME or inproc://NAME")
     parser.add_argument("--serial", metavar="URL", help="serial port URL or device (pyserial serial_for_url)")
-    parser.add_argument("--baud", type=bounded_int(1, 4_000_000, "baud"), default=None,
-                        help=f"baud rate, >= {MIN_BAUD} (default {DEFAULT_BAUD})")
-    parser.add_argument("--count", type=bounded_int(1, 10**12), help="stop after N frames")
-    parser.add_argument("--retrace-timeout", type=bounded_float(0.0, 60.0, "s", lo_open=True), default=6 / FRAME_RATE_HZ, metavar="S",
+    parser.add_argument("--baud", type=bounded_int(MIN_BAUD, 4_000_000, "baud"), default=None,
+                        help=f"baud rate (default {DEFAULT_BAUD})")
+    parser.add_argument("--count", type=bounded_int(1, 10**12, "frames"), help="stop after N frames")
+    parser.add_argument("--retrace-timeout", type=duration_s(60.0), default=6 / FRAME_RATE_HZ, metavar="S",
                         help="send 'invalid' when no retrace comes within S seconds (default 0.1)")
     parser.add_argument("--board-wait", type=bounded_float(0.0, MAX_WAIT_S, "s"), default=None, metavar="S",
                         help="wait up to S seconds for the DSP board (and in a cell the serial port) "

@@ -81,6 +81,15 @@ LOST_CYCLES = 15
 #: whose joints are speed-limited as the servo's).  A faster request is refused up front.
 MAX_SPEED_MM_S = 500.0
 
+#: The ranges the programs accept (droid-seamtrack's options, droid-experiment's --length; issue 16):
+#: a run length [mm] up to 10 m -- more than ten times the longest bundled seam (step_input, 760 mm
+#: with its lead-in and -out) and far beyond the Reis's reach (ASSUMED: chosen, not from the thesis);
+#: the proportional gains [-] 0..10 (the thesis runs 0.05..0.75, §6.2.5; above 1 a cycle corrects
+#: more than the measured angle); cycle counts [30 Hz cycles] up to one hour of cycles.
+MAX_RUN_LENGTH_MM = 10_000.0
+MAX_GAIN = 10.0
+MAX_CYCLES = 108_000
+
 STOP_END = "end of seam"
 STOP_LOST = "seam lost"
 STOP_UNREACHABLE = "unreachable"
