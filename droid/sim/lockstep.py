@@ -29,6 +29,9 @@ ORDER_HEARTBEAT = 20  # the heartbeat tick and everything driven by it
 ORDER_TASK = 30
 
 
+_K_EXACT = 1 << 20  # below this many calls a whole-ns period's k * period_ns is exact (see Task)
+
+
 @dataclass
 class Task:
     name: str
@@ -46,7 +49,7 @@ class Task:
             self.period_ns = int(period)
 
     def due(self, k: int) -> int:
-        if self.period_ns and k < (1 << 20):  # the same value as the rounded product, in ints
+        if self.period_ns and k < _K_EXACT:  # the same value as the rounded product, in ints
             return self.start_ns + k * self.period_ns
         return self.start_ns + int(round(k * 1e9 / self.rate_hz))
 
@@ -112,10 +115,11 @@ class Scheduler:
                 continue
             self.t_ns = due_ns
             task.fn(due_ns)
-            task.k += 1
+            task.k = k = task.k + 1
             if task.enabled:
                 self._seq += 1
-                push(heap, (task.due(task.k), order, self._seq, task))
+                per = task.period_ns  # Task.due inlined for whole-ns periods (the 500 Hz pair)
+                push(heap, (task.start_ns + k * per if per and k < _K_EXACT else task.due(k), order, self._seq, task))
         self.t_ns = max(self.t_ns, t_end_ns)
 
     def run_for(self, seconds: float) -> None:

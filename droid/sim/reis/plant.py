@@ -75,6 +75,12 @@ MAX_JOINT_SPEED_DEG_PER_S = 360.0  # bound used to skip hard-stop checks far fro
 ZERO6: Six = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 # one copy of pre-packed bytes per register block (vm.store's rule: never struct.pack_into on a shared map)
 _ENCODERS, _DACS, _U16 = struct.Struct(vm.ENCODERS_FORMAT), struct.Struct(vm.DACS_FORMAT), struct.Struct(vm.U16_FORMAT)
+# the two watchdog registers are adjacent u16s: one unpack reads both
+_WATCHDOGS = struct.Struct("<2H")
+assert vm.WATCHDOG_OFFSETS[1] == vm.WATCHDOG_OFFSETS[0] + 2 and vm.U16_FORMAT == "<H"
+# AMP_STATUS's two bytes by (amps on, watchdog fault)
+_AMP_STATUS = {(on, fault): _U16.pack((vm.AMP_STATUS_POWERED if on else 0) | (vm.AMP_STATUS_WATCHDOG_FAULT if fault else 0))
+               for on in (False, True) for fault in (False, True)}
 
 
 @functools.lru_cache(maxsize=32)
@@ -245,6 +251,10 @@ class ReisPlant:
         self._fl = {"tau_per_dac": self._tau_per_dac.tolist(), "tau_max": self._tau_max.tolist(),
                     "tau_max_w0": self._tau_max_w0.tolist(), "cpr": np.broadcast_to(self._counts_per_rad, 6).tolist(),
                     "sw": self._sw.tolist(), "side": self._side.tolist(), "stop_mid": self._stop_mid.tolist()}
+        # per joint, for the fused DAC -> torque loop of advance: (torque per DAC count, limit, limit / w0)
+        self._drive_consts = list(zip(self._fl["tau_per_dac"], self._fl["tau_max"], self._fl["tau_max_w0"]))
+        self._q_list: tuple = (None, None)  # (the array self._q, its tolist()): q is read as floats 3x per step
+        self._z = np.empty(36)  # the exact step's input [x; tau_motor; tau_link] (filled in place)
         self._n_substeps: dict = {}  # dt_s -> substeps per advance (validated once)
         self._tau_c_list = self._tau_c.tolist()
         self._F0, self._G0 = self._system_matrices(np.zeros((6, 6)))  # the M(q)-free blocks
@@ -286,6 +296,7 @@ class ReisPlant:
         counts = self._floor_counts()
         self._enc_offset = np.array([(int(e) - c) % vm.ENCODER_MODULUS for e, c in zip(encoder_counts, counts)],
                                     np.int64)
+        self._enc_offset_list = self._enc_offset.tolist()
         # The amplifiers come up off; the first write of both watchdog registers
         # arms the timers and powers them (a watchdog that is not running yet
         # cannot have expired).  From then on a register not rewritten within
@@ -375,6 +386,32 @@ class ReisPlant:
             self._n_substeps[dt_s] = n
         self._read_inputs(dt_s)
         lo, hi = vm.DAC_MIN, vm.DAC_MAX
+        h = p.substep_s
+        cache = self._q_list
+        ql = cache[1] if cache[0] is self._q else self._q.tolist()
+        if self._exact and not (self._any_jammed or self._near_stop(n * h, ql)):
+            if self._amps_on:
+                # the DACs -> amplifier torques, clipped to +-tau_max, then to the back-EMF range at the
+                # step's start speed, in one loop over plain floats (the same IEEE operations as the
+                # min/max form of the substep branch below: max(a, b) is b if b > a else a)
+                drive = []
+                add = drive.append
+                for d, (k, tm, a), w in zip(_DACS.unpack_from(self._view, vm.DAC_OFFSET), self._drive_consts,
+                                            self._omega.tolist()):
+                    d = d if d > lo else lo
+                    v = float(d if d < hi else hi) * k
+                    v = v if v > -tm else -tm
+                    v = v if v < tm else tm
+                    b = -tm - a * w
+                    v = v if v > b else b
+                    b = tm - a * w
+                    add(v if v < b else b)
+                tau_c = self._tau_c
+            else:
+                drive, tau_c = ZERO6, self._tau_c + self._tau_brake
+            self._step_exact(n * h, drive, tau_c, ql)
+            self.time_s += n * h
+            return
         if self._amps_on:
             fl = self._fl
             dacs = _DACS.unpack_from(self._view, vm.DAC_OFFSET)
@@ -384,10 +421,7 @@ class ReisPlant:
         else:
             drive = ZERO6
             tau_c = self._tau_c + self._tau_brake
-        h = p.substep_s
-        if self._exact and not (self._any_jammed or self._near_stop(n * h)):
-            self._step_exact(n * h, drive, tau_c)
-        elif p.compliance:
+        if p.compliance:
             self._steps_compliant(n, h, np.array(drive), tau_c)
         else:
             self._steps_rigid(n, h, np.array(drive), tau_c)
@@ -407,7 +441,7 @@ class ReisPlant:
         model, data, aba = self._pin_model, self._pin_data, pin.aba
         st = np.concatenate((self._theta, self._omega, self._q, self._qd))
         theta, omega, q, qd = st[0:6], st[6:12], st[12:18], st[18:24]
-        stops = bool(self._jammed.any()) or self._near_stop(n * h)
+        stops = bool(self._jammed.any()) or self._near_stop(n * h, self._q.tolist())
         bal, sin = self._bal, math.sin
         tmax, tmax_w0, two_tmax = self._tau_max, self._tau_max / self._w0, 2.0 * self._tau_max
         amps = self._amps_on
@@ -430,11 +464,19 @@ class ReisPlant:
         self._theta, self._omega, self._q, self._qd = theta.copy(), omega.copy(), q.copy(), qd.copy()
 
     # -- the exact (linearised, zero-order-hold) integrator --------------------------------
-    def _discretise(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    def _discretise(self, dt: float, ql: list) -> tuple[np.ndarray, np.ndarray]:
+        """(Phi, Gamma) at the current linearisation; ``ql``: ``self._q`` as floats."""
         q = self._q
         lin, r = self._lin_q, self._relin_rad
-        if lin is None or any(abs(a - b) > r for a, b in zip(q.tolist(), lin.tolist())):
+        relin = lin is None
+        if not relin:
+            for a, b in zip(ql, self._lin_list):
+                if abs(a - b) > r:
+                    relin = True
+                    break
+        if relin:
             self._lin_q = q.copy()
+            self._lin_list = ql
             self._disc = {}
             self._minv_lin = self.body.minv(q)
         got = self._disc.get(dt)
@@ -447,6 +489,7 @@ class ReisPlant:
             g_m = gam[:, 0:6].copy()  # the state's response to a motor torque held over the step
             # one product per step: [Phi | Gamma] @ [x; tau_motor; tau_link]
             got = self._disc[dt] = (np.hstack((phi, gam)), g_m, np.diag(g_m[6:12]).tolist())
+            assert got[0].shape == (24, 36)
         return got
 
     def _system_matrices(self, minv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -469,20 +512,24 @@ class ReisPlant:
         G[18:24, 6:12] = minv
         return F, G
 
-    def _step_exact(self, dt: float, drive, tau_c) -> None:
-        """One zero-order-hold step of ``dt`` (see the module docstring and :data:`EXACT_BOUND_DEG`)."""
-        pg, g_m, g_wd = self._discretise(dt)
+    def _step_exact(self, dt: float, drive, tau_c, ql: list) -> None:
+        """One zero-order-hold step of ``dt`` (see the module docstring and :data:`EXACT_BOUND_DEG`).
+        ``drive``: the six motor torques [N m] after saturation and back-EMF; ``ql``: ``self._q``
+        as floats.  Writes the step's outputs (encoders, switches, AMP_STATUS)."""
+        pg, g_m, g_wd = self._discretise(dt, ql)
         omega, q, qd = self._omega, self._q, self._qd
         om = omega.tolist()
-        if self._amps_on:  # back-EMF at the step's start speed (``drive``: six floats)
-            fl = self._fl
-            drive = [min(tm - a * w, max(-tm - a * w, d))
-                     for d, tm, a, w in zip(drive, fl["tau_max"], fl["tau_max_w0"], om)]
         tau_link = pin.nonLinearEffects(self._pin_model, self._pin_data, q, qd)  # C qd + g (Pinocchio's buffer)
         nl = -tau_link[1]
         if self._bal:
-            nl -= self._bal * math.sin(q[1])
-        z = np.concatenate((self._theta, omega, q, qd, drive, -tau_link))
+            nl -= self._bal * math.sin(ql[1])
+        z = self._z  # [theta, omega, q, qd, drive, -tau_link], as np.concatenate would build it
+        z[0:6] = self._theta
+        z[6:12] = omega
+        z[12:18] = q
+        z[18:24] = qd
+        z[24:30] = drive
+        np.negative(tau_link, out=z[30:36])
         z[31] = nl
         free = pg @ z  # the step without Coulomb friction
         # Coulomb friction (Karnopp): kinetic where the motor moves and keeps its direction;
@@ -493,9 +540,15 @@ class ReisPlant:
             kin = [-tc if w > 0.0 else (tc if w < 0.0 else -0.0) for tc, w in zip(tcl, om)]  # 0 at rest
             x = free + g_m @ kin
             # moving, and still the same way with kinetic friction
-            keep = [a * w > 0.0 for a, w in zip(x[6:12].tolist(), om)]
-            if all(keep):
-                self._theta, self._omega, self._q, self._qd = x[0:6], x[6:12], x[12:18], x[18:24]
+            xl = x.tolist()
+            for a, w in zip(xl[6:12], om):
+                if not a * w > 0.0:
+                    keep = [a * w > 0.0 for a, w in zip(xl[6:12], om)]
+                    break
+            else:
+                q = x[12:18]
+                self._theta, self._omega, self._q, self._qd = x[0:6], x[6:12], q, x[18:24]
+                self._write_outputs(xl[0:6], xl[12:18], q)
                 return
         else:  # every motor at rest: no kinetic friction, each one may stick
             kin, keep = None, (False,) * 6
@@ -520,12 +573,15 @@ class ReisPlant:
             for j in rest:
                 theta[j] = old[j]
                 omega[j] = 0.0
-        self._theta, self._omega, self._q, self._qd = theta, omega, x[12:18], x[18:24]
+        q = x[12:18]
+        self._theta, self._omega, self._q, self._qd = theta, omega, q, x[18:24]
+        xl = x.tolist()
+        self._write_outputs(xl[0:6], xl[12:18], q)
 
     def _steps_rigid(self, n: int, h: float, drive, tau_c) -> None:
         A, AinvT = self._A, self._AinvT
         theta, omega = self._theta, self._omega
-        stops = self._jammed.any() or self._near_stop(n * h)
+        stops = self._jammed.any() or self._near_stop(n * h, self._q.tolist())
         for _ in range(n):
             q = A @ theta
             qd = A @ omega
@@ -548,13 +604,14 @@ class ReisPlant:
         self._q = A @ theta
         self._qd = A @ omega
 
-    def _near_stop(self, dt_s: float) -> bool:
-        """Could a hard stop engage within ``dt_s``?  (No joint outruns 360 deg/s.)"""
+    def _near_stop(self, dt_s: float, ql: list) -> bool:
+        """Could a hard stop engage within ``dt_s``?  (No joint outruns 360 deg/s.)  ``ql``: ``self._q``
+        as floats."""
         lim = self._stop_lim.get(dt_s)
         if lim is None:
             margin = math.radians(1.0 + MAX_JOINT_SPEED_DEG_PER_S * dt_s)
             lim = self._stop_lim[dt_s] = (self._stop_half - margin).tolist()
-        for qj, mid, lj in zip(self._q.tolist(), self._fl["stop_mid"], lim):
+        for qj, mid, lj in zip(ql, self._fl["stop_mid"], lim):
             if abs(qj - mid) >= lj:
                 return True
         return False
@@ -571,14 +628,15 @@ class ReisPlant:
 
     def _read_inputs(self, dt_s: float) -> None:
         # encoder write -> counter reset to 0 (thesis §4.1.2; DROID's servo never does it)
-        regs = struct.unpack_from(vm.ENCODERS_FORMAT, self._view, vm.ENCODER_OFFSET)
+        view = self._view
+        regs = _ENCODERS.unpack_from(view, vm.ENCODER_OFFSET)
         if regs != self._enc_written:
             counts = self._floor_counts()
             for j in range(vm.N_JOINTS):
                 if regs[j] != self._enc_written[j]:
                     self._enc_offset[j] = (-counts[j]) % vm.ENCODER_MODULUS
-        for i, off in enumerate(vm.WATCHDOG_OFFSETS):
-            value = struct.unpack_from(vm.U16_FORMAT, self._view, off)[0]
+            self._enc_offset_list = self._enc_offset.tolist()
+        for i, value in enumerate(_WATCHDOGS.unpack_from(view, vm.WATCHDOG_OFFSETS[0])):
             if value != self._wd_last[i]:
                 self._wd_last[i] = value
                 self._wd_age_s[i] = 0.0
@@ -591,22 +649,24 @@ class ReisPlant:
             self._amps_on = False
             self._wd_fault = True
 
-    def _write_outputs(self) -> None:
+    def _write_outputs(self, theta_l: list | None = None, q_l: list | None = None, q=None) -> None:
+        """Encoders, limit switches and AMP_STATUS into the map.  ``theta_l``/``q_l``: the state's
+        motor and link angles as floats when the caller has them (``q``: the array ``q_l`` is of)."""
         # encoder_raw and the switch bits in plain floats (the same operations as the properties)
+        if theta_l is None:
+            theta_l, q_l, q = self._theta.tolist(), self._q.tolist(), self._q
+        self._q_list = (q, q_l)
         floor, mod, fl = math.floor, vm.ENCODER_MODULUS, self._fl
         self._enc_written = enc = tuple([(floor(t * c) + o) % mod for t, c, o in
-                                         zip(self._theta.tolist(), fl["cpr"], self._enc_offset.tolist())])
+                                         zip(theta_l, fl["cpr"], self._enc_offset_list)])
         view = self._view
         view[vm.ENCODER_OFFSET:vm.ENCODER_OFFSET + _ENCODERS.size] = _ENCODERS.pack(*enc)
         bits = 0
-        for j, (a, qj, sw) in enumerate(zip(fl["side"], self._q.tolist(), fl["sw"])):
+        for j, (a, qj, sw) in enumerate(zip(fl["side"], q_l, fl["sw"])):
             if a * (qj - sw) > 0.0:
                 bits |= 1 << j  # bit j: joint j+1's switch
         view[vm.LIMIT_SWITCH_OFFSET:vm.LIMIT_SWITCH_OFFSET + 2] = _U16.pack(bits)
-        status = (vm.AMP_STATUS_POWERED if self._amps_on else 0) | (
-            vm.AMP_STATUS_WATCHDOG_FAULT if self._wd_fault else 0
-        )
-        view[vm.AMP_STATUS_OFFSET:vm.AMP_STATUS_OFFSET + 2] = _U16.pack(status)
+        view[vm.AMP_STATUS_OFFSET:vm.AMP_STATUS_OFFSET + 2] = _AMP_STATUS[(self._amps_on, self._wd_fault)]
 
     def close(self) -> None:
         """Release the view on ``regs`` (needed before closing an mmap behind it)."""

@@ -1,0 +1,114 @@
+"""Two versions of the Reis plant twin side by side in one process: CPU per advance and bit-identity.
+
+Loads ``droid/sim/reis/plant.py`` from an old checkout (``--base DIR``, e.g. made with
+``git archive COMMIT | tar -x -C DIR``) beside this checkout's, puts each behind its own
+lockstep servo and watchdog (droid.sim.reis.lockstep.ReisLockstep, seed 1), and runs the two
+in alternating 0.5 s chunks -- homing, then ``--moves`` pairs of 2 s minimum-jerk moves of all
+six joints (60-120 deg) out and back -- so both see the same load.  Prints the CPU time
+[us] per 2 ms plant advance of each (thread time around each advance) and whether the two
+plants' registers and states are bit-identical at the end.  A speed-up that is not
+bit-identical changes the trial results (bench/fp_order_trial.py, docs/benchmarks.md).
+
+Timing is measured here, never in tests.  Usage:
+PYTHONPATH=. python bench/bench_plant_ab.py --base DIR [--moves N] [--json]
+"""
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from droid.cli import ArgumentParser, BadInput, positive_int, run
+from droid.sim.reis.lockstep import ReisLockstep, constant_commander, min_jerk_waypoints, waypoint_commander
+from droid.subunits.reis.servo import ServoCore
+from droid.subunits.reis.servo_params import Mode
+
+MOVE_DEG = np.array([60.0, 45.0, -50.0, 90.0, 70.0, 120.0])
+HERE = Path(__file__).resolve().parent.parent / "droid" / "sim" / "reis" / "plant.py"
+
+
+def _load(path: Path, name: str):
+    spec = importlib.util.spec_from_file_location(name, path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def bench(base: Path, moves: int) -> dict:
+    mods = {"base": _load(base, "plant_base"), "this": _load(HERE, "plant_this")}
+    cells, acc = {}, {}
+    for name, mod in mods.items():
+        ls = ReisLockstep(mod.ReisPlant(mod.ReisPlantParams(), seed=1), ServoCore(None))
+        a = acc[name] = [0.0, 0]
+        advance = ls.plant.advance
+
+        def timed(dt, _adv=advance, _a=a, _clock=time.thread_time):
+            t0 = _clock()
+            _adv(dt)
+            _a[0] += _clock() - t0
+            _a[1] += 1
+        ls.plant.advance = timed
+        cells[name] = ls
+
+    def both(fn):
+        for name in ("base", "this"):
+            fn(cells[name])
+    both(lambda ls: ls.run(0.05))
+    home = constant_commander(Mode.HOME)
+    for _ in range(80):
+        if all(c.servo.homed for c in cells.values()):
+            break
+        both(lambda ls: ls.run(0.5, home, record=False))
+    homed = {n: (tuple(a), cells[n].servo.homed) for n, a in acc.items()}
+    m = np.asarray(cells["this"].servo.params.joint_to_counts)
+    step = np.rint(m @ MOVE_DEG).astype(np.int64)
+    for _ in range(moves):
+        for sign in (1, -1):
+            cmds = {}
+            for n, c in cells.items():
+                start = np.asarray(c.servo.encoder_cmd)
+                cmds[n] = waypoint_commander(min_jerk_waypoints(start, start + sign * step, 2.0), Mode.NORMAL,
+                                             first_index=c.command_index)
+            for _ in range(5):
+                for n in ("base", "this"):
+                    cells[n].run(0.5, cmds[n], record=False)
+    pa, pb = cells["base"].plant, cells["this"].plant
+    same = bytes(pa.regs) == bytes(pb.regs) and all(
+        np.array_equal(getattr(pa, k), getattr(pb, k)) for k in ("motor_counts", "motor_speed_counts_per_s", "joint_deg"))
+    out = {"base": str(base), "sim_s": round(cells["this"].time_s, 3), "bit_identical": bool(same)}
+    for n, a in acc.items():
+        (h_s, h_n), ok = homed[n]
+        out[n] = {"homed": bool(ok), "homing_us_per_advance": round(1e6 * h_s / h_n, 1),
+                  "moves_us_per_advance": round(1e6 * (a[0] - h_s) / max(1, a[1] - h_n), 1)}
+    return out
+
+
+@run
+def main(argv=None) -> int:
+    parser = ArgumentParser(prog="bench_plant_ab", description=__doc__.split("\n")[0])
+    parser.add_argument("--base", required=True, help="an old checkout's top directory (holds droid/sim/reis/plant.py)")
+    parser.add_argument("--moves", type=positive_int, default=2, help="pairs of out-and-back moves")
+    parser.add_argument("--json", action="store_true", help="one JSON object")
+    args = parser.parse_args(argv)
+    base = Path(args.base) / "droid" / "sim" / "reis" / "plant.py"
+    if not base.is_file():
+        raise BadInput(f"--base: {base} not found")
+    r = bench(base, args.moves)
+    if args.json:
+        print(json.dumps(r))
+        return 0
+    for n in ("base", "this"):
+        v = r[n]
+        print(f"{n:>5}: homing {v['homing_us_per_advance']:6.1f} us/advance, moves {v['moves_us_per_advance']:6.1f} "
+              f"us/advance (homed: {v['homed']})")
+    print(f"after {r['sim_s']} s simulated, registers and state bit-identical: {r['bit_identical']}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
