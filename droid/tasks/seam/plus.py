@@ -212,7 +212,7 @@ class PlusTracker:
         x = self.map.normal(f.s_mm, NORMAL_HALF_MM, fo.t)
         t = fo.t - x * float(fo.t @ x)
         t = t / max(float(np.linalg.norm(t)), 1e-12)
-        ahead = chord_point(self.map, f.s_mm, f.p, self.camera_to_tcp_mm)
+        ahead = chord_point(self.map, f.s_mm, f.p, self.camera_to_tcp_mm, farthest=True)
         z = (ahead.p - f.p) if ahead is not None else t
         z = z - x * float(z @ x)
         z = z / max(float(np.linalg.norm(z)), 1e-12)
