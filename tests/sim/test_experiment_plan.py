@@ -231,12 +231,9 @@ position = "vii"
 mode = "plus"
 speed_mm_s = 16
 sensor = "camera"
-arm = "fast"
 """
-# arm = "fast": on the full arm (the default since issue 13) plus mode still loses this arc in
-# part of the seeds, seed 1 among them: the camera chain's view of the arc at a glancing angle
-# (docs/seamtrack.md, "On the full arm") -- an open shortfall of issue 12, not hidden: this test
-# checks the workpiece and the plan path, the bench reports the full arm.
+# the experiments' default arm (full): plus mode tracks this arc to its end in every seed of the
+# bench (docs/seamtrack.md, "The R25 arc")
 
 
 def test_droid_experiment_tracks_the_bundled_r25_arc_to_its_end_in_plus_mode(tmp_path):

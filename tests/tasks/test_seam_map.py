@@ -77,6 +77,31 @@ def test_a_gap_is_bridged_and_beyond_the_bridge_there_is_no_map():
     assert chord_point(m, 100.0, m.fit(100.0).p, 50.0).p[0] == pytest.approx(150.0, abs=0.2)
 
 
+
+def test_on_a_tight_arc_the_sensor_aims_at_the_farthest_mapped_seam_when_no_chord_reaches():
+    """A 90 degree arc of R25 mapped to its end, the tool 60 mm before the arc: the whole map --
+    its extrapolation with the arc's curvature bending back -- lies nearer than 100 mm.  Plain
+    ``chord_point`` has no answer (plus mode used to aim along the tool's tangent then and swung
+    the sensor off the seam); ``farthest`` gives the map point farthest from the tool, at least as
+    far as the arc's end, not behind it."""
+    R = 25.0
+    pts = [np.array([x, 0.0, 0.0]) for x in np.arange(0.0, 125.0, 0.5)]
+    pts += [np.array([125.0 + R * math.sin(u / R), R - R * math.cos(u / R), 0.0])
+            for u in np.arange(0.5, R * math.pi / 2 + 0.01, 0.5)]
+    m = fed(pts)
+    end = np.array([150.0, 25.0, 0.0])
+    assert np.linalg.norm(m.fit(m.front_s).p - end) <= 0.5
+    s0 = 65.0
+    p0 = m.fit(s0).p
+    assert chord_point(m, s0, p0, 100.0) is None
+    far = chord_point(m, s0, p0, 100.0, farthest=True)
+    assert far is not None and far.s_mm >= m.front_s - 1.0
+    assert np.linalg.norm(far.p - p0) >= np.linalg.norm(end - p0) - 0.5
+    # where a chord does reach, ``farthest`` changes nothing
+    assert chord_point(m, 60.0, m.fit(60.0).p, 80.0, farthest=True).s_mm == pytest.approx(
+        chord_point(m, 60.0, m.fit(60.0).p, 80.0).s_mm, abs=1e-9)
+
+
 def perfect_plus(sensor, cycles, **kw):
     """The plus core in a closed loop with a perfect arm (at the command one cycle later)."""
     cyc = TrackingCycle(SeamParams(16.0, mode="plus", **kw), WRIST.T_wcp_tool, WRIST.T_wcp_sensor)

@@ -61,11 +61,6 @@ ORIENT_WIDE = 3.0
 #: Alpha-beta filter of the sensor's aim about the tool axis (per cycle): angle and turn-rate gains.
 AIM_ALPHA = 0.6
 AIM_BETA = 0.1
-#: The aim is commanded this many cycles of its turn *behind* the filter: empirical, for tight
-#: arcs -- on the R25 arc the full arm's camera lost the seam where its laser line meets the arc
-#: at a glancing angle in 5 of 10 seeds with 0, in none of 4 of those seeds with 3 (a lead of 2-5
-#: cycles did not help); on R200 it changes nothing (docs/seamtrack.md, "On the full arm").
-AIM_LAG_CYCLES = 3.0
 #: Largest turn of the sensor's aim about the tool axis in one cycle [rad] (90 deg/s at 30 Hz).
 AIM_RATE_RAD = math.radians(3.0)
 
@@ -141,8 +136,7 @@ class PlusTracker:
         self.aim_rate = max(-AIM_RATE_RAD, min(AIM_RATE_RAD, self.aim_rate + AIM_BETA * resid))
         out = prev * math.cos(step) + np.cross(x, prev) * math.sin(step)
         self.z_aim = out
-        lag = -AIM_LAG_CYCLES * self.aim_rate  # the aim held back by that many cycles of its turn
-        return out * math.cos(lag) + np.cross(x, out) * math.sin(lag) if lag else out
+        return out
 
     def step(self, T_global_hold6, T_global_reis6, reading: Reading, q_reis_deg=None, elapsed_cycles: float = 1.0,
              T_global_reis6_sensed=None, T_global_hold6_sensed=None, locate=None) -> CycleOutput:
@@ -212,7 +206,10 @@ class PlusTracker:
         x = self.map.normal(f.s_mm, NORMAL_HALF_MM, fo.t)
         t = fo.t - x * float(fo.t @ x)
         t = t / max(float(np.linalg.norm(t)), 1e-12)
-        ahead = chord_point(self.map, f.s_mm, f.p, self.camera_to_tcp_mm)
+        # where no chord of CAMERA_TO_TCP reaches the map (the end of a tight arc: the map and its
+        # extrapolation bend back toward the tool), aim at the farthest mapped seam, never along
+        # the tool's tangent (docs/seamtrack.md, "The R25 arc")
+        ahead = chord_point(self.map, f.s_mm, f.p, self.camera_to_tcp_mm, farthest=True)
         z = (ahead.p - f.p) if ahead is not None else t
         z = z - x * float(z @ x)
         z = z / max(float(np.linalg.norm(z)), 1e-12)

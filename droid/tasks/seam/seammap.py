@@ -247,13 +247,31 @@ def _normal(n: np.ndarray, t: np.ndarray) -> np.ndarray:
     return n / max(float(np.linalg.norm(n)), 1e-12)
 
 
-def chord_point(m: SeamMap, s0: float, p0: np.ndarray, length_mm: float) -> SeamPoint | None:
+def chord_point(m: SeamMap, s0: float, p0: np.ndarray, length_mm: float,
+                farthest: bool = False) -> SeamPoint | None:
     """The map point a straight ``length_mm`` from ``p0`` (the map at ``s0``), further along; None
-    when the map (with its bridged gap) does not reach that far."""
+    when the map (with its bridged gap) does not reach that far -- or, with ``farthest``, then the
+    point of the reachable map farthest from ``p0`` (sampled every 1 mm of arc length from
+    ``s0 + length_mm``; None only when the map ends at ``s0``).  On a tight arc the whole mapped seam, its extrapolation
+    included, can lie nearer than ``length_mm``: the extrapolation with the arc's curvature bends
+    back toward ``p0`` (plus mode's sensor aim, docs/seamtrack.md "The R25 arc")."""
     lo, hi = s0, min(s0 + length_mm * 1.6, m.front_s + m.gap_mm)
     f_hi = m.fit(hi) if hi > lo else None
     if f_hi is None or float(np.linalg.norm(f_hi.p - p0)) < length_mm:
-        return None
+        if not farthest or hi <= lo:
+            return None
+        best, best_d = None, -1.0
+        start = min(lo + length_mm, hi)  # no chord is longer than its arc
+        for s in np.arange(start, hi + 0.5, 1.0):
+            f = m.fit(float(min(s, hi)))
+            d = -1.0 if f is None else float(np.linalg.norm(f.p - p0))
+            if d >= length_mm:  # the chord's end lies within the last sample: the bisection below
+                lo, hi = max(lo, float(s) - 1.0), float(min(s, hi))
+                break
+            if d > best_d:
+                best, best_d = f, d
+        else:
+            return best
     for _ in range(30):
         mid = (lo + hi) / 2
         f = m.fit(mid)
