@@ -14,11 +14,10 @@ from droid.sim.reis.cell import arms_from_cell
 from droid.sim.reis.world import world_errors
 
 CELL = Path(__file__).resolve().parents[2] / "droid" / "cells" / "reis_pair.toml"
-#: Issue 13's target is 0.02 deg.  The estimate also carries the error of the homing it was
-#: made under: on the compliant twin, joint 2's switch edge is caught with ~0.01-0.02 deg of
-#: dynamic drive deflection (stick-slip of the 1-count fine approach; measured over seeds,
-#: docs/reis.md), so the tests allow 0.03 deg; the V15 run in docs/reis.md met 0.006 deg.
-TOL_DEG = 0.03
+#: Issue 13's target: injected offsets of up to 0.5 deg recovered within 0.02 deg.  (Measured
+#: within 0.004 deg over seeds 1-8 on both arms, docs/reis.md, since homing brackets each switch
+#: edge at rest and calibration reads each pose at rest.)
+TOL_DEG = 0.02
 
 
 def _cell(tmp_path, name: str, world_table: str) -> Path:
@@ -47,7 +46,8 @@ def test_injected_home_errors_are_recovered_and_written_where_homing_uses_them(t
     assert np.all(np.abs(est - injected) <= TOL_DEG), est - injected
     assert out["written"] and Path(out["written"]).is_file()
     # homing now uses them: a fresh lockstep cell reads the file; after homing the servo's
-    # joint estimate matches the true links to the drives' deflection change (< 0.03 deg),
+    # joint estimate matches the true links to the drives' deflection change (< 0.03 deg: up to
+    # ~0.02 deg between the edges' poses and the home pose, plus the estimate's error),
     # where the uncalibrated servo was off by the injected errors
     cell = load_cell(str(path))
     s = Scheduler(60.0)
@@ -78,3 +78,36 @@ def test_bad_arguments_exit_2(tmp_path, cell_name):
     path = _cell(tmp_path, cell_name, "")
     r = _calibrate(path, "arm9")
     assert r.returncode == 2 and "arm9" in r.stderr and "Traceback" not in r.stderr
+
+
+def _homing_error_deg(probe: bool, seed: int = 2) -> np.ndarray:
+    """Home the compliant ``reis_class_b`` twin; per joint, the homed servo's joint angle against
+    the true link at rest, less the injected switch errors and the static deflection change [deg]."""
+    from droid.kinematics import load_robot
+    from droid.sim.reis.calibrate import Predictor
+    from droid.sim.reis.lockstep import make_reis_cell, run_homing
+    from droid.sim.reis.plant import ReisPlantParams
+    from droid.subunits.reis.servo_params import ServoParams
+
+    injected = (0.0, 0.45, -0.35, 0.3, -0.5, 0.0)
+    pp = ReisPlantParams(robot="reis_class_b", home_error_deg=injected)
+    sp = ServoParams.from_robot("reis_class_b", **({} if probe else {"home_probe_resolution_counts": 0}))
+    ls = make_reis_cell(seed=seed, plant_params=pp, servo_params=sp)
+    ls.run(0.05)
+    run_homing(ls)
+    assert ls.servo.homed
+    ls.run(1.5, record=False)  # at rest on the last edge
+    model = load_robot("reis_class_b")
+    pred = Predictor(model)
+    edges = ls.servo.home_edge_joints_deg
+    defl_edge = np.array([pred.deflection_deg(edges[i])[i] for i in range(6)])
+    q_servo = model.gearing.counts_to_joints(np.asarray(ls.servo.encoder_pos, float))
+    q = ls.plant.joint_deg
+    return q - (q_servo + np.asarray(injected) + defl_edge - pred.deflection_deg(q))
+
+
+def test_homing_brackets_the_switch_edges_at_rest_on_the_compliant_arm():
+    """Homing's step 5: caught in motion (step 5 off) joint 2's edge carries the motor's lead over
+    the ringing link, more than 0.01 deg on this seed; bracketed at rest every joint is within 0.005 deg."""
+    assert np.max(np.abs(_homing_error_deg(probe=False))) > 0.01
+    assert np.all(np.abs(_homing_error_deg(probe=True)) < 0.005)

@@ -132,7 +132,10 @@ def _servo_move_trace(integrator: str, plant_hz: int):
 
     pp = ReisPlantParams(integrator=integrator, substep_s=1.0 / plant_hz)
     plant = ReisPlant(pp, seed=2, initial_joint_deg=np.asarray(pp.switch_joint_deg) + 0.3)
-    ls = ReisLockstep(plant, ServoCore(ServoParams()), rates=LockstepRates(plant_hz=plant_hz, command_hz=60))
+    # homing without the at-rest bracketing (step 5): a probe that lands within a count of an edge
+    # can read differently on the two integrators and add a probe, shifting the move in time
+    servo = ServoCore(ServoParams(home_probe_resolution_counts=0))
+    ls = ReisLockstep(plant, servo, rates=LockstepRates(plant_hz=plant_hz, command_hz=60))
     ls.run(0.05)
     run_homing(ls)
     assert ls.servo.homed

@@ -69,3 +69,17 @@ def test_servo_rejects_commands_before_its_first_reading_and_bad_shapes():
         core.step((0,) * 5, (False,) * 6)
     assert core.command(Mode.HOME)  # the earlier rejected HOME did not count as "already HOME"
     assert core.homing
+
+
+def test_the_at_rest_edge_probe_parameters_are_checked():
+    """Homing's step 5 (the switch edge bracketed at rest): a negative resolution or a zero
+    settle is refused; resolution 0 switches the step off."""
+    import pytest as _pytest
+
+    from droid.subunits.reis.servo_params import ServoParams as _SP
+
+    assert _SP(home_probe_resolution_counts=0).home_probe_resolution_counts == 0
+    for bad in ({"home_probe_resolution_counts": -1}, {"home_probe_settle_ticks": 0}, {"home_probe_counts": 0},
+                {"home_probe_max": 0}):
+        with _pytest.raises(ValueError, match="home_probe"):
+            _SP(**bad)

@@ -259,7 +259,7 @@ def make_reis_cell(
 ) -> ReisLockstep:
     """Plant + servo + watchdog in lockstep.  ``near_switch_offset_deg`` (6 values)
     powers the arm up at switch + offset instead of the seeded random pose
-    (homing then takes ~3 simulated seconds instead of ~7-10)."""
+    (homing then takes ~20 simulated seconds instead of ~25-30)."""
     pp = plant_params if plant_params is not None else ReisPlantParams()
     if near_switch_offset_deg is not None:
         plant_kw["initial_joint_deg"] = np.asarray(pp.switch_joint_deg) + np.asarray(near_switch_offset_deg)
@@ -267,7 +267,7 @@ def make_reis_cell(
     return ReisLockstep(plant, ServoCore(servo_params))
 
 
-def run_homing(ls: ReisLockstep, max_s: float = 40.0, chunk_s: float = 0.5) -> list[Trace]:
+def run_homing(ls: ReisLockstep, max_s: float = 60.0, chunk_s: float = 0.5) -> list[Trace]:
     """Send HOME at the command rate until homed, a fault, or ``max_s``; returns the traces."""
     cmd = constant_commander(Mode.HOME)
     pieces = []
@@ -279,6 +279,7 @@ def run_homing(ls: ReisLockstep, max_s: float = 40.0, chunk_s: float = 0.5) -> l
 
 
 #: power-up pose a little off the home switches (both sides), so homing takes ~3 s simulated
+#: before the edges are bracketed at rest (homing.py step 5: ~3 s more a joint)
 NEAR_SWITCH_OFFSET_DEG = (0.4, -0.3, 0.3, -0.4, 0.3, -0.3)
 
 

@@ -119,6 +119,15 @@ class ServoParams:
     home_settle_ticks: int = 250  # rest after the switch is found, before the fine approach: 0.5 s, so the
     # links stop ringing on the compliant drives (~10 Hz, ~10 % damping: 0.2 s left ~30 % of it)
     home_fine_counts_per_tick: int = 1  # the final single-count approach
+    # the edge at rest (DROID addition, issue 13): the fine approach catches the switch edge while
+    # the motor stick-slips and the link rings on its drive, so the motor-side snapshot carries up
+    # to ~0.02 deg of dynamic deflection (docs/reis.md); the edge is then bracketed by probes at
+    # rest -- the link, frictionless on its drive, rests at its static deflection -- to
+    # home_probe_resolution_counts, starting +-home_probe_counts around the caught edge
+    home_probe_counts: int = 32  # 0.024-0.029 deg: beyond the largest dynamic error seen (0.022 deg); wider when needed
+    home_probe_resolution_counts: int = 2  # the bracket's final width; the edge is its middle (+-1 count)
+    home_probe_settle_ticks: int = 250  # 0.5 s per probe, as home_settle_ticks: joint 2's link (~7 Hz, ~10 % damped: decay time 0.22 s) rests
+    home_probe_max: int = 16  # probes per joint before the bracket's middle is taken as it is
     home_search_limit_counts: int = 400_000  # ~360 joint degrees per phase
 
     def __post_init__(self) -> None:
@@ -135,6 +144,10 @@ class ServoParams:
             raise ValueError("need 0 <= starve_grace_ticks < queue_steps")
         if any(d not in (-1, 1) for d in self.home_search_dir):
             raise ValueError("home_search_dir entries must be +1 or -1")
+        if self.home_probe_resolution_counts < 0 or self.home_probe_counts < 1 or self.home_probe_settle_ticks < 1 \
+                or self.home_probe_max < 1:
+            raise ValueError("need home_probe_resolution_counts >= 0 (0: off) and home_probe_counts, "
+                             "home_probe_settle_ticks, home_probe_max >= 1")
         if any(lo >= hi for lo, hi in zip(self.target_min_counts, self.target_max_counts)):
             raise ValueError("target_min_counts must be below target_max_counts")
 
