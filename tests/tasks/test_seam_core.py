@@ -186,6 +186,25 @@ def test_a_tool_that_jumps_stops_the_run_as_a_runaway():
     assert off.step(T_HOLD, trans(0.0, 15.0, 0.0) @ start_pose(), ZERO_READING).stop is None
 
 
+def run_with_a_shaking_tool(core) -> float:
+    """Run a tracker core along the straight seam from the start pose while the *measured* tool
+    point shakes 0.1 mm across the seam every cycle (stick-slip, drive compliance on the full
+    arm) until it stops; asserts it stopped at the end of its run and returns how far the
+    commanded tool advanced along the seam [mm]."""
+    T = start_pose()
+    x0 = float((T @ WRIST.T_wcp_tool)[0, 3])
+    out = None
+    for k in range(3000):
+        T_meas = T.copy()
+        T_meas[1, 3] += 0.1 * (1 if k % 2 else -1)
+        out = core.step(T_HOLD, T_meas, straight_seam_reading(T_meas @ WRIST.T_wcp_sensor))
+        if out.stop is not None:
+            break
+        T = out.reis_cmd
+    assert out.stop is not None and out.stop.reason == STOP_END
+    return float((T @ WRIST.T_wcp_tool)[0, 3]) - x0  # along the seam (global +x)
+
+
 def test_plus_mode_measures_its_run_length_along_the_seam_map_not_the_jittery_tool_path():
     """Plus mode's run length is the tool's progress along the seam map (its foot on the map),
     not the summed path of the measured tool point: an arm whose tool point shakes 0.1 mm across
@@ -195,18 +214,7 @@ def test_plus_mode_measures_its_run_length_along_the_seam_map_not_the_jittery_to
 
     params = SeamParams(speed_mm_s=4.0, length_mm=40.0, mode="plus")
     core = PlusTracker(params, WRIST.T_wcp_tool, WRIST.T_wcp_sensor)
-    T = start_pose()
-    x0 = float((T @ WRIST.T_wcp_tool)[0, 3])
-    out = None
-    for k in range(3000):
-        T_meas = T.copy()
-        T_meas[1, 3] += 0.1 * (1 if k % 2 else -1)  # the measured tool shakes across the seam
-        out = core.step(T_HOLD, T_meas, straight_seam_reading(T_meas @ WRIST.T_wcp_sensor))
-        if out.stop is not None:
-            break
-        T = out.reis_cmd
-    assert out.stop is not None and out.stop.reason == STOP_END
-    advanced = float((T @ WRIST.T_wcp_tool)[0, 3]) - x0  # along the seam (global +x)
+    advanced = run_with_a_shaking_tool(core)
     assert advanced == pytest.approx(40.0, abs=1.0)
     assert core.travel.path_mm >= 1.5 * advanced  # the summed path ran far ahead: it is not the measure
 
@@ -220,18 +228,7 @@ def test_thesis_modes_measure_their_run_length_in_chords_not_the_jittery_per_cyc
     276-602 mm with it)."""
     params = SeamParams(speed_mm_s=4.0, length_mm=40.0, mode=mode)
     core = SeamTracker(params, WRIST.T_wcp_tool, WRIST.T_wcp_sensor)
-    T = start_pose()
-    x0 = float((T @ WRIST.T_wcp_tool)[0, 3])
-    out = None
-    for k in range(3000):
-        T_meas = T.copy()
-        T_meas[1, 3] += 0.1 * (1 if k % 2 else -1)  # the measured tool shakes across the seam
-        out = core.step(T_HOLD, T_meas, straight_seam_reading(T_meas @ WRIST.T_wcp_sensor))
-        if out.stop is not None:
-            break
-        T = out.reis_cmd
-    assert out.stop is not None and out.stop.reason == STOP_END
-    advanced = float((T @ WRIST.T_wcp_tool)[0, 3]) - x0  # along the seam (global +x)
+    advanced = run_with_a_shaking_tool(core)
     assert advanced == pytest.approx(40.0, abs=1.0)
     assert core.s.travel.path_mm >= 1.2 * advanced  # the per-cycle sum ran ahead: it is not the measure
 
