@@ -66,6 +66,16 @@ def local_status(path):
         db.close()
 
 
+def cut_halt(records):
+    """The halt record of the last command among `records` (log order), once it is a halt of a
+    commanded motion; None while there is none."""
+    if not records:
+        return None
+    last = max(r["last_command_tick"] for r in records)
+    rec = next(r for r in records if r["last_command_tick"] == last)
+    return rec if rec["peak_speed_counts_per_tick"] >= 5 else None
+
+
 def halt_records(path):
     """The servo's halt records (droid.subunits.reis.brake_log) from its log."""
     f = path.parent / "run" / "logs" / "servo-arm1.log"
@@ -119,25 +129,31 @@ def test_link_cut_during_a_move_brakes_the_arm_which_stays_stopped_until_a_new_c
     ticks = ServoTicks(path)
     try:
         wait_for(lambda: np.any(np.abs(local_status(path)[0] - start) > 2000), what="moving")
-        cut_tick = ticks.latest()  # at most one status period (4 ticks) before the cut
+        before_tick = ticks.latest()  # the cut comes after this servo tick ...
+        hp.set_link("b", False)  # arm1's host is cut off
+        after_tick = ticks.latest()  # ... and has taken effect by this one
     finally:
         ticks.close()
-    hp.set_link("b", False)  # arm1's host is cut off
     try:
-        rec = wait_for(lambda: [r for r in halt_records(path) if r["standstill_tick"] >= cut_tick],
-                       timeout=20, what="the servo's halt record")[0]
         pos, fault = wait_for(lambda: (lambda a, b: (b, a[1]) if np.all(np.abs(b[0] - a[0]) <= 2) else None)(
             local_status(path), (time.sleep(0.2), local_status(path))[1]), what="arm1 at a standstill")
         assert fault & FAULT_LINK  # arm1 itself knows its Brain is gone
         assert snoop(path)["stale"] == 1  # and the Brain knows arm1 is gone
         stopped = pos[0]
+        # the cut's halt record is the one of the last command the servo received: a host stall
+        # before the cut can leave an earlier halt record (a command followed it), and the
+        # world catching up a stall can leave a later settle blip with the same last command
+        rec = wait_for(lambda: cut_halt([r for r in halt_records(path) if r["standstill_tick"] >= before_tick]),
+                       timeout=20, what="the servo's halt record")
     finally:
         hp.set_link("b", True)
     # the servo's own record: it was moving, and reached zero velocity within 100 ms of
     # servo time after the cut (the way-point froze; the link loss is declared after 3
-    # missed ticks and the servo agent then stops sending: docs/safety.md)
+    # missed ticks and the servo agent then stops sending: docs/safety.md).  The cut took
+    # effect between before_tick and after_tick; the test process may be descheduled in
+    # between on a loaded host, so the limit is counted from after_tick.
     assert rec["peak_speed_counts_per_tick"] >= 5, rec
-    assert (rec["standstill_tick"] - cut_tick) * 2.0 <= STOP_LIMIT_MS, (rec, cut_tick)
+    assert (rec["standstill_tick"] - after_tick) * 2.0 <= STOP_LIMIT_MS, (rec, before_tick, after_tick)
     # link back: the Brain sees arm1 again; the arm stays where it stopped
     wait_for(lambda: not snoop(path)["stale"], timeout=30, what="fresh again")
     time.sleep(1.0)
