@@ -256,6 +256,18 @@ def test_the_edges_of_each_range_are_accepted(item):
             assert v == 0 and math.copysign(1.0, v) == 1.0, text
 
 
+@pytest.mark.parametrize("prog", ["droid-gmf1-serial", "droid-mvs"])
+def test_a_serial_rate_is_a_standard_one(prog, no_run, capsys):
+    """--baud inside its range but not a standard rate (termios, pyserial) is refused too."""
+    main = cliranges.main_of(prog)
+    for value in ("9601", "20000", "3999999"):
+        code, err = _call(main, ["mvs" if prog == "droid-mvs" else "gmf1", f"--baud={value}"], capsys)
+        assert code == 2 and "standard rates" in err and len(err.strip().splitlines()) == 1, (value, err)
+    for value in ("19200", "115200", "4000000"):
+        with pytest.raises(_Accepted):
+            _call(main, ["mvs" if prog == "droid-mvs" else "gmf1", f"--baud={value}"], capsys)
+
+
 MOVE_GOOD = ["0", "0", "0", "0", "0", "0", "2"]
 
 
@@ -289,6 +301,7 @@ SUBPROCESS = [  # (console script, argv, words the one line must hold)
     ("droid-record", ["--out", "x.mcap", "--seconds", "1e308"], ["--seconds", "(0, 86400] s"]),
     ("droid-move", ["arm1", "joint", "0", "0", "0", "0", "0", "0", "1e308"], ["SECONDS", "3600"]),
     ("droid-heartbeat", ["--rate", "5e-324"], ["--rate", "[1, 1000] Hz"]),
+    ("droid-gmf1-serial", ["gmf1", "--baud", "1"], ["--baud", "[4800, 4000000] baud"]),
 ]
 
 
