@@ -148,6 +148,8 @@ SUFFIXES: dict[str, Range] = {
     "_probability": Range(0.0, 1.0),
     "_fraction": Range(0.0, 1.0),
     "_gain": Range(0.0, 10.0),
+    "_mm_per_row": Range(0.0, 1e3, "mm/row", lo_open=True),
+    "_mm_per_column": Range(0.0, 1e3, "mm/column", lo_open=True),
 }
 
 NAMED: dict[str, Range | tuple] = {
@@ -168,6 +170,7 @@ NAMED: dict[str, Range | tuple] = {
     "roll_profile": (MM, DEG),  # [s (mm), roll (deg)] pairs
     "step_profile": (MM, MM),  # [s (mm), step (mm)] pairs
     "axes": Range(0, 1024, "axes", integral=True), "buttons": Range(0, 1024, "buttons", integral=True),
+    "row_at_origin": Range(-1e4, 1e4, "rows"), "column_at_origin": Range(-1e4, 1e4, "columns"),
 }
 
 

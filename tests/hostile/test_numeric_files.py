@@ -180,6 +180,19 @@ def test_the_range_of_a_pose_is_per_element():
         numbers.check_numbers({"a": {"b": [0, math.nan]}})
 
 
+@pytest.mark.parametrize("key", ["lateral_mm_per_row", "depth_mm_per_column", "row_at_origin", "column_at_origin"])
+@pytest.mark.parametrize("value", [math.nan, math.inf, 1e308, -1e308])
+def test_an_mvs_calibration_refuses_numbers_out_of_range(key, value, tmp_path):
+    """droid-mvs --calib FILE and a cell's [subunits.X.calibration]: the same ranges."""
+    from droid.subunits.mvs.sensor import load_calibration
+
+    path = tmp_path / "calib.toml"
+    path.write_text(dumps({key: value}))
+    with pytest.raises(BadInput, match=rf"{key} = .*(finite|outside)") as exc:
+        load_calibration(str(path))
+    assert str(path) in str(exc.value) and "\n" not in str(exc.value)
+
+
 def _bad_copy(tmp_path, src: Path, path: tuple, value, name: str | None = None) -> Path:
     data = tomllib.loads(src.read_text())
     if name is not None:
