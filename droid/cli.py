@@ -21,7 +21,7 @@ import re
 import sys
 from typing import Callable, Sequence
 
-from droid.numbers import NumberError, Range, baud_range
+from droid.numbers import BadFile, NumberError, Range, baud_range
 
 EXIT_OK = 0
 EXIT_RUNTIME = 1
@@ -331,6 +331,9 @@ def run(main: Callable[[Sequence[str] | None], int | None]) -> Callable[..., int
         except DroidError as exc:
             print(f"{prog}: {exc}", file=sys.stderr)
             return exc.exit_code
+        except BadFile as exc:  # a robot file's RobotFileError (droid.kinematics raises no BadInput)
+            print(f"{prog}: {exc}", file=sys.stderr)
+            return EXIT_BAD_INPUT
         except ModuleNotFoundError as exc:
             # an optional module a figure path imports late (matplotlib): one line, never a traceback
             if (exc.name or "").split(".")[0] not in OPTIONAL_MODULES:

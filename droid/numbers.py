@@ -24,7 +24,13 @@ STANDARD_BAUDS = (50, 75, 110, 134, 150, 200, 300, 600, 1200, 1800, 2400, 4800, 
                   2500000, 3000000, 3500000, 4000000)
 
 
-class NumberError(ValueError):
+class BadFile(ValueError):
+    """A file that is missing or malformed, raised where :class:`droid.cli.BadInput` cannot be
+    (``droid.kinematics.RobotFileError``: droid.kinematics imports no droid.cli).  Every program's
+    :func:`droid.cli.run` ends with its one-line message and exit 2, as for a BadInput."""
+
+
+class NumberError(BadFile):
     """A number of a file that is not one, not finite, of the wrong kind or out of its range.
     The message is one line: ``KEY = VALUE: why (the range)``."""
 

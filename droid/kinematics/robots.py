@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from droid.numbers import check_numbers
+from droid.numbers import BadFile, check_numbers
 
 from .dh import DhTable, fk_dh
 from .dynamics import axis_servo_from_table, dynamics_from_table, servo_from_table
@@ -55,9 +55,9 @@ _REQUIRED = {
 }
 
 
-class RobotFileError(ValueError):
-    """A robot name that is not bundled, or a robot file that is missing or malformed
-    (programs turn it into a :class:`droid.cli.BadInput`: exit 2 with the message)."""
+class RobotFileError(BadFile):
+    """A robot name that is not bundled, or a robot file that is missing or malformed (a
+    ValueError; every program's :func:`droid.cli.run` ends with its message and exit 2)."""
 
 
 def list_robots() -> list[str]:

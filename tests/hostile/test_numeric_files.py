@@ -233,3 +233,22 @@ def test_programs_exit_2_with_one_line(prog, argv, src, path, value, words, tmp_
         assert w in lines[0], p.stderr
     assert str(bad) in lines[0] or bad.name in lines[0], p.stderr
     assert cell_objects(cell_name) == []
+
+
+@pytest.mark.parametrize("prog,argv", [("droid-move", ["arm1", "joint", "0", "0", "0", "0", "0", "0", "2"]),
+                                       ("droid-home", ["arm1"])])
+def test_a_cell_with_a_bad_robot_file_exits_2_before_it_is_contacted(prog, argv, tmp_path, cell_name):
+    """A subunit's robot given as a path to a robot file with nan in it: a task ends with one line
+    and exit 2 (RobotFileError through droid.cli.run), not a traceback -- the cell (not up) is
+    never asked (that would be exit 1)."""
+    exe = Path(sys.executable).parent / prog
+    if not exe.exists():
+        pytest.skip(f"{prog} is not installed next to {sys.executable}")
+    robot = _bad_copy(tmp_path, PKG / "kinematics/robots/reis_v15.toml", ("limits", "vmax_deg_s", 0), math.nan)
+    cell = _bad_copy(tmp_path, PKG / "cells/sim.toml", ("subunits", "arm1", "robot"), str(robot), cell_name)
+    p = subprocess.run([str(exe), *argv, "--cell", str(cell)], capture_output=True, text=True, timeout=60,
+                       cwd=tmp_path, stdin=subprocess.DEVNULL)
+    assert p.returncode == 2 and "Traceback" not in p.stderr, p.stderr
+    lines = p.stderr.strip().splitlines()
+    assert len(lines) == 1 and "limits.vmax_deg_s[0] = nan" in lines[0] and str(robot) in lines[0], p.stderr
+    assert cell_objects(cell_name) == []
