@@ -13,7 +13,6 @@ Record the printed figures with the machine and date in docs/benchmarks.md.
 """
 from __future__ import annotations
 
-import argparse
 import multiprocessing as mp
 import os
 import platform
@@ -34,6 +33,7 @@ from droid.brain.heartbeat import HeartbeatCore  # noqa: E402
 from droid.brain.layouts import ARM_COMMAND_LAYOUT, ARM_STATUS_LAYOUT, new_record  # noqa: E402
 from droid.brain.rt import PeriodicTimer, try_sched_fifo  # noqa: E402
 from droid.brain.shmdb import Database, db_name  # noqa: E402
+from droid.cli import ArgumentParser, duration_s  # noqa: E402
 
 
 def pct(values, q):
@@ -174,8 +174,8 @@ def locked_access(n):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seconds", type=float, default=60.0, help="duration of each timed run [s]")
+    ap = ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seconds", type=duration_s(), default=60.0, help="duration of each timed run [s]")
     ap.add_argument("--fifo", action="store_true", help="also measure the heartbeat under SCHED_FIFO")
     args = ap.parse_args()
     print(f"# bench_foundation  {time.strftime('%Y-%m-%d %H:%M')}  {platform.node()}  "

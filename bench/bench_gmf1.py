@@ -16,7 +16,6 @@ Record the printed figures with the machine and date in docs/bench-gmf1.md.
 """
 from __future__ import annotations
 
-import argparse
 import os
 import platform
 import random
@@ -31,6 +30,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
+from droid.cli import ArgumentParser, bounded_int  # noqa: E402
 from droid.kinematics.transforms import T_to_pose, pose_to_T  # noqa: E402
 
 BASE_Q = np.array([0.0, 10.0, 10.0, 0.0, 40.0, 20.0])
@@ -160,9 +160,9 @@ def bench_realtime(moves: int) -> None:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--mode", choices=("lockstep", "realtime", "both"), default="both")
-    ap.add_argument("--moves", type=int, default=40)
+    ap.add_argument("--moves", type=bounded_int(1, 100_000, "moves"), default=40, help="moves to time")
     args = ap.parse_args()
     print(f"machine: {platform.node()} {platform.machine()} {os.cpu_count()} CPUs, "
           f"Python {platform.python_version()}, {time.strftime('%Y-%m-%d %H:%M')}")

@@ -12,7 +12,7 @@ import os
 import platform
 import time
 
-from droid.cli import ArgumentParser, positive_int, run
+from droid.cli import ArgumentParser, bounded_int, run
 from droid.sim.experiment.trial import TrialConfig, run_trial
 from droid.tasks.seam.report import summarize
 
@@ -26,7 +26,8 @@ CASES = (
 @run
 def main(argv=None) -> int:
     p = ArgumentParser(prog="bench_holder", description=__doc__.splitlines()[0])
-    p.add_argument("--repeat", type=positive_int, default=3, help="runs per case (the fastest is shown)")
+    p.add_argument("--repeat", type=bounded_int(1, 1000, "runs"), default=3,
+                   help="runs per case (the fastest is shown)")
     args = p.parse_args(argv)
     print(f"# {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, {platform.machine()}, "
           f"{os.cpu_count()} CPU, Python {platform.python_version()}, load {os.getloadavg()[0]:.1f}")

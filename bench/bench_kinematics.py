@@ -24,7 +24,6 @@ Usage: python bench/bench_kinematics.py [--batch N] [--repeat R] [--floor-s S]
 """
 from __future__ import annotations
 
-import argparse
 import datetime
 import math
 import os
@@ -40,6 +39,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from droid.cli import ArgumentParser, bounded_int, duration_s  # noqa: E402
 from droid.kinematics import load_robot  # noqa: E402
 from droid.kinematics.transforms import pose_to_T  # noqa: E402
 
@@ -157,10 +157,12 @@ def machine() -> str:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--batch", type=int, default=20000, help="poses in the batched measurements")
-    ap.add_argument("--repeat", type=int, default=7, help="timing repeats (best and median reported)")
-    ap.add_argument("--floor-s", type=float, default=2.0, help="seconds of cyclictest before and after [s]")
+    ap = ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--batch", type=bounded_int(1, 10**7, "poses"), default=20000,
+                    help="poses in the batched measurements")
+    ap.add_argument("--repeat", type=bounded_int(1, 1000, "repeats"), default=7,
+                    help="timing repeats (best and median reported)")
+    ap.add_argument("--floor-s", type=duration_s(), default=2.0, help="seconds of cyclictest before and after [s]")
     args = ap.parse_args()
     floor_before = cyclictest_floor(args.floor_s)
 

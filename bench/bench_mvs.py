@@ -19,13 +19,13 @@ sensor geometry.  Timing is CPU time of ``extract`` per frame on this machine.
 """
 from __future__ import annotations
 
-import argparse
 import math
 import platform
 import time
 
 import numpy as np
 
+from droid.cli import ArgumentParser, bounded_int, seed_int
 from droid.sim.mvs.camera import CameraNoise, MvsCamera, lap_joint_profile_mm, quantise
 from droid.sim.mvs.tool_sensor import measure, pose_for_reading
 from droid.sim.workpiece import load_workpiece
@@ -117,9 +117,9 @@ def table(title, frames, seed, calib, maker):
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--frames", type=int, default=2000)
-    ap.add_argument("--seed", type=int, default=1)
+    ap = ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--frames", type=bounded_int(1, 10**7, "frames"), default=2000, help="frames to time")
+    ap.add_argument("--seed", type=seed_int, default=1, help="random seed")
     args = ap.parse_args()
     calib = MvsCalibration()
     print(f"Machine: {platform.node()} {platform.machine()} {platform.processor() or ''}, "

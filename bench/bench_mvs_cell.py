@@ -10,12 +10,12 @@
 """
 from __future__ import annotations
 
-import argparse
 import tempfile
 import time
 from pathlib import Path
 
 from droid.brain.cellfile import builtin_cell_path, load_cell
+from droid.cli import ArgumentParser, duration_s
 from droid.sim.lockstep import Scheduler
 from droid.sim.mvs.lockstep import mvs_lockstep
 from droid.sim.world import build_world
@@ -30,8 +30,8 @@ def per_call_us(fn, n=300) -> float:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--seconds", type=float, default=40.0)
+    ap = ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seconds", type=duration_s(), default=40.0, help="duration of the run [s]")
     args = ap.parse_args()
     tmp = Path(tempfile.mkdtemp())
     text = builtin_cell_path().read_text().replace('name = "sim"', f'name = "benchmvs"\nrun_dir = "{tmp}/run"', 1)

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from droid.cli import ArgumentParser, BadInput, positive_int, run
+from droid.cli import ArgumentParser, BadInput, bounded_int, run
 from droid.sim.reis.lockstep import ReisLockstep, constant_commander, min_jerk_waypoints, waypoint_commander
 from droid.subunits.reis.servo import ServoCore
 from droid.subunits.reis.servo_params import Mode
@@ -92,7 +92,7 @@ def bench(base: Path, moves: int) -> dict:
 def main(argv=None) -> int:
     parser = ArgumentParser(prog="bench_plant_ab", description=__doc__.split("\n")[0])
     parser.add_argument("--base", required=True, help="an old checkout's top directory (holds droid/sim/reis/plant.py)")
-    parser.add_argument("--moves", type=positive_int, default=2, help="pairs of out-and-back moves")
+    parser.add_argument("--moves", type=bounded_int(1, 1000, "moves"), default=2, help="pairs of out-and-back moves")
     parser.add_argument("--json", action="store_true", help="one JSON object")
     args = parser.parse_args(argv)
     base = Path(args.base) / "droid" / "sim" / "reis" / "plant.py"

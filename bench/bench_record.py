@@ -19,7 +19,6 @@ Prints figures only; the verdict is the reader's (docs/benchmarks.md).
 """
 from __future__ import annotations
 
-import argparse
 import os
 import subprocess
 import sys
@@ -31,6 +30,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from droid.brain.cellfile import builtin_cell_path, load_cell  # noqa: E402
+from droid.cli import ArgumentParser, duration_s  # noqa: E402
 
 
 def temp_cell(tmp: Path, name: str) -> Path:
@@ -190,8 +190,8 @@ def offline(args, tmp: Path) -> None:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--seconds", type=float, default=60.0)
+    ap = ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seconds", type=duration_s(), default=60.0, help="duration of the run [s]")
     ap.add_argument("--cell", default=None, help="a cell that is already up (default: bring the sim cell up)")
     ap.add_argument("--offline", action="store_true", help="the recording core alone, no processes")
     args = ap.parse_args()

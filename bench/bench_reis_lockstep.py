@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from droid.cli import ArgumentParser, positive_float, run
+from droid.cli import ArgumentParser, MAX_MOVE_S, duration_s, run, seed_int
 from droid.sim.reis.lockstep import make_reis_cell, min_jerk_waypoints, run_homing, waypoint_commander
 from droid.subunits.reis.servo_params import Mode
 
@@ -91,8 +91,8 @@ def bench(seed: int, move_s: float) -> dict:
 @run
 def main(argv=None) -> int:
     parser = ArgumentParser(prog="bench_reis_lockstep", description=__doc__.split("\n")[0])
-    parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--move-s", type=positive_float, default=2.0, help="move duration [s]")
+    parser.add_argument("--seed", type=seed_int, default=1, help="random seed")
+    parser.add_argument("--move-s", type=duration_s(MAX_MOVE_S), default=2.0, help="move duration [s]")
     parser.add_argument("--json", action="store_true", help="one JSON object")
     args = parser.parse_args(argv)
     r = bench(args.seed, args.move_s)

@@ -14,7 +14,6 @@ docs/benchmarks.md.
 """
 from __future__ import annotations
 
-import argparse
 import os
 import platform
 import re
@@ -34,6 +33,7 @@ from droid.brain.cellfile import builtin_cell_path, load_cell  # noqa: E402
 from droid.brain.databases import open_brain, open_local  # noqa: E402
 from droid.brain.layouts import PROC_STATUS_LAYOUT  # noqa: E402
 from droid.brain.shmdb import Database, db_name  # noqa: E402
+from droid.cli import ArgumentParser, duration_s  # noqa: E402
 from droid.tasks.arm import BrainArm  # noqa: E402
 
 
@@ -45,8 +45,8 @@ def run(*args, timeout=240):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seconds", type=float, default=60.0)
+    ap = ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seconds", type=duration_s(), default=60.0, help="duration of the run [s]")
     ap.add_argument("--fifo", action="store_true", help="sched_fifo = true in the cell file")
     args = ap.parse_args()
     name = "bench" + uuid.uuid4().hex[:6]

@@ -35,7 +35,7 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from droid.cli import ArgumentParser, BadInput, positive_int, run
+from droid.cli import ArgumentParser, BadInput, bounded_int, run, seed_int
 from droid.sim.experiment import arm_fast, sensors, trial
 from droid.sim.mvs.camera import MvsCamera
 from droid.subunits.mvs.sensor import SensorCore
@@ -102,11 +102,12 @@ def main(argv=None) -> int:
     parser.add_argument("--speeds", default="4,16,64", help="tool speeds [mm/s], comma-separated")
     parser.add_argument("--positions", default="i,iii,vii", help="start positions, comma-separated")
     parser.add_argument("--sensors", default="camera,ideal", help="lead sensor models, comma-separated")
-    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--seed", type=seed_int, default=1, help="random seed")
     parser.add_argument("--arm", choices=trial.ARM_MODELS, default="full",
                         help="Reis model: fast (analytic servo) or full (every core + the Pinocchio plant)")
     parser.add_argument("--stages", action="store_true", help="time the stages too (slightly slower)")
-    parser.add_argument("--jobs", type=positive_int, default=1, help="processes to run the trials on")
+    parser.add_argument("--jobs", type=bounded_int(1, 256, "processes"), default=1,
+                        help="processes to run the trials on")
     parser.add_argument("--json", action="store_true", help="one JSON object a trial, then a summary")
     args = parser.parse_args(argv)
     jobs = [(p, v, s, args.seed, args.stages, args.arm) for s in _csv(args.sensors, str, "sensors")

@@ -32,9 +32,9 @@ import time
 
 import numpy as np
 
-from droid.cli import ArgumentParser, BadInput, positive_float, positive_int, run
+from droid.cli import ArgumentParser, BadInput, bounded_float, bounded_int, run
 from droid.sim.experiment.trial import ARM_MODELS, TrialConfig, run_trial
-from droid.tasks.seam.core import MODES
+from droid.tasks.seam.core import MAX_RUN_LENGTH_MM, MODES
 from droid.tasks.seam.report import column, summarize
 
 
@@ -66,13 +66,15 @@ def trials(speeds, step_length):
 
 def build_parser() -> ArgumentParser:
     p = ArgumentParser(prog="bench_seamtrack_plus", description=__doc__.splitlines()[0])
-    p.add_argument("--seeds", type=positive_int, default=20, help="seeds per trial (default 20)")
+    p.add_argument("--seeds", type=bounded_int(1, 1000, "seeds"), default=20, help="seeds per trial (default 20)")
     p.add_argument("--modes", default="thesis,plus", help="modes to compare (default thesis,plus)")
     p.add_argument("--speeds", default="4,16,32,64,128", help="step-track speeds [mm/s]")
-    p.add_argument("--step-length", type=positive_float, default=400.0, help="step-track run length [mm]")
+    p.add_argument("--step-length", type=bounded_float(0.0, MAX_RUN_LENGTH_MM, "mm", lo_open=True), default=400.0,
+                   help="step-track run length [mm]")
     p.add_argument("--trials", default=None, help="only these trials (comma-separated names, e.g. r25_16)")
     p.add_argument("--arm", choices=ARM_MODELS, default=TrialConfig.arm, help="Reis model (default: full)")
-    p.add_argument("--jobs", type=positive_int, default=1, help="processes to run the trials on (default 1)")
+    p.add_argument("--jobs", type=bounded_int(1, 256, "processes"), default=1,
+                   help="processes to run the trials on (default 1)")
     p.add_argument("--json", action="store_true", help="also print the raw figures as JSON")
     return p
 

@@ -15,7 +15,6 @@ Usage: bench/bench_seamtrack_rt.py [--speed 16] [--mode plus] [--length 400] [--
 """
 from __future__ import annotations
 
-import argparse
 import os
 import re
 import subprocess
@@ -31,7 +30,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from droid.brain.cellfile import builtin_cell_path  # noqa: E402
-from droid.cli import bounded_float, bounded_int  # noqa: E402
+from droid.cli import ArgumentParser, bounded_float, bounded_int  # noqa: E402
 from droid.tasks.seam.report import read_csv, summarize  # noqa: E402
 
 
@@ -47,12 +46,12 @@ def fmt(label: str, s) -> str:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--speed", type=bounded_float(0.1, 200.0), default=16.0, help="commanded speed [mm/s]")
+    ap = ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--speed", type=bounded_float(0.1, 200.0, "mm/s"), default=16.0, help="commanded speed [mm/s]")
     ap.add_argument("--mode", choices=("plus", "thesis", "listing"), default="plus")
-    ap.add_argument("--length", type=bounded_float(160.0, 700.0), default=400.0, help="run length [mm]")
-    ap.add_argument("--runs", type=bounded_int(0, 20), default=1, help="real-time runs")
-    ap.add_argument("--seeds", type=bounded_int(0, 20), default=3, help="lockstep seeds (1..N)")
+    ap.add_argument("--length", type=bounded_float(160.0, 700.0, "mm"), default=400.0, help="run length [mm]")
+    ap.add_argument("--runs", type=bounded_int(0, 20, "runs"), default=1, help="real-time runs")
+    ap.add_argument("--seeds", type=bounded_int(0, 20, "seeds"), default=3, help="lockstep seeds (1..N)")
     args = ap.parse_args()
     print(f"{time.strftime('%Y-%m-%d %H:%M:%S UTC', time.gmtime())}, load average "
           f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}, {os.cpu_count()} CPUs", flush=True)

@@ -11,7 +11,6 @@ identical, byte for byte.  Usage::
 """
 from __future__ import annotations
 
-import argparse
 import os
 import signal
 import socket
@@ -20,6 +19,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from droid.cli import ArgumentParser, bounded_int
 
 ROOT = Path(__file__).resolve().parents[1]
 CLI = [sys.executable, "-m", "droid.sim.experiment.cli"]
@@ -47,11 +48,12 @@ def run(args: list[str]) -> float:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--plan", default="sweep200")
     ap.add_argument("--out", default=None)
-    ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--interrupt-at", type=int, default=80, help="SIGINT once this many trials have results")
+    ap.add_argument("--jobs", type=bounded_int(1, 256, "processes"), default=2, help="parallel processes")
+    ap.add_argument("--interrupt-at", type=bounded_int(1, 10**6, "trials"), default=80,
+                    help="SIGINT once this many trials have results")
     ap.add_argument("--figures", action="store_true", help="draw the PNGs too (default: --no-figures)")
     a = ap.parse_args()
     out = Path(a.out or tempfile.mkdtemp(prefix="droid-sweep-"))

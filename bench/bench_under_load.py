@@ -26,7 +26,6 @@ Record the printed block with the date in docs/benchmarks.md.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import multiprocessing as mp
 import os
@@ -49,6 +48,7 @@ sys.path.insert(0, str(ROOT))
 
 from droid.brain.cellfile import builtin_cell_path, load_cell  # noqa: E402
 from droid.brain import wire  # noqa: E402
+from droid.cli import ArgumentParser, bounded_int, duration_s, seed_int  # noqa: E402
 
 
 # -- background load ------------------------------------------------------------
@@ -215,16 +215,17 @@ def reason(r: subprocess.CompletedProcess) -> str:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--busy", type=int, default=4, help="busy processes at normal priority")
-    ap.add_argument("--memory-mb", type=int, default=0, help="memory kept busy [MiB]")
+    ap = ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--busy", type=bounded_int(0, 256, "processes"), default=4,
+                    help="busy processes at normal priority")
+    ap.add_argument("--memory-mb", type=bounded_int(0, 1 << 20, "MiB"), default=0, help="memory kept busy [MiB]")
     ap.add_argument("--io", action="store_true", help="an fsync-ing writer")
-    ap.add_argument("--rounds", type=int, default=10, help="rounds of homing + moves")
-    ap.add_argument("--moves", type=int, default=5, help="joint moves per round")
+    ap.add_argument("--rounds", type=bounded_int(0, 10_000, "rounds"), default=10, help="rounds of homing + moves")
+    ap.add_argument("--moves", type=bounded_int(0, 10_000, "moves"), default=5, help="joint moves per round")
     ap.add_argument("--no-fifo", action="store_true", help="the cell without SCHED_FIFO")
     ap.add_argument("--seamtrack", action="store_true", help="a seam-tracking trial per round")
-    ap.add_argument("--floor-seconds", type=float, default=20.0, help="cyclictest run [s]")
-    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--floor-seconds", type=duration_s(), default=20.0, help="cyclictest run [s]")
+    ap.add_argument("--seed", type=seed_int, default=1, help="random seed")
     args = ap.parse_args()
     rng = random.Random(args.seed)
     fifo = not args.no_fifo

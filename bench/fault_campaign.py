@@ -7,7 +7,6 @@ defines them).  Recovery times are figures for docs/safety.md and docs/benchmark
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import platform
@@ -18,14 +17,15 @@ import time
 import uuid
 from pathlib import Path
 
+from droid.cli import ArgumentParser, bounded_int, seed_int
 from droid.faults.campaign import WORKLOADS, Campaign, campaign_cell_text, plan
 from droid.faults.cells import seam_campaign_cell_text
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--faults", type=int, default=100)
-    ap.add_argument("--seed", type=int, default=1)
+    ap = ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--faults", type=bounded_int(1, 10**6, "faults"), default=100, help="faults to inject")
+    ap.add_argument("--seed", type=seed_int, default=1, help="random seed")
     ap.add_argument("--workload", choices=sorted(WORKLOADS), default="move")
     ap.add_argument("--json", metavar="FILE", help="write the full result (every round) here")
     args = ap.parse_args()

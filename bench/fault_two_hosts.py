@@ -10,7 +10,6 @@ again and to the end of a 2 s droid-move that succeeds.  Needs root (ip netns).
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import platform
@@ -28,6 +27,7 @@ import zmq
 from droid.brain.cellfile import load_cell
 from droid.brain.databases import open_brain, open_local
 from droid.brain.layouts import FAULT_LINK
+from droid.cli import ArgumentParser, bounded_int
 from droid.faults.cells import two_host_cell_text
 from droid.faults.netns import HostPair
 from droid.subunits.reis.servo_wire import unpack_status
@@ -71,8 +71,8 @@ def halts(run_dir):
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--reps", type=int, default=5)
+    ap = ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--reps", type=bounded_int(1, 1000, "repetitions"), default=5, help="repetitions")
     args = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="droid-2h-"))
     name = f"b2h{uuid.uuid4().hex[:6]}"

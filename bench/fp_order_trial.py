@@ -19,9 +19,10 @@ import pickle
 
 import numpy as np
 
-from droid.cli import ArgumentParser, BadInput, positive_float, run
+from droid.cli import ArgumentParser, BadInput, bounded_float, run, seed_int
 from droid.sim.experiment import trial
 from droid.sim.reis import plant as reis_plant
+from droid.tasks.seam.core import MAX_SPEED_MM_S
 from droid.tasks.seam.layout import load_layout
 
 AFTER_MM = 150.0  # as bench/bench_seamtrack.py
@@ -45,8 +46,9 @@ def _run(position: str, speed: float, seed: int) -> dict:
 def main(argv=None) -> int:
     parser = ArgumentParser(prog="fp_order_trial", description=__doc__.split("\n")[0])
     parser.add_argument("--position", default="i", help="start position (i, iii, vii, ...)")
-    parser.add_argument("--speed", type=positive_float, default=64.0, help="tool speed [mm/s]")
-    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--speed", type=bounded_float(0.0, MAX_SPEED_MM_S, "mm/s", lo_open=True), default=64.0,
+                        help="tool speed [mm/s]")
+    parser.add_argument("--seed", type=seed_int, default=1, help="random seed")
     parser.add_argument("--json", action="store_true", help="one JSON object")
     args = parser.parse_args(argv)
     try:

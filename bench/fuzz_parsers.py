@@ -20,7 +20,6 @@ Record the result in docs/benchmarks.md.
 """
 from __future__ import annotations
 
-import argparse
 import platform
 import random
 import sys
@@ -33,7 +32,7 @@ import numpy as np  # noqa: E402
 
 from droid.brain import wire  # noqa: E402
 from droid.brain.sensor_line import Garbled, LineReading, SensorClientCore, parse_line  # noqa: E402
-from droid.cli import BadInput  # noqa: E402
+from droid.cli import ArgumentParser, BadInput, bounded_int, seed_int  # noqa: E402
 from droid.subunits.gmf1 import karel_wire as kw  # noqa: E402
 from droid.subunits.reis import servo_wire as sw  # noqa: E402
 
@@ -250,9 +249,10 @@ def run(n_lines: int, seed: int, names: list[str] | None = None, out=sys.stdout)
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--lines", type=int, default=100_000, help="lines per parser (default 10^5)")
-    ap.add_argument("--seed", type=int, default=8)
+    ap = ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--lines", type=bounded_int(1, 10**9, "lines"), default=100_000,
+                    help="lines per parser (default 10^5)")
+    ap.add_argument("--seed", type=seed_int, default=8, help="random seed")
     ap.add_argument("--only", action="append", help="run parsers whose name contains this")
     args = ap.parse_args()
     return run(args.lines, args.seed, args.only)

@@ -21,6 +21,8 @@ import re
 import sys
 from typing import Callable, Sequence
 
+from droid.numbers import BadFile, NumberError, Range, baud_range
+
 EXIT_OK = 0
 EXIT_RUNTIME = 1
 EXIT_BAD_INPUT = 2
@@ -232,6 +234,7 @@ def bounded_float(lo: float, hi: float, unit: str = "", *, lo_open: bool = False
 
     parse.__name__ = f"number in {span}"
     parse.span, parse.lo, parse.hi, parse.lo_open, parse.unit, parse.integral = span, lo, hi, lo_open, unit, False
+    parse.range = Range(lo, hi, unit, lo_open=lo_open)
     return parse
 
 
@@ -250,7 +253,40 @@ def bounded_int(lo: int, hi: int, unit: str = "") -> Callable[[str], int]:
 
     parse.__name__ = f"integer in [{lo}, {hi}]"
     parse.span, parse.lo, parse.hi, parse.lo_open, parse.unit, parse.integral = span, lo, hi, False, unit, True
+    parse.range = Range(lo, hi, unit, integral=True)
     return parse
+
+
+def baud_rate(lo: int) -> Callable[[str], int]:
+    """argparse type: a standard serial rate (:data:`droid.numbers.STANDARD_BAUDS`, what pyserial
+    and termios take) from ``lo`` to 4 000 000 baud; the same rule as a file's ``baud`` key
+    (:func:`droid.numbers.baud_range`)."""
+    rng = baud_range(lo)
+
+    def parse(text: str) -> int:
+        value = integer(text)
+        why = rng.reason(value)
+        if why:
+            raise argparse.ArgumentTypeError(f"{text!r} {why}")
+        return value
+
+    parse.__name__ = f"serial rate in {rng.span}"
+    parse.span, parse.lo, parse.hi, parse.lo_open, parse.unit, parse.integral = rng.span, rng.lo, rng.hi, False, \
+        "baud", True
+    parse.range = rng
+    return parse
+
+
+def file_number(value, kind, where: str, key: str):
+    """A number read from a file (cell, layout, workpiece, plan), checked against ``kind`` -- a
+    :class:`droid.numbers.Range` or one of this module's bounded argparse types (the option of
+    the same quantity: one rule); :class:`BadInput` ``<where> <key> = <value>: <why> <range>``
+    (one line naming the file and the key) otherwise.  Returns the number (floats as float)."""
+    rng = getattr(kind, "range", kind)
+    try:
+        return rng.check(value, key)
+    except NumberError as exc:
+        raise BadInput(f"{where} {exc}") from None
 
 
 #: The longest wait any program accepts (--timeout, move times) [s]: one day.
@@ -295,6 +331,9 @@ def run(main: Callable[[Sequence[str] | None], int | None]) -> Callable[..., int
         except DroidError as exc:
             print(f"{prog}: {exc}", file=sys.stderr)
             return exc.exit_code
+        except BadFile as exc:  # a robot file's RobotFileError (droid.kinematics raises no BadInput)
+            print(f"{prog}: {exc}", file=sys.stderr)
+            return EXIT_BAD_INPUT
         except ModuleNotFoundError as exc:
             # an optional module a figure path imports late (matplotlib): one line, never a traceback
             if (exc.name or "").split(".")[0] not in OPTIONAL_MODULES:

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from droid.cli import BadInput, read_toml
+from droid.numbers import NumberError, check_numbers
 from droid.brain.classes import CLASSES, SubunitClass
 from droid.brain.curve import CurveConfig, parse_curve_table
 from droid.brain.wire import LIVENESS_TICKS
@@ -178,6 +179,13 @@ def load_cell(path: str | os.PathLike | None = None) -> Cell:
 
 
 def parse_cell(raw: dict[str, Any], p: Path) -> Cell:
+    try:
+        # every number of the file -- [cell], [world] and its devices, every subunit's table --
+        # finite and inside its key's range (droid.numbers, issue 16); the readers of each
+        # table check their keys' types and tighter ranges after this
+        check_numbers(raw)
+    except NumberError as exc:
+        raise BadInput(f"{p}: {exc}") from None
     top = _Reader(p, "top level", raw)
     c = _Reader(p, "cell", top.get("cell", dict))
     name = c.get("name", str)

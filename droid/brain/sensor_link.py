@@ -52,7 +52,8 @@ from droid.brain.layouts import FAULT_DEVICE, FAULT_HEARTBEAT, FAULT_LINK, NO_CA
 from droid.brain.sensor_line import DEFAULT_BAUD, INVALID, MIN_BAUD, LineReading, SensorClientCore
 from droid.brain.serial_port import ReopeningPort
 from droid.brain.wire import LIVENESS_TICKS
-from droid.cli import BadInput
+from droid.cli import BadInput, file_number
+from droid.numbers import baud_range
 
 LINK_AGENT = "agent"
 LINK_SERIAL = "serial"
@@ -95,9 +96,7 @@ def serial_link_options(cell: Cell, sub: Subunit) -> SerialLinkOptions:
     url = sub.options.get("serial")
     if not isinstance(url, str) or not url:
         raise BadInput(f"{where} link = \"serial\" needs serial = \"<port or pyserial URL>\"")
-    baud = sub.options.get("baud", DEFAULT_BAUD)
-    if not isinstance(baud, int) or isinstance(baud, bool) or baud < MIN_BAUD:
-        raise BadInput(f"{where} baud must be an integer >= {MIN_BAUD} (60 lines/s), got {baud!r}")
+    baud = file_number(sub.options.get("baud", DEFAULT_BAUD), baud_range(MIN_BAUD), where, "baud")
     return SerialLinkOptions(url, baud)
 
 

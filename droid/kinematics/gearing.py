@@ -33,6 +33,13 @@ from functools import cached_property
 import numpy as np
 
 
+def _bits(value) -> int:
+    """A robot file's ``encoder_bits``: an integer (its range, 2..62, is checked by Gearing)."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ValueError(f"gearing: encoder_bits must be an integer in 2..62, got {value!r}")
+    return int(value)
+
+
 def _readonly(a: np.ndarray) -> np.ndarray:
     a.flags.writeable = False
     return a
@@ -101,7 +108,7 @@ class Gearing:
             counts_per_deg=np.array(reduction * cpr / 360.0),
             direction=direction,
             coupling=coupling,
-            encoder_bits=int(table.get("encoder_bits", 16)),
+            encoder_bits=_bits(table.get("encoder_bits", 16)),
             encoder_counts_per_rev=cpr,
         )
 

@@ -5,8 +5,10 @@ arms share the same kinematic model") is a file, not code.  Bundled files live
 in ``droid/kinematics/robots/``; ``load_robot`` takes a bundled name
 (``"reis_v15"``) or a path to a ``.toml`` file.  The file format is described
 in docs/kinematics.md; every table and key is checked, unknown keys are
-rejected (a typo must not silently become a default), and if a ``[dh]`` table
-is present the ``[opw]`` parameters must reproduce its forward kinematics.
+rejected (a typo must not silently become a default), every number must be
+finite and inside its key's range (:func:`droid.numbers.check_numbers`: the
+one leaf module of droid this package imports), and if a ``[dh]`` table is
+present the ``[opw]`` parameters must reproduce its forward kinematics.
 """
 from __future__ import annotations
 
@@ -17,6 +19,8 @@ import tomllib
 from pathlib import Path
 
 import numpy as np
+
+from droid.numbers import BadFile, check_numbers
 
 from .dh import DhTable, fk_dh
 from .dynamics import axis_servo_from_table, dynamics_from_table, servo_from_table
@@ -51,9 +55,9 @@ _REQUIRED = {
 }
 
 
-class RobotFileError(ValueError):
-    """A robot name that is not bundled, or a robot file that is missing or malformed
-    (programs turn it into a :class:`droid.cli.BadInput`: exit 2 with the message)."""
+class RobotFileError(BadFile):
+    """A robot name that is not bundled, or a robot file that is missing or malformed (a
+    ValueError; every program's :func:`droid.cli.run` ends with its message and exit 2)."""
 
 
 def list_robots() -> list[str]:
@@ -142,6 +146,7 @@ def model_from_dict(data: dict, source: str = "") -> RobotModel:
     unknown = set(data) - _TOP_KEYS
     if unknown:
         raise ValueError(f"unknown key(s)/table(s) {', '.join(sorted(unknown))}")
+    check_numbers(data)  # every number finite and inside its key's range (droid.numbers, issue 16)
     name = data.get("name")
     if not isinstance(name, str) or not name:
         raise ValueError("'name' must be a non-empty string")

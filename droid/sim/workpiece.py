@@ -62,6 +62,7 @@ from pathlib import Path
 import numpy as np
 
 from droid.cli import BadInput, read_toml
+from droid.numbers import NumberError, check_numbers
 
 WORKPIECE_DIR = Path(__file__).parent / "workpieces"
 
@@ -347,6 +348,10 @@ class Workpiece:
         if not isinstance(data, dict):
             raise bad("not a table")
         check_keys(data, _TOP_KEYS, "")
+        try:
+            check_numbers(data)  # every number finite and inside its key's range (issue 16)
+        except NumberError as exc:
+            raise bad(str(exc)) from None
         name = data.get("name", Path(source).stem if source != "<dict>" else "workpiece")
         description = data.get("description", "")
         if not isinstance(name, str) or not name or not isinstance(description, str):

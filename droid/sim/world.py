@@ -25,7 +25,8 @@ from typing import Any
 
 from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
-from droid.cli import BadInput, RuntimeFailure, run, seed_int
+from droid.cli import BadInput, RuntimeFailure, file_number, run, seed_int
+from droid.numbers import SEED, Range
 
 PROG = "droid-sim"
 DEFAULT_RATE_HZ = 1000.0
@@ -89,7 +90,9 @@ class World:
 
 def build_world(cell, seed: int | None = None) -> World:
     """Build the devices the cell file declares under ``[world.devices]``."""
-    w = World(cell, int(cell.world.get("seed", 0) if seed is None else seed))
+    if seed is None:
+        seed = file_number(cell.world.get("seed", 0), SEED, f"{cell.path}: [world]", "seed")
+    w = World(cell, int(seed))
     devices: dict[str, Any] = cell.world.get("devices", {})
     if not isinstance(devices, dict):
         raise BadInput(f"{cell.path}: [world.devices] must be a table of device tables")
@@ -142,6 +145,9 @@ def truth_main(argv) -> int:
     return 0
 
 
+#: The world's step rates ([world] rate_hz) [Hz].
+WORLD_RATE_HZ = Range(1.0, 10000.0, "Hz")
+
 #: World time integrated at most per wake-up [s], and the most it owes after a stall
 #: before it drops the rest [s]; see main().
 MAX_STEP_PER_WAKE_S = 0.004
@@ -158,9 +164,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=seed_int, default=None, help="random seed (default: the cell file's)")
     args = ap.parse_args(argv)
     cell = open_cell(args)
-    rate = float(cell.world.get("rate_hz", DEFAULT_RATE_HZ))
-    if not 1.0 <= rate <= 10000.0:
-        raise BadInput(f"{cell.path}: [world] rate_hz {rate:g} outside 1..10000 Hz")
+    rate = file_number(cell.world.get("rate_hz", DEFAULT_RATE_HZ), WORLD_RATE_HZ, f"{cell.path}: [world]", "rate_hz")
     Stop.install()
     try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     presence = Presence(cell.name, presence_key(PROG), PROG)

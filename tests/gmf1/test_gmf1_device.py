@@ -132,9 +132,8 @@ def test_socket_url(tmp_path, cell_name):
     ("", 'wheels = 4', "unknown key"),
 ])
 def test_bad_device_options_are_refused(tmp_path, cell_name, device, sub, msg):
-    cell = cell_file(tmp_path, cell_name, device=device, sub=sub)
-    with pytest.raises(BadInput, match=msg):
-        build_world(cell)
+    with pytest.raises(BadInput, match=msg):  # by the cell file's numbers (droid.numbers) or the device
+        build_world(cell_file(tmp_path, cell_name, device=device, sub=sub))
     assert not any(n.startswith(f"droid.{cell_name}.") for n in os.listdir("/dev/shm"))
 
 

@@ -83,7 +83,8 @@ def _bad_file(tmp_path, old, new):
 
 
 @pytest.mark.parametrize("old, new, words", [
-    ("link_mass_kg = [250.0,", "link_mass_kg = [-250.0,", ["link_mass_kg", "> 0"]),
+    ("link_mass_kg = [250.0,", "link_mass_kg = [-250.0,", ["link_mass_kg[0] = -250.0", "[0, 10000] kg"]),
+    ("link_mass_kg = [250.0,", "link_mass_kg = [0.0,", ["link_mass_kg", "> 0"]),
     ("position_gain_per_s = [30.0,", "position_gain_per_s = [0.0,", ["position_gain_per_s", "> 0"]),
     ("velocity_feedforward = [0.0,", "velocity_feedforward = [1.5,", ["velocity_feedforward", "[0, 1]"]),
     ("servo_rate_hz = 1000.0", "servo_rate_hz = 100.0", ["velocity_bandwidth_hz", "servo_rate_hz"]),

@@ -256,6 +256,18 @@ def test_the_edges_of_each_range_are_accepted(item):
             assert v == 0 and math.copysign(1.0, v) == 1.0, text
 
 
+@pytest.mark.parametrize("prog", ["droid-gmf1-serial", "droid-mvs"])
+def test_a_serial_rate_is_a_standard_one(prog, no_run, capsys):
+    """--baud inside its range but not a standard rate (termios, pyserial) is refused too."""
+    main = cliranges.main_of(prog)
+    for value in ("9601", "20000", "3999999"):
+        code, err = _call(main, ["mvs" if prog == "droid-mvs" else "gmf1", f"--baud={value}"], capsys)
+        assert code == 2 and "standard rates" in err and len(err.strip().splitlines()) == 1, (value, err)
+    for value in ("19200", "115200", "4000000"):
+        with pytest.raises(_Accepted):
+            _call(main, ["mvs" if prog == "droid-mvs" else "gmf1", f"--baud={value}"], capsys)
+
+
 MOVE_GOOD = ["0", "0", "0", "0", "0", "0", "2"]
 
 
@@ -289,6 +301,7 @@ SUBPROCESS = [  # (console script, argv, words the one line must hold)
     ("droid-record", ["--out", "x.mcap", "--seconds", "1e308"], ["--seconds", "(0, 86400] s"]),
     ("droid-move", ["arm1", "joint", "0", "0", "0", "0", "0", "0", "1e308"], ["SECONDS", "3600"]),
     ("droid-heartbeat", ["--rate", "5e-324"], ["--rate", "[1, 1000] Hz"]),
+    ("droid-gmf1-serial", ["gmf1", "--baud", "1"], ["--baud", "[4800, 4000000] baud"]),
 ]
 
 
@@ -308,3 +321,40 @@ def test_console_scripts_print_one_line_and_no_traceback(prog, argv, words, tmp_
         assert w in lines[0], p.stderr
     assert p.stdout == ""
     assert cell_objects(cell_name) == []
+
+
+BENCH = ROOT / "bench"
+UNBOUNDED = {"int", "float", "positive_int", "positive_float", "finite_float", "non_negative_int", "integer"}
+
+
+def test_bench_scripts_take_bounded_numbers():
+    """bench/ scripts are for users too: every option's type is one of droid.cli's bounded types
+    (found by reading each script's add_argument calls; their parsers are built inside main)."""
+    import ast
+
+    scripts = sorted(BENCH.glob("*.py"))
+    assert len(scripts) >= 15
+    bad = []
+    for path in scripts:
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Call) and getattr(node.func, "attr", "") == "add_argument":
+                for kw in node.keywords:
+                    if kw.arg == "type" and isinstance(kw.value, ast.Name) and kw.value.id in UNBOUNDED:
+                        bad.append(f"{path.name}:{node.lineno} type={kw.value.id}")
+                    if kw.arg == "type" and isinstance(kw.value, ast.Attribute) and kw.value.attr == "ArgumentParser":
+                        bad.append(f"{path.name}:{node.lineno}")
+            if isinstance(node, ast.Attribute) and node.attr == "ArgumentParser" and \
+                    isinstance(node.value, ast.Name) and node.value.id == "argparse":
+                bad.append(f"{path.name}:{node.lineno} argparse.ArgumentParser (use droid.cli's: one line, exit 2)")
+    assert not bad, bad
+
+
+@pytest.mark.parametrize("argv,words", [(["--frames", "1e308"], ["--frames", "not an integer"]),
+                                        (["--frames", "10000001"], ["--frames", "[1, 10000000] frames"]),
+                                        (["--seed=-1"], ["--seed", "[0, 4294967295]"])])
+def test_a_bench_script_refuses_bad_numbers_in_one_line(argv, words, tmp_path):
+    p = subprocess.run([sys.executable, str(BENCH / "bench_mvs.py"), *argv], capture_output=True, text=True,
+                       timeout=60, cwd=tmp_path)
+    assert p.returncode == 2 and "Traceback" not in p.stderr, p.stderr
+    lines = p.stderr.strip().splitlines()
+    assert len(lines) == 1 and all(w in lines[0] for w in words), p.stderr

@@ -263,8 +263,10 @@ def test_serial_link_options_from_the_cell(tmp_path):
 
 @pytest.mark.parametrize("table,message", [
     ('link = "serial"', "needs serial"),
-    ('link = "serial"\nserial = "/x"\nbaud = 9600', "baud must be an integer >= 19200"),
-    ('link = "serial"\nserial = "/x"\nbaud = "fast"', "baud must be"),
+    ('link = "serial"\nserial = "/x"\nbaud = 9600', "baud = 9600: is outside [19200, 4000000] baud"),
+    ('link = "serial"\nserial = "/x"\nbaud = 20000', "baud = 20000: is not one of the standard rates"),
+    ('link = "serial"\nserial = "/x"\nbaud = "fast"', "baud = 'fast': must be an integer"),
+    ('link = "serial"\nserial = "/x"\nbaud = nan', "baud = nan: must be an integer"),
     ('link = "serial"\nserial = "/x"\nseriall = "/y"', "unknown key(s): seriall"),
     ('link = "pigeon"', "link must be one of agent, serial"),
 ])

@@ -118,7 +118,7 @@ BAD_FILES = [
     ('[[segment]]\ntype = "line"\n', "segment 1: missing length_mm"),
     ('[[segment]]\ntype = "line"\nlength_mm = -5.0\n', "length_mm must be > 0"),
     ('[[segment]]\ntype = "line"\nlength_mm = "5"\n', "length_mm must be a finite number"),
-    ('[[segment]]\ntype = "line"\nlength_mm = nan\n', "length_mm must be a finite number"),
+    ('[[segment]]\ntype = "line"\nlength_mm = nan\n', "segment[0].length_mm = nan: must be a finite number"),
     ('width_mm = 0\n[[segment]]\ntype = "line"\nlength_mm = 5.0\n', "width_mm must be > 0"),
     ('upper_side = "up"\n[[segment]]\ntype = "line"\nlength_mm = 5.0\n', "upper_side must be"),
     ('colour = "red"\n[[segment]]\ntype = "line"\nlength_mm = 5.0\n', "unknown key 'colour'"),

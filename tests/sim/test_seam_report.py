@@ -129,7 +129,8 @@ def test_write_table_csv_and_markdown(tmp_path):
 
 TASKS = Path(__file__).resolve().parents[2] / "droid" / "tasks"
 # droid.observe: droid-seamtrack --record (observers read the Brain's databases only, like a task)
-TASK_MAY_IMPORT = ("droid.brain", "droid.kinematics", "droid.cli", "droid.tasks", "droid.observe")
+# droid.numbers: the range check of numbers read from files, a leaf like droid.cli
+TASK_MAY_IMPORT = ("droid.brain", "droid.kinematics", "droid.cli", "droid.numbers", "droid.tasks", "droid.observe")
 
 
 def test_tasks_import_only_brain_kinematics_cli_and_tasks():

@@ -48,6 +48,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 
 from droid.cli import BadInput, read_toml
+from droid.numbers import NumberError, check_numbers
 from droid.tasks.seam.core import MAX_CYCLES, MAX_GAIN, MAX_RUN_LENGTH_MM, MAX_SPEED_MM_S
 
 PLAN_DIR = Path(__file__).parent / "plans"
@@ -261,6 +262,10 @@ def plan_from_dict(data: dict, source: str = "<plan>", plan_dir: Path | None = N
     for key in data:
         if key not in _TOP_KEYS:
             raise bad(f"{key} = {_toml(data[key])}: unknown key (expected one of {', '.join(_TOP_KEYS)})")
+    try:
+        check_numbers(data)  # every number finite and inside its key's range (issue 16)
+    except NumberError as exc:
+        raise bad(str(exc)) from None
     name = data.get("name")
     if not isinstance(name, str) or not _NAME.fullmatch(name):
         raise bad(f"name = {_toml(name) if name is not None else '(missing)'}: needs a name of letters, "

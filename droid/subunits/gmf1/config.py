@@ -16,12 +16,12 @@ Unknown keys are refused with the file and key named.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 from droid.brain.cellfile import Cell, Subunit
-from droid.cli import BadInput
-from droid.subunits.gmf1.karel_wire import BAUD
+from droid.cli import BadInput, file_number
+from droid.numbers import Range, baud_range
+from droid.subunits.gmf1.karel_wire import BAUD, MIN_BAUD
 from droid.subunits.gmf1.quad04 import check_url
 
 #: The encoder read rates a GMF1 accepts [Hz] ([subunits.X] encoder_hz, droid-gmf1-encoder --rate).
@@ -54,9 +54,7 @@ def gmf1_config(cell: Cell, sub: Subunit) -> Gmf1Config:
     serial = o.get("serial", f"{cell.run_dir}/{sub.name}.tty")
     if not isinstance(serial, str) or not serial:
         raise BadInput(f"{where} serial must be a non-empty string (a device path or pyserial URL)")
-    baud = o.get("baud", BAUD)
-    if not isinstance(baud, int) or isinstance(baud, bool) or not 50 <= baud <= 4_000_000:
-        raise BadInput(f"{where} baud must be an integer in 50..4000000, got {baud!r}")
+    baud = file_number(o.get("baud", BAUD), baud_range(MIN_BAUD), where, "baud")
     encoders = o.get("encoders", default_encoder_urls(cell.name, sub.name))
     if not isinstance(encoders, list) or len(encoders) != 2 or not all(isinstance(u, str) for u in encoders):
         raise BadInput(f"{where} encoders must be a list of 2 card URLs (shm://NAME or mem://PATH?offset=N)")
@@ -66,10 +64,8 @@ def gmf1_config(cell: Cell, sub: Subunit) -> Gmf1Config:
     except BadInput as exc:
         raise BadInput(f"{where} encoders: {exc}") from None
     vals = {}
-    for key, default, lo, hi in (("encoder_hz", 120.0, *ENCODER_HZ_RANGE), ("reply_timeout_s", 1.0, 0.05, 60.0),
-                                 ("done_margin_s", 1.0, 0.0, 600.0)):
-        v = o.get(key, default)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi:
-            raise BadInput(f"{where} {key} must be a number in {lo:g}..{hi:g}, got {v!r}")
-        vals[key] = float(v)
+    for key, default, rng in (("encoder_hz", 120.0, Range(*ENCODER_HZ_RANGE, "Hz")),
+                              ("reply_timeout_s", 1.0, Range(0.05, 60.0, "s")),
+                              ("done_margin_s", 1.0, Range(0.0, 600.0, "s"))):
+        vals[key] = file_number(o.get(key, default), rng, where, key)
     return Gmf1Config(serial=serial, baud=baud, encoders=(encoders[0], encoders[1]), **vals)

@@ -53,6 +53,11 @@ BAUD = 9600  # thesis §4.2.4: "a RS-232 25-pin serial port which has a bandwidt
 REQUEST_END = b"\r"
 REPLY_END = b"\r\n"
 MAX_LINE = 120  # bytes, terminator excluded (a KAREL STRING buffer)
+#: The slowest line accepted [baud] (droid-gmf1-serial --baud, [subunits.X] baud): the lowest
+#: standard rate (droid.numbers.STANDARD_BAUDS) at which a longest request and a longest reply
+#: (2 x 121 bytes x 10 bits = 2420 bits) cross the line within the default 1 s reply timeout.
+#: 2400 baud cannot (1.008 s); the thesis's line is 9600 baud (§4.2.4).
+MIN_BAUD = 4800
 MAX_NUMBER_CHARS = 14
 MAX_ID = 0xFFFFFFFF
 

@@ -23,10 +23,11 @@ from droid.brain.curve import CurveHost
 from droid.brain.databases import open_local
 from droid.brain.heartbeat import TickSubscriber
 from droid.brain.program import ErrorLine, Presence, Stop, close_all, notify_ready, presence_key, subunit_program
-from droid.cli import bounded_int, run
+from droid.cli import baud_rate, run
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.subunits.gmf1.config import gmf1_config
+from droid.subunits.gmf1.karel_wire import MIN_BAUD
 from droid.subunits.gmf1.port import PortLink, serial_opener
 from droid.subunits.gmf1.serial_core import SerialCore, SerialParams
 from droid.subunits.gmf1.station import SerialStation
@@ -46,7 +47,7 @@ def build_core(cell, sub, cfg, baud: int) -> SerialCore:
 def main(argv=None) -> int:
     def options(ap):
         ap.add_argument("--serial", metavar="URL", default=None, help="serial port (default: the cell file's)")
-        ap.add_argument("--baud", type=bounded_int(1, 4_000_000, "baud"), default=None,
+        ap.add_argument("--baud", type=baud_rate(MIN_BAUD), default=None,
                         help="baud rate (default: the cell file's, 9600)")
 
     # tick-driven like the agent (no SCHED_FIFO): the 9600-baud line sets its pace

@@ -31,11 +31,14 @@ from droid.brain.databases import open_local
 from droid.brain.layouts import FAULT_DEVICE
 from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
 from droid.brain.rt import PeriodicTimer
-from droid.cli import BadInput, run
+from droid.cli import BadInput, file_number, run
+from droid.numbers import Range
 from droid.subunits.joystick.driver import JoystickDevice, open_joystick
 
 PROG = "droid-joystick"
 DEFAULT_RATE_HZ = 100.0
+#: The read rates a joystick subunit accepts ([subunits.X] rate_hz) [Hz].
+RATE_HZ = Range(1.0, 1000.0, "Hz")
 REOPEN_S = 0.5
 
 
@@ -47,10 +50,8 @@ def joystick_options(sub) -> tuple[str, float]:
     url = sub.options.get("device")
     if not isinstance(url, str) or not url:
         raise BadInput(f"{where} a joystick needs 'device' (e.g. \"js:///dev/input/js0\")")
-    rate = sub.options.get("rate_hz", DEFAULT_RATE_HZ)
-    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not 1.0 <= rate <= 1000.0:
-        raise BadInput(f"{where} rate_hz must be a number in [1, 1000] Hz")
-    return url, float(rate)
+    rate = file_number(sub.options.get("rate_hz", DEFAULT_RATE_HZ), RATE_HZ, where, "rate_hz")
+    return url, rate
 
 
 def record_fields(dev: JoystickDevice) -> dict:

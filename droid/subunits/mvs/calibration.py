@@ -18,6 +18,7 @@ import math
 from dataclasses import dataclass, fields
 
 from droid.cli import BadInput
+from droid.numbers import NumberError, check_numbers
 from droid.subunits.mvs.wire import COLUMNS, ROWS
 
 
@@ -70,4 +71,8 @@ class MvsCalibration:
         for key in table:
             if key not in known:
                 raise BadInput(f"{source}: unknown calibration key {key!r} (expected {', '.join(sorted(known))})")
+        try:
+            check_numbers(table)  # finite and inside each key's range (droid.numbers, issue 16)
+        except NumberError as exc:
+            raise BadInput(f"{source}: {exc}") from None
         return cls(**table)

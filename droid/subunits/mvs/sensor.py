@@ -52,8 +52,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from droid.brain.serial_port import PortLink, serial_opener
-from droid.cli import (ArgumentParser, BadInput, MAX_WAIT_S, RuntimeFailure, bounded_float, bounded_int, duration_s,
-                       read_toml, run)
+from droid.cli import (ArgumentParser, BadInput, MAX_WAIT_S, RuntimeFailure, baud_rate, bounded_float, bounded_int,
+                       duration_s, file_number, read_toml, run)
+from droid.numbers import Range
 from droid.subunits.mvs.calibration import MvsCalibration
 from droid.subunits.mvs.dsp import open_dsp
 from droid.subunits.mvs.feature import Feature, FeatureParams, extract
@@ -274,7 +275,7 @@ def build_parser() -> ArgumentParser:
     parser.add_argument("--ready-fd", type=bounded_int(0, 1 << 20), default=None, help=argparse.SUPPRESS)
     parser.add_argument("--dsp", metavar="URL", help="DSP board: shm://NAME or inproc://NAME")
     parser.add_argument("--serial", metavar="URL", help="serial port URL or device (pyserial serial_for_url)")
-    parser.add_argument("--baud", type=bounded_int(MIN_BAUD, 4_000_000, "baud"), default=None,
+    parser.add_argument("--baud", type=baud_rate(MIN_BAUD), default=None,
                         help=f"baud rate (default {DEFAULT_BAUD})")
     parser.add_argument("--count", type=bounded_int(1, 10**12, "frames"), help="stop after N frames")
     parser.add_argument("--retrace-timeout", type=duration_s(60.0), default=6 / FRAME_RATE_HZ, metavar="S",
@@ -316,9 +317,10 @@ def apply_cell(args):
     args.dsp = args.dsp or option("dsp", str)
     args.serial = args.serial or option("sensor_serial", str)
     if args.baud is None:
-        args.baud = option("baud", int, DEFAULT_BAUD)
+        args.baud = file_number(opts.get("baud", DEFAULT_BAUD), baud_rate(MIN_BAUD), where, "baud")
     if args.board_wait is None:
-        args.board_wait = option("board_wait", float, CELL_WAIT_S)
+        args.board_wait = file_number(opts.get("board_wait", CELL_WAIT_S), Range(0.0, MAX_WAIT_S, "s"), where,
+                                      "board_wait")
     stamp = opts.get("stamp", False)
     if not isinstance(stamp, bool):
         raise BadInput(f"{where} stamp must be true or false, got {stamp!r}")

@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from droid.cli import BadInput, read_toml
+from droid.numbers import NumberError, check_numbers
 from droid.kinematics.transforms import inv_homo, pose_to_T, roty, rotx, rotz, trans
 
 BUNDLED_LAYOUT = Path(__file__).resolve().parents[2] / "cells" / "seamtrack_layout.toml"
@@ -207,6 +208,10 @@ def layout_from_dict(data: dict, source: str = "<dict>") -> Layout:
                 {"name", "description", "tool_robot", "holder_robot", "sensor", "bases", "robots",
                  "wrist", "workpieces", "positions"},
                 {"bases", "wrist", "workpieces", "positions"})
+    try:
+        check_numbers(data)  # every number finite and inside its key's range (issue 16)
+    except NumberError as exc:
+        raise _bad(source, str(exc)) from None
     name = data.get("name", Path(source).stem)
     roles = {k: data.get(k, d) for k, d in (("tool_robot", "arm1"), ("holder_robot", "gmf1"), ("sensor", "mvs"))}
     for k, v in roles.items():
