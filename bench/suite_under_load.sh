@@ -51,7 +51,7 @@ for i in $(seq 1 "$runs"); do
     set -e
     stop_busy
     t1=$(date +%s)
-    summary=$(grep -E '^(=+ )?[0-9]+ (passed|failed)|^=+ .*(passed|failed).* =+$' "$dir.log" | tail -1)
+    summary=$(grep -E '^(=+ )?[0-9]+ (passed|failed)|^=+ .*(passed|failed).* =+$' "$dir.log" | tr '\n' ' ')
     printf '%s UTC  commit %s  busy %s  rc %s  %dm%02ds  %s  (log %s)\n' \
         "$start" "$commit" "$busy" "$rc" $(((t1 - t0) / 60)) $(((t1 - t0) % 60)) "$summary" "$dir.log"
 done

@@ -111,8 +111,14 @@ def scheduler_leak() -> str | None:
     return " and ".join(leaks) or None
 
 
+def cell_logs(request) -> list[str]:
+    """Program logs of a cell that ran under this test's tmp_path (``**/logs/*.log``)."""
+    tmp = getattr(request.node, "funcargs", {}).get("tmp_path")
+    return sorted(str(p) for p in tmp.glob("**/logs/*.log")) if tmp is not None else []
+
+
 @pytest.fixture(autouse=True)
-def no_leaks(monkeypatch):
+def no_leaks(monkeypatch, request):
     """Fail a test that leaves droid shm objects, semaphores or processes behind, or the
     pytest process on a real-time scheduler or with locked memory (:func:`scheduler_leak`)."""
     from droid.brain.rt import normal_scheduler
@@ -145,6 +151,11 @@ def no_leaks(monkeypatch):
     assert not leaked_shm, f"test left shared-memory objects behind: {sorted(leaked_shm)}"
     assert not leaked_kids, f"test left child processes running: {sorted(leaked_kids)}"
     assert sched is None, f"test left the pytest process with {sched}"
+    if not request.node.get_closest_marker("integration"):
+        logs = cell_logs(request)
+        assert not logs, (f"this test ran a cell of processes ({logs[0]}) but is not marked "
+                          "integration: mark it, so that scripts/test.sh never runs it beside "
+                          "another live cell")
 
 
 @pytest.fixture

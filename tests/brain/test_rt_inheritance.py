@@ -33,6 +33,7 @@ def test_the_leak_check_sees_fifo_and_locked_memory_and_normal_scheduler_clears_
 
 
 @needs_root
+@pytest.mark.integration  # starts a cell program (and runs pytest at FIFO 20 for a moment)
 def test_launcher_starts_programs_on_the_normal_scheduler_from_a_fifo_parent(tmp_path, cell_name):
     """droid-cell's children start on SCHED_OTHER even when droid-cell itself runs at FIFO
     priority; each program asks for FIFO itself once its imports are done."""

@@ -102,7 +102,8 @@ def _bad_file(tmp_path, old, new):
 
 
 @pytest.mark.parametrize("old, new, words", [
-    ("link_mass_kg = [60.0,", "link_mass_kg = [-60.0,", ["link_mass_kg", "> 0"]),
+    ("link_mass_kg = [60.0,", "link_mass_kg = [-60.0,", ["link_mass_kg", "outside [0,"]),  # droid.numbers' range
+    ("link_mass_kg = [60.0,", "link_mass_kg = [0.0,", ["link_mass_kg", "> 0"]),  # the loader's own rule
     ("  [2.4,    1.2,    2.4,    0.0, 0.0, 0.0],", "  [2.4,    1.2,    -2.4,    0.0, 0.0, 0.0],",
      ["link_inertia_kgm2", "positive definite"]),
     ("  [2.4,    1.2,    2.4,    0.0, 0.0, 0.0],", "  [0.1,    0.1,    2.4,    0.0, 0.0, 0.0],",
