@@ -88,11 +88,14 @@ class ProgressLimit:
       advanced less than ``min_progress_mm(speed)`` = min(``min_mm``, ``min_fraction`` x
       speed x ``window_s``) over the last ``window_s`` seconds of simulated time.  30 s and
       2 mm: the slowest progress of a tracking trial measured on the full arm is the thesis-mode
-      tool at 4 mm/s commanded, 1.4-1.5 mm/s on average, i.e. ~42 mm a window -- 20x the 2 mm;
+      tool at 4 mm/s commanded, 1.4-1.5 mm/s on average, i.e. ~42 mm a window -- 20x the 2 mm
+      (0.66-0.71 mm/s, ~20 mm a window, if the seam patch were long enough not to pull it:
+      docs/experiments.md on MAX_QUEUE);
       its stick-slip staircase pauses for about a second (a 150 mm run on (i) at 4 mm/s, seed
       1, 2026-11-25: the least progress over any 1 s was 0.14 mm, over any 2 s 0.9 mm, over any
-      30 s 26 mm), so 30 s is a long multiple of any pause and of the 4-8 mm/s depth
-      oscillation's period, while a real stall (the arm
+      30 s 26 mm; over the whole chapter-6 matrix of that day, 78 trials that did not stall, the
+      least progress over any 30 s was 24.7 mm, trial 1.6), so 30 s is a long multiple of any
+      pause and of the depth oscillation's period (0.1-0.2 s), while a real stall (the arm
       stopped, the tool pushing against a limit, a tracker that holds its target) costs at most
       30 s of simulation instead of the whole cap.  The fraction (5 % of the commanded speed's
       distance in a window) keeps the rule from ending a trial commanded below ~1.3 mm/s whose
