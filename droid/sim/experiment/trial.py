@@ -80,7 +80,7 @@ class ProgressLimit:
     """When a trial that the tracking core has not ended ends as ``timeout``: a limit on progress.
 
     The trial's limit used to be 3 x run length / commanded speed + 30 s; on the full arm the
-    thesis-mode tool advances at only 13-37 % of the commanded speed (the joints stick and
+    thesis-mode tool advances at only 12-38 % of the commanded speed (the joints stick and
     slip under Coulomb friction; docs/experiments.md), so that limit ended most slow-but-
     tracking trials.  Now two rules, either of which ends the trial as ``timeout``:
 
@@ -102,7 +102,7 @@ class ProgressLimit:
       tool follows at its usual fraction of the speed.
     * **hard cap** (a safety net): ``cap_factor`` x length / speed + ``cap_extra_s`` seconds:
       12x + 60 s lets a tool that follows at 1/12 (8 %) of the commanded speed finish (the
-      slowest measured is 13 %), and bounds a trial that creeps on forever (e.g. a 700 mm run at
+      slowest measured is 12 %: the 16 mm/s ramps of the 2026-11-25 matrix, 1.9 mm/s), and bounds a trial that creeps on forever (e.g. a 700 mm run at
       4 mm/s: 2160 s).
     """
 
