@@ -33,7 +33,7 @@ from droid.brain.cellfile import builtin_cell_path
 from droid.cli import RuntimeFailure
 from droid.kinematics.transforms import T_to_pose
 from droid.sim.experiment.geometry import trial_geometry
-from droid.sim.experiment.trial import TrialConfig, TrialResult, default_length_mm
+from droid.sim.experiment.trial import ProgressLimit, TrialConfig, TrialResult, default_length_mm
 from droid.tasks.seam import report
 from droid.tasks.seam.report import COLUMNS
 
@@ -105,7 +105,9 @@ def run_trial_realtime(cfg: TrialConfig, out_dir) -> TrialResult:
                     "--delay-at", f"{cfg.delay_at_mm:g}", "--dead-zone", str(cfg.dead_zone_cycles),
                     "--lost-cycles", str(cfg.lost_cycles), "--wrist", cfg.wrist, "--log", str(log), "--quiet", *c,
                     "--mode", cfg.mode]
-            limit = 3.0 * length / cfg.speed_mm_s + 120.0  # the tool advances at ~half the nominal speed
+            # wall seconds: the lockstep trial's hard cap (the tool may follow at a small fraction of
+            # the commanded speed: trial.ProgressLimit) + 60 s for the program's start and stop
+            limit = ProgressLimit().cap_s(length, cfg.speed_mm_s) + 60.0
             st = _run(args, limit, "droid-seamtrack")
         finally:
             down = _run(["droid.brain.launcher", "down", *c], 60.0, "droid-cell down")

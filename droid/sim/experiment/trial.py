@@ -34,7 +34,9 @@ Within a tick the order is: arm (its state at the tick), sensors (the true
 poses at the tick), then the task -- as ORDER_WORLD < ORDER_DEVICE < ORDER_TASK.
 
 The trial ends when the core stops (end of seam: the run length reached;
-seam lost; a Reis command out of reach) or after a time limit (``timeout``).
+seam lost; a Reis command out of reach; a runaway) or as ``timeout`` when the
+tool stops making progress along the seam (a stall) or at a generous hard cap
+(:class:`ProgressLimit`; the stop detail says which rule fired).
 """
 from __future__ import annotations
 
@@ -62,11 +64,104 @@ HOLDER_MODELS = ("gmf1", "fixed")  # the GMF1 through its controller and encoder
 HEARTBEAT_HZ = 60.0
 CYCLE_TICKS = 2  # one 30 Hz seam-tracking cycle = 2 heartbeat ticks (cart_time_count; TrackingCycle.cycle_ticks)
 LOG_TICKS = 6  # 10 Hz log (TrackingCycle.log_ticks)
-#: Time limit of a trial: this many times run length / nominal speed, + 30 s.  The tool
-#: advances at only ~47 % of the nominal speed (the core targets ``vel`` mm ahead of the
-#: tool pose the Status reports, which trails the command: servo lag and Status sampling),
-#: so 1.8 timed the 4 mm/s ramps out.
-TIME_LIMIT_FACTOR = 3.0
+#: The stall rule's window [s of simulated time] (ProgressLimit).
+STALL_WINDOW_S = 30.0
+#: The stall rule's least progress along the seam within one window [mm of seam coordinate s].
+STALL_MIN_MM = 2.0
+#: ... but never more than this fraction of what the commanded speed covers in a window.
+STALL_MIN_FRACTION = 0.05
+#: The hard cap: this many times run length / commanded speed [s], + HARD_CAP_EXTRA_S.
+HARD_CAP_FACTOR = 12.0
+HARD_CAP_EXTRA_S = 60.0
+
+
+@dataclass(frozen=True)
+class ProgressLimit:
+    """When a trial that the tracking core has not ended ends as ``timeout``: a limit on progress.
+
+    The trial's limit used to be 3 x run length / commanded speed + 30 s; on the full arm the
+    thesis-mode tool advances at only 12-38 % of the commanded speed (the joints stick and
+    slip under Coulomb friction; docs/experiments.md), so that limit ended most slow-but-
+    tracking trials.  Now two rules, either of which ends the trial as ``timeout``:
+
+    * **stall**: the tool's seam coordinate s (the truth's, ``sensors.tool_reading``) has
+      advanced less than ``min_progress_mm(speed)`` = min(``min_mm``, ``min_fraction`` x
+      speed x ``window_s``) over the last ``window_s`` seconds of simulated time.  30 s and
+      2 mm: the slowest progress of a tracking trial measured on the full arm is the thesis-mode
+      tool at 4 mm/s commanded, 1.4-1.5 mm/s on average, i.e. ~42 mm a window -- 20x the 2 mm
+      (0.66-0.71 mm/s, ~20 mm a window, if the seam patch were long enough not to pull it:
+      docs/experiments.md on MAX_QUEUE);
+      its stick-slip staircase pauses for about a second (a 150 mm run on (i) at 4 mm/s, seed
+      1, 2026-11-25: the least progress over any 1 s was 0.14 mm, over any 2 s 0.9 mm, over any
+      30 s 26 mm; over the whole chapter-6 matrix of that day, 78 trials that did not stall, the
+      least progress over any 30 s was 24.7 mm, trial 1.6), so 30 s is a long multiple of any
+      pause and of the depth oscillation's period (0.1-0.2 s), while a real stall (the arm
+      stopped, the tool pushing against a limit, a tracker that holds its target) costs at most
+      30 s of simulation instead of the whole cap.  The fraction (5 % of the commanded speed's
+      distance in a window) keeps the rule from ending a trial commanded below ~1.3 mm/s whose
+      tool follows at its usual fraction of the speed.
+    * **hard cap** (a safety net): ``cap_factor`` x length / speed + ``cap_extra_s`` seconds:
+      12x + 60 s lets a tool that follows at 1/12 (8 %) of the commanded speed finish (the
+      slowest measured is 12 %: the 16 mm/s ramps of the 2026-11-25 matrix, 1.9 mm/s), and bounds a trial that creeps on forever (e.g. a 700 mm run at
+      4 mm/s: 2160 s).
+    """
+
+    window_s: float = STALL_WINDOW_S
+    min_mm: float = STALL_MIN_MM
+    min_fraction: float = STALL_MIN_FRACTION
+    cap_factor: float = HARD_CAP_FACTOR
+    cap_extra_s: float = HARD_CAP_EXTRA_S
+
+    def cap_s(self, length_mm: float, speed_mm_s: float) -> float:
+        """The hard cap [s of simulated time] of a run of ``length_mm`` at ``speed_mm_s``."""
+        return self.cap_factor * length_mm / speed_mm_s + self.cap_extra_s
+
+    def min_progress_mm(self, speed_mm_s: float) -> float:
+        """The least progress along the seam [mm] a window must show at this commanded speed."""
+        return min(self.min_mm, self.min_fraction * speed_mm_s * self.window_s)
+
+    def watch(self, length_mm: float, speed_mm_s: float) -> "ProgressWatch":
+        return ProgressWatch(self, length_mm, speed_mm_s)
+
+
+class ProgressWatch:
+    """The progress of one trial against its :class:`ProgressLimit`: :meth:`check` it with the
+    trial time and the tool's seam coordinate; it returns the ``timeout`` detail when a rule fires."""
+
+    def __init__(self, limit: ProgressLimit, length_mm: float, speed_mm_s: float) -> None:
+        self.limit = limit
+        self.cap_s = limit.cap_s(length_mm, speed_mm_s)
+        self.min_mm = limit.min_progress_mm(speed_mm_s)
+        self._cap_text = (f"{limit.cap_factor:g} x {length_mm:g} mm / {speed_mm_s:g} mm/s "
+                          f"+ {limit.cap_extra_s:g} s")
+        self.samples: deque = deque()  # (t [s], s [mm]) over the last window and one before it
+        self.last_s = math.nan  # the last seam coordinate seen [mm] (carried over missing readings)
+
+    def check(self, t_s: float, s_mm: float | None) -> str | None:
+        """One sample: ``t_s`` [s] since the trial's start, ``s_mm`` the tool's seam coordinate
+        [mm] (None/NaN: no reading -- the last one counts).  None, or why the trial times out."""
+        if s_mm is not None and math.isfinite(s_mm):
+            self.last_s = float(s_mm)
+        s = self.last_s
+        if t_s >= self.cap_s:
+            return f"hard cap: no end within {self.cap_s:.0f} s ({self._cap_text}), s {s:.1f} mm"
+        w = self.limit.window_s
+        self.samples.append((t_s, s))
+        while len(self.samples) > 1 and self.samples[1][0] <= t_s - w:
+            self.samples.popleft()  # keep the newest sample at or before t - window
+        t0, s0 = self.samples[0]
+        if t0 > t_s - w:
+            return None  # not one whole window yet
+        if math.isnan(s):
+            d = 0.0  # no reading of the seam at all
+        elif math.isnan(s0):
+            return None  # the seam was found within the window
+        else:
+            d = s - s0
+        if d < self.min_mm:
+            return (f"stall: s advanced {d:.2f} mm in the last {t_s - t0:.0f} s (< {self.min_mm:g} mm), "
+                    f"at s {s:.1f} mm, t {t_s:.0f} s")
+        return None
 
 
 @dataclass(frozen=True)
@@ -158,9 +253,11 @@ def default_length_mm(geo: TrialGeometry) -> float:
     return geo.workpiece.length_mm
 
 
-def run_trial(cfg: TrialConfig, layout=None, record: str | None = None) -> TrialResult:
+def run_trial(cfg: TrialConfig, layout=None, record: str | None = None,
+              limit: ProgressLimit = ProgressLimit()) -> TrialResult:
     """Run one trial in lockstep and return its log (see the module docstring); ``record``: also
-    write an MCAP recording of it there (droid.observe.lockstep, docs/observe.md)."""
+    write an MCAP recording of it there (droid.observe.lockstep, docs/observe.md); ``limit``: when
+    a trial the core has not ended times out (:class:`ProgressLimit`)."""
     wall0 = time.perf_counter()
     geo = trial_geometry(cfg.position, cfg.workpiece, cfg.wrist, layout)
     L = geo.camera_to_tcp_mm
@@ -275,22 +372,27 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None) -> Trial
 
     t_start = sched.t_ns / 1e9
     T_hold_start = T_hold0
+    watch = limit.watch(length, cfg.speed_mm_s)
     if holder is not None:
         hold_at(0)
         T_hold_start = state["T_hold"]
-        if moving_holder:  # one slow cartesian MOVE through KAREL, lasting longer than any trial
-            holder.drift(v_hold, TIME_LIMIT_FACTOR * length / cfg.speed_mm_s + 30.0)
+        if moving_holder:  # one slow cartesian MOVE through KAREL, lasting past the hard cap
+            holder.drift(v_hold, watch.cap_s + 1.0)
     sched.on_tick(lambda tick: arm.tick(), "arm", order=ORDER_WORLD)
     sched.on_tick(sensors, "sensors", order=ORDER_DEVICE)
     sched.on_tick(task, "seamtrack", order=ORDER_TASK)
-    limit_s = TIME_LIMIT_FACTOR * length / cfg.speed_mm_s + 30.0
-    while not state["done"] and sched.t_ns / 1e9 - t_start < limit_s:
-        sched.run_ticks(60)
-    if not state["done"]:
-        result.stop_reason, result.stop_detail = "timeout", f"no end within {limit_s:.0f} s"
-        result.stop_t_s = sched.t_ns / 1e9
+    while not state["done"]:
+        sched.run_ticks(60)  # 1 s of simulated time, then the progress check
+        if state["done"]:
+            break
         m = tool_reading(state["T_W_g"] @ arm.true_wcp() @ T_wcp_tool, crossing)
-        result.stop_s_mm = s_of(m) if m is not None else math.nan
+        s_now = s_of(m) if m is not None else math.nan
+        why = watch.check(sched.t_ns / 1e9 - t_start, s_now)
+        if why is not None:
+            result.stop_reason, result.stop_detail = "timeout", why
+            result.stop_t_s = sched.t_ns / 1e9
+            result.stop_s_mm = s_now
+            break
     result.stop_t_s -= t_start
     result.sim_s = sched.t_ns / 1e9 - t_start
     result.prep_s = t_start
