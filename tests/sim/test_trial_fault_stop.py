@@ -7,6 +7,9 @@ full Reis model -- droid-servo stops (``LockstepArm.alive["servo"] = False``, as
 or hung servo program): the servo agent reports FAULT_SERVO and the watchdog latches the
 amplifiers off -- and the trial must end as ``fault`` naming arm1 and its faults, at the
 first 30 Hz cycle that reads the fault in the Status, with no command written after it.
+The holder's Status goes through the same rule: a GMF1 whose serial port vanishes
+(FAULT_DEVICE) ends the trial naming gmf1 (without the rule that trial runs to its end:
+the stop is conservative -- the Brain no longer knows the holder's controller state).
 """
 from __future__ import annotations
 
@@ -76,3 +79,35 @@ def test_a_reis_fault_mid_trial_ends_it_as_fault_at_once_and_nothing_is_commande
     # the arm was commanded up to the fault and never after it
     assert len(arm.commands) > 100 and max(arm.commands) < arm.fault_seen
     assert r.stop_t_s < 10.0  # long before any stall rule (30 s without progress)
+
+
+def test_a_holder_fault_ends_the_trial_naming_the_gmf1(monkeypatch):
+    """The GMF1's serial port vanishes mid-trial (FAULT_DEVICE in its Status, docs/gmf1.md): the
+    trial ends as ``fault`` naming gmf1 -- the holder's Status goes through the same rule."""
+    from droid.sim.experiment import holder as holder_mod
+
+    made = []
+
+    class Holder(holder_mod.Gmf1Holder):
+        def __init__(self, sched, *a, **kw):
+            super().__init__(sched, *a, **kw)
+            self.trial_ticks = None  # counting from the end of prepare()
+            sched.on_tick(self._count, "port fault", order=ORDER_TASK + 1)
+            made.append(self)
+
+        def prepare(self):
+            super().prepare()
+            self.trial_ticks = 0
+
+        def _count(self, tick):
+            if self.trial_ticks is None:
+                return
+            self.trial_ticks += 1
+            if self.trial_ticks == INJECT_TICK:
+                self.g.pair.vanish()
+
+    monkeypatch.setattr(holder_mod, "Gmf1Holder", Holder)
+    r = run_trial(TrialConfig("inject-holder", "i", 16.0, length_mm=300.0, sensor="ideal", seed=3, arm="fast"))
+    assert made and r.stop_reason == "fault", (r.stop_reason, r.stop_detail)
+    assert r.stop_detail.startswith("gmf1 faults: ") and "device" in r.stop_detail, r.stop_detail
+    assert INJECT_TICK / 60.0 < r.stop_t_s < INJECT_TICK / 60.0 + 1.0
