@@ -168,6 +168,22 @@ FAULT_NAMES = {
     FAULT_DEVICE: "device",
     FAULT_HEARTBEAT: "heartbeat",
 }
+#: The fault bits after which an arm cannot carry out a command: its servo stopped
+#: (a latched servo fault, or the servo program silent), its amplifiers latched off by
+#: the watchdog ("no further motion is possible without resetting the power", thesis
+#: §2.3, §4.1.2), or its device cannot be driven or read.  A task refuses to start a
+#: move on such an arm (droid.tasks.arm.BrainArm.check_fresh) and the seam tracker
+#: stops on one (droid.tasks.seam.cycle.arm_faults).  Not in it: FAULT_BRAKING alone
+#: (the servo ran out of way-points and braked; it follows again when the next command
+#: comes), FAULT_LINK and FAULT_HEARTBEAT (the Status goes stale: the stale rules),
+#: FAULT_LIMIT (a target clamped).
+FAULTS_CANNOT_MOVE = FAULT_SERVO | FAULT_WATCHDOG | FAULT_DEVICE
+
+
+def fault_names(bits: int) -> list[str]:
+    """The names of the FAULT_* bits set in a Status ``fault`` field, in bit order."""
+    bits = int(bits)
+    return [name for bit, name in FAULT_NAMES.items() if bits & bit]
 
 ARM_STATUS = _dtype(_STATUS, 224)
 

@@ -20,8 +20,7 @@ import numpy as np
 from droid.brain.cellfile import Cell
 from droid.brain import arm_command
 from droid.brain.databases import open_brain
-from droid.brain.layouts import (CMD_OK, CMD_REFUSED, FAULT_DEVICE, FAULT_NAMES, FAULT_SERVO,
-                                 FAULT_WATCHDOG, NORMAL_MODE)
+from droid.brain.layouts import CMD_OK, CMD_REFUSED, FAULT_WATCHDOG, FAULTS_CANNOT_MOVE, NORMAL_MODE, fault_names
 from droid.cli import MAX_MOVE_S, BadInput, RuntimeFailure
 from droid.kinematics import Unreachable, load_robot
 from droid.kinematics.transforms import pose_to_T
@@ -105,9 +104,9 @@ class BrainArm:
         rec = self.read() if rec is None else rec
         if int(rec["stale"]):
             raise RuntimeFailure(f"{self.sub.name} is stale (its agent does not answer)")
-        down = int(rec["fault"]) & (FAULT_SERVO | FAULT_WATCHDOG | FAULT_DEVICE)
+        down = int(rec["fault"]) & FAULTS_CANNOT_MOVE
         if down:
-            names = ", ".join(n for b, n in FAULT_NAMES.items() if down & b)
+            names = ", ".join(fault_names(down))
             hint = (" (the amplifiers are latched off: the servo missed its deadlines -- a host too busy "
                     "for the cell, or sched_fifo off; power-cycle with 'droid-cell down' and 'droid-cell up')"
                     if down & FAULT_WATCHDOG else "")
@@ -239,7 +238,7 @@ class BrainArm:
             if abs(err[worst]) <= tol_deg:
                 return rec
             if time.monotonic() > deadline:
-                faults = [n for b, n in FAULT_NAMES.items() if int(rec["fault"]) & b]
+                faults = fault_names(rec["fault"])
                 why = f" (faults: {', '.join(faults)})" if faults else ""
                 pos = int(np.asarray(rec["encoder_pos"])[worst])
                 raise RuntimeFailure(f"{self.sub.name} halted short of its target: joint {worst + 1} at "
@@ -264,7 +263,7 @@ class BrainArm:
         result = int(rec["cmd_result"])
         if result == CMD_OK:
             return
-        faults = [n for b, n in FAULT_NAMES.items() if int(rec["fault"]) & b]
+        faults = fault_names(rec["fault"])
         why = f" (faults: {', '.join(faults)})" if faults else ""
         if result == CMD_REFUSED:
             raise BadInput(f"{self.sub.name} refused command {cmd_id}{why}")

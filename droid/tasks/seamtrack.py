@@ -21,11 +21,19 @@ around it, on the Brain's databases only (a task never touches a device, §3.4):
 5. stop cleanly -- no new command is written, so the Reis completes its last
    one-cycle step and stands -- at the end of the seam (``--length`` of tool
    travel reached), when the seam is lost, on an unreachable command, on a
-   stale subunit, or on SIGINT/SIGTERM; then print which, and a summary line.
+   runaway, when the Reis or the GMF1 reports a fault it cannot move with
+   (servo, watchdog, device: ``fault``, naming the arm and its faults, e.g.
+   ``stopped: fault at 312.0 mm (arm1 faults: servo, braking)``; the rule is
+   droid.tasks.seam.cycle's, shared with the lockstep trial), on a stale
+   subunit, or on SIGINT/SIGTERM; then print which, and a summary line (the
+   ``--log`` and ``--figure`` are written whatever the stop).  An arm that
+   shows such a fault before tracking starts is refused before anything
+   moves (BrainArm.check_fresh: ``arm1 cannot move: fault watchdog ...``).
 
 Exit codes: 0 end of seam; 130 interrupted (SIGINT/SIGTERM); 1 seam lost,
-unreachable command, a subunit stale for 2 s, cell not up, heartbeat lost; 2 bad
-arguments or layout (nothing moves).
+unreachable command, runaway, an arm fault (during the run or before it), a
+subunit stale for 2 s, cell not up, heartbeat lost; 2 bad arguments or layout
+(nothing moves).
 """
 from __future__ import annotations
 
@@ -264,7 +272,13 @@ class Tracker:
 
     # -- one cycle ----------------------------------------------------------
     def cycle(self, reis_rec, hold_rec) -> str | None:
-        """Read, step the tracking cycle, write the command; returns a stop reason or None."""
+        """Read, step the tracking cycle, write the command; returns a stop reason or None.
+        First the fault rule (TrackingCycle.check_faults): an arm that cannot move stops the
+        run before anything is written."""
+        fault = self.cyc.check_faults(((self.reis.sub.name, reis_rec["fault"]),
+                                       (self.hold.sub.name, hold_rec["fault"])))
+        if fault is not None:
+            return str(fault)
         stale = [arm.sub.name for arm, rec in ((self.reis, reis_rec), (self.hold, hold_rec)) if int(rec["stale"])]
         if stale:  # no command this cycle: the Reis finishes its last step and waits
             now = time.monotonic()

@@ -9,6 +9,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
 import select
 import signal
 import subprocess
@@ -21,7 +22,7 @@ import pytest
 from droid.kinematics.transforms import T_to_pose
 from droid.tasks.seam.layout import load_layout
 from droid.tasks.seam.report import COLUMNS
-from tests.brain.cellutil import ROOT, droid
+from tests.brain.cellutil import ROOT, cell_status, droid
 
 pytestmark = pytest.mark.integration
 SEAMTRACK = "droid.tasks.seamtrack"
@@ -166,6 +167,38 @@ def test_sigint_stops_the_run_cleanly_and_says_so(sim_cell, tmp_path):
     d = read_log(log)
     assert len(d["s_mm"]) >= 5  # the rows up to the interrupt are kept
     assert_standing(sim_cell)
+
+
+def test_a_reis_fault_stops_the_run_at_once_naming_the_arm_and_its_faults(sim_cell, tmp_path):
+    """Issue 16 item 2: droid-servo dies mid-run (the servo agent reports FAULT_SERVO, the
+    watchdog latches the amplifiers off); the tracker stops with exit 1 and one line naming
+    arm1 and its faults, and still writes its log -- instead of commanding the dead arm."""
+    home_both(sim_cell)
+    log = tmp_path / "fault.csv"
+    proc = subprocess.Popen([sys.executable, "-m", SEAMTRACK, "16", "--start", "i", "--log", str(log),
+                             "--cell", str(sim_cell)], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        seen = ""
+        deadline = time.monotonic() + 90
+        while "tracking" not in seen and time.monotonic() < deadline and proc.poll() is None:
+            if select.select([proc.stderr], [], [], 0.5)[0]:
+                seen += proc.stderr.readline()
+        assert "tracking" in seen, seen
+        servo = next(r["pid"] for r in cell_status(sim_cell) if r["name"] == "droid-servo arm1")
+        os.kill(servo, signal.SIGKILL)
+        out, err = proc.communicate(timeout=30)  # generous: the rule acts on the next 30 Hz cycle
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 1, err
+    stop = [ln for ln in err.splitlines() if "stopped: " in ln]
+    assert len(stop) == 1 and "stopped: fault at " in stop[0] and "(arm1 faults: " in stop[0], err
+    assert "servo" in stop[0] or "watchdog" in stop[0], stop
+    assert "fault" in out.splitlines()[0]
+    d = read_log(log)
+    assert len(d["s_mm"]) >= 5  # the rows up to the fault are kept
 
 
 def test_seam_lost_when_the_sensor_sees_no_seam(sim_cell, tmp_path):

@@ -143,6 +143,13 @@ class FastArm:
     def status_joints(self) -> np.ndarray:
         return np.array(self._q_status)
 
+    #: The subunit name the tracker's fault rule names (the layout's tool robot).
+    name = "arm1"
+
+    def status_fault(self) -> int:
+        """The Status ``fault`` bits: none -- this model has no faults (module docstring, item 4)."""
+        return 0
+
     def true_wcp(self) -> np.ndarray:
         """The true wrist-centre pose at this tick (the arm-twin interface, 4x4 mm)."""
         return self.model.fk(self._q)

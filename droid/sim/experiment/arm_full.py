@@ -60,6 +60,15 @@ class FullArm:
     def status_joints(self) -> np.ndarray:
         return self.model.gearing.counts_to_joints(np.asarray(self.arm.status["encoder_pos"], float))
 
+    @property
+    def name(self) -> str:
+        """The arm's subunit name (arm1)."""
+        return self.arm.name
+
+    def status_fault(self) -> int:
+        """The Brain Status ``fault`` bits (FAULT_*), as droid-seamtrack reads them."""
+        return int(self.arm.status["fault"])
+
     def true_wcp(self) -> np.ndarray:
         return self.arm.wcp_global()
 

@@ -97,6 +97,15 @@ class Gmf1Holder:
         T[:3, 3] = (float(s["x"]), float(s["y"]), float(s["z"]))
         return T
 
+    @property
+    def name(self) -> str:
+        """The holder's subunit name (gmf1)."""
+        return self.g.sub.name
+
+    def status_fault(self) -> int:
+        """The GMF1 Status ``fault`` bits (FAULT_*: FAULT_DEVICE from the serial or encoder program)."""
+        return int(self.g.ctrl_status.read()["fault"])
+
     def true_wcp(self) -> np.ndarray:
         """The true wrist-centre pose (4x4, mm, global) -- the world's, never the tracker's."""
         q = self.g.controller.q_deg

@@ -34,7 +34,10 @@ Within a tick the order is: arm (its state at the tick), sensors (the true
 poses at the tick), then the task -- as ORDER_WORLD < ORDER_DEVICE < ORDER_TASK.
 
 The trial ends when the core stops (end of seam: the run length reached;
-seam lost; a Reis command out of reach; a runaway) or as ``timeout`` when the
+seam lost; a Reis command out of reach; a runaway; ``fault``: the Reis or the
+GMF1 Status shows a fault it cannot move with -- the tracking cycle's rule,
+droid.tasks.seam.cycle.arm_faults, asked before every cycle as droid-seamtrack
+asks it; the detail names the arm and its faults) or as ``timeout`` when the
 tool stops making progress along the seam (a stall) or at a generous hard cap
 (:class:`ProgressLimit`; the stop detail says which rule fired).
 """
@@ -339,6 +342,13 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None,
         recorder = TrialRecorder(record, cfg.trial_id, geo.reis, geo.fanuc, T_wcp_tool, T_wcp_sensor, geo.T_hold6_W,
                                  geo.q_hold_deg, T_hold0)
 
+    def arm_faults_now():
+        """(subunit, Status fault bits) of the arms the tracker drives (a fixed holder has none)."""
+        arms = [(arm.name, arm.status_fault())]
+        if holder is not None:
+            arms.append((holder.name, holder.status_fault()))
+        return arms
+
     def task(tick: int) -> None:
         if recorder is not None:
             recorder.sample(tick, sched.t_ns, arm, state)
@@ -348,12 +358,17 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None,
         T_reis = arm.status_pose()
         cyc.remember(tick, T_reis, tick, state["T_hold"])
         if k >= ct and cyc.due(tick):
-            out = cyc.step(state["T_hold"], T_reis, tick, state["lead"], state["lead_tick"], arm.status_joints())
-            state["out"] = out
-            if out.stop is not None:
+            # the fault rule first (droid-seamtrack's): an arm that cannot move ends the trial
+            stop = cyc.check_faults(arm_faults_now())
+            if stop is None:
+                out = cyc.step(state["T_hold"], T_reis, tick, state["lead"], state["lead_tick"],
+                               arm.status_joints())
+                state["out"] = out
+                stop = out.stop
+            if stop is not None:
                 state["done"] = True
                 m = tool_reading(state["T_W_g"] @ arm.true_wcp() @ T_wcp_tool, crossing)
-                result.stop_reason, result.stop_detail = out.stop.reason, out.stop.detail
+                result.stop_reason, result.stop_detail = stop.reason, stop.detail
                 result.stop_s_mm = s_of(m) if m is not None else math.nan
                 result.stop_t_s = (sched.t_ns / 1e9)
                 return

@@ -48,8 +48,11 @@ Additions (documented in docs/seamtrack.md): stop reasons -- the run length
 reached ("end of seam"), the lead sensor invalid for more than
 ``lost_cycles`` consecutive cycles after the dead zone ("seam lost"), a Reis
 command outside the robot model's reach or limits ("unreachable"), a tool that
-moved faster than RUNAWAY_FACTOR times the speed for two seconds ("runaway"); and the
-transport-delay buffer of §6.2.5 (:mod:`droid.tasks.seam.delay`).
+moved faster than RUNAWAY_FACTOR times the speed for two seconds ("runaway"), an
+arm whose Status reports a fault it cannot move with ("fault": the rule is
+droid.tasks.seam.cycle.arm_faults; the shells ask it before each cycle and stop the
+core with :meth:`SeamTracker.halt`); and the transport-delay buffer of §6.2.5
+(:mod:`droid.tasks.seam.delay`).
 """
 from __future__ import annotations
 
@@ -94,6 +97,7 @@ STOP_END = "end of seam"
 STOP_LOST = "seam lost"
 STOP_UNREACHABLE = "unreachable"
 STOP_RUNAWAY = "runaway"
+STOP_FAULT = "fault"  # an arm's Status reports a fault it cannot move with (droid.tasks.seam.cycle.arm_faults)
 #: Runaway guard (an addition): after the dead zone, the tool moving more than
 #: RUNAWAY_FACTOR times the commanded speed over the last RUNAWAY_WINDOW cycles (and
 #: more than RUNAWAY_MIN_MM) stops the run -- an oscillating, unstable loop (long
@@ -200,7 +204,7 @@ class TrackingStop:
     polls): this is the tracking core's verdict, a value the report prints.
     """
 
-    reason: str  # STOP_END, STOP_LOST, STOP_UNREACHABLE, STOP_RUNAWAY
+    reason: str  # STOP_END, STOP_LOST, STOP_UNREACHABLE, STOP_RUNAWAY, STOP_FAULT
     detail: str
     travel_mm: float
     cycle: int
@@ -602,6 +606,13 @@ class SeamTracker:
             reis_cmd, self.gen_hold_robot_wcp(), cycle=cycle, stop=None, phase=phase,
             travel_mm=s.travel_mm, yaw_rad=yaw, pitch_rad=pitch, reading=used, delay_state=delay_state,
             tcp_idx=s.tcp_idx, queue_len=len(s.seam_pos), q_reis_deg=q)
+
+    def halt(self, reason: str, detail: str) -> TrackingStop:
+        """Stop from outside a cycle (an arm fault seen by the shell): every later :meth:`step`
+        returns no command.  The first stop stays; returns the stop in force."""
+        if self.s.stop is None:
+            self.s.stop = TrackingStop(reason, detail, self.s.travel_mm, self.s.cycle)
+        return self.s.stop
 
     def _stop(self, cycle: int, reason: str, detail: str) -> CycleOutput:
         self.s.stop = TrackingStop(reason, detail, self.s.travel_mm, cycle)

@@ -32,6 +32,19 @@ shell, droid/tasks/seamtrack.py) and by the lockstep trial
   the future or before the history is dropped and counted
   (``TrackingCycle.tool_dropped``).  The tool-tip sensor only measures:
   nothing of it reaches the core;
+* **the fault rule** (issue 16; an addition): before each cycle the shell hands
+  :meth:`TrackingCycle.check_faults` the ``fault`` field of both arms' Status
+  (the Reis and the GMF1).  An arm with a fault it cannot move with
+  (``FAULTS_CANNOT_MOVE``: servo, watchdog -- the amplifiers latched off --, device)
+  stops the run at once as ``fault``, the detail naming the arm and every fault bit
+  it shows (:func:`arm_faults`: ``arm1 faults: servo, braking``), and no command
+  is written after it.  The thesis's tracker has no such rule -- it runs until
+  "some kind of user intervention" stops it (§5.5.1) -- but a latched watchdog
+  fault means "no further motion is possible without resetting the power"
+  (§2.3, §4.1.2), and a task only reads the Status and writes the Command
+  (§3.4): commanding such an arm on would only wait for a stall.  FAULT_BRAKING
+  alone (the servo ran out of way-points and braked, e.g. a late command on a
+  busy host) does not stop the run: the arm follows again at the next command;
 * the core: :class:`droid.tasks.seam.core.SeamTracker` (modes ``thesis`` and
   ``listing``) or :class:`droid.tasks.seam.plus.PlusTracker` (mode ``plus``).
 """
@@ -42,8 +55,9 @@ from collections import deque
 from dataclasses import dataclass, replace
 import numpy as np
 
+from droid.brain.layouts import FAULTS_CANNOT_MOVE, fault_names
 from droid.brain.sensor_line import seam_transform
-from droid.tasks.seam.core import MODE_PLUS, CycleOutput, SeamParams, SeamTracker
+from droid.tasks.seam.core import MODE_PLUS, STOP_FAULT, CycleOutput, SeamParams, SeamTracker, TrackingStop
 from droid.tasks.seam.delay import INVALID_READING, Reading
 
 #: The 10 Hz log of §6.1 [Hz].
@@ -69,6 +83,18 @@ def cycle_ticks_for(heartbeat_hz: float, rate_hz: float) -> int:
         raise ValueError(f"a heartbeat of {heartbeat_hz:g} Hz cannot serve the {rate_hz:g} Hz seam-tracking "
                          f"rate (it must be a whole multiple of {rate_hz:g} Hz, e.g. 60 Hz)")
     return n
+
+
+def arm_faults(arms) -> str | None:
+    """The fault rule of the tracker (see the module docstring), for both shells.
+
+    ``arms``: (subunit name, Status ``fault`` bits) of each arm the tracker drives.  None when
+    every arm can move; else the stop detail naming each faulted arm and all of its fault bits
+    (droid.brain.layouts.fault_names), e.g. ``arm1 faults: servo, braking``; two arms are
+    joined with ``; ``.  An arm stops the run when a bit of ``FAULTS_CANNOT_MOVE`` is set."""
+    parts = [f"{name} faults: {', '.join(fault_names(bits))}" for name, bits in arms
+             if int(bits) & FAULTS_CANNOT_MOVE]
+    return "; ".join(parts) if parts else None
 
 
 def _rot_log(R: np.ndarray) -> np.ndarray:
@@ -273,6 +299,16 @@ class TrackingCycle:
         return sensed, hold
 
     # -- one cycle -------------------------------------------------------------
+    def check_faults(self, arms) -> TrackingStop | None:
+        """Before a cycle: ``arms`` = (subunit name, Status ``fault`` bits) of the Reis and the
+        GMF1.  When :func:`arm_faults` finds a fault, the core stops (``fault``, its detail) and
+        the stop is returned -- the shell writes no command; every later :meth:`step` returns
+        none.  None: every arm can move (the cycle goes on)."""
+        detail = arm_faults(arms)
+        if detail is None:
+            return None
+        return self.core.halt(STOP_FAULT, detail)
+
     def step(self, T_global_hold6, T_global_reis6, reis_tick: int, reading: Reading, reading_status_tick: int,
              q_reis_deg=None) -> CycleOutput:
         """One tracking cycle: the reading placed with the poses of its instant, the core stepped."""

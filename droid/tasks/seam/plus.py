@@ -31,7 +31,8 @@ seam map (droid.tasks.seam.seammap).  Per 30 Hz cycle:
    off the command, which removes a steady depth error of the arm;
 6. stops: the run length reached (end of seam), the lead sensor invalid for
    more than ``lost_cycles`` cycles or ``s_cmd`` beyond the map's bridged gap
-   (seam lost), an unreachable command, a runaway (as the thesis modes).
+   (seam lost), an unreachable command, a runaway, an arm fault (:meth:`PlusTracker.halt`;
+   as the thesis modes).
 """
 from __future__ import annotations
 
@@ -97,6 +98,12 @@ class PlusTracker:
     def travel_mm(self) -> float:
         """Tool travel since the start [mm]."""
         return self.travel.travel_mm
+
+    def halt(self, reason: str, detail: str) -> TrackingStop:
+        """As :meth:`SeamTracker.halt`: stop from outside a cycle; the first stop stays."""
+        if self.stop is None:
+            self.stop = TrackingStop(reason, detail, self.travel_mm, self.cycle)
+        return self.stop
 
     def _stop(self, cycle: int, reason: str, detail: str) -> CycleOutput:
         self.stop = TrackingStop(reason, detail, self.travel_mm, cycle)
