@@ -142,11 +142,11 @@ def test_plus_mode_holds_its_speed_on_the_real_time_cell_and_agrees_with_lockste
         assert float(np.nanmean(diff)) <= AGREE_MEAN_MM, (name, float(np.nanmean(diff)))
 
 
-def test_sigint_stops_the_run_cleanly_and_says_so(sim_cell, tmp_path):
-    home_both(sim_cell)
-    log = tmp_path / "int.csv"
+def start_tracking(cell, log):
+    """droid-seamtrack 16 --start i on `cell`, logging to `log`, returned once it says it is
+    tracking (a readiness handshake, not a sleep); killed if it never does."""
     proc = subprocess.Popen([sys.executable, "-m", SEAMTRACK, "16", "--start", "i", "--log", str(log),
-                             "--cell", str(sim_cell)], cwd=ROOT, stdout=subprocess.PIPE,
+                             "--cell", str(cell)], cwd=ROOT, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     try:
         seen = ""
@@ -155,6 +155,18 @@ def test_sigint_stops_the_run_cleanly_and_says_so(sim_cell, tmp_path):
             if select.select([proc.stderr], [], [], 0.5)[0]:
                 seen += proc.stderr.readline()
         assert "tracking" in seen, seen
+    except BaseException:
+        proc.kill()
+        proc.wait()
+        raise
+    return proc
+
+
+def test_sigint_stops_the_run_cleanly_and_says_so(sim_cell, tmp_path):
+    home_both(sim_cell)
+    log = tmp_path / "int.csv"
+    proc = start_tracking(sim_cell, log)
+    try:
         proc.send_signal(signal.SIGINT)
         out, err = proc.communicate(timeout=30)
     finally:
@@ -175,16 +187,8 @@ def test_a_reis_fault_stops_the_run_at_once_naming_the_arm_and_its_faults(sim_ce
     arm1 and its faults, and still writes its log -- instead of commanding the dead arm."""
     home_both(sim_cell)
     log = tmp_path / "fault.csv"
-    proc = subprocess.Popen([sys.executable, "-m", SEAMTRACK, "16", "--start", "i", "--log", str(log),
-                             "--cell", str(sim_cell)], cwd=ROOT, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    proc = start_tracking(sim_cell, log)
     try:
-        seen = ""
-        deadline = time.monotonic() + 90
-        while "tracking" not in seen and time.monotonic() < deadline and proc.poll() is None:
-            if select.select([proc.stderr], [], [], 0.5)[0]:
-                seen += proc.stderr.readline()
-        assert "tracking" in seen, seen
         servo = next(r["pid"] for r in cell_status(sim_cell) if r["name"] == "droid-servo arm1")
         os.kill(servo, signal.SIGKILL)
         out, err = proc.communicate(timeout=30)  # generous: the rule acts on the next 30 Hz cycle
