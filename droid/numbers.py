@@ -35,7 +35,8 @@ class NumberError(BadFile):
     The message is one line: ``KEY = VALUE: why (the range)``."""
 
 
-def _show(value) -> str:
+def show_number(value) -> str:
+    """A number as TOML writes it (nan, inf, -inf for the non-finite floats)."""
     if isinstance(value, float):
         if math.isnan(value):
             return "nan"
@@ -86,7 +87,7 @@ class Range:
         :class:`NumberError` ``KEY = VALUE: why``."""
         why = self.reason(value)
         if why:
-            raise NumberError(f"{key} = {_show(value)}: {why}")
+            raise NumberError(f"{key} = {show_number(value)}: {why}")
         return value if self.integral else float(value) + 0.0
 
     def check_all(self, values, key: str, n: int | None = None) -> list:
@@ -228,7 +229,7 @@ def check_numbers(data, path: tuple = ()) -> None:
         if rng is not None:
             rng.check(data, key_name(path))
         elif isinstance(data, float) and not math.isfinite(data):
-            raise NumberError(f"{key_name(path)} = {_show(data)}: must be a finite number")
+            raise NumberError(f"{key_name(path)} = {show_number(data)}: must be a finite number")
 
 
 def table() -> str:

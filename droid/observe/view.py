@@ -20,7 +20,7 @@ import math
 import numpy as np
 
 from droid.brain.layouts import CMD_MODE_NAMES
-from droid.observe.events import fault_names
+from droid.brain.layouts import fault_names
 from droid.observe.scene import SceneBuilder, is_arm
 
 CMD_RESULT_NAMES = {0: "ok", 1: "failed", 2: "refused"}

@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import copy
 import json
-import math
 from typing import Any, Iterator
+
+from droid.numbers import show_number
 
 Path_ = tuple  # keys and indices from the top of the file to one number
 
@@ -48,11 +49,7 @@ def _value(v: Any) -> str:
     if isinstance(v, int):
         return str(v)
     if isinstance(v, float):
-        if math.isnan(v):
-            return "nan"
-        if math.isinf(v):
-            return "inf" if v > 0 else "-inf"
-        return repr(v)
+        return show_number(v)
     if isinstance(v, str):
         return json.dumps(v, ensure_ascii=False)
     if isinstance(v, list):
