@@ -218,10 +218,15 @@ class BrainArm:
 
     def wait_done(self, cmd_id: int, timeout_s: float):
         """Wait until command ``cmd_id`` finished; raises if it was refused or failed."""
-        rec = self.wait(lambda r: int(r["cmd_id"]) == cmd_id and int(r["busy"]) == 0,
-                        timeout_s, f"{self.sub.name} to finish command {cmd_id}")
+        seen = [0]  # fault bits seen while waiting: a failure names them though they cleared since
+
+        def done(r) -> bool:
+            seen[0] |= int(r["fault"])
+            return int(r["cmd_id"]) == cmd_id and int(r["busy"]) == 0
+
+        rec = self.wait(done, timeout_s, f"{self.sub.name} to finish command {cmd_id}")
         self.live_cmd = None  # finished (or refused/failed): nothing left to cancel
-        self.check_result(rec, cmd_id)
+        self.check_result(rec, cmd_id, seen[0])
         return rec
 
     def wait_arrived(self, target_counts, timeout_s: float = ARRIVAL_WAIT_S, tol_deg: float = ARRIVAL_TOL_DEG):
@@ -259,12 +264,17 @@ class BrainArm:
                                      f"within {timeout_s:g} s")
             time.sleep(POLL_S)
 
-    def check_result(self, rec, cmd_id: int) -> None:
+    def check_result(self, rec, cmd_id: int, seen_faults: int = 0) -> None:
+        """Raise if ``rec`` reports command ``cmd_id`` refused or failed, naming the faults of
+        ``rec`` and, when those are clear, ``seen_faults``: the bits seen while waiting (a servo
+        silent for a few periods fails the move, then its fault bit clears; issue 16)."""
         result = int(rec["cmd_result"])
         if result == CMD_OK:
             return
         faults = fault_names(rec["fault"])
-        why = f" (faults: {', '.join(faults)})" if faults else ""
+        earlier = fault_names(seen_faults)
+        why = (f" (faults: {', '.join(faults)})" if faults
+               else f" (faults while it ran, clear since: {', '.join(earlier)})" if earlier else "")
         if result == CMD_REFUSED:
             raise BadInput(f"{self.sub.name} refused command {cmd_id}{why}")
         raise RuntimeFailure(f"{self.sub.name} failed command {cmd_id}{why}")

@@ -80,8 +80,9 @@ def test_unreachable_and_out_of_limit_targets_are_refused_without_motion():
     assert out.cmd_result == L.CMD_REFUSED and list(out.encoder_cmd_int) == list(pos)
 
 
-@pytest.mark.parametrize("how", ["link", "braking"])
-def test_lost_stream_cancels_and_holds_until_a_new_command(how):
+@pytest.mark.parametrize("how, cause", [("link", "Brain link lost"), ("braking", "faults: braking"),
+                                        ("servo", "faults: servo")])
+def test_lost_stream_cancels_and_holds_until_a_new_command(how, cause):
     core = PlannerCore(MODEL)
     cmd, st = records()
     core.step(cmd, st)
@@ -92,9 +93,10 @@ def test_lost_stream_cancels_and_holds_until_a_new_command(how):
     if how == "link":
         cmd["link_alive"] = 0
     else:
-        st["fault"] = L.FAULT_BRAKING
+        st["fault"] = L.FAULT_BRAKING if how == "braking" else L.FAULT_SERVO
     out = core.step(cmd, st)
     assert out.cmd_result == L.CMD_FAILED and out.cmd_id == 4
+    assert out.note == f"cancelled command 4: {cause}"  # the log line names the cause (issue 16)
     assert list(out.encoder_cmd_int) == [700] * 6 and out.busy == 0
     cmd["link_alive"], st["fault"] = 1, 0
     for _ in range(5):  # the old command is not resumed

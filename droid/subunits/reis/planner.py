@@ -42,7 +42,7 @@ from droid.cli import run
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.brain.layouts import (CMD_FAILED, CMD_OK, CMD_REFUSED, FAULT_BRAKING, FAULT_SERVO,
-                                 FAULT_WATCHDOG, JSPACE, NORMAL_MODE, STOP_TICKS)
+                                 FAULT_WATCHDOG, JSPACE, NORMAL_MODE, STOP_TICKS, fault_names)
 from droid.kinematics import RobotModel, Unreachable
 
 N = 6
@@ -60,6 +60,15 @@ class PlanOutput:
     cmd_id: int | None = None  # ctrl_status
     cmd_result: int | None = None  # ctrl_status
     note: str = ""
+
+
+def stop_cause(cmd, status) -> str:
+    """Why the planner stops the move in progress (its log line; issue 16: a failure names
+    its cause): the Brain link, the servo or watchdog faults, or the servo's braking."""
+    if not int(cmd["link_alive"]):
+        return "Brain link lost"
+    faults = fault_names(int(status["fault"]) & (FAULT_SERVO | FAULT_WATCHDOG | FAULT_BRAKING))
+    return "faults: " + ", ".join(faults)
 
 
 @dataclass
@@ -127,7 +136,7 @@ class PlannerCore:
             if cancelled:
                 out.cmd_result = CMD_FAILED
                 out.cmd_id = self.active_id
-            out.note = "cancelled: command stream lost" if cancelled else ""
+            out.note = f"cancelled command {self.active_id}: {stop_cause(cmd, status)}" if cancelled else ""
         new_id = int(cmd["cmd_id"])
         if dead and new_id != self.plan_id:
             self.plan_id = new_id
