@@ -47,6 +47,7 @@ class BrainArm:
 
     def __init__(self, cell: Cell, name: str) -> None:
         self.cell = cell
+        self.faults_seen = 0  # the fault bits seen during the last wait() [FAULT_* mask]
         self.sub = cell.subunit(name)
         if not self.sub.is_arm:
             raise BadInput(f"{name} is a {self.sub.cls} subunit, not an arm")
@@ -195,11 +196,14 @@ class BrainArm:
 
     # -- waiting -----------------------------------------------------------
     def wait(self, pred, timeout_s: float, what: str):
-        """Poll Status until ``pred(rec)`` is true; RuntimeFailure on stale or timeout."""
+        """Poll Status until ``pred(rec)`` is true; RuntimeFailure on stale or timeout.  Keeps
+        every fault bit it reads in ``faults_seen``: a failure names them though they cleared."""
         deadline = time.monotonic() + timeout_s
         stale_since = None
+        self.faults_seen = 0  # every fault bit seen while waiting (check_result names them)
         while True:
             rec = self.read()
+            self.faults_seen |= int(rec["fault"])
             if int(rec["stale"]):
                 stale_since = stale_since or time.monotonic()
                 if time.monotonic() - stale_since > STALE_GRACE_S:
@@ -218,15 +222,10 @@ class BrainArm:
 
     def wait_done(self, cmd_id: int, timeout_s: float):
         """Wait until command ``cmd_id`` finished; raises if it was refused or failed."""
-        seen = [0]  # fault bits seen while waiting: a failure names them though they cleared since
-
-        def done(r) -> bool:
-            seen[0] |= int(r["fault"])
-            return int(r["cmd_id"]) == cmd_id and int(r["busy"]) == 0
-
-        rec = self.wait(done, timeout_s, f"{self.sub.name} to finish command {cmd_id}")
+        rec = self.wait(lambda r: int(r["cmd_id"]) == cmd_id and int(r["busy"]) == 0,
+                        timeout_s, f"{self.sub.name} to finish command {cmd_id}")
         self.live_cmd = None  # finished (or refused/failed): nothing left to cancel
-        self.check_result(rec, cmd_id, seen[0])
+        self.check_result(rec, cmd_id, self.faults_seen)
         return rec
 
     def wait_arrived(self, target_counts, timeout_s: float = ARRIVAL_WAIT_S, tol_deg: float = ARRIVAL_TOL_DEG):
