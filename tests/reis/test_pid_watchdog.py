@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from droid.subunits.reis.pid import Pid
-from droid.subunits.reis.watchdog import WatchdogCore, WatchdogParams
+from droid.subunits.reis.watchdog import WatchdogCore, WatchdogParams, liveness_steps
 
 
 def make_pid(**kw):
@@ -88,3 +88,21 @@ def test_watchdog_without_supervision_keeps_kicking():
 def test_watchdog_params_are_checked():
     with pytest.raises(ValueError):
         WatchdogParams(servo_liveness_steps=0)
+
+
+@pytest.mark.parametrize("stale_ticks, heartbeat_hz, steps", [(3, 60.0, 3), (12, 60.0, 10), (1, 60.0, 1), (6, 30.0, 10)])
+def test_the_watchdogs_liveness_is_the_cells_silence_rule_in_its_own_steps(stale_ticks, heartbeat_hz, steps):
+    """droid-watchdog declares the servo dead after the cell's stale_ticks, in time [s],
+    rounded up to whole 20 ms steps: the default cell's 3 ticks keep the 60 ms rule."""
+    assert liveness_steps(stale_ticks, heartbeat_hz) == steps
+    core = WatchdogCore(WatchdogParams(servo_liveness_steps=steps))
+    core.step(7)
+    for _ in range(steps - 1):
+        assert core.step(7) is not None
+    assert core.step(7) is None and core.servo_dead
+
+
+@pytest.mark.parametrize("args", [(0, 60.0), (3, 0.0), (3, float("nan"))])
+def test_liveness_steps_refuses_a_meaningless_rule(args):
+    with pytest.raises(ValueError):
+        liveness_steps(*args)

@@ -107,6 +107,20 @@ def test_servo_agent_station_needs_a_fresh_status_and_keeps_the_watchdogs_fault_
     assert list(status.read()["encoder_pos"]) == [1000] * 6
 
 
+def test_servo_agent_station_judges_freshness_by_the_cells_stale_ticks():
+    """A cell with stale_ticks = 12 (a host with long stalls) keeps a status fresh for 12
+    command periods, not 3: one silence rule for every link (issue 16)."""
+    cmd = MemoryDatabase("ctrl_command", L.CTRL_COMMAND_LAYOUT)
+    status = MemoryDatabase("ctrl_status", L.CTRL_STATUS_LAYOUT)
+    cmd.update(link_alive=1, cmd_mode=L.JOG_MODE, cmd_id=0)
+    st = ServoAgentStation(ServoAgentCore(stale_ticks=12), cmd, status, command_hz=60.0)
+    st.take(report(), 1_000_000_000)
+    assert st.cycle(1_000_000_000 + 11 * P) is not None
+    assert not int(status.read()["fault"]) & L.FAULT_SERVO
+    assert st.cycle(1_000_000_000 + 12 * P) is None
+    assert int(status.read()["fault"]) & L.FAULT_SERVO
+
+
 def test_servo_agent_station_does_not_blame_the_servo_for_its_own_stall():
     """A cycle that itself runs late (the whole host stalled) judges the servo's silence
     only over the time the agent was awake; past that the servo is silent again."""

@@ -229,7 +229,8 @@ class ServoAgentCore:
 class ServoAgentStation:
     """droid-servo-agent's cycle: ``take`` each servo status message, ``cycle`` at 60 Hz.
 
-    A status is *fresh* for three command periods after it arrived; the cycle reads the
+    A status is *fresh* for the core's ``stale_ticks`` command periods after it arrived (the
+    cell file's ``stale_ticks``: one silence rule for every link); the cycle reads the
     Command record, steps :class:`ServoAgentCore` and writes its status fields and its own
     fault bits (``MY_FAULTS``; FAULT_WATCHDOG is droid-watchdog's) into the Status record
     under one lock.  It returns the command message to send, or None (the servo brakes).
@@ -240,7 +241,7 @@ class ServoAgentStation:
         self.core = core
         self.ctrl_command = ctrl_command
         self.ctrl_status = ctrl_status
-        self.fresh_ns = int(3 * 1e9 / command_hz)  # [ns]
+        self.fresh_ns = int(core.stale_ticks * 1e9 / command_hz)  # [ns]
         self.report: sw.ServoReport | None = None
         self.report_ns = 0
         self.bad_frames = 0

@@ -6,6 +6,8 @@ time.  The watchdog program keeps them alive at >= 50 Hz -- but only while the
 servo is alive: if the servo's heartbeat (its tick counter) stops changing for
 ``servo_liveness_steps`` watchdog steps, or the servo reports a fault, the
 watchdog stops kicking for good and the hardware shuts the amplifiers down.
+droid-watchdog sets ``servo_liveness_steps`` from the cell file's ``stale_ticks``
+(:func:`liveness_steps`: the same silence, in time, as every other link).
 
 A shell does, every 20 ms::
 
@@ -15,6 +17,7 @@ A shell does, every 20 ms::
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 
@@ -27,6 +30,16 @@ class WatchdogParams:
     def __post_init__(self) -> None:
         if self.rate_hz <= 0 or self.servo_liveness_steps < 1:
             raise ValueError("need rate_hz > 0 and servo_liveness_steps >= 1")
+
+
+def liveness_steps(stale_ticks: int, heartbeat_hz: float, rate_hz: float = WatchdogParams.rate_hz) -> int:
+    """The servo-liveness rule in watchdog steps for a cell whose links tolerate
+    ``stale_ticks`` heartbeat periods of silence: the same time [s], rounded up (the cell
+    file's ``stale_ticks``, one silence rule for every link; 3 ticks at 60 Hz -> 3 steps at
+    50 Hz, 60 ms).  Issue 16: rules set against the host's measured stalls."""
+    if stale_ticks < 1 or not heartbeat_hz > 0 or not rate_hz > 0:
+        raise ValueError("need stale_ticks >= 1, heartbeat_hz > 0 and rate_hz > 0")
+    return max(1, math.ceil(stale_ticks / heartbeat_hz * rate_hz - 1e-9))
 
 
 class WatchdogCore:

@@ -24,7 +24,7 @@ from droid.cli import run
 from droid.subunits.reis.endpoints import reis_endpoints
 from droid.subunits.reis.servo_prog import OPEN_WAIT_S, open_vme_waiting
 from droid.subunits.reis.station import WatchdogStation
-from droid.subunits.reis.watchdog import WatchdogCore, WatchdogParams
+from droid.subunits.reis.watchdog import WatchdogCore, WatchdogParams, liveness_steps
 
 PROG = "droid-watchdog"
 
@@ -41,7 +41,7 @@ def main(argv=None) -> int:
     sub_sock.setsockopt(zmq.LINGER, 0)
     CurveHost(ctx, cell, sub.host).client(sub_sock, ep.servo_status, sub.host)
     sub_sock.connect(ep.servo_status)
-    params = WatchdogParams()
+    params = WatchdogParams(servo_liveness_steps=liveness_steps(cell.stale_ticks, cell.heartbeat_hz))
     core = WatchdogCore(params)
     bus = None
     timer = None
