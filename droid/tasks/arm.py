@@ -225,7 +225,7 @@ class BrainArm:
         rec = self.wait(lambda r: int(r["cmd_id"]) == cmd_id and int(r["busy"]) == 0,
                         timeout_s, f"{self.sub.name} to finish command {cmd_id}")
         self.live_cmd = None  # finished (or refused/failed): nothing left to cancel
-        self.check_result(rec, cmd_id, self.faults_seen)
+        self.check_result(rec, cmd_id)
         return rec
 
     def wait_arrived(self, target_counts, timeout_s: float = ARRIVAL_WAIT_S, tol_deg: float = ARRIVAL_TOL_DEG):
@@ -263,15 +263,16 @@ class BrainArm:
                                      f"within {timeout_s:g} s")
             time.sleep(POLL_S)
 
-    def check_result(self, rec, cmd_id: int, seen_faults: int = 0) -> None:
-        """Raise if ``rec`` reports command ``cmd_id`` refused or failed, naming the faults of
-        ``rec`` and, when those are clear, ``seen_faults``: the bits seen while waiting (a servo
-        silent for a few periods fails the move, then its fault bit clears; issue 16)."""
+    def check_result(self, rec, cmd_id: int) -> None:
+        """Raise if ``rec`` (the record the last :meth:`wait` returned) reports command ``cmd_id``
+        refused or failed, naming the faults of ``rec`` and, when those are clear,
+        ``faults_seen``: the bits seen while waiting (a servo silent for a few periods fails
+        the move, then its fault bit clears; issue 16)."""
         result = int(rec["cmd_result"])
         if result == CMD_OK:
             return
         faults = fault_names(rec["fault"])
-        earlier = fault_names(seen_faults)
+        earlier = fault_names(self.faults_seen)
         why = (f" (faults: {', '.join(faults)})" if faults
                else f" (faults while it ran, clear since: {', '.join(earlier)})" if earlier else "")
         if result == CMD_REFUSED:

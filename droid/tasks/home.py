@@ -44,7 +44,7 @@ def main(argv=None) -> int:
         rec = arm.wait(lambda r: int(r["cmd_id"]) == cmd_id and int(r["busy"]) == 0
                        and (int(r["homed"]) or int(r["cmd_result"]) != CMD_OK),
                        args.timeout, f"{args.robot} to report HOMED")
-        arm.check_result(rec, cmd_id, arm.faults_seen)
+        arm.check_result(rec, cmd_id)
         arm.set_normal()
     return 0
 
