@@ -13,7 +13,7 @@ import platform
 import time
 
 from droid.cli import ArgumentParser, bounded_int, run
-from droid.sim.experiment.trial import TrialConfig, run_trial
+from droid.experiments.trial import TrialConfig, run_trial
 from droid.tasks.seam.report import summarize
 
 CASES = (

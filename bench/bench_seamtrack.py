@@ -1,6 +1,6 @@
 """Lockstep seam-tracking trials: simulated seconds per wall second (thesis §6.1 trials).
 
-Runs one whole-seam trial (droid.sim.experiment.trial.run_trial, the default
+Runs one whole-seam trial (droid.experiments.trial.run_trial, the default
 ``full`` arm model, or ``--arm fast``) per configuration -- tool speeds 4, 16 and
 64 mm/s, start positions i, iii and vii (vii on its ramp workpiece), the ``camera`` lead sensor
 (render + the real MVS feature extraction) and the ``ideal`` one (closed
@@ -36,7 +36,7 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 from droid.cli import ArgumentParser, BadInput, bounded_int, run, seed_int
-from droid.sim.experiment import arm_fast, sensors, trial
+from droid.experiments import arm_fast, sensors, trial
 from droid.sim.mvs.camera import MvsCamera
 from droid.subunits.mvs.sensor import SensorCore
 from droid.tasks.seam.core import SeamTracker

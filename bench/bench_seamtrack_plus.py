@@ -1,6 +1,6 @@
 """Thesis mode beside plus mode: the tracking targets of issue 12 (lockstep, figures not verdicts).
 
-Lockstep trials (droid.sim.experiment.trial.run_trial) with the ``camera`` lead
+Lockstep trials (droid.experiments.trial.run_trial) with the ``camera`` lead
 sensor chain (the camera twin's render with 0.5 px stripe jitter and 2 %
 spurious rows, the real MVS feature extraction, the serial line) and the
 experiments' default arm model (``full`` since issue 13: every Reis core and the
@@ -33,7 +33,7 @@ import time
 import numpy as np
 
 from droid.cli import ArgumentParser, BadInput, bounded_float, bounded_int, run
-from droid.sim.experiment.trial import ARM_MODELS, TrialConfig, run_trial
+from droid.experiments.trial import ARM_MODELS, TrialConfig, run_trial
 from droid.tasks.seam.core import MAX_RUN_LENGTH_MM, MODES
 from droid.tasks.seam.report import column, summarize
 

@@ -86,7 +86,7 @@ def main() -> int:
                         print(fmt(f"  real time {i + 1}", s), flush=True)
             finally:
                 droid("droid.brain.launcher", "down", "--cell", str(cell))
-    from droid.sim.experiment.trial import TrialConfig, run_trial
+    from droid.experiments.trial import TrialConfig, run_trial
 
     ls = []
     for seed in range(1, args.seeds + 1):

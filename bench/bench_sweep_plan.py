@@ -23,7 +23,7 @@ from pathlib import Path
 from droid.cli import ArgumentParser, bounded_int
 
 ROOT = Path(__file__).resolve().parents[1]
-CLI = [sys.executable, "-m", "droid.sim.experiment.cli"]
+CLI = [sys.executable, "-m", "droid.experiments.cli"]
 DASK = str(Path(sys.executable).parent / "dask")
 
 

@@ -20,7 +20,7 @@ import pickle
 import numpy as np
 
 from droid.cli import ArgumentParser, BadInput, bounded_float, run, seed_int
-from droid.sim.experiment import trial
+from droid.experiments import trial
 from droid.sim.reis import plant as reis_plant
 from droid.tasks.seam.core import MAX_SPEED_MM_S
 from droid.tasks.seam.layout import load_layout

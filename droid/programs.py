@@ -35,7 +35,7 @@ PROGRAMS: dict[str, str] = {
     "droid-home": "droid.tasks.home",
     "droid-jog": "droid.tasks.jog",
     "droid-seamtrack": "droid.tasks.seamtrack",
-    "droid-experiment": "droid.sim.experiment.cli",
+    "droid-experiment": "droid.experiments.cli",
     # the world
     "droid-sim": "droid.sim.world",
     "droid-calibrate": "droid.sim.reis.calibrate",

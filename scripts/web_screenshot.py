@@ -28,8 +28,8 @@ def main() -> int:
         sys.exit("web_screenshot: chromium is not installed (run scripts/browser.sh)")
     from playwright.sync_api import sync_playwright
 
-    from droid.sim.experiment.matrix import resolve
-    from droid.sim.experiment.trial import run_trial, with_overrides
+    from droid.experiments.matrix import resolve
+    from droid.experiments.trial import run_trial, with_overrides
     from tests.observe.webutil import WebServer
 
     with tempfile.TemporaryDirectory() as d:

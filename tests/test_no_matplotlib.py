@@ -23,14 +23,14 @@ def test_droid_experiment_runs_without_matplotlib_and_says_so_once(tmp_path):
     env = _blocked_env(tmp_path)
     plan = tmp_path / "p.toml"
     plan.write_text('name = "n"\n[defaults]\nlength_mm = 120\n[sweep]\nspeed_mm_s = [16, 32]\n')
-    p = subprocess.run([sys.executable, "-m", "droid.sim.experiment.cli", "run", "--plan", str(plan), "--out",
+    p = subprocess.run([sys.executable, "-m", "droid.experiments.cli", "run", "--plan", str(plan), "--out",
                         str(tmp_path / "o"), "--jobs", "2"], capture_output=True, text=True, env=env, timeout=300)
     assert p.returncode == 0, p.stderr
     assert "Traceback" not in p.stderr
     assert p.stderr.count("no figures: matplotlib is not installed (pip install matplotlib)") == 1
     d = tmp_path / "o" / "n"
     assert len(list(d.glob("*.csv"))) == 3 and not list(d.glob("*.png"))  # 2 logs + results.csv
-    p = subprocess.run([sys.executable, "-m", "droid.sim.experiment.cli", "run", "exp4", "--length", "170",
+    p = subprocess.run([sys.executable, "-m", "droid.experiments.cli", "run", "exp4", "--length", "170",
                         "--out", str(tmp_path / "e"), "--jobs", "2"], capture_output=True, text=True, env=env,
                        timeout=300)
     assert p.returncode == 0 and "Traceback" not in p.stderr

@@ -1,6 +1,6 @@
 """Recording a lockstep trial in the same MCAP layout as a live cell (issue 14, item 2).
 
-A lockstep trial (``droid-experiment run --record``, droid/sim/experiment/trial.py)
+A lockstep trial (``droid-experiment run --record``, droid/experiments/trial.py)
 has no shared memory: its arm twin, sensors and seam-tracking core exchange
 plain values.  :class:`TrialRecorder` fills the Brain's records from them --
 ``arm1`` Status (the Status pose and joints the task sees, eq. 4.1-4.2, as

@@ -59,7 +59,7 @@ import serial
 from droid.brain.sensor_line import DEFAULT_BAUD
 from droid.brain.serial_line import BITS_PER_BYTE
 from droid.cli import BadInput
-from droid.sim.world import Device
+from droid.sim.device import Device
 
 #: Bytes a transmitter holds before the writer has to wait (a 16550's FIFO is 16;
 #: a little more keeps a 200 Hz world's steps from starving the line).

@@ -27,6 +27,7 @@ from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser,
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import BadInput, RuntimeFailure, file_number, run, seed_int
 from droid.numbers import SEED, Range
+from droid.sim.device import Device
 
 PROG = "droid-sim"
 DEFAULT_RATE_HZ = 1000.0
@@ -41,18 +42,6 @@ DEVICE_TYPES: dict[str, tuple[str, str]] = {
     "serial_cable": ("droid.sim.serial_cable", "serial_cable"),
     "joystick": ("droid.sim.joystick.device", "make_joystick"),
 }
-
-
-class Device:
-    """A simulated device: ``advance(dt_s)`` one world step; ``close()`` at exit."""
-
-    name = "device"
-
-    def advance(self, dt_s: float) -> None:  # pragma: no cover - interface
-        raise NotImplementedError
-
-    def close(self) -> None:
-        pass
 
 
 class World:

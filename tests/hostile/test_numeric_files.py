@@ -66,7 +66,7 @@ def check_cell(path) -> None:
 
 
 def _loaders():
-    from droid.sim.experiment.plan import load_plan
+    from droid.experiments.plan import load_plan
     from droid.sim.workpiece import load_workpiece
     from droid.tasks.seam.layout import load_layout
 

@@ -6,8 +6,8 @@ import numpy as np
 from droid.brain.layouts import ARM_STATUS_LAYOUT
 from droid.kinematics import load_robot
 from droid.observe.mcapfile import read_recording
-from droid.sim.experiment.matrix import resolve
-from droid.sim.experiment.trial import run_trial, with_overrides
+from droid.experiments.matrix import resolve
+from droid.experiments.trial import run_trial, with_overrides
 
 
 def test_trial_recording(tmp_path):
@@ -44,11 +44,11 @@ def test_trial_recording(tmp_path):
 def test_experiment_cli_record(tmp_path):
     from tests.brain.cellutil import droid
 
-    out = droid("droid.sim.experiment.cli", "run", "1.3", "--record", "--length", "60", "--no-figures",
+    out = droid("droid.experiments.cli", "run", "1.3", "--record", "--length", "60", "--no-figures",
                 "--jobs", "1", "--out", str(tmp_path))
     assert out.returncode == 0, out.stderr
     rec = read_recording(tmp_path / "table6.1" / "1.3.mcap")
     assert rec.meta["trial"] == "1.3" and rec.meta["source"] == "lockstep" and rec.complete
-    out = droid("droid.sim.experiment.cli", "run", "1.3", "--length", "60", "--no-figures", "--jobs", "1",
+    out = droid("droid.experiments.cli", "run", "1.3", "--length", "60", "--no-figures", "--jobs", "1",
                 "--out", str(tmp_path / "plain"))
     assert out.returncode == 0 and not list((tmp_path / "plain").rglob("*.mcap"))

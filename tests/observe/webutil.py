@@ -61,8 +61,8 @@ class WebServer:
 
 def lockstep_recording(path) -> str:
     """A short lockstep trial recorded to ``path`` (fast: well under a second)."""
-    from droid.sim.experiment.matrix import resolve
-    from droid.sim.experiment.trial import run_trial, with_overrides
+    from droid.experiments.matrix import resolve
+    from droid.experiments.trial import run_trial, with_overrides
 
     cfg = with_overrides(resolve(["1.3"])[0].config, length_mm=60.0)
     run_trial(cfg, record=str(path))

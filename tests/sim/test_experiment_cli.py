@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from droid.sim.experiment.cli import main
+from droid.experiments.cli import main
 from droid.tasks.seam import report
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
-PROG = [sys.executable, "-m", "droid.sim.experiment.cli"]
+PROG = [sys.executable, "-m", "droid.experiments.cli"]
 
 
 def run_cli(*args, timeout=900):  # a hang guard only (DESIGN §8: timing never decides)

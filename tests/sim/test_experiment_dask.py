@@ -10,9 +10,9 @@ import pytest
 
 import distributed  # the [cluster] extra (scripts/venv.sh installs it): its absence fails, never skips
 
-from droid.sim.experiment.cli import main  # noqa: E402
+from droid.experiments.cli import main  # noqa: E402
 
-PROG = [sys.executable, "-m", "droid.sim.experiment.cli"]
+PROG = [sys.executable, "-m", "droid.experiments.cli"]
 DASK = str(Path(sys.executable).parent / "dask")
 ROOT = str(Path(__file__).resolve().parents[2])
 

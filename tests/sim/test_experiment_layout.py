@@ -6,7 +6,7 @@ import pytest
 
 from droid.kinematics import Unreachable
 from droid.kinematics.transforms import inv_homo
-from droid.sim.experiment.geometry import trial_geometry
+from droid.experiments.geometry import trial_geometry
 from droid.sim.mvs.tool_sensor import seam_frame
 from droid.tasks.seam.layout import POSITION_IDS, load_layout
 

@@ -2,7 +2,7 @@
 import pytest
 
 from droid.cli import BadInput
-from droid.sim.experiment import matrix
+from droid.experiments import matrix
 
 E = matrix.experiments()
 

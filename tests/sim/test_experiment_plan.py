@@ -9,11 +9,11 @@ from dataclasses import fields
 
 import pytest
 
-from droid.sim.experiment.cli import main
-from droid.sim.experiment.plan import FIELDS, bundled_plans, load_plan
-from droid.sim.experiment.trial import TrialConfig
+from droid.experiments.cli import main
+from droid.experiments.plan import FIELDS, bundled_plans, load_plan
+from droid.experiments.trial import TrialConfig
 
-PROG = [sys.executable, "-m", "droid.sim.experiment.cli"]
+PROG = [sys.executable, "-m", "droid.experiments.cli"]
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 

@@ -2,11 +2,11 @@
 twin, homed from its own power-up pose before each repetition."""
 import numpy as np
 
-from droid.sim.experiment.trial import TrialConfig, run_trial
+from droid.experiments.trial import TrialConfig, run_trial
 
 
 def test_the_default_arm_is_full_and_each_repetition_homes_from_its_own_power_up_pose(monkeypatch):
-    from droid.sim.experiment import arm_full
+    from droid.experiments import arm_full
 
     homed = []
     original = arm_full.FullArm.prepare

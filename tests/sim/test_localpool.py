@@ -1,9 +1,9 @@
-"""droid.sim.experiment.localpool: every job once, a dead worker's job named, nothing left running."""
+"""droid.experiments.localpool: every job once, a dead worker's job named, nothing left running."""
 from __future__ import annotations
 
 import os
 
-from droid.sim.experiment.localpool import run_local
+from droid.experiments.localpool import run_local
 
 
 def _square_or_die(x: int) -> int:

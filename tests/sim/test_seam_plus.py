@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from droid.cli import BadInput
-from droid.sim.experiment.trial import TrialConfig, run_trial
+from droid.experiments.trial import TrialConfig, run_trial
 from droid.tasks.seam.report import summarize
 
 

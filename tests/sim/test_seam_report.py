@@ -26,7 +26,7 @@ def test_columns_start_with_the_nine_required_names():
     assert report.COLUMNS[:9] == ("s_mm", "lead_lateral_mm", "lead_depth_mm", "lead_roll_rad", "tool_lateral_mm",
                                   "tool_depth_mm", "tool_roll_rad", "yaw_deg", "pitch_deg")
     assert set(report.COLUMN_DOCS) == set(report.COLUMNS)
-    from droid.sim.experiment import trial
+    from droid.experiments import trial
 
     assert trial.COLUMNS is report.COLUMNS  # one definition
 

@@ -4,7 +4,7 @@ sensor over the step-input workpiece (thesis §6.1.1)."""
 import numpy as np
 import pytest
 
-from droid.sim.experiment.trial import TrialConfig, run_trial
+from droid.experiments.trial import TrialConfig, run_trial
 
 THESIS_COLUMNS = ["s_mm", "lead_lateral_mm", "lead_depth_mm", "lead_roll_rad", "tool_lateral_mm",
                   "tool_depth_mm", "tool_roll_rad", "yaw_deg", "pitch_deg"]
@@ -27,7 +27,7 @@ def test_short_step_input_trial_tracks_to_the_end():
 
 
 def test_trial_is_deterministic_for_a_seed_and_logs_the_thesis_columns():
-    from droid.sim.experiment.trial import COLUMNS
+    from droid.experiments.trial import COLUMNS
 
     assert list(COLUMNS[:len(THESIS_COLUMNS)]) == THESIS_COLUMNS
     a, b = short_trial(3), short_trial(3)

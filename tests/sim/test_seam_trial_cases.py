@@ -2,7 +2,7 @@
 a transport-delay run, a seam-loss run."""
 import numpy as np
 
-from droid.sim.experiment.trial import TrialConfig, run_trial
+from droid.experiments.trial import TrialConfig, run_trial
 
 
 def test_transport_delay_run_zeroes_then_delays_and_keeps_tracking():

@@ -3,9 +3,9 @@ sensor model's scatter scaled by the camera's stripe jitter, seeded and determin
 import numpy as np
 import pytest
 
-from droid.sim.experiment.sensors import DEFAULT_NOISE, IDEAL_SIGMA_Y_MM, ToolTipSensor
-from droid.sim.experiment.crossing import SeamCrossing
-from droid.sim.experiment.trial import TrialConfig, run_trial
+from droid.experiments.sensors import DEFAULT_NOISE, IDEAL_SIGMA_Y_MM, ToolTipSensor
+from droid.experiments.crossing import SeamCrossing
+from droid.experiments.trial import TrialConfig, run_trial
 from droid.sim.mvs.camera import CameraNoise
 from droid.sim.mvs.devices import ToolSensorCore
 from droid.sim.mvs.tool_sensor import (SIGMA_HEIGHT_MM, SIGMA_LATERAL_MM, SIGMA_ROLL_RAD, ToolNoise, ToolReading,

@@ -16,8 +16,8 @@ from __future__ import annotations
 import pytest
 
 from droid.brain.layouts import FAULTS_CANNOT_MOVE
-from droid.sim.experiment import arm_full
-from droid.sim.experiment.trial import CYCLE_TICKS, TrialConfig, run_trial
+from droid.experiments import arm_full
+from droid.experiments.trial import CYCLE_TICKS, TrialConfig, run_trial
 from droid.sim.lockstep import ORDER_TASK
 
 #: Injected this many heartbeat ticks into the trial (after the 1 s dead zone) [ticks].
@@ -84,7 +84,7 @@ def test_a_reis_fault_mid_trial_ends_it_as_fault_at_once_and_nothing_is_commande
 def test_a_holder_fault_ends_the_trial_naming_the_gmf1(monkeypatch):
     """The GMF1's serial port vanishes mid-trial (FAULT_DEVICE in its Status, docs/gmf1.md): the
     trial ends as ``fault`` naming gmf1 -- the holder's Status goes through the same rule."""
-    from droid.sim.experiment import holder as holder_mod
+    from droid.experiments import holder as holder_mod
 
     made = []
 

@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from droid.sim.experiment.trial import ProgressLimit, TrialConfig, run_trial
+from droid.experiments.trial import ProgressLimit, TrialConfig, run_trial
 
 
 def old_limit_s(length_mm, speed_mm_s):

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from droid.cli import BadInput
-from droid.sim.experiment.sensors import LeadSensor
+from droid.experiments.sensors import LeadSensor
 from droid.sim.mvs.camera import CameraNoise, MvsCamera
 from droid.sim.seam3d import TACK_WIDTH_MM
 from droid.sim.mvs.tool_sensor import measure, pose_for_reading
@@ -215,7 +215,7 @@ def test_a_bad_csv_names_the_file_and_line(tmp_path):
 def test_a_bad_workpiece_in_a_plan_exits_2_naming_plan_key_and_file(tmp_path):
     (tmp_path / "bad.toml").write_text('[[segment]]\ntype = "curve"\npoints_mm = [[0, 0, 0]]\n')
     (tmp_path / "p.toml").write_text('name = "x"\n[sweep]\nworkpiece = ["bad.toml"]\n')
-    p = subprocess.run([sys.executable, "-m", "droid.sim.experiment.cli", "run", "--plan", str(tmp_path / "p.toml"),
+    p = subprocess.run([sys.executable, "-m", "droid.experiments.cli", "run", "--plan", str(tmp_path / "p.toml"),
                         "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=120)
     assert p.returncode == 2
     err = p.stderr.strip()
@@ -224,7 +224,7 @@ def test_a_bad_workpiece_in_a_plan_exits_2_naming_plan_key_and_file(tmp_path):
 
 @pytest.mark.parametrize("name", NEW)
 def test_a_trial_runs_on_every_example_with_the_layouts_default_mount(name):
-    from droid.sim.experiment.trial import TrialConfig, run_trial
+    from droid.experiments.trial import TrialConfig, run_trial
 
     r = run_trial(TrialConfig(trial_id="x", position="i", workpiece=name, speed_mm_s=32, length_mm=260, arm="fast",
                               sensor="ideal"))

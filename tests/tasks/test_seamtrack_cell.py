@@ -101,7 +101,7 @@ def test_track_the_step_seam_end_to_end_and_agree_with_lockstep(sim_cell, tmp_pa
     assert np.allclose([g["x"], g["y"], g["z"]], T_hold[:3, 3], atol=0.5)
 
     # the same trial in lockstep (every Reis core on virtual time, the camera chain) agrees
-    from droid.sim.experiment.trial import COLUMNS as LS_COLUMNS, TrialConfig, run_trial
+    from droid.experiments.trial import COLUMNS as LS_COLUMNS, TrialConfig, run_trial
 
     ls = run_trial(TrialConfig("agree", "i", 8.0, length_mm=220.0, seed=1, arm="full"))
     ls_travel = ls.column("travel_mm")
@@ -132,7 +132,7 @@ def test_plus_mode_holds_its_speed_on_the_real_time_cell_and_agrees_with_lockste
     lat = d["tool_lateral_mm"][settled]
     assert np.isfinite(lat).sum() >= 20 and math.sqrt(np.nanmean(lat ** 2)) <= 1.0
     assert_standing(sim_cell)
-    from droid.sim.experiment.trial import TrialConfig, run_trial
+    from droid.experiments.trial import TrialConfig, run_trial
 
     ls = run_trial(TrialConfig("agree", "i", 16.0, length_mm=300.0, seed=1, arm="full", mode="plus"))
     ls_travel = ls.column("travel_mm")

@@ -90,7 +90,7 @@ def test_in_a_lockstep_trial_the_placed_tool_readings_lie_on_the_seam():
     sampling only), through the arc too.  On the ``fast`` arm, whose Status pose is its true
     pose: the full arm's encoders sit on the motor side of compliant drives, so its Status pose
     is off the true one by the drives' deflection (up to ~2 mm here), which is the point of it."""
-    from droid.sim.experiment.trial import TrialConfig, run_trial
+    from droid.experiments.trial import TrialConfig, run_trial
 
     r = run_trial(TrialConfig("t", "vii", 32.0, workpiece="ramp_r200", sensor="ideal", holder="fixed",
                               tool_noise=False, arm="fast"))

@@ -44,7 +44,7 @@ from droid.kinematics.transforms import pose_to_T
 from droid.sim.gmf1.cards import Quad04Twin, SharedCard
 from droid.sim.gmf1.controller import KarelController, KarelParams
 from droid.sim.serial_cable import PtyEnd, TcpEnd
-from droid.sim.world import Device
+from droid.sim.device import Device
 from droid.subunits.gmf1.config import gmf1_config
 
 DEFAULT_START_DEG = (10.0, 15.0, 5.0, 0.0, 30.0, 0.0)

@@ -30,7 +30,7 @@ from typing import Any
 
 from droid.brain.layouts import JOYSTICK_AXES, JOYSTICK_BUTTONS
 from droid.sim.serial_cable import PtyEnd
-from droid.sim.world import Device
+from droid.sim.device import Device
 from droid.subunits.joystick.driver import JS_AXIS_MAX, JS_EVENT, JS_EVENT_AXIS, JS_EVENT_BUTTON, JS_EVENT_INIT
 
 

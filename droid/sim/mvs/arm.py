@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from droid.sim.device_options import DeviceOptions
-from droid.sim.world import Device
+from droid.sim.device import Device
 
 
 class FixedArm(Device):

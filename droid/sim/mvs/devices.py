@@ -75,7 +75,7 @@ from droid.sim.mvs.mounts import Mount
 from droid.sim.mvs.tool_sensor import ToolNoise, ToolReading, measure, noisy
 from droid.sim.serial_cable import PacedPtyOutput
 from droid.sim.workpiece import Workpiece, load_workpiece
-from droid.sim.world import Device
+from droid.sim.device import Device
 from droid.subunits.mvs.calibration import MvsCalibration
 from droid.subunits.mvs.wire import COLUMNS, FRAME_RATE_HZ, ROWS
 

@@ -44,7 +44,7 @@ from droid.sim.reis.dynamics import DhError
 from droid.sim.reis.plant import ReisPlant, ReisPlantParams
 from droid.sim.reis.truth import TruthDoor, door_name
 from droid.sim.reis.vme_shm import SharedVmeMap
-from droid.sim.world import Device
+from droid.sim.device import Device
 from droid.subunits.reis.endpoints import reis_endpoints
 
 HOME_ERROR_MAX_DEG = 0.5  # calibration_seed: home-switch errors, joints 2-5

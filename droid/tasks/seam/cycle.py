@@ -3,7 +3,7 @@
 Everything the seam-tracking program does around the core, apart from I/O,
 lives here and is called unchanged by ``droid-seamtrack`` (the real-time
 shell, droid/tasks/seamtrack.py) and by the lockstep trial
-(droid/sim/experiment/trial.py):
+(droid/experiments/trial.py):
 
 * **cycle counting** from the cell's ``heartbeat_hz``: one 30 Hz tracking
   cycle every ``heartbeat_hz / 30`` ticks, one 10 Hz log row every

@@ -19,7 +19,7 @@ holds the geometry the seam-tracking task and the experiments share:
 
 Poses are ``[x, y, z, A, B, C]``: mm and Z-Y-Z Euler degrees (eq. 4.2).
 The task program (droid-seamtrack) uses only the bases and the wrist; the
-lockstep harness (droid.sim.experiment) uses all of it.  See docs/seamtrack.md.
+lockstep harness (droid.experiments) uses all of it.  See docs/seamtrack.md.
 
 Frames of the tool point T and the sensor S (docs/mvs.md): x along the tool
 axis toward the surface (depth), y lateral (left of travel), z the travel

@@ -2,7 +2,7 @@
 
 Pure: numpy and csv; matplotlib is imported inside the figure functions only
 (Agg canvas, no pyplot, no global backend change).  Used by droid-experiment
-(the lockstep trials, droid.sim.experiment) and by the real-time task program
+(the lockstep trials, droid.experiments) and by the real-time task program
 droid-seamtrack, so nothing here imports droid.sim.
 
 The log is one row per 100 ms (10 Hz, §6.1) in :data:`COLUMNS` order: the

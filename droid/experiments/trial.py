@@ -52,9 +52,9 @@ import numpy as np
 
 from droid.cli import BadInput
 from droid.kinematics.transforms import inv_homo
-from droid.sim.experiment.arm_fast import FastArm, FastArmParams
-from droid.sim.experiment.geometry import TrialGeometry, trial_geometry
-from droid.sim.experiment.sensors import DEFAULT_NOISE, SENSOR_MODELS, LeadSensor, ToolTipSensor, tool_reading
+from droid.experiments.arm_fast import FastArm, FastArmParams
+from droid.experiments.geometry import TrialGeometry, trial_geometry
+from droid.experiments.sensors import DEFAULT_NOISE, SENSOR_MODELS, LeadSensor, ToolTipSensor, tool_reading
 from droid.sim.lockstep import ORDER_DEVICE, ORDER_TASK, ORDER_WORLD, Scheduler
 from droid.sim.mvs.camera import CameraNoise
 from droid.tasks.seam.core import DEAD_ZONE_CYCLES, LOST_CYCLES, MODE_THESIS, MODES, SeamParams, speed_problem
@@ -273,13 +273,13 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None,
     if cfg.arm == "fast":
         arm = FastArm(geo.reis, geo.q_reis_start_deg, cfg.fast_params)
     else:
-        from droid.sim.experiment.arm_full import FullArm
+        from droid.experiments.arm_full import FullArm
 
         arm = FullArm(sched, geo.reis, geo.q_reis_start_deg, seed=cfg.seed)
         arm.prepare()
     holder = None
     if cfg.holder == "gmf1":
-        from droid.sim.experiment.holder import Gmf1Holder
+        from droid.experiments.holder import Gmf1Holder
 
         holder = Gmf1Holder(sched, geo.fanuc, geo.q_hold_deg, seed=cfg.seed)
         holder.prepare()

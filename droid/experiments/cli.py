@@ -7,7 +7,7 @@
     droid-experiment list [ID|TABLE...]
     droid-experiment list --plan FILE.toml
 
-A plan (droid.sim.experiment.plan) is a researcher's own sweep: its trials
+A plan (droid.experiments.plan) is a researcher's own sweep: its trials
 write ``DIR/<plan name>/<id>.csv``, ``.png``, ``.json`` (the trial's
 parameters and summary: its results exist) and one tidy ``results.csv`` (a
 row per trial, in plan order: the parameters and the summary figures).
@@ -16,7 +16,7 @@ the trials on a Dask distributed cluster (``tcp://host:8786``, or ``local``
 for a LocalCluster of ``--jobs`` workers) instead of the process pool; the
 workers compute, this process writes every file.
 
-IDs and tables: droid.sim.experiment.matrix (``droid-experiment list``;
+IDs and tables: droid.experiments.matrix (``droid-experiment list``;
 docs/experiments.md).  Lockstep by default, the trials in parallel on a
 process pool of ``--jobs`` workers (default: every CPU), longest first, with a
 progress bar on stderr.  Per trial: ``DIR/<table>/<id>.csv`` (10 Hz log,
@@ -25,7 +25,7 @@ a summary line on stdout.  Per table: ``DIR/<table>/summary.csv`` and
 ``summary.md`` of the trials of this run; experiment 4 also gets
 ``std.csv``/``std.png``, the per-s standard deviations across its runs
 (§6.2.6).  ``--realtime`` runs each trial, one after the other, on the
-real-time process cell (droid.sim.experiment.realtime).
+real-time process cell (droid.experiments.realtime).
 
 Exit 0 when every trial ran (whatever its tracking outcome), 1 when a trial
 could not run (or the Dask scheduler does not answer), 2 on bad arguments or a
@@ -47,11 +47,11 @@ from dataclasses import dataclass, replace
 from typing import Sequence
 
 from droid.cli import ArgumentParser, BadInput, bounded_float, bounded_int, run
-from droid.sim.experiment.matrix import (EXP4_RUNS, POSITION_LABELS, TABLES, Experiment, experiments, resolve,
+from droid.experiments.matrix import (EXP4_RUNS, POSITION_LABELS, TABLES, Experiment, experiments, resolve,
                                          valid_forms, with_seed)
-from droid.sim.experiment.plan import FIELDS, Plan, PlanTrial, load_plan
-from droid.sim.experiment.sensors import SENSOR_MODELS
-from droid.sim.experiment.trial import ARM_MODELS
+from droid.experiments.plan import FIELDS, Plan, PlanTrial, load_plan
+from droid.experiments.sensors import SENSOR_MODELS
+from droid.experiments.trial import ARM_MODELS
 from droid.tasks.seam import report
 from droid.tasks.seam.core import MAX_RUN_LENGTH_MM, MODES, STOP_END
 
@@ -157,12 +157,12 @@ def run_job(job: Job) -> Outcome:
     is an Outcome with an error."""
     cfg = job.exp.config
     if job.realtime:
-        from droid.sim.experiment.realtime import run_trial_realtime
+        from droid.experiments.realtime import run_trial_realtime
 
         os.makedirs(job.out_dir, exist_ok=True)
         result = run_trial_realtime(cfg, job.out_dir)
     else:
-        from droid.sim.experiment.trial import run_trial
+        from droid.experiments.trial import run_trial
 
         try:
             if job.record:
@@ -257,7 +257,7 @@ def run_jobs(jobs: list[Job], workers: int, dask: str | None = None) -> list[Out
     if not jobs:
         return outcomes
     if dask is not None:
-        from droid.sim.experiment.cluster import run_on_dask
+        from droid.experiments.cluster import run_on_dask
 
         run_on_dask(jobs, dask, workers, run_job, done, _progress)
         return outcomes
@@ -267,7 +267,7 @@ def run_jobs(jobs: list[Job], workers: int, dask: str | None = None) -> list[Out
                 done(job, run_job(job))
                 bar.update()
         return outcomes
-    from droid.sim.experiment.localpool import run_local
+    from droid.experiments.localpool import run_local
 
     with _progress(len(jobs)) as bar:
         def arrived(job: Job, o: Outcome) -> None:

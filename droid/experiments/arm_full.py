@@ -10,7 +10,7 @@ through the Brain Command record, exactly as droid-seamtrack does.
 
 The experiments' default arm model (issue 13 item 5): every repetition homes from its own
 seeded power-up pose, so experiment 4 measures repeatability.  ~5-10x slower than the
-``fast`` model (droid.sim.experiment.arm_fast; docs/benchmarks.md).
+``fast`` model (droid.experiments.arm_fast; docs/benchmarks.md).
 """
 from __future__ import annotations
 

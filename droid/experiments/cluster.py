@@ -93,7 +93,7 @@ def run_on_dask(jobs: list, address: str, workers: int, run_job: Callable, done:
     """Submit every job, call ``done(job, outcome)`` as each finishes (a failed task: an error Outcome)."""
     from distributed import as_completed
 
-    from droid.sim.experiment.cli import Outcome  # noqa: PLC0415 (the caller's type)
+    from droid.experiments.cli import Outcome  # noqa: PLC0415 (the caller's type)
 
     client, cluster = connect(address, workers)
     try:

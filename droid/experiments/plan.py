@@ -10,7 +10,7 @@
     delay_cycles = [0, 1, 2]
 
 Keys of ``[defaults]`` and ``[sweep]`` (the fields of
-:class:`droid.sim.experiment.trial.TrialConfig`, :data:`FIELDS`):
+:class:`droid.experiments.trial.TrialConfig`, :data:`FIELDS`):
 
 ================  ==========================================================
 ``workpiece``      a bundled name (``step_input``) or a path, relative to the plan file
@@ -103,7 +103,7 @@ def trial_id(params: dict) -> str:
 
 
 def bundled_plans() -> list[str]:
-    """Names of the example plans shipped in droid/sim/experiment/plans/."""
+    """Names of the example plans shipped in droid/experiments/plans/."""
     return sorted(p.stem for p in PLAN_DIR.glob("*.toml"))
 
 
@@ -118,7 +118,7 @@ def resolve_plan_path(spec: str) -> Path:
 
 
 def _trial_config_fields() -> set[str]:
-    from droid.sim.experiment.trial import TrialConfig
+    from droid.experiments.trial import TrialConfig
 
     return {f.name for f in fields(TrialConfig)}
 
@@ -127,8 +127,8 @@ class _Checker:
     """Type and range checks of one plan's values; each failure names plan, key and value."""
 
     def __init__(self, source: str, plan_dir: Path) -> None:
-        from droid.sim.experiment.sensors import SENSOR_MODELS
-        from droid.sim.experiment.trial import ARM_MODELS
+        from droid.experiments.sensors import SENSOR_MODELS
+        from droid.experiments.trial import ARM_MODELS
         from droid.tasks.seam.layout import load_layout
 
         self.source = source
@@ -323,7 +323,7 @@ def plan_from_dict(data: dict, source: str = "<plan>", plan_dir: Path | None = N
 
 def trial_config(tid: str, params: dict, plan_name: str = ""):
     """The TrialConfig of a plan trial (``mode`` passed only when set)."""
-    from droid.sim.experiment.trial import TrialConfig
+    from droid.experiments.trial import TrialConfig
 
     kw = {k: v for k, v in params.items() if not (k == "mode" and v is None)}
     piece = f", {Path(params['workpiece']).stem}" if params.get("workpiece") else ""

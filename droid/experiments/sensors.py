@@ -7,7 +7,7 @@ the renderer of the real-time cell's camera twin), droid-mvs's core extracts the
 the Brain's parser reads it back (rounded to the line's 3 and 5 decimals):
 the reading the Status record holds.  ``ideal`` model: the exact geometry at
 the sensor frame (``tool_sensor.measure``, in closed form:
-:mod:`droid.sim.experiment.crossing`), invalid outside the field of view the
+:mod:`droid.experiments.crossing`), invalid outside the field of view the
 feature extraction can use, plus Gaussian noise of the size the camera chain
 shows (docs/bench-mvs.md), through the same serial-line rounding.
 
@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from droid.brain.sensor_line import Garbled, format_line, parse_line
-from droid.sim.experiment.crossing import SeamCrossing
+from droid.experiments.crossing import SeamCrossing
 from droid.sim.mvs.camera import CameraNoise, MvsCamera
 from droid.sim.mvs.tool_sensor import (SIGMA_HEIGHT_MM, SIGMA_LATERAL_MM, SIGMA_ROLL_RAD, ToolNoise, ToolReading,
                                        noisy)

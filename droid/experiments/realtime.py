@@ -1,6 +1,6 @@
 """One experiment trial on the real-time process cell (``droid-experiment run ID --realtime``).
 
-The lockstep harness (:mod:`droid.sim.experiment.trial`) runs every core on
+The lockstep harness (:mod:`droid.experiments.trial`) runs every core on
 virtual time; this module runs the same trial the way an operator would on the
 cell of processes (thesis §3.4: small programs chained from a shell):
 
@@ -32,8 +32,8 @@ from pathlib import Path
 from droid.brain.cellfile import builtin_cell_path
 from droid.cli import RuntimeFailure
 from droid.kinematics.transforms import T_to_pose
-from droid.sim.experiment.geometry import trial_geometry
-from droid.sim.experiment.trial import ProgressLimit, TrialConfig, TrialResult, default_length_mm
+from droid.experiments.geometry import trial_geometry
+from droid.experiments.trial import ProgressLimit, TrialConfig, TrialResult, default_length_mm
 from droid.tasks.seam import report
 from droid.tasks.seam.report import COLUMNS
 

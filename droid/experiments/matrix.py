@@ -38,7 +38,7 @@ import hashlib
 from dataclasses import dataclass, replace
 
 from droid.cli import BadInput
-from droid.sim.experiment.trial import TrialConfig
+from droid.experiments.trial import TrialConfig
 
 SPEEDS_MM_S = (4.0, 8.0, 16.0, 32.0, 64.0)  # §6.1.2
 RAMP_SPEEDS_MM_S = (4.0, 8.0, 16.0, 32.0)  # Table 6.1: 64 mm/s not run on the ramp (workspace interference)
