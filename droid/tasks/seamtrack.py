@@ -381,7 +381,8 @@ def main(argv=None) -> int:
         tr.close()
     stop = tr.core.stopped
     reason, detail = (stop.reason, stop.detail) if stop is not None else (why, "")
-    s_end = stop.travel_mm if stop is not None else (tr.out.travel_mm if tr.out is not None else math.nan)
+    last = tr.station.out
+    s_end = stop.travel_mm if stop is not None else (last.travel_mm if last is not None else math.nan)
     summary = report.summarize(tr.rows, stop_reason=reason, stop_detail=detail, stop_s_mm=s_end,
                                camera_to_tcp_mm=tr.wrist.camera_to_tcp_mm, commanded_mm_s=args.speed)
     if args.log:
