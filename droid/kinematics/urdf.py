@@ -46,8 +46,11 @@ limits: ``[limits]`` joint range and ``vmax_deg_s`` in rad and rad/s; effort [N 
 joint torque of the joint's motor at its amplifier's current limit through its reduction,
 ``k_t * I_max * N`` (coupling ignored).  Geometry (visual = collision) is nominal: a
 capsule (cylinder + two spheres) per link between successive joint origins, radius
-``LINK_RADIUS_FRACTION`` of the arm's reach (``WRIST_RADIUS_FRACTION`` for links 4-6), a
-disc for the base, a rod to the tool and a box for the sensor.  Units in the URDF are SI
+``LINK_RADIUS_FRACTION`` of the arm's reach (``WRIST_RADIUS_FRACTION`` for links 4-6) or the
+file's ``[geometry] link_radius_mm``, a disc for the base (twice link 1's radius), a rod to
+the tool and a box for the sensor; a link the file's ``[geometry] visual_mesh`` /
+``collision_mesh`` names gets that mesh instead (in the link's URDF frame, metres, the
+name written as given).  Units in the URDF are SI
 (m, rad, kg, kg m^2, N m, rad/s).
 """
 from __future__ import annotations
@@ -212,15 +215,25 @@ def _capsule(a_m: np.ndarray, b_m: np.ndarray, radius_m: float) -> list[str]:
     return out
 
 
-def _geometry_xml(parts: list, indent: str) -> list[str]:
+def _geometry_xml(visual: list, collision: list, indent: str, material: str = "droid_grey") -> list[str]:
     lines = []
-    for tag in ("visual", "collision"):
+    for tag, parts in (("visual", visual), ("collision", collision)):
         for origin, geom in parts:
             lines += [f"{indent}<{tag}>", f"{indent}  {origin}", f"{indent}  <geometry>{geom}</geometry>"]
             if tag == "visual":
-                lines.append(f'{indent}  <material name="droid_grey"/>')
+                lines.append(f'{indent}  <material name="{material}"/>')
             lines.append(f"{indent}</{tag}>")
     return lines
+
+
+def _link_geometry(model, k: int, capsule: list, indent: str) -> list[str]:
+    """Visual and collision of link k (0: base_link, i: link_i): the file's meshes, else the capsule."""
+    g = model.geometry
+    out = []
+    for meshes in (g.visual_mesh, g.collision_mesh):
+        name = meshes[k] if meshes is not None else ""
+        out.append([('<origin xyz="0 0 0" rpy="0 0 0"/>', f"<mesh filename={quoteattr(name)}/>")] if name else capsule)
+    return _geometry_xml(out[0], out[1], indent)
 
 
 def _inertial_xml(mass: float, com_m: np.ndarray, inertia: np.ndarray, indent: str) -> list[str]:
@@ -291,9 +304,10 @@ def robot_urdf(model, *, tool=None, sensor=None) -> str:
 
     # base_link: a disc under joint 1
     h = BASE_HEIGHT_FRACTION * p.c1 * _MM
+    r_base = 2.0 * (r_arm if model.geometry.link_radius_mm is None else model.geometry.link_radius_mm[0] * _MM)
     L.append('  <link name="base_link">')
-    base_geom = [(_origin(_tr(0.0, 0.0, h / 2.0 / _MM)), f'<cylinder radius="{_f(2 * r_arm)}" length="{_f(h)}"/>')]
-    L += _geometry_xml(base_geom, "    ")
+    base_geom = [(_origin(_tr(0.0, 0.0, h / 2.0 / _MM)), f'<cylinder radius="{_f(r_base)}" length="{_f(h)}"/>')]
+    L += _link_geometry(model, 0, base_geom, "    ")
     L.append("  </link>")
 
     flange_pos = tip[:3, 3]
@@ -322,7 +336,10 @@ def robot_urdf(model, *, tool=None, sensor=None) -> str:
             inertia = (inertia + inertia.T) / 2.0
             L += _inertial_xml(float(dyn.link_mass_kg[i]), com, inertia, "    ")
         end = pos[i + 1] if i < 5 else flange_pos
-        L += _geometry_xml(_capsule(np.zeros(3), (end - pos[i]) * _MM, r_arm if i < 3 else r_wrist), "    ")
+        radius = r_arm if i < 3 else r_wrist
+        if model.geometry.link_radius_mm is not None:
+            radius = model.geometry.link_radius_mm[i] * _MM
+        L += _link_geometry(model, i + 1, _capsule(np.zeros(3), (end - pos[i]) * _MM, radius), "    ")
         L.append("  </link>")
 
     # flange (x out of the wrist) and tool0 (the fk frame, z out of the wrist)
@@ -357,8 +374,7 @@ def robot_urdf(model, *, tool=None, sensor=None) -> str:
             parts = _capsule(start, np.zeros(3), TOOL_RADIUS_M)
         else:
             parts = [(_origin(np.eye(4)), f'<box size="{_vec(SENSOR_BOX_M)}"/>')]
-        lines = _geometry_xml(parts, "    ")
-        L += [ln.replace("droid_grey", "droid_orange") for ln in lines]
+        L += _geometry_xml(parts, parts, "    ", "droid_orange")
         L.append("  </link>")
     L.append("</robot>")
     return "\n".join(L) + "\n"

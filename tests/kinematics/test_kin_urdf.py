@@ -363,3 +363,43 @@ def test_subprocess_exit_codes(tmp_path):
                        env=env, timeout=60)
     assert r.returncode == 2 and r.stdout == ""
     assert len(r.stderr.strip().splitlines()) == 1 and "does not exist" in r.stderr
+
+
+# ---------------------------------------------------------------- [geometry]
+
+GEOMETRY = """
+[geometry]
+link_radius_mm = [90, 80, 70, 50, 40, 30]
+visual_mesh = ["package://my_arm/meshes/base.stl", "", "link_2.dae", "", "", "", "file:///meshes/link_6.stl"]
+collision_mesh = ["", "", "", "", "", "", "file:///meshes/link_6_hull.stl"]
+"""
+
+
+def test_geometry_table_names_meshes_and_radii(tmp_path):
+    path = tmp_path / "meshy.toml"
+    path.write_text(offset_robot_toml("meshy") + GEOMETRY)
+    m = load_robot(str(path))
+    text = robot_urdf(m)
+    y = _yourdf(text)
+    base, l2, l3, l6 = (y.link_map[n] for n in ("base_link", "link_2", "link_3", "link_6"))
+    assert base.visuals[0].geometry.mesh.filename == "package://my_arm/meshes/base.stl"
+    assert base.collisions[0].geometry.cylinder.radius == pytest.approx(0.18)  # twice link 1's
+    assert l2.visuals[0].geometry.mesh.filename == "link_2.dae" and len(l2.visuals) == 1
+    assert l2.collisions[0].geometry.cylinder.radius == pytest.approx(0.08)
+    assert l3.visuals[0].geometry.cylinder.radius == pytest.approx(0.07)
+    assert l6.visuals[0].geometry.mesh.filename == "file:///meshes/link_6.stl"
+    assert l6.collisions[0].geometry.mesh.filename == "file:///meshes/link_6_hull.stl"
+    # the kinematics do not change
+    assert _fk_errors(m, text, seed=3)["pin_mm"] < POS_TOL_MM
+
+
+@pytest.mark.parametrize("table, words", [
+    ("[geometry]\nlink_radius_mm = [90, 80, 0, 50, 40, 30]\n", "link_radius_mm"),
+    ("[geometry]\nvisual_mesh = [\"a.stl\"]\n", "visual_mesh"),
+    ("[geometry]\ncollision_mesh = [\"\", \"\", \"\", \"\", \"\", \"\", \"x\\\"y.stl\"]\n", "collision_mesh"),
+    ("[geometry]\nmesh = []\n", "unknown key"),
+])
+def test_bad_geometry_table(capsys, tmp_path, table, words):
+    path = tmp_path / "bad_geometry.toml"
+    path.write_text(offset_robot_toml("bad_geometry") + table)
+    assert words in _one_line_exit_2(capsys, ["urdf", str(path)])
