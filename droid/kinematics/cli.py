@@ -355,11 +355,13 @@ def _urdf(args) -> int:
     if args.write_bundled:
         if args.robot or args.out or args.cell or args.subunit:
             raise BadInput("urdf --write-bundled takes no ROBOT, --out, --cell or --subunit")
-        BUNDLED_URDF_DIR.mkdir(exist_ok=True)
+        try:
+            BUNDLED_URDF_DIR.mkdir(exist_ok=True)
+        except OSError as exc:
+            raise BadInput(f"urdf --write-bundled: cannot create {BUNDLED_URDF_DIR} ({exc.strerror or exc})") from None
         for name in list_robots():
             path = bundled_urdf_path(name)
-            with open(path, "w", encoding="utf-8", newline="\n") as f:
-                f.write(robot_urdf(load_robot(name)))
+            _write_text(str(path), robot_urdf(load_robot(name)))
             print(path)
         return 0
     if (args.cell is None) != (args.subunit is None):

@@ -403,3 +403,15 @@ def test_bad_geometry_table(capsys, tmp_path, table, words):
     path = tmp_path / "bad_geometry.toml"
     path.write_text(offset_robot_toml("bad_geometry") + table)
     assert words in _one_line_exit_2(capsys, ["urdf", str(path)])
+
+
+def test_write_bundled_writes_every_robot(capsys, tmp_path, monkeypatch):
+    """--write-bundled writes one file per bundled robot, identical to the shipped ones."""
+    import droid.kinematics.cli as cli
+
+    monkeypatch.setattr(cli, "BUNDLED_URDF_DIR", tmp_path)
+    monkeypatch.setattr(cli, "bundled_urdf_path", lambda name: tmp_path / f"{name}.urdf")
+    assert main(["urdf", "--write-bundled"]) == 0
+    assert capsys.readouterr().out.split() == [str(tmp_path / f"{n}.urdf") for n in list_robots()]
+    for n in list_robots():
+        assert (tmp_path / f"{n}.urdf").read_bytes() == bundled_urdf_path(n).read_bytes()
