@@ -88,16 +88,35 @@ class RemoteStation:
     record to send; per reply :meth:`on_reply` writes the translated Status fields and, once
     the agent acknowledged the very command that was sent, clears ``sent`` (Table 3.2).
     ``status``/``command`` are the Brain's records (``command`` None for sensors).
+
+    The heartbeat-silence rule is the station's too (issue 25 item 3; it lived in the real-time
+    shell): :meth:`on_poll` with the time of every wake-up marks the Status stale with
+    FAULT_LINK | FAULT_HEARTBEAT once no tick came for ``stale_ticks`` heartbeat periods, and the
+    next tick (:meth:`on_tick` with its arrival time) clears FAULT_HEARTBEAT.  Real time passes
+    the monotonic clock, lockstep its virtual time.
     """
 
-    def __init__(self, status, command, translate: StatusTranslator, stale_ticks: int) -> None:
+    def __init__(self, status, command, translate: StatusTranslator, stale_ticks: int,
+                 heartbeat_hz: float = 60.0) -> None:
         self.status = status
         self.command = command
         self.translate = translate
         self.core = RemoteLinkCore(stale_ticks)
+        self.watch = HeartbeatWatch.for_rate(heartbeat_hz, stale_ticks)
         self.sent_cmd_id: int | None = None
 
-    def on_tick(self, tick: int) -> RemoteAction:
+    def on_poll(self, now_ns: int) -> bool:
+        """A wake-up at ``now_ns`` (a tick or not): True once when the heartbeat fell silent."""
+        if not self.watch.became_silent(now_ns):
+            return False
+        self.status.update(stale=1, fault=int(self.status.read()["fault"]) | FAULT_LINK | FAULT_HEARTBEAT)
+        return True
+
+    def on_tick(self, tick: int, now_ns: int | None = None) -> RemoteAction:
+        """Heartbeat tick ``tick``, arrived at ``now_ns`` (None: no clock, the silence rule is
+        not fed).  A tick after a silence clears FAULT_HEARTBEAT; the next reply clears stale."""
+        if now_ns is not None and self.watch.on_tick(now_ns):
+            self.status.update(fault=int(self.status.read()["fault"]) & ~FAULT_HEARTBEAT)
         act = self.core.on_tick(tick)
         if act.became_stale:
             self.status.update(stale=1, fault=int(self.status.read()["fault"]) | FAULT_LINK)
@@ -134,9 +153,9 @@ def main(argv=None) -> int:
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
     names = NameClient(ctx, cell.names, curve=curve, server_host=cell.brain_host)
     ticks = TickSubscriber(ctx, cell.heartbeat, curve, cell.brain_host)
-    station = RemoteStation(status, command, StatusTranslator.for_subunit(sub), cell.stale_ticks)
+    station = RemoteStation(status, command, StatusTranslator.for_subunit(sub), cell.stale_ticks,
+                            cell.heartbeat_hz)
     core = station.core
-    watch = HeartbeatWatch.for_rate(cell.heartbeat_hz, cell.stale_ticks)
     dealer = None
     endpoint = None
     bad_frames = 0
@@ -166,16 +185,13 @@ def main(argv=None) -> int:
             poller = zmq.Poller()
             for s in socks:
                 poller.register(s, zmq.POLLIN)
-            events = dict(poller.poll(watch.poll_ms))
-            if watch.became_silent(time.monotonic_ns()):
-                status.update(stale=1, fault=int(status.read()["fault"]) | FAULT_LINK | FAULT_HEARTBEAT)
+            events = dict(poller.poll(station.watch.poll_ms))
+            station.on_poll(time.monotonic_ns())
             if ticks.sock in events:
                 t = ticks.recv_latest()
                 if t is not None:
-                    if watch.on_tick(time.monotonic_ns()):  # the heartbeat is back: the reply clears stale
-                        status.update(fault=int(status.read()["fault"]) & ~FAULT_HEARTBEAT)
                     last_tick = t.tick
-                    act = station.on_tick(t.tick)
+                    act = station.on_tick(t.tick, time.monotonic_ns())
                     if act.reconnect or dealer is None:
                         connect()
                     if dealer is not None:

@@ -176,6 +176,32 @@ def test_remote_station_translates_acknowledges_and_marks_a_silent_agent_stale()
     assert int(brain_status.read()["stale"]) == 1 and int(brain_status.read()["fault"]) & L.FAULT_LINK
 
 
+def test_remote_station_marks_a_silent_heartbeat_and_clears_it_on_the_next_tick():
+    """The heartbeat-silence rule lives in the station (issue 25 item 3), fed virtual time here."""
+    brain_status = MemoryDatabase("status", L.ARM_STATUS_LAYOUT)
+    ctrl_status = MemoryDatabase("ctrl_status", L.CTRL_STATUS_LAYOUT)
+    remote = RemoteStation(brain_status, None, StatusTranslator("arm1", ARM6R, lambda counts: np.eye(4)), 3,
+                           heartbeat_hz=60.0)
+    period = int(round(1e9 / 60))  # [ns]
+    t = 0
+    for tick in range(1, 5):  # ticks and replies on time: never silent
+        t = tick * period
+        assert not remote.on_poll(t)
+        remote.on_tick(tick, t)
+        remote.on_reply(tick, ctrl_status.raw_bytes(), t)
+    assert int(brain_status.read()["stale"]) == 0
+    assert not remote.on_poll(t + 3 * period)  # 3 periods of silence: not yet
+    assert remote.on_poll(t + 3 * period + 1)  # past stale_ticks periods: once
+    assert not remote.on_poll(t + 10 * period)
+    s = brain_status.read()
+    assert int(s["stale"]) == 1 and int(s["fault"]) & L.FAULT_HEARTBEAT and int(s["fault"]) & L.FAULT_LINK
+    remote.on_tick(5, t + 11 * period)  # the heartbeat is back: FAULT_HEARTBEAT cleared ...
+    assert not int(brain_status.read()["fault"]) & L.FAULT_HEARTBEAT
+    assert int(brain_status.read()["stale"]) == 1  # ... and the next reply clears stale
+    remote.on_reply(5, ctrl_status.raw_bytes(), t + 11 * period)
+    assert int(brain_status.read()["stale"]) == 0
+
+
 def test_arm_commands_are_in_heartbeat_ticks():
     cmd = MemoryDatabase("command", L.ARM_COMMAND_LAYOUT)
     assert arm_command.ticks_for(1.5, 60.0) == 90

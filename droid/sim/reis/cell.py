@@ -87,7 +87,8 @@ class LockstepArm:
         period_ns = int(round(1e9 / sched.heartbeat_hz))
         self.reis_agent = AgentStation(self.ctrl_status, self.ctrl_command, period_ns, STALE_TICKS)
         self.remote = RemoteStation(self.brain_status, self.brain_command,
-                                    StatusTranslator(name, ARM6R, self.wcp_from_counts), STALE_TICKS)
+                                    StatusTranslator(name, ARM6R, self.wcp_from_counts), STALE_TICKS,
+                                    sched.heartbeat_hz)
         self.alive = {"servo": True, "watchdog": True, "agent": True, "planner": True, "link": True}
         self._relayed = True  # a relayed tick since the servo agent's last cycle
         p = 1e9
@@ -133,7 +134,8 @@ class LockstepArm:
 
     def _tick(self, tick: int) -> None:
         t_ns = self.sched.t_ns
-        self.remote.on_tick(tick)
+        self.remote.on_poll(t_ns)  # the heartbeat-silence rule, on virtual time
+        self.remote.on_tick(tick, t_ns)
         if self.alive["link"]:  # the remote sends the Brain's command; the agent copies it in
             self.reis_agent.on_command(self.remote.command_payload(), tick, t_ns)
             relay = tick
