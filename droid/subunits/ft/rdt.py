@@ -74,6 +74,7 @@ TORQUE_UNITS_NM = {"N-m": 1.0, "Nm": 1.0, "N-mm": 1e-3, "Nmm": 1e-3, "lbf-in": L
 RATE_HZ = Range(1.0, 1000.0, "Hz")
 DEFAULT_RATE_HZ = 100.0
 PORT = Range(1, 65535, integral=True)
+PORT_OR_ANY = Range(0, 65535, integral=True)
 #: the HTTP request's time limit [s]
 HTTP_TIMEOUT_S = 0.5
 #: most datagrams read in one poll (bounded: a flood cannot hold the loop)
@@ -231,13 +232,14 @@ class NetFtUrl:
 FORM = "expected netft://HOST[:PORT][?rate_hz=HZ&http_port=N&bias=0|1]"
 
 
-def parse_url(url: str) -> NetFtUrl:
-    """The parts of a ``netft://`` URL; BadInput with the expected form."""
+def parse_url(url: str, *, any_port: bool = False) -> NetFtUrl:
+    """The parts of a ``netft://`` URL; BadInput with the expected form.  ``any_port``: port 0
+    (a server's "any free port", for the twin in tests) is allowed."""
     parts = urlsplit(url)
     if parts.scheme not in DRIVERS or not parts.hostname or parts.path not in ("", "/"):
         raise BadInput(f"force/torque device {url!r}: {FORM}")
     try:
-        port = parts.port or RDT_PORT
+        port = parts.port if parts.port is not None else RDT_PORT
         opts = dict(parse_qsl(parts.query, keep_blank_values=True, strict_parsing=bool(parts.query)))
     except ValueError:
         raise BadInput(f"force/torque device {url!r}: bad port or options; {FORM}") from None
@@ -246,8 +248,8 @@ def parse_url(url: str) -> NetFtUrl:
         raise BadInput(f"force/torque device {url!r}: unknown option {unknown[0]!r} "
                        f"(allowed: rate_hz, http_port, bias)")
 
-    def number(key: str, rng: Range, default, conv):
-        raw = opts.get(key)
+    def number(key: str, rng: Range, default, conv, raw=None):
+        raw = opts.get(key) if raw is None else raw
         if raw is None:
             return default
         try:
@@ -256,8 +258,10 @@ def parse_url(url: str) -> NetFtUrl:
             why = str(exc) if "=" in str(exc) else f"{key} = {raw!r}: must be in {rng.span}"
             raise BadInput(f"force/torque device {url!r}: {why}") from None
 
+    ports = PORT_OR_ANY if any_port else PORT
+    port = number("port", ports, RDT_PORT, int, str(port)) if parts.port is not None else port
     rate = number("rate_hz", RATE_HZ, DEFAULT_RATE_HZ, float)
-    http_port = number("http_port", PORT, HTTP_PORT, int)
+    http_port = number("http_port", ports, HTTP_PORT, int)
     bias = opts.get("bias", "0")
     if bias not in ("0", "1"):
         raise BadInput(f"force/torque device {url!r}: bias must be 0 or 1")
