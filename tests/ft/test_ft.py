@@ -321,3 +321,15 @@ def test_bias_from_the_url_is_sent_once_the_stream_runs():
         page_.close()
         dev.close()
     assert re.match(r"^netft$", rdt.NetFtDevice.scheme)
+
+
+def test_the_ft_subunit_never_imports_the_world_and_the_twin_only_what_sim_may():
+    from tests.layering import DROID, droid_imports, within
+
+    for path in (DROID / "subunits" / "ft").glob("*.py"):
+        for name in droid_imports(path):
+            assert within(name, ("droid.brain", "droid.kinematics", "droid.cli", "droid.numbers",
+                                 "droid.subunits.ft")), (path.name, name)
+    for path in (DROID / "sim" / "ft").glob("*.py"):
+        for name in droid_imports(path):
+            assert not within(name, ("droid.tasks", "droid.observe", "droid.experiments")), (path.name, name)

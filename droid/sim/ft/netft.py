@@ -41,7 +41,9 @@ never a thread), ``rdt_sequence`` from 1 per request, ``ft_sequence`` at the
 device's 7000 samples a second.  Requests of the wrong size or header are
 counted and ignored.  Its calibration page ``/netftapi2.xml`` is served by a
 small threaded ``http.server`` on the URL's ``http_port``, stopped in
-:meth:`close`.
+:meth:`close`.  Both sockets open on the world's first step, not when the
+world is built (a cell-file check binds nothing); a port already taken is one
+line on stderr and a retry every second of world time.
 
 :class:`NetFtTwin` is the core (a true wrench and requests in, record bytes
 out, seeded); :class:`NetFtTwinDevice` the world device with its sockets.
