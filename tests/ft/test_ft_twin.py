@@ -197,7 +197,7 @@ def test_the_twin_refuses_malformed_requests_and_serves_only_its_page():
     assert twin.request(rdt.request(0x7777)) is None  # unknown command
     assert twin.bad_requests == 3 and not twin.streaming
     assert twin.request(rdt.request(rdt.CMD_START_REALTIME, 3)) == rdt.CMD_START_REALTIME
-    out = twin.step(0.010, (1.0, 2.0, 3.0), (0.1, 0.2, 0.3))  # 10 due, 3 asked for
+    out = twin.step(0.010, ((1.0, 2.0, 3.0), (0.1, 0.2, 0.3)))  # 10 due, 3 asked for
     assert [rdt.RECORD.unpack(r)[0] for r in out] == [1, 2, 3] and not twin.streaming
     assert rdt.RECORD.unpack(out[0])[3:] == (1_000_000, 2_000_000, 3_000_000, 100_000, 200_000, 300_000)
     dev = twin_device()

@@ -113,8 +113,10 @@ SENSOR_MODELS: dict[str, SensorModel] = {
 class NetFtTwin:
     """The Net F/T as a core: requests and the true wrench in, RDT record bytes out (no I/O).
 
-    ``step(dt_s, force_N, torque_Nm)`` advances world time and returns the records due in
-    that span (while streaming); ``request(bytes)`` carries out one RDT request."""
+    ``step(dt_s, load)`` advances world time and returns the records due in that span (while
+    streaming); ``load`` is the true wrench ``(force [N], torque [N m])`` or a function giving
+    it, asked only when a record (or a bias) needs a reading.  ``request(bytes)`` carries out
+    one RDT request."""
 
     def __init__(self, model: SensorModel, seed: int = 0, rdt_rate_hz: float = DEFAULT_RDT_RATE_HZ,
                  noisy: bool = True) -> None:
@@ -125,6 +127,10 @@ class NetFtTwin:
         self.rng = np.random.default_rng(seed)
         self.rate_hz = float(rdt_rate_hz)
         self.noisy = noisy
+        self._noise = np.array(model.noise, float)
+        self._drift_rate = np.array(model.drift_per_sqrt_s, float)
+        self._range = np.array(model.range_, float)
+        self._per_count = np.array([self.cal.n_per_count] * 3 + [self.cal.nm_per_count] * 3)
         self.t_ns = 0
         self._k = 0  # records due so far
         self.streaming = False
@@ -135,6 +141,8 @@ class NetFtTwin:
         self.truth = np.zeros(6)  # the true load now [N, N m]
         self.reading = np.zeros(6)  # the transducer's reading now (noise, drift, clipped) [N, N m]
         self.saturated = False
+        self._unmeasured_s = 0.0  # world time since the last reading (the drift's step) [s]
+        self._bias_pending = False
         self.bad_requests = 0
         self.sent = 0
 
@@ -156,41 +164,44 @@ class NetFtTwin:
         elif command == CMD_STOP:
             self.streaming = False
         elif command == CMD_SET_BIAS:
-            self.bias = self.reading.copy()
+            self._bias_pending = True  # the reading at the next step
         else:
             self.bad_requests += 1
             return None
         return command
 
-    def _measure(self, dt_s: float) -> None:
-        m = self.model
-        if self.noisy and dt_s > 0:
-            self.drift += self.rng.normal(0.0, 1.0, 6) * np.array(m.drift_per_sqrt_s) * np.sqrt(dt_s)
-        raw = self.truth + self.drift
+    def _measure(self) -> None:
+        dt_s, self._unmeasured_s = self._unmeasured_s, 0.0
+        raw = self.truth
         if self.noisy:
-            raw = raw + self.rng.normal(0.0, 1.0, 6) * np.array(m.noise)
-        lim = np.array(m.range_, float)
-        self.saturated = bool(np.any(np.abs(raw) > lim))
-        self.reading = np.clip(raw, -lim, lim)
+            z = self.rng.standard_normal(12)
+            self.drift += z[:6] * self._drift_rate * np.sqrt(dt_s)
+            raw = raw + self.drift + z[6:] * self._noise
+        lim = self._range
+        self.saturated = bool((np.abs(raw) > lim).any())
+        self.reading = np.minimum(np.maximum(raw, -lim), lim)
 
     def record(self) -> bytes:
         """The next record of the stream (the reading less the bias, in counts)."""
         self.rdt_seq = (self.rdt_seq + 1) & 0xFFFFFFFF
-        v = self.reading - self.bias
-        f = np.rint(v[:3] / self.cal.n_per_count)
-        t = np.rint(v[3:] / self.cal.nm_per_count)
-        counts = tuple(int(np.clip(c, -2**31, 2**31 - 1)) for c in (*f, *t))
+        c = np.rint((self.reading - self.bias) / self._per_count)
+        counts = tuple(np.minimum(np.maximum(c, -2**31), 2**31 - 1).astype(np.int64).tolist())
         status = (STATUS_ERROR | STATUS_SATURATION) if self.saturated else 0
         self.sent += 1
         return Record(self.rdt_seq, self.ft_seq, status, counts).pack()
 
-    def step(self, dt_s: float, force_N=(0.0, 0.0, 0.0), torque_Nm=(0.0, 0.0, 0.0)) -> list[bytes]:
-        """Advance ``dt_s`` of world time under the true load; the records due meanwhile."""
+    def step(self, dt_s: float, load=((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))) -> list[bytes]:
+        """Advance ``dt_s`` of world time under the true ``load``; the records due meanwhile."""
         self.t_ns += int(round(dt_s * 1e9))
-        self.truth = np.array([*force_N, *torque_Nm], float)
-        self._measure(dt_s)
+        self._unmeasured_s += dt_s
         due = int(self.t_ns * self.rate_hz // 1e9)
         n, self._k = max(0, due - self._k), max(self._k, due)
+        if (n and self.streaming) or self._bias_pending:
+            force_N, torque_Nm = load() if callable(load) else load
+            self.truth = np.array([*force_N, *torque_Nm], float)
+            self._measure()
+            if self._bias_pending:
+                self.bias, self._bias_pending = self.reading.copy(), False
         out = []
         for _ in range(n if self.streaming else 0):
             out.append(self.record())
@@ -208,13 +219,18 @@ def wrench_on_sensor(T_global_sensor: np.ndarray, T_sensor_tool: np.ndarray, too
     the contact wrench ``(force [N], torque [N m] about the tool point)`` given in the global frame."""
     R = np.asarray(T_global_sensor, float)[:3, :3]
     f = R.T @ np.array([0.0, 0.0, -GRAVITY_MPS2 * tool_mass_kg])
-    m = np.cross(np.asarray(tool_com_mm, float) * 1e-3, f)
+    m = _cross(np.asarray(tool_com_mm, float) * 1e-3, f)
     if contact is not None:
         fc = R.T @ np.asarray(contact[0], float)
         mc = R.T @ np.asarray(contact[1], float)
         f = f + fc
-        m = m + mc + np.cross(np.asarray(T_sensor_tool, float)[:3, 3] * 1e-3, fc)
+        m = m + mc + _cross(np.asarray(T_sensor_tool, float)[:3, 3] * 1e-3, fc)
     return f, m
+
+
+def _cross(a, b) -> np.ndarray:
+    """a x b of two 3-vectors (numpy's cross costs ~50 us a call: too much at the world's 1 kHz)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
 class _PageHandler(BaseHTTPRequestHandler):
@@ -353,8 +369,7 @@ class NetFtTwinDevice(Device):
             cmd = self.twin.request(data)
             if cmd in (CMD_START_REALTIME, CMD_START_BUFFERED):
                 self.client = addr  # records go to whoever sent the start
-        f, m = self.true_wrench()
-        for rec in self.twin.step(dt_s, f, m):
+        for rec in self.twin.step(dt_s, self.true_wrench):
             if sock is None or self.client is None:
                 break
             try:
