@@ -62,6 +62,9 @@ def test_snoop_json_prints_force_and_torque_as_floats():
     assert d["force_N"] == [1.5, -2.25, 3.125] and d["torque_Nm"] == [0.0625, -0.5, 0.001]
     assert d["sample_age_ms"] == 2.5 and d["valid"] == 1 and d["fault"] == ["device"]
     assert "F [+1.50 -2.25 +3.12] N" in status_text(d)
+    import json
+
+    assert json.loads(json.dumps(d))["torque_Nm"] == [0.0625, -0.5, 0.001]  # what `droid-snoop ft --json` prints
 
 
 # ------------------------------------------------------------------------------ the wire
