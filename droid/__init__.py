@@ -8,4 +8,12 @@ Import direction (DESIGN §7): kinematics <- brain <- subunits; tasks use brain 
 kinematics only; sim may use everything and nothing outside sim imports it.
 """
 
+import os as _os
+
+# One BLAS thread (issue 28).  DROID's matrices are 3x3 to 6x6 and its programs are many small
+# processes: OpenBLAS's default, a thread per core, bought nothing but an 8 MB stack and a
+# buffer per thread in every program.  Set here, before any DROID module imports numpy, so
+# programs started by hand get it too; a value the user set wins.
+_os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
 __version__ = "0.1.0"

@@ -157,11 +157,30 @@ DEFAULT_FIFO_PRIORITY = 50
 
 MCL_CURRENT = 1  # <sys/mman.h>
 MCL_FUTURE = 2
+MCL_ONFAULT = 4  # Linux >= 4.4: lock pages as they are touched, do not populate whole mappings
+M_TRIM_THRESHOLD = -1  # <malloc.h> mallopt parameters
+M_MMAP_MAX = -4
 _libc.mlockall.argtypes = [ctypes.c_int]
+_libc.mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
+
+#: heap touched once before locking, kept by malloc afterwards [MB] (the PREEMPT_RT
+#: "pre-fault the heap" practice): a loop's first allocations find locked pages
+HEAP_PREFAULT_MB = 4
+
+
+def prefault_heap(mb: int = HEAP_PREFAULT_MB) -> None:
+    """Keep freed heap with malloc (no trimming, no mmap'd blocks) and touch ``mb`` MB of it
+    once, so allocations in the loop reuse pages that are already resident and locked."""
+    _libc.mallopt(M_TRIM_THRESHOLD, -1)
+    _libc.mallopt(M_MMAP_MAX, 0)
+    block = bytearray(mb * 1024 * 1024)  # calloc'd from the brk heap, every page written
+    for i in range(0, len(block), 4096):
+        block[i] = 1
+    del block
 
 
 def lock_memory(prog: str = "droid") -> bool:
-    """Lock every page of this process in RAM, now and in future (``mlockall``).
+    """Lock this process's pages in RAM as it touches them (``mlockall`` with ``MCL_ONFAULT``).
 
     A real-time program must not take page faults in its loop (the PREEMPT_RT
     and cyclictest ``-m`` practice).  On this kind of host it matters more than
@@ -170,18 +189,33 @@ def lock_memory(prog: str = "droid") -> bool:
     so the first move after an idle minute read its code back from disk in
     the servo's or the world's loop: stalls of tens of ms under I/O load, the
     world's clock slipped seconds and moves halted short (issue 16).  Locked
-    pages are never reclaimed.  Returns False (with a warning) where the OS
-    refuses, e.g. without root and with a small ``RLIMIT_MEMLOCK``;
-    ``DROID_NO_MLOCK=1`` skips it (for measuring what it buys).
+    pages are never reclaimed.
+
+    Only what the program touches is locked (issue 28): with ``MCL_ONFAULT`` the
+    pages it has used by now (its imports, its start-up, a pre-faulted heap of
+    :data:`HEAP_PREFAULT_MB`) and every page it touches later stay resident, but
+    untouched reservations -- thread stacks of 8 MB, BLAS buffers, malloc arenas,
+    the unused parts of every shared library -- are not populated.  Plain
+    ``MCL_CURRENT | MCL_FUTURE`` populated all of them: 110-220 MB locked per program,
+    2.1 GB for the default cell (docs/benchmarks.md "Footprint").  A kernel without
+    ``MCL_ONFAULT`` (before 4.4) gets the old full lock.
+
+    Returns False (with a warning) where the OS refuses, e.g. without root and with
+    a small ``RLIMIT_MEMLOCK``; ``DROID_NO_MLOCK=1`` skips it (for measuring what it
+    buys).
     """
     if os.environ.get("DROID_NO_MLOCK") == "1":
         return False
-    if _libc.mlockall(MCL_CURRENT | MCL_FUTURE) != 0:
-        err = ctypes.get_errno()
-        print(f"{prog}: memory not locked ({os.strerror(err)}); page faults may stall the loop",
-              file=sys.stderr)
-        return False
-    return True
+    prefault_heap()
+    if _libc.mlockall(MCL_CURRENT | MCL_FUTURE | MCL_ONFAULT) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err == 22 and _libc.mlockall(MCL_CURRENT | MCL_FUTURE) == 0:  # EINVAL: no MCL_ONFAULT
+        return True
+    err = ctypes.get_errno() if err == 22 else err
+    print(f"{prog}: memory not locked ({os.strerror(err)}); page faults may stall the loop",
+          file=sys.stderr)
+    return False
 
 
 _libc.munlockall.argtypes = []
@@ -214,10 +248,9 @@ def try_sched_fifo(priority: int | None = None, *, wanted: bool = True, prog: st
         return False
     if priority is None:
         priority = FIFO_PRIORITIES.get(prog, DEFAULT_FIFO_PRIORITY)
-    # Lock first, on the normal scheduler: mlockall pages in every mapping (hundreds of MB
-    # for a program with numpy and Pinocchio); done at FIFO priority it kept the cell's
-    # running real-time programs off the CPU while a new one started (a 205 ms stall of
-    # droid-sim measured at start-up, issue 16).
+    # Lock first, on the normal scheduler: the old full mlockall paged in every mapping
+    # (hundreds of MB) and, done at FIFO priority, kept the cell's running real-time
+    # programs off the CPU while a new one started (a 205 ms stall of droid-sim, issue 16).
     lock_memory(prog)
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))

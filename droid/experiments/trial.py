@@ -59,6 +59,7 @@ from droid.sim.lockstep import ORDER_DEVICE, ORDER_TASK, ORDER_WORLD, Scheduler
 from droid.sim.mvs.camera import CameraNoise
 from droid.tasks.seam.core import DEAD_ZONE_CYCLES, LOST_CYCLES, MODE_THESIS, MODES, SeamParams, speed_problem
 from droid.tasks.seam.cycle import TrackingCycle
+from droid.tasks.seam.station import ArmStatus, SeamtrackStation
 from droid.tasks.seam.delay import INVALID_READING, Reading
 from droid.tasks.seam.report import COLUMNS, SETTLE_EXTRA_MM, log_row  # noqa: F401 (columns; settling)
 
@@ -342,40 +343,33 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None,
         recorder = TrialRecorder(record, cfg.trial_id, geo.reis, geo.fanuc, T_wcp_tool, T_wcp_sensor, geo.T_hold6_W,
                                  geo.q_hold_deg, T_hold0)
 
-    def arm_faults_now():
-        """(subunit, Status fault bits) of the arms the tracker drives (a fixed holder has none)."""
-        arms = [(arm.name, arm.status_fault())]
-        if holder is not None:
-            arms.append((holder.name, holder.status_fault()))
-        return arms
+    station = SeamtrackStation(cyc, HEARTBEAT_HZ, first_cycle_tick=t0_tick + ct, first_log_tick=t0_tick + 1)
+
+    def lead_now():
+        return state["lead"], state["lead_tick"]
 
     def task(tick: int) -> None:
         if recorder is not None:
             recorder.sample(tick, sched.t_ns, arm, state)
         if state["done"]:
             return
-        k = tick - t0_tick
-        T_reis = arm.status_pose()
-        cyc.remember(tick, T_reis, tick, state["T_hold"])
-        if k >= ct and cyc.due(tick):
-            # the fault rule first (droid-seamtrack's): an arm that cannot move ends the trial
-            stop = cyc.check_faults(arm_faults_now())
-            if stop is None:
-                out = cyc.step(state["T_hold"], T_reis, tick, state["lead"], state["lead_tick"],
-                               arm.status_joints())
-                state["out"] = out
-                stop = out.stop
-            if stop is not None:
-                state["done"] = True
-                m = tool_reading(state["T_W_g"] @ arm.true_wcp() @ T_wcp_tool, crossing)
-                result.stop_reason, result.stop_detail = stop.reason, stop.detail
-                result.stop_s_mm = s_of(m) if m is not None else math.nan
-                result.stop_t_s = (sched.t_ns / 1e9)
-                return
-            arm.command_cart(out.reis_cmd, ct)
-            if holder is not None and out.cycle == 0 and not moving_holder and out.gmf1_cmd is not None:
-                holder.hold(out.gmf1_cmd, ct / HEARTBEAT_HZ)  # gen_hold_robot_wcp, as droid-seamtrack
-        if k >= 1 and cyc.log_due(tick):
+        reis = ArmStatus(arm.name, tick, arm.status_pose(), arm.status_fault(), joints_deg=arm.status_joints)
+        hold = ArmStatus(holder.name if holder is not None else "holder", tick, state["T_hold"],
+                         holder.status_fault() if holder is not None else None)  # a fixed holder: no faults
+        res = station.on_tick(tick, reis, hold, lead_now)
+        state["out"] = station.out
+        if res.stop is not None:
+            state["done"] = True
+            m = tool_reading(state["T_W_g"] @ arm.true_wcp() @ T_wcp_tool, crossing)
+            result.stop_reason, result.stop_detail = res.stop.reason, res.stop.detail
+            result.stop_s_mm = s_of(m) if m is not None else math.nan
+            result.stop_t_s = (sched.t_ns / 1e9)
+            return
+        if res.reis_cmd is not None:
+            arm.command_cart(res.reis_cmd, ct)
+        if res.hold_cmd is not None and holder is not None and not moving_holder:
+            holder.hold(res.hold_cmd, ct / HEARTBEAT_HZ)  # gen_hold_robot_wcp, as droid-seamtrack
+        if res.log:
             tool = state["tool"]
             if tool is not None:  # placed with the poses of its capture, as droid-seamtrack's log does
                 placed = cyc.place_tool(Reading(tool.height_mm, tool.lateral_mm, tool.roll_rad, True,

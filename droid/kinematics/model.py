@@ -58,6 +58,20 @@ def _vec6(name: str, values, dtype=float) -> np.ndarray:
     return a
 
 
+@dataclass(frozen=True)
+class Geometry:
+    """A robot file's optional ``[geometry]``: how its URDF draws the links (droid.kinematics.urdf).
+
+    ``link_radius_mm``: capsule radii of links 1-6 [mm] (None: nominal, from the reach);
+    ``visual_mesh`` / ``collision_mesh``: 7 mesh file names or URIs (base_link, link_1 ..
+    link_6; "" for the capsule), each in its URDF link frame, in metres (None: capsules).
+    """
+
+    link_radius_mm: tuple | None = None
+    visual_mesh: tuple | None = None
+    collision_mesh: tuple | None = None
+
+
 @dataclass(frozen=True, eq=False)
 class RobotModel:
     """A 6R arm of the OPW class: kinematics, gearing, limits and planner weights."""
@@ -81,6 +95,7 @@ class RobotModel:
     dynamics: object = None  # droid.kinematics.dynamics.Dynamics, or None (no [dynamics] table)
     servo_gains: object = None  # droid.kinematics.dynamics.ServoGains, or None (no [servo] table)
     axis_servo: object = None  # droid.kinematics.dynamics.AxisServo, or None (no [axis_servo] table)
+    geometry: Geometry = field(default_factory=Geometry)  # [geometry]: the URDF's link drawing
 
     def __post_init__(self) -> None:
         for name in ("joint_min_deg", "joint_max_deg", "home_switch_deg", "vmax_deg_s", "weights"):

@@ -25,7 +25,7 @@ from droid.numbers import BadFile, check_numbers
 from .dh import DhTable, fk_dh
 from .dynamics import axis_servo_from_table, dynamics_from_table, servo_from_table
 from .gearing import Gearing
-from .model import RobotModel
+from .model import Geometry, RobotModel
 from .opw import OpwParams
 from .opw import fk as opw_fk
 
@@ -37,7 +37,7 @@ DH_CHECK_TOL = 1e-6
 DH_CHECK_SAMPLES = 32
 
 _TOP_KEYS = {"name", "description", "assumed", "source", "dh", "opw", "gearing", "limits", "home", "planner",
-             "servo", "dynamics", "axis_servo"}
+             "servo", "dynamics", "axis_servo", "geometry"}
 _KEYS = {
     "dh": {"convention", "theta_offset_deg", "d_mm", "a_mm", "alpha_deg"},
     "opw": {"a1_mm", "a2_mm", "b_mm", "c1_mm", "c2_mm", "c3_mm", "c4_mm", "offsets_deg", "signs"},
@@ -45,6 +45,7 @@ _KEYS = {
     "limits": {"joint_min_deg", "joint_max_deg", "counts_min", "counts_max", "vmax_deg_s"},
     "home": {"switch_deg", "search_dir"},
     "planner": {"weights"},
+    "geometry": {"link_radius_mm", "visual_mesh", "collision_mesh"},
 }
 _REQUIRED = {
     "opw": {"c1_mm", "c2_mm", "c3_mm"},
@@ -115,7 +116,7 @@ def _load_path(path: Path) -> RobotModel:
 def _table(data: dict, name: str) -> dict:
     t = data.get(name)
     if t is None:
-        if name == "dh":
+        if name in ("dh", "geometry"):
             return {}
         raise ValueError(f"missing table [{name}]")
     if not isinstance(t, dict):
@@ -208,6 +209,7 @@ def model_from_dict(data: dict, source: str = "") -> RobotModel:
     axis_servo = axis_servo_from_table(data["axis_servo"]) if "axis_servo" in data else None
     if axis_servo is not None and dynamics is None:
         raise ValueError("[axis_servo]: needs a [dynamics] table (the loops drive the arm's dynamics)")
+    geometry = _geometry(_table(data, "geometry"))
     return RobotModel(
         name=name,
         description=description,
@@ -227,7 +229,31 @@ def model_from_dict(data: dict, source: str = "") -> RobotModel:
         dynamics=dynamics,
         servo_gains=servo,
         axis_servo=axis_servo,
+        geometry=geometry,
     )
+
+
+def _geometry(t: dict) -> Geometry:
+    """The optional ``[geometry]`` table: capsule radii [mm] of links 1-6 (> 0) and mesh names
+    (7 strings: base_link, link_1 .. link_6; "" keeps the capsule)."""
+    radius = None
+    if "link_radius_mm" in t:
+        radius = tuple(_six("geometry", "link_radius_mm", t["link_radius_mm"]))
+        if any(r <= 0 for r in radius):
+            raise ValueError("[geometry] link_radius_mm: radii must be > 0 mm")
+    meshes = {}
+    for key in ("visual_mesh", "collision_mesh"):
+        if key not in t:
+            meshes[key] = None
+            continue
+        v = t[key]
+        if not isinstance(v, list) or len(v) != 7 or not all(isinstance(x, str) for x in v):
+            raise ValueError(f"[geometry] {key}: expected 7 strings (base_link, link_1 .. link_6; \"\" for none)")
+        for x in v:
+            if any(ch in x for ch in '<>"&') or any(ord(ch) < 32 for ch in x):
+                raise ValueError(f"[geometry] {key}: {x!r} is not a file name or URI")
+        meshes[key] = tuple(v)
+    return Geometry(link_radius_mm=radius, **meshes)
 
 
 def counts_box(gearing: Gearing, qmin_deg, qmax_deg) -> tuple[np.ndarray, np.ndarray]:

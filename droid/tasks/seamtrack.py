@@ -58,6 +58,7 @@ from droid.tasks.seam import report
 from droid.tasks.seam.core import (DEAD_ZONE_CYCLES, LOST_CYCLES, MAX_CYCLES, MAX_GAIN, MAX_RUN_LENGTH_MM,
                                    MAX_SPEED_MM_S, MODE_THESIS, MODES, STOP_END, SeamParams)
 from droid.tasks.seam.cycle import SENSOR_LAG_TICKS, TrackingCycle  # noqa: F401 (SENSOR_LAG_TICKS: docs)
+from droid.tasks.seam.station import ArmStatus, SeamtrackStation
 from droid.tasks.seam.delay import INVALID_READING, Reading
 from droid.tasks.seam.layout import POSITION_IDS, load_layout
 
@@ -222,11 +223,10 @@ class Tracker:
         except ValueError as exc:
             raise BadInput(f"cell {cell.name}: {exc}") from None
         self.core = self.cyc.core
+        self.station = SeamtrackStation(self.cyc, cell.heartbeat_hz)
+        self.log_due = False
         self.rows: list[tuple] = []
-        self.lead = INVALID_READING
-        self.out = None
         self.t0 = None
-        self.stale_since = None
         self.dbs = []
         self.recorder = None  # droid.observe.record.LiveRecorder with --record
 
@@ -261,49 +261,36 @@ class Tracker:
         move_to_start(self.hold, T_hold, f"holding pose of position ({position})", self.args.quiet)
         move_to_start(self.reis, T_reis, f"start of position ({position})", self.args.quiet)
 
-    # -- the pose histories (latency compensation: droid.tasks.seam.cycle) ------------
-    def remember(self):
-        """Every tick: hand both robots' Status poses to the tracking cycle; returns (Reis, GMF1) records."""
-        rec = self.reis.read()
-        hold_rec = self.hold.read()
-        if not int(rec["stale"]) and not int(hold_rec["stale"]):
-            self.cyc.remember(int(rec["tick"]), pose_of(rec), int(hold_rec["tick"]), pose_of(hold_rec))
-        return rec, hold_rec
+    # -- one tick: the station (droid.tasks.seam.station) between records and commands ----
+    def arm_status(self, arm: BrainArm, rec) -> ArmStatus:
+        """An arm's Brain Status record as the station reads it."""
+        return ArmStatus(arm.sub.name, int(rec["tick"]), pose_of(rec), int(rec["fault"]), bool(int(rec["stale"])),
+                         joints_deg=lambda: arm.joints_deg(rec))
 
-    # -- one cycle ----------------------------------------------------------
-    def cycle(self, reis_rec, hold_rec) -> str | None:
-        """Read, step the tracking cycle, write the command; returns a stop reason or None.
-        First the fault rule (TrackingCycle.check_faults): an arm that cannot move stops the
-        run before anything is written."""
-        fault = self.cyc.check_faults(((self.reis.sub.name, reis_rec["fault"]),
-                                       (self.hold.sub.name, hold_rec["fault"])))
-        if fault is not None:
-            return str(fault)
-        stale = [arm.sub.name for arm, rec in ((self.reis, reis_rec), (self.hold, hold_rec)) if int(rec["stale"])]
-        if stale:  # no command this cycle: the Reis finishes its last step and waits
-            now = time.monotonic()
-            self.stale_since = self.stale_since or now
-            if now - self.stale_since > STALE_GRACE_S:
-                return f"{', '.join(stale)} went stale"
-            return None
-        self.stale_since = None
-        lead_rec = self.lead_db.read()
-        self.lead = reading_of(lead_rec, self.cell.period_ns)
-        out = self.cyc.step(pose_of(hold_rec), pose_of(reis_rec), int(reis_rec["tick"]), self.lead,
-                            int(lead_rec["tick"]), self.reis.joints_deg(reis_rec))
-        self.out = out
-        if out.stop is not None:
-            return str(out.stop)
-        self.reis.command_cart(out.reis_cmd, self.cyc.cycle_ticks)
-        if out.cycle == 0:  # gen_hold_robot_wcp: the holder keeps the pose it has
-            self.hold.command_cart(out.gmf1_cmd, self.cyc.cycle_ticks)
+    def read_lead(self) -> tuple[Reading, int]:
+        """The lead sensor's newest reading and the tick of the Status it came in (read on a cycle)."""
+        rec = self.lead_db.read()
+        return reading_of(rec, self.cell.period_ns), int(rec["tick"])
+
+    def on_tick(self, tick: int) -> str | None:
+        """Read both arms' Status, run the station, write its commands; a stop's text or None."""
+        rec, hold_rec = self.reis.read(), self.hold.read()
+        res = self.station.on_tick(tick, self.arm_status(self.reis, rec), self.arm_status(self.hold, hold_rec),
+                                   self.read_lead)
+        if res.stop is not None:
+            return str(res.stop)
+        if res.reis_cmd is not None:
+            self.reis.command_cart(res.reis_cmd, self.station.cycle_ticks)
+        if res.hold_cmd is not None:
+            self.hold.command_cart(res.hold_cmd, self.station.cycle_ticks)
+        self.log_due = res.log
         return None
 
     def log(self, t_s: float) -> None:
         """One 10 Hz row.  A tool-tip reading is placed at its capture instant (its stamp, else its
         Status tick minus the lag; TrackingCycle.place_tool): the row's travel is the tool's then."""
         tool = None
-        out = self.out
+        out = self.station.out
         travel = out.travel_mm if out is not None else 0.0
         if self.tool_db is not None:
             rec = self.tool_db.read()
@@ -315,7 +302,7 @@ class Tracker:
                 elif math.isfinite(placed.travel_mm):
                     travel = placed.travel_mm
         self.rows.append(report.log_row(
-            s_mm=travel, t_s=t_s, lead=self.lead,
+            s_mm=travel, t_s=t_s, lead=self.station.lead,
             tool=None if tool is None else (tool.y_mm, tool.x_mm, tool.roll_rad),
             out=out, camera_to_tcp_mm=self.wrist.camera_to_tcp_mm))
 
@@ -347,24 +334,22 @@ class Tracker:
             last_tick_wall = now
             if self.t0 is None:
                 self.t0 = t.t_ns
-            reis_rec, hold_rec = self.remember()
             if self.recorder is not None:
                 self.recorder.on_tick(t.tick)
             # tick numbers follow time: a late wake-up (ticks drained at once) still steps once
-            if self.cyc.due(t.tick):
-                why = self.cycle(reis_rec, hold_rec)
-                if why is not None:
-                    stop = self.core.stopped
-                    if stop is not None and stop.reason == STOP_END:
-                        return EXIT_OK, why
-                    return EXIT_RUNTIME, why
-            if self.cyc.log_due(t.tick):
+            why = self.on_tick(t.tick)
+            if why is not None:
+                stop = self.core.stopped
+                if stop is not None and stop.reason == STOP_END:
+                    return EXIT_OK, why
+                return EXIT_RUNTIME, why
+            if self.log_due:
                 self.log((t.t_ns - self.t0) / 1e9)
-            if not self.args.quiet and now - last_progress >= 1.0 and self.out is not None:
+            o, lead = self.station.out, self.station.lead
+            if not self.args.quiet and now - last_progress >= 1.0 and o is not None:
                 last_progress = now
-                o = self.out
-                print(f"{PROG}: {o.travel_mm:7.1f} mm  {o.phase:<9} lead y {self.lead.y_mm:+6.2f} "
-                      f"x {self.lead.x_mm:+6.2f} mm{'' if self.lead.valid else ' (invalid)'}", file=sys.stderr)
+                print(f"{PROG}: {o.travel_mm:7.1f} mm  {o.phase:<9} lead y {lead.y_mm:+6.2f} "
+                      f"x {lead.x_mm:+6.2f} mm{'' if lead.valid else ' (invalid)'}", file=sys.stderr)
 
 
 @run
@@ -396,7 +381,8 @@ def main(argv=None) -> int:
         tr.close()
     stop = tr.core.stopped
     reason, detail = (stop.reason, stop.detail) if stop is not None else (why, "")
-    s_end = stop.travel_mm if stop is not None else (tr.out.travel_mm if tr.out is not None else math.nan)
+    last = tr.station.out
+    s_end = stop.travel_mm if stop is not None else (last.travel_mm if last is not None else math.nan)
     summary = report.summarize(tr.rows, stop_reason=reason, stop_detail=detail, stop_s_mm=s_end,
                                camera_to_tcp_mm=tr.wrist.camera_to_tcp_mm, commanded_mm_s=args.speed)
     if args.log:

@@ -148,21 +148,21 @@ def test_cycle_writes_commands_until_an_arm_faults_and_none_after():
     tr, fake = _tracker()
     fake.install(tr)
     fake.tick = 1
-    assert tr.cycle(tr.reis.read(), tr.hold.read()) is None
+    assert tr.on_tick(fake.tick) is None
     assert fake.commands == [("arm1", 1), ("gmf1", 1)]  # the Reis step and the GMF1's one hold
     fake.tick = 3
     fake.faults["arm1"] = (3, FAULT_BRAKING)  # braking alone: the tracker goes on
-    assert tr.cycle(tr.reis.read(), tr.hold.read()) is None
+    assert tr.on_tick(fake.tick) is None
     assert fake.commands[-1] == ("arm1", 3)
     fake.tick = 5
     fake.faults["arm1"] = (5, FAULT_SERVO | FAULT_BRAKING)
-    why = tr.cycle(tr.reis.read(), tr.hold.read())
+    why = tr.on_tick(fake.tick)
     assert why == "fault at 0.0 mm (arm1 faults: servo, braking)"
     assert tr.core.stopped.reason == STOP_FAULT
     assert fake.commands[-1] == ("arm1", 3)
     fake.tick = 7
     fake.faults.clear()
-    tr.cycle(tr.reis.read(), tr.hold.read())  # cleared again: still stopped, nothing written
+    tr.on_tick(fake.tick)  # cleared again: still stopped, nothing written
     assert fake.commands[-1] == ("arm1", 3)
 
 
@@ -171,7 +171,7 @@ def test_a_holder_fault_stops_the_run_naming_the_holder():
     fake.install(tr)
     fake.faults["gmf1"] = (0, FAULT_DEVICE)
     fake.tick = 1
-    assert tr.cycle(tr.reis.read(), tr.hold.read()) == "fault at 0.0 mm (gmf1 faults: device)"
+    assert tr.on_tick(fake.tick) == "fault at 0.0 mm (gmf1 faults: device)"
     assert fake.commands == []
 
 

@@ -98,6 +98,7 @@ STOP_LOST = "seam lost"
 STOP_UNREACHABLE = "unreachable"
 STOP_RUNAWAY = "runaway"
 STOP_FAULT = "fault"  # an arm's Status reports a fault it cannot move with (droid.tasks.seam.cycle.arm_faults)
+STOP_STALE = "stale"  # an arm's Status stale past the grace (droid.tasks.seam.station)
 #: Runaway guard (an addition): after the dead zone, the tool moving more than
 #: RUNAWAY_FACTOR times the commanded speed over the last RUNAWAY_WINDOW cycles (and
 #: more than RUNAWAY_MIN_MM) stops the run -- an oscillating, unstable loop (long
@@ -204,7 +205,7 @@ class TrackingStop:
     polls): this is the tracking core's verdict, a value the report prints.
     """
 
-    reason: str  # STOP_END, STOP_LOST, STOP_UNREACHABLE, STOP_RUNAWAY, STOP_FAULT
+    reason: str  # STOP_END, STOP_LOST, STOP_UNREACHABLE, STOP_RUNAWAY, STOP_FAULT, STOP_STALE
     detail: str
     travel_mm: float
     cycle: int
