@@ -17,6 +17,7 @@ class          Brain areas                subunit areas                 drivers 
                                           ctrl_command (4.3)
 ``line_laser`` status (3.3)               ctrl_status (3.3)             serial line, shm:// DSP
 ``joystick``   status (joystick_status)   ctrl_status (joystick_status) js://, evdev://
+``ft6``        status (ft6_status)        ctrl_status (ft6_status)      netft:// (RDT over UDP)
 =============  =========================  ============================  ===========================
 """
 from __future__ import annotations
@@ -30,6 +31,7 @@ from droid.brain.layouts import (
     CTRL_COMMAND_LAYOUT,
     CTRL_STATUS_LAYOUT,
     FAULT_NAMES,
+    FT6_STATUS_LAYOUT,
     JOYSTICK_STATUS_LAYOUT,
     SENSOR_STATUS_LAYOUT,
     Layout,
@@ -86,8 +88,21 @@ JOYSTICK = SubunitClass(
              "evdev": "droid.subunits.joystick.driver:EvdevDevice"},
 )
 
+FT6 = SubunitClass(
+    name="ft6",
+    description="six-axis force/torque sensor on Ethernet (ATI Net F/T, RDT; thesis §7.3)",
+    brain={"status": FT6_STATUS_LAYOUT},
+    local={"ctrl_status": FT6_STATUS_LAYOUT},
+    copy_fields=("force_N", "torque_Nm", "force_tool_N", "torque_tool_Nm", "sample_ns", "sample_age_ms",
+                 "rdt_seq", "ft_seq", "status_word", "valid", "saturated", "biased", "dropped",
+                 "out_of_order", "bad_datagrams", "records", "fault"),
+    snoop_fields=("force_N", "torque_Nm", "force_tool_N", "torque_tool_Nm", "sample_age_ms", "valid",
+                  "saturated", "biased", "rdt_seq", "dropped", "out_of_order", "bad_datagrams", "fault"),
+    drivers={"netft": "droid.subunits.ft.rdt:NetFtDevice"},
+)
+
 #: every class a cell file may name
-CLASSES: dict[str, SubunitClass] = {c.name: c for c in (ARM6R, LINE_LASER, JOYSTICK)}
+CLASSES: dict[str, SubunitClass] = {c.name: c for c in (ARM6R, LINE_LASER, JOYSTICK, FT6)}
 
 
 def subunit_class(name: str) -> SubunitClass:
@@ -114,6 +129,8 @@ def field_json(rec, name: str):
         return round(float(value), 4)
     if name == "axes":
         return [round(float(v), 4) for v in value]
+    if getattr(getattr(value, "dtype", None), "kind", "") == "f":  # N, N m, ms: floats, never truncated
+        return [round(float(v), 6) for v in value] if value.shape != () else round(float(value), 6)
     if getattr(value, "shape", ()) != ():
         return [int(v) for v in value]
     return int(value)

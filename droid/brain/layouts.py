@@ -44,6 +44,7 @@ KIND_CTRL_STATUS = 4  # motion controller, Table 4.2
 KIND_CTRL_COMMAND = 5  # motion controller, Table 4.3
 KIND_PROC_STATUS = 6  # one per running program (droid-cell status)
 KIND_JOYSTICK_STATUS = 7  # an analog joystick (thesis §2.6, §3.4, Figure 2.10)
+KIND_FT6_STATUS = 8  # a six-axis force/torque sensor (thesis §7.3; droid.subunits.ft)
 
 # Header flags
 FLAG_RECOVERED = 1  # the semaphore was taken over from a dead holder at least once
@@ -278,6 +279,35 @@ JOYSTICK_STATUS = _dtype(
 )
 
 
+FT6_STATUS = _dtype(
+    HEADER_FIELDS
+    + [
+        ("force_N", "<f8", (3,)),  # Fx Fy Fz in the sensor frame [N] (after the software bias)
+        ("torque_Nm", "<f8", (3,)),  # Tx Ty Tz about the sensor frame's origin [N m]
+        ("force_tool_N", "<f8", (3,)),  # the same force in the tool frame [N] (cell file tool_pose)
+        ("torque_tool_Nm", "<f8", (3,)),  # the torque about the tool frame's origin, in it [N m]
+        ("sample_ns", "<i8", None),  # CLOCK_MONOTONIC when the reading's record arrived [ns]: the
+        #                              time the reading describes
+        ("sample_age_ms", "<f8", None),  # age of that record at updated_ns [ms]
+        ("tick", "<u8", None),  # heartbeat tick of the last refresh (Brain side)
+        ("updated_ns", "<i8", None),  # CLOCK_MONOTONIC of the last refresh [ns]
+        ("rdt_seq", "<u4", None),  # RDT sequence number of the reading's record
+        ("ft_seq", "<u4", None),  # the device's internal sample number of that record
+        ("status_word", "<u4", None),  # the device's 32-bit status code in that record
+        ("valid", "<u4", None),  # 1 = calibrated, streaming, the newest record within stale_ticks
+        ("saturated", "<u4", None),  # 1 = the device flags saturation (status bit 0x00020000)
+        ("biased", "<u4", None),  # 1 = a software bias was set in this stream
+        ("dropped", "<u4", None),  # records lost (gaps in rdt_seq), since start (wraps)
+        ("out_of_order", "<u4", None),  # records older than (or equal to) one already applied
+        ("bad_datagrams", "<u4", None),  # datagrams that were not one 36-byte record
+        ("records", "<u4", None),  # records applied (wraps)
+        ("stale", "<u4", None),  # 1 when the link (Brain) or the records (subunit) went silent
+        ("fault", "<u4", None),  # FAULT_* bits (FAULT_DEVICE: no calibration, no records)
+    ],
+    208,
+)
+
+
 @dataclass(frozen=True)
 class Layout:
     """A versioned record layout: kind, version and dtype."""
@@ -301,6 +331,7 @@ CTRL_COMMAND_LAYOUT = Layout("ctrl_command", KIND_CTRL_COMMAND, 1, CTRL_COMMAND,
 PROC_STATUS_LAYOUT = Layout("proc_status", KIND_PROC_STATUS, 2, PROC_STATUS, "droid_proc_status")
 JOYSTICK_STATUS_LAYOUT = Layout("joystick_status", KIND_JOYSTICK_STATUS, 1, JOYSTICK_STATUS,
                                 "droid_joystick_status")
+FT6_STATUS_LAYOUT = Layout("ft6_status", KIND_FT6_STATUS, 1, FT6_STATUS, "droid_ft6_status")
 
 LAYOUTS = {
     lay.kind: lay
@@ -312,6 +343,7 @@ LAYOUTS = {
         CTRL_COMMAND_LAYOUT,
         PROC_STATUS_LAYOUT,
         JOYSTICK_STATUS_LAYOUT,
+        FT6_STATUS_LAYOUT,
     )
 }
 

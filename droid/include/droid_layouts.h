@@ -404,4 +404,69 @@ _Static_assert(offsetof(droid_joystick_status_t, n_axes) == 144, "droid_joystick
 _Static_assert(offsetof(droid_joystick_status_t, n_buttons) == 148, "droid_joystick_status.n_buttons offset");
 _Static_assert(sizeof(droid_joystick_status_t) == 160, "droid_joystick_status size");
 
+#define DROID_FT6_STATUS_KIND 8
+#define DROID_FT6_STATUS_VERSION 1
+#define DROID_FT6_STATUS_SIZE 208
+#pragma pack(push, 1)
+typedef struct droid_ft6_status {
+    uint32_t magic;
+    uint16_t version;
+    uint16_t kind;
+    uint32_t size;
+    int32_t writer_pid;
+    int32_t holder_pid;
+    uint32_t flags;
+    uint64_t seq;
+    double force_N[3];
+    double torque_Nm[3];
+    double force_tool_N[3];
+    double torque_tool_Nm[3];
+    int64_t sample_ns;
+    double sample_age_ms;
+    uint64_t tick;
+    int64_t updated_ns;
+    uint32_t rdt_seq;
+    uint32_t ft_seq;
+    uint32_t status_word;
+    uint32_t valid;
+    uint32_t saturated;
+    uint32_t biased;
+    uint32_t dropped;
+    uint32_t out_of_order;
+    uint32_t bad_datagrams;
+    uint32_t records;
+    uint32_t stale;
+    uint32_t fault;
+} droid_ft6_status_t;
+#pragma pack(pop)
+_Static_assert(offsetof(droid_ft6_status_t, magic) == 0, "droid_ft6_status.magic offset");
+_Static_assert(offsetof(droid_ft6_status_t, version) == 4, "droid_ft6_status.version offset");
+_Static_assert(offsetof(droid_ft6_status_t, kind) == 6, "droid_ft6_status.kind offset");
+_Static_assert(offsetof(droid_ft6_status_t, size) == 8, "droid_ft6_status.size offset");
+_Static_assert(offsetof(droid_ft6_status_t, writer_pid) == 12, "droid_ft6_status.writer_pid offset");
+_Static_assert(offsetof(droid_ft6_status_t, holder_pid) == 16, "droid_ft6_status.holder_pid offset");
+_Static_assert(offsetof(droid_ft6_status_t, flags) == 20, "droid_ft6_status.flags offset");
+_Static_assert(offsetof(droid_ft6_status_t, seq) == 24, "droid_ft6_status.seq offset");
+_Static_assert(offsetof(droid_ft6_status_t, force_N) == 32, "droid_ft6_status.force_N offset");
+_Static_assert(offsetof(droid_ft6_status_t, torque_Nm) == 56, "droid_ft6_status.torque_Nm offset");
+_Static_assert(offsetof(droid_ft6_status_t, force_tool_N) == 80, "droid_ft6_status.force_tool_N offset");
+_Static_assert(offsetof(droid_ft6_status_t, torque_tool_Nm) == 104, "droid_ft6_status.torque_tool_Nm offset");
+_Static_assert(offsetof(droid_ft6_status_t, sample_ns) == 128, "droid_ft6_status.sample_ns offset");
+_Static_assert(offsetof(droid_ft6_status_t, sample_age_ms) == 136, "droid_ft6_status.sample_age_ms offset");
+_Static_assert(offsetof(droid_ft6_status_t, tick) == 144, "droid_ft6_status.tick offset");
+_Static_assert(offsetof(droid_ft6_status_t, updated_ns) == 152, "droid_ft6_status.updated_ns offset");
+_Static_assert(offsetof(droid_ft6_status_t, rdt_seq) == 160, "droid_ft6_status.rdt_seq offset");
+_Static_assert(offsetof(droid_ft6_status_t, ft_seq) == 164, "droid_ft6_status.ft_seq offset");
+_Static_assert(offsetof(droid_ft6_status_t, status_word) == 168, "droid_ft6_status.status_word offset");
+_Static_assert(offsetof(droid_ft6_status_t, valid) == 172, "droid_ft6_status.valid offset");
+_Static_assert(offsetof(droid_ft6_status_t, saturated) == 176, "droid_ft6_status.saturated offset");
+_Static_assert(offsetof(droid_ft6_status_t, biased) == 180, "droid_ft6_status.biased offset");
+_Static_assert(offsetof(droid_ft6_status_t, dropped) == 184, "droid_ft6_status.dropped offset");
+_Static_assert(offsetof(droid_ft6_status_t, out_of_order) == 188, "droid_ft6_status.out_of_order offset");
+_Static_assert(offsetof(droid_ft6_status_t, bad_datagrams) == 192, "droid_ft6_status.bad_datagrams offset");
+_Static_assert(offsetof(droid_ft6_status_t, records) == 196, "droid_ft6_status.records offset");
+_Static_assert(offsetof(droid_ft6_status_t, stale) == 200, "droid_ft6_status.stale offset");
+_Static_assert(offsetof(droid_ft6_status_t, fault) == 204, "droid_ft6_status.fault offset");
+_Static_assert(sizeof(droid_ft6_status_t) == 208, "droid_ft6_status size");
+
 #endif /* DROID_LAYOUTS_H */

@@ -42,6 +42,10 @@ def status_text(d: dict) -> str:
         pressed = [i for i, b in enumerate(d["buttons"]) if b]
         state = "valid" if d["valid"] else "INVALID"
         return f"{d['subunit']} tick {d['tick']}{flags}  axes [{axes}]  buttons {pressed}  {state}"
+    if "force_N" in d:  # a force/torque sensor (ft6)
+        f, t = (" ".join(f"{v:+.2f}" for v in d[k]) for k in ("force_N", "torque_Nm"))
+        return (f"{d['subunit']} tick {d['tick']}{flags}  F [{f}] N  T [{t}] N m  "
+                f"{'valid' if d['valid'] else 'INVALID'}{'  SATURATED' if d['saturated'] else ''}")
     if "invalid" in d:
         state = "INVALID" if d["invalid"] else "valid"
         return (f"{d['subunit']} tick {d['tick']}{flags}  x {d['x']:.3f}  y {d['y']:.3f}  "

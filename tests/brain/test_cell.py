@@ -185,8 +185,8 @@ def test_cell_over_tcp_started_host_by_host(tmp_path, cell_name):
             wait_for(lambda: not snoop_json(path, sub)[0]["stale"], what=f"{sub} fresh over tcp")
         names = droid("droid.brain.names", "--list", "--json", "--cell", str(path))
         eps = {json.loads(l)["name"]: json.loads(l)["endpoint"] for l in names.stdout.splitlines()}
-        # the sensors have serial links, no agents; the joystick has the generic agent
-        assert set(eps) == {"heartbeat", "arm1", "gmf1", "joy"}
+        # the sensors have serial links, no agents; the joystick and the F/T sensor have the generic agent
+        assert set(eps) == {"heartbeat", "arm1", "gmf1", "joy", "ft"}
         assert all(e.startswith("tcp://127.0.0.1:") for e in eps.values())
     finally:
         out = droid(CELL, "down", "--cell", str(path))

@@ -44,6 +44,7 @@ def check_cell(path) -> None:
     from droid.sim.world import WORLD_RATE_HZ, build_world
     from droid.subunits.gmf1.config import gmf1_config
     from droid.subunits.joystick.prog import joystick_options
+    from droid.subunits.ft.prog import ft_options
     from droid.subunits.mvs.sensor import cell_calibration
     from droid.cli import file_number
 
@@ -60,6 +61,8 @@ def check_cell(path) -> None:
                 cell_calibration(sub, f"[subunits.{sub.name}]")
         if sub.cls == "joystick":
             joystick_options(sub)
+        if sub.cls == "ft6":
+            ft_options(sub)
     if cell.world.get("enabled", True):
         file_number(cell.world.get("rate_hz", 1000.0), WORLD_RATE_HZ, "[world]", "rate_hz")
         build_world(cell).close()

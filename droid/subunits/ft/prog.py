@@ -1,0 +1,211 @@
+"""droid-ft SUBUNIT: a six-axis force/torque sensor into its subunit's Status (thesis §7.3).
+
+"Force/torque sensors ... could be used on any of the two robots through the
+standard interface" (§7): the sensor is a subunit of class ``ft6`` like any
+other.  This program reads the calibration page of the device named by the
+subunit's ``device`` URL (:mod:`droid.subunits.ft.rdt`), asks it for
+real-time RDT streaming, and ``rate_hz`` times a second (the URL's) checks
+every record that arrived and writes the newest into its ``ctrl_status``
+(``ft6_status``): force and torque in the sensor frame [N, N m], the same
+wrench in the tool frame (``tool_pose``: the tool frame in the sensor frame,
+x y z mm, A B C ZYZ deg), the record's sequence numbers and status word, and
+the counters.  ``droid-agent`` serves that record to the Brain's
+``droid-remote``, which copies it into the Brain's Status (``droid-snoop``).
+
+The stale rule is the cell's (``stale_ticks`` heartbeat periods, as every
+link applies it): no record for that long makes ``valid = 0``, ``stale = 1``
+and the DEVICE fault, and the start request is sent again every
+``RESTART_S`` (the device may have restarted); so does a calibration page
+that cannot be read (one line on stderr per new reason; retried every
+``RESTART_S``).  A reading is never scaled without a calibration.
+
+Cell file::
+
+    [subunits.ft]
+    class = "ft6"
+    host = "arm1"
+    device = "netft://127.0.0.1:49152?rate_hz=100&http_port=8049"
+    tool_pose = [0.0, 0.0, 150.0, 0.0, 0.0, 0.0]   # tool frame in the sensor frame (mm, ZYZ deg)
+    programs = ["droid-ft", "droid-agent"]
+"""
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from droid.brain.databases import open_local
+from droid.brain.layouts import FAULT_DEVICE
+from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
+from droid.brain.rt import PeriodicTimer
+from droid.cli import BadInput, run
+from droid.kinematics.transforms import pose_to_T
+from droid.numbers import POSE
+from droid.subunits.ft.rdt import (STATUS_SATURATION, Calibration, CalibrationError, NetFtDevice, Record,
+                                   open_ft)
+
+PROG = "droid-ft"
+#: how often a silent device is asked to stream again, and a missing calibration fetched again [s]
+RESTART_S = 0.5
+U32 = 0xFFFFFFFF
+
+
+@dataclass(frozen=True)
+class FtOptions:
+    url: str
+    T_sensor_tool: np.ndarray  # 4x4, mm
+
+
+def ft_options(sub) -> FtOptions:
+    """(device URL, the tool frame in the sensor frame) of an ft6 subunit; BadInput names the key."""
+    where = f"[subunits.{sub.name}]"
+    if sub.cls != "ft6":
+        raise BadInput(f"{sub.name} is a {sub.cls} subunit, not an ft6 force/torque sensor")
+    url = sub.options.get("device")
+    if not isinstance(url, str) or not url:
+        raise BadInput(f"{where} an ft6 sensor needs 'device' (e.g. \"netft://192.168.1.1:49152\")")
+    pose = sub.options.get("tool_pose", [0.0] * 6)
+    if not isinstance(pose, list) or len(pose) != 6:
+        raise BadInput(f"{where} tool_pose must be 6 numbers: x y z [mm] A B C [ZYZ deg]")
+    try:
+        vals = [rng.check(v, f"{where} tool_pose[{i}]") for i, (v, rng) in enumerate(zip(pose, POSE))]
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None
+    unknown = sorted(set(sub.options) - {"device", "tool_pose"})
+    if unknown:
+        raise BadInput(f"{where} unknown key(s) for an ft6 sensor: {', '.join(unknown)}")
+    return FtOptions(url, pose_to_T(*vals))
+
+
+def wrench_in_tool(force_N, torque_Nm, T_sensor_tool) -> tuple[np.ndarray, np.ndarray]:
+    """A wrench measured at the sensor origin (sensor frame) -> about the tool origin, in the
+    tool frame: f_T = R^T f, m_T = R^T (m - p x f), p the tool origin in the sensor frame [m]."""
+    R = T_sensor_tool[:3, :3]
+    p_m = T_sensor_tool[:3, 3] * 1e-3
+    f = np.asarray(force_N, float)
+    m = np.asarray(torque_Nm, float)
+    return R.T @ f, R.T @ (m - np.cross(p_m, f))
+
+
+class FtCore:
+    """droid-ft's cycle without I/O: records (checked by the driver's RdtStream), the calibration
+    and the time in, the ctrl_status fields out.  Times [ns] are the caller's clock."""
+
+    def __init__(self, T_sensor_tool: np.ndarray, stale_ns: int) -> None:
+        self.T_sensor_tool = np.asarray(T_sensor_tool, float)
+        self.stale_ns = int(stale_ns)
+        self.last: Record | None = None
+        self.last_ns: int | None = None  # when the newest record arrived
+        self.force_N = np.zeros(3)
+        self.torque_Nm = np.zeros(3)
+
+    def on_records(self, records: list[Record], calib: Calibration | None, now_ns: int) -> None:
+        if not records or calib is None:
+            return
+        self.last = records[-1]
+        self.last_ns = now_ns
+        c = self.last.counts
+        self.force_N = np.array(c[:3], float) * calib.n_per_count
+        self.torque_Nm = np.array(c[3:], float) * calib.nm_per_count
+
+    def silent(self, now_ns: int) -> bool:
+        """No record for the stale rule's span (or none yet)."""
+        return self.last_ns is None or now_ns - self.last_ns >= self.stale_ns
+
+    def fields(self, dev_stream, calib: Calibration | None, biased: bool, now_ns: int) -> dict:
+        silent = self.silent(now_ns)
+        valid = calib is not None and not silent
+        f_t, m_t = wrench_in_tool(self.force_N, self.torque_Nm, self.T_sensor_tool)
+        rec = self.last
+        return dict(
+            force_N=self.force_N, torque_Nm=self.torque_Nm, force_tool_N=f_t, torque_tool_Nm=m_t,
+            sample_ns=self.last_ns or 0,
+            sample_age_ms=(now_ns - self.last_ns) / 1e6 if self.last_ns is not None else 0.0,
+            updated_ns=now_ns,
+            rdt_seq=rec.rdt_seq if rec else 0, ft_seq=rec.ft_seq if rec else 0,
+            status_word=rec.status if rec else 0,
+            valid=int(valid), saturated=int(bool(rec and rec.status & STATUS_SATURATION)), biased=int(biased),
+            dropped=dev_stream.dropped & U32, out_of_order=dev_stream.out_of_order & U32,
+            bad_datagrams=dev_stream.bad_datagrams & U32, records=dev_stream.records & U32,
+            stale=int(silent), fault=0 if valid else FAULT_DEVICE,
+        )
+
+
+class FtStation:
+    """The program's cycle with its driver (the shell only keeps time and writes the record):
+    calibrate and start, read everything waiting, restart a silent stream, bias once if asked."""
+
+    def __init__(self, dev: NetFtDevice, core: FtCore, restart_ns: int, log=None) -> None:
+        self.dev = dev
+        self.core = core
+        self.restart_ns = restart_ns
+        self.log = log or (lambda line: print(f"{PROG}: {line}", file=sys.stderr, flush=True))
+        self._calibrate_at = -1 << 62  # when to fetch a missing calibration next [ns]
+        self._start_at = -1 << 62  # when a silent stream may be asked again [ns]
+        self._said = ""
+        self._bias_pending = dev.url.bias
+
+    def _say(self, line: str) -> None:
+        if line != self._said:  # one line per new reason, not one per retry
+            self._said = line
+            self.log(line)
+
+    def step(self, now_ns: int) -> dict:
+        dev = self.dev
+        if dev.calibration is None and now_ns >= self._calibrate_at:
+            self._calibrate_at = now_ns + self.restart_ns
+            try:
+                cal = dev.calibrate()
+                self._say(f"calibration: {cal.counts_per_force:g} counts/{cal.force_unit}, "
+                          f"{cal.counts_per_torque:g} counts/{cal.torque_unit}")
+            except CalibrationError as exc:
+                self._say(f"{exc}; retrying every {RESTART_S:g} s")
+        records = dev.poll()
+        self.core.on_records(records, dev.calibration, now_ns)
+        if records:
+            self._start_at = now_ns  # a silence from now on asks again at once
+        if dev.calibration is not None and self.core.silent(now_ns) and now_ns >= self._start_at:
+            dev.start()  # the first time, or records stopped: ask (again) every RESTART_S
+            self._start_at = now_ns + self.restart_ns
+            self._bias_pending = dev.url.bias
+        if records and self._bias_pending:
+            self._bias_pending = not dev.bias()
+        if dev.last_error:
+            self._say(dev.last_error)
+            dev.last_error = ""
+        return self.core.fields(dev.stream, dev.calibration, dev.biased, now_ns)
+
+
+@run
+def main(argv=None) -> int:
+    args, cell, sub = subunit_program(PROG, "Read a force/torque sensor (ATI Net F/T, RDT) into its "
+                                      "subunit's Status.", argv, example="ft")
+    opts = ft_options(sub)
+    dev = open_ft(opts.url)
+    status = open_local(cell, sub, "ctrl_status")
+    presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
+    timer = PeriodicTimer(int(round(1e9 / dev.url.rate_hz)))
+    station = FtStation(dev, FtCore(opts.T_sensor_tool, cell.stale_ticks * cell.period_ns), int(RESTART_S * 1e9))
+    cycles = 0
+    try:
+        status.update(**station.step(time.monotonic_ns()))
+        presence.ready()
+        notify_ready(args.ready_fd)
+        while not Stop.requested:
+            if not timer.wait(0.5):
+                continue
+            cycles += 1
+            status.update(**station.step(time.monotonic_ns()))
+            presence.beat(0, cycles, timer.overruns, timer.lateness_max_ns, bad_frames=dev.stream.bad_datagrams)
+    finally:
+        dev.close()
+        timer.close()
+        status.close()
+        presence.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
