@@ -3,7 +3,8 @@
 A cell is one Brain plus subunits.  The file names the subunits, their class
 (``arm6r``, ``line_laser``), robot model, base pose in the global frame, the
 programs each subunit runs, endpoints, rates and driver URLs.  ``{run}`` and
-``{cell}`` in any string expand to the cell's run directory and name.
+``{cell}`` in any string expand to the cell's run directory and name, ``{loopback}`` to the
+cell's own loopback address (:func:`loopback_address`).
 
 ``--cell FILE`` everywhere; the default comes from ``$DROID_CELL``, else the
 built-in simulated cell ``cells/sim.toml`` shipped inside the package.
@@ -12,6 +13,8 @@ Validation is strict: an unknown key, a wrong type or a missing section is a
 :class:`~droid.cli.BadInput` with the file and the key in the message.
 """
 from __future__ import annotations
+
+import hashlib
 
 import math
 import os
@@ -114,9 +117,22 @@ class Cell:
         return sorted(hs)
 
 
+def loopback_address(cell: str) -> str:
+    """The cell's own loopback address, ``127.a.b.c`` from a hash of its name (``{loopback}``).
+
+    A device on Ethernet listens on its vendor's fixed port (a Net F/T on UDP 49152, an ABB
+    controller's EGM on its configured port); its twin in droid-sim does too.  Every address of
+    127.0.0.0/8 is this host's loopback, so each cell binds its twins on an address of its own
+    and two cells (two test runs, a user's cell beside the default one) never contend for a
+    port.  127.0.0.1 itself is never chosen."""
+    h = hashlib.sha1(cell.encode()).digest()
+    a, b, c = (1 + x % 254 for x in h[:3])
+    return f"127.{a}.{b}.{c}"
+
+
 def _expand(value: Any, run: str, cell: str) -> Any:
     if isinstance(value, str):
-        return value.replace("{run}", run).replace("{cell}", cell)
+        return value.replace("{run}", run).replace("{cell}", cell).replace("{loopback}", loopback_address(cell))
     if isinstance(value, list):
         return [_expand(v, run, cell) for v in value]
     if isinstance(value, dict):

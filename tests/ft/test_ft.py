@@ -181,8 +181,9 @@ def test_droid_ft_refuses_bad_input_in_one_line(tmp_path, capsys):
     from tests.brain.cellutil import make_cell_file
 
     path = make_cell_file(tmp_path, "tftbad")
-    text = path.read_text().replace('device = "netft://127.0.0.1:49152?rate_hz=100&http_port=8049"',
+    text = path.read_text().replace('device = "netft://{loopback}:49152?rate_hz=100&http_port=8049"',
                                     'device = "netft://127.0.0.1:49152?rate_hz=99999"')
+    assert "rate_hz=99999" in text
     path.write_text(text)
     for args in (["--cell", str(path), "ft"], ["--cell", str(path), "arm1"], ["--cell", str(path), "nosuch"]):
         assert main(args) == 2

@@ -34,8 +34,9 @@ def wait_for(read, cond, seconds=60.0):
 def test_droid_ft_writes_the_twin_s_wrench_and_goes_stale_when_records_stop(tmp_path, cell_name):
     dev = twin_device()
     path = make_cell_file(tmp_path, cell_name)
-    text = path.read_text().replace("netft://127.0.0.1:49152?rate_hz=100&http_port=8049",
+    text = path.read_text().replace("netft://{loopback}:49152?rate_hz=100&http_port=8049",
                                     f"netft://127.0.0.1:{dev.port}?rate_hz=100&http_port={dev.http_port}")
+    assert f"http_port={dev.http_port}" in text
     path.write_text(text)
     cell = load_cell(path)
     sub = cell.subunit("ft")

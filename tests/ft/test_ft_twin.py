@@ -94,9 +94,12 @@ def test_pynetft_streams_the_twin_at_its_rate_biases_and_stops():
             # the rate, in world time: 500 records a second of a device sampling at 7000 a second
             seqs = [s.rdt_sequence for s in got]
             fts = [s.ft_sequence for s in got]
-            assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))  # none lost on loopback
-            assert set(np.diff(fts)) == {rdt.FT_SAMPLES_PER_S // 500}
-            assert client.health().lost_count == 0 and client.health().malformed_count == 0
+            # in order; a record lost on a loaded host (a full socket buffer) shows as a gap the
+            # client counts, and the rate holds across it: FT samples per RDT record, exactly
+            assert all(b > a for a, b in zip(seqs, seqs[1:]))
+            assert set(np.diff(fts) / np.diff(seqs)) == {rdt.FT_SAMPLES_PER_S // 500}
+            assert client.health().lost_count >= (seqs[-1] - seqs[0] + 1) - len(seqs)
+            assert client.health().malformed_count == 0
             client.bias()
             for _ in range(400):  # until the biased records arrive (bounded)
                 s = next(samples)
@@ -269,7 +272,7 @@ def test_a_taken_port_is_one_line_and_the_world_goes_on():
 
 
 @pytest.mark.parametrize("bad,why", [
-    ({"device": "netft://10.0.0.5:49152"}, "loopback only"),
+    ({"device": "netft://10.0.0.5:49152"}, "loopback address only"),
     ({"arm": "nosuch"}, "no device"),
     ({"model": "nano17"}, "unknown model"),
     ({"rdt_rate_hz": 9000.0}, "rdt_rate_hz"),
@@ -289,3 +292,35 @@ def test_bad_twin_options_are_refused_in_one_line(bad, why):
     with pytest.raises(BadInput, match=why) as exc:
         make_netft(World(), "ft_sensor", opts)
     assert "\n" not in str(exc.value)
+
+
+def test_each_cell_binds_its_twins_on_its_own_loopback_address():
+    """{loopback} in a cell file: a 127/8 address from the cell's name, so two cells' Net F/T
+    twins (vendor port 49152 each) never contend; never 127.0.0.1; stable for a name."""
+    import ipaddress
+
+    from droid.brain.cellfile import builtin_cell_path, load_cell, loopback_address
+
+    names = [f"cell{i}" for i in range(200)]
+    addrs = {loopback_address(n) for n in names}
+    assert len(addrs) == len(names)  # distinct for distinct names (here)
+    for a in addrs:
+        ip = ipaddress.ip_address(a)
+        assert ip.is_loopback and a != "127.0.0.1"
+    assert loopback_address("sim") == loopback_address("sim")
+    cell = load_cell(builtin_cell_path())
+    assert cell.subunit("ft").options["device"].startswith(f"netft://{loopback_address('sim')}:49152")
+    assert cell.world["devices"]["ft_sensor"]["device"].startswith(f"netft://{loopback_address('sim')}:49152")
+
+
+def test_the_twin_refuses_an_address_that_is_not_loopback():
+    from droid.cli import BadInput
+    from droid.sim.ft.netft import make_netft
+
+    class W:  # the world a factory sees: no devices needed before the check
+        devices = {}
+        seed = 0
+        cell = type("C", (), {"path": "cell.toml"})()
+
+    with pytest.raises(BadInput, match="loopback"):
+        make_netft(W(), "ft_sensor", {"device": "netft://192.0.2.1:49152", "arm": "arm1"})

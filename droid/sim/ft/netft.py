@@ -3,7 +3,7 @@
 Device type ``netft`` (``[world.devices.NAME]``)::
 
     type = "netft"
-    device = "netft://127.0.0.1:49152?http_port=8049"  # where it answers (loopback only);
+    device = "netft://{loopback}:49152?http_port=8049"  # where it answers (a loopback address only);
                                                        # the subunit's droid-ft reads the same URL
     arm = "arm1"                  # the world device of the arm it sits on (has wcp_global())
     sensor_pose = [0, 0, 100, 0, 0, 0]   # T_wcp_sensor: the sensor frame on the wrist (mm, ZYZ deg)
@@ -50,6 +50,7 @@ out, seeded); :class:`NetFtTwinDevice` the world device with its sockets.
 """
 from __future__ import annotations
 
+import ipaddress
 import socket
 import sys
 import threading
@@ -392,8 +393,13 @@ def make_netft(world, name: str, options: dict[str, Any]) -> NetFtTwinDevice:
 
     opts = DeviceOptions(world, name, options)
     url = parse_url(opts.get("device", str), any_port=True)
-    if url.host not in ("127.0.0.1", "localhost"):
-        raise opts.bad(f"the twin answers on loopback only (127.0.0.1), not {url.host!r}", "device")
+    host = "127.0.0.1" if url.host == "localhost" else url.host
+    try:
+        loopback = ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        loopback = False
+    if not loopback:
+        raise opts.bad(f"the twin answers on a loopback address only (127.0.0.0/8), not {url.host!r}", "device")
     arm = opts.device("arm")
     T_wcp_sensor = opts.pose("sensor_pose", [0.0] * 6)
     T_sensor_tool = opts.pose("tool_pose", [0.0] * 6)
@@ -409,7 +415,7 @@ def make_netft(world, name: str, options: dict[str, Any]) -> NetFtTwinDevice:
     opts.done()
     twin = NetFtTwin(SENSOR_MODELS[model_name], seed, rate)
     return NetFtTwinDevice(name, twin, arm, T_wcp_sensor, T_sensor_tool, mass, [float(x) for x in com],
-                           "127.0.0.1", url.port, url.http_port)
+                           host, url.port, url.http_port)
 
 
 #: RECORD is the record the twin writes (re-exported for tests)
