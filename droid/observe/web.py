@@ -89,7 +89,7 @@ class WebApp:
         body = {"cell": m.get("cell"), "source": self.src.mode, "recording_source": m.get("source"),
                 "heartbeat_hz": m.get("heartbeat_hz"), "subunits": m.get("subunits", []),
                 "ws_clients": len(self.clients), "ws_ignored": self.ws_ignored, "ws_sent": self.sent,
-                "rate_hz": round(1.0 / self.period_s, 3)}
+                "rate_hz": round(1.0 / self.period_s, 3), "scene": m.get("scene", {})}
         if self.src.mode == "file":
             body["file"] = {"path": self.src.rec.path, "count": len(self.src.snaps),
                             "first_tick": self.src.rec.ticks[0], "last_tick": self.src.rec.ticks[-1]}
@@ -105,9 +105,13 @@ class WebApp:
             i = int(request.query.get("i", "-1"))
         except ValueError:
             return web.json_response({"error": "i must be an integer"}, status=400)
+        try:
+            seam_from = max(0, int(request.query.get("seam_from", "0")))
+        except ValueError:
+            return web.json_response({"error": "seam_from must be an integer"}, status=400)
         if i < 0:
             i = len(self.src.snaps) - 1
-        return web.json_response(self.src.frame(i))
+        return web.json_response(self.src.frame(i, seam_from))
 
     async def api_plots(self, request):
         """A recording's plot series, at most ``n`` (default 600) samples evenly over it."""
