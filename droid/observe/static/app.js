@@ -116,22 +116,28 @@ const SEAM_MAX = 20000;
 const seamGeom = new THREE.BufferGeometry(); seamGeom.setAttribute("position", new THREE.BufferAttribute(new Float32Array(3 * SEAM_MAX), 3));
 seamGeom.setDrawRange(0, 0);
 const seamLine = new THREE.Line(seamGeom, new THREE.LineBasicMaterial({ color: 0xffee00 })); seamLine.frustumCulled = false; scene.add(seamLine);
-// force arrows: one per subunit whose Status has force_N (drawn at the tool, FORCE_MM_PER_N long)
+// force arrows: one per subunit whose Status has force_N (drawn at the tool, FORCE_MM_PER_N long, unlit magenta)
 const FORCE_MM_PER_N = 2.0, forces = {};
+const arrowMat = new THREE.MeshBasicMaterial({ color: 0xff30ff });
+const arrowShaft = new THREE.CylinderGeometry(1, 1, 1, 12).translate(0, 0.5, 0), arrowHead = new THREE.ConeGeometry(1, 1, 16).translate(0, -0.5, 0);
+function arrowObject() {
+  const g = new THREE.Group(), shaft = new THREE.Mesh(arrowShaft, arrowMat), head = new THREE.Mesh(arrowHead, arrowMat);
+  g.add(shaft, head); scene.add(g);
+  return { g, shaft, head };
+}
 function drawForces(list) {
   const seen = new Set();
   for (const f of list || []) {
-    seen.add(f.subunit);
     const v = new THREE.Vector3(...f.force_N), n = v.length();
-    const a = forces[f.subunit] || (forces[f.subunit] = new THREE.ArrowHelper(new THREE.Vector3(0, 0, 1), new THREE.Vector3(), 100, 0xff30ff, 40, 24));
-    if (!a.parent) scene.add(a);
-    a.position.set(...f.at);
-    if (n > 1e-9) a.setDirection(v.divideScalar(n));
-    const len = Math.min(800, Math.max(30, n * FORCE_MM_PER_N)); a.setLength(len, Math.min(60, 0.3 * len), Math.min(36, 0.18 * len));
-    a.visible = n > 1e-9;
+    if (n < 1e-9) continue;
+    seen.add(f.subunit);
+    const a = forces[f.subunit] || (forces[f.subunit] = arrowObject());
+    const len = Math.min(800, Math.max(30, n * FORCE_MM_PER_N)), head = Math.min(60, 0.3 * len);
+    a.g.position.set(...f.at); a.g.quaternion.setFromUnitVectors(_up, v.divideScalar(n));
+    a.shaft.scale.set(7, len - head, 7); a.head.scale.set(20, head, 20); a.head.position.set(0, len, 0);
   }
-  for (const [k, a] of Object.entries(forces)) if (!seen.has(k)) a.visible = false;
-  state.forces = (list || []).map((f) => f.subunit);
+  for (const [k, a] of Object.entries(forces)) a.g.visible = seen.has(k);
+  state.forces = [...seen];
 }
 
 function setSeam(points, from = 0) {
@@ -196,8 +202,9 @@ function followTool(t) {
 }
 // A hook for tests and scripts: the page's camera projection and its view.
 const droidView = window.droidView = {
-  view, rendered: 0, setView,
+  view, rendered: 0, setView, FORCE_MM_PER_N,
   // a global point [mm] -> [x, y] in CSS pixels of the 3-D canvas (its top-left corner at 0, 0)
+  draw(geo) { drawGeo(geo); },  // draw a scene payload (``geo`` of a snapshot), e.g. a synthetic one
   project(p) {
     const v = new THREE.Vector3(...p).project(camera);
     return [(v.x + 1) / 2 * canvas.clientWidth, (1 - v.y) / 2 * canvas.clientHeight, v.z];
