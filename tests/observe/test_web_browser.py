@@ -77,6 +77,12 @@ def test_recording_opens_and_scrubs(browser, tmp_path):
             assert int(page.locator("#slider-tick").inner_text()) == t1
             assert page.evaluate("droidState.seam.length") > 0
             assert canvas_not_blank(page)
+            # camera presets: a button sets the view and the URL hash; the hash sets the view
+            page.locator("#views button[data-view=tool]").click()
+            assert page.evaluate("droidView.view") == "tool" and "view=tool" in page.evaluate("location.hash")
+            page.evaluate("location.hash = '#view=side'")
+            page.wait_for_function("droidView.view === 'side'", timeout=5000)
+            assert page.locator("#views button.on").inner_text() == "side"
             assert errors == []
         finally:
             page.close()
@@ -94,8 +100,9 @@ def test_live_page_shows_every_subunit_ticking(browser, tmp_path, cell_name):
         player = subprocess.Popen([sys.executable, "-m", "droid.observe.replay", rec, "--cell", str(cf), "--rate", "0.5"],
                                   cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
         with WebServer("--cell", str(cf)) as w:
-            page, errors = open_page(browser, w.url)
+            page, errors = open_page(browser, w.url + "#view=side")
             try:
+                assert page.evaluate("droidView.view") == "side"  # the camera preset from the URL, live too
                 names = {"arm1", "gmf1", "mvs", "tool"}
                 wait_for(lambda: set(page.evaluate("Object.keys(droidState.ticks || {})")) >= names, 20,
                          what="every subunit on the page")
