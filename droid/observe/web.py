@@ -5,11 +5,13 @@
 Serves one page: every subunit's Status (homed, busy, mode, stale, fault,
 cmd_result), program health and the heartbeat's lateness, live plots of the
 tracking errors and the tool speed, and a 3-D view (three.js, vendored in
-``static/vendor/three`` with its licence) of both arms' link frames (their
-forward kinematics, eq. 4.1), the workpiece, the seam map, the laser line
-and the tool point -- pushed over a WebSocket (``/ws``) at ``--rate`` (30 Hz
-by default).  With ``--file`` the page opens a recording with a time slider
-(``GET /api/frame?i=N``).  JSON for scripts: ``GET /api/status`` (one object
+``static/vendor/three`` with its licence) of both arms' bodies (capsules along
+their links from the forward kinematics, eq. 4.1, sized from the robot files),
+the torch and the lead sensor with its laser sheet, the workpiece's surfaces,
+the seam map, the tool point and force arrows, with camera presets
+(``#view=cell|tool|side``) -- pushed over a WebSocket (``/ws``) at ``--rate``
+(30 Hz by default).  With ``--file`` the page opens a recording with a time
+slider and a play button (``GET /api/frame?i=N&seam_from=K``).  JSON for scripts: ``GET /api/status`` (one object
 per subunit, with its tick) and ``GET /api/cell``.
 
 Read-only: it reads the Brain's databases like a task and has no endpoint
