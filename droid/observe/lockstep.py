@@ -41,7 +41,8 @@ class TrialRecorder:
     maker from the workpiece model: droid.sim.workpiece_mesh)."""
 
     def __init__(self, path: str, trial_id: str, reis, fanuc, T_wcp_tool, T_wcp_sensor, T_hold6_W,
-                 q_hold_deg, T_hold, *, names=("arm1", "gmf1", "mvs", "tool"), workpiece_mesh: dict | None = None) -> None:
+                 q_hold_deg, T_hold, *, names=("arm1", "gmf1", "mvs", "tool"),
+                 workpiece_mesh: dict | None = None) -> None:
         self.arm, self.hold, self.lead, self.tool = names
         self.reis, self.fanuc = reis, fanuc
         subs = [

@@ -102,7 +102,8 @@ def test_arm_bodies_run_from_the_base_to_the_wrist_centre():
 
     rng = np.random.default_rng(7)
     m = load_robot("reis_v15").with_base(pose_to_T(100.0, 50.0, 0.0, 30.0, 0.0, 0.0))
-    sb = SceneBuilder([{"name": "arm1", "class": "arm6r", "robot": "reis_v15", "base": [100.0, 50.0, 0, 30.0, 0, 0]}], {})
+    sub = {"name": "arm1", "class": "arm6r", "robot": "reis_v15", "base": [100.0, 50.0, 0, 30.0, 0, 0]}
+    sb = SceneBuilder([sub], {})
     radii = link_radii_mm(m)
     last = None
     for _ in range(10):
@@ -148,7 +149,8 @@ def test_tool_sensor_and_fixture_bodies_from_the_mounts():
     b = geo["bodies"]
     assert set(b) == {"arm1", "gmf1", "torch", "bracket", "fixture"}
     tool = wcp @ pose_to_T(0, 0, 250, -90, 90, 180)
-    assert np.allclose(b["torch"][0][0:3], wcp[:3, 3], atol=0.1) and np.allclose(b["torch"][0][3:6], tool[:3, 3], atol=0.1)
+    assert np.allclose(b["torch"][0][0:3], wcp[:3, 3], atol=0.1)
+    assert np.allclose(b["torch"][0][3:6], tool[:3, 3], atol=0.1)
     head = geo["frames"]["sensor"] @ [-SENSOR_STANDOFF_MM, 0, 0, 1]
     assert np.allclose(geo["laser_src"], head[:3]) and np.allclose(b["bracket"][0][3:6], head[:3], atol=0.1)
     assert np.allclose(b["fixture"][0][0:3], [1200.0, 0.0, 1200.0], atol=0.1)
