@@ -1,10 +1,11 @@
 """Make docs/web.png: droid-web showing a recorded lockstep trial, in headless chromium.
 
-    PYTHONPATH=. python scripts/web_screenshot.py [--out docs/web.png] [--trial 1.3]
+    PYTHONPATH=. python scripts/web_screenshot.py [--out docs/web.png] [--trial 1.3] [--view cell]
 
-Records trial ``--trial`` (droid-experiment's matrix, lockstep, 120 mm), opens it
-with ``droid-web --file``, moves the time slider to 3/4 of the run and saves a
-1400x800 screenshot.  Needs chromium (scripts/browser.sh).
+Records trial ``--trial`` (droid-experiment's matrix, lockstep, 120 mm; 1.3 tracks the
+default cell's step-input seam), opens it with ``droid-web --file`` at camera preset
+``--view`` (``#view=``: cell, tool or side), moves the time slider to 3/4 of the run (the
+arm tracking) and saves a 1400x800 screenshot.  Needs chromium (scripts/browser.sh).
 """
 from __future__ import annotations
 
@@ -22,6 +23,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default=str(ROOT / "docs" / "web.png"))
     ap.add_argument("--trial", default="1.3")
+    ap.add_argument("--view", default="cell", choices=("cell", "tool", "side"))
     args = ap.parse_args()
     chromium = shutil.which("chromium")
     if chromium is None:
@@ -39,7 +41,7 @@ def main() -> int:
             b = p.chromium.launch(executable_path=chromium, headless=True,
                                   args=["--no-sandbox", "--enable-unsafe-swiftshader", "--use-angle=swiftshader"])
             page = b.new_page(viewport={"width": 1400, "height": 800})
-            page.goto(w.url)
+            page.goto(w.url + f"#view={args.view}")
             page.wait_for_function("window.droidState && window.droidState.ready === true", timeout=30000)
             n = int(page.locator("#slider").get_attribute("max"))
             i = 3 * n // 4

@@ -339,9 +339,10 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None,
     recorder = None
     if record is not None:
         from droid.observe.lockstep import TrialRecorder
+        from droid.sim.workpiece_mesh import workpiece_mesh
 
         recorder = TrialRecorder(record, cfg.trial_id, geo.reis, geo.fanuc, T_wcp_tool, T_wcp_sensor, geo.T_hold6_W,
-                                 geo.q_hold_deg, T_hold0)
+                                 geo.q_hold_deg, T_hold0, workpiece_mesh=workpiece_mesh(geo.workpiece))
 
     station = SeamtrackStation(cyc, HEARTBEAT_HZ, first_cycle_tick=t0_tick + ct, first_log_tick=t0_tick + 1)
 

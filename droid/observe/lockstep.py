@@ -36,10 +36,13 @@ class TrialRecorder:
     """One lockstep trial into a recording: ``sample`` once per heartbeat tick, ``close`` at the end.
 
     ``reis``/``fanuc``: the robot models (bases included); ``T_wcp_tool``/``T_wcp_sensor``:
-    the wrist; ``T_hold6_W``: the workpiece mount; ``q_hold_deg``/``T_hold``: the holder, still."""
+    the wrist; ``T_hold6_W``: the workpiece mount; ``q_hold_deg``/``T_hold``: the holder, still;
+    ``workpiece_mesh``: the workpiece's surfaces in W for viewers (plain data, made by the trial's
+    maker from the workpiece model: droid.sim.workpiece_mesh)."""
 
     def __init__(self, path: str, trial_id: str, reis, fanuc, T_wcp_tool, T_wcp_sensor, T_hold6_W,
-                 q_hold_deg, T_hold, *, names=("arm1", "gmf1", "mvs", "tool")) -> None:
+                 q_hold_deg, T_hold, *, names=("arm1", "gmf1", "mvs", "tool"),
+                 workpiece_mesh: dict | None = None) -> None:
         self.arm, self.hold, self.lead, self.tool = names
         self.reis, self.fanuc = reis, fanuc
         subs = [
@@ -55,6 +58,9 @@ class TrialRecorder:
         scene = {"tool_robot": self.arm, "holder_robot": self.hold, "sensor": self.lead,
                  "T_wcp_tool": np.asarray(T_wcp_tool).tolist(), "T_wcp_sensor": np.asarray(T_wcp_sensor).tolist(),
                  "T_wcp_workpiece": np.asarray(T_hold6_W).tolist()}
+        if workpiece_mesh is not None:  # the workpiece's surfaces in W (droid.sim.workpiece_mesh: plain data)
+            scene["workpiece"] = workpiece_mesh.get("name")
+            scene["workpiece_mesh"] = workpiece_mesh
         meta = {"cell": f"lockstep-{trial_id}", "heartbeat_hz": 60.0, "source": "lockstep", "trial": trial_id,
                 "subunits": subs, "scene": scene}
         self.core = CellRecorder(RecordingWriter(path, meta))

@@ -107,11 +107,16 @@ class FileSource:
             raise BadInput(f"{path}: the recording holds no tick")
         self.index = len(self.snaps) - 1
 
-    def frame(self, i: int) -> dict:
+    def frame(self, i: int, seam_from: int = 0) -> dict:
+        """The snapshot at index ``i``, with the seam map's points from ``seam_from`` on (the page asks
+        only for those it lacks; ``seam_from`` past the snapshot's seam: from 0)."""
         i = min(max(0, i), len(self.snaps) - 1)
         self.index = i
         s = dict(self.snaps[i], index=i)
-        s["seam"] = self.seam[: s["geo"]["seam_n"]]
+        n = s["geo"]["seam_n"]
+        k = seam_from if seam_from <= n else 0
+        s["seam"] = self.seam[k:n]
+        s["seam_from"] = k
         s["logs"] = self.logs[max(0, self.log_n[i] - LOG_TAIL): self.log_n[i]]
         return s
 

@@ -6,7 +6,13 @@ A *snapshot* is one tick of the cell::
      cmd_result, cmd_id, x, y, z, valid}}, "health": {...}, "plots": {"tool_lateral_mm": ..,
      "tool_height_mm": .., "lead_lateral_mm": .., "lead_depth_mm": .., "speed_mm_s": ..},
      "geo": {"links": {arm: [[x,y,z] x 7]}, "frames": {name: 16 numbers, row-major 4x4},
-             "laser": [[x,y,z],[x,y,z]] | null, "tool": [x,y,z] | null, "seam_n": N}}
+             "bodies": {arm | "torch" | "bracket" | "fixture": [[x0,y0,z0,x1,y1,z1,r], ...]},
+             "forces": [{"subunit", "at": [x,y,z], "force_N": [3], "torque_Nm": [3]}],
+             "laser": [[x,y,z],[x,y,z]] | null, "laser_src": [x,y,z] | null,
+             "tool": [x,y,z] | null, "seam_n": N}}
+
+(mm; droid/observe/scene.py).  What does not change over a run -- the workpiece's surfaces
+(``scene.workpiece_mesh`` of the recording's metadata) -- is served once, by ``/api/cell``.
 
 The seam map is sent apart (``seam``: the points so far), since it only grows.
 Tracking errors are the tool-tip sensor's reading (thesis §6.1: the seam's
@@ -76,6 +82,8 @@ class ViewBuilder:
         return {"tick": int(tick), "t_ns": int(t_ns), "subunits": subs, "health": health or {},
                 "plots": {k: (None if v is None or not math.isfinite(v) else round(v, 4)) for k, v in plots.items()},
                 "geo": {"links": {k: [[round(c, 3) for c in p] for p in pts] for k, pts in geo["links"].items()},
+                        "bodies": geo["bodies"], "forces": geo["forces"],
+                        "laser_src": None if geo["laser_src"] is None else [round(c, 2) for c in geo["laser_src"]],
                         "frames": frames, "laser": geo["laser"],
                         "tool": None if tool_T is None else tool_T[:3, 3].round(3).tolist(),
                         "seam_n": len(geo["seam"])}}

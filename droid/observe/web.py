@@ -5,11 +5,13 @@
 Serves one page: every subunit's Status (homed, busy, mode, stale, fault,
 cmd_result), program health and the heartbeat's lateness, live plots of the
 tracking errors and the tool speed, and a 3-D view (three.js, vendored in
-``static/vendor/three`` with its licence) of both arms' link frames (their
-forward kinematics, eq. 4.1), the workpiece, the seam map, the laser line
-and the tool point -- pushed over a WebSocket (``/ws``) at ``--rate`` (30 Hz
-by default).  With ``--file`` the page opens a recording with a time slider
-(``GET /api/frame?i=N``).  JSON for scripts: ``GET /api/status`` (one object
+``static/vendor/three`` with its licence) of both arms' bodies (capsules along
+their links from the forward kinematics, eq. 4.1, sized from the robot files),
+the torch and the lead sensor with its laser sheet, the workpiece's surfaces,
+the seam map, the tool point and force arrows, with camera presets
+(``#view=cell|tool|side``) -- pushed over a WebSocket (``/ws``) at ``--rate``
+(30 Hz by default).  With ``--file`` the page opens a recording with a time
+slider and a play button (``GET /api/frame?i=N&seam_from=K``).  JSON for scripts: ``GET /api/status`` (one object
 per subunit, with its tick) and ``GET /api/cell``.
 
 Read-only: it reads the Brain's databases like a task and has no endpoint
@@ -89,7 +91,7 @@ class WebApp:
         body = {"cell": m.get("cell"), "source": self.src.mode, "recording_source": m.get("source"),
                 "heartbeat_hz": m.get("heartbeat_hz"), "subunits": m.get("subunits", []),
                 "ws_clients": len(self.clients), "ws_ignored": self.ws_ignored, "ws_sent": self.sent,
-                "rate_hz": round(1.0 / self.period_s, 3)}
+                "rate_hz": round(1.0 / self.period_s, 3), "scene": m.get("scene", {})}
         if self.src.mode == "file":
             body["file"] = {"path": self.src.rec.path, "count": len(self.src.snaps),
                             "first_tick": self.src.rec.ticks[0], "last_tick": self.src.rec.ticks[-1]}
@@ -105,9 +107,13 @@ class WebApp:
             i = int(request.query.get("i", "-1"))
         except ValueError:
             return web.json_response({"error": "i must be an integer"}, status=400)
+        try:
+            seam_from = max(0, int(request.query.get("seam_from", "0")))
+        except ValueError:
+            return web.json_response({"error": "seam_from must be an integer"}, status=400)
         if i < 0:
             i = len(self.src.snaps) - 1
-        return web.json_response(self.src.frame(i))
+        return web.json_response(self.src.frame(i, seam_from))
 
     async def api_plots(self, request):
         """A recording's plot series, at most ``n`` (default 600) samples evenly over it."""

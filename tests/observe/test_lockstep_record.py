@@ -52,3 +52,27 @@ def test_experiment_cli_record(tmp_path):
     out = droid("droid.experiments.cli", "run", "1.3", "--length", "60", "--no-figures", "--jobs", "1",
                 "--out", str(tmp_path / "plain"))
     assert out.returncode == 0 and not list((tmp_path / "plain").rglob("*.mcap"))
+
+
+def test_trial_recording_carries_the_workpiece_mesh(tmp_path):
+    """A lockstep trial puts its workpiece's surfaces (droid.sim.workpiece_mesh) in the scene metadata,
+    and droid-web's file source sends only the seam points a page lacks (seam_from)."""
+    from droid.observe.sources import FileSource
+    from droid.sim.workpiece import load_workpiece
+    from droid.sim.workpiece_mesh import workpiece_mesh
+
+    path = tmp_path / "t.mcap"
+    cfg = with_overrides(resolve(["1.3"])[0].config, length_mm=40.0)
+    run_trial(cfg, record=str(path))
+    meta = read_recording(path).meta
+    assert meta["scene"]["workpiece"] == "step_input"
+    assert meta["scene"]["workpiece_mesh"] == workpiece_mesh(load_workpiece("step_input"))
+    src = FileSource(str(path))
+    last = len(src.snaps) - 1
+    full = src.frame(last)
+    n = full["geo"]["seam_n"]
+    assert n > 10 and full["seam_from"] == 0 and len(full["seam"]) == n
+    part = src.frame(last, n - 4)
+    assert part["seam_from"] == n - 4 and part["seam"] == full["seam"][-4:]
+    assert src.frame(last, n + 5)["seam_from"] == 0  # past the snapshot's seam: all of it
+    assert set(full["geo"]["bodies"]) >= {"arm1", "gmf1", "torch", "bracket", "fixture"}

@@ -77,6 +77,12 @@ def test_recording_opens_and_scrubs(browser, tmp_path):
             assert int(page.locator("#slider-tick").inner_text()) == t1
             assert page.evaluate("droidState.seam.length") > 0
             assert canvas_not_blank(page)
+            # camera presets: a button sets the view and the URL hash; the hash sets the view
+            page.locator("#views button[data-view=tool]").click()
+            assert page.evaluate("droidView.view") == "tool" and "view=tool" in page.evaluate("location.hash")
+            page.evaluate("location.hash = '#view=side'")
+            page.wait_for_function("droidView.view === 'side'", timeout=5000)
+            assert page.locator("#views button.on").inner_text() == "side"
             assert errors == []
         finally:
             page.close()
@@ -94,8 +100,9 @@ def test_live_page_shows_every_subunit_ticking(browser, tmp_path, cell_name):
         player = subprocess.Popen([sys.executable, "-m", "droid.observe.replay", rec, "--cell", str(cf), "--rate", "0.5"],
                                   cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
         with WebServer("--cell", str(cf)) as w:
-            page, errors = open_page(browser, w.url)
+            page, errors = open_page(browser, w.url + "#view=side")
             try:
+                assert page.evaluate("droidView.view") == "side"  # the camera preset from the URL, live too
                 names = {"arm1", "gmf1", "mvs", "tool"}
                 wait_for(lambda: set(page.evaluate("Object.keys(droidState.ticks || {})")) >= names, 20,
                          what="every subunit on the page")
@@ -134,6 +141,189 @@ def test_live_cell_in_the_browser(browser, sim_cell):
             assert w.get("api/cell")["rate_hz"] >= 20
             assert len(page.locator("#health tbody tr").all()) > 5
             assert canvas_not_blank(page)
+            assert errors == []
+        finally:
+            page.close()
+
+
+# ---------------------------------------------------------------- bodies, on pixels (issue 29 item 2)
+def canvas_rgb(page):
+    """The 3-D canvas as an (H, W, 3) int array, after the page has rendered twice more."""
+    import numpy as np
+    from PIL import Image
+
+    n = page.evaluate("droidView.rendered")
+    page.wait_for_function(f"droidView.rendered >= {n + 2}", timeout=10000)
+    png = page.locator("#canvas3d").screenshot()
+    return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=int)
+
+
+def goto_index(page, i):
+    page.locator("#slider").evaluate(f"(s) => {{ s.value = {i}; s.dispatchEvent(new Event('input')); }}")
+    page.wait_for_function(f"droidState.index === {i}", timeout=10000)
+
+
+def capsule_mask(page, caps, shape, margin_px=6.0):
+    """Pixels (bool (H, W)) within the projected capsules [x0,y0,z0,x1,y1,z1,r] (mm), plus ``margin_px``."""
+    import numpy as np
+
+    h, w = shape
+    yy, xx = np.mgrid[0:h, 0:w]
+    mask = np.zeros(shape, bool)
+    for c in caps:
+        a, b = np.array(c[0:3]), np.array(c[3:6])
+        pa, pb = (np.array(page.evaluate(f"droidView.project({list(map(float, p))})")[:2]) for p in (a, b))
+        # the radius on screen: the largest of three orthogonal offsets at either end, projected
+        rad = max(np.hypot(*(np.array(page.evaluate(f"droidView.project({list(map(float, p + c[6] * e))})")[:2]) - pp))
+                  for p, pp in ((a, pa), (b, pb)) for e in np.eye(3))
+        d = pb - pa
+        L2 = float(d @ d)
+        t = np.zeros(shape) if L2 < 1e-9 else np.clip(((xx - pa[0]) * d[0] + (yy - pa[1]) * d[1]) / L2, 0, 1)
+        dist = np.hypot(xx - (pa[0] + t * d[0]), yy - (pa[1] + t * d[1]))
+        mask |= dist <= rad + margin_px
+    return mask
+
+
+def test_arm_silhouette_moves_with_its_joints(browser, tmp_path):
+    """Two ticks of a recording with different joints: the pixels that change are where the arm's bodies
+    are (drawn from its links) at either tick, and its links' own pixels change (not only the tool's)."""
+    import numpy as np
+
+    rec = lockstep_recording(tmp_path / "trial.mcap")
+    with WebServer("--file", rec) as w:
+        page, errors = open_page(browser, w.url)
+        try:
+            n = int(page.locator("#slider").get_attribute("max"))
+            page.evaluate("droidView.setView('cell')")
+            shots, caps, tools = [], [], []
+            for i in (0, n):
+                goto_index(page, i)
+                shots.append(canvas_rgb(page))
+                f = w.get(f"api/frame?i={i}")
+                caps.append(f["geo"]["bodies"])
+                tools.append(f["geo"]["tool"])
+            q0, q1 = (w.get(f"api/frame?i={i}")["subunits"]["arm1"] for i in (0, n))
+            assert caps[0]["arm1"] != caps[1]["arm1"]  # the joints moved
+            changed = np.abs(shots[0] - shots[1]).sum(axis=2) > 40
+            assert changed.sum() > 300, changed.sum()
+            moving = [c for k in ("arm1", "torch", "bracket") for b in caps for c in b.get(k, [])]
+            near_arm = capsule_mask(page, moving, changed.shape)
+            # the sensor head, laser sheet and seam map move with the tool: a disc around the tool point
+            yy, xx = np.mgrid[0:changed.shape[0], 0:changed.shape[1]]
+            for t in tools:
+                px = page.evaluate(f"droidView.project({t})")
+                near_arm |= np.hypot(xx - px[0], yy - px[1]) < 60
+            inside = (changed & near_arm).sum() / changed.sum()
+            assert inside > 0.9, f"only {inside:.0%} of the changed pixels are where the arm is"
+            # the links themselves (not only the tool's end) were redrawn: changed pixels along the
+            # upper arm and forearm, away from the tool
+            links = capsule_mask(page, [c for b in caps for c in b["arm1"][1:]], changed.shape, 2.0)
+            for t in tools:
+                px = page.evaluate(f"droidView.project({t})")
+                links &= np.hypot(xx - px[0], yy - px[1]) > 80
+            assert (changed & links).sum() > 200, (changed & links).sum()
+            assert errors == []
+        finally:
+            page.close()
+
+
+def workpiece_points(mesh, W16, fractions=(0.3, 0.45, 0.6, 0.75, 0.9)):
+    """Global points [mm] on the workpiece's surfaces (mid-width of the lower and the upper surface at
+    sections ``fractions`` along it), from its mesh in W and the frame W (16 numbers, row-major)."""
+    import numpy as np
+
+    P = np.asarray(mesh["points"], float).reshape(mesh["sections"], mesh["per_section"], 3)
+    W = np.asarray(W16, float).reshape(4, 4)
+    out = []
+    for f in fractions:
+        sec = P[int(f * (mesh["sections"] - 1))]
+        for p in ((sec[0] + sec[1]) / 2, (sec[4] + sec[5]) / 2):
+            out.append((W @ np.append(p, 1.0))[:3])
+    return out
+
+
+def warm(rgb) -> bool:
+    """The workpiece's colours (tan to orange, lit or shaded) against the bluish background, grid and arms."""
+    r, g, b = (int(v) for v in rgb)
+    return r > 70 and r > b + 35 and r >= g
+
+
+def test_workpiece_is_where_the_cell_says(browser, tmp_path):
+    """The workpiece's surface points, placed by the recording's frame W and projected with the page's
+    own camera, are drawn in the workpiece's colours; the same points moved 400 mm off are not."""
+    import numpy as np
+
+    rec = lockstep_recording(tmp_path / "trial.mcap")
+    with WebServer("--file", rec) as w:
+        page, errors = open_page(browser, w.url)
+        try:
+            cell = w.get("api/cell")
+            mesh = cell["scene"]["workpiece_mesh"]
+            assert mesh["name"] == "step_input" and page.evaluate("droidState.workpiece") == "step_input"
+            n = int(page.locator("#slider").get_attribute("max"))
+            goto_index(page, n)
+            W16 = w.get(f"api/frame?i={n}")["geo"]["frames"]["workpiece"]
+            for view in ("tool", "cell"):
+                page.evaluate(f"droidView.setView('{view}')")
+                img = canvas_rgb(page)
+                h, wd, _ = img.shape
+
+                def colour(p):
+                    x, y, _ = page.evaluate(f"droidView.project({list(map(float, p))})")
+                    return img[int(y), int(x)] if 0 <= x < wd and 0 <= y < h else None
+
+                on = [c is not None and warm(c) for c in map(colour, workpiece_points(mesh, W16))]
+                off = [c is not None and warm(c) for c in (colour(p + np.array([0.0, 0.0, 150.0]))
+                                                         for p in workpiece_points(mesh, W16))]
+                assert sum(on) >= 0.7 * len(on), (view, on)
+                assert sum(off) <= 0.2 * len(off), (view, off)
+            assert errors == []
+        finally:
+            page.close()
+
+
+def test_force_arrow_from_a_force_torque_status(browser, tmp_path):
+    """A synthetic scene payload with a subunit whose Status has force_N/torque_Nm (any class): an arrow
+    at the tool, along the force, appears on the canvas; without it, none."""
+    import numpy as np
+
+    from droid.observe.view import ViewBuilder
+
+    rec = lockstep_recording(tmp_path / "trial.mcap")
+    with WebServer("--file", rec) as w:
+        page, errors = open_page(browser, w.url)
+        try:
+            n = int(page.locator("#slider").get_attribute("max"))
+            goto_index(page, n)
+            page.evaluate("droidView.setView('tool')")
+            before = canvas_rgb(page)
+            from droid.observe.mcapfile import read_recording
+
+            r = read_recording(rec)
+            meta = dict(r.meta, subunits=r.meta["subunits"] + [{"name": "ft", "class": "some_new_class", "robot": None}])
+            st = {t.split("/")[1]: m[-1] for t, m in r.frames[-1].items() if t.endswith("/status")}
+            st["ft"] = {"force_N": [0.0, 0.0, 150.0], "torque_Nm": [0.0, 0.0, 0.0], "stale": 0}
+            geo = ViewBuilder(meta).snapshot(r.ticks[-1], r.t_ns[-1], st)["geo"]
+            assert [f["subunit"] for f in geo["forces"]] == ["ft"]
+            import json
+
+            page.evaluate(f"droidView.draw({json.dumps(geo)})")
+            after = canvas_rgb(page)
+            assert page.evaluate("droidState.forces") == ["ft"]
+            f = geo["forces"][0]
+            length = page.evaluate("droidView.FORCE_MM_PER_N") * np.linalg.norm(f["force_N"])
+            tip = np.add(f["at"], np.asarray(f["force_N"]) / np.linalg.norm(f["force_N"]) * length)
+            mid = (np.asarray(f["at"]) + tip) / 2
+            x, y, _ = page.evaluate(f"droidView.project({list(map(float, mid))})")
+            changed = np.abs(after - before).sum(axis=2) > 40
+            near = capsule_mask(page, [[*f["at"], *tip, 40.0]], changed.shape)
+            assert changed.sum() > 100 and (changed & near).sum() / changed.sum() > 0.8, \
+                (changed.sum(), (changed & near).sum())
+            r_, g_, b_ = after[int(y), int(x)]
+            assert r_ > 150 and b_ > 150 and g_ < 120, (r_, g_, b_)  # the arrow's magenta
+            st["ft"]["stale"] = 1
+            page.evaluate(f"droidView.draw({json.dumps(ViewBuilder(meta).snapshot(r.ticks[-1], r.t_ns[-1], st)['geo'])})")
+            assert page.evaluate("droidState.forces") == []
             assert errors == []
         finally:
             page.close()
