@@ -163,7 +163,7 @@ NAMED: dict[str, Range | tuple] = {
     "seed": SEED,
     "baud": baud_range(50),
     "base": POSE, "bases": POSE, "mount": POSE, "fixture": POSE, "workpiece_mount": POSE,
-    "tool_pose": POSE, "sensor_pose": POSE,
+    "tool_pose": POSE, "sensor_pose": POSE, "sensor_tool_pose": POSE, "ft_pose": POSE,
     "signs": SIGN, "direction": SIGN, "search_dir": SIGN,
     "reduction": Range(0.0, 1e5, "(gear ratio)", lo_open=True),
     "encoder_counts_per_rev": Range(0.0, 1e9, "counts/rev", lo_open=True),

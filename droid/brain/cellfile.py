@@ -117,6 +117,11 @@ class Cell:
         return sorted(hs)
 
 
+#: the workpiece's shape for viewers, written by droid-sim into the cell's run directory
+#: (droid.sim.mvs.devices.publish_workpiece_mesh), read by droid-web (droid.observe.scene)
+WORKPIECE_MESH_FILE = "workpiece_mesh.json"
+
+
 def loopback_address(cell: str) -> str:
     """The cell's own loopback address, ``127.a.b.c`` from a hash of its name (``{loopback}``).
 

@@ -95,6 +95,25 @@ def arm_bodies(frames: list, d_mm, radii_mm) -> list[list[float]]:
     return out
 
 
+def live_workpiece_mesh(cell) -> dict | None:
+    """The workpiece's shape a running simulated cell's world published in its run directory
+    (``workpiece_mesh.json``: plain data, droid.sim.mvs.devices.publish_workpiece_mesh), or None
+    (no such file: a real cell, or a cell not up; a file that is not a mesh is ignored)."""
+    import json
+
+    from droid.brain.cellfile import WORKPIECE_MESH_FILE
+
+    try:
+        with open(cell.run_dir / WORKPIECE_MESH_FILE) as f:
+            mesh = json.load(f)
+    except (OSError, ValueError):
+        return None
+    if not (isinstance(mesh, dict) and isinstance(mesh.get("points"), list)
+            and isinstance(mesh.get("sections"), int) and isinstance(mesh.get("per_section"), int)):
+        return None
+    return mesh
+
+
 def scene_meta(cell, layout_path=None) -> dict:
     """Geometry for the scene: tool/holder/sensor subunits, the wrist transforms and the workpiece mount
     (from the seam-tracking layout, and the cell's world devices where they name one: ``tool_pose``,

@@ -13,7 +13,7 @@ import time
 from droid.cli import BadInput
 from droid.observe import schemas
 from droid.observe.mcapfile import TOPIC_HEALTH, TOPIC_LOG, cell_meta, read_recording
-from droid.observe.scene import scene_meta
+from droid.observe.scene import live_workpiece_mesh, scene_meta
 from droid.observe.view import ViewBuilder
 
 HEALTH_PERIOD_S = 0.5  # program health at most twice a second
@@ -30,6 +30,9 @@ class LiveSource:
 
         self.cell = cell
         self.meta = cell_meta(cell, "live", scene_meta(cell))
+        mesh = live_workpiece_mesh(cell)  # a simulated cell's workpiece shape (droid-sim publishes it)
+        if mesh is not None:
+            self.meta["scene"]["workpiece_mesh"] = mesh
         self.sampler = CellSampler(cell).connect()
         self.view = ViewBuilder(self.meta)
         from droid.observe.events import EventWatcher

@@ -189,3 +189,23 @@ def test_scene_meta_reads_the_cells_mounts(tmp_path):
     assert np.allclose(g["T_wcp_sensor"], pose_to_T(0, -100, 250, -90, 90, 180))
     assert np.allclose(g["T_wcp_workpiece"], pose_to_T(50, -350, 150, 0, 90, 90))
     assert g["workpiece"] == "step_input"
+
+
+def test_a_live_cell_shows_the_workpiece_the_world_published(tmp_path):
+    """droid-sim's camera twin writes the workpiece's mesh into the run directory when the cell's
+    world is built there; droid-web's live source reads it (plain data, no import of droid.sim)."""
+    from droid.brain.cellfile import load_cell
+    from droid.observe.scene import live_workpiece_mesh
+    from droid.sim.mvs.devices import publish_workpiece_mesh
+    from droid.sim.workpiece import load_workpiece
+    from tests.brain.cellutil import make_cell_file
+
+    cell = load_cell(make_cell_file(tmp_path, "meshcell"))
+    assert live_workpiece_mesh(cell) is None  # no run directory yet: nothing published, nothing read
+    cell.run_dir.mkdir(parents=True)
+    publish_workpiece_mesh(type("W", (), {"cell": cell})(), load_workpiece("step_input"))
+    mesh = live_workpiece_mesh(cell)
+    assert mesh is not None and mesh["name"] == "step_input"
+    assert len(mesh["points"]) == 3 * mesh["sections"] * mesh["per_section"]
+    (cell.run_dir / "workpiece_mesh.json").write_text('{"points": "garbled"}')
+    assert live_workpiece_mesh(cell) is None  # not a mesh: ignored, never a crash

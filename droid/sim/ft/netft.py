@@ -6,8 +6,8 @@ Device type ``netft`` (``[world.devices.NAME]``)::
     device = "netft://{loopback}:49152?http_port=8049"  # where it answers (a loopback address only);
                                                        # the subunit's droid-ft reads the same URL
     arm = "arm1"                  # the world device of the arm it sits on (has wcp_global())
-    sensor_pose = [0, 0, 100, 0, 0, 0]   # T_wcp_sensor: the sensor frame on the wrist (mm, ZYZ deg)
-    tool_pose = [0, 0, 150, 0, 0, 0]     # T_sensor_tool: the tool point in the sensor frame
+    ft_pose = [0, 0, 100, 0, 0, 0]   # T_wcp_sensor: the sensor frame on the wrist (mm, ZYZ deg)
+    sensor_tool_pose = [0, 0, 150, 0, 0, 0]     # T_sensor_tool: the tool point in the sensor frame
     tool_mass_kg = 1.5            # what hangs on the sensor (default 0)
     tool_com_mm = [0, 0, 60]      # its centre of mass in the sensor frame [mm]
     model = "gamma"               # the transducer: ranges, resolution, calibration (SENSOR_MODELS)
@@ -18,7 +18,7 @@ What it measures, in the sensor frame, is the load on its tool side:
 
 * the tool's weight: ``tool_mass_kg`` x gravity (``GRAVITY_MPS2`` along the
   global -z), turned into the sensor frame by the arm's *true* wrist pose
-  (``arm.wcp_global() @ sensor_pose``, as the MVS camera twin takes its pose,
+  (``arm.wcp_global() @ ft_pose``, as the MVS camera twin takes its pose,
   :mod:`droid.sim.mvs.devices`), acting at ``tool_com_mm``;
 * the contact wrench between tool and workpiece, from a hook the arm device
   may offer (contact does not exist in the world yet)::
@@ -26,7 +26,7 @@ What it measures, in the sensor frame, is the load on its tool side:
       arm.contact_wrench_N_Nm() -> (force[3] [N], torque[3] [N m])
 
   the wrench the environment applies to the tool, in the global frame, the
-  torque about the tool point (``tool_pose``).  An arm without the method
+  torque about the tool point (``sensor_tool_pose``).  An arm without the method
   has no contact: zero (``getattr`` default);
 * the transducer: Gaussian noise and a random-walk bias drift per axis, and
   saturation past the model's range (the reading held at the range, status
@@ -401,8 +401,8 @@ def make_netft(world, name: str, options: dict[str, Any]) -> NetFtTwinDevice:
     if not loopback:
         raise opts.bad(f"the twin answers on a loopback address only (127.0.0.0/8), not {url.host!r}", "device")
     arm = opts.device("arm")
-    T_wcp_sensor = opts.pose("sensor_pose", [0.0] * 6)
-    T_sensor_tool = opts.pose("tool_pose", [0.0] * 6)
+    T_wcp_sensor = opts.pose("ft_pose", [0.0] * 6)
+    T_sensor_tool = opts.pose("sensor_tool_pose", [0.0] * 6)
     mass = opts.get("tool_mass_kg", float, 0.0, check=lambda v: None if v >= 0 else "must be >= 0 kg")
     com = opts.get("tool_com_mm", list, [0.0, 0.0, 0.0],
                    check=lambda v: None if len(v) == 3 and all(isinstance(x, (int, float)) and not isinstance(x, bool)

@@ -245,9 +245,32 @@ def build_camera(opts: DeviceOptions, dsp_url: str) -> MvsCameraDevice:
     return MvsCameraDevice(opts.name, mount, twin, rate)
 
 
+def publish_workpiece_mesh(world, workpiece: Workpiece) -> None:
+    """Write the workpiece's surfaces (:func:`droid.sim.workpiece_mesh.workpiece_mesh`, plain data
+    in the workpiece frame W) to ``{run}/workpiece_mesh.json``, where droid-web reads it for a live
+    cell (an observer may not import the simulator, DESIGN §7; a file of data it may read).  Only
+    when the run directory exists (a running cell); written whole (rename), never half."""
+    import json
+    import os
+
+    from droid.brain.cellfile import WORKPIECE_MESH_FILE
+    from droid.sim.workpiece_mesh import workpiece_mesh
+
+    run_dir = getattr(getattr(world, "cell", None), "run_dir", None)
+    if run_dir is None or not os.path.isdir(run_dir):
+        return
+    path = os.path.join(run_dir, WORKPIECE_MESH_FILE)
+    tmp = f"{path}.{os.getpid()}.tmp"
+    with open(tmp, "w") as f:
+        json.dump(workpiece_mesh(workpiece), f)
+    os.replace(tmp, path)
+
+
 def mvs_camera(world, name: str, options: dict[str, Any]) -> MvsCameraDevice:
     opts = DeviceOptions(world, name, options)
-    return build_camera(opts, opts.get("dsp", str))
+    dev = build_camera(opts, opts.get("dsp", str))
+    publish_workpiece_mesh(world, dev.twin.camera.workpiece)
+    return dev
 
 
 def tool_parts(opts: DeviceOptions) -> tuple[Mount, ToolSensorCore, float]:

@@ -7,7 +7,7 @@ subunit's ``device`` URL (:mod:`droid.subunits.ft.rdt`), asks it for
 real-time RDT streaming, and ``rate_hz`` times a second (the URL's) checks
 every record that arrived and writes the newest into its ``ctrl_status``
 (``ft6_status``): force and torque in the sensor frame [N, N m], the same
-wrench in the tool frame (``tool_pose``: the tool frame in the sensor frame,
+wrench in the tool frame (``sensor_tool_pose``: the tool frame in the sensor frame,
 x y z mm, A B C ZYZ deg), the record's sequence numbers and status word, and
 the counters.  ``droid-agent`` serves that record to the Brain's
 ``droid-remote``, which copies it into the Brain's Status (``droid-snoop``).
@@ -25,7 +25,7 @@ Cell file::
     class = "ft6"
     host = "arm1"
     device = "netft://127.0.0.1:49152?rate_hz=100&http_port=8049"
-    tool_pose = [0.0, 0.0, 150.0, 0.0, 0.0, 0.0]   # tool frame in the sensor frame (mm, ZYZ deg)
+    sensor_tool_pose = [0.0, 0.0, 150.0, 0.0, 0.0, 0.0]   # tool frame in the sensor frame (mm, ZYZ deg)
     programs = ["droid-ft", "droid-agent"]
 """
 from __future__ import annotations
@@ -66,14 +66,14 @@ def ft_options(sub) -> FtOptions:
     url = sub.options.get("device")
     if not isinstance(url, str) or not url:
         raise BadInput(f"{where} an ft6 sensor needs 'device' (e.g. \"netft://192.168.1.1:49152\")")
-    pose = sub.options.get("tool_pose", [0.0] * 6)
+    pose = sub.options.get("sensor_tool_pose", [0.0] * 6)
     if not isinstance(pose, list) or len(pose) != 6:
-        raise BadInput(f"{where} tool_pose must be 6 numbers: x y z [mm] A B C [ZYZ deg]")
+        raise BadInput(f"{where} sensor_tool_pose must be 6 numbers: x y z [mm] A B C [ZYZ deg]")
     try:
-        vals = [rng.check(v, f"{where} tool_pose[{i}]") for i, (v, rng) in enumerate(zip(pose, POSE))]
+        vals = [rng.check(v, f"{where} sensor_tool_pose[{i}]") for i, (v, rng) in enumerate(zip(pose, POSE))]
     except ValueError as exc:
         raise BadInput(str(exc)) from None
-    unknown = sorted(set(sub.options) - {"device", "tool_pose"})
+    unknown = sorted(set(sub.options) - {"device", "sensor_tool_pose"})
     if unknown:
         raise BadInput(f"{where} unknown key(s) for an ft6 sensor: {', '.join(unknown)}")
     return FtOptions(url, pose_to_T(*vals))
