@@ -5,6 +5,8 @@ Usage::
     droid-kin fk --robot NAME [--json] [Q1 .. Q6]
     droid-kin ik --robot NAME [--prev Q1 .. Q6] [--all] [--json] [X Y Z A B C]
     droid-kin robots [--json]
+    droid-kin urdf [ROBOT] [--out FILE] [--cell FILE --subunit NAME]
+    droid-kin urdf --write-bundled
 
 Joint angles in degrees; X Y Z in mm; A B C are Z-Y-Z Euler angles in
 degrees (thesis eq. 4.2).  NAME is a bundled robot (``droid-kin robots``) or
@@ -14,6 +16,12 @@ Output, one record a line:
 
 * ``fk``: plain ``X Y Z A B C`` (the pose, so it can be fed to ``ik``);
   ``--json``: ``{"T": [[4 rows of 4]]}``.
+* ``urdf``: the robot file as URDF (:mod:`droid.kinematics.urdf`) on stdout or in
+  ``--out FILE``; with ``--cell FILE --subunit NAME`` also the fixed links ``tool`` and
+  ``sensor`` of the cell's world-device mounts on that subunit (``tool_pose`` /
+  ``sensor_pose``, T_wcp_* in mm and ZYZ deg), and ROBOT defaults to the subunit's robot.
+  ``--write-bundled`` (re)writes ``droid/kinematics/robots/urdf/<robot>.urdf`` for every
+  bundled robot and prints their paths.
 * ``ik``: plain: the picked joint angles ``Q1 .. Q6``; with ``--all`` one line
   ``pick: Q1..Q6 | 0: Q1..Q6 | 1: none | ...``.  ``--json``:
   ``{"solutions": [8 entries, each 6 numbers or null], "pick": [6] or null}``
@@ -32,7 +40,8 @@ ik object with ``"pick": null``), processing continues, the chain keeps the
 last good pick, and the exit code is 2 with a one-line summary on stderr.
 
 Exit codes (droid.cli): 0 ok; 2 bad arguments or input, unknown robot, an
-unreachable or out-of-limit target.
+unreachable or out-of-limit target, a robot file that cannot make a valid URDF (one line
+naming the key), ``--out`` into a missing directory.
 """
 from __future__ import annotations
 
@@ -46,9 +55,11 @@ from typing import Iterator, Sequence
 
 import numpy as np
 
-from droid.cli import ArgumentParser, BadInput, bounded_float, run
+from droid.cli import ArgumentParser, BadInput, bounded_float, read_toml, run
 from droid.kinematics import RobotFileError, list_robots, load_robot
 from droid.kinematics.transforms import T_to_pose, pose_to_T
+from droid.kinematics.urdf import BUNDLED_URDF_DIR, bundled_urdf_path, robot_urdf
+from droid.numbers import BadFile, check_numbers
 
 PROG = "droid-kin"
 #: vectors solved per batch in stdin mode.
@@ -77,6 +88,14 @@ def _parser() -> ArgumentParser:
     ik.add_argument("pose", nargs="*", type=POSE_VALUE, metavar="P", help="X Y Z [mm] A B C [deg ZYZ] (else stdin)")
     rb = sub.add_parser("robots", help="list the bundled robot models")
     rb.add_argument("--json", action="store_true")
+    ur = sub.add_parser("urdf", help="print the robot file as URDF (docs/kinematics.md, URDF)")
+    ur.add_argument("robot", nargs="?", metavar="ROBOT",
+                    help="bundled robot name or path to a .toml file (default with --cell: the subunit's robot)")
+    ur.add_argument("--out", metavar="FILE", help="write the URDF here instead of stdout")
+    ur.add_argument("--cell", metavar="FILE", help="cell file whose world-device mounts give the tool and sensor")
+    ur.add_argument("--subunit", metavar="NAME", help="the cell's subunit carrying the robot (with --cell)")
+    ur.add_argument("--write-bundled", action="store_true",
+                    help="write droid/kinematics/robots/urdf/<robot>.urdf for every bundled robot")
     return ap
 
 
@@ -279,6 +298,98 @@ def _stream_ik(model, prev0: list[float], as_json: bool, show_all: bool) -> _Fai
     return fails
 
 
+# ---------------------------------------------------------------- urdf
+
+
+def cell_mounts(cell: dict, subunit: str, where: str = "cell") -> tuple[str | None, dict]:
+    """The robot of ``[subunits.<subunit>]`` and the mounts of the cell's world devices on it.
+
+    A world device mounts a tool (``tool_pose``) or a sensor (``sensor_pose``) on the arm it
+    names in ``tool_robot``: the world device whose ``subunit`` is ``subunit`` (or the device
+    of that name).  Returns (robot name or None, {"tool": 4x4 mm, "sensor": 4x4 mm} of those
+    found).  :class:`BadInput` (one line) for a missing subunit or contradicting mounts.
+    """
+    subs = cell.get("subunits", {})
+    if not isinstance(subs, dict) or not isinstance(subs.get(subunit), dict):
+        have = ", ".join(sorted(subs)) if isinstance(subs, dict) else ""
+        raise BadInput(f"{where}: no subunit {subunit!r} (subunits: {have or 'none'})")
+    robot = subs[subunit].get("robot")
+    if robot is not None and not isinstance(robot, str):
+        raise BadInput(f"{where}: [subunits.{subunit}] robot: must be a robot name or file")
+    world = cell.get("world", {})
+    devices = world.get("devices", {}) if isinstance(world, dict) else {}
+    if not isinstance(devices, dict):
+        devices = {}
+    arm_names = {subunit} | {n for n, d in devices.items() if isinstance(d, dict) and d.get("subunit") == subunit}
+    mounts: dict = {}
+    for kind, key in (("tool", "tool_pose"), ("sensor", "sensor_pose")):
+        for dname in sorted(devices):
+            dev = devices[dname]
+            if not isinstance(dev, dict) or key not in dev or dev.get("tool_robot") not in arm_names:
+                continue
+            pose = dev[key]
+            if not isinstance(pose, list) or len(pose) != 6:
+                raise BadInput(f"{where}: [world.devices.{dname}] {key}: expected [x, y, z, A, B, C] (mm, ZYZ deg)")
+            T = pose_to_T(*(float(v) for v in pose))
+            if kind in mounts and not np.allclose(mounts[kind], T, atol=1e-9):
+                raise BadInput(f"{where}: [world.devices.{dname}] {key}: differs from another device's {key} "
+                               f"on subunit {subunit!r}")
+            mounts[kind] = T
+    return robot, mounts
+
+
+def _write_text(path: str, text: str) -> None:
+    parent = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(parent):
+        raise BadInput(f"--out {path}: directory {parent} does not exist")
+    if os.path.isdir(path):
+        raise BadInput(f"--out {path}: is a directory")
+    try:
+        with open(path, "w", encoding="utf-8", newline="\n") as f:
+            f.write(text)
+    except OSError as exc:
+        raise BadInput(f"--out {path}: cannot write ({exc.strerror or exc})") from None
+
+
+def _urdf(args) -> int:
+    if args.write_bundled:
+        if args.robot or args.out or args.cell or args.subunit:
+            raise BadInput("urdf --write-bundled takes no ROBOT, --out, --cell or --subunit")
+        BUNDLED_URDF_DIR.mkdir(exist_ok=True)
+        for name in list_robots():
+            path = bundled_urdf_path(name)
+            with open(path, "w", encoding="utf-8", newline="\n") as f:
+                f.write(robot_urdf(load_robot(name)))
+            print(path)
+        return 0
+    if (args.cell is None) != (args.subunit is None):
+        raise BadInput("urdf: give --cell FILE and --subunit NAME together")
+    mounts: dict = {}
+    robot = args.robot
+    if args.cell is not None:
+        cell = read_toml(args.cell, "cell")
+        try:
+            check_numbers(cell)
+        except BadFile as exc:
+            raise BadInput(f"cell {args.cell}: {exc}") from None
+        cell_robot, mounts = cell_mounts(cell, args.subunit, f"cell {args.cell}")
+        if robot is None:
+            if cell_robot is None:
+                raise BadInput(f"cell {args.cell}: [subunits.{args.subunit}] has no robot; give ROBOT")
+            robot = cell_robot
+        elif cell_robot is not None and _load(robot).name != _load(cell_robot).name:
+            raise BadInput(f"urdf: subunit {args.subunit!r} of {args.cell} carries {cell_robot!r}, not {robot!r}")
+    if robot is None:
+        raise BadInput("urdf: give ROBOT (a bundled name or a .toml file)")
+    text = robot_urdf(_load(robot), tool=mounts.get("tool"), sensor=mounts.get("sensor"))
+    if args.out is None:
+        sys.stdout.write(text)
+        sys.stdout.flush()
+    else:
+        _write_text(args.out, text)
+    return 0
+
+
 # ---------------------------------------------------------------- main
 
 
@@ -307,6 +418,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             else:
                 print(f"{name}{' (assumed)' if m.assumed else ''}: {m.description}")
         return 0
+    if args.cmd == "urdf":
+        return _urdf(args)
     model = _load(args.robot)
     if args.cmd == "fk":
         if len(args.q) not in (0, 6):
