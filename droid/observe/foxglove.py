@@ -651,11 +651,15 @@ class Service:
 
     def __init__(self, source, host: str, port: int, token: str | None, rate: float) -> None:
         self.src = source
-        self.feed = FoxgloveFeed(source.meta)
         self.host, self.port, self.token = host, port, token
         name = f"DROID {source.meta.get('cell')} ({source.mode})"
-        # with a token the SDK server listens on a private loopback port behind the gate
-        self.server = FoxgloveServer(self.feed, "127.0.0.1" if token else host, 0 if token else port, name)
+        try:
+            self.feed = FoxgloveFeed(source.meta)
+            # with a token the SDK server listens on a private loopback port behind the gate
+            self.server = FoxgloveServer(self.feed, "127.0.0.1" if token else host, 0 if token else port, name)
+        except BaseException:
+            source.close()  # the source is the service's from here on
+            raise
         self.gate = TokenGate(token, self.server.port) if token else None
         self.pump = Pump(source, self.feed, self.server, rate)
 
@@ -712,16 +716,11 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     check_host(args.host, args.token)
     import_sdk()
-    src = open_source(args.file, args)
-    svc = None
+    svc = Service(open_source(args.file, args), args.host, args.port, args.token, args.rate)
     try:
-        svc = Service(src, args.host, args.port, args.token, args.rate)
         asyncio.run(_serve(svc))
     finally:
-        if svc is not None:
-            svc.close()
-        else:
-            src.close()
+        svc.close()
     return 0
 
 
