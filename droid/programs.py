@@ -46,4 +46,5 @@ PROGRAMS: dict[str, str] = {
     "droid-record": "droid.observe.record",
     "droid-replay": "droid.observe.replay",
     "droid-web": "droid.observe.web",
+    "droid-foxglove": "droid.observe.foxglove",  # needs the optional extra droid[foxglove]
 }

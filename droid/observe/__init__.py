@@ -12,6 +12,7 @@ Observers read the Brain's databases only, like a task (DESIGN §7: they import
 * :mod:`droid.observe.replay`   -- ``droid-replay`` (into a ``droid-cell up --replay`` cell; CSV export);
 * :mod:`droid.observe.web`      -- ``droid-web`` (live page, 3-D view, recordings with a time slider);
   :mod:`droid.observe.sources` and :mod:`droid.observe.view` -- its snapshots, live or from a file;
+* :mod:`droid.observe.foxglove` -- ``droid-foxglove`` (the cell on a Foxglove WebSocket; extra ``droid[foxglove]``);
 * :mod:`droid.observe.events`   -- faults and events between snapshots (foxglove ``Log``);
 * :mod:`droid.observe.lockstep` -- lockstep trials into the same layout.
 

@@ -1,6 +1,6 @@
 """droid-web: a live page of the cell, and of recordings (thesis §3.4, §7.3; docs/observe.md).
 
-``droid-web [--cell FILE] [--port 8060] [--bind 127.0.0.1] [--token TOKEN] [--file F.mcap]``
+``droid-web [--cell FILE] [--port 8060] [--bind 127.0.0.1] [--token TOKEN] [--file F.mcap] [--foxglove PORT]``
 
 Serves one page: every subunit's Status (homed, busy, mode, stale, fault,
 cmd_result), program health and the heartbeat's lateness, live plots of the
@@ -21,6 +21,9 @@ and refuses a non-loopback ``--bind`` without ``--token`` (then every request
 to ``/api/*`` and ``/ws`` needs ``?token=TOKEN`` or ``Authorization: Bearer
 TOKEN``; the page and its scripts are served without it and pass on the
 page's own ``?token=``).
+
+``--foxglove PORT`` (e.g. 8765) also serves the cell to the Foxglove app on PORT: the
+server of ``droid-foxglove`` (:mod:`droid.observe.foxglove`) run beside the page.
 
 Exit: 0 on SIGINT/SIGTERM; 1 cell not up, port in use (named); 2 bad arguments or file.
 """
@@ -186,7 +189,8 @@ class WebApp:
             await asyncio.sleep(max(0.0, delay))
 
 
-async def serve(app: WebApp, bind: str, port: int) -> None:
+async def serve(app: WebApp, bind: str, port: int, foxglove=None) -> None:
+    """Serve until SIGINT/SIGTERM; ``foxglove``: a :class:`droid.observe.foxglove.Service` run beside."""
     runner = web.AppRunner(app.app, access_log=None, handle_signals=False)
     await runner.setup()
     site = web.TCPSite(runner, bind, port, reuse_address=False)
@@ -206,11 +210,18 @@ async def serve(app: WebApp, bind: str, port: int) -> None:
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
     pump = asyncio.create_task(app.pump())
+    fox = asyncio.create_task(foxglove.run(stop)) if foxglove is not None else None
+    waiting = asyncio.create_task(stop.wait())
     try:
-        await stop.wait()
+        await asyncio.wait([waiting] + ([fox] if fox else []), return_when=asyncio.FIRST_COMPLETED)
     finally:
+        stop.set()
         pump.cancel()
-        await runner.cleanup()
+        try:
+            if fox is not None:
+                await fox  # a failure of the Foxglove side (its port in use) ends droid-web with its message
+        finally:
+            await runner.cleanup()
 
 
 @run
@@ -224,15 +235,29 @@ def main(argv=None) -> int:
     ap.add_argument("--file", default=None, metavar="F.mcap", help="open a recording instead of the live cell")
     ap.add_argument("--rate", type=rate_hz(0.1, 120.0), default=DEFAULT_RATE_HZ, metavar="HZ",
                     help=f"WebSocket snapshots per second (default {DEFAULT_RATE_HZ:g})")
+    ap.add_argument("--foxglove", type=tcp_port, default=None, metavar="PORT",
+                    help="also serve droid-foxglove's WebSocket on PORT (its default is 8765; same --bind, "
+                         "--token, --rate, --file; needs the extra droid[foxglove])")
     args = ap.parse_args(argv)
     if args.token is not None and (len(args.token) < 8 or not args.token.isprintable()):
         ap.error("--token must be at least 8 printable characters")
     if not is_loopback(args.bind) and args.token is None:
         raise BadInput(f"--bind {args.bind} is not loopback: refused without --token TOKEN")
+    if args.foxglove is not None:
+        from droid.observe import foxglove as fox
+
+        if args.foxglove == args.port:
+            raise BadInput(f"--foxglove {args.foxglove}: the page's --port; give the WebSocket another port")
+        fox.import_sdk()
     src = FileSource(args.file) if args.file else LiveSource(open_cell(args))
+    svc = None
     try:
-        asyncio.run(serve(WebApp(src, args.token, args.rate), args.bind, args.port))
+        if args.foxglove is not None:
+            svc = fox.Service(fox.open_source(args.file, args), args.bind, args.foxglove, args.token, args.rate)
+        asyncio.run(serve(WebApp(src, args.token, args.rate), args.bind, args.port, svc))
     finally:
+        if svc is not None:
+            svc.close()
         src.close()
     return 0
 

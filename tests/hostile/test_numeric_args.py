@@ -62,6 +62,8 @@ DIMENSIONLESS = {
     ("droid-fault", "--duplicate"): "a probability",
     ("droid-fault", "--seed"): "a seed",
     ("droid-web", "--port"): "a TCP port",
+    ("droid-web", "--foxglove"): "a TCP port",
+    ("droid-foxglove", "--port"): "a TCP port",
     ("*", "--ready-fd"): "a file descriptor (set by droid-cell up; hidden)",
 }
 

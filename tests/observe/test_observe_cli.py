@@ -1,4 +1,4 @@
-"""Hostile command lines for droid-record, droid-replay and droid-web: exit 2, one line, nothing created."""
+"""Hostile command lines for droid-record, droid-replay, droid-web and droid-foxglove: exit 2, one line, nothing created."""
 from __future__ import annotations
 
 import importlib
@@ -32,6 +32,17 @@ BAD = [  # (module, argv, reason)
     ("droid.observe.web", ["--token", "short"], "at least 8"),
     ("droid.observe.web", ["--file", "{tmp}/none.mcap"], "no such file"),
     ("droid.observe.web", ["extra"], "unrecognized arguments"),
+    ("droid.observe.web", ["--foxglove", "0"], "must be > 0"),
+    ("droid.observe.foxglove", ["--port", "0"], "must be > 0"),
+    ("droid.observe.foxglove", ["--port", "99999"], "<= 65535"),
+    ("droid.observe.foxglove", ["--rate", "nan"], "not a finite number"),
+    ("droid.observe.foxglove", ["--rate", "500"], "<= 120 Hz"),
+    ("droid.observe.foxglove", ["--host", "10.1.2.3"], "not loopback"),
+    ("droid.observe.foxglove", ["--host", "::", "--file", "{tmp}/x.mcap"], "not loopback"),
+    ("droid.observe.foxglove", ["--token", "short"], "at least 8"),
+    ("droid.observe.foxglove", ["--file", "{tmp}/none.mcap"], "no such file"),
+    ("droid.observe.foxglove", ["--file", "{tmp}/x.mcap"], "not an MCAP file"),
+    ("droid.observe.foxglove", ["extra"], "unrecognized arguments"),
     ("droid.brain.launcher", ["up", "--replay", "{tmp}/none.mcap"], "no such file"),
     ("droid.brain.launcher", ["up", "--replay", "{tmp}/x.mcap", "--host", "brain"], "no --host"),
 ]
