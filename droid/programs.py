@@ -28,6 +28,7 @@ PROGRAMS: dict[str, str] = {
     "droid-watchdog": "droid.subunits.reis.watchdog_prog",
     "droid-mvs": "droid.subunits.mvs.sensor",
     "droid-joystick": "droid.subunits.joystick.prog",
+    "droid-egm": "droid.subunits.abb.egm_prog",
     "droid-mvs-board": "droid.sim.mvs.dsp",
     # tasks
     "droid-snoop": "droid.tasks.snoop",

@@ -41,6 +41,7 @@ DEVICE_TYPES: dict[str, tuple[str, str]] = {
     "tool_sensor": ("droid.sim.mvs.devices", "tool_sensor"),
     "serial_cable": ("droid.sim.serial_cable", "serial_cable"),
     "joystick": ("droid.sim.joystick.device", "make_joystick"),
+    "abb_egm": ("droid.sim.abb.controller", "make_abb_egm"),
 }
 
 
