@@ -304,9 +304,8 @@ class EgmCore:
         faults = 0
         why = ""
         mode, cmd_id = int(cmd["cmd_mode"]), int(cmd["cmd_id"])
-        if self.jog_id is None:  # commands issued before we started are not replayed
-            self.jog_id = cmd_id
-            self.home_id = cmd_id if mode == HOME_MODE else None
+        if self.jog_id is None:  # a JOG issued before we started is not replayed (a HOME is: it
+            self.jog_id = cmd_id  # moves nothing on this arm, and its task may be waiting for it)
         fresh = s is not None and now_ns - s.rx_ns < self.stale_ns + max(0, int(late_ns))
         if not fresh:
             faults |= FAULT_DEVICE
