@@ -9,16 +9,16 @@ EGMActJoint, EGMStreamStart, then EGMRunJoint in a loop), as far as the sensor s
   reference its joint loops follow), ``motorState``, ``rapidExecState``, ``mciState``,
   ``mciConvergenceMet`` and, if asked, ``testSignals`` (the reference's speed per joint [deg/s]);
   it streams while powered, guided or not (EGMStreamStart), as the RAPID module asks;
-* ``EgmSensor`` joint targets [deg] it receives become the reference of its own position loop,
-  moved toward the target no faster than the robot file's joint speed limits (``vmax_deg_s``)
-  and clamped to the joint limits; a datagram that is not a CORRECTION with six finite joints
+* ``EgmSensor`` joint targets [deg] it receives (clamped to the joint limits) are followed by
+  the reference of its own joint loops, no faster than the robot file's joint speed limits
+  (``vmax_deg_s``) and with accelerations of at most ``vmax / accel_time_s``; a datagram that is not a CORRECTION with six finite joints
   is counted and ignored;
 * the arm: the robot file's ``[dynamics]`` and ``[axis_servo]`` through the Fanuc twin's plant
   (:class:`droid.sim.gmf1.dynamics.ArmDynamics`: Pinocchio rigid body, PI joint loops,
   amplifier limits, reducer compliance); ``dynamics = false`` puts an ideal arm on the reference;
 * the sensor side silent for ``comm_timeout_s`` while guided: EGMRunJoint ends (``mciState``
-  STOPPED), the reference stops where the arm is and the joint loops hold it there (the twin's
-  "brake"); the RAPID loop starts EGMRunJoint again ``restart_s`` later, from the arm's position;
+  STOPPED), the reference path stops where it is and the joint loops bring the arm to rest on it
+  (the twin's stop); the RAPID loop starts EGMRunJoint again ``restart_s`` later, from the arm's position;
 * motors off (:meth:`EgmController.set_motors`): the holding brakes keep the arm where it is
   (the plant is not stepped), ``motorState`` MOTORS_OFF, no guidance; RAPID stopped
   (:meth:`set_rapid`): ``rapidExecState`` STOPPED, EGMRunJoint ends, feedback still streams.
@@ -31,12 +31,12 @@ Device type ``abb_egm`` (cell file)::
     [world.devices.abb]
     type = "abb_egm"
     subunit = "abb"             # whose egm URL (the sensor address) and robot file (default: the name)
-    port = 0                    # the controller's own UDP port on 127.0.0.1 (0: any free one)
     start_deg = [0, 0, 0, 0, 30, 0]   # joint angles at power-up [deg]
     period_s = 0.004            # EGM's sample period (250 Hz)
     comm_timeout_s = 1.0        # EGMSetupUC \\CommTimeout (ABB's default: 1 s)
     restart_s = 0.2             # the RAPID loop's pause before EGMRunJoint starts again
     convergence_deg = 0.1       # EGMActJoint's convergence band per joint (egm_minmax, +-0.1 deg)
+    accel_time_s = 0.25         # the reference's time from rest to vmax_deg_s (ASSUMED)
     dynamics = true             # the robot file's arm (default: when the file has the tables)
     test_signals = false        # send EgmRobot.testSignals
 """
@@ -56,9 +56,9 @@ from droid.sim.device import Device
 from droid.subunits.abb import egm_schema as es
 from droid.subunits.abb.config import egm_config
 
-OPTIONS = ("subunit", "port", "start_deg", "period_s", "comm_timeout_s", "restart_s", "convergence_deg",
-           "dynamics", "test_signals")
-NUMBER_OPTIONS = ("period_s", "comm_timeout_s", "restart_s", "convergence_deg")
+OPTIONS = ("subunit", "start_deg", "period_s", "comm_timeout_s", "restart_s", "convergence_deg",
+           "accel_time_s", "dynamics", "test_signals")
+NUMBER_OPTIONS = ("period_s", "comm_timeout_s", "restart_s", "convergence_deg", "accel_time_s")
 #: received datagrams read per world step, at most (a flood cannot stall the world)
 MAX_READS_PER_STEP = 64
 _U32 = 0xFFFFFFFF
@@ -72,12 +72,13 @@ class EgmTwinParams:
     comm_timeout_s: float = 1.0  # EGMSetupUC \CommTimeout default
     restart_s: float = 0.2  # DroidEGM.mod: WaitTime before EGMRunJoint runs again (ASSUMED)
     convergence_deg: float = 0.1  # DroidEGM.mod's egm_minmax of +-0.1 deg per joint
+    accel_time_s: float = 0.25  # the reference reaches vmax_deg_s in this time, and stops in it (ASSUMED)
     dynamics: bool = True
     test_signals: bool = False
 
     def __post_init__(self) -> None:
         checks = (("period_s", 1e-4, 1.0), ("comm_timeout_s", 1e-3, 60.0), ("restart_s", 0.0, 60.0),
-                  ("convergence_deg", 1e-6, 10.0))
+                  ("convergence_deg", 1e-6, 10.0), ("accel_time_s", 1e-3, 10.0))
         for name, lo, hi in checks:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and lo <= v <= hi):
@@ -103,6 +104,7 @@ class EgmController:
         self.qmin = np.asarray(model.joint_min_deg, float)
         self.qmax = np.asarray(model.joint_max_deg, float)
         self.vmax = np.asarray(model.vmax_deg_s, float)
+        self.amax = self.vmax / self.p.accel_time_s  # [deg/s^2]
         self.ref_deg = q0.copy()  # the joint loops' reference (EgmRobot.planned)
         self.ref_rate = np.zeros(6)  # its rate [deg/s]
         self.target_deg: np.ndarray | None = None  # the newest sensor target
@@ -131,11 +133,14 @@ class EgmController:
         """What the resolvers measure, in joint degrees (the feedback)."""
         return self.arm.q_motor_deg if self.arm is not None else self._q_ideal
 
-    def _stop_guiding(self, restart: bool) -> None:
+    def _stop_guiding(self, restart: bool, brakes: bool = False) -> None:
+        """EGMRunJoint ends: the reference path stops where it is and the joint loops bring the
+        arm to rest on it (``brakes``: the motors are off, the brakes hold the arm where it is)."""
         self.guiding = False
         self.target_deg = None
-        self.ref_deg = self.q_motor_deg.copy()  # stop where the arm is; the loops hold it
-        self.ref_rate = np.zeros(6)
+        if brakes:
+            self.ref_deg = self.q_motor_deg.copy()
+            self.ref_rate = np.zeros(6)
         self.restart_at_s = self.t_s + self.p.restart_s if restart else None
 
     def _start_guiding(self) -> None:
@@ -143,6 +148,7 @@ class EgmController:
         self.restart_at_s = None
         self.last_rx_s = self.t_s
         self.ref_deg = self.q_motor_deg.copy()
+        self.ref_rate = np.zeros(6)
         self.target_deg = None
 
     def set_motors(self, on: bool) -> None:
@@ -151,7 +157,7 @@ class EgmController:
             return
         self.motors_on = on
         if not on:
-            self._stop_guiding(restart=False)
+            self._stop_guiding(restart=False, brakes=True)
         elif self.rapid_running:
             self._start_guiding()
 
@@ -202,13 +208,8 @@ class EgmController:
         if (not self.guiding and self.restart_at_s is not None and t_s >= self.restart_at_s
                 and self.rapid_running and self.motors_on):
             self._start_guiding()
-        if self.guiding and self.target_deg is not None and dt > 0:
-            step = self.vmax * dt  # the controller's joint speed limits
-            move = np.minimum(np.maximum(self.target_deg - self.ref_deg, -step), step)
-            self.ref_deg = self.ref_deg + move
-            self.ref_rate = move / dt
-        elif dt > 0:
-            self.ref_rate = np.zeros(6)
+        if dt > 0 and self.motors_on:
+            self._move_reference(dt)
         if self.motors_on:
             if self.arm is not None:
                 self.arm.advance(t_s, self.ref_deg)
@@ -219,6 +220,24 @@ class EgmController:
             out.append(self.robot_message(self.next_tx_s))
             self.next_tx_s += self.p.period_s
         return out
+
+    def _move_reference(self, dt: float) -> None:
+        """The reference toward the target (or to rest, without one) within the joint speed
+        limits (``vmax_deg_s``) and accelerations of ``vmax / accel_time_s``: at each joint the
+        speed that can still stop on the target, ``sqrt(2 a |e|)``, reached at ``a`` at most."""
+        v = self.ref_rate
+        dv = self.amax * dt
+        if self.guiding and self.target_deg is not None:
+            e = self.target_deg - self.ref_deg
+            want = np.sign(e) * np.minimum(self.vmax, np.sqrt(2.0 * self.amax * np.abs(e)))
+            v = np.minimum(np.maximum(want, v - dv), v + dv)
+            arrive = (np.abs(e) <= np.abs(v) * dt) & (np.abs(v) <= 2.0 * dv + 1e-12)
+            self.ref_deg = np.where(arrive, self.target_deg, self.ref_deg + v * dt)
+            self.ref_rate = np.where(arrive, 0.0, v)
+        elif np.any(v):  # stopping: the path ramps down to rest
+            v = np.sign(v) * np.maximum(np.abs(v) - dv, 0.0)
+            self.ref_deg = self.ref_deg + v * dt
+            self.ref_rate = v
 
     def robot_message(self, t_s: float) -> bytes:
         """The EgmRobot the controller sends at ``t_s`` [s]."""
@@ -347,9 +366,6 @@ def make_abb_egm(world, name: str, options: dict) -> AbbEgmDevice:
     why = model.limit_violation(np.array(q0, float))
     if why:
         raise BadInput(f"{where} start_deg outside the joint limits: {why}")
-    port = options.get("port", 0)
-    if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
-        raise BadInput(f"{where} port must be an integer in [0, 65535]")
     controller = EgmController(model, params, q0)
-    sock = open_socket(port, where)
+    sock = open_socket(0, where)  # any free port: the controller's source port is EGM's to choose
     return AbbEgmDevice(name, controller, sock, ("127.0.0.1", cfg.port), model.with_base(pose_to_T(*sub.base)))
