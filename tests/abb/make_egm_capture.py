@@ -56,10 +56,11 @@ def main() -> None:
                 pc.sendto(*reply)
             if not select.select([pc], [], [], 0)[0]:
                 break
-        if k == 8:
+        if k in (6, 9):  # two planner ticks: anchored where the arm stands, then a step toward the target
             tick += 1
+            q = core.sample.feedback_deg if k == 6 else target
             cmd["brain_tick"] = cmd["planner_tick"] = tick
-            cmd["encoder_cmd_int"] = np.rint(model.gearing.joints_to_counts(target)).astype(np.int32)
+            cmd["encoder_cmd_int"] = np.rint(model.gearing.joints_to_counts(q)).astype(np.int32)
             core.cycle(cmd, int(dev.t_s * 1e9))
     dev.close()
     pc.close()

@@ -285,3 +285,28 @@ def test_step_takes_datagrams_then_cycles():
     out = c.step(dgs, command(NORMAL_MODE), 13 * MS)
     assert len(out.replies) == 3 and c.counters.duplicated == 1
     assert out.status["homed"] == HOMED
+
+
+def test_after_a_fault_hold_an_old_way_point_is_never_resumed():
+    """Feedback stale mid-move, then back: the way-point still in the Command record (the
+    planner stops writing while the arm is not homed) is not driven to; the planner's
+    re-anchored one (at the arm) is followed again."""
+    c = core()
+    q0 = np.array([0.0, 0.0, 0.0, 0.0, 30.0, 0.0])
+    feed(c, [1], joints=q0)
+    c.cycle(command(brain_tick=1, planner_tick=1, encoder_cmd_int=counts(MODEL, q0)), MS)
+    q1 = q0 + [1.0, 0, 0, 0, 0, 0]
+    c.cycle(command(brain_tick=2, planner_tick=2, encoder_cmd_int=counts(MODEL, q1)), MS + PERIOD_NS)
+    assert c.reanchor is False
+    out = c.cycle(command(brain_tick=30, planner_tick=30, encoder_cmd_int=counts(MODEL, q1)), 10**9)
+    assert out.fault_bits & FAULT_DEVICE
+    here = q0 + [0.4, 0, 0, 0, 0, 0]  # where the arm stopped
+    c.datagram(robot_bytes(1, joints=here), CONTROLLER, 2 * 10**9)
+    out = c.cycle(command(brain_tick=31, planner_tick=31, encoder_cmd_int=counts(MODEL, q1)), 2 * 10**9 + MS)
+    assert out.why == "waiting for the planner to re-anchor" and out.fault_bits == 0
+    assert np.allclose(c.target(2 * 10**9 + 3 * PERIOD_NS)[0], here)
+    c.cycle(command(brain_tick=32, planner_tick=32, encoder_cmd_int=counts(MODEL, here)), 2 * 10**9 + PERIOD_NS)
+    assert c.reanchor is False
+    q2 = here + [0.5, 0, 0, 0, 0, 0]
+    c.cycle(command(brain_tick=33, planner_tick=33, encoder_cmd_int=counts(MODEL, q2)), 2 * 10**9 + 2 * PERIOD_NS)
+    assert np.allclose(c.target(2 * 10**9 + 4 * PERIOD_NS)[0], q2, atol=2e-3)

@@ -43,7 +43,10 @@ Each heartbeat period (:meth:`EgmCore.cycle`, on the relayed tick):
 * NORMAL with the Brain link alive and the planner fresh: the target follows the planner's
   ``encoder_cmd_int`` (counts -> degrees through the robot file's gearing); a way-point farther
   from the target than two periods at the joints' speed limits is refused (FAULT_BRAKING: the
-  planner re-anchors where the arm is, as it does for the Reis servo's braking);
+  planner re-anchors where the arm is, as it does for the Reis servo's braking); after any
+  fault hold (and at start) a way-point is followed only once it lies within
+  :data:`RESUME_DEG` of the feedback -- the planner has re-anchored -- so an old way-point
+  left in the Command record is never driven to;
 * otherwise (OFF, JOG, HOME, the Brain link lost, the planner silent) the target holds where it
   was commanded; a new JOG command moves it by its relative counts once (thesis §3.4);
 * targets are clamped to the joint limits (FAULT_LIMIT while clamped).
@@ -73,6 +76,10 @@ MAX_JOINT_DEG = 3600.0
 MY_FAULTS = FAULT_DEVICE | FAULT_SERVO | FAULT_BRAKING | FAULT_LIMIT
 #: slack on the way-point step check [deg]
 STEP_SLACK_DEG = 0.1
+#: after a fault hold, the planner's way-point is followed again only this close to the
+#: feedback [deg] -- once the planner has re-anchored where the arm stands (the servo agent's
+#: resume window)
+RESUME_DEG = 0.05
 _U32 = 0xFFFFFFFF
 _HALF = 1 << 31
 
@@ -193,6 +200,7 @@ class EgmCore:
         self.wp_ns = 0
         self.wp_tick: int | None = None  # planner_tick of wp_to
         self.clamped = False
+        self.reanchor = True  # a fault hold: wait for the planner's way-point at the arm
         self.jog_id: int | None = None
         self.home_id: int | None = None
         self.last_fault_bits = 0
@@ -313,6 +321,7 @@ class EgmCore:
             why = "no EGM feedback" if s is None else "EGM feedback stale"
             if s is not None:
                 self._hold(s.feedback_deg)
+            self.reanchor = True
         else:
             status["homed"] = HOMED  # absolute measurement: homed while the position is known
             status["encoder_pos"] = np.rint(self.gearing.joints_to_counts(s.feedback_deg)).astype(np.int32)
@@ -320,17 +329,23 @@ class EgmCore:
                 faults |= FAULT_SERVO
                 why = "controller not guiding (motors off, RAPID stopped or EGM not running)"
                 self._hold(s.feedback_deg)
+                self.reanchor = True
             elif mode == NORMAL_MODE and int(cmd["link_alive"]) and \
                     int(cmd["brain_tick"]) - int(cmd["planner_tick"]) <= self.stale_ticks:
                 planner_tick = int(cmd["planner_tick"])
                 if planner_tick != self.wp_tick:
                     wp = self.gearing.counts_to_joints(np.asarray(cmd["encoder_cmd_int"], float))
                     here, _ = self.target(now_ns)
-                    if np.any(np.abs(wp - here) > self.max_step_deg):
+                    if self.reanchor and np.any(np.abs(wp - s.feedback_deg) > RESUME_DEG):
+                        why = "waiting for the planner to re-anchor"  # an old way-point: never resumed
+                        self._hold(s.feedback_deg)  # meanwhile: where the arm stands
+                    elif np.any(np.abs(wp - here) > self.max_step_deg):
                         faults |= FAULT_BRAKING  # the planner re-anchors where the arm is
                         why = "way-point too far from the target"
                         self._hold(s.feedback_deg)
+                        self.reanchor = True
                     else:
+                        self.reanchor = False
                         self.wp_from, self.wp_to = here.copy(), self._clamp(wp)
                         self.wp_ns, self.wp_tick = now_ns, planner_tick
                         self.hold_deg = None
