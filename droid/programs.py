@@ -29,6 +29,7 @@ PROGRAMS: dict[str, str] = {
     "droid-mvs": "droid.subunits.mvs.sensor",
     "droid-joystick": "droid.subunits.joystick.prog",
     "droid-ft": "droid.subunits.ft.prog",
+    "droid-egm": "droid.subunits.abb.egm_prog",
     "droid-mvs-board": "droid.sim.mvs.dsp",
     # tasks
     "droid-snoop": "droid.tasks.snoop",

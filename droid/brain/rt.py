@@ -137,6 +137,7 @@ FIFO_PRIORITIES: dict[str, int] = {
     "droid-servo": 60,
     "droid-watchdog": 55,
     "droid-servo-agent": 54,
+    "droid-egm": 54,  # in the servo agent's place on an EGM arm (docs/abb.md): answers the controller every 4 ms
     "droid-sim": 52,
     "droid-planner": 51,
     "droid-agent": 51,

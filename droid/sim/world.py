@@ -42,6 +42,7 @@ DEVICE_TYPES: dict[str, tuple[str, str]] = {
     "serial_cable": ("droid.sim.serial_cable", "serial_cable"),
     "joystick": ("droid.sim.joystick.device", "make_joystick"),
     "netft": ("droid.sim.ft.netft", "make_netft"),
+    "abb_egm": ("droid.sim.abb.controller", "make_abb_egm"),
 }
 
 

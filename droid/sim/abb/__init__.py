@@ -1,0 +1,1 @@
+"""The ABB EGM controller twin (issue 26; docs/abb.md)."""

@@ -1,0 +1,153 @@
+"""droid-egm NAME: the PC side of an ABB arm's Externally Guided Motion link (issue 26, thesis §7.3).
+
+The ABB subunit runs the Reis's programs where they fit and this one where the Reis has its
+servo: ``droid-reis-agent`` (the generic agent: Brain link, command copy, tick relay) and
+``droid-planner`` (commands -> way-points, §4.1.7) unchanged, and ``droid-egm`` in place of
+``droid-servo-agent``, ``droid-servo`` and ``droid-watchdog`` -- the robot controller closes the
+joint loops and keeps its own watchdog (EGM's communication timeout).  docs/abb.md.
+
+The shell: binds the UDP address of the subunit's ``egm`` key (``udp://HOST:PORT``; a port in
+use is one line and exit 1), answers every accepted ``EgmRobot`` at once with an ``EgmSensor`` to
+its source, and on each relayed heartbeat tick -- after the planner has written that tick's
+way-point, and on its own clock when the ticks stop, as the servo agent does (``TickPacer``) --
+reads the controller's Command record and writes its Status record (Table 4.2) and the EGM
+record ``/droid.<cell>.<sub>.egm`` (:mod:`droid.subunits.abb.egm_layout`).  The work is
+:class:`droid.subunits.abb.egm_core.EgmCore`'s; :class:`EgmStation` is the cycle between them.
+Datagrams dropped by the core count in the presence record's ``bad_frames``.
+"""
+from __future__ import annotations
+
+import errno
+import socket
+import sys
+import time
+
+import zmq
+
+from droid.brain.curve import CurveHost
+from droid.brain.databases import open_local
+from droid.brain.heartbeat import TickSubscriber
+from droid.brain.program import Presence, Stop, close_all, notify_ready, presence_key, subunit_program
+from droid.brain.rt import try_sched_fifo
+from droid.brain.shmdb import Database, db_name, unlink_database
+from droid.cli import RuntimeFailure, run
+from droid.kinematics import load_robot
+from droid.subunits.abb.config import egm_config
+from droid.subunits.abb.egm_core import MY_FAULTS, EgmCore, EgmOutput
+from droid.subunits.abb.egm_layout import EGM_STATUS_LAYOUT
+from droid.subunits.reis.servo_agent import TickPacer
+
+PROG = "droid-egm"
+#: datagrams read per wake-up, at most (a flood cannot starve the heartbeat cycle)
+MAX_READS_PER_WAKE = 256
+
+
+class EgmStation:
+    """droid-egm's cycle, transport aside: ``take`` each datagram (returns the reply to send),
+    ``cycle`` once a heartbeat period (reads the Command record, writes the Status record's
+    fields and this program's fault bits under one lock, and the EGM record).  Times [ns] are
+    the caller's clock: CLOCK_MONOTONIC, or virtual time in lockstep and tests."""
+
+    def __init__(self, core: EgmCore, ctrl_command, ctrl_status, egm_db) -> None:
+        self.core = core
+        self.ctrl_command = ctrl_command
+        self.ctrl_status = ctrl_status
+        self.egm_db = egm_db
+        self.last: EgmOutput | None = None
+
+    def take(self, data: bytes, source, now_ns: int):
+        """One datagram; the (bytes, address) to send back, or None."""
+        return self.core.datagram(data, source, now_ns)
+
+    def cycle(self, now_ns: int, late_ns: int = 0) -> EgmOutput:
+        out = self.last = self.core.cycle(self.ctrl_command.read(), now_ns, late_ns)
+        with self.ctrl_status.locked() as st:
+            for k, v in out.status.items():
+                st[k] = v
+            st["fault"] = (int(st["fault"]) & ~MY_FAULTS) | out.fault_bits
+            self.ctrl_status.mark_written()
+        self.egm_db.update(**out.egm)
+        return out
+
+
+def bind_udp(host: str, port: int) -> socket.socket:
+    """A non-blocking UDP socket bound to (host, port); RuntimeFailure (exit 1) if it cannot be."""
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        sock.bind((host, port))
+    except OSError as exc:
+        sock.close()
+        why = "in use" if exc.errno == errno.EADDRINUSE else (exc.strerror or str(exc))
+        raise RuntimeFailure(f"cannot bind UDP {host}:{port}: {why}") from None
+    sock.setblocking(False)
+    return sock
+
+
+@run
+def main(argv=None) -> int:
+    args, cell, sub = subunit_program(
+        PROG, "Drive an ABB arm through EGM: UDP feedback in, joint targets out, the controller's "
+              "databases in between.", argv, arm=True)
+    cfg = egm_config(cell, sub)
+    model = load_robot(sub.robot)
+    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
+    ctrl_command = ctrl_status = egm_db = sock = ctx = ticks = presence = None
+    egm_name = db_name(cell.name, sub.name, "egm")
+    try:
+        sock = bind_udp(cfg.host, cfg.port)
+        ctrl_command = open_local(cell, sub, "ctrl_command")
+        ctrl_status = open_local(cell, sub, "ctrl_status")
+        egm_db = Database(egm_name, EGM_STATUS_LAYOUT, create=True)
+        presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
+        ctx = zmq.Context()
+        ticks = TickSubscriber(ctx, sub.relay, CurveHost(ctx, cell, sub.host), sub.host)
+        core = EgmCore(model, cell.stale_ticks, cell.heartbeat_hz)
+        station = EgmStation(core, ctrl_command, ctrl_status, egm_db)
+        pacer = TickPacer(cell.period_ns)
+        poller = zmq.Poller()
+        poller.register(ticks.sock, zmq.POLLIN)
+        poller.register(sock.fileno(), zmq.POLLIN)
+        presence.ready()
+        notify_ready(args.ready_fd)
+        last_why = ""
+        last_tick = 0
+        while not Stop.requested:
+            events = dict(poller.poll(int(pacer.wait_s(time.monotonic_ns()) * 1000) + 1))
+            if sock.fileno() in events:
+                for _ in range(MAX_READS_PER_WAKE):
+                    try:
+                        data, source = sock.recvfrom(65536)
+                    except (BlockingIOError, InterruptedError):
+                        break
+                    except OSError:
+                        continue  # an ICMP error of an earlier send
+                    reply = station.take(data, source, time.monotonic_ns())
+                    if reply is not None:
+                        try:
+                            sock.sendto(*reply)
+                        except OSError:
+                            pass  # the controller went away; its next sample finds us
+            t = ticks.recv_latest() if ticks.sock in events else None
+            if t is not None:
+                last_tick = t.tick
+                pacer.await_planner(ctrl_command, t.tick)  # the planner cycles on the same tick
+            now = time.monotonic_ns()
+            if t is None and not pacer.due(now):
+                continue
+            out = station.cycle(now, late_ns=pacer.late_ns(now))
+            pacer.cycled(now, t is not None)
+            if out.why != last_why:
+                if out.why:
+                    print(f"{PROG} {sub.name}: holding: {out.why}", file=sys.stderr, flush=True)
+                last_why = out.why
+            presence.beat(last_tick, pacer.cycles, pacer.untimed, pacer.late_max_ns,
+                          bad_frames=core.counters.dropped + ticks.bad_frames)
+    finally:
+        close_all(ticks, sock, ctx.term if ctx is not None else None, ctrl_command, ctrl_status, egm_db, presence)
+        if egm_db is not None:
+            unlink_database(egm_name)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,19 @@
+"""DESIGN §7 for the ABB package: the subunit side never imports the world; the twin imports only
+subunits, brain, kinematics and the world's own Device base."""
+from __future__ import annotations
+
+from tests.layering import DROID, droid_imports, within
+
+
+def test_subunit_side_imports_no_world():
+    for path in (DROID / "subunits" / "abb").rglob("*.py"):
+        for n in droid_imports(path):
+            assert within(n, ("droid.brain", "droid.kinematics", "droid.cli", "droid.numbers",
+                              "droid.subunits")), (path, n)
+
+
+def test_twin_imports():
+    for path in (DROID / "sim" / "abb").rglob("*.py"):
+        for n in droid_imports(path):
+            assert within(n, ("droid.brain", "droid.kinematics", "droid.cli", "droid.numbers", "droid.subunits",
+                              "droid.sim.device", "droid.sim.gmf1.dynamics")), (path, n)
