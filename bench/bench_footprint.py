@@ -17,7 +17,6 @@ Memory is not a timing figure, but CPU is: the load average is printed beside it
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import re
@@ -29,7 +28,7 @@ import uuid
 from pathlib import Path
 
 from droid.brain.cellfile import builtin_cell_path
-from droid.cli import bounded_float
+from droid.cli import ArgumentParser, bounded_float
 
 TICKS_PER_S = os.sysconf("SC_CLK_TCK")
 
@@ -110,7 +109,7 @@ def show(title: str, rows: dict[str, dict[str, float]]) -> None:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--cell", type=Path, default=builtin_cell_path(), help="cell file to copy (default: built-in)")
     ap.add_argument("--idle-s", type=bounded_float(1.0, 600.0), default=10.0, help="idle window [s]")
     ap.add_argument("--length", type=bounded_float(50.0, 400.0), default=200.0, help="seam length tracked [mm]")

@@ -43,6 +43,7 @@ Device type ``abb_egm`` (cell file)::
 from __future__ import annotations
 
 import errno
+import ipaddress
 import math
 import socket
 from dataclasses import dataclass
@@ -309,14 +310,14 @@ class AbbEgmDevice(Device):
             self.sock = None
 
 
-def open_socket(port: int, where: str) -> socket.socket:
-    """A non-blocking UDP socket bound to 127.0.0.1:``port`` (0: any free port)."""
+def open_socket(port: int, where: str, host: str = "127.0.0.1") -> socket.socket:
+    """A non-blocking UDP socket bound to ``host``:``port`` (a loopback address; port 0: any free port)."""
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
-        sock.bind(("127.0.0.1", port))
+        sock.bind((host, port))
     except OSError as exc:
         sock.close()
-        raise RuntimeFailure(f"{where} cannot bind UDP 127.0.0.1:{port}: {exc.strerror}") from None
+        raise RuntimeFailure(f"{where} cannot bind UDP {host}:{port}: {exc.strerror}") from None
     sock.setblocking(False)
     return sock
 
@@ -354,9 +355,14 @@ def make_abb_egm(world, name: str, options: dict) -> AbbEgmDevice:
     if not sub.is_arm:
         raise BadInput(f"{where} subunit {sub.name} is not an arm")
     cfg = egm_config(cell, sub)
-    if cfg.host not in ("127.0.0.1", "localhost"):
-        raise BadInput(f"{where} the simulated controller talks to 127.0.0.1 only; subunit {sub.name}'s "
-                       f"egm host is {cfg.host!r}")
+    host = "127.0.0.1" if cfg.host == "localhost" else cfg.host
+    try:
+        loopback = ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        loopback = False
+    if not loopback:  # the cell's own loopback address ({loopback}) or 127.0.0.1
+        raise BadInput(f"{where} the simulated controller talks to a loopback address (127.0.0.0/8) only; "
+                       f"subunit {sub.name}'s egm host is {cfg.host!r}")
     model = load_robot(sub.robot)
     params = twin_params(options, where, model)
     q0 = options.get("start_deg", [0.0] * 6)
@@ -367,5 +373,5 @@ def make_abb_egm(world, name: str, options: dict) -> AbbEgmDevice:
     if why:
         raise BadInput(f"{where} start_deg outside the joint limits: {why}")
     controller = EgmController(model, params, q0)
-    sock = open_socket(0, where)  # any free port: the controller's source port is EGM's to choose
-    return AbbEgmDevice(name, controller, sock, ("127.0.0.1", cfg.port), model.with_base(pose_to_T(*sub.base)))
+    sock = open_socket(0, where, host)  # any free port: the controller's source port is EGM's to choose
+    return AbbEgmDevice(name, controller, sock, (host, cfg.port), model.with_base(pose_to_T(*sub.base)))
