@@ -32,6 +32,7 @@ is left out and named by :meth:`BagConverter.skipped`.
 """
 from __future__ import annotations
 
+import math
 import os
 import shutil
 from pathlib import Path
@@ -41,7 +42,7 @@ import numpy as np
 from droid.cli import BadInput
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import inv_homo, pose_to_T
-from droid.observe.scene import M_PER_MM, is_arm, quat, status_T
+from droid.observe.scene import M_PER_MM, is_arm, status_T
 
 BAG_VERSION = 8  # rosbag2 metadata version 8 (Iron and later read it; rosbags writes 8 or 9)
 STORAGE = "mcap"
@@ -116,24 +117,37 @@ class BagConverter:
         return dict(self._skipped)
 
     # -- message pieces --------------------------------------------------------------
-    def header(self, t_ns: int, frame_id: str):
+    def stamp(self, t_ns: int):
+        """builtin_interfaces/Time of ``t_ns`` [ns] (negative times clamp to 0)."""
         t = max(0, int(t_ns))
-        return self._Header(stamp=self._Time(sec=t // 1_000_000_000, nanosec=t % 1_000_000_000), frame_id=frame_id)
+        return self._Time(sec=t // 1_000_000_000, nanosec=t % 1_000_000_000)
+
+    def header(self, t_ns: int, frame_id: str, stamp=None):
+        return self._Header(stamp=stamp or self.stamp(t_ns), frame_id=frame_id)
+
+    def _quat(self, R):
+        q = quat_rows(R)
+        return self._Quat(x=q[0], y=q[1], z=q[2], w=q[3])
 
     def pose(self, T) -> object:
         """geometry_msgs/Pose [m] of a 4x4 [mm]."""
-        q = quat(T[:3, :3])
-        p = np.asarray(T)[:3, 3] * M_PER_MM
-        return self._Pose(position=self._Point(x=float(p[0]), y=float(p[1]), z=float(p[2])),
-                          orientation=self._Quat(x=q["x"], y=q["y"], z=q["z"], w=q["w"]))
+        T = np.asarray(T, float)
+        return self._Pose(position=self._Point(x=float(T[0, 3]) * M_PER_MM, y=float(T[1, 3]) * M_PER_MM,
+                                               z=float(T[2, 3]) * M_PER_MM),
+                          orientation=self._quat(T[:3, :3].tolist()))
 
-    def transform(self, t_ns: int, parent: str, child: str, T) -> object:
+    def record_pose(self, d: dict) -> object:
+        """geometry_msgs/Pose [m] of a record's x, y, z [mm] and R (a Status, Table 3.1/3.3)."""
+        return self._Pose(position=self._Point(x=float(d["x"]) * M_PER_MM, y=float(d["y"]) * M_PER_MM,
+                                               z=float(d["z"]) * M_PER_MM), orientation=self._quat(d["R"]))
+
+    def transform(self, t_ns: int, parent: str, child: str, T, stamp=None) -> object:
         """geometry_msgs/TransformStamped [m] of a 4x4 [mm] (``child`` in ``parent``)."""
-        q = quat(T[:3, :3])
-        p = np.asarray(T)[:3, 3] * M_PER_MM
-        return self._TS(header=self.header(t_ns, parent), child_frame_id=child,
-                        transform=self._Tr(translation=self._V3(x=float(p[0]), y=float(p[1]), z=float(p[2])),
-                                           rotation=self._Quat(x=q["x"], y=q["y"], z=q["z"], w=q["w"])))
+        T = np.asarray(T, float)
+        return self._TS(header=self.header(t_ns, parent, stamp), child_frame_id=child,
+                        transform=self._Tr(translation=self._V3(x=float(T[0, 3]) * M_PER_MM, y=float(T[1, 3]) * M_PER_MM,
+                                                                z=float(T[2, 3]) * M_PER_MM),
+                                           rotation=self._quat(T[:3, :3].tolist())))
 
     # -- messages ---------------------------------------------------------------------
     def static_tf(self, t_ns: int) -> list[tuple[str, str, object]]:
@@ -148,17 +162,17 @@ class BagConverter:
                 tfs.append(self.transform(t_ns, f"{parent_arm}/wcp", child, np.asarray(g[key], float)))
         return [(TOPIC_TF_STATIC, T_TF, self._TF(transforms=tfs))] if tfs else []
 
-    def joint_state(self, name: str, d: dict, t_ns: int):
+    def joint_state(self, name: str, d: dict, t_ns: int, stamp=None):
         """sensor_msgs/JointState of arm ``name``'s Status dict (position [rad], velocity [rad/s])."""
         gearing = self.arms[name][0]
-        q = np.radians(gearing.counts_to_joints(np.asarray(d["encoder_pos"], float)))
+        q = np.radians(gearing.counts_to_joints(d["encoder_pos"]))
         prev = self._prev_q.get(name)
         self._prev_q[name] = (t_ns, q)
         if prev is not None and t_ns > prev[0]:
             vel = (q - prev[1]) / ((t_ns - prev[0]) * 1e-9)
         else:
             vel = self._no_effort
-        return self._JS(header=self.header(t_ns, ""), name=self._names, position=q, velocity=vel,
+        return self._JS(header=self.header(t_ns, "", stamp), name=self._names, position=q, velocity=vel,
                         effort=self._no_effort)
 
     def _fresh(self, name: str, d: dict) -> bool:
@@ -173,39 +187,58 @@ class BagConverter:
         """The messages of one recorded tick at ``t_ns`` [ns]; ``statuses``: subunit -> Status dict."""
         out = []
         tfs = []
+        st = self.stamp(t_ns)
         for name, (gearing, base, base_inv) in self.arms.items():
             d = statuses.get(name)
             if d is None:
                 continue
-            T = status_T(d)
             if gearing is not None:
-                out.append((f"/{name}/joint_states", T_JOINT_STATE, self.joint_state(name, d, t_ns)))
-            out.append((f"/{name}/tool_pose", T_POSE, self._PS(header=self.header(t_ns, WORLD), pose=self.pose(T))))
-            tfs.append(self.transform(t_ns, f"{name}/base", f"{name}/wcp", base_inv @ T))
+                out.append((f"/{name}/joint_states", T_JOINT_STATE, self.joint_state(name, d, t_ns, st)))
+            out.append((f"/{name}/tool_pose", T_POSE, self._PS(header=self.header(t_ns, WORLD, st),
+                                                               pose=self.record_pose(d))))
+            tfs.append(self.transform(t_ns, f"{name}/base", f"{name}/wcp", base_inv @ status_T(d), st))
         if tfs:
             out.append((TOPIC_TF, T_TF, self._TF(transforms=tfs)))
         for name, frame in self.sensors.items():
             d = statuses.get(name)
             if d is None or d.get("homed") or d.get("stale") or not self._fresh(name, d):
                 continue  # homed = 1: the sensor flags its data invalid (Table 3.3)
-            out.append((f"/{name}/reading", T_POSE, self._PS(header=self.header(t_ns, frame), pose=self.pose(status_T(d)))))
+            out.append((f"/{name}/reading", T_POSE, self._PS(header=self.header(t_ns, frame, st),
+                                                             pose=self.record_pose(d))))
         for name in self.joysticks:
             d = statuses.get(name)
             if d is None or not d.get("valid") or d.get("stale") or not self._fresh(name, d):
                 continue
             na, nb = int(d.get("n_axes", 0)), int(d.get("n_buttons", 0))
             out.append((f"/{name}/joy", T_JOY, self._Joy(
-                header=self.header(t_ns, name), axes=np.asarray(d["axes"][:na], np.float32),
+                header=self.header(t_ns, name, st), axes=np.asarray(d["axes"][:na], np.float32),
                 buttons=np.asarray(d["buttons"][:nb], np.int32))))
         return out
 
     def log(self, t_ns: int, d: dict) -> tuple[str, str, object]:
         """A recorded foxglove.Log (fault, event) as rcl_interfaces/Log on ``/rosout``."""
-        t = max(0, int(t_ns))
         return (TOPIC_ROSOUT, T_LOG, self._Log(
-            stamp=self._Time(sec=t // 1_000_000_000, nanosec=t % 1_000_000_000),
+            stamp=self.stamp(t_ns),
             level=LOG_LEVELS.get(int(d.get("level", 2)), 20), name=f"droid.{d.get('name') or 'cell'}",
             msg=str(d.get("message", "")), file=str(d.get("file", "")), function="", line=int(d.get("line", 0))))
+
+
+def quat_rows(R) -> tuple[float, float, float, float]:
+    """Unit quaternion (x, y, z, w) of a rotation matrix given as 3 rows (plain floats: this runs for
+    every pose of every tick, where numpy's per-element indexing costs more than the arithmetic)."""
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = R
+    tr = m00 + m11 + m22
+    if tr > 0:
+        s = math.sqrt(tr + 1.0) * 2
+        return (m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s, 0.25 * s
+    if m00 > m11 and m00 > m22:
+        s = math.sqrt(1.0 + m00 - m11 - m22) * 2
+        return 0.25 * s, (m01 + m10) / s, (m02 + m20) / s, (m21 - m12) / s
+    if m11 > m22:
+        s = math.sqrt(1.0 + m11 - m00 - m22) * 2
+        return (m01 + m10) / s, 0.25 * s, (m12 + m21) / s, (m02 - m20) / s
+    s = math.sqrt(1.0 + m22 - m00 - m11) * 2
+    return (m02 + m20) / s, (m12 + m21) / s, 0.25 * s, (m10 - m01) / s
 
 
 class BagWriter:

@@ -26,10 +26,11 @@ from __future__ import annotations
 
 import json
 import os
+import struct
 from dataclasses import dataclass, field
 
-from mcap.records import Channel, Footer, Header, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
+from mcap.records import Channel, Chunk, Footer, Header, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
 
 from droid.brain.layouts import Layout
@@ -212,23 +213,35 @@ def _messages(p: str, f, allow_truncated: bool, st: dict, topics=None):
     for a foreign, future-version, damaged or (unless ``allow_truncated``) truncated file."""
     st.update(rec=None, chans={}, schemas={}, saw_footer=False)
     chans: dict[int, Channel] = st["chans"]
-    reader = StreamReader(f, record_size_limit=256 * 2**20)
-    try:
+    fast = topics is not None  # read chunks of messages ourselves, decoding only the wanted ones
+    reader = StreamReader(f, record_size_limit=256 * 2**20, emit_chunks=fast)
+
+    def records():
         for r in reader.records:
-            if isinstance(r, Message):
+            if isinstance(r, Chunk):
+                msgs = _chunk_messages(r)
+                yield from (breakup_chunk(r) if msgs is None else msgs)
+            else:
+                yield r
+
+    try:
+        for r in records():
+            if isinstance(r, (Message, tuple)):
+                cid, seq, log_time, data = ((r.channel_id, r.sequence, r.log_time, r.data)
+                                            if isinstance(r, Message) else r)
                 if st["rec"] is None:
                     raise BadRecording(f"{p}: messages before the droid metadata (not a DROID recording)")
-                ch = chans.get(r.channel_id)
+                ch = chans.get(cid)
                 if ch is None:
-                    raise BadRecording(f"{p}: message on unknown channel {r.channel_id}")
+                    raise BadRecording(f"{p}: message on unknown channel {cid}")
                 if topics is not None and ch.topic not in topics:
                     continue
                 try:
-                    obj = json.loads(r.data)
+                    obj = json.loads(data)
                 except ValueError:
                     raise BadRecording(f"{p}: message on {ch.topic} is not JSON") from None
-                tick = int(obj.get("_tick", r.sequence)) if isinstance(obj, dict) else r.sequence
-                yield ch.topic, tick, r.log_time, obj
+                tick = int(obj.get("_tick", seq)) if isinstance(obj, dict) else seq
+                yield ch.topic, tick, log_time, obj
             elif isinstance(r, Header):
                 if r.profile != PROFILE:
                     raise BadRecording(f"{p}: foreign MCAP file (profile {r.profile!r}, library "
@@ -267,6 +280,37 @@ def _messages(p: str, f, allow_truncated: bool, st: dict, topics=None):
     if not st["saw_footer"] and not allow_truncated:
         raise BadRecording(f"{p}: truncated MCAP (no footer: the recording stopped uncleanly); "
                            f"'droid-replay {p} --recover OUT.mcap' keeps its whole chunks")
+
+
+_MESSAGE_OP = 0x05  # MCAP opcode of a Message record
+
+
+def _chunk_messages(chunk: Chunk) -> list[tuple] | None:
+    """The Message records of a chunk as ``(channel_id, sequence, log_time, data)``, parsed straight
+    from its bytes (the ``mcap`` record classes cost several times more); None when the chunk holds
+    any other record (a schema or channel: the caller lets ``mcap`` parse it)."""
+    if chunk.compression == "zstd":
+        import zstandard
+
+        data = zstandard.decompress(chunk.data, chunk.uncompressed_size)
+    elif chunk.compression == "":
+        data = chunk.data
+    else:
+        return None
+    out = []
+    pos, n = 0, len(data)
+    unpack = struct.unpack_from
+    while pos < n:
+        if data[pos] != _MESSAGE_OP:
+            return None
+        (length,) = unpack("<Q", data, pos + 1)
+        body = pos + 9
+        cid, seq, log_time = unpack("<HIQ", data, body)
+        out.append((cid, seq, log_time, data[body + 22:body + length]))  # 22: id u16, seq u32, log/publish u64
+        pos = body + length
+    if pos != n:
+        raise ValueError("chunk records overrun the chunk")
+    return out
 
 
 def _read(p: str, f, allow_truncated: bool) -> Recording:
