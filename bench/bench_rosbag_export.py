@@ -7,7 +7,7 @@ writer: the built-in sim cell's metadata and scene (arm1, gmf1, mvs, tool, joy),
 and ``CellRecorder`` + ``RecordingWriter`` fed records at 60 Hz ticks -- the
 records droid-record writes, with varied values: both arms follow smooth joint
 paths (encoder counts through each robot's gearing, the Status pose by forward
-kinematics), each sends a command every 2 ticks, the lead sensor reads at 30 Hz
+kinematics: a slow sweep with a small wobble), each sends a command every 2 ticks, the lead sensor reads at 30 Hz
 with an invalid stretch every 10 s, the tool-tip sensor reads every tick, the
 joystick moves, program health every 12 ticks.  (Lockstep would be realistic
 too, but it runs at about real time on this VM: 10 minutes per file.)  Making
@@ -58,9 +58,12 @@ def make_recording(path: str, minutes: float) -> int:
             r = new_record(lay)
             recs[(sub.name, area)] = (lay, r)
     arms = {name: load_robot(cell.subunit(name).robot) for name in ("arm1", "gmf1")}
+    # a slow sweep along the seam (one period: the whole recording) with a small fast wobble, as a
+    # tracking arm moves; the seam map (one point per mm the reading moves) stays a few thousand points
     q0 = {"arm1": np.array([0.0, 10.0, -20.0, 0.0, 40.0, 0.0]), "gmf1": np.array([0.0, 5.0, -5.0, 0.0, -30.0, 0.0])}
-    amp = {"arm1": np.array([25.0, 10.0, 8.0, 20.0, 15.0, 45.0]), "gmf1": np.array([10.0, 5.0, 5.0, 10.0, 10.0, 30.0])}
-    period = np.array([40.0, 33.0, 27.0, 19.0, 23.0, 17.0])  # s
+    amp = {"arm1": np.array([8.0, 3.0, 3.0, 2.0, 2.0, 5.0]), "gmf1": np.array([3.0, 1.0, 1.0, 2.0, 2.0, 4.0])}
+    wobble_deg, wobble_s = np.array([0.05, 0.03, 0.03, 0.1, 0.1, 0.2]), np.array([2.1, 1.7, 2.9, 1.3, 3.1, 2.3])
+    period = minutes * 60.0  # s
     rows = [{"name": p, "key": p.replace(" ", "."), "host": "brain", "pid": 1000 + k, "alive": True, "state": "ready",
              "live": True, "last_tick": 0, "age_s": 0.01, "cycles": 0, "overruns": 0, "bad_frames": 0}
             for k, p in enumerate(["droid-heartbeat", "droid-remote arm1", "droid-remote gmf1", "droid-servo arm1",
@@ -77,7 +80,8 @@ def make_recording(path: str, minutes: float) -> int:
                 r["tick"] = tick
                 r["updated_ns"] = t_ns
             if name in arms:
-                q = q0[name] + amp[name] * np.sin(2 * math.pi * t / period + (0.3 if name == "gmf1" else 0.0))
+                q = (q0[name] + amp[name] * np.sin(2 * math.pi * t / period + (0.3 if name == "gmf1" else 0.0))
+                     + wobble_deg * np.sin(2 * math.pi * t / wobble_s))
                 counts = arms[name].gearing.joints_to_counts_int(q)
                 T = arms[name].fk(q)
                 r["x"], r["y"], r["z"] = T[:3, 3]

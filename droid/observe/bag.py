@@ -42,7 +42,7 @@ import numpy as np
 from droid.cli import BadInput
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import inv_homo, pose_to_T
-from droid.observe.scene import M_PER_MM, is_arm, status_T
+from droid.observe.scene import M_PER_MM, status_T
 
 BAG_VERSION = 8  # rosbag2 metadata version 8 (Iron and later read it; rosbags writes 8 or 9)
 STORAGE = "mcap"
@@ -92,7 +92,7 @@ class BagConverter:
             name = s["name"]
             layout = ((s.get("areas") or {}).get("status") or {}).get("layout")
             kind = EXPORTS.get(layout)
-            if kind == "arm" or (kind is None and is_arm(s)):
+            if kind == "arm":
                 gearing = None
                 try:
                     gearing = load_robot(s["robot"]).gearing if s.get("robot") else None

@@ -217,9 +217,13 @@ def _messages(p: str, f, allow_truncated: bool, st: dict, topics=None):
     reader = StreamReader(f, record_size_limit=256 * 2**20, emit_chunks=fast)
 
     def records():
+        wanted, known = set(), -1
         for r in reader.records:
             if isinstance(r, Chunk):
-                msgs = _chunk_messages(r)
+                if len(chans) != known:  # channel ids of the wanted topics (unknown ids are kept, and refused)
+                    wanted = {cid for cid, ch in chans.items() if ch.topic in topics}
+                    known = len(chans)
+                msgs = _chunk_messages(r, wanted, chans)
                 yield from (breakup_chunk(r) if msgs is None else msgs)
             else:
                 yield r
@@ -285,10 +289,11 @@ def _messages(p: str, f, allow_truncated: bool, st: dict, topics=None):
 _MESSAGE_OP = 0x05  # MCAP opcode of a Message record
 
 
-def _chunk_messages(chunk: Chunk) -> list[tuple] | None:
-    """The Message records of a chunk as ``(channel_id, sequence, log_time, data)``, parsed straight
-    from its bytes (the ``mcap`` record classes cost several times more); None when the chunk holds
-    any other record (a schema or channel: the caller lets ``mcap`` parse it)."""
+def _chunk_messages(chunk: Chunk, wanted: set[int], known: dict) -> list[tuple] | None:
+    """The Message records of a chunk on the ``wanted`` channel ids (and on ids not ``known``, which
+    the caller refuses) as ``(channel_id, sequence, log_time, data)``, parsed straight from its bytes
+    (the ``mcap`` record classes cost several times more); None when the chunk holds any other
+    record (a schema or channel: the caller lets ``mcap`` parse it)."""
     if chunk.compression == "zstd":
         import zstandard
 
@@ -306,7 +311,8 @@ def _chunk_messages(chunk: Chunk) -> list[tuple] | None:
         (length,) = unpack("<Q", data, pos + 1)
         body = pos + 9
         cid, seq, log_time = unpack("<HIQ", data, body)
-        out.append((cid, seq, log_time, data[body + 22:body + length]))  # 22: id u16, seq u32, log/publish u64
+        if cid in wanted or cid not in known:
+            out.append((cid, seq, log_time, data[body + 22:body + length]))  # 22: id u16, seq u32, log/publish u64
         pos = body + length
     if pos != n:
         raise ValueError("chunk records overrun the chunk")

@@ -175,6 +175,20 @@ def test_lockstep_trial_joint_states_give_the_tool_pose(tmp_path):
     assert len(msgs["/mvs/reading"]) > 0
 
 
+def test_a_class_without_a_fitting_message_is_named_not_guessed():
+    from droid.observe.bag import BagConverter
+
+    meta = {"subunits": [{"name": "ft1", "class": "ft_sensor", "robot": None, "base": [0.0] * 6,
+                          "areas": {"status": {"layout": "ft_status", "version": 1}}},
+                         {"name": "arm9", "class": "arm6r", "robot": "no_such_robot", "base": [0.0] * 6,
+                          "areas": {"status": {"layout": "arm_status", "version": 1}}}]}
+    conv = BagConverter(meta)
+    assert "no fitting ROS message" in conv.skipped()["ft1"] and "no joint states" in conv.skipped()["arm9"]
+    d = {"x": 1000.0, "y": 0.0, "z": 0.0, "R": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "encoder_pos": [0] * 6}
+    topics = [t for t, _, _ in conv.step(0, {"ft1": {"x": 1.0}, "arm9": d})]
+    assert topics == ["/arm9/tool_pose", "/tf"]  # the pose without joint states; nothing for ft1
+
+
 def test_export_a_tick_range(db_cell, tmp_path):
     path = make_recording(db_cell, tmp_path, n=20)
     bag = tmp_path / "bag"
