@@ -26,10 +26,11 @@ from __future__ import annotations
 
 import json
 import os
+import struct
 from dataclasses import dataclass, field
 
-from mcap.records import Channel, Footer, Header, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
+from mcap.records import Channel, Chunk, Footer, Header, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
 
 from droid.brain.layouts import Layout
@@ -204,22 +205,52 @@ def read_recording(path: str | os.PathLike, *, allow_truncated: bool = False) ->
         return _read(p, f, allow_truncated)
 
 
-def _read(p: str, f, allow_truncated: bool) -> Recording:
-    rec = None
-    chans: dict[int, Channel] = {}
-    schemas_by_id: dict[int, Schema] = {}
-    frames_by_tick: dict[int, dict] = {}
-    t_by_tick: dict[int, int] = {}
-    saw_footer = False
-    reader = StreamReader(f, record_size_limit=256 * 2**20)
-    it = reader.records
+def _messages(p: str, f, allow_truncated: bool, st: dict, topics=None):
+    """The checked messages of an open recording, in file order: ``(topic, tick, log_time [ns], obj)``.
+
+    ``st`` gets ``rec`` (the :class:`Recording` with its metadata, once read), ``chans``, ``schemas`` and
+    ``saw_footer``; ``topics``: decode only these topics (None: all).  :class:`BadRecording` (one line)
+    for a foreign, future-version, damaged or (unless ``allow_truncated``) truncated file."""
+    st.update(rec=None, chans={}, schemas={}, saw_footer=False)
+    chans: dict[int, Channel] = st["chans"]
+    fast = topics is not None  # read chunks of messages ourselves, decoding only the wanted ones
+    reader = StreamReader(f, record_size_limit=256 * 2**20, emit_chunks=fast)
+
+    def records():
+        wanted, known = set(), -1
+        for r in reader.records:
+            if isinstance(r, Chunk):
+                if len(chans) != known:  # channel ids of the wanted topics (unknown ids are kept, and refused)
+                    wanted = {cid for cid, ch in chans.items() if ch.topic in topics}
+                    known = len(chans)
+                msgs = _chunk_messages(r, wanted, chans)
+                yield from (breakup_chunk(r) if msgs is None else msgs)
+            else:
+                yield r
+
     try:
-        for r in it:
-            if isinstance(r, Header):
+        for r in records():
+            if isinstance(r, (Message, tuple)):
+                cid, seq, log_time, data = ((r.channel_id, r.sequence, r.log_time, r.data)
+                                            if isinstance(r, Message) else r)
+                if st["rec"] is None:
+                    raise BadRecording(f"{p}: messages before the droid metadata (not a DROID recording)")
+                ch = chans.get(cid)
+                if ch is None:
+                    raise BadRecording(f"{p}: message on unknown channel {cid}")
+                if topics is not None and ch.topic not in topics:
+                    continue
+                try:
+                    obj = json.loads(data)
+                except ValueError:
+                    raise BadRecording(f"{p}: message on {ch.topic} is not JSON") from None
+                tick = int(obj.get("_tick", seq)) if isinstance(obj, dict) else seq
+                yield ch.topic, tick, log_time, obj
+            elif isinstance(r, Header):
                 if r.profile != PROFILE:
                     raise BadRecording(f"{p}: foreign MCAP file (profile {r.profile!r}, library "
                                        f"{r.library!r}), not a DROID recording")
-            elif isinstance(r, Metadata) and r.name == META_NAME and rec is None:
+            elif isinstance(r, Metadata) and r.name == META_NAME and st["rec"] is None:
                 meta = {}
                 for k, v in r.metadata.items():
                     try:
@@ -232,49 +263,129 @@ def _read(p: str, f, allow_truncated: bool) -> Recording:
                 if ver > FORMAT_VERSION:
                     raise BadRecording(f"{p}: recording format version {ver} is newer than this droid "
                                        f"reads (up to {FORMAT_VERSION})")
-                rec = Recording(p, meta)
+                st["rec"] = Recording(p, meta)
             elif isinstance(r, Schema):
-                schemas_by_id[r.id] = r
+                st["schemas"][r.id] = r
             elif isinstance(r, Channel):
                 chans[r.id] = r
-            elif isinstance(r, Message):
-                if rec is None:
-                    raise BadRecording(f"{p}: messages before the droid metadata (not a DROID recording)")
-                ch = chans.get(r.channel_id)
-                if ch is None:
-                    raise BadRecording(f"{p}: message on unknown channel {r.channel_id}")
-                try:
-                    obj = json.loads(r.data)
-                except ValueError:
-                    raise BadRecording(f"{p}: message on {ch.topic} is not JSON") from None
-                tick = int(obj.get("_tick", r.sequence)) if isinstance(obj, dict) else r.sequence
-                frames_by_tick.setdefault(tick, {}).setdefault(ch.topic, []).append(obj)
-                t_by_tick.setdefault(tick, r.log_time)
             elif isinstance(r, Footer):
-                saw_footer = True
+                st["saw_footer"] = True
     except BadRecording:
         raise
     except Exception as exc:  # noqa: BLE001 -- any decode failure of a damaged file (McapError, EOF, struct...)
-        if rec is not None and allow_truncated:
+        if st["rec"] is not None and allow_truncated:
             pass
         else:
-            what = "truncated" if rec is not None else "unreadable"
+            what = "truncated" if st["rec"] is not None else "unreadable"
             raise BadRecording(f"{p}: {what} MCAP ({type(exc).__name__}: {str(exc)[:80] or 'no footer'}); "
                                f"'droid-replay {p} --recover OUT.mcap' keeps its whole chunks") from None
-    if rec is None:
+    if st["rec"] is None:
         raise BadRecording(f"{p}: no droid metadata (not a DROID recording)")
-    if not saw_footer:
-        if not allow_truncated:
-            raise BadRecording(f"{p}: truncated MCAP (no footer: the recording stopped uncleanly); "
-                               f"'droid-replay {p} --recover OUT.mcap' keeps its whole chunks")
-        rec.complete = False
-    for ch in chans.values():
-        sc = schemas_by_id.get(ch.schema_id)
+    if not st["saw_footer"] and not allow_truncated:
+        raise BadRecording(f"{p}: truncated MCAP (no footer: the recording stopped uncleanly); "
+                           f"'droid-replay {p} --recover OUT.mcap' keeps its whole chunks")
+
+
+_MESSAGE_OP = 0x05  # MCAP opcode of a Message record
+
+
+def _chunk_messages(chunk: Chunk, wanted: set[int], known: dict) -> list[tuple] | None:
+    """The Message records of a chunk on the ``wanted`` channel ids (and on ids not ``known``, which
+    the caller refuses) as ``(channel_id, sequence, log_time, data)``, parsed straight from its bytes
+    (the ``mcap`` record classes cost several times more); None when the chunk holds any other
+    record (a schema or channel: the caller lets ``mcap`` parse it)."""
+    if chunk.compression == "zstd":
+        import zstandard
+
+        data = zstandard.decompress(chunk.data, chunk.uncompressed_size)
+    elif chunk.compression == "":
+        data = chunk.data
+    else:
+        return None
+    out = []
+    pos, n = 0, len(data)
+    unpack = struct.unpack_from
+    while pos < n:
+        if data[pos] != _MESSAGE_OP:
+            return None
+        (length,) = unpack("<Q", data, pos + 1)
+        body = pos + 9
+        cid, seq, log_time = unpack("<HIQ", data, body)
+        if cid in wanted or cid not in known:
+            out.append((cid, seq, log_time, data[body + 22:body + length]))  # 22: id u16, seq u32, log/publish u64
+        pos = body + length
+    if pos != n:
+        raise ValueError("chunk records overrun the chunk")
+    return out
+
+
+def _read(p: str, f, allow_truncated: bool) -> Recording:
+    frames_by_tick: dict[int, dict] = {}
+    t_by_tick: dict[int, int] = {}
+    st: dict = {}
+    for topic, tick, log_time, obj in _messages(p, f, allow_truncated, st):
+        frames_by_tick.setdefault(tick, {}).setdefault(topic, []).append(obj)
+        t_by_tick.setdefault(tick, log_time)
+    rec = st["rec"]
+    rec.complete = st["saw_footer"]
+    for ch in st["chans"].values():
+        sc = st["schemas"].get(ch.schema_id)
         rec.channels[ch.topic] = dict(ch.metadata, schema=sc.name if sc else "")
     rec.ticks = sorted(frames_by_tick)
     rec.frames = [frames_by_tick[t] for t in rec.ticks]
     rec.t_ns = [t_by_tick[t] for t in rec.ticks]
     return rec
+
+
+def read_meta(path: str | os.PathLike) -> dict:
+    """The ``droid`` metadata of a recording, read from the head of the file only (checked like
+    :func:`read_recording`: not MCAP, foreign or a newer format version: :class:`BadRecording`)."""
+    p = str(path)
+    with open_input(p, "", BadRecording, missing="no such file") as f:
+        if f.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+            raise BadRecording(f"{p}: not an MCAP file")
+        f.seek(0)
+        st: dict = {}
+        gen = _messages(p, f, True, st)
+        try:
+            for _ in gen:  # the metadata comes right after the header, before any message
+                break
+        finally:
+            gen.close()
+        if st.get("rec") is None:
+            raise BadRecording(f"{p}: no droid metadata (not a DROID recording)")
+        return st["rec"].meta
+
+
+def stream_ticks(path: str | os.PathLike, topics=None, on_meta=None):
+    """A complete recording read tick by tick, without holding it in memory (exports of long files):
+    yields ``(tick, t_ns, {topic: [message dicts]})`` in file order, decoding only ``topics`` (None: all);
+    ``on_meta(meta)`` is called once with the ``droid`` metadata before the first tick.  The file is
+    checked as :func:`read_recording` checks it; a file without the closing magic (truncated) is
+    refused before anything is yielded."""
+    p = str(path)
+    with open_input(p, "", BadRecording, missing="no such file") as f:
+        if f.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+            raise BadRecording(f"{p}: not an MCAP file")
+        f.seek(0, os.SEEK_END)
+        if f.tell() < 2 * len(MCAP_MAGIC) or (f.seek(-len(MCAP_MAGIC), os.SEEK_END), f.read())[1] != MCAP_MAGIC:
+            raise BadRecording(f"{p}: truncated MCAP (no footer: the recording stopped uncleanly); "
+                               f"'droid-replay {p} --recover OUT.mcap' keeps its whole chunks")
+        f.seek(0)
+        st: dict = {}
+        cur, t_cur, frame = None, 0, {}
+        for topic, tick, log_time, obj in _messages(p, f, False, st, topics):
+            if tick != cur:
+                if cur is not None:
+                    yield cur, t_cur, frame
+                elif on_meta is not None:
+                    on_meta(st["rec"].meta)
+                cur, t_cur, frame = tick, log_time, {}
+            frame.setdefault(topic, []).append(obj)
+        if cur is None and on_meta is not None:
+            on_meta(st["rec"].meta)
+        if cur is not None:
+            yield cur, t_cur, frame
 
 
 def recover(src: str, dst: str) -> Recording:

@@ -16,6 +16,12 @@ writer serves ``droid-seamtrack --record FILE`` (:class:`LiveRecorder`, one
 call per tick from the task's loop) and lockstep trials
 (``droid-experiment run --record``, :mod:`droid.observe.lockstep`).
 
+``droid-record --format rosbag2 --out DIR [--force]`` writes a ROS 2 bag instead,
+directly (no MCAP recording first): the same core feeds a
+:class:`~droid.observe.bag.BagSink`, which converts each tick's Status records
+as the next tick starts (:mod:`droid.observe.bag`); the counts per topic go to
+stdout at the end.
+
 Ticks the recorder could not sample (a loaded host) are counted as ``missed``
 in ``/tick`` and logged; it runs SCHED_FIFO below every program of the cell
 when the cell file asks for ``sched_fifo``.
@@ -96,8 +102,10 @@ class LiveRecorder:
     """A running cell's databases into a recording, one :meth:`on_tick` per heartbeat tick
     (used by droid-record and by ``droid-seamtrack --record``)."""
 
-    def __init__(self, cell, path: str, subunits: list[str] | None = None, *, layout_path=None) -> None:
-        check_out_path(path)
+    def __init__(self, cell, path: str, subunits: list[str] | None = None, *, layout_path=None,
+                 fmt: str = "mcap", force: bool = False) -> None:
+        if fmt == "mcap":
+            check_out_path(path)
         self.cell = cell
         self.sampler = CellSampler(cell, subunits)
         self.sampler.connect()
@@ -105,7 +113,12 @@ class LiveRecorder:
             meta = cell_meta(cell, "live", scene_meta(cell, layout_path))
             chosen = {s.name for s in self.sampler.subs}
             meta["subunits"] = [s for s in meta["subunits"] if s["name"] in chosen]
-            self.core = CellRecorder(RecordingWriter(path, meta))
+            if fmt == "rosbag2":
+                from droid.observe.bag import BagSink
+
+                self.core = CellRecorder(BagSink(path, meta, force=force))
+            else:
+                self.core = CellRecorder(RecordingWriter(path, meta))
         except BaseException:
             self.sampler.close()
             raise
@@ -138,16 +151,22 @@ def check_out_path(path: str) -> None:
 @run
 def main(argv=None) -> int:
     ap = parser(PROG, "Record a cell's databases, health, events, frames and scene into an MCAP file.")
-    ap.add_argument("--out", required=True, metavar="FILE.mcap", help="the recording to write")
+    ap.add_argument("--out", required=True, metavar="FILE.mcap|DIR",
+                    help="the recording to write (with --format rosbag2: the bag directory to create)")
+    ap.add_argument("--format", choices=("mcap", "rosbag2"), default="mcap",
+                    help="mcap (default): DROID's recording; rosbag2: a ROS 2 bag (storage mcap) written directly")
+    ap.add_argument("--force", action="store_true", help="with --format rosbag2: replace an existing bag in DIR")
     ap.add_argument("--seconds", type=duration_s(), default=None, metavar="S",
                     help="stop after S seconds (default: until SIGINT/SIGTERM)")
     ap.add_argument("subunits", nargs="*", metavar="SUBUNIT", help="record only these subunits (default: all)")
     args = ap.parse_args(argv)
+    if args.force and args.format != "rosbag2":
+        ap.error("--force goes with --format rosbag2")
     cell = open_cell(args)
     for name in args.subunits:
         cell.subunit(name)
     Stop.install()
-    rec = LiveRecorder(cell, args.out, args.subunits or None)
+    rec = LiveRecorder(cell, args.out, args.subunits or None, fmt=args.format, force=args.force)
     try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     ctx = zmq.Context.instance()
     ticks = TickSubscriber(ctx, cell.heartbeat)
@@ -171,6 +190,14 @@ def main(argv=None) -> int:
         ticks.close()
         rec.close()
     w = rec.core.w
+    if args.format == "rosbag2":
+        from droid.observe.bag import summary_lines
+
+        for line in summary_lines(w.bag.counts, w.bag.types):
+            print(line)
+        print(f"{PROG}: {why}: {rec.core.samples} ticks, {w.messages} messages in the ROS 2 bag {args.out}",
+              file=sys.stderr)
+        return 0
     print(f"{PROG}: {why}: {rec.core.samples} ticks, {w.messages} messages, "
           f"{os.path.getsize(args.out) / 1e6:.2f} MB in {args.out}", file=sys.stderr)
     return 0

@@ -13,6 +13,11 @@
     of the sample) then every field (arrays flattened as ``name_i`` /
     ``name_i_j``; the record's own ``tick`` as ``record_tick``; the header's
     bookkeeping left out).
+``droid-replay FILE --export rosbag2 DIR [--force] [--from TICK] [--to TICK]``
+    a ROS 2 bag (storage mcap) of the recording: joint states, tool poses, /tf, the sensors'
+    readings, /rosout (:mod:`droid.observe.bag`); one line per topic on stdout: topic, type,
+    message count.  An existing DIR is refused (exit 2) unless ``--force`` (a bag or an empty
+    directory only).
 ``droid-replay FILE --recover OUT.mcap``
     rewrites the whole chunks of a recording that stopped uncleanly.
 
@@ -156,6 +161,27 @@ def play(cell, rec: Recording, ticks: range, rate: float, on_tick=None) -> int:
 tick = bounded_int(0, 2**62, "ticks")
 
 
+def export_bag(args, ap) -> int:
+    """``--export rosbag2``: the bag, and one line per topic on stdout (topic, type, messages)."""
+    from droid.observe.bag import export_rosbag2, summary_lines
+
+    if args.bag_dir is not None and args.out is not None and args.bag_dir != args.out:
+        ap.error("give the bag directory once (DIR or --out DIR)")
+    out = args.bag_dir or args.out
+    if not out or out == "-":
+        ap.error("--export rosbag2 needs a bag directory: --export rosbag2 DIR")
+    if args.subunit is not None:
+        ap.error("--subunit goes with --export csv (a bag holds every subunit)")
+    w, conv = export_rosbag2(args.file, out, force=args.force, t_from=args.t_from, t_to=args.t_to)
+    for line in summary_lines(w.counts, w.types):
+        print(line)
+    for name, why in sorted(conv.skipped().items()):
+        print(f"{PROG}: {name} left out of the bag: {why}", file=sys.stderr)
+    print(f"{PROG}: {sum(w.counts.values())} messages on {len(w.counts)} topics in {out} "
+          f"(ROS 2 bag, storage mcap)", file=sys.stderr)
+    return 0
+
+
 @run
 def main(argv=None) -> int:
     ap = parser(PROG, "Play a DROID recording back into a replay cell, export one database as CSV, or recover it.")
@@ -166,13 +192,22 @@ def main(argv=None) -> int:
                     help="first heartbeat tick")
     ap.add_argument("--to", dest="t_to", type=tick, default=None, metavar="TICK",
                     help="last heartbeat tick")
-    ap.add_argument("--export", choices=("csv",), default=None, help="write one database as CSV instead of playing")
+    ap.add_argument("--export", choices=("csv", "rosbag2"), default=None,
+                    help="csv: write one database as CSV; rosbag2: write a ROS 2 bag into DIR (instead of playing)")
+    ap.add_argument("bag_dir", nargs="?", default=None, metavar="DIR",
+                    help="with --export rosbag2: the bag directory to create (or --out DIR)")
+    ap.add_argument("--force", action="store_true", help="with --export rosbag2: replace an existing bag in DIR")
     ap.add_argument("--subunit", default=None, metavar="NAME", help="with --export: the subunit, e.g. arm1")
     ap.add_argument("--area", default="status", metavar="AREA", help="with --export: status (default) or command")
-    ap.add_argument("--out", default="-", metavar="FILE", help="with --export: the CSV file (default stdout)")
+    ap.add_argument("--out", default=None, metavar="FILE",
+                    help="with --export csv: the CSV file (default stdout); with --export rosbag2: the bag directory")
     ap.add_argument("--recover", default=None, metavar="OUT.mcap",
                     help="rewrite the whole chunks of a truncated recording into OUT.mcap")
-    args = ap.parse_args(argv)
+    args = ap.parse_intermixed_args(argv)
+    if args.bag_dir is not None and args.export != "rosbag2":
+        ap.error(f"unexpected argument {args.bag_dir!r} (a directory goes with --export rosbag2)")
+    if args.force and args.export != "rosbag2":
+        ap.error("--force goes with --export rosbag2")
     if args.t_from is not None and args.t_to is not None and args.t_to < args.t_from:
         ap.error(f"--to {args.t_to} is before --from {args.t_from}")
     if args.recover:
@@ -181,12 +216,14 @@ def main(argv=None) -> int:
         rec = recover(args.file, args.recover)
         print(f"{PROG}: {len(rec.ticks)} ticks recovered into {args.recover}", file=sys.stderr)
         return 0
+    if args.export == "rosbag2":
+        return export_bag(args, ap)
     if args.export:
         if not args.subunit:
             ap.error("--export needs --subunit NAME")
         rec = read_recording(args.file)
         ticks = tick_range(rec, args.t_from, args.t_to)
-        if args.out == "-":
+        if args.out in (None, "-"):
             export_csv(rec, args.subunit, args.area, ticks, sys.stdout)
         else:
             with open(args.out, "w", newline="") as f:

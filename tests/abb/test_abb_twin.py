@@ -205,7 +205,10 @@ def test_device_from_the_abb_weld_cell_binds_loopback_only(tmp_path):
     w.cell = load_cell("cells/abb_weld.toml")
     dev = make_abb_egm(w, "abb", {"subunit": "abb", "start_deg": START, "comm_timeout_s": 0.5})
     try:
-        assert dev.address[0] == "127.0.0.1" and dev.sensor_addr == ("127.0.0.1", 6510)
+        from droid.brain.cellfile import loopback_address
+
+        own = loopback_address(w.cell.name)  # the cell's own 127.x.y.z ({loopback} in the cell file)
+        assert dev.address[0] == own and dev.sensor_addr == (own, 6510)
         assert dev.controller.p.comm_timeout_s == 0.5 and dev.controller.arm is not None
     finally:
         dev.close()
