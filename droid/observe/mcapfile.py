@@ -211,7 +211,7 @@ def _messages(p: str, f, allow_truncated: bool, st: dict, topics=None):
     ``st`` gets ``rec`` (the :class:`Recording` with its metadata, once read), ``chans``, ``schemas`` and
     ``saw_footer``; ``topics``: decode only these topics (None: all).  :class:`BadRecording` (one line)
     for a foreign, future-version, damaged or (unless ``allow_truncated``) truncated file."""
-    st.update(rec=None, chans={}, schemas={}, saw_footer=False)
+    st["rec"], st["chans"], st["schemas"], st["saw_footer"] = None, {}, {}, False
     chans: dict[int, Channel] = st["chans"]
     fast = topics is not None  # read chunks of messages ourselves, decoding only the wanted ones
     reader = StreamReader(f, record_size_limit=256 * 2**20, emit_chunks=fast)

@@ -74,8 +74,9 @@ def test_observers_never_write_a_command():
         text = path.read_text()
         if path.name == "replay.py":
             continue
+        # file writers are allowed (an MCAP writer, a CSV, a ROS 2 bag's writer: bag.py's self.bag)
         assert ".write(" not in text.replace("w.write(", "").replace("self.write(", "").replace(
-            "csv", ""), path
+            "csv", "").replace("self.bag.write(", ""), path
         assert ".update(" not in text, path
 
 
