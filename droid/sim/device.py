@@ -16,3 +16,20 @@ class Device:
 
     def close(self) -> None:
         pass
+
+
+def arm_subunit(world, name: str, options: dict, known) -> tuple[str, object]:
+    """An arm twin's factory preamble: its options checked against ``known`` and the arm subunit
+    it serves (option ``subunit``, default the device's name).  Returns ``(where, subunit)``;
+    ``where`` names the device table in messages.  BadInput (one line) otherwise."""
+    from droid.cli import BadInput
+
+    cell = world.cell
+    where = f"{cell.path}: [world.devices.{name}]"
+    unknown = sorted(set(options) - set(known))
+    if unknown:
+        raise BadInput(f"{where} unknown option(s) {', '.join(unknown)} (known: type, {', '.join(known)})")
+    sub = cell.subunit(options.get("subunit", name))
+    if not sub.is_arm:
+        raise BadInput(f"{where} subunit {sub.name} is not an arm")
+    return where, sub

@@ -53,7 +53,7 @@ import numpy as np
 from droid.cli import BadInput, RuntimeFailure
 from droid.kinematics import RobotModel, load_robot
 from droid.kinematics.transforms import pose_to_T
-from droid.sim.device import Device
+from droid.sim.device import Device, arm_subunit
 from droid.subunits.abb import egm_schema as es
 from droid.subunits.abb.config import egm_config
 
@@ -347,13 +347,7 @@ def twin_params(options: dict, where: str, model: RobotModel) -> EgmTwinParams:
 def make_abb_egm(world, name: str, options: dict) -> AbbEgmDevice:
     """Factory of the ``abb_egm`` device type (see the module docstring)."""
     cell = world.cell
-    where = f"{cell.path}: [world.devices.{name}]"
-    unknown = sorted(set(options) - set(OPTIONS))
-    if unknown:
-        raise BadInput(f"{where} unknown option(s) {', '.join(unknown)} (known: type, {', '.join(OPTIONS)})")
-    sub = cell.subunit(options.get("subunit", name))
-    if not sub.is_arm:
-        raise BadInput(f"{where} subunit {sub.name} is not an arm")
+    where, sub = arm_subunit(world, name, options, OPTIONS)
     cfg = egm_config(cell, sub)
     host = "127.0.0.1" if cfg.host == "localhost" else cfg.host
     try:

@@ -44,7 +44,7 @@ from droid.kinematics.transforms import pose_to_T
 from droid.sim.gmf1.cards import Quad04Twin, SharedCard
 from droid.sim.gmf1.controller import KarelController, KarelParams
 from droid.sim.serial_cable import PtyEnd, TcpEnd
-from droid.sim.device import Device
+from droid.sim.device import Device, arm_subunit
 from droid.subunits.gmf1.config import gmf1_config
 
 DEFAULT_START_DEG = (10.0, 15.0, 5.0, 0.0, 30.0, 0.0)
@@ -163,13 +163,7 @@ def start_joints(options: dict, model, model_global, where: str) -> np.ndarray:
 def make_karel(world, name: str, options: dict) -> KarelDevice:
     """Factory of the ``karel_s400`` device type (see the module docstring)."""
     cell = world.cell
-    where = f"{cell.path}: [world.devices.{name}]"
-    unknown = sorted(set(options) - set(OPTIONS))
-    if unknown:
-        raise BadInput(f"{where} unknown option(s) {', '.join(unknown)} (known: type, {', '.join(OPTIONS)})")
-    sub = cell.subunit(options.get("subunit", name))
-    if not sub.is_arm:
-        raise BadInput(f"{where} subunit {sub.name} is not an arm")
+    where, sub = arm_subunit(world, name, options, OPTIONS)
     cfg = gmf1_config(cell, sub)
     model = load_robot(sub.robot)
     params = karel_params(options, where, model)
