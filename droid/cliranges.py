@@ -69,7 +69,7 @@ def collect() -> list[Argument]:
     """Every argument (taking a value) of every program and sub-command, in PROGRAMS order."""
     found: list[Argument] = []
     got: list = []
-    original = cli.ArgumentParser.parse_args
+    original = cli.ArgumentParser.parse_args, cli.ArgumentParser.parse_intermixed_args
 
     def capture(self, args=None, namespace=None):
         got.append(self)
@@ -83,7 +83,7 @@ def collect() -> list[Argument]:
             elif a.nargs != 0 and not isinstance(a, argparse._HelpAction):
                 found.append(Argument(prog, tuple(entry), path, p, a))
 
-    cli.ArgumentParser.parse_args = capture
+    cli.ArgumentParser.parse_args = cli.ArgumentParser.parse_intermixed_args = capture  # either way of parsing
     try:
         for prog in PROGRAMS:
             for entry in ENTRIES.get(prog, [[]]):
@@ -96,7 +96,7 @@ def collect() -> list[Argument]:
                     raise RuntimeError(f"{prog} {' '.join(entry)}: built {len(got)} parsers before parsing")
                 walk(prog, entry, got[0], ())
     finally:
-        cli.ArgumentParser.parse_args = original
+        cli.ArgumentParser.parse_args, cli.ArgumentParser.parse_intermixed_args = original
     return found
 
 
