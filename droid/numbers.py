@@ -178,6 +178,17 @@ NAMED: dict[str, Range | tuple] = {
     "step_profile": (MM, MM),  # [s (mm), step (mm)] pairs
     "axes": Range(0, 1024, "axes", integral=True), "buttons": Range(0, 1024, "buttons", integral=True),
     "row_at_origin": Range(-1e4, 1e4, "rows"), "column_at_origin": Range(-1e4, 1e4, "columns"),
+    # a workpiece's [contact] (droid.sim.contact; docs/contact.md): from a foam pad to a stiff steel tool mount
+    "stiffness_n_per_mm": Range(0.0, 1e5, "N/mm", lo_open=True),
+    "damping_n_s_per_mm": Range(0.0, 1e3, "N s/mm"),
+    "friction_coefficient": Range(0.0, 2.0),
+    # the force task's gains (droid/tasks/contact/gains.toml)
+    "admittance_mm_per_n_s": Range(0.0, 1e3, "mm/(N s)", lo_open=True),
+    "force_n": Range(0.0, 1e4, "N", lo_open=True),
+    "force_max_n": Range(0.0, 1e4, "N", lo_open=True),
+    "contact_lost_n": Range(0.0, 1e4, "N"),
+    "touch_n": Range(0.0, 1e4, "N", lo_open=True),
+    "contact_stiffness_n_per_mm": Range(0.0, 1e5, "N/mm", lo_open=True),
 }
 
 

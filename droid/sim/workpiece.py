@@ -72,7 +72,7 @@ EXTENSION_MM = 1.0e6
 _TOP_KEYS = {
     "name", "description", "step_mm", "width_mm", "upper_side",
     "lead_in_mm", "lead_out_mm", "start", "segment",
-    "roll_profile", "step_profile", "gap", "tack",
+    "roll_profile", "step_profile", "gap", "tack", "contact",
 }
 _START_KEYS = {"x_mm", "y_mm", "heading_deg"}
 _SEGMENT_KEYS = {
@@ -198,6 +198,8 @@ class Workpiece:
     step_profile: tuple = ()  # ((s_mm, step_mm), ...)
     gaps: tuple = ()  # ((s_mm, length_mm), ...)
     tacks: tuple = ()  # ((s_mm, length_mm, height_mm), ...)
+    #: the ``[contact]`` table (droid.sim.contact.ContactParams), or None: no contact model
+    contact: object = None
     _all: tuple[Segment, ...] = field(default=(), repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -431,8 +433,15 @@ class Workpiece:
                      _intervals(data, "gap", _GAP_KEYS, length_total, check_keys, number, bad))
         tacks = tuple((t["s_mm"], t["length_mm"], t["height_mm"]) for t in
                       _intervals(data, "tack", _TACK_KEYS, length_total, check_keys, number, bad))
+        contact = None
+        if "contact" in data:
+            from droid.sim.contact import ContactParams
+
+            if not planar:
+                raise bad("[contact]: contact is modelled on plane workpieces only (lines, arcs, turns)")
+            contact = ContactParams.from_table(data["contact"], bad)
         common = dict(name=name, step_mm=step, width_mm=width, upper_side=upper, lead_in_mm=lead_in,
-                      lead_out_mm=lead_out, description=description, source=source)
+                      lead_out_mm=lead_out, description=description, source=source, contact=contact)
         if planar:
             return cls(segments=tuple(segments), **common)
         from droid.sim.seam3d import Seam3D

@@ -166,6 +166,17 @@ class LockstepArm:
             return self.model.fk(self.plant.joint_deg)
         return self.model.base @ self.plant.wcp_true()
 
+    def attach_contact(self, contact) -> None:
+        """Let the world push on the tool: ``contact`` (droid.sim.contact.ToolContact, or None to
+        take it away) gives the plant its joint torques J^T F at each step."""
+        self.plant.contact = contact
+
+    def contact_wrench_N_Nm(self) -> tuple[np.ndarray, np.ndarray]:
+        """The environment's wrench on the tool (global frame; force [N], torque [N m] about the
+        tool point): the F/T twin's hook (docs/ft.md).  Zero without contact."""
+        c = self.plant.contact
+        return c.contact_wrench_N_Nm() if c is not None else (np.zeros(3), np.zeros(3))
+
     def truth(self) -> dict:
         """The world's truth about this arm, as ``droid-sim truth ARM --json`` prints it."""
         from droid.sim.reis.truth import truth_dict

@@ -278,6 +278,10 @@ class ReisPlant:
         self._relin_rad = math.radians(p.relinearise_deg)
         self._disc: dict = {}  # dt -> (Phi, Gamma) at that linearisation
         self.time_s = 0.0
+        #: contact with the world (droid.sim.contact.ToolContact, or None): asked at each advance's
+        #: start for the joint torques J^T F of the environment's force on the tool, held over the
+        #: step; None (the default) or a None answer leaves the step exactly as without contact
+        self.contact = None
         self._power_up(encoder_power_up_counts)
 
     def _static_load(self, q_rad) -> np.ndarray:
@@ -385,6 +389,7 @@ class ReisPlant:
                 raise ValueError(f"advance({dt_s}) is not a whole number of {p.substep_s} s substeps")
             self._n_substeps[dt_s] = n
         self._read_inputs(dt_s)
+        ext = None if self.contact is None else self.contact.joint_torque(self.body, self._q, self._qd, dt_s)
         lo, hi = vm.DAC_MIN, vm.DAC_MAX
         h = p.substep_s
         cache = self._q_list
@@ -409,7 +414,7 @@ class ReisPlant:
                 tau_c = self._tau_c
             else:
                 drive, tau_c = ZERO6, self._tau_c + self._tau_brake
-            self._step_exact(n * h, drive, tau_c, ql)
+            self._step_exact(n * h, drive, tau_c, ql, ext)
             self.time_s += n * h
             return
         if self._amps_on:
@@ -422,13 +427,13 @@ class ReisPlant:
             drive = ZERO6
             tau_c = self._tau_c + self._tau_brake
         if p.compliance:
-            self._steps_compliant(n, h, np.array(drive), tau_c)
+            self._steps_compliant(n, h, np.array(drive), tau_c, ext)
         else:
-            self._steps_rigid(n, h, np.array(drive), tau_c)
+            self._steps_rigid(n, h, np.array(drive), tau_c, ext)
         self.time_s += n * h
         self._write_outputs()
 
-    def _steps_compliant(self, n: int, h: float, drive, tau_c) -> None:
+    def _steps_compliant(self, n: int, h: float, drive, tau_c, ext=None) -> None:
         """Semi-implicit Euler on the state s = [theta, omega, q, qd] (one 24-vector, few numpy
         calls per substep: the drive torques and their motor-side reaction are one matrix
         product each)."""
@@ -456,6 +461,8 @@ class ReisPlant:
             omega[:] = w - np.maximum(np.minimum(w, dw_c), neg_dw_c)  # Coulomb + stiction
             if bal:
                 ts[1] -= bal * sin(q[1])
+            if ext is not None:  # the environment's force on the tool, J^T F (held over the advance)
+                ts += ext
             qd += h * aba(model, data, q, qd, ts)
             if stops:
                 omega[:], qd[:] = self._apply_stops(q, omega, qd)
@@ -512,7 +519,7 @@ class ReisPlant:
         G[18:24, 6:12] = minv
         return F, G
 
-    def _step_exact(self, dt: float, drive, tau_c, ql: list) -> None:
+    def _step_exact(self, dt: float, drive, tau_c, ql: list, ext=None) -> None:
         """One zero-order-hold step of ``dt`` (see the module docstring and :data:`EXACT_BOUND_DEG`).
         ``drive``: the six motor torques [N m] after saturation and back-EMF; ``ql``: ``self._q``
         as floats.  Writes the step's outputs (encoders, switches, AMP_STATUS)."""
@@ -531,6 +538,8 @@ class ReisPlant:
         z[24:30] = drive
         np.negative(tau_link, out=z[30:36])
         z[31] = nl
+        if ext is not None:  # the environment's force on the tool: J^T F joins the link torques
+            z[30:36] += ext
         free = pg @ z  # the step without Coulomb friction
         # Coulomb friction (Karnopp): kinetic where the motor moves and keeps its direction;
         # where it is at rest or would reverse, the friction that ends the step at rest, if it
@@ -578,7 +587,7 @@ class ReisPlant:
         xl = x.tolist()
         self._write_outputs(xl[0:6], xl[12:18], q)
 
-    def _steps_rigid(self, n: int, h: float, drive, tau_c) -> None:
+    def _steps_rigid(self, n: int, h: float, drive, tau_c, ext=None) -> None:
         A, AinvT = self._A, self._AinvT
         theta, omega = self._theta, self._omega
         stops = self._jammed.any() or self._near_stop(n * h, self._q.tolist())
@@ -589,6 +598,8 @@ class ReisPlant:
             tau_m = np.minimum(np.maximum(drive, -self._tau_max - fade), self._tau_max - fade)
             tau = AinvT @ (tau_m - self._b * omega) - self.body.bias(q, qd)
             tau[1] += self._balancer(q)
+            if ext is not None:
+                tau = tau + ext
             m_tot = self.body.mass(q) + self._J_rotor_ref
             # Coulomb friction with stiction, per motor: friction opposes the motion, or holds
             # the motor at rest while the net torque is below it

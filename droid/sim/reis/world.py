@@ -77,6 +77,12 @@ class ReisDevice(Device):
         """The true wrist-centre pose (4x4, mm, global frame): the true arm at its true angles."""
         return self.model.base @ self.plant.wcp_true()
 
+    def contact_wrench_N_Nm(self) -> tuple[np.ndarray, np.ndarray]:
+        """The environment's wrench on the tool (global frame; force [N], torque [N m] about the
+        tool point; docs/ft.md): the plant's contact (droid.sim.contact.ToolContact), zero without."""
+        c = getattr(self.plant, "contact", None)
+        return c.contact_wrench_N_Nm() if c is not None else (np.zeros(3), np.zeros(3))
+
     def close(self) -> None:
         close = getattr(self.plant, "close", None)
         if close is not None:
