@@ -85,13 +85,13 @@ def surface_contact(workpiece, T_global_W: np.ndarray, p_mm, v_mm_s, params: Con
     """(force [N] in the global frame, depth [mm]) on a point at ``p_mm`` moving at ``v_mm_s``
     (global frame) against a plane workpiece at ``T_global_W``: the surface under the point's
     x-y position in W (the lower plate z_W = 0, the upper z_W = step_mm; none beside the
-    workpiece), its normal +z_W.  ``slip_limit(t_unit_global)`` [N], if given, caps the
+    workpiece: depth -inf), its normal +z_W.  ``slip_limit(t_unit_global)`` [N], if given, caps the
     friction along the sliding direction."""
     R = T_global_W[:3, :3]
     p_W = R.T @ (np.asarray(p_mm, float) - T_global_W[:3, 3])
     h = workpiece.surface_height(p_W[0:2])
-    if h is None:
-        return ZERO3.copy(), 0.0
+    if h is None:  # beside the workpiece: nothing under the point
+        return ZERO3.copy(), -math.inf
     depth = h - float(p_W[2])
     if not depth > 0.0:
         return ZERO3.copy(), depth

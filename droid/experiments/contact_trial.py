@@ -1,0 +1,158 @@
+"""A lockstep trial of the force task (issue 27 item 5): the full Reis arm pressing on and
+sliding along the step workpiece's flat face, held at a normal force (docs/contact.md).
+
+The workpiece sits where the seam layout's position (i) puts it (on a fixed fixture: the
+holder is not simulated here), its surfaces push on the tool point through the contact model
+of its ``[contact]`` table (droid.sim.contact); the arm is every core of the Reis subunit
+(droid.sim.reis.cell.LockstepArm, homed from a seeded power-up pose); the wrist F/T sensor
+is the Net F/T twin read by droid-ft's core (droid.sim.ft.lockstep), biased before the
+approach (the tool's weight taken out); the task is droid.tasks.contact.core.ContactStation.
+
+The tool starts ``clearance_mm`` above the lower plate, ``lateral_mm`` beside the seam
+(the lower plate is the step's right side), tool axis along -z_W, travel along +x_W.
+
+Rows (``COLUMNS``), one per controller cycle: time, phase, the normal force (the
+sensor's) and its error, the true contact force, the tool point's true depth below the
+surface and its travel, its speed along the path.  :func:`summary` gives the line
+``normal force RMS error X N, max Y N ...`` over the path after ``settle_s``.
+"""
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from droid.experiments.geometry import trial_geometry
+from droid.kinematics.transforms import inv_homo, trans
+from droid.sim.contact import ToolContact
+from droid.sim.ft.lockstep import LockstepFt
+from droid.sim.lockstep import ORDER_TASK, Scheduler
+from droid.sim.reis.cell import LockstepArm
+from droid.tasks.contact.core import ArmStatus, ContactStation, FtStatus, load_gains
+from droid.tasks.seam.layout import T_W_SEAM
+
+COLUMNS = ("t_s", "phase", "force_n", "force_error_n", "true_force_n", "friction_n", "depth_mm", "along_mm",
+           "speed_mm_s")
+HEARTBEAT_HZ = 60.0
+#: T_wcp_sensor and T_sensor_tool as cells/sim.toml's F/T twin: the sensor 100 mm out, the tool point 150 mm beyond
+FT_POSE_MM = (0.0, 0.0, 100.0)
+
+
+@dataclass(frozen=True)
+class ContactTrialConfig:
+    """One trial (defaults: the issue's measure: 20 N at 10 mm/s over 200 mm)."""
+
+    force_n: float = 20.0
+    speed_mm_s: float = 10.0
+    length_mm: float = 200.0
+    seed: int = 1
+    workpiece: str = "step_input"
+    position: str = "i"
+    lateral_mm: float = -25.0  # the tool's path beside the seam (the lower plate) [mm]
+    x_start_mm: float = 0.0  # along the seam, in W [mm]
+    clearance_mm: float = 5.0  # above the surface at the start [mm]
+    gains: str | None = None  # a gains file (default: the bundled one)
+    settle_after_s: float = 1.0  # the summary starts this long after the path starts [s]
+    max_s: float = 60.0
+
+
+@dataclass
+class ContactResult:
+    rows: list
+    stop: str
+    detail: str
+    summary: str
+    rms_n: float
+    max_n: float
+
+
+def run_contact_trial(cfg: ContactTrialConfig) -> ContactResult:
+    geo = trial_geometry(cfg.position, cfg.workpiece)
+    wp = geo.workpiece
+    T_wcp_tool = geo.wrist.T_wcp_tool
+    gains = load_gains(cfg.gains, HEARTBEAT_HZ)
+
+    def wcp_for(x_w: float, z_w: float) -> np.ndarray:
+        return geo.T_global_W @ trans(x_w, cfg.lateral_mm, z_w) @ T_W_SEAM @ inv_homo(T_wcp_tool)
+
+    T_start = wcp_for(cfg.x_start_mm, cfg.clearance_mm)
+    q_start = geo.reis.ik(T_start, np.zeros(6))
+    sched = Scheduler(HEARTBEAT_HZ)
+    arm = LockstepArm(sched, geo.layout.tool_robot, base=(0, 0, 0, 0, 0, 0), seed=cfg.seed)
+    if not arm.home(60.0):
+        raise RuntimeError("homing did not finish")
+    counts = np.rint(geo.reis.gearing.joints_to_counts(q_start)).astype(np.int32)
+    cmd = arm.command_joint(counts, arm.ticks_for(4.0))
+    if not arm.move_done(cmd, 9.0):
+        raise RuntimeError("the move to the start did not finish")
+    sched.run_for(1.0)
+    contact = ToolContact(wp, geo.T_global_W, geo.reis.base, T_wcp_tool)
+    arm.attach_contact(contact)
+    T_wcp_sensor = trans(*FT_POSE_MM)
+    ft = LockstepFt(sched, arm, T_wcp_sensor, inv_homo(T_wcp_sensor) @ T_wcp_tool, seed=cfg.seed + 7)
+    sched.run_for(0.2)
+    ft.bias()
+    sched.run_for(0.2)
+    station = ContactStation(gains, HEARTBEAT_HZ, T_wcp_tool, cfg.force_n, cfg.speed_mm_s, cfg.length_mm)
+    rows: list = []
+    state = {"t0": None, "path_t0": None, "prev": None}
+    R_W = geo.T_global_W[:3, :3]
+
+    def task(tick: int) -> None:
+        st = arm.status
+        T = np.eye(4)
+        T[:3, :3] = st["R"]
+        T[:3, 3] = (float(st["x"]), float(st["y"]), float(st["z"]))
+        a = ArmStatus(int(st["tick"]), T, int(st["fault"]), bool(st["stale"]))
+        f = ft.fields
+        fs = FtStatus(np.asarray(f["force_tool_N"], float), bool(f["valid"]), bool(f["stale"]))
+        out = station.on_tick(tick, a, fs)
+        if out.cmd is not None:
+            arm.command_cart(out.cmd, out.ticks)
+        if out.cycle:
+            t = sched.t_ns / 1e9
+            if state["t0"] is None:
+                state["t0"] = t
+            if station.phase == "path" and state["path_t0"] is None:
+                state["path_t0"] = t
+            tool_W = R_W.T @ (contact.tool_mm - geo.T_global_W[:3, 3])
+            v_W = R_W.T @ contact.tool_v_mm_s
+            f_W = R_W.T @ contact.force_N  # the true contact force in W: z the normal, x-y friction
+            rows.append((t - state["t0"], station.phase, fs.normal_n, cfg.force_n - fs.normal_n, float(f_W[2]),
+                         float(math.hypot(f_W[0], f_W[1])), -float(tool_W[2]), float(tool_W[0]) - cfg.x_start_mm,
+                         float(v_W[0])))
+
+    sched.on_tick(task, "contact.task", order=ORDER_TASK)
+    arm.run_until(lambda: station.done is not None, cfg.max_s)
+    stop = station.done or "timeout"
+    path_t0 = state["path_t0"]
+    t_from = (path_t0 - state["t0"] + cfg.settle_after_s) if path_t0 is not None else math.inf
+    errs = np.array([r[3] for r in rows if r[1] == "path" and r[0] >= t_from])
+    rms = float(np.sqrt(np.mean(errs ** 2))) if len(errs) else math.nan
+    mx = float(np.max(np.abs(errs))) if len(errs) else math.nan
+    speeds = np.array([r[8] for r in rows if r[1] == "path" and r[0] >= t_from])
+    line = (f"normal force RMS error {rms:.2f} N, max {mx:.2f} N (path after {cfg.settle_after_s:g} s settling, "
+            f"{len(errs)} cycles); {cfg.force_n:g} N at {cfg.speed_mm_s:g} mm/s over {cfg.length_mm:g} mm, "
+            f"mean speed {float(np.mean(speeds)) if len(speeds) else math.nan:.2f} mm/s; seed {cfg.seed}; "
+            f"stop: {stop} ({station.detail})")
+    return ContactResult(rows, stop, station.detail, line, rms, mx)
+
+
+def write_csv(path: str, rows: list) -> None:
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(COLUMNS)
+        for r in rows:
+            w.writerow([r[0], r[1], *(f"{x:.4f}" for x in r[2:])])
+
+
+if __name__ == "__main__":
+    import sys
+
+    seed = int(sys.argv[1]) if len(sys.argv) > 1 else 1
+    res = run_contact_trial(ContactTrialConfig(seed=seed))
+    if len(sys.argv) > 2:
+        write_csv(sys.argv[2], res.rows)
+    print(res.summary)

@@ -1,0 +1,61 @@
+"""The F/T sensor in lockstep: the Net F/T twin's core and droid-ft's core on one scheduler.
+
+The twin (:class:`droid.sim.ft.netft.NetFtTwin`) is stepped in world time at
+``PLANT_HZ`` and streams its RDT records; droid-ft's core (:class:`FtCore`, through the
+driver's checks :class:`RdtStream`) reads every record waiting at droid-ft's rate and makes
+the ``ft6_status`` fields, as ``droid-ft`` does (docs/ft.md) -- only the transport (a list of
+record bytes instead of UDP on loopback) is lockstep's own.  The record's bytes, scaling,
+stale rule and tool-frame wrench are the real ones.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from droid.sim.ft.netft import SENSOR_MODELS, NetFtTwin, NetFtTwinDevice
+from droid.sim.lockstep import ORDER_DEVICE, ORDER_WORLD, Scheduler
+from droid.subunits.ft.prog import FtCore
+from droid.subunits.ft.rdt import CMD_SET_BIAS, CMD_START_REALTIME, RDT_HEADER, REQUEST, RdtStream
+
+TWIN_HZ = 500  # the twin's world steps a second (records are due at its rdt_rate_hz within them)
+FT_HZ = 100  # droid-ft's cycle (its URL's default rate_hz)
+STALE_NS = 200_000_000  # sim.toml's stale rule: 12 heartbeat ticks at 60 Hz
+
+
+class LockstepFt:
+    """A wrist F/T sensor on ``arm`` (wcp_global(), contact_wrench_N_Nm()); ``fields`` is the
+    newest ``ft6_status`` (a dict, droid.subunits.ft.prog.FtCore.fields); ``cycles`` counts them."""
+
+    def __init__(self, sched: Scheduler, arm, T_wcp_sensor, T_sensor_tool, tool_mass_kg: float = 1.5,
+                 tool_com_mm=(0.0, 0.0, 60.0), model: str = "gamma", rdt_rate_hz: float = 250.0,
+                 seed: int = 7, name: str = "ft") -> None:
+        self.sched = sched
+        self.twin = NetFtTwin(SENSOR_MODELS[model], seed, rdt_rate_hz)
+        self.device = NetFtTwinDevice(name, self.twin, arm, T_wcp_sensor, T_sensor_tool, tool_mass_kg,
+                                      tool_com_mm)  # its sockets never open: only true_wrench() is used
+        self.core = FtCore(np.asarray(T_sensor_tool, float), STALE_NS)
+        self.stream = RdtStream()
+        self.inbox: list[bytes] = []
+        self.fields: dict | None = None
+        self.cycles = 0
+        self.alive = True  # False: the twin stops sending (a test makes the status stale)
+        self.biased = False
+        self.twin.request(REQUEST.pack(RDT_HEADER, CMD_START_REALTIME, 0))
+        sched.every(TWIN_HZ, self._twin, f"{name}.twin", order=ORDER_WORLD)
+        sched.every(FT_HZ, self._ft, f"{name}.droid-ft", order=ORDER_DEVICE)
+
+    def bias(self) -> None:
+        """Send the software-bias command (the present reading is subtracted from what follows)."""
+        self.twin.request(REQUEST.pack(RDT_HEADER, CMD_SET_BIAS, 0))
+        self.biased = True
+
+    def _twin(self, t_ns: int) -> None:
+        recs = self.twin.step(1.0 / TWIN_HZ, self.device.true_wrench)
+        if self.alive:
+            self.inbox.extend(recs)
+
+    def _ft(self, t_ns: int) -> None:
+        records = [r for r in (self.stream.feed(d) for d in self.inbox) if r is not None]
+        self.inbox.clear()
+        self.core.on_records(records, self.twin.cal, t_ns)
+        self.fields = self.core.fields(self.stream, self.twin.cal, self.biased, t_ns)
+        self.cycles += 1
