@@ -71,10 +71,11 @@ def check_cell(path) -> None:
 def _loaders():
     from droid.experiments.plan import load_plan
     from droid.sim.workpiece import load_workpiece
+    from droid.tasks.contact.core import load_gains
     from droid.tasks.seam.layout import load_layout
 
     return {"robot": load_robot, "workpiece": load_workpiece, "layout": load_layout, "plan": load_plan,
-            "cell": check_cell}
+            "cell": check_cell, "gains": load_gains}
 
 
 def _kind(path: Path) -> str:
@@ -84,6 +85,8 @@ def _kind(path: Path) -> str:
         return "workpiece"
     if path.parent.name == "plans":
         return "plan"
+    if path.name == "gains.toml":  # the force task's gains (droid.tasks.contact)
+        return "gains"
     return "layout" if "layout" in path.name else "cell"
 
 
@@ -93,7 +96,7 @@ IDS = [str(p.relative_to(PKG)) for p in SHIPPED]
 
 def test_the_shipped_files_were_all_found():
     kinds = {_kind(p) for p in SHIPPED}
-    assert kinds == {"robot", "workpiece", "layout", "plan", "cell"}, kinds
+    assert kinds == {"robot", "workpiece", "layout", "plan", "cell", "gains"}, kinds
     assert len(SHIPPED) >= 15
 
 

@@ -97,6 +97,12 @@ def load_gains(path: str | os.PathLike | None = None, heartbeat_hz: float = 60.0
         check_numbers(data)
     except NumberError as exc:
         raise BadInput(f"gains {src}: {exc}") from None
+    kinds = {f.name: f.type for f in fields(Gains)}
+    for key, value in data.items():
+        integral = kinds[key] in ("int", int)
+        if isinstance(value, bool) or not isinstance(value, int if integral else (int, float)):
+            raise BadInput(f"gains {src}: {key} = {value!r}: must be {'an integer' if integral else 'a number'}")
+    data = {k: (v if kinds[k] in ("int", int) else float(v)) for k, v in data.items()}
     return Gains(**data).check(heartbeat_hz, f"gains {src}")
 
 
