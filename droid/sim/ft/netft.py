@@ -21,7 +21,7 @@ What it measures, in the sensor frame, is the load on its tool side:
   (``arm.wcp_global() @ ft_pose``, as the MVS camera twin takes its pose,
   :mod:`droid.sim.mvs.devices`), acting at ``tool_com_mm``;
 * the contact wrench between tool and workpiece, from a hook the arm device
-  may offer (contact does not exist in the world yet)::
+  may offer (the Reis arms do: droid.sim.contact, docs/contact.md)::
 
       arm.contact_wrench_N_Nm() -> (force[3] [N], torque[3] [N m])
 
