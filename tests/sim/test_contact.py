@@ -2,6 +2,8 @@
 Reis plant deflecting under a pressing command (lockstep), the F/T twin reading the contact."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -155,3 +157,56 @@ def test_the_ft_twin_reads_the_contact_force_plus_the_tool_weight(pressed):
     got = np.r_[pr["ft"]["force_N"], pr["ft"]["torque_Nm"]]
     assert pr["ft"]["valid"] == 1
     assert np.all(np.abs(got - np.r_[f_true, m_true]) < 6 * sigma + 0.02), got - np.r_[f_true, m_true]
+
+
+# ---------------------------------------------------------------- contact from a cell file
+
+SIM = Path(__file__).resolve().parents[2] / "cells" / "sim.toml"
+
+
+def _cell_with(tmp_path, lines: str):
+    from droid.brain.cellfile import load_cell
+
+    text = SIM.read_text().replace('[world.devices.arm1]\ntype = "reis_vme"\nsubunit = "arm1"\n',
+                                   f'[world.devices.arm1]\ntype = "reis_vme"\nsubunit = "arm1"\n{lines}')
+    assert lines in text
+    p = tmp_path / "cell.toml"
+    p.write_text(text)
+    return load_cell(str(p))
+
+
+def test_a_cell_puts_a_workpiece_under_the_reis_tool(tmp_path):
+    from droid.sim.reis.cell import arms_from_cell
+    from droid.sim.reis.world import ReisDevice
+
+    cell = _cell_with(tmp_path, 'contact_workpiece = "step_input"\ncontact_workpiece_pose = [400, 300, 900, 0, 0, 0]\n')
+    arm = arms_from_cell(Scheduler(60.0), cell)["arm1"]
+    c = arm.plant.contact
+    assert isinstance(c, ToolContact) and c.workpiece.name == "step_input"
+    assert np.allclose(c.T_global_W[:3, 3], [400, 300, 900])
+    assert np.allclose(c.T_wcp_tool[:3, 3], [0, 0, 250])  # the seam layout's tool point by default
+    assert np.allclose(c.T_wcp_tool, trial_geometry("i", "step_input").wrist.T_wcp_tool)
+    c.force_N = np.array([1.0, 2.0, 3.0])
+    assert np.allclose(arm.contact_wrench_N_Nm()[0], [1, 2, 3])
+    dev = ReisDevice("arm1", None, arm.plant, arm.model)  # droid-sim's device gives the twin the same hook
+    assert np.allclose(dev.contact_wrench_N_Nm()[0], [1, 2, 3])
+    arm.attach_contact(None)
+    assert not dev.contact_wrench_N_Nm()[0].any()
+    plain = arms_from_cell(Scheduler(60.0), _cell_with(tmp_path, ""))["arm1"]
+    assert plain.plant.contact is None
+
+
+@pytest.mark.parametrize("lines, message", [
+    ("contact_workpiece_pose = [0, 0, 0, 0, 0, 0]\n", "contact_workpiece_pose: needs contact_workpiece"),
+    ('contact_workpiece = "ramp_r200"\ncontact_workpiece_pose = [0, 0, 0, 0, 0, 0]\n', "has no [contact] table"),
+    ('contact_workpiece = "step_input"\n', "needs contact_workpiece_pose"),
+    ('contact_workpiece = "step_input"\ncontact_workpiece_pose = [0, 0, 1e9, 0, 0, 0]\n',
+     "contact_workpiece_pose[2] = 1000000000.0: is outside"),
+    ('contact_workpiece = "step_input"\ncontact_workpiece_pose = [0, 0]\n', "contact_workpiece_pose: expected a list of 6"),
+])
+def test_bad_contact_options_are_one_line(tmp_path, lines, message):
+    from droid.sim.reis.cell import arms_from_cell
+
+    with pytest.raises(BadInput) as exc:
+        arms_from_cell(Scheduler(60.0), _cell_with(tmp_path, lines))
+    assert "\n" not in str(exc.value) and message in str(exc.value), str(exc.value)

@@ -232,11 +232,11 @@ def arms_from_cell(sched: Scheduler, cell, seed: int | None = None) -> dict[str,
 
     Each arm reads its subunit's robot file and base; its plant carries the device table's
     world errors (``home_error_deg``, ``calibration_seed``, ``link_error_mm``,
-    ``twist_error_deg``; droid.sim.reis.world), and a device naming a different robot file
+    ``twist_error_deg``; droid.sim.reis.world) and its contact (``contact_workpiece``), and a device naming a different robot file
     than its subunit is refused, as droid-sim refuses it.
     """
     from droid.cli import BadInput
-    from droid.sim.reis.world import device_subunit, world_errors
+    from droid.sim.reis.world import contact_from_options, device_subunit, world_errors
     from droid.subunits.reis.robot_file import read_offsets
 
     arms = {}
@@ -256,4 +256,5 @@ def arms_from_cell(sched: Scheduler, cell, seed: int | None = None) -> dict[str,
         arms[sub.name] = LockstepArm(sched, sub.name, robot=sub.robot, base=tuple(sub.base),
                                      seed=int(opts.get("seed", world_seed)), plant_params=pp,
                                      home_offset_deg=offsets)
+        arms[sub.name].attach_contact(contact_from_options(where, opts, arms[sub.name].model.base))
     return arms

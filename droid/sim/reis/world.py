@@ -14,6 +14,9 @@ Device type ``reis_vme`` (cell file)::
     link_error_mm = [0, 0.5, 0, -0.3, 0, 0]         # D-H d_i (d_mm, joints with d != 0) or a_i (a_mm) errors
     twist_error_deg = [0.02, 0, 0, 0, 0, 0]         # D-H alpha errors [deg]
     compliance = true                               # harmonic-drive compliance (default false: rigid)
+    contact_workpiece = "step_input"                # the tool touches this workpiece (docs/contact.md) ...
+    contact_workpiece_pose = [400, 300, 1000, 0, 0, 0]   # ... fixed here (global T W, mm, ZYZ deg)
+    contact_tool_pose = [0, 0, 250, -90, 90, 180]   # T_wcp_tool (default: the seam layout's tool point)
 
 ``calibration_seed = N`` draws, seeded: home-switch errors uniform in +-0.5 deg
 on joints 2-5 (joints 1 and 6 are arbitrary by definition, thesis §4.1.1.4:
@@ -50,7 +53,12 @@ from droid.subunits.reis.endpoints import reis_endpoints
 HOME_ERROR_MAX_DEG = 0.5  # calibration_seed: home-switch errors, joints 2-5
 LINK_ERROR_MAX_MM = 0.5  # calibration_seed: D-H length errors
 TWIST_ERROR_MAX_DEG = 0.02  # calibration_seed: D-H twist errors
-_OPTIONS = {"subunit", "seed", "robot", "home_error_deg", "calibration_seed", "link_error_mm", "twist_error_deg", "compliance"}
+_CONTACT_OPTIONS = {"contact_workpiece", "contact_workpiece_pose", "contact_tool_pose"}
+_OPTIONS = {"subunit", "seed", "robot", "home_error_deg", "calibration_seed", "link_error_mm", "twist_error_deg",
+            "compliance"} | _CONTACT_OPTIONS
+#: T_wcp_tool when ``contact_tool_pose`` is not given: the seam layout's tool point (a 100 mm
+#: flange + the fixture's 150 mm, droid/cells/seamtrack_layout.toml) = sim.toml's F/T twin's
+DEFAULT_CONTACT_TOOL_POSE = [0.0, 0.0, 250.0, -90.0, 90.0, 180.0]
 
 
 class ReisDevice(Device):
@@ -130,6 +138,35 @@ def world_errors(where: str, model, options: dict) -> tuple[tuple, DhError]:
     return tuple(home), DhError(d_mm=tuple(d_err), a_mm=tuple(a_err), alpha_deg=tuple(twist))
 
 
+def contact_from_options(where: str, options: dict, T_global_base):
+    """The tool's contact with a workpiece (droid.sim.contact.ToolContact) from a device table,
+    or None without ``contact_workpiece``::
+
+        contact_workpiece = "step_input"                  # a plane workpiece with a [contact] table
+        contact_workpiece_pose = [x, y, z, A, B, C]       # global T W (mm, ZYZ deg): where it is fixed
+        contact_tool_pose = [0, 0, 250, -90, 90, 180]     # T_wcp_tool (default: the seam layout's tool point)
+    """
+    if "contact_workpiece" not in options:
+        extra = sorted(set(options) & _CONTACT_OPTIONS)
+        if extra:
+            raise BadInput(f"{where} {extra[0]}: needs contact_workpiece")
+        return None
+    from droid.sim.contact import ToolContact
+    from droid.sim.workpiece import load_workpiece
+
+    name = options["contact_workpiece"]
+    if not isinstance(name, str) or not name:
+        raise BadInput(f"{where} contact_workpiece: expected a workpiece name or path")
+    wp = load_workpiece(name)
+    if wp.contact is None:
+        raise BadInput(f"{where} contact_workpiece: workpiece {wp.name} has no [contact] table (docs/contact.md)")
+    if "contact_workpiece_pose" not in options:
+        raise BadInput(f"{where} contact_workpiece: needs contact_workpiece_pose (where the workpiece is fixed)")
+    T_W = pose_to_T(*_six(where, "contact_workpiece_pose", options["contact_workpiece_pose"]))
+    T_tool = pose_to_T(*_six(where, "contact_tool_pose", options.get("contact_tool_pose", DEFAULT_CONTACT_TOOL_POSE)))
+    return ToolContact(wp, T_W, T_global_base, T_tool)
+
+
 def device_subunit(cell, name: str, options: dict):
     """``(where, subunit)`` of a Reis world device's table, checked: no unknown key, and the
     world's robot file (if named) is the controller's -- one arm, one robot file."""
@@ -158,6 +195,7 @@ def make_reis(world, name: str, options: dict) -> ReisDevice:
     if model.dynamics is None or model.dh is None:
         raise BadInput(f"{model.source}: [dynamics] and [dh] are needed to simulate the arm")
     home_error, dh_error = world_errors(where, model, options)
+    contact = contact_from_options(where, options, model.base)
     # Rigid drives unless the cell asks for compliance = true: with the harmonic drives'
     # compliance (the robot file's stiffness; lockstep --arm full uses it) the real-time
     # servo hunts at standstill and a loaded host's cell failed its stop tests (issue 13, open).
@@ -169,6 +207,7 @@ def make_reis(world, name: str, options: dict) -> ReisDevice:
     door = None
     try:
         plant = ReisPlant(params, seed, regs=shared.buf)
+        plant.contact = contact
         door = TruthDoor.create(door_name(cell.name, sub.name))
     except BaseException:
         shared.close()
