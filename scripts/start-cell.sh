@@ -40,8 +40,11 @@ bg planner-arm1 droid-planner arm1
 # the Brain's joystick (thesis §3.4): its device reader and its agent
 bg joystick-joy droid-joystick joy
 bg agent-joy droid-agent joy
+# the force/torque sensor on the Reis wrist (thesis §7.3): its RDT reader and its agent
+bg ft-ft droid-ft ft
+bg agent-ft droid-agent ft
 # 6. ... one remote client per subunit on the Brain ...
-for sub in arm1 gmf1 mvs tool joy; do bg "remote-$sub" droid-remote "$sub"; done
+for sub in arm1 gmf1 mvs tool joy ft; do bg "remote-$sub" droid-remote "$sub"; done
 # 7. ... and the heartbeat that paces them all (60 Hz).
 bg heartbeat droid-heartbeat
 # wait (bounded) until every program says it is live, then show them

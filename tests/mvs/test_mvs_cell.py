@@ -63,8 +63,8 @@ def test_sensor_reports_the_seam_under_a_stationary_arm(cell):
     up(cell)
     names = {r["name"] for r in cell_status(cell)}
     assert {"droid-mvs mvs", "droid-remote mvs", "droid-remote tool", "droid-sim"} <= names
-    # the seam sensors have serial links, no agent (the generic droid-agent serves the joystick)
-    assert not any(n.startswith("droid-agent") and not n.endswith(" joy") for n in names)
+    # the seam sensors have serial links, no agent (the generic droid-agent serves the joystick and the F/T sensor)
+    assert not any(n in names for n in ("droid-agent mvs", "droid-agent tool"))
     wait_for(lambda: all(r["live"] for r in cell_status(cell)), what="every program live")
     recs = wait_for(lambda: fresh_valid(cell, "mvs", 10), what="ten fresh valid mvs readings")
     ys = [r["y"] for r in recs]

@@ -213,7 +213,9 @@ def test_mode_is_passed_through_or_refused(tmp_path, capsys):
 
 
 def test_a_workpiece_path_is_relative_to_the_plan(tmp_path):
-    src = os.path.join(os.path.dirname(load_plan.__code__.co_filename), "..", "workpieces", "step_input.toml")
+    import droid.sim.workpiece
+
+    src = os.path.join(os.path.dirname(droid.sim.workpiece.__file__), "workpieces", "step_input.toml")
     (tmp_path / "pieces").mkdir()
     (tmp_path / "pieces" / "mine.toml").write_text(open(src).read().replace('name = "step_input"',
                                                                              'name = "mine"'))
