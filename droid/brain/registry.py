@@ -42,7 +42,6 @@ import importlib.util
 import os
 import sys
 from dataclasses import dataclass, field
-from importlib import metadata
 from typing import Any, Callable, Iterable
 from urllib.parse import urlsplit
 
@@ -262,6 +261,8 @@ class Registry:
 
 
 def _entry_points():
+    from importlib import metadata  # imported when the registry is first built (about 0.1 s)
+
     return metadata.entry_points(group=ENTRY_POINT_GROUP)
 
 
