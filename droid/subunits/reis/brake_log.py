@@ -30,9 +30,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
-from droid.subunits.reis.device import SERVO_HZ
-
-SERVO_TICK_S = 1.0 / SERVO_HZ  # one servo tick [s] (droid.subunits.reis.device)
+SERVO_TICK_S = 0.002  # 500 Hz
 WINDOW = 4  # ticks over which velocity is averaged
 
 
