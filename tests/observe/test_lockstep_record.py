@@ -44,13 +44,14 @@ def test_trial_recording(tmp_path):
 def test_experiment_cli_record(tmp_path):
     from tests.brain.cellutil import droid
 
+    # a full-arm trial with its homing: a bound on the wait, generous for a loaded host, not a verdict
     out = droid("droid.experiments.cli", "run", "1.3", "--record", "--length", "60", "--no-figures",
-                "--jobs", "1", "--out", str(tmp_path))
+                "--jobs", "1", "--out", str(tmp_path), timeout=600)
     assert out.returncode == 0, out.stderr
     rec = read_recording(tmp_path / "table6.1" / "1.3.mcap")
     assert rec.meta["trial"] == "1.3" and rec.meta["source"] == "lockstep" and rec.complete
     out = droid("droid.experiments.cli", "run", "1.3", "--length", "60", "--no-figures", "--jobs", "1",
-                "--out", str(tmp_path / "plain"))
+                "--out", str(tmp_path / "plain"), timeout=600)
     assert out.returncode == 0 and not list((tmp_path / "plain").rglob("*.mcap"))
 
 
