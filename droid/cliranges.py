@@ -18,7 +18,7 @@ import sys
 from dataclasses import dataclass
 
 from droid import cli
-from droid.programs import PROGRAMS
+from droid.brain.registry import programs
 
 #: argv prefixes a main dispatches on before it builds another parser (``droid-sim truth``).
 ENTRIES = {"droid-sim": [[], ["truth"]]}
@@ -62,7 +62,7 @@ class _Captured(Exception):
 
 def main_of(prog: str):
     """The ``main`` of a program (by its console-script name)."""
-    return importlib.import_module(PROGRAMS[prog]).main
+    return importlib.import_module(programs()[prog]).main
 
 
 def collect() -> list[Argument]:
@@ -85,7 +85,7 @@ def collect() -> list[Argument]:
 
     cli.ArgumentParser.parse_args = cli.ArgumentParser.parse_intermixed_args = capture  # either way of parsing
     try:
-        for prog in PROGRAMS:
+        for prog in programs():
             for entry in ENTRIES.get(prog, [[]]):
                 got.clear()
                 try:

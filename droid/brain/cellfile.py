@@ -24,7 +24,8 @@ from typing import Any
 
 from droid.cli import BadInput, read_toml
 from droid.numbers import NumberError, check_numbers
-from droid.brain.classes import CLASSES, SubunitClass
+from droid.brain.classes import SubunitClass
+from droid.brain import registry as _registry
 from droid.brain.curve import CurveConfig, parse_curve_table
 from droid.brain.wire import LIVENESS_TICKS
 from droid.brain.shmdb import check_name_part
@@ -33,7 +34,14 @@ from droid.brain.shmdb import check_name_part
 #: least 1 Hz (the stale rules count ticks), at most 1000 Hz (a 1 ms period).
 HEARTBEAT_HZ_RANGE = (1.0, 1000.0)
 
-SUBUNIT_CLASSES = tuple(CLASSES)  # droid.brain.classes: the classes as data
+
+
+def __getattr__(name: str):
+    if name == "SUBUNIT_CLASSES":  # the class names of the device registry (droid.brain.registry)
+        return tuple(_registry.classes())
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 DEFAULT_RUN_ROOT = "/tmp/droid"
 ENV_CELL = "DROID_CELL"
 ENV_RUN_ROOT = "DROID_RUN_ROOT"
@@ -54,7 +62,7 @@ class Subunit:
     """One subunit of the cell (thesis §3.2)."""
 
     name: str
-    cls: str  # a key of droid.brain.classes.CLASSES: arm6r | line_laser | joystick
+    cls: str  # a class of the device registry (droid.brain.registry): arm6r, line_laser, joystick, ...
     host: str
     agent: str  # ZeroMQ endpoint the agent binds
     relay: str  # ZeroMQ endpoint where the agent relays ticks to its local programs
@@ -67,12 +75,12 @@ class Subunit:
     @property
     def kind(self) -> SubunitClass:
         """The subunit's class as data (layouts, fields, drivers)."""
-        return CLASSES[self.cls]
+        return _registry.classes()[self.cls]
 
     @property
     def is_arm(self) -> bool:
         """A commandable arm with a robot model (its class is kinematic)."""
-        return CLASSES[self.cls].kinematic
+        return _registry.classes()[self.cls].kinematic
 
 
 @dataclass
@@ -214,7 +222,7 @@ def parse_cell(raw: dict[str, Any], p: Path) -> Cell:
         check_name_part(name, "cell")
     except BadInput as exc:
         raise BadInput(f"{p}: [cell] {exc}") from None
-    hb_hz = c.get("heartbeat_hz", float, 60.0, check=_positive)
+    hb_hz = c.get("heartbeat_hz", float, _registry.program("droid-heartbeat").rate_hz, check=_positive)
     lo, hi = HEARTBEAT_HZ_RANGE
     if not lo <= hb_hz <= hi:
         raise BadInput(f"{p}: [cell] heartbeat_hz {hb_hz:g} is outside [{lo:g}, {hi:g}] Hz")
@@ -254,8 +262,9 @@ def parse_cell(raw: dict[str, Any], p: Path) -> Cell:
         except BadInput as exc:
             raise BadInput(f"{p}: [subunits] {exc}") from None
         r = _Reader(p, f"subunits.{sname}", table)
-        cls = r.get("class", str, check=lambda v: None if v in SUBUNIT_CLASSES else
-                    f"unknown class {v!r} (known: {', '.join(SUBUNIT_CLASSES)})")
+        reg = _registry.registry()
+        cls = r.get("class", str, check=lambda v: None if v in reg.classes else
+                    reg.unknown("class", v, reg.classes))
         sub = Subunit(
             name=sname,
             cls=cls,
@@ -287,9 +296,10 @@ def parse_cell(raw: dict[str, Any], p: Path) -> Cell:
 
 
 def _check_programs(p: Path, subunits: dict[str, Subunit]) -> None:
-    from droid.programs import PROGRAMS
-
+    """Every program a subunit names is registered (droid.brain.registry.validate_cell checks
+    more -- that it serves the subunit's class, that its module is there -- before a start)."""
+    reg = _registry.registry()
     for s in subunits.values():
         for prog in s.programs:
-            if prog not in PROGRAMS:
-                raise BadInput(f"{p}: [subunits.{s.name}] unknown program {prog!r}")
+            if prog not in reg.programs:
+                raise BadInput(f"{p}: [subunits.{s.name}] {reg.unknown('program', prog, _registry.cell_programs(s.cls))}")

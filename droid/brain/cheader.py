@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from droid.brain import layouts as L
+from droid.brain.registry import layouts
 from droid.cli import ArgumentParser, run
 
 PROG = "droid-cheader"
@@ -62,7 +63,7 @@ def generate() -> str:
                  "FAULT_BRAKING", "FAULT_DEVICE", "FAULT_HEARTBEAT", "CMD_OK", "CMD_REFUSED", "CMD_FAILED"):
         out.append(f"#define DROID_{name} {getattr(L, name)}")
     out.append("")
-    for lay in L.LAYOUTS.values():
+    for lay in layouts().values():  # the Brain's and every registered package's (droid.brain.registry)
         up = lay.c_name.upper()
         out.append(f"#define {up}_KIND {lay.kind}")
         out.append(f"#define {up}_VERSION {lay.version}")

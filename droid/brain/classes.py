@@ -4,13 +4,12 @@ A subunit's ``class`` in the cell file names one :class:`SubunitClass`: its
 layout definitions (the Brain's Status and, for a commandable subunit, its
 Command; the subunit side's own records), the fields ``droid-remote`` copies
 from the agent's reply into the Brain's Status, the fields ``droid-snoop``
-prints, and the drivers its programs open.  The Brain (databases, remote) and
-``droid-snoop`` read this table, ``droid-cheader`` writes every layout of
-``layouts.LAYOUTS`` and ``droid-cell status`` lists programs, not classes: none
-of them names a class, so a new class -- the joystick of §3.4 here, the
-force/torque sensor of §7.3 next -- is one entry and its layouts.
+prints, and the drivers its programs open.  A class is declared by a device
+package (``droid/subunits/<pkg>/device.py``) and registered in the device
+registry (:mod:`droid.brain.registry`); :data:`CLASSES` is the registry's view.
+The Brain (databases, remote), ``droid-snoop`` and ``droid-cheader`` read it and
+never name a class.
 
-=============  =========================  ============================  ===========================
 class          Brain areas                subunit areas                 drivers (URL schemes)
 =============  =========================  ============================  ===========================
 ``arm6r``      status (3.1), command (3.2) ctrl_status (4.2),            shm:// VME map, serial port
@@ -19,6 +18,11 @@ class          Brain areas                subunit areas                 drivers 
 ``joystick``   status (joystick_status)   ctrl_status (joystick_status) js://, evdev://
 ``ft6``        status (ft6_status)        ctrl_status (ft6_status)      netft:// (RDT over UDP)
 =============  =========================  ============================  ===========================
+=======
+The Brain defines the two thesis interfaces here, which several packages serve:
+``arm6r`` (Tables 3.1-3.2, 4.2-4.3: the Reis, the GMF1) and ``line_laser``
+(Table 3.3: the MVS, the tool-tip sensor).  Other classes live in their package
+(``joystick``: :mod:`droid.subunits.joystick.device`).
 """
 from __future__ import annotations
 
@@ -31,8 +35,6 @@ from droid.brain.layouts import (
     CTRL_COMMAND_LAYOUT,
     CTRL_STATUS_LAYOUT,
     FAULT_NAMES,
-    FT6_STATUS_LAYOUT,
-    JOYSTICK_STATUS_LAYOUT,
     SENSOR_STATUS_LAYOUT,
     Layout,
 )
@@ -77,40 +79,26 @@ LINE_LASER = SubunitClass(
                   "invalid", "valid_count", "invalid_count", "garbled_count"),
 )
 
-JOYSTICK = SubunitClass(
-    name="joystick",
-    description="analog joystick: axes and buttons (thesis §2.6 Figure 2.10, §3.4)",
-    brain={"status": JOYSTICK_STATUS_LAYOUT},
-    local={"ctrl_status": JOYSTICK_STATUS_LAYOUT},
-    copy_fields=("axes", "buttons", "valid", "events", "fault", "n_axes", "n_buttons"),
-    snoop_fields=("axes", "buttons", "valid", "events", "n_axes", "n_buttons", "fault"),
-    drivers={"js": "droid.subunits.joystick.driver:JsDevice",
-             "evdev": "droid.subunits.joystick.driver:EvdevDevice"},
-)
 
-FT6 = SubunitClass(
-    name="ft6",
-    description="six-axis force/torque sensor on Ethernet (ATI Net F/T, RDT; thesis §7.3)",
-    brain={"status": FT6_STATUS_LAYOUT},
-    local={"ctrl_status": FT6_STATUS_LAYOUT},
-    copy_fields=("force_N", "torque_Nm", "force_tool_N", "torque_tool_Nm", "sample_ns", "sample_age_ms",
-                 "rdt_seq", "ft_seq", "status_word", "valid", "saturated", "biased", "dropped",
-                 "out_of_order", "bad_datagrams", "records", "fault"),
-    snoop_fields=("force_N", "torque_Nm", "force_tool_N", "torque_tool_Nm", "sample_age_ms", "valid",
-                  "saturated", "biased", "rdt_seq", "dropped", "out_of_order", "bad_datagrams", "fault"),
-    drivers={"netft": "droid.subunits.ft.rdt:NetFtDevice"},
-)
+def __getattr__(name: str):
+    # CLASSES is a view of the device registry (droid.brain.registry): every class a
+    # cell file may name, whichever package defines it (PEP 562: computed on first use)
+    if name == "CLASSES":
+        from droid.brain.registry import classes
 
-#: every class a cell file may name
-CLASSES: dict[str, SubunitClass] = {c.name: c for c in (ARM6R, LINE_LASER, JOYSTICK, FT6)}
+        return classes()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def subunit_class(name: str) -> SubunitClass:
     """The class called ``name``; KeyError names the known ones."""
+    from droid.brain.registry import registry
+
+    reg = registry()
     try:
-        return CLASSES[name]
+        return reg.classes[name]
     except KeyError:
-        raise KeyError(f"unknown subunit class {name!r} (known: {', '.join(CLASSES)})") from None
+        raise KeyError(reg.unknown("subunit class", name, reg.classes)) from None
 
 
 def field_json(rec, name: str):

@@ -47,7 +47,7 @@ from droid.brain.rt import normal_scheduler
 from droid.brain.shmdb import (Database, NoDatabase, cell_objects, db_name, pid_alive,
                                remove_cell_objects, unlink_database)
 from droid.cli import ArgumentParser, BadInput, RuntimeFailure, run, timeout_s
-from droid.programs import PROGRAMS
+from droid.brain.registry import program, programs, validate_cell
 
 PROG = "droid-cell"
 READY_TIMEOUT_S = 30.0
@@ -68,22 +68,25 @@ class Spec:
 
 
 def cell_programs(cell: Cell, hosts: set[str] | None = None) -> tuple[list[Spec], list[Spec]]:
-    """(first, rest): the name space and the world first, everything else in parallel after them."""
+    """(first, rest): the programs of start group 0 (the name space; the world: the hardware is
+    powered before the programs that drive it, §4.1.4), then group 1 in parallel after them.
+    Each program's group is its declaration's ``start`` (droid.brain.registry)."""
     want = (lambda h: True) if hosts is None else (lambda h: h in hosts)
-    first, rest = [], []
+    specs = []
     if want(cell.brain_host):
-        first.append(Spec(presence_key("droid-names"), "droid-names", [], cell.brain_host))
-        rest.append(Spec(presence_key("droid-heartbeat"), "droid-heartbeat", [], cell.brain_host))
+        specs.append(Spec(presence_key("droid-names"), "droid-names", [], cell.brain_host))
+        specs.append(Spec(presence_key("droid-heartbeat"), "droid-heartbeat", [], cell.brain_host))
         for sub in cell.subunits.values():
-            rest.append(Spec(presence_key("droid-remote", sub.name), "droid-remote", [sub.name],
-                             cell.brain_host))
+            specs.append(Spec(presence_key("droid-remote", sub.name), "droid-remote", [sub.name],
+                              cell.brain_host))
     if cell.world.get("enabled", True) and want(cell.world.get("host", cell.brain_host)):
-        # the hardware is powered before the programs that drive it (§4.1.4)
-        first.append(Spec(presence_key("droid-sim"), "droid-sim", [], cell.world["host"]))
+        specs.append(Spec(presence_key("droid-sim"), "droid-sim", [], cell.world["host"]))
     for sub in cell.subunits.values():
         if want(sub.host):
             for prog in sub.programs:
-                rest.append(Spec(presence_key(prog, sub.name), prog, [sub.name], sub.host))
+                specs.append(Spec(presence_key(prog, sub.name), prog, [sub.name], sub.host))
+    first = [s for s in specs if program(s.prog).start == 0]
+    rest = [s for s in specs if program(s.prog).start != 0]
     return first, rest
 
 
@@ -115,7 +118,7 @@ def _start(cell: Cell, specs: list[Spec], log_dir: str) -> dict[int, tuple[Spec,
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     for spec in specs:
         r, w = os.pipe()
-        spec.argv = [sys.executable, "-m", PROGRAMS[spec.prog], "--cell", str(cell.path),
+        spec.argv = [sys.executable, "-m", programs()[spec.prog], "--cell", str(cell.path),
                      *spec.args, "--ready-fd", str(w)]
         with open(os.path.join(log_dir, f"{spec.key}.log"), "ab") as log:
             proc = subprocess.Popen(spec.argv, pass_fds=(w,), stdin=subprocess.DEVNULL,
@@ -426,6 +429,9 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     cell = load_cell(args.cell)
     use_cell(cell)
+    if args.cmd in ("init", "restart") or (args.cmd == "up" and args.replay is None):
+        # every class, program and twin registered, before a database or a process is made
+        validate_cell(cell)
     if args.cmd == "up" and args.replay is not None:
         if args.host:
             raise BadInput("--replay brings up the Brain's databases only: no --host")

@@ -110,6 +110,10 @@ def _dtype(fields: list[tuple[str, str, tuple | None]], itemsize: int) -> np.dty
     return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": itemsize})
 
 
+#: The public name of the dtype builder, for a device package's own layouts (DESIGN §11):
+#: ``record_dtype(HEADER_FIELDS + [...], itemsize)``; its kind number must be new.
+record_dtype = _dtype
+
 HEADER_FIELDS = [
     ("magic", "<u4", None),
     ("version", "<u2", None),

@@ -128,29 +128,21 @@ class PeriodicTimer:
         self.close()
 
 
-#: SCHED_FIFO priority of every program that asks for it (higher runs first).  The
-#: servo's 500 Hz loop outranks everything; the watchdog must kick while the servo
+#: SCHED_FIFO priority of every program that asks for it (higher runs first) is declared
+#: with the program in its device package (droid.brain.registry.Program: sched "fifo",
+#: priority); ``FIFO_PRIORITIES`` is the registry's view (module ``__getattr__`` below).
+#: The servo's 500 Hz loop outranks everything; the watchdog must kick while the servo
 #: lives; the world (the hardware) outranks the programs that drive it except the
 #: servo side; the per-tick programs sit at the heartbeat's level; the sensor and
 #: the encoder program below (DESIGN §9; docs/architecture.md "Real time").
-FIFO_PRIORITIES: dict[str, int] = {
-    "droid-servo": 60,
-    "droid-watchdog": 55,
-    "droid-servo-agent": 54,
-    "droid-egm": 54,  # in the servo agent's place on an EGM arm (docs/abb.md): answers the controller every 4 ms
-    "droid-sim": 52,
-    "droid-planner": 51,
-    "droid-agent": 51,
-    "droid-reis-agent": 51,
-    "droid-gmf1-agent": 51,
-    "droid-heartbeat": 50,
-    "droid-remote": 50,
-    "droid-fault": 50,
-    "droid-seamtrack": 49,
-    "droid-mvs": 48,
-    "droid-gmf1-encoder": 45,
-    "droid-record": 10,  # an observer: below every cell program, above normal load
-}
+def __getattr__(name: str):
+    if name == "FIFO_PRIORITIES":
+        from droid.brain.registry import fifo_priorities
+
+        return fifo_priorities()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 #: The priority ceiling of the databases' semaphores (droid.brain.shmdb): above them all.
 CEILING_PRIORITY = 61
 DEFAULT_FIFO_PRIORITY = 50
@@ -248,7 +240,9 @@ def try_sched_fifo(priority: int | None = None, *, wanted: bool = True, prog: st
     if not wanted:
         return False
     if priority is None:
-        priority = FIFO_PRIORITIES.get(prog, DEFAULT_FIFO_PRIORITY)
+        from droid.brain.registry import fifo_priorities
+
+        priority = fifo_priorities().get(prog, DEFAULT_FIFO_PRIORITY)
     # Lock first, on the normal scheduler: the old full mlockall paged in every mapping
     # (hundreds of MB) and, done at FIFO priority, kept the cell's running real-time
     # programs off the CPU while a new one started (a 205 ms stall of droid-sim, issue 16).

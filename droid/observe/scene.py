@@ -160,7 +160,10 @@ def _capsule(p0, p1, r: float) -> list[float]:
 def is_arm(sub: dict) -> bool:
     """A recorded subunit is an arm if it has a Command database (or a robot model): read from the
     recording's metadata, not from a list of classes."""
-    return "command" in (sub.get("areas") or {}) or bool(sub.get("robot")) or sub.get("class") == "arm6r"
+    from droid.brain.registry import classes
+
+    cls = classes().get(sub.get("class"))  # else: a kinematic class of the device registry
+    return "command" in (sub.get("areas") or {}) or bool(sub.get("robot")) or bool(cls and cls.kinematic)
 
 
 def status_T(d: dict) -> np.ndarray:

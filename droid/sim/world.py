@@ -8,21 +8,23 @@ register map, a pseudo-terminal, ...), by the URLs in the cell file.
 Devices are declared in the cell file, in stepping order::
 
     [world.devices.arm1]          # the device's name
-    type = "reis_vme"             # a key of DEVICE_TYPES
+    type = "reis_vme"             # a twin type of the device registry
     ...                           # options of that type
 
-:data:`DEVICE_TYPES` maps a type to ``(module, factory)``, imported only when a
-cell asks for it (python-can's lazy backend table).  A factory is called as
+Each device package declares its twins in its ``device.py``
+(:class:`droid.brain.registry.Twin`: type -> ``"module:factory"``), imported only
+when a cell asks for it (python-can's lazy backend table); :data:`DEVICE_TYPES`
+is the registry's view ``type -> (module, factory)``.  A factory is called as
 ``factory(world, name, options)`` and returns a :class:`Device`; it may look up
 devices declared before it in ``world.devices`` (the camera needs both arms).
 """
 from __future__ import annotations
 
-import importlib
 import sys
 import time
 from typing import Any
 
+from droid.brain.registry import program, registry, twin_factory, validate_cell
 from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import BadInput, RuntimeFailure, file_number, run, seed_int
@@ -30,20 +32,18 @@ from droid.numbers import SEED, Range
 from droid.sim.device import Device
 
 PROG = "droid-sim"
-DEFAULT_RATE_HZ = 1000.0
+DEFAULT_RATE_HZ = program(PROG).rate_hz  # the world's default step rate [Hz], declared with droid-sim
 
-# type -> (module, factory function)
-DEVICE_TYPES: dict[str, tuple[str, str]] = {
-    "reis_vme": ("droid.sim.reis.world", "make_reis"),
-    "karel_s400": ("droid.sim.gmf1.karel", "make_karel"),
-    "fixed_arm": ("droid.sim.mvs.arm", "fixed_arm"),
-    "mvs_camera": ("droid.sim.mvs.devices", "mvs_camera"),
-    "tool_sensor": ("droid.sim.mvs.devices", "tool_sensor"),
-    "serial_cable": ("droid.sim.serial_cable", "serial_cable"),
-    "joystick": ("droid.sim.joystick.device", "make_joystick"),
-    "netft": ("droid.sim.ft.netft", "make_netft"),
-    "abb_egm": ("droid.sim.abb.controller", "make_abb_egm"),
-}
+
+
+def __getattr__(name: str):
+    # DEVICE_TYPES (type -> (module, factory)) is a view of the device registry: each device
+    # package declares its twins in its device.py (droid.brain.registry.Twin)
+    if name == "DEVICE_TYPES":
+        from droid.brain.registry import device_types
+
+        return device_types()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 class World:
@@ -92,11 +92,11 @@ def build_world(cell, seed: int | None = None) -> World:
             if not isinstance(opts, dict) or "type" not in opts:
                 raise BadInput(f"{cell.path}: [world.devices.{name}] needs a 'type'")
             typ = opts["type"]
-            if typ not in DEVICE_TYPES:
-                known = ", ".join(sorted(DEVICE_TYPES)) or "none"
-                raise BadInput(f"{cell.path}: [world.devices.{name}] unknown type {typ!r} (known: {known})")
-            module, factory = DEVICE_TYPES[typ]
-            fn = getattr(importlib.import_module(module), factory)
+            reg = registry()
+            if typ not in reg.twins:
+                raise BadInput(f"{cell.path}: [world.devices.{name}] "
+                               f"{reg.unknown('type', typ, sorted(reg.twins))}")
+            fn = twin_factory(typ)
             w.add(name, fn(w, name, {k: v for k, v in opts.items() if k != "type"}))
     except BaseException:
         w.close()
@@ -155,6 +155,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=seed_int, default=None, help="random seed (default: the cell file's)")
     args = ap.parse_args(argv)
     cell = open_cell(args)
+    validate_cell(cell)  # every subunit's class, programs and twin registered, before anything starts
     rate = file_number(cell.world.get("rate_hz", DEFAULT_RATE_HZ), WORLD_RATE_HZ, f"{cell.path}: [world]", "rate_hz")
     Stop.install()
     try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)

@@ -86,7 +86,7 @@ def mvs_lockstep(scheduler, devices: Mapping[str, Any], camera: dict[str, Any],
     No pixels, no noise; use it where only the geometry matters.
     """
     from droid.sim.lockstep import ORDER_DEVICE, ORDER_WORLD
-    from droid.subunits.mvs.dsp import open_dsp
+    from droid.brain.registry import open_url
     from droid.subunits.mvs.sensor import SensorCore
 
     uid = next(_LOCKSTEP_IDS)
@@ -96,7 +96,7 @@ def mvs_lockstep(scheduler, devices: Mapping[str, Any], camera: dict[str, Any],
         raise BadInput("mvs_lockstep: camera option 'dsp' is chosen by the lockstep runner")
     url = f"inproc://{name}.{uid}.mvs.dsp"
     cam = build_camera(DeviceOptions(world, "mvs_camera", cam_opts), url)
-    board = open_dsp(url)
+    board = open_url(url, "dsp")
     calib = MvsCalibration.from_table(sensor_calibration or {}, source="mvs_lockstep sensor_calibration")
     sensor = SensorCore(calib)
 

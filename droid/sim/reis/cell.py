@@ -47,14 +47,15 @@ from droid.subunits.reis.servo_agent import COMMAND_HZ as AGENT_HZ
 from droid.subunits.reis.servo_agent import ServoAgentCore
 from droid.subunits.reis.servo_params import ServoParams
 from droid.subunits.reis.station import PlannerStation, ServoAgentStation, ServoStation, WatchdogStation
+from droid.subunits.reis import device as reis_device
 from droid.subunits.reis.vme import VmeBus
 from droid.subunits.reis.watchdog import WatchdogCore
 
 PLANT_HZ = 500  # plant advances per second; each integrates 1/PLANT_HZ in 0.5 ms substeps.  The
 # DACs change only at servo ticks and the encoders are read only there, so stepping the plant
 # once per servo tick (just before it) is exact; it saves three quarters of the register traffic.
-SERVO_HZ = 500
-WATCHDOG_HZ = 50
+SERVO_HZ = int(reis_device.SERVO_HZ)  # droid.subunits.reis.device: the one declaration
+WATCHDOG_HZ = int(reis_device.WATCHDOG_HZ)
 STALE_TICKS = LIVENESS_TICKS  # the cell file's default stale_ticks
 
 

@@ -25,6 +25,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from droid.brain.device import HEARTBEAT_HZ
+from droid.subunits.reis.device import SERVO_HZ, WATCHDOG_HZ
 from droid.sim.lockstep import ORDER_DEVICE, Scheduler
 from droid.sim.reis.plant import ReisPlant, ReisPlantParams
 from droid.subunits.reis.servo import ServoCore
@@ -40,9 +42,9 @@ Commander = Callable[[int, float], Command]  # (command index, virtual time [s])
 @dataclass(frozen=True)
 class LockstepRates:
     plant_hz: int = 2000
-    servo_hz: int = 500
-    watchdog_hz: int = 50
-    command_hz: int = 60
+    servo_hz: int = int(SERVO_HZ)  # droid.subunits.reis.device
+    watchdog_hz: int = int(WATCHDOG_HZ)
+    command_hz: int = int(HEARTBEAT_HZ)  # droid.brain.device
 
     @property
     def base_hz(self) -> int:

@@ -43,8 +43,8 @@ from droid.brain.rt import PeriodicTimer
 from droid.cli import BadInput, run
 from droid.kinematics.transforms import pose_to_T
 from droid.numbers import POSE
-from droid.subunits.ft.rdt import (STATUS_SATURATION, Calibration, CalibrationError, NetFtDevice, Record,
-                                   open_ft)
+from droid.brain.registry import open_url
+from droid.subunits.ft.rdt import STATUS_SATURATION, Calibration, CalibrationError, NetFtDevice, Record
 
 PROG = "droid-ft"
 #: how often a silent device is asked to stream again, and a missing calibration fetched again [s]
@@ -183,7 +183,7 @@ def main(argv=None) -> int:
     args, cell, sub = subunit_program(PROG, "Read a force/torque sensor (ATI Net F/T, RDT) into its "
                                       "subunit's Status.", argv, example="ft")
     opts = ft_options(sub)
-    dev = open_ft(opts.url)
+    dev = open_url(opts.url, "ft")  # droid.subunits.ft.rdt.open_ft, by the registry
     status = open_local(cell, sub, "ctrl_status")
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
     timer = PeriodicTimer(int(round(1e9 / dev.url.rate_hz)))

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from droid.brain.registry import open_url
 from droid.cli import BadInput
 from droid.subunits.gmf1 import quad04_map as qm
 from droid.subunits.regmap import URL_FORMS, MapUnavailable, identity_changed, open_region, parse_url
@@ -153,7 +154,7 @@ def open_bank(urls: list[str]) -> Quad04Bank:
     cards: list[Quad04Card] = []
     try:
         for u in urls:
-            cards.append(open_card(u))
+            cards.append(open_url(u, "encoder_card"))  # open_card, through the registry
     except BaseException:
         for c in cards:
             c.close()

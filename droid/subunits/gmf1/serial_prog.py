@@ -28,7 +28,8 @@ from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.subunits.gmf1.config import gmf1_config
 from droid.subunits.gmf1.karel_wire import MIN_BAUD
-from droid.subunits.gmf1.port import PortLink, serial_opener
+from droid.brain.registry import open_url
+from droid.subunits.gmf1.port import PortLink
 from droid.subunits.gmf1.serial_core import SerialCore, SerialParams
 from droid.subunits.gmf1.station import SerialStation
 
@@ -56,7 +57,7 @@ def main(argv=None) -> int:
     cfg = gmf1_config(cell, sub)
     url = args.serial or cfg.serial
     baud = args.baud or cfg.baud
-    link = PortLink(serial_opener(url, baud))
+    link = PortLink(open_url(url, "serial", baud=baud))  # droid.brain.serial_port.serial_opener
     core = build_core(cell, sub, cfg, baud)
     ctrl_command = open_local(cell, sub, "ctrl_command")
     ctrl_status = None

@@ -29,14 +29,15 @@ import time
 
 from droid.brain.databases import open_local
 from droid.brain.layouts import FAULT_DEVICE
+from droid.brain.registry import open_url, program
 from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
 from droid.brain.rt import PeriodicTimer
 from droid.cli import BadInput, file_number, run
 from droid.numbers import Range
-from droid.subunits.joystick.driver import JoystickDevice, open_joystick
+from droid.subunits.joystick.driver import JoystickDevice
 
 PROG = "droid-joystick"
-DEFAULT_RATE_HZ = 100.0
+DEFAULT_RATE_HZ = program(PROG).rate_hz  # [Hz], declared in droid.subunits.joystick.device
 #: The read rates a joystick subunit accepts ([subunits.X] rate_hz) [Hz].
 RATE_HZ = Range(1.0, 1000.0, "Hz")
 REOPEN_S = 0.5
@@ -66,7 +67,7 @@ def record_fields(dev: JoystickDevice) -> dict:
 def main(argv=None) -> int:
     args, cell, sub = subunit_program(PROG, "Read a joystick device into its subunit's Status.", argv)
     url, rate = joystick_options(sub)
-    dev = open_joystick(url)
+    dev = open_url(url, "joystick")  # the driver droid.subunits.joystick.device declares for its scheme
     status = open_local(cell, sub, "ctrl_status")
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
     timer = PeriodicTimer(int(round(1e9 / rate)))

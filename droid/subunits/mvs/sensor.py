@@ -51,12 +51,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from droid.brain.serial_port import PortLink, serial_opener
+from droid.brain.registry import open_url
+from droid.brain.serial_port import PortLink
 from droid.cli import (ArgumentParser, BadInput, MAX_WAIT_S, RuntimeFailure, baud_rate, bounded_float, bounded_int,
                        duration_s, file_number, read_toml, run)
 from droid.numbers import Range
 from droid.subunits.mvs.calibration import MvsCalibration
-from droid.subunits.mvs.dsp import open_dsp
 from droid.subunits.mvs.feature import Feature, FeatureParams, extract
 from droid.brain.sensor_line import stamp_ms_of
 from droid.subunits.mvs.protocol import format_line
@@ -179,7 +179,7 @@ def _open_board(url: str, wait_s: float, stop: threading.Event):
     deadline = time.monotonic() + wait_s
     while not stop.is_set():
         try:
-            return open_dsp(url)
+            return open_url(url, "dsp")  # droid.subunits.mvs.dsp.open_dsp, by the registry
         except RuntimeFailure as exc:
             if time.monotonic() >= deadline:
                 if wait_s > 0 and "not present" in str(exc):
@@ -206,7 +206,7 @@ def live(args, core: SensorCore, ready=None, beat=None, reopen: bool = False) ->
     record = board = None
     # the cell's one serial port (droid.brain.serial_port): a write that times out is an
     # overrun (the line is slower than the frames), any other error closes the port
-    port = PortLink(serial_opener(args.serial, args.baud, write_timeout_s=WRITE_TIMEOUT_S),
+    port = PortLink(open_url(args.serial, "serial", baud=args.baud, write_timeout_s=WRITE_TIMEOUT_S),
                     write_timeout_keeps_open=True)
     timeouts = missed = lost = reopened = 0
     t0 = time.monotonic()

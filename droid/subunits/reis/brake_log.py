@@ -30,7 +30,9 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
-SERVO_TICK_S = 0.002  # 500 Hz
+from droid.subunits.reis.device import SERVO_HZ
+
+SERVO_TICK_S = 1.0 / SERVO_HZ  # one servo tick [s] (droid.subunits.reis.device)
 WINDOW = 4  # ticks over which velocity is averaged
 
 

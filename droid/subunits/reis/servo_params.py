@@ -14,8 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
+from droid.brain.device import HEARTBEAT_HZ
 from droid.brain.layouts import CmdMode
 from droid.kinematics import load_robot
+from droid.subunits.reis.device import SERVO_HZ
 from droid.subunits.reis.robot_file import DEFAULT_ROBOT, joint_to_counts_tuple, load_gearing
 
 Six = tuple[float, float, float, float, float, float]
@@ -49,7 +51,7 @@ def robot_servo_fields(model) -> dict:
         encoder_bits=int(model.gearing.encoder_bits),
         home_switch_deg=tuple(float(x) for x in model.home_switch_deg),
         home_search_dir=dirs,
-        max_speed_counts_per_tick=tuple(int(round(v * c / 500.0)) for v, c in zip(model.vmax_deg_s, cpd)),
+        max_speed_counts_per_tick=tuple(int(round(v * c / SERVO_HZ)) for v, c in zip(model.vmax_deg_s, cpd)),
         target_min_counts=tuple(int(x) for x in model.counts_min),
         target_max_counts=tuple(int(x) for x in model.counts_max),
     )
@@ -71,8 +73,8 @@ class ServoParams:
     joint_to_counts: tuple[tuple[float, ...], ...] = field(default_factory=_default("joint_to_counts"))
     """M [counts per joint degree], counts = M @ q_deg (droid.kinematics.gearing)."""
     encoder_bits: int = field(default_factory=_default("encoder_bits"))
-    servo_rate_hz: float = 500.0
-    command_rate_hz: float = 60.0
+    servo_rate_hz: float = SERVO_HZ  # droid.subunits.reis.device (the droid-servo declaration)
+    command_rate_hz: float = HEARTBEAT_HZ  # droid.brain.device (the droid-heartbeat declaration)
     # thesis §4.1.4: 8 way-points per command ("500Hz/60Hz ~ 8"); DROID's ramps span
     # the exact command period (8 or 9 ticks, droid.subunits.reis.command_queue), and
     # queue_steps is the length of one braking-profile load

@@ -35,10 +35,11 @@ from droid.subunits.reis.servo import ServoCore
 from droid.subunits.reis.robot_file import read_offsets
 from droid.subunits.reis.servo_params import ServoParams
 from droid.subunits.reis.station import ServoStation
-from droid.subunits.reis.vme import VmeOpenError, open_vme
+from droid.brain.registry import open_url
+from droid.subunits.reis.device import SERVO_HZ
+from droid.subunits.reis.vme import VmeOpenError
 
 PROG = "droid-servo"
-SERVO_HZ = 500.0
 OPEN_WAIT_S = 20.0
 LATENESS_WINDOW = 30000  # wake-ups kept for the exit report (60 s at 500 Hz)  # droid-sim creates the register map in parallel at cell start
 
@@ -47,7 +48,7 @@ def open_vme_waiting(url: str, wait_s: float):
     deadline = time.monotonic() + wait_s
     while True:
         try:
-            return open_vme(url)
+            return open_url(url, "vme")  # droid.subunits.reis.vme.open_vme, by the registry
         except VmeOpenError:
             if time.monotonic() > deadline or Stop.requested:
                 raise

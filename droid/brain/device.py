@@ -1,0 +1,61 @@
+"""The Brain's device package (DESIGN §11): the Brain's programs, the tools, the generic
+subunit agent, the serial-port driver, the serial-cable twin and the two classes the Brain
+itself defines -- ``arm6r`` (thesis Tables 3.1-3.2, 4.2-4.3) and ``line_laser`` (Table 3.3),
+interfaces that several device packages serve (the Reis and GMF1 program sets both serve
+``arm6r``; the MVS serves ``line_laser``).  Registered first in
+:data:`droid.brain.registry.BUILTIN_PACKAGES`.
+
+Rates written here once: the heartbeat's 60 Hz (§3.2) -- the default of a cell's
+``heartbeat_hz`` and the command rate of everything that runs on the heartbeat's tick.
+"""
+from __future__ import annotations
+
+from droid.brain.classes import ARM6R, LINE_LASER
+from droid.brain.registry import DevicePackage, Driver, Program, Twin
+
+#: The heartbeat's rate [Hz] (thesis §3.2): the default ``[cell] heartbeat_hz``.
+HEARTBEAT_HZ = 60.0
+
+#: pyserial's URL handlers (serial/urlhandler/protocol_*.py) and "" for a device path.
+SERIAL_SCHEMES = ("", "loop", "socket", "rfc2217", "spy", "alt", "hwgrep", "cp2110")
+
+PACKAGE = DevicePackage(
+    name="brain",
+    description="the Brain (thesis §3.2): name space, heartbeat, remotes, launcher; tasks and tools",
+    classes=(ARM6R, LINE_LASER),
+    generic=True,  # droid-agent serves a subunit of any class
+    programs=(
+        # the Brain (started by droid-cell up for every cell)
+        Program("droid-names", "droid.brain.names", start=0, role="brain"),
+        Program("droid-heartbeat", "droid.brain.heartbeat", rate_hz=HEARTBEAT_HZ, sched="fifo", priority=50,
+                role="brain"),
+        Program("droid-remote", "droid.brain.remote", sched="fifo", priority=50, role="brain"),
+        Program("droid-sim", "droid.sim.world", rate_hz=1000.0, sched="fifo", priority=52, start=0,
+                role="brain", description="the world: every twin of the cell"),
+        # the generic subunit server (any class: copies the command in, replies with the status)
+        Program("droid-agent", "droid.subunits.agent", sched="fifo", priority=51),
+        # tools and tasks (run by hand)
+        Program("droid-cell", "droid.brain.launcher", role="tool"),
+        Program("droid-cheader", "droid.brain.cheader", role="tool"),
+        Program("droid-keys", "droid.brain.keys", role="tool"),
+        Program("droid-kin", "droid.kinematics.cli", role="tool"),
+        Program("droid-snoop", "droid.tasks.snoop", role="tool"),
+        Program("droid-move", "droid.tasks.move", role="tool"),
+        Program("droid-home", "droid.tasks.home", role="tool"),
+        Program("droid-jog", "droid.tasks.jog", role="tool"),
+        Program("droid-seamtrack", "droid.tasks.seamtrack", rate_hz=HEARTBEAT_HZ / 2, sched="fifo",
+                priority=49, role="tool"),
+        Program("droid-experiment", "droid.experiments.cli", role="tool"),
+        Program("droid-fault", "droid.faults.cli", sched="fifo", priority=50, role="tool"),
+        Program("droid-record", "droid.observe.record", sched="fifo", priority=10, role="tool"),
+        Program("droid-replay", "droid.observe.replay", role="tool"),
+        Program("droid-web", "droid.observe.web", role="tool"),
+        Program("droid-foxglove", "droid.observe.foxglove", role="tool",
+                description="needs the optional extra droid[foxglove]"),
+    ),
+    drivers=(
+        Driver("serial", SERIAL_SCHEMES, "droid.brain.serial_port:serial_opener",
+               "a device path (/dev/ttyS0) or a pyserial URL (socket://HOST:PORT, loop://, ...)"),
+    ),
+    twins=(Twin("serial_cable", "droid.sim.serial_cable:serial_cable"),),
+)

@@ -1,0 +1,38 @@
+"""The six-axis force/torque sensor (ATI Net F/T over RDT) as a device package (thesis §7.3; DESIGN §11).
+
+Defines class ``ft6`` (its layout ``ft6_status`` in :mod:`droid.brain.layouts`), its program
+``droid-ft`` (served by the generic ``droid-agent``; its read rate is its URL's ``rate_hz``),
+its ``netft://`` driver and its twin ``netft``.  No lockstep assembly yet.
+"""
+from __future__ import annotations
+
+from droid.brain.classes import SubunitClass
+from droid.brain.layouts import FT6_STATUS_LAYOUT
+from droid.brain.registry import DevicePackage, Driver, Program, Twin
+
+#: URL scheme -> driver class (droid.subunits.ft.rdt.DRIVERS holds the same classes)
+DRIVER_CLASSES = {"netft": "droid.subunits.ft.rdt:NetFtDevice"}
+
+FT6 = SubunitClass(
+    name="ft6",
+    description="six-axis force/torque sensor on Ethernet (ATI Net F/T, RDT; thesis §7.3)",
+    brain={"status": FT6_STATUS_LAYOUT},
+    local={"ctrl_status": FT6_STATUS_LAYOUT},
+    copy_fields=("force_N", "torque_Nm", "force_tool_N", "torque_tool_Nm", "sample_ns", "sample_age_ms",
+                 "rdt_seq", "ft_seq", "status_word", "valid", "saturated", "biased", "dropped",
+                 "out_of_order", "bad_datagrams", "records", "fault"),
+    snoop_fields=("force_N", "torque_Nm", "force_tool_N", "torque_tool_Nm", "sample_age_ms", "valid",
+                  "saturated", "biased", "rdt_seq", "dropped", "out_of_order", "bad_datagrams", "fault"),
+    drivers=DRIVER_CLASSES,
+)
+
+PACKAGE = DevicePackage(
+    name="ft",
+    description="ATI Net F/T force/torque sensor over RDT (UDP) and its HTTP calibration (docs/ft.md)",
+    classes=(FT6,),
+    programs=(Program("droid-ft", "droid.subunits.ft.prog",
+                      description="reads the sensor's RDT stream at its URL's rate_hz into its Status"),),
+    drivers=(Driver("ft", tuple(DRIVER_CLASSES), "droid.subunits.ft.rdt:open_ft",
+                    "netft://HOST[:PORT][?rate_hz=HZ&http_port=N&bias=0|1]"),),
+    twins=(Twin("netft", "droid.sim.ft.netft:make_netft", serves=("ft6",)),),
+)

@@ -1,0 +1,28 @@
+"""The GM Fanuc S400 (GMF1) motion controller as a device package (thesis §4.2; DESIGN §11).
+
+Serves class ``arm6r`` like the Reis: the Brain sees one kind of arm.  Its programs,
+the encoder-card driver (the KAREL line uses the Brain's ``serial`` driver), the
+``karel_s400`` twin and the lockstep assembly.
+"""
+from __future__ import annotations
+
+from droid.brain.registry import DevicePackage, Driver, Program, Twin
+
+#: The encoder program's rate [Hz] (§4.2.5).
+ENCODER_HZ = 120.0
+
+PACKAGE = DevicePackage(
+    name="gmf1",
+    description="GM Fanuc S400 over its KAREL serial server and CIO-QUAD04 encoder cards (thesis §4.2)",
+    serves=("arm6r",),
+    programs=(
+        Program("droid-gmf1-agent", "droid.subunits.gmf1.agent", sched="fifo", priority=51),
+        Program("droid-gmf1-serial", "droid.subunits.gmf1.serial_prog"),
+        Program("droid-gmf1-encoder", "droid.subunits.gmf1.encoder_prog", rate_hz=ENCODER_HZ, sched="fifo",
+                priority=45),
+    ),
+    drivers=(Driver("encoder_card", ("shm", "mem"), "droid.subunits.gmf1.quad04:open_card",
+                    "shm://NAME or mem:///PATH?offset=0xADDR"),),
+    twins=(Twin("karel_s400", "droid.sim.gmf1.karel:make_karel", serves=("arm6r",)),),
+    lockstep="droid.sim.gmf1.lockstep:Gmf1Lockstep",
+)
