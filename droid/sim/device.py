@@ -33,3 +33,20 @@ def arm_subunit(world, name: str, options: dict, known) -> tuple[str, object]:
     if not sub.is_arm:
         raise BadInput(f"{where} subunit {sub.name} is not an arm")
     return where, sub
+
+
+def number_options(options: dict, keys, where: str) -> dict[str, float]:
+    """The finite numbers among ``keys`` that ``options`` gives, as floats (a twin's parameter
+    overrides); a bool, a non-number or nan/inf is BadInput naming the key (one line)."""
+    import math
+
+    from droid.cli import BadInput
+
+    out: dict[str, float] = {}
+    for key in keys:
+        if key in options:
+            v = options[key]
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise BadInput(f"{where} {key} must be a number, got {v!r}")
+            out[key] = float(v)
+    return out

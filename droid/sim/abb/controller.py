@@ -53,7 +53,7 @@ import numpy as np
 from droid.cli import BadInput, RuntimeFailure
 from droid.kinematics import RobotModel, load_robot
 from droid.kinematics.transforms import pose_to_T
-from droid.sim.device import Device, arm_subunit
+from droid.sim.device import Device, arm_subunit, number_options
 from droid.subunits.abb import egm_schema as es
 from droid.subunits.abb.config import egm_config
 
@@ -332,12 +332,7 @@ def twin_params(options: dict, where: str, model: RobotModel) -> EgmTwinParams:
             kw[key] = options[key]
     if kw["dynamics"] and not has_dynamics:
         raise BadInput(f"{where} dynamics = true needs [dynamics] and [axis_servo] in the robot file {model.name}")
-    for key in NUMBER_OPTIONS:
-        if key in options:
-            v = options[key]
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise BadInput(f"{where} {key} must be a number, got {v!r}")
-            kw[key] = float(v)
+    kw.update(number_options(options, NUMBER_OPTIONS, where))
     try:
         return EgmTwinParams(**kw)
     except ValueError as exc:

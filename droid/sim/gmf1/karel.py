@@ -44,7 +44,7 @@ from droid.kinematics.transforms import pose_to_T
 from droid.sim.gmf1.cards import Quad04Twin, SharedCard
 from droid.sim.gmf1.controller import KarelController, KarelParams
 from droid.sim.serial_cable import PtyEnd, TcpEnd
-from droid.sim.device import Device, arm_subunit
+from droid.sim.device import Device, arm_subunit, number_options
 from droid.subunits.gmf1.config import gmf1_config
 
 DEFAULT_START_DEG = (10.0, 15.0, 5.0, 0.0, 30.0, 0.0)
@@ -121,12 +121,7 @@ def karel_params(options: dict, where: str, model=None) -> KarelParams:
         kw["dynamics"] = v
     else:
         kw["dynamics"] = has_dynamics
-    for key in PARAM_OPTIONS:
-        if key in options:
-            v = options[key]
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise BadInput(f"{where} {key} must be a number, got {v!r}")
-            kw[key] = float(v)
+    kw.update(number_options(options, PARAM_OPTIONS, where))
     try:
         return KarelParams(**kw)
     except ValueError as exc:
