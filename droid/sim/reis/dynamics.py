@@ -80,11 +80,12 @@ def build_model(dh: DhTable, dynamics, base_T_mm=None) -> pin.Model:
     return model
 
 
-def fk_wcp_mm(model: pin.Model, data: pin.Data, dh: DhTable, q_deg) -> np.ndarray:
-    """The wrist-centre pose (4x4, mm) of the Pinocchio model: joint 6's frame times link 6's transform."""
+def fk_wcp_mm(model: pin.Model, data: pin.Data, dh: DhTable, q_deg, link6: pin.SE3 | None = None) -> np.ndarray:
+    """The wrist-centre pose (4x4, mm) of the Pinocchio model: joint 6's frame times link 6's transform
+    (``link6``: ``_link_transform(dh, 5)``, passed by a caller that keeps it)."""
     q = np.radians(np.asarray(q_deg, float))
     pin.forwardKinematics(model, data, q)
-    M = data.oMi[6] * _link_transform(dh, 5)
+    M = data.oMi[6] * (_link_transform(dh, 5) if link6 is None else link6)
     T = np.eye(4)
     T[:3, :3] = M.rotation
     T[:3, 3] = M.translation * 1000.0
@@ -98,16 +99,19 @@ class RigidBody:
         self.dh = dh
         self.model = build_model(dh, dynamics, base_T_mm)
         self.data = self.model.createData()
+        self._link6 = _link_transform(dh, 5)
+        n = self.model.nv
+        self._upper = np.triu(np.ones((n, n), bool))  # Pinocchio fills the upper triangle of M and Minv
 
     def minv(self, q_rad: np.ndarray) -> np.ndarray:
         pin.computeMinverse(self.model, self.data, q_rad)
         mi = self.data.Minv
-        return np.triu(mi) + np.triu(mi, 1).T  # Pinocchio fills the upper triangle
+        return np.where(self._upper, mi, mi.T)  # Pinocchio fills the upper triangle
 
     def mass(self, q_rad: np.ndarray) -> np.ndarray:
         pin.crba(self.model, self.data, q_rad)
         m = self.data.M
-        return np.triu(m) + np.triu(m, 1).T
+        return np.where(self._upper, m, m.T)
 
     def bias(self, q_rad: np.ndarray, qd_rad_s: np.ndarray) -> np.ndarray:
         return pin.nonLinearEffects(self.model, self.data, q_rad, qd_rad_s).copy()
@@ -116,4 +120,4 @@ class RigidBody:
         return pin.computeGeneralizedGravity(self.model, self.data, q_rad).copy()
 
     def wcp_mm(self, q_deg) -> np.ndarray:
-        return fk_wcp_mm(self.model, self.data, self.dh, q_deg)
+        return fk_wcp_mm(self.model, self.data, self.dh, q_deg, self._link6)

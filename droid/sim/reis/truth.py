@@ -7,9 +7,9 @@ switch positions and link lengths).  Tests and users who ask get that truth:
 * in lockstep, from the twin itself (``LockstepArm.truth()``);
 * from a running ``droid-sim``, through a small POSIX shared-memory record per
   arm, ``/droid.<cell>.<arm>.truth`` (:class:`TruthDoor`), which the world
-  rewrites after every step; ``droid-sim truth ARM --json [--cell FILE]``
-  prints it as one JSON object ``{"arm", "t_s", "q_deg": [6], "wcp_mm": [3]}``
-  (``q_deg``: the true joint angles [deg]; ``wcp_mm``: the true wrist-centre
+  rewrites every 4 ms of world time (``droid.sim.reis.world.TRUTH_PERIOD_S``);
+  ``droid-sim truth ARM --json [--cell FILE]`` prints it as one JSON object
+  ``{"arm", "t_s", "q_deg": [6], "wcp_mm": [3]}`` (``q_deg``: the true joint angles [deg]; ``wcp_mm``: the true wrist-centre
   position in the global frame [mm]).
 
 The record is written under a sequence lock (odd while writing), so a reader

@@ -61,6 +61,11 @@ _OPTIONS = {"subunit", "seed", "robot", "home_error_deg", "calibration_seed", "l
 DEFAULT_CONTACT_TOOL_POSE = [0.0, 0.0, 250.0, -90.0, 90.0, 180.0]
 
 
+#: The truth door is rewritten at most this often, in world time [s] (250 Hz: each record carries
+#: its world time ``t_s``; a per-millisecond rewrite cost the world a forward kinematics a step).
+TRUTH_PERIOD_S = 0.004
+
+
 class ReisDevice(Device):
     def __init__(self, name: str, shared: SharedVmeMap, plant: ReisPlant, model, door: TruthDoor | None = None) -> None:
         self.name = name
@@ -69,6 +74,9 @@ class ReisDevice(Device):
         self.model = model
         self.door = door
         self._latch_told = False
+        self._wcp_at_s: float | None = None  # world time of the cached true wrist-centre pose [s]
+        self._wcp = None
+        self._truth_due_s = 0.0  # world time of the next truth-door write [s]
 
     def advance(self, dt_s: float) -> None:
         self.plant.advance(dt_s)
@@ -78,12 +86,19 @@ class ReisDevice(Device):
                   f"(registers unchanged for {1e3 * max(self.plant._wd_age_s):.0f} ms > "
                   f"{1e3 * self.plant.params.watchdog_timeout_s:.0f} ms): amplifiers latched off",
                   file=sys.stderr, flush=True)
-        if self.door is not None:
+        if self.door is not None and self.plant.time_s >= self._truth_due_s - 1e-9:
+            self._truth_due_s = self.plant.time_s + TRUTH_PERIOD_S
             self.door.write(self.plant.time_s, self.plant.joint_deg, self.wcp_global()[:3, 3])
 
     def wcp_global(self) -> np.ndarray:
-        """The true wrist-centre pose (4x4, mm, global frame): the true arm at its true angles."""
-        return self.model.base @ self.plant.wcp_true()
+        """The true wrist-centre pose (4x4, mm, global frame): the true arm at its true angles.
+
+        Computed once per world step and shared by every device that asks in that step (the
+        truth door, the F/T twin, the sensor twins on this arm); callers must not modify it."""
+        t = self.plant.time_s
+        if self._wcp_at_s != t:
+            self._wcp, self._wcp_at_s = self.model.base @ self.plant.wcp_true(), t
+        return self._wcp
 
     def contact_wrench_N_Nm(self) -> tuple[np.ndarray, np.ndarray]:
         """The environment's wrench on the tool (global frame; force [N], torque [N m] about the
