@@ -21,9 +21,7 @@ cleanup() {
 trap cleanup EXIT
 trap 'exit 130' INT
 trap 'exit 143' TERM
-# the other half runs at nice 10: when the two compete for a core, the live cell's programs
-# (and the live half's own checks) come first -- they keep time; lockstep and pure tests do not
-nice -n 10 .venv/bin/python -m pytest -q -p no:cacheprovider --basetemp "$work/other" -m "not integration" "$@" \
+.venv/bin/python -m pytest -q -p no:cacheprovider --basetemp "$work/other" -m "not integration" "$@" \
     > "$work/other.log" 2>&1 &
 other_pid=$!
 echo "== tests that start cells (-m integration), one after another =="
