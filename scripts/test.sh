@@ -24,6 +24,13 @@ trap 'exit 143' TERM
 .venv/bin/python -m pytest -q -p no:cacheprovider --basetemp "$work/other" -m "not integration" "$@" \
     > "$work/other.log" 2>&1 &
 other_pid=$!
+# what the live cells will get from this host, for reading a failure later
+fifo=$(.venv/bin/python -c 'import os
+try:
+    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1)); print("permitted")
+except OSError as e:
+    print("refused (%s)" % e.strerror)' 2>/dev/null || echo unknown)
+echo "scripts/test.sh: $(nproc) CPUs, load average $(cut -d' ' -f1-3 /proc/loadavg), SCHED_FIFO $fifo"
 echo "== tests that start cells (-m integration), one after another =="
 set +e
 .venv/bin/python -m pytest -q --basetemp "$work/live" -m integration "$@"
