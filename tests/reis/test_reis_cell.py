@@ -98,13 +98,19 @@ def test_arm_brakes_when_its_command_stream_stops_and_stays_stopped(cell, victim
     home = droid("droid.tasks.home", "arm1", "--cell", str(cell), timeout=200)
     assert home.returncode == 0, home.stderr
     start = snoop(cell)["encoder_pos"]
-    target = [30000, 0, 0, 0, 0, 60000]  # a long move: 27 deg on joint 1, 54 deg on joint 6, in 8 s
-    out = droid("droid.tasks.move", "arm1", "joint", *map(str, target), "8", "--no-wait", "--cell", str(cell))
-    assert out.returncode == 0, out.stderr
-    wait_for(lambda: np.any(np.abs(np.subtract(snoop(cell)["encoder_pos"], start)) > 500), what="moving")
     pid = pid_of(cell, victim)
+    # A long, slow move (27 deg on joint 1, 54 deg on joint 6, in 30 s), watched through the arm's
+    # own record in this process: the stream must stop mid-move however slowly this host runs the
+    # test (an 8 s move once ended before a loaded host's subprocess polls let the SIGSTOP land).
+    target = [30000, 0, 0, 0, 0, 60000]
+    out = droid("droid.tasks.move", "arm1", "joint", *map(str, target), "30", "--no-wait", "--cell", str(cell))
+    assert out.returncode == 0, out.stderr
+    wait_for(lambda: np.any(np.abs(_local_pos(cell) - start) > 500), what="moving")
     os.kill(pid, signal.SIGSTOP)  # the stream stops (a stalled program or a silent Brain link)
     try:
+        stopped_at = _local_pos(cell)
+        assert np.any(np.abs(stopped_at - np.asarray(target)) > 5000), \
+            f"the move was nearly done ({stopped_at.tolist()}) when its stream stopped"
         if victim == "droid-heartbeat":  # the Brain's Status freezes: watch the arm's own record
             wait_for(lambda: _local_still(cell), timeout=10, what="arm stopped")
         else:  # the servo agent writes the arm's Status: it freezes; give the servo time to brake
@@ -131,6 +137,19 @@ def test_arm_brakes_when_its_command_stream_stops_and_stays_stopped(cell, victim
     out = droid("droid.tasks.move", "arm1", "joint", *map(str, target), "6", "--cell", str(cell), timeout=60)
     assert out.returncode == 0, out.stderr
     assert np.all(np.abs(np.asarray(snoop(cell)["encoder_pos"]) - target) <= 20)
+
+
+def _local_pos(path) -> np.ndarray:
+    """arm1's encoder positions [counts] from its own Status record (not the Brain's)."""
+    from droid.brain.cellfile import load_cell
+    from droid.brain.databases import open_local
+
+    cell = load_cell(path)
+    db = open_local(cell, cell.subunit("arm1"), "ctrl_status")
+    try:
+        return np.asarray(db.read()["encoder_pos"], np.int64)
+    finally:
+        db.close()
 
 
 def _local_still(path):
