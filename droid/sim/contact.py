@@ -162,11 +162,9 @@ class ToolContact:
         """(tool point [mm], its velocity [mm/s], both global; J_t (3x6) [m/rad], base frame)."""
         import pinocchio as pin
 
-        from droid.sim.reis.dynamics import _link_transform
-
         model, data = body.model, body.data
         if self._link6 is None:
-            L = _link_transform(body.dh, 5)
+            L = body.link6
             T = np.eye(4)
             T[:3, :3], T[:3, 3] = L.rotation, L.translation
             tool = self.T_wcp_tool.copy()

@@ -5,6 +5,10 @@ the world's shell and its devices do not import each other.
 """
 from __future__ import annotations
 
+import math
+
+from droid.cli import BadInput
+
 
 class Device:
     """A simulated device: ``advance(dt_s)`` one world step [s]; ``close()`` at exit."""
@@ -22,8 +26,6 @@ def arm_subunit(world, name: str, options: dict, known) -> tuple[str, object]:
     """An arm twin's factory preamble: its options checked against ``known`` and the arm subunit
     it serves (option ``subunit``, default the device's name).  Returns ``(where, subunit)``;
     ``where`` names the device table in messages.  BadInput (one line) otherwise."""
-    from droid.cli import BadInput
-
     cell = world.cell
     where = f"{cell.path}: [world.devices.{name}]"
     unknown = sorted(set(options) - set(known))
@@ -38,10 +40,6 @@ def arm_subunit(world, name: str, options: dict, known) -> tuple[str, object]:
 def number_options(options: dict, keys, where: str) -> dict[str, float]:
     """The finite numbers among ``keys`` that ``options`` gives, as floats (a twin's parameter
     overrides); a bool, a non-number or nan/inf is BadInput naming the key (one line)."""
-    import math
-
-    from droid.cli import BadInput
-
     out: dict[str, float] = {}
     for key in keys:
         if key in options:

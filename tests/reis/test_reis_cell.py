@@ -156,18 +156,9 @@ def _local_still(path):
     """The arm's own Status record (not the Brain's), read twice a moment apart."""
     import time
 
-    from droid.brain.cellfile import load_cell
-    from droid.brain.databases import open_local
-
-    cell = load_cell(path)
-    db = open_local(cell, cell.subunit("arm1"), "ctrl_status")
-    try:
-        a = np.asarray(db.read()["encoder_pos"])
-        time.sleep(0.1)
-        b = np.asarray(db.read()["encoder_pos"])
-    finally:
-        db.close()
-    return bool(np.all(np.abs(a - b) <= 2))
+    a = _local_pos(path)
+    time.sleep(0.1)
+    return bool(np.all(np.abs(a - _local_pos(path)) <= 2))
 
 
 def test_realtime_trial_agrees_with_lockstep(cell):

@@ -80,18 +80,6 @@ def build_model(dh: DhTable, dynamics, base_T_mm=None) -> pin.Model:
     return model
 
 
-def fk_wcp_mm(model: pin.Model, data: pin.Data, dh: DhTable, q_deg, link6: pin.SE3 | None = None) -> np.ndarray:
-    """The wrist-centre pose (4x4, mm) of the Pinocchio model: joint 6's frame times link 6's transform
-    (``link6``: ``_link_transform(dh, 5)``, passed by a caller that keeps it)."""
-    q = np.radians(np.asarray(q_deg, float))
-    pin.forwardKinematics(model, data, q)
-    M = data.oMi[6] * (_link_transform(dh, 5) if link6 is None else link6)
-    T = np.eye(4)
-    T[:3, :3] = M.rotation
-    T[:3, 3] = M.translation * 1000.0
-    return T
-
-
 class RigidBody:
     """``M(q)^-1`` and ``C(q, qd) qd + g(q)`` of an arm [SI: rad, N m, kg m^2]."""
 
@@ -99,7 +87,7 @@ class RigidBody:
         self.dh = dh
         self.model = build_model(dh, dynamics, base_T_mm)
         self.data = self.model.createData()
-        self._link6 = _link_transform(dh, 5)
+        self.link6 = _link_transform(dh, 5)  # link 6's D-H transform: joint 6's frame -> the wrist centre [m]
         n = self.model.nv
         self._upper = np.triu(np.ones((n, n), bool))  # Pinocchio fills the upper triangle of M and Minv
 
@@ -120,4 +108,10 @@ class RigidBody:
         return pin.computeGeneralizedGravity(self.model, self.data, q_rad).copy()
 
     def wcp_mm(self, q_deg) -> np.ndarray:
-        return fk_wcp_mm(self.model, self.data, self.dh, q_deg, self._link6)
+        """The wrist-centre pose (4x4, mm) of the model: joint 6's frame times link 6's transform."""
+        pin.forwardKinematics(self.model, self.data, np.radians(np.asarray(q_deg, float)))
+        M = self.data.oMi[6] * self.link6
+        T = np.eye(4)
+        T[:3, :3] = M.rotation
+        T[:3, 3] = M.translation * 1000.0
+        return T

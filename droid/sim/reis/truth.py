@@ -9,8 +9,8 @@ switch positions and link lengths).  Tests and users who ask get that truth:
   arm, ``/droid.<cell>.<arm>.truth`` (:class:`TruthDoor`), which the world
   rewrites every 4 ms of world time (``droid.sim.reis.world.TRUTH_PERIOD_S``);
   ``droid-sim truth ARM --json [--cell FILE]`` prints it as one JSON object
-  ``{"arm", "t_s", "q_deg": [6], "wcp_mm": [3]}`` (``q_deg``: the true joint angles [deg]; ``wcp_mm``: the true wrist-centre
-  position in the global frame [mm]).
+  ``{"arm", "t_s", "q_deg": [6], "wcp_mm": [3]}`` (``q_deg``: the true joint
+  angles [deg]; ``wcp_mm``: the true wrist-centre position in the global frame [mm]).
 
 The record is written under a sequence lock (odd while writing), so a reader
 never mixes two steps.  No DROID program reads it: it is the simulator's
