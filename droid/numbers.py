@@ -163,7 +163,11 @@ NAMED: dict[str, Range | tuple] = {
     "seed": SEED,
     "baud": baud_range(50),
     "base": POSE, "bases": POSE, "mount": POSE, "fixture": POSE, "workpiece_mount": POSE,
-    "tool_pose": POSE, "contact_tool_pose": POSE, "contact_workpiece_pose": POSE,
+    "tool_pose": POSE, "contact_tool_pose": POSE, "contact_workpiece_pose": POSE, "touch_pose": POSE,
+    "workpiece_pose": POSE,
+    # the world's contact device (droid.sim.contact_device)
+    "plate_mm": Range(0.0, 1e3, "mm", lo_open=True),
+    "max_closing_speed_mm_s": Range(0.0, 1e6, "mm/s", lo_open=True),
     "sensor_pose": POSE, "sensor_tool_pose": POSE, "ft_pose": POSE,
     "signs": SIGN, "direction": SIGN, "search_dir": SIGN,
     "reduction": Range(0.0, 1e5, "(gear ratio)", lo_open=True),

@@ -136,7 +136,8 @@ class ToolContact:
 
     SLIP_CAP = 1.0
 
-    def __init__(self, workpiece, T_global_W, T_global_base, T_wcp_tool, params: ContactParams | None = None) -> None:
+    def __init__(self, workpiece, T_global_W, T_global_base, T_wcp_tool, params: ContactParams | None = None,
+                 max_closing_speed_mm_s: float | None = None, max_depth_mm: float | None = None) -> None:
         if not workpiece.planar:
             raise ValueError(f"workpiece {workpiece.name}: contact is modelled on plane workpieces only")
         p = params if params is not None else getattr(workpiece, "contact", None)
@@ -144,7 +145,22 @@ class ToolContact:
             raise ValueError(f"workpiece {workpiece.name}: no [contact] table (and no contact parameters given)")
         self.params = p
         self.workpiece = workpiece
-        self.T_global_W = np.asarray(T_global_W, float)
+        # a fixed 4x4, or a callable giving it now (a workpiece on a holder's wrist: make_contact)
+        self._T_W_now = T_global_W if callable(T_global_W) else None
+        self._T_W_fixed = None if callable(T_global_W) else np.asarray(T_global_W, float)
+        # Skipping while far (the world device only): with the tool point c mm from the region
+        # where it could touch (_clearance_mm), nothing can touch for c / max_closing_speed_mm_s
+        # seconds, so the steps in between are not asked (each would answer None: the plant's
+        # step is the same).  None: every step is asked (lockstep trials read tool_mm each cycle).
+        self.max_closing_speed_mm_s = max_closing_speed_mm_s
+        # The plates' thickness [mm] (the world device only): a point deeper than this under a
+        # surface is behind the plate, not in it -- no push.  Without it the penalty treats the
+        # workpiece as a solid of any depth, and a tool swung in under it from the side (a joint
+        # move past a vertical workpiece) would meet depth x k newtons at once.  None: any depth.
+        self.max_depth_mm = max_depth_mm
+        self._top_mm = max(0.0, float(getattr(workpiece, "step_mm", 0.0)))
+        self._skip_s = 0.0
+        self.evaluations = 0  # steps asked in full (the skip's effect, for tests and benchmarks)
         self.T_global_base = np.asarray(T_global_base, float)
         self.T_wcp_tool = np.asarray(T_wcp_tool, float)
         self.force_N = np.zeros(3)  # the newest contact force on the tool, global frame [N]
@@ -152,6 +168,22 @@ class ToolContact:
         self.tool_mm = np.zeros(3)  # the newest tool point, global frame [mm]
         self.tool_v_mm_s = np.zeros(3)
         self._link6 = None
+
+    @property
+    def T_global_W(self) -> np.ndarray:
+        """The workpiece frame W in the global frame now (4x4, mm)."""
+        return self._T_W_fixed if self._T_W_now is None else np.asarray(self._T_W_now(), float)
+
+    def _clearance_mm(self, p_W: np.ndarray) -> float:
+        """A lower bound on the distance [mm] from a point in W to where it could touch: above the
+        top surface, below the plates (with ``max_depth_mm``), or beside the surfaces' footprint
+        (farther than ``width_mm`` from the seam and its leads).  <= 0: it may touch."""
+        z = float(p_W[2])
+        gap = z - self._top_mm
+        if self.max_depth_mm is not None:
+            gap = max(gap, -self.max_depth_mm - z)
+        _, lat = self.workpiece.nearest_many(p_W[None, 0:2])
+        return max(gap, abs(float(lat[0])) - float(self.workpiece.width_mm))
 
     def contact_wrench_N_Nm(self) -> tuple[np.ndarray, np.ndarray]:
         """The wrench on the tool, global frame: force [N], torque about the tool point [N m]
@@ -183,8 +215,13 @@ class ToolContact:
 
     def joint_torque(self, body, q_rad, qd_rad_s, dt_s: float) -> np.ndarray | None:
         """``J^T F`` [N m] on the six joints, or None while the tool is off the surface."""
+        if self._skip_s > 0.0:
+            self._skip_s -= dt_s
+            return None
+        self.evaluations += 1
         p, v, J_t = self.tool_state(body, q_rad, qd_rad_s)
         self.tool_mm, self.tool_v_mm_s = p, v
+        T_W = self.T_global_W
         Rg = self.T_global_base[:3, :3]
 
         def slip_limit(t_global) -> float:
@@ -194,9 +231,15 @@ class ToolContact:
             speed = float(t_global @ v) * 1e-3  # [m/s]
             return self.SLIP_CAP * abs(speed) / (dt_s * mobility) if mobility > 0 else math.inf
 
-        f, depth = surface_contact(self.workpiece, self.T_global_W, p, v, self.params, slip_limit)
+        f, depth = surface_contact(self.workpiece, T_W, p, v, self.params, slip_limit)
+        if self.max_depth_mm is not None and depth > self.max_depth_mm:
+            f = np.zeros(3)  # behind the plate
         self.depth_mm = depth
         self.force_N = f
         if not f.any():
+            if self.max_closing_speed_mm_s is not None:
+                clearance = self._clearance_mm(T_W[:3, :3].T @ (p - T_W[:3, 3]))
+                if clearance > 0.0:
+                    self._skip_s = clearance / self.max_closing_speed_mm_s - dt_s
             return None
         return J_t.T @ (Rg.T @ f)

@@ -32,6 +32,7 @@ PACKAGE = DevicePackage(
     ),
     drivers=(Driver("vme", ("shm", "mem"), "droid.subunits.reis.vme:open_vme",
                     "shm://NAME or mem:///PATH?offset=0xADDR"),),
-    twins=(Twin("reis_vme", "droid.sim.reis.world:make_reis", serves=("arm6r",)),),
+    twins=(Twin("reis_vme", "droid.sim.reis.world:make_reis", serves=("arm6r",)),
+           Twin("contact", "droid.sim.contact_device:make_contact")),  # a workpiece pushing on its tool
     lockstep="droid.sim.reis.lockstep:ReisLockstep",
 )
