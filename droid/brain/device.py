@@ -45,6 +45,8 @@ PACKAGE = DevicePackage(
         Program("droid-jog", "droid.tasks.jog", role="tool"),
         Program("droid-seamtrack", "droid.tasks.seamtrack", rate_hz=HEARTBEAT_HZ / 2, sched="fifo",
                 priority=49, role="tool"),
+        Program("droid-contact", "droid.tasks.contact.prog", rate_hz=HEARTBEAT_HZ / 2, sched="fifo",
+                priority=49, role="tool"),
         Program("droid-experiment", "droid.experiments.cli", role="tool"),
         Program("droid-fault", "droid.faults.cli", sched="fifo", priority=50, role="tool"),
         Program("droid-record", "droid.observe.record", sched="fifo", priority=10, role="tool"),

@@ -118,3 +118,21 @@ def test_every_stop_has_its_reason(case, want):
 def test_a_force_outside_the_limit_is_refused():
     with pytest.raises(BadInput, match="force_max_n"):
         ContactStation(Gains(), HZ, TOOL, force_n=80.0, speed_mm_s=10.0, length_mm=50.0)
+
+
+def test_over_force_between_cycles_stops_at_that_tick():
+    """A force past force_max_n read on a tick between two cycles stops the station at once."""
+    spring = Spring()
+    st = ContactStation(Gains(), HZ, TOOL, force_n=20.0, speed_mm_s=10.0, length_mm=500.0)
+    run(st, spring, 60 * 3)  # on the path, holding
+    assert st.phase == "path" and st.next_tick is not None
+    between = st.next_tick - 1  # cycle_ticks = 2: the tick before the next cycle
+    quiet = st.on_tick(between, ArmStatus(between, spring.pose), FtStatus(np.array([-30.0, 0.0, 0.0])))
+    assert quiet.stop is None and quiet.cmd is None  # within the limit: nothing until the cycle
+    out = st.on_tick(between, ArmStatus(between, spring.pose), FtStatus(np.array([-61.0, 0.0, 0.0])))
+    assert out.stop == STOP_OVERFORCE and "61.0 N > 60 N" in out.detail and out.cmd is None
+    # a stale or invalid reading between cycles is the cycle's to judge, not an over-force
+    st2 = ContactStation(Gains(), HZ, TOOL, force_n=20.0, speed_mm_s=10.0, length_mm=500.0)
+    run(st2, Spring(), 60 * 3)
+    t = st2.next_tick - 1
+    assert st2.on_tick(t, ArmStatus(t, spring.pose), FtStatus(np.array([-99.0, 0, 0]), valid=False)).stop is None

@@ -23,7 +23,8 @@ The gains file names the stiffest contact it must hold (``contact_stiffness_n_pe
 commands' lag (one cycle of interpolation, the servo's tracking) soften the contact and
 delay the loop: the shipped gains keep K k T = 0.33 for that margin.
 
-Stops, each with a reason: ``end`` (the path is done), ``over-force`` (F > ``force_max_n``),
+Stops, each with a reason: ``end`` (the path is done), ``over-force`` (F > ``force_max_n``,
+checked at every tick, between cycles too),
 ``contact lost`` (F < ``contact_lost_n`` for ``lost_cycles`` path cycles), ``no contact``,
 ``ft stale`` (the F/T Status stale or not valid), ``arm fault`` (the arm's fault bits),
 ``arm stale`` (the arm's Status stale for the stale grace).
@@ -188,6 +189,10 @@ class ContactStation:
         if self.done is not None:
             return ContactOutput(stop=self.done, detail=self.detail)
         if self.next_tick is not None and tick < self.next_tick:
+            # over-force is checked every tick, not only on cycles: the stop comes a cycle sooner
+            if not ft.stale and ft.valid and ft.normal_n > self.gains.force_max_n:
+                self.last_force_n = ft.normal_n
+                return self._stop(STOP_OVERFORCE, f"normal force {ft.normal_n:.1f} N > {self.gains.force_max_n:g} N")
             return ContactOutput()
         self.next_tick = tick + self.gains.cycle_ticks
         g = self.gains

@@ -1,0 +1,300 @@
+"""droid-contact ARM: press the tool on a surface and slide along it holding a normal force
+(issue 27 item 5; thesis §7.3, "force/torque control" on the standard interface).
+
+The real-time shell of the force task.  The core is
+:class:`droid.tasks.contact.core.ContactStation` -- the same station the lockstep trial
+runs (droid.experiments.contact_trial) -- and this program does, on the Brain's databases
+only (a task never touches a device, §3.4), what droid-seamtrack does around its station:
+
+1. attach to the Status/Command records of ARM (the tool robot), the Status of the wrist
+   F/T sensor (``--ft``, class ft6) and, with ``--start``, the holder's records;
+2. with ``--start POSITION``: move the holder to its holding pose of that layout position
+   (droid/cells/seamtrack_layout.toml, as droid-seamtrack) and then ARM so that its
+   touching point stands ``--clearance`` mm above the step workpiece's lower plate,
+   ``--lateral`` mm beside the seam, the tool axis along the surface normal;
+3. tare: average the F/T Status's ``force_tool_N`` over ``TARE_S`` at rest, off the surface
+   (the tool's weight in this orientation, the sensor's offset), and subtract it from every
+   reading that follows -- the orientation does not change during the task;
+4. every heartbeat tick hand the arm's Status pose and the tared force to the station;
+   every ``cycle_ticks`` ticks (the gains file: 30 Hz at 60 Hz) it approaches along the
+   tool axis until touch, settles, then slides ``--length`` mm at ``--speed`` holding
+   ``--force`` by admittance; its cartesian command is written for one cycle of ticks;
+5. stop -- at the path's end no new command is written, so the arm finishes its last
+   one-cycle step and stands; at any other stop a stop command (STOP_TICKS) is written over
+   the step in progress, so the arm stands where it is -- on over-force (checked every tick), contact loss, no contact within the
+   approach, a stale or invalid F/T Status, an arm fault it cannot move with, a stale arm
+   Status, a lost heartbeat, or SIGINT/SIGTERM.  Then print which, and the summary line
+   ``normal force RMS error X N, max Y N ...`` (droid.tasks.contact.report); the ``--log``
+   CSV and ``--figure`` PNG are written whatever the stop.
+
+The touching point is the torch's gas nozzle, ``--touch-offset`` mm back from the layout
+wrist's tool point along the tool axis (default 15 mm, the simulated cell's contact device:
+cells/sim.toml ``[world.devices.touch]``; docs/contact.md).
+
+Exit codes: 0 the path's end; 130 interrupted; 1 any other stop, an arm not homed or
+faulted before anything moves, the cell not up; 2 bad arguments, gains or layout (nothing
+moves).
+"""
+from __future__ import annotations
+
+import signal
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import zmq
+
+from droid.brain.layouts import FAULTS_CANNOT_MOVE
+from droid.brain.databases import open_brain
+from droid.brain.heartbeat import TickSubscriber
+from droid.brain.program import Stop, open_cell, parser
+from droid.brain.rt import try_sched_fifo
+from droid.cli import EXIT_INTERRUPTED, EXIT_OK, EXIT_RUNTIME, BadInput, RuntimeFailure, bounded_float, run
+from droid.kinematics.transforms import inv_homo, trans
+from droid.tasks.arm import STALE_GRACE_S, BrainArm
+from droid.tasks.contact import report
+from droid.tasks.contact.core import STOP_END, ArmStatus, ContactStation, FtStatus, load_gains
+from droid.tasks.seam.layout import POSITION_IDS, T_W_SEAM, load_layout
+from droid.tasks.seamtrack import move_to_start, pose_of
+
+PROG = "droid-contact"
+HEARTBEAT_LOST_S = STALE_GRACE_S
+TARE_S = 0.5  # the F/T average taken at rest before the approach [s]
+MAX_SPEED_MM_S = 100.0
+MAX_LENGTH_MM = 2000.0
+DEFAULT_TOUCH_OFFSET_MM = 15.0
+
+speed_mm_s = bounded_float(0.0, MAX_SPEED_MM_S, "mm/s", lo_open=True)
+length_mm = bounded_float(0.0, MAX_LENGTH_MM, "mm", lo_open=True)
+force_n = bounded_float(0.0, 10000.0, "N", lo_open=True)  # and below the gains' force_max_n (checked after)
+offset_mm = bounded_float(-500.0, 500.0, "mm")
+clearance_mm = bounded_float(0.0, 100.0, "mm", lo_open=True)
+
+
+def build_parser():
+    ap = parser(PROG, "Touch the surface under ARM's tool and slide along it holding a normal force "
+                      "(admittance on the cartesian commands; docs/contact.md).")
+    ap.add_argument("arm", metavar="ARM", help="the arm carrying the F/T sensor and the tool (e.g. arm1)")
+    ap.add_argument("--force", type=force_n, default=20.0, metavar="N",
+                    help="normal force to hold [N], in (0, the gains' force_max_n) (default 20)")
+    ap.add_argument("--speed", type=speed_mm_s, default=10.0, metavar="MM_S",
+                    help=f"speed along the path [mm/s], in (0, {MAX_SPEED_MM_S:g}] (default 10)")
+    ap.add_argument("--length", type=length_mm, default=200.0, metavar="MM",
+                    help=f"path length [mm], in (0, {MAX_LENGTH_MM:g}] (default 200)")
+    ap.add_argument("--start", choices=POSITION_IDS, default=None, metavar="POSITION",
+                    help="first move the holder and ARM over the workpiece's lower plate at this layout "
+                         "position (i..vii; as droid-seamtrack --start)")
+    ap.add_argument("--ft", default="ft", metavar="SUBUNIT", help="the wrist F/T sensor (class ft6; default ft)")
+    ap.add_argument("--gains", metavar="FILE", default=None,
+                    help="the controller's gains (default: the bundled droid/tasks/contact/gains.toml)")
+    ap.add_argument("--layout", metavar="FILE", default=None,
+                    help="seam-tracking layout for --start (default: the bundled one)")
+    ap.add_argument("--wrist", default="standard", metavar="NAME", help="wrist set-up of the layout")
+    ap.add_argument("--touch-offset", type=offset_mm, default=DEFAULT_TOUCH_OFFSET_MM, metavar="MM",
+                    help="the touching point, this far back from the wrist's tool point along the tool axis "
+                         f"[mm] (default {DEFAULT_TOUCH_OFFSET_MM:g}: the gas nozzle)")
+    ap.add_argument("--lateral", type=offset_mm, default=-25.0, metavar="MM",
+                    help="with --start: the path's distance beside the seam, + = the upper plate's side "
+                         "[mm] (default -25: the lower plate)")
+    ap.add_argument("--clearance", type=clearance_mm, default=5.0, metavar="MM",
+                    help="with --start: the touching point's height above the plate [mm] (default 5)")
+    ap.add_argument("--log", metavar="FILE", default=None, help="write the per-cycle CSV log here")
+    ap.add_argument("--figure", metavar="FILE", default=None, help="draw the run's figure (PNG) here")
+    ap.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    return ap
+
+
+class ContactRun:
+    """The loop around the station (the module docstring)."""
+
+    def __init__(self, args, cell) -> None:
+        self.args = args
+        self.cell = cell
+        self.gains = load_gains(args.gains, cell.heartbeat_hz)
+        if not args.force < self.gains.force_max_n:
+            raise BadInput(f"--force {args.force:g} N: must be < force_max_n {self.gains.force_max_n:g} N "
+                           f"(the gains' over-force stop)")
+        self.arm = BrainArm(cell, args.arm)
+        self.ft_sub = cell.subunit(args.ft)
+        if self.ft_sub.cls != "ft6":
+            raise BadInput(f"--ft {args.ft}: is a {self.ft_sub.cls} subunit, not a force/torque sensor (ft6)")
+        self.layout = load_layout(args.layout)
+        self.wrist = self.layout.wrist(args.wrist)
+        self.T_wcp_touch = self.wrist.T_wcp_tool @ trans(-args.touch_offset, 0.0, 0.0)
+        self.holder = None
+        if args.start is not None:
+            if args.arm != self.layout.tool_robot:
+                raise BadInput(f"--start: the layout {self.layout.source} puts the tool on "
+                               f"{self.layout.tool_robot}, not {args.arm}")
+            self.layout.position(args.start)
+            self.holder = BrainArm(cell, self.layout.holder_robot)
+        self.station = ContactStation(self.gains, cell.heartbeat_hz, self.T_wcp_touch, args.force, args.speed,
+                                      args.length)
+        self.period_s = 1.0 / cell.heartbeat_hz
+        self.tare = np.zeros(3)
+        self.rows: list[tuple] = []
+        self.t0_tick: int | None = None
+        self.prev: tuple[int, float] | None = None  # (tick, along_mm) of the last logged cycle
+        self.ft_db = None
+
+    # -- set-up ----------------------------------------------------------------------------
+    def connect(self) -> None:
+        self.arm.connect()
+        if self.holder is not None:
+            self.holder.connect()
+        self.ft_db = open_brain(self.cell, self.ft_sub, "status")
+
+    def close(self) -> None:
+        self.arm.close()
+        if self.holder is not None:
+            self.holder.close()
+        if self.ft_db is not None:
+            self.ft_db.close()
+
+    def check_ready(self) -> None:
+        for arm in (self.arm, self.holder):
+            if arm is None:
+                continue
+            rec = arm.read()
+            arm.check_fresh(rec)
+            if not int(rec["homed"]):
+                raise RuntimeFailure(f"{arm.sub.name} is not homed: run 'droid-home {arm.sub.name}' first")
+        rec = self.ft_db.read()
+        if int(rec["stale"]) or not int(rec["valid"]):
+            raise RuntimeFailure(f"{self.ft_sub.name} is {'stale' if int(rec['stale']) else 'not valid'} "
+                                 f"(no F/T readings)")
+
+    def start_pose(self, position: str) -> tuple[np.ndarray, np.ndarray]:
+        """(ARM's WCP, the holder's WCP) at ``position`` (4x4, mm, global): the touching point
+        ``--clearance`` above the plate, ``--lateral`` beside the seam, at the seam's start."""
+        _, T_hold = self.layout.start_poses(position, self.args.wrist)
+        pos = self.layout.position(position)
+        T_gW = pos.T_global_W(self.wrist.camera_to_tcp_mm)
+        T_touch = T_gW @ trans(0.0, self.args.lateral, self.args.clearance) @ T_W_SEAM
+        return T_touch @ inv_homo(self.T_wcp_touch), T_hold
+
+    def go_to_start(self, position: str) -> None:
+        T_arm, T_hold = self.start_pose(position)
+        move_to_start(self.holder, T_hold, f"holding pose of position ({position})", self.args.quiet)
+        move_to_start(self.arm, T_arm, f"start over position ({position})", self.args.quiet)
+
+    def take_tare(self) -> None:
+        """The mean F/T force over TARE_S at rest (the module docstring, step 3)."""
+        deadline = time.monotonic() + TARE_S
+        seen: dict[int, np.ndarray] = {}
+        while time.monotonic() < deadline or not seen:
+            rec = self.ft_db.read()
+            if int(rec["stale"]) or not int(rec["valid"]):
+                raise RuntimeFailure(f"{self.ft_sub.name} went stale or invalid before the approach")
+            seen[int(rec["rdt_seq"])] = np.asarray(rec["force_tool_N"], float).copy()
+            if time.monotonic() > deadline + 2.0:
+                break
+            time.sleep(0.01)
+        self.tare = np.mean(list(seen.values()), axis=0)
+        if not self.args.quiet:
+            print(f"{PROG}: tare {np.round(self.tare, 2).tolist()} N (tool frame, {len(seen)} records)",
+                  file=sys.stderr)
+
+    # -- one tick ------------------------------------------------------------------------------
+    def on_tick(self, tick: int) -> str | None:
+        rec = self.arm.read()
+        f = self.ft_db.read()
+        arm = ArmStatus(int(rec["tick"]), pose_of(rec), int(rec["fault"]) & FAULTS_CANNOT_MOVE,
+                        bool(int(rec["stale"])))
+        ft = FtStatus(np.asarray(f["force_tool_N"], float) - self.tare, bool(int(f["valid"])), bool(int(f["stale"])))
+        out = self.station.on_tick(tick, arm, ft)
+        if out.cmd is not None:
+            self.arm.command_cart(out.cmd, out.ticks)
+        if out.cycle and self.station.T0 is not None:
+            self.log(tick, arm.pose, ft.normal_n)
+        return out.stop
+
+    def log(self, tick: int, pose: np.ndarray, normal_n: float) -> None:
+        st = self.station
+        if self.t0_tick is None:
+            self.t0_tick = tick
+        d = (pose @ self.T_wcp_touch)[:3, 3] - st.T0[:3, 3]
+        normal_mm, along_mm = float(d @ st.T0[:3, 0]), float(d @ st.T0[:3, 2])
+        speed = 0.0
+        if self.prev is not None and tick > self.prev[0]:
+            speed = (along_mm - self.prev[1]) / ((tick - self.prev[0]) * self.period_s)
+        self.prev = (tick, along_mm)
+        phase = st.phase if st.phase != "done" else (self.rows[-1][1] if self.rows else "approach")
+        self.rows.append(((tick - self.t0_tick) * self.period_s, phase, normal_n, self.args.force - normal_n,
+                          st.depth_mm, normal_mm, along_mm, speed))
+
+    # -- the run ---------------------------------------------------------------------------------
+    def run(self) -> tuple[int, str]:
+        try_sched_fifo(wanted=self.cell.sched_fifo, prog=PROG)
+        ticks = TickSubscriber(zmq.Context.instance(), self.cell.heartbeat)
+        try:
+            return self._loop(ticks)
+        finally:
+            ticks.close()
+
+    def _loop(self, ticks: TickSubscriber) -> tuple[int, str]:
+        last_wall = time.monotonic()
+        last_progress = 0.0
+        while True:
+            if Stop.requested:
+                self.arm.give_up()
+                return EXIT_INTERRUPTED, f"interrupted ({signal.Signals(Stop.signum).name})"
+            t = ticks.wait(0.1)
+            now = time.monotonic()
+            if t is None:
+                if now - last_wall > HEARTBEAT_LOST_S:
+                    self.arm.give_up()
+                    return EXIT_RUNTIME, "heartbeat lost"
+                continue
+            last_wall = now
+            stop = self.on_tick(t.tick)
+            if stop is not None:
+                if stop != STOP_END:
+                    self.arm.give_up()  # a stop over the step in progress: the arm stands where it is
+                detail = self.station.detail
+                return (EXIT_OK if stop == STOP_END else EXIT_RUNTIME), stop + (f" ({detail})" if detail else "")
+            if not self.args.quiet and now - last_progress >= 1.0 and self.rows:
+                last_progress = now
+                r = self.rows[-1]
+                print(f"{PROG}: {r[1]:<8} force {r[2]:6.2f} N  along {r[6]:7.1f} mm", file=sys.stderr)
+
+
+@run
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    for p in (args.log, args.figure):
+        if p is not None and Path(p).parent and not Path(p).parent.exists():
+            raise BadInput(f"directory of {p} does not exist")
+    cell = open_cell(args)
+    job = ContactRun(args, cell)
+    job.connect()
+    try:
+        job.check_ready()
+        Stop.install()
+        if args.start:
+            job.go_to_start(args.start)
+        if Stop.requested:
+            code, why = EXIT_INTERRUPTED, "interrupted before the approach"
+        else:
+            job.take_tare()
+            code, why = job.run()
+    finally:
+        job.close()
+    st = job.station
+    s = report.summary(job.rows)
+    if args.log:
+        report.write_csv(args.log, job.rows)
+    if args.figure:
+        report.figure(args.figure, job.rows, f"{PROG} {args.arm}: {args.force:g} N at {args.speed:g} mm/s"
+                      + (f", position ({args.start})" if args.start else ""), args.force)
+    print(f"{PROG}: stopped: {why}", file=sys.stderr)
+    print(s.line(args.force, args.speed, args.length, st.done or why.split(" (")[0], st.detail))
+    for label, p in (("log", args.log), ("figure", args.figure)):
+        if p:
+            print(f"{label}: {p}")
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())
