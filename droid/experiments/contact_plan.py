@@ -62,6 +62,7 @@ class ContactKeys:
     def __init__(self, checker) -> None:
         self.checker = checker
         self._gains: dict[str, tuple[str, object]] = {}  # value as written -> (resolved path, Gains)
+        self._pieces: dict[str, object] = {}  # resolved spec -> Workpiece
 
     def check(self, where: str, key: str, value):
         """The value, normalised (floats as floats; workpiece and gains checked by loading them)."""
@@ -106,9 +107,7 @@ class ContactKeys:
             if not isinstance(value, str) or not value:
                 raise c.bad(where, key, value, "must be a bundled workpiece name or a path")
             c.workpiece(where, value)
-            from droid.sim.workpiece import load_workpiece
-
-            if load_workpiece(c.resolved(value)).contact is None:
+            if self.workpiece(c.resolved(value)).contact is None:
                 raise c.bad(where, key, value, "has no [contact] table (no contact model: docs/contact.md)")
             return value
         if key == "gains":
@@ -117,6 +116,14 @@ class ContactKeys:
             self.gains(where, value)
             return value
         raise AssertionError(key)
+
+    def workpiece(self, spec: str):
+        """The loaded workpiece of a checked spec (loaded once per plan)."""
+        if spec not in self._pieces:
+            from droid.sim.workpiece import load_workpiece
+
+            self._pieces[spec] = load_workpiece(spec)
+        return self._pieces[spec]
 
     def gains(self, where: str, value: str | None):
         """(the path load_gains takes, the Gains) of a gains value (None: the bundled file)."""
@@ -149,10 +156,8 @@ class ContactKeys:
             raise c.bad(where_of("clearance_mm"), "clearance_mm", params["clearance_mm"],
                         f"must be < approach_max_mm {g.approach_max_mm:g} mm of the gains "
                         f"({spec or 'bundled'}): the approach would end before the surface")
-        from droid.sim.workpiece import load_workpiece
-
         wp_spec = c.resolved(params["workpiece"])
-        wp = load_workpiece(wp_spec)
+        wp = self.workpiece(wp_spec)
         x0 = _CFG_DEFAULTS["x_start_mm"]
         if wp.surface_height(np.array([x0, params["lateral_mm"]])) != 0.0:
             raise c.bad(where_of("lateral_mm"), "lateral_mm", params["lateral_mm"],
