@@ -10,7 +10,11 @@
 A plan (droid.experiments.plan) is a researcher's own sweep: its trials
 write ``DIR/<plan name>/<id>.csv``, ``.png``, ``.json`` (the trial's
 parameters and summary: its results exist) and one tidy ``results.csv`` (a
-row per trial, in plan order: the parameters and the summary figures).
+row per trial, in plan order: the parameters and the summary figures).  A
+plan with ``trial = "contact"`` sweeps the lockstep force-control trial
+instead (droid.experiments.contact_trial, thesis §7.3): its CSVs have
+contact_trial.COLUMNS, its figures and ``results.csv``/``results.md``
+come from droid.experiments.contact_report.
 ``--resume`` skips trials whose ``.json`` exists.  ``--dask ADDRESS`` runs
 the trials on a Dask distributed cluster (``tcp://host:8786``, or ``local``
 for a LocalCluster of ``--jobs`` workers) instead of the process pool; the
@@ -49,7 +53,7 @@ from typing import Sequence
 from droid.cli import ArgumentParser, BadInput, bounded_float, bounded_int, run
 from droid.experiments.matrix import (EXP4_RUNS, POSITION_LABELS, TABLES, Experiment, experiments, resolve,
                                          valid_forms, with_seed)
-from droid.experiments.plan import FIELDS, Plan, PlanTrial, load_plan
+from droid.experiments.plan import FIELDS, TRIAL_CONTACT, Plan, PlanTrial, load_plan
 from droid.experiments.sensors import SENSOR_MODELS
 from droid.experiments.trial import ARM_MODELS
 from droid.tasks.seam import report
@@ -116,7 +120,7 @@ class Job:
 @dataclass(frozen=True)
 class Outcome:
     exp: Experiment
-    summary: report.Summary | None
+    summary: report.Summary | None  # a contact plan trial's: contact_trial.ContactSummary
     error: str = ""
     sim_s: float = math.nan
     wall_s: float = math.nan
@@ -133,12 +137,17 @@ NO_MATPLOTLIB = "no figures: matplotlib is not installed (pip install matplotlib
 def render_figure(rows, cfg, summary: report.Summary, result) -> tuple[bytes | None, str]:
     """The trial's figure as PNG bytes, or (None, one-line reason)."""
     early = not result.stop_reason.startswith(STOP_END)
+    return _render(lambda path: report.figure(
+        path, rows, cfg.title or cfg.trial_id, cfg.panels, settle_s_mm=summary.settle_s_mm,
+        stop_s_mm=result.stop_s_mm if early else math.nan, stop_label=result.stop_reason if early else ""))
+
+
+def _render(draw) -> tuple[bytes | None, str]:
+    """``draw(path)``'s PNG as bytes, or (None, one-line reason: matplotlib missing)."""
     fd, path = tempfile.mkstemp(suffix=".png", prefix="droid-exp-")
     os.close(fd)
     try:
-        report.figure(path, rows, cfg.title or cfg.trial_id, cfg.panels,
-                      settle_s_mm=summary.settle_s_mm, stop_s_mm=result.stop_s_mm if early else math.nan,
-                      stop_label=result.stop_reason if early else "")
+        draw(path)
         with open(path, "rb") as f:
             return f.read(), ""
     except ImportError:
@@ -155,6 +164,8 @@ def run_job(job: Job) -> Outcome:
 
     A trial that cannot start (BadInput: e.g. a start the arm cannot reach)
     is an Outcome with an error."""
+    if _is_contact(job.exp):
+        return run_contact_job(job)
     cfg = job.exp.config
     if job.realtime:
         from droid.experiments.realtime import run_trial_realtime
@@ -180,13 +191,48 @@ def run_job(job: Job) -> Outcome:
                    png=png, figure_error=why)
 
 
+def _is_contact(exp) -> bool:
+    """A trial of a contact plan (``trial = "contact"``: droid.experiments.contact_trial)."""
+    return isinstance(exp, PlanTrial) and exp.kind == TRIAL_CONTACT
+
+
+def run_contact_job(job: Job) -> Outcome:
+    """One force-control trial of a contact plan (thesis §7.3): its rows, figures and PNG."""
+    from droid.experiments.contact_trial import run_contact_trial
+
+    t = job.exp
+    t0 = time.perf_counter()
+    try:
+        result = run_contact_trial(t.config)
+    except BadInput as exc:
+        return Outcome(t, None, str(exc))
+    except Exception as exc:  # noqa: BLE001 -- one trial's failure must not end the sweep: exit 1, named
+        return Outcome(t, None, f"the trial failed: {type(exc).__name__}: {exc}")
+    wall = time.perf_counter() - t0
+    su = replace(result.figures, trial_id=t.id)
+    png, why = None, ""
+    if job.figures:
+        from droid.experiments.contact_report import figure
+
+        p = t.params
+        title = (f"{t.table} {t.id}: {p['force_n']:g} N at {p['speed_mm_s']:g} mm/s, seed {p['seed']}, "
+                 f"stop: {su.stop}")
+        png, why = _render(lambda path: figure(path, result.rows, su, title))
+    return Outcome(t, su, sim_s=result.sim_s, wall_s=wall, rows=tuple(result.rows), png=png, figure_error=why)
+
+
 def store(job: Job, o: Outcome) -> None:
     """Write a trial's files: CSV, PNG, and for a plan trial its JSON record (last: its results exist)."""
     os.makedirs(job.out_dir, exist_ok=True)
     base = os.path.join(job.out_dir, job.exp.id)
     if o.summary is None:
         return
-    report.write_csv(base + ".csv", o.rows)
+    if _is_contact(job.exp):
+        from droid.experiments.contact_trial import write_csv
+
+        write_csv(base + ".csv", list(o.rows))
+    else:
+        report.write_csv(base + ".csv", o.rows)
     if o.png is not None:
         _write_atomic(base + ".png", o.png)
     if isinstance(job.exp, PlanTrial):
@@ -249,7 +295,11 @@ def run_jobs(jobs: list[Job], workers: int, dask: str | None = None) -> list[Out
         if o.figure_error and o.figure_error not in warned:
             warned.add(o.figure_error)
             print(f"{PROG}: {o.figure_error}", file=sys.stderr)
-        if o.summary is not None:
+        if o.summary is not None and _is_contact(o.exp):
+            from droid.experiments.contact_trial import summary_line
+
+            _emit(summary_line(o.summary))
+        elif o.summary is not None:
             _emit(report.summary_line(o.summary))
         else:
             print(f"{PROG}: {o.exp.id}: {o.error}", file=sys.stderr)
@@ -434,7 +484,12 @@ def cmd_run_plan(args) -> int:
         outcomes = run_jobs(jobs, workers, dask)
     finally:  # also on Ctrl-C: results.csv shows what has results so far (a --resume completes it)
         errors = {o.exp.id: f"error: {o.error}" for o in outcomes if o.summary is None}
-        results = write_results(out_dir, plan, errors)
+        if plan.trial == TRIAL_CONTACT:
+            from droid.experiments.contact_report import write_results as write_contact_results
+
+            results = write_contact_results(out_dir, plan, lambda t: read_record(out_dir, t), errors)
+        else:
+            results = write_results(out_dir, plan, errors)
     return _report(outcomes, t0, workers, dask, f"{plan.name}: {len(outcomes)} trial(s) run, {skipped} resumed",
                    f"results: {results}")
 
@@ -475,7 +530,9 @@ def cmd_list(names: Sequence[str], plan_spec: str | None = None) -> int:
         if names:
             raise BadInput(f"give experiment IDs or --plan, not both (got {' '.join(names)})")
         plan = load_plan(plan_spec)
-        print(f"# {plan.name}: {len(plan.trials)} trial(s)" + (f" -- {plan.description}" if plan.description else ""))
+        kind = f" {plan.trial}" if plan.trial == TRIAL_CONTACT else ""
+        print(f"# {plan.name}: {len(plan.trials)}{kind} trial(s)"
+              + (f" -- {plan.description}" if plan.description else ""))
         for t in plan.trials:
             print(t.describe())
         return 0

@@ -1,5 +1,6 @@
-"""A lockstep trial of the force task (issue 27 item 5): the full Reis arm pressing on and
-sliding along the step workpiece's flat face, held at a normal force (docs/contact.md).
+"""A lockstep trial of the force task (issue 27 item 5; thesis §7.3, force control as the next
+sensor task): the full Reis arm pressing on and sliding along the step workpiece's flat face,
+held at a normal force (docs/contact.md).
 
 The workpiece sits where the seam layout's position (i) puts it (on a fixed fixture: the
 holder is not simulated here), its surfaces push on the tool point through the contact model
@@ -13,14 +14,17 @@ The tool starts ``clearance_mm`` above the lower plate, ``lateral_mm`` beside th
 
 Rows (``COLUMNS``), one per controller cycle: time, phase, the normal force (the
 sensor's) and its error, the true contact force, the tool point's true depth below the
-surface and its travel, its speed along the path.  :func:`summary` gives the line
-``normal force RMS error X N, max Y N ...`` over the path after ``settle_s``.
+surface and its travel, its speed along the path.  :func:`summarize` takes the trial's
+figures from them (:class:`ContactSummary`: the force error's RMS and max over the path after
+``settle_after_s``, the peak force, the mean speed, ...), :func:`summary_line` gives the line
+``normal force RMS error X N, max Y N ...``.  droid-experiment runs the trial as a plan's
+(``trial = "contact"``: droid.experiments.contact_plan, contact_report).
 """
 from __future__ import annotations
 
 import csv
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -63,9 +67,11 @@ class ContactResult:
     rows: list
     stop: str
     detail: str
-    summary: str
+    summary: str  # summary_line(figures)
     rms_n: float
     max_n: float
+    figures: ContactSummary | None = None
+    sim_s: float = math.nan  # simulated time of the whole trial (homing, approach, path) [s]
 
 
 def run_contact_trial(cfg: ContactTrialConfig) -> ContactResult:
@@ -97,7 +103,7 @@ def run_contact_trial(cfg: ContactTrialConfig) -> ContactResult:
     sched.run_for(0.2)
     station = ContactStation(gains, HEARTBEAT_HZ, T_wcp_tool, cfg.force_n, cfg.speed_mm_s, cfg.length_mm)
     rows: list = []
-    state = {"t0": None, "path_t0": None, "prev": None}
+    state = {"t0": None}
     R_W = geo.T_global_W[:3, :3]
 
     def task(tick: int) -> None:
@@ -115,8 +121,6 @@ def run_contact_trial(cfg: ContactTrialConfig) -> ContactResult:
             t = sched.t_ns / 1e9
             if state["t0"] is None:
                 state["t0"] = t
-            if station.phase == "path" and state["path_t0"] is None:
-                state["path_t0"] = t
             tool_W = R_W.T @ (contact.tool_mm - geo.T_global_W[:3, 3])
             v_W = R_W.T @ contact.tool_v_mm_s
             f_W = R_W.T @ contact.force_N  # the true contact force in W: z the normal, x-y friction
@@ -127,17 +131,70 @@ def run_contact_trial(cfg: ContactTrialConfig) -> ContactResult:
     sched.on_tick(task, "contact.task", order=ORDER_TASK)
     arm.run_until(lambda: station.done is not None, cfg.max_s)
     stop = station.done or "timeout"
-    path_t0 = state["path_t0"]
-    t_from = (path_t0 - state["t0"] + cfg.settle_after_s) if path_t0 is not None else math.inf
-    errs = np.array([r[3] for r in rows if r[1] == "path" and r[0] >= t_from])
-    rms = float(np.sqrt(np.mean(errs ** 2))) if len(errs) else math.nan
-    mx = float(np.max(np.abs(errs))) if len(errs) else math.nan
-    speeds = np.array([r[8] for r in rows if r[1] == "path" and r[0] >= t_from])
-    line = (f"normal force RMS error {rms:.2f} N, max {mx:.2f} N (path after {cfg.settle_after_s:g} s settling, "
-            f"{len(errs)} cycles); {cfg.force_n:g} N at {cfg.speed_mm_s:g} mm/s over {cfg.length_mm:g} mm, "
-            f"mean speed {float(np.mean(speeds)) if len(speeds) else math.nan:.2f} mm/s; seed {cfg.seed}; "
-            f"stop: {stop} ({station.detail})")
-    return ContactResult(rows, stop, station.detail, line, rms, mx)
+    su = summarize(rows, cfg, stop, station.detail)
+    return ContactResult(rows, stop, station.detail, summary_line(su), su.rms_n, su.max_n, su, sched.t_ns / 1e9)
+
+
+@dataclass(frozen=True)
+class ContactSummary:
+    """How well one trial held the force (thesis §7.3's force control; N, mm, mm/s; NaN where no
+    row qualifies).  "After settling": path rows from ``settle_after_s`` after the path started."""
+
+    trial_id: str
+    force_n: float  # the set force [N]
+    speed_mm_s: float  # the commanded speed along the path [mm/s]
+    length_mm: float  # the commanded path [mm]
+    seed: int
+    settle_after_s: float
+    cycles: int  # controller cycles logged (every row)
+    settled_cycles: int  # path cycles after settling (the RMS's samples)
+    rms_n: float  # RMS of the sensor's force error after settling [N]
+    max_n: float  # largest |force error| after settling [N]
+    max_path_n: float  # largest |force error| over the whole path [N]
+    peak_force_n: float  # largest sensor normal force after touch (settle and path) [N]
+    mean_speed_mm_s: float  # mean true speed along the path after settling [mm/s]
+    mean_true_force_n: float  # the contact model's mean normal force after settling [N]
+    min_true_force_n: float  # its smallest over the whole path (0: the tool left the surface) [N]
+    mean_friction_n: float  # the mean friction force after settling [N]
+    path_mm: float  # the true tool point's travel at the last row [mm]
+    stop: str  # the task's stop reason (droid.tasks.contact.core), or "timeout"
+    stop_detail: str
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def summarize(rows: list, cfg: ContactTrialConfig, stop: str, detail: str, trial_id: str = "") -> ContactSummary:
+    """The trial's figures from its rows (``COLUMNS``; :class:`ContactSummary`)."""
+    path = [r for r in rows if r[1] == "path"]
+    t_from = (path[0][0] + cfg.settle_after_s) if path else math.inf
+    late = [r for r in path if r[0] >= t_from]
+
+    def col(rs, i) -> np.ndarray:
+        return np.array([r[i] for r in rs], float)
+
+    def stat(fn, v) -> float:
+        return float(fn(v)) if len(v) else math.nan
+
+    errs = col(late, 3)
+    touched = col([r for r in rows if r[1] in ("settle", "path")], 2)
+    return ContactSummary(
+        trial_id=trial_id, force_n=cfg.force_n, speed_mm_s=cfg.speed_mm_s, length_mm=cfg.length_mm, seed=cfg.seed,
+        settle_after_s=cfg.settle_after_s, cycles=len(rows), settled_cycles=len(late),
+        rms_n=stat(lambda e: np.sqrt(np.mean(e ** 2)), errs), max_n=stat(lambda e: np.max(np.abs(e)), errs),
+        max_path_n=stat(lambda e: np.max(np.abs(e)), col(path, 3)), peak_force_n=stat(np.max, touched),
+        mean_speed_mm_s=stat(np.mean, col(late, 8)), mean_true_force_n=stat(np.mean, col(late, 4)),
+        min_true_force_n=stat(np.min, col(path, 4)), mean_friction_n=stat(np.mean, col(late, 5)),
+        path_mm=float(rows[-1][7]) if rows else math.nan, stop=stop, stop_detail=detail)
+
+
+def summary_line(su: ContactSummary) -> str:
+    """One line: the force errors after settling, the speed and how the trial ended, units included."""
+    head = f"{su.trial_id}: " if su.trial_id else ""
+    return (f"{head}normal force RMS error {su.rms_n:.2f} N, max {su.max_n:.2f} N (path after "
+            f"{su.settle_after_s:g} s settling, {su.settled_cycles} cycles); {su.force_n:g} N at "
+            f"{su.speed_mm_s:g} mm/s over {su.length_mm:g} mm, mean speed {su.mean_speed_mm_s:.2f} mm/s; "
+            f"seed {su.seed}; stop: {su.stop} ({su.stop_detail})")
 
 
 def write_csv(path: str, rows: list) -> None:

@@ -33,6 +33,10 @@ the ``[sweep]`` lists in the order written (the last key varies fastest).
 Each trial's ID is a hash of its parameters (:func:`trial_id`), so it is the
 same whatever else the plan sweeps, which is what ``--resume`` relies on.
 
+A top-level ``trial`` key chooses the trial a plan sweeps: ``"seamtrack"`` (the
+default: the seam-tracking trial above) or ``"contact"`` (the lockstep force-control
+trial, thesis §7.3; its keys: droid.experiments.contact_plan).
+
 Bad input raises :class:`~droid.cli.BadInput` with one line naming the plan,
 the key and the value.
 """
@@ -62,7 +66,10 @@ BUILTIN_DEFAULTS = {"workpiece": None, "position": "i", "speed_mm_s": 16.0, "yaw
                     "pitch_gain": 0.25, "delay_cycles": 0, "delay_at_mm": 150.0, "wrist": "standard",
                     "mode": None, "arm": "full", "sensor": "ideal", "seed": 1, "length_mm": None}
 
-_TOP_KEYS = ("name", "description", "defaults", "sweep")
+_TOP_KEYS = ("name", "description", "trial", "defaults", "sweep")
+TRIAL_SEAMTRACK, TRIAL_CONTACT = "seamtrack", "contact"
+#: The trials a plan can sweep (its ``trial`` key; the first is the default).
+TRIAL_KINDS = (TRIAL_SEAMTRACK, TRIAL_CONTACT)
 _NAME = re.compile(r"[A-Za-z0-9_.-]+")
 
 
@@ -73,8 +80,9 @@ class PlanTrial:
     id: str
     index: int  # 0-based position in the plan's product
     params: dict
-    config: object  # TrialConfig
+    config: object  # TrialConfig (a contact plan's: contact_trial.ContactTrialConfig)
     table: str  # the plan's name (the output subdirectory)
+    kind: str = TRIAL_SEAMTRACK  # the plan's trial (TRIAL_KINDS)
 
     def describe(self) -> str:
         """One line: index, ID and the swept parameters."""
@@ -90,6 +98,16 @@ class Plan:
     defaults: dict
     sweep: dict  # key -> list of values, in file order
     trials: tuple[PlanTrial, ...]
+    trial: str = TRIAL_SEAMTRACK  # the trial it sweeps (TRIAL_KINDS)
+
+    @property
+    def fields(self) -> tuple[str, ...]:
+        """The parameter keys of its trials, in results.csv order."""
+        if self.trial == TRIAL_SEAMTRACK:
+            return FIELDS
+        from droid.experiments.contact_plan import CONTACT_FIELDS
+
+        return CONTACT_FIELDS
 
 
 def _show(v) -> str:
@@ -273,52 +291,86 @@ def plan_from_dict(data: dict, source: str = "<plan>", plan_dir: Path | None = N
     description = data.get("description", "")
     if not isinstance(description, str):
         raise bad(f"description = {_toml(description)}: must be a string")
+    kind = data.get("trial", TRIAL_SEAMTRACK)
+    if kind not in TRIAL_KINDS:
+        raise bad(f"trial = {_toml(kind)}: unknown trial (known: {', '.join(TRIAL_KINDS)})")
     defaults_raw = data.get("defaults", {})
     sweep_raw = data.get("sweep", {})
     for table, raw in (("defaults", defaults_raw), ("sweep", sweep_raw)):
         if not isinstance(raw, dict):
             raise bad(f"{table} = {_toml(raw)}: must be a table [{table}]")
     checker = _Checker(source, plan_dir or Path.cwd())
+    if kind == TRIAL_SEAMTRACK:
+        keys_of, builtin, check = FIELDS, BUILTIN_DEFAULTS, checker.check
+    else:
+        from droid.experiments.contact_plan import ContactKeys
+
+        contact = ContactKeys(checker)
+        keys_of, builtin, check = contact.fields, contact.defaults, contact.check
+
+    def unknown(where: str, key: str, value) -> BadInput:
+        if kind != TRIAL_SEAMTRACK and key in FIELDS:
+            return bad(f"{where} {key} = {_toml(value)}: a seam-tracking key, not one of a {kind} plan "
+                       f"(its keys: {', '.join(keys_of)})")
+        hint = ""
+        if kind == TRIAL_SEAMTRACK:
+            from droid.experiments.contact_plan import CONTACT_FIELDS
+
+            if key in CONTACT_FIELDS:
+                hint = '; a contact plan\'s key: set trial = "contact"'
+        return bad(f"{where} {key} = {_toml(value)}: unknown key (expected one of {', '.join(keys_of)}){hint}")
+
     defaults: dict = {}
     for key, value in defaults_raw.items():
-        if key not in FIELDS:
-            raise bad(f"[defaults] {key} = {_toml(value)}: unknown key (expected one of {', '.join(FIELDS)})")
-        defaults[key] = checker.check("[defaults] ", key, value)
+        if key not in keys_of:
+            raise unknown("[defaults]", key, value)
+        defaults[key] = check("[defaults] ", key, value)
     sweep: dict = {}
     for key, values in sweep_raw.items():
-        if key not in FIELDS:
-            raise bad(f"[sweep] {key} = {_toml(values)}: unknown key (expected one of {', '.join(FIELDS)})")
+        if key not in keys_of:
+            raise unknown("[sweep]", key, values)
         if key in defaults:
             raise bad(f"[sweep] {key} = {_toml(values)}: also set in [defaults] (give it in one of them)")
         if not isinstance(values, list):
             raise bad(f"[sweep] {key} = {_toml(values)}: must be a list of values")
         if not values:
             raise bad(f"[sweep] {key} = []: empty list (give at least one value)")
-        checked = [checker.check("[sweep] ", key, v) for v in values]
+        checked = [check("[sweep] ", key, v) for v in values]
         seen = set()
         for raw_v, v in zip(values, checked):
             if v in seen:
                 raise bad(f"[sweep] {key} = {_toml(values)}: {_toml(raw_v)} appears twice")
             seen.add(v)
         sweep[key] = checked
-    base = {**BUILTIN_DEFAULTS, **defaults}
+    if kind != TRIAL_SEAMTRACK:  # a builtin default's checks too (its workpiece is loaded, its gains read)
+        for key, value in builtin.items():
+            if key not in defaults and key not in sweep and value is not None:
+                check("(default) ", key, value)
+
+    def where_of(key: str) -> str:
+        return "[sweep] " if key in sweep else "[defaults] " if key in defaults else "(default) "
+
+    base = {**builtin, **defaults}
     trials = []
     ids: set[str] = set()
     keys = list(sweep)
     for index, combo in enumerate(itertools.product(*(sweep[k] for k in keys))):
         params = {**base, **dict(zip(keys, combo))}
-        params = {k: params[k] for k in FIELDS}
+        params = {k: params[k] for k in keys_of}
         tid = trial_id(params)
         if tid in ids:  # a hash collision within one plan: 10 hex digits make this ~1e-9 at 10^3 trials
             raise bad(f"two trials have the same ID {tid}")
         ids.add(tid)
-        try:
-            config = trial_config(tid, {**params, "workpiece": checker.resolved(params["workpiece"])}, name)
-        except BadInput as exc:  # TrialConfig's own checks (e.g. a mode it does not know)
-            shown = ", ".join(f"{k} = {_toml(params[k])}" for k in keys)
-            raise bad(f"trial {index} ({shown}): {exc}") from None
-        trials.append(PlanTrial(tid, index, params, config, name))
-    return Plan(name, description, source, defaults, sweep, tuple(trials))
+        if kind != TRIAL_SEAMTRACK:
+            config = contact.config(tid, params, where_of)  # its BadInput names the key (and plan) itself
+        else:
+            try:
+                config = trial_config(tid, {**params, "workpiece": checker.resolved(params["workpiece"])}, name)
+            except BadInput as exc:  # TrialConfig's own checks (e.g. a mode it does not know)
+                shown = ", ".join(f"{k} = {_toml(params[k])}" for k in keys)
+                raise bad(f"trial {index} ({shown}): {exc}") from None
+        trials.append(PlanTrial(tid, index, params, config, name, kind))
+    return Plan(name, description, source, defaults, sweep, tuple(trials), kind)
 
 
 def trial_config(tid: str, params: dict, plan_name: str = ""):
