@@ -47,7 +47,6 @@ import signal
 import sys
 import threading
 import time
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -57,9 +56,9 @@ from droid.cli import (ArgumentParser, BadInput, MAX_WAIT_S, RuntimeFailure, bau
                        duration_s, file_number, read_toml, run)
 from droid.numbers import Range
 from droid.subunits.mvs.calibration import MvsCalibration
-from droid.subunits.mvs.feature import Feature, FeatureParams, extract
 from droid.brain.sensor_line import stamp_ms_of
 from droid.subunits.mvs.protocol import format_line
+from droid.subunits.mvs.station import SensorCore
 from droid.subunits.mvs.wire import COLUMNS, DEFAULT_BAUD, FRAME_RATE_HZ, MIN_BAUD, NO_STRIPE, ROWS
 
 PROG = "droid-mvs"
@@ -71,33 +70,6 @@ APPEAR_POLL_S = 0.05
 #: congested (the Brain is not reading) lines are dropped, the loop keeps pace.
 WRITE_TIMEOUT_S = 1.0 / FRAME_RATE_HZ
 _INTEGER = re.compile(r"[+-]?[0-9]+")
-
-
-@dataclass
-class SensorCore:
-    """sensor.exe's per-frame work as a core: 240 columns in, one serial line out."""
-
-    calib: MvsCalibration
-    params: FeatureParams = FeatureParams()
-    frames: int = 0
-    valid: int = 0
-    last: Feature | None = None
-
-    def process(self, rows: np.ndarray) -> Feature | None:
-        """Extract the feature of one frame (None = invalid) and count it."""
-        self.last = extract(rows, self.calib, self.params)
-        self.frames += 1
-        self.valid += self.last is not None
-        return self.last
-
-    def step(self, rows: np.ndarray, stamp_ms: int | None = None) -> bytes:
-        """One frame -> the line to send ("x,y,roll\\n" or "invalid\\n"); with ``stamp_ms`` the
-        frame's capture stamp as the line's optional fourth field (droid.brain.sensor_line)."""
-        return format_line(self.process(rows), stamp_ms)
-
-    @property
-    def invalid(self) -> int:
-        return self.frames - self.valid
 
 
 def load_calibration(path: str | None) -> MvsCalibration:
