@@ -1,19 +1,24 @@
-"""droid-mvs's station (droid.subunits.mvs.station; issue 25 item 3): the per-frame cycle --
-the feature, the line, the retrace timeout counted in frame periods, the port's reopening.
+"""droid-mvs's station (droid.subunits.mvs.station; issue 25 item 3): the per-frame cycle that
+droid-mvs's real-time shell steps -- the feature, the line, the retrace timeout counted in
+frame periods, the port's reopening.
 
-No cell and no clock: the station is fed frames and waits as a shell would."""
+No cell and no clock: the station is fed frames and waits as a shell would; the real-time
+shell runs on a scripted board and port (its per-frame logic, not its timing)."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
+import serial
 
 from droid.brain.sensor_line import parse_line
 from droid.sim.mvs.camera import CameraNoise, MvsCamera
 from droid.sim.mvs.tool_sensor import pose_for_reading
 from droid.sim.workpiece import load_workpiece
+from droid.subunits.mvs import sensor
 from droid.subunits.mvs.calibration import MvsCalibration
+from droid.subunits.mvs.dsp import DspFrame
 from droid.subunits.mvs.station import RETRACE_TIMEOUT_FRAMES, MvsStation, SensorCore
-from droid.subunits.mvs.wire import FRAME_RATE_HZ, ROWS
+from droid.subunits.mvs.wire import DEFAULT_BAUD, FRAME_RATE_HZ, ROWS
 
 STEP = load_workpiece("step_input")
 INVALID = b"invalid\n"
@@ -162,3 +167,91 @@ def test_a_failed_port_is_reopened_one_try_a_line_and_the_lost_lines_counted():
     assert (st.reopen_attempts, st.reopened, st.lost) == (3, 1, 3)
     assert port.lines == [SensorCore(MvsCalibration()).step(f[k]) for k in (0, 4)]
     assert st.on_wait(RETRACE_TIMEOUT_FRAMES).sent  # a timeout's line takes the same way
+
+
+# -- droid-mvs's shell on a scripted board and port (its per-frame logic, not its timing) -------
+
+class ScriptBoard:
+    """The DSP board on a virtual clock of frame slots (slot k at k frame periods): a wait of T s
+    returns the first frame within T x 60 slots of the last event, or times out after exactly that."""
+
+    def __init__(self, slots):
+        self.slots, self.now, self.next = slots, 0.0, 0
+
+    def wait_frame(self, timeout_s):
+        end = self.now + timeout_s * FRAME_RATE_HZ
+        while self.next < len(self.slots) and self.next <= end + 1e-9:
+            k = self.next
+            self.next += 1
+            if self.slots[k] is not None:
+                self.now = float(k)
+                return DspFrame(k, self.slots[k], 0)
+        self.now = end
+        return None
+
+    def close(self):
+        pass
+
+
+class FakeSerial:
+    """What pyserial hands PortLink: the written lines are kept; the writes in ``fail`` hang up."""
+
+    def __init__(self, lines, fail=()):
+        self.lines, self.fail = lines, fail
+
+    def reset_input_buffer(self):
+        pass
+
+    def write(self, data):
+        if len(self.lines) in self.fail:
+            self.fail = set(self.fail) - {len(self.lines)}
+            self.lines.append(None)  # the line the port lost
+            raise serial.SerialException("the device hung up")
+        self.lines.append(bytes(data))
+
+    def close(self):
+        pass
+
+
+def scripted_devices(monkeypatch, slots, fail=(), failed_opens=0):
+    """droid-mvs's drivers replaced by the script's board and a recording port."""
+    lines: list[bytes | None] = []
+    opens = {"n": 0}
+
+    def opener():
+        opens["n"] += 1
+        if opens["n"] > 1 and opens["n"] <= 1 + failed_opens:
+            raise serial.SerialException("no such port")
+        return FakeSerial(lines, fail)
+
+    def open_url(url, kind, **options):
+        return ScriptBoard(slots) if kind == "dsp" else opener
+
+    monkeypatch.setattr(sensor, "open_url", open_url)
+    return lines
+
+
+def test_realtime_stand_alone_ends_on_a_failed_port_with_the_one_line_reason(monkeypatch, capsys):
+    scripted_devices(monkeypatch, frames(5), fail={2})
+    assert sensor.main(["--dsp", "inproc://script", "--serial", "loop://", "--count", "5",
+                        "--board-wait", "0"]) == 1
+    err = capsys.readouterr().err
+    assert err == "droid-mvs: serial loop://: the device hung up\n"
+
+
+def test_realtime_in_a_cell_reopens_the_port_and_reports_the_lost_lines(monkeypatch, capsys):
+    slots = frames(8)
+    lines = scripted_devices(monkeypatch, slots, fail={2}, failed_opens=2)
+    args = sensor.build_parser().parse_args(["--dsp", "inproc://script", "--serial", "loop://", "--count", "8"])
+    args.baud, args.board_wait = DEFAULT_BAUD, 0.0
+    beats = []
+    assert sensor.live(args, SensorCore(MvsCalibration()), beat=lambda n, over: beats.append((n, over)),
+                       reopen=True) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == "droid-mvs: serial loop://: the device hung up; reopening"
+    assert "8 frames in" in err[1] and ", 3 lines lost with the port, 1 reopens)" in err[1]
+    core = SensorCore(MvsCalibration())
+    expected = [core.step(f) for f in slots]
+    # the third line lost with the port, the fourth and fifth with the two opens that failed
+    assert lines == expected[:2] + [None] + expected[5:]
+    assert beats[-1] == (8, 3)

@@ -9,7 +9,11 @@ copies the 240 stripe columns, extracts the lap-joint feature and writes one
 line "x,y,roll\\n" (or "invalid\\n") to the serial URL at the frame rate, 60 Hz.
 A retrace that does not come in time also sends "invalid".  On SIGINT,
 SIGTERM or after ``--count`` frames it stops and reports the frames
-processed per second on stderr, as sensor.exe did on exit.
+processed per second on stderr, as sensor.exe did on exit.  The cycle
+between the frame and the port -- the feature, the line, the timeout rule
+(counted in frame periods) and the port's reopening -- is
+:class:`~droid.subunits.mvs.station.MvsStation`, the one lockstep steps too;
+this shell waits for the retrace, keeps the clock, the recording and the signals.
 
 Offline::
 
@@ -58,7 +62,7 @@ from droid.numbers import Range
 from droid.subunits.mvs.calibration import MvsCalibration
 from droid.brain.sensor_line import stamp_ms_of
 from droid.subunits.mvs.protocol import format_line
-from droid.subunits.mvs.station import SensorCore
+from droid.subunits.mvs.station import MvsStation, SensorCore
 from droid.subunits.mvs.wire import COLUMNS, DEFAULT_BAUD, FRAME_RATE_HZ, MIN_BAUD, NO_STRIPE, ROWS
 
 PROG = "droid-mvs"
@@ -162,11 +166,13 @@ def _open_board(url: str, wait_s: float, stop: threading.Event):
 
 
 def live(args, core: SensorCore, ready=None, beat=None, reopen: bool = False) -> int:
-    """The sensor loop: retrace -> copy -> extract -> serial line (see the module docstring).
+    """The sensor loop: retrace -> :class:`MvsStation` (extract, the line, the port) (see the module docstring).
 
-    ``ready()`` is called once the board and the port are open; ``beat(frames,
-    overruns)`` once a frame (both optional: the cell's handshake and presence).
-    With ``reopen`` a serial port that fails is closed and reopened (one try a
+    The station holds the cycle and its rules (the timeout, counted in frame periods, and
+    the port's reopening); this shell waits for the retrace, keeps the clock, the recording,
+    the signals and the report.  ``ready()`` is called once the board and the port are
+    open; ``beat(frames, overruns)`` once a frame (both optional: the cell's handshake and
+    presence).  With ``reopen`` a serial port that fails is closed and reopened (one try a
     frame, the lines meanwhile dropped and counted) instead of ending the run.
     """
     wait_s = max(0.0, args.board_wait)
@@ -180,7 +186,8 @@ def live(args, core: SensorCore, ready=None, beat=None, reopen: bool = False) ->
     # overrun (the line is slower than the frames), any other error closes the port
     port = PortLink(open_url(args.serial, "serial", baud=args.baud, write_timeout_s=WRITE_TIMEOUT_S),
                     write_timeout_keeps_open=True)
-    timeouts = missed = lost = reopened = 0
+    # --retrace-timeout [s] as frame periods: a wait that times out is one whole timeout
+    station = MvsStation(core, port, timeout_frames=args.retrace_timeout * FRAME_RATE_HZ, reopen=reopen)
     t0 = time.monotonic()
     try:
         board = _open_board(args.dsp, wait_s, stop)
@@ -199,28 +206,21 @@ def live(args, core: SensorCore, ready=None, beat=None, reopen: bool = False) ->
             if stop.is_set():
                 break
             if frame is None:
-                timeouts += 1
-                line = format_line(None)
+                out = station.on_wait(station.timeout_frames)
             else:
-                missed += frame.missed
-                line = core.step(frame.rows, stamp_ms_of(t_frame_ns) if getattr(args, "stamp", False) else None)
                 if record is not None:
                     try:
                         record.write(format_frame_line(frame.rows) + "\n")
                     except OSError as exc:
                         raise RuntimeFailure(f"cannot write {args.record}: {exc.strerror}") from None
-            if not port.is_open:
-                if port.open():
-                    reopened += 1
-                else:
-                    lost += 1
-            if port.is_open and not port.write(line) and not port.is_open:
-                if not reopen:
-                    raise RuntimeFailure(f"serial {args.serial}: {port.last_error}")
-                print(f"{PROG}: serial {args.serial}: {port.last_error}; reopening", file=sys.stderr, flush=True)
-                lost += 1
+                stamp_ms = stamp_ms_of(t_frame_ns) if getattr(args, "stamp", False) else None
+                out = station.on_frame(frame.rows, stamp_ms, frame.missed)
+            if out.fatal:
+                raise RuntimeFailure(f"serial {args.serial}: {out.port_error}")
+            if out.port_error is not None:
+                print(f"{PROG}: serial {args.serial}: {out.port_error}; reopening", file=sys.stderr, flush=True)
             if beat is not None:
-                beat(core.frames, port.write_timeouts + timeouts + lost)
+                beat(core.frames, port.write_timeouts + station.timeouts + station.lost)
     finally:
         elapsed = max(time.monotonic() - t0, 1e-9)
         for sig, old in handlers.items():
@@ -230,10 +230,10 @@ def live(args, core: SensorCore, ready=None, beat=None, reopen: bool = False) ->
         port.close()
         if board is not None:
             board.close()
-    reopen_note = f", {lost} lines lost with the port, {reopened} reopens" if reopen else ""
+    reopen_note = f", {station.lost} lines lost with the port, {station.reopened} reopens" if reopen else ""
     print(f"{PROG}: {core.frames} frames in {elapsed:.2f} s = {core.frames / elapsed:.1f} frames/s "
-          f"({core.valid} valid, {core.invalid} invalid, {missed} missed, {timeouts} retrace timeouts, "
-          f"{port.write_timeouts} serial overruns{reopen_note})", file=sys.stderr)
+          f"({core.valid} valid, {core.invalid} invalid, {station.missed} missed, {station.timeouts} retrace "
+          f"timeouts, {port.write_timeouts} serial overruns{reopen_note})", file=sys.stderr)
     return 0
 
 
