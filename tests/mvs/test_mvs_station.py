@@ -1,6 +1,6 @@
 """droid-mvs's station (droid.subunits.mvs.station; issue 25 item 3): the per-frame cycle that
-droid-mvs's real-time shell steps -- the feature, the line, the retrace timeout counted in
-frame periods, the port's reopening.
+droid-mvs's real-time shell and the lockstep chain both step -- the feature, the line, the
+retrace timeout counted in frame periods, the port's reopening.
 
 No cell and no clock: the station is fed frames and waits as a shell would; the real-time
 shell runs on a scripted board and port (its per-frame logic, not its timing)."""
@@ -11,6 +11,7 @@ import pytest
 import serial
 
 from droid.brain.sensor_line import parse_line
+from droid.sim.lockstep import Scheduler
 from droid.sim.mvs.camera import CameraNoise, MvsCamera
 from droid.sim.mvs.tool_sensor import pose_for_reading
 from droid.sim.workpiece import load_workpiece
@@ -255,3 +256,70 @@ def test_realtime_in_a_cell_reopens_the_port_and_reports_the_lost_lines(monkeypa
     # the third line lost with the port, the fourth and fifth with the two opens that failed
     assert lines == expected[:2] + [None] + expected[5:]
     assert beats[-1] == (8, 3)
+
+
+# -- the real-time shell's per-frame logic and lockstep agree --------------------------------
+
+#: After the k-th frame of the script, this many empty slots (0: before the first).
+GAPS = {3: 5, 5: 6, 7: 13, 9: 12, 10: 1, 12: 18}
+
+
+def script(first_gap: int, seed: int = 4) -> list[np.ndarray | None]:
+    """Frame slots at 60 Hz: a frame or None (no frame in that slot); 15 frames, ending on one."""
+    f = iter(frames(30, seed))
+    gaps = {0: first_gap, **GAPS}
+    slots: list[np.ndarray | None] = [None] * gaps[0]
+    for k in range(1, 16):
+        slots.append(next(f))
+        slots += [None] * gaps.get(k, 0)
+    return slots
+
+
+def realtime_lines(monkeypatch, slots) -> list[bytes]:
+    lines = scripted_devices(monkeypatch, slots)
+    count = sum(s is not None for s in slots)
+    assert sensor.main(["--dsp", "inproc://script", "--serial", "loop://", "--count", str(count),
+                        "--board-wait", "0"]) == 0
+    return lines
+
+
+def lockstep_lines(slots) -> list[bytes]:
+    from droid.sim.mvs.lockstep import mvs_lockstep
+    from tests.mvs.test_mvs_world_devices import CAMERA, rig
+
+    class ScriptCamera:  # the camera twin's renderer, replaced by the script (None: a dropped frame)
+        def __init__(self):
+            self.k = 0
+
+        def frame(self, T_W_S, rng):
+            self.k += 1
+            return slots[self.k - 1]
+
+    arm, holder, _ = rig()
+    sched = Scheduler(60.0)
+    run = mvs_lockstep(sched, {"arm1": arm, "gmf1": holder}, CAMERA, seed=1)
+    run.camera.twin.camera = ScriptCamera()
+    lines: list[bytes] = []
+    write = run.mvs.pipe.write
+    run.mvs.pipe.write = lambda data, t_ns: lines.append(data) or write(data, t_ns)
+    try:
+        sched.run_until(round((len(slots) - 1) * 1e9 / 60.0))
+    finally:
+        run.close()
+    assert run.camera.twin.camera.k == len(slots)
+    return lines
+
+
+@pytest.mark.parametrize("first_gap,first_timeouts", [(6, 0), (7, 1), (13, 2)])
+def test_realtime_shell_and_lockstep_send_the_same_lines_for_the_same_frames(monkeypatch, capsys, first_gap,
+                                                                              first_timeouts):
+    """Both wait from their start: a first frame on the 7th slot (t = 0.1 s) still comes in time."""
+    slots = script(first_gap)
+    rt = realtime_lines(monkeypatch, slots)
+    ls = lockstep_lines(slots)
+    assert rt == ls
+    # the gaps after it: 5 (the frame on the 6th slot comes in time), 6, 13, 12, 1, 18 slots
+    timeouts = first_timeouts + 0 + 1 + 2 + 2 + 0 + 3
+    assert rt.count(INVALID) == timeouts and len(rt) == 15 + timeouts
+    err = capsys.readouterr().err
+    assert "15 frames in" in err and f"{timeouts} retrace timeouts" in err and "0 serial overruns" in err

@@ -53,7 +53,7 @@ World devices (``[world.devices.NAME]``, built through droid.sim.world.DEVICE_TY
     ``droid-mvs --stamp``; default false: the thesis's plain lines).
 
 :func:`droid.sim.mvs.lockstep.mvs_lockstep` runs the same chain (camera twin ->
-sensor core -> paced line -> the Brain's link core -> Status) on a lockstep
+droid-mvs's station -> paced line -> the Brain's link core -> Status) on a lockstep
 Scheduler.  ``fixed_arm`` is :mod:`droid.sim.mvs.arm`, the mounts
 :mod:`droid.sim.mvs.mounts`, the 60 Hz clock :mod:`droid.sim.mvs.clock`.
 """

@@ -1,7 +1,8 @@
-"""The MVS chain on a lockstep Scheduler: camera twin -> sensor core -> paced line -> the Brain's link core -> Status.
+"""The MVS chain on a lockstep Scheduler: camera twin -> sensor station -> paced line -> the Brain's link -> Status.
 
-The same devices as droid-sim's (:mod:`droid.sim.mvs.devices`) and the same
-cores as droid-mvs and droid-remote, on virtual time (thesis §2.5, §5.4, §6.1).
+The same devices as droid-sim's (:mod:`droid.sim.mvs.devices`), droid-mvs's station
+(:class:`~droid.subunits.mvs.station.MvsStation`) and droid-remote's core, on virtual
+time (thesis §2.5, §5.4, §6.1).
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from types import SimpleNamespace
 from typing import Any, Mapping
 
 from droid.brain.layouts import SENSOR_STATUS_LAYOUT
-from droid.brain.sensor_line import DEFAULT_BAUD, format_line
+from droid.brain.sensor_line import DEFAULT_BAUD
 from droid.brain.sensor_link import SensorStatusCore
 from droid.brain.shmdb import MemoryDatabase
 from droid.brain.wire import LIVENESS_TICKS
@@ -21,6 +22,7 @@ from droid.sim.device_options import DeviceOptions
 from droid.sim.mvs.devices import IdealSensorCore, MvsCameraDevice, ToolSensorDevice, build_camera, tool_parts
 from droid.sim.serial_cable import PacedPipe
 from droid.subunits.mvs.calibration import MvsCalibration
+from droid.subunits.mvs.station import MvsStation, SensorCore
 
 
 _LOCKSTEP_IDS = itertools.count(1)
@@ -35,17 +37,40 @@ class SensorChain:
     status: MemoryDatabase  # the sensor's Status record (Table 3.3)
 
 
+class CablePort:
+    """The lockstep cable as the sensor station's port: always open; a line that does not fit
+    is dropped (an overrun, as a write that times out on droid-mvs's port)."""
+
+    is_open = True
+    last_error = ""
+
+    def __init__(self, pipe: PacedPipe, clock) -> None:
+        self.pipe = pipe
+        self.clock = clock  # () -> the virtual time [ns]
+
+    def open(self) -> bool:
+        return True
+
+    def write(self, data: bytes) -> bool:
+        return self.pipe.write(data, self.clock())
+
+
 @dataclass
 class MvsLockstep:
     """What :func:`mvs_lockstep` put on the scheduler (its cores, for inspection)."""
 
     camera: MvsCameraDevice
-    sensor: Any  # droid.subunits.mvs.sensor.SensorCore
+    sensor: SensorCore
     board: Any  # the sensor program's DSP board reader (inproc)
     mvs: SensorChain
+    station: MvsStation | None = None  # droid-mvs's cycle (None with ideal_sensor)
     tool: ToolSensorDevice | None = None
     tool_chain: SensorChain | None = None
-    retrace_timeouts: int = 0
+
+    @property
+    def retrace_timeouts(self) -> int:
+        """'invalid' lines the station sent for frames that did not come in time."""
+        return self.station.timeouts if self.station is not None else 0
 
     def close(self) -> None:
         self.board.close()
@@ -68,9 +93,10 @@ def mvs_lockstep(scheduler, devices: Mapping[str, Any], camera: dict[str, Any],
     * ``<name>.mvs_camera`` (ORDER_WORLD): render the frame into an
       ``inproc://`` board;
     * ``<name>.tool_sensor`` (ORDER_WORLD): measure, queue the line;
-    * ``<name>.mvs_sensor`` (ORDER_DEVICE): droid-mvs's core -- take the frame,
-      extract, queue the line (``invalid`` after ``retrace_timeout_s``
-      without a frame, as droid-mvs does);
+    * ``<name>.mvs_sensor`` (ORDER_DEVICE): droid-mvs's station -- take the frame,
+      extract, queue the line; a frame slot without a frame is one frame period
+      waited (``invalid`` once ``retrace_timeout_s`` of them add up, the station's
+      timeout rule, as in droid-mvs);
     * on every heartbeat tick (ORDER_HEARTBEAT) ``<name>.mvs_link`` /
       ``<name>.tool_link``: droid-remote's core -- read what the paced line
       delivered by now, write the Status record (a MemoryDatabase).
@@ -87,7 +113,6 @@ def mvs_lockstep(scheduler, devices: Mapping[str, Any], camera: dict[str, Any],
     """
     from droid.sim.lockstep import ORDER_DEVICE, ORDER_WORLD
     from droid.brain.registry import open_url
-    from droid.subunits.mvs.sensor import SensorCore
 
     uid = next(_LOCKSTEP_IDS)
     world = SimpleNamespace(devices=dict(devices), seed=seed, cell=None)
@@ -111,8 +136,10 @@ def mvs_lockstep(scheduler, devices: Mapping[str, Any], camera: dict[str, Any],
         opts.done()
         run.tool = ToolSensorDevice("tool_sensor", mount, core, output=None, rate_hz=rate)
         run.tool_chain = chain("tool")
-    timeout_ns = int(round(retrace_timeout_s * 1e9))
-    last_line_ns = [0]
+    if not ideal_sensor:  # the retrace timeout in the camera's frame periods
+        run.station = MvsStation(sensor, CablePort(run.mvs.pipe, lambda: scheduler.t_ns),
+                                 timeout_frames=retrace_timeout_s * cam.clock.rate_hz)
+    waited = [0.0]  # frame periods since the previous slot: none at the first (the station starts there)
 
     def camera_task(t_ns: int) -> None:
         cam.frame(t_ns)
@@ -126,14 +153,10 @@ def mvs_lockstep(scheduler, devices: Mapping[str, Any], camera: dict[str, Any],
     def sensor_task(t_ns: int) -> None:
         got = board.wait_frame(0)
         if got is not None:
-            line = sensor.step(got.rows)
-        elif t_ns - last_line_ns[0] >= timeout_ns:
-            run.retrace_timeouts += 1
-            line = format_line(None)
+            run.station.on_frame(got.rows, missed=got.missed)
         else:
-            return
-        last_line_ns[0] = t_ns
-        run.mvs.pipe.write(line, t_ns)
+            run.station.on_wait(waited[0])
+        waited[0] = 1.0
 
     def link_task(ch: SensorChain):
         def on_tick(tick: int) -> None:
