@@ -2,10 +2,13 @@
 
 Lead sensor (``camera`` model): the camera/DSP twin renders the
 240 stripe columns for the sensor's true pose (:class:`~droid.sim.mvs.camera.MvsCamera`,
-the renderer of the real-time cell's camera twin), droid-mvs's core extracts the feature
+the renderer of the real-time cell's camera twin), droid-mvs's station
+(:class:`~droid.subunits.mvs.station.MvsStation`) extracts the feature
 (droid.subunits.mvs.feature, Strauss's method) and formats the serial line,
 the Brain's parser reads it back (rounded to the line's 3 and 5 decimals):
-the reading the Status record holds.  ``ideal`` model: the exact geometry at
+the reading the Status record holds.  A dropped frame is the station's too: no
+line (the Status keeps the one it has) until the retrace timeout, counted in
+frame periods, sends ``invalid``.  ``ideal`` model: the exact geometry at
 the sensor frame (``tool_sensor.measure``, in closed form:
 :mod:`droid.experiments.crossing`), invalid outside the field of view the
 feature extraction can use, plus Gaussian noise of the size the camera chain
@@ -40,7 +43,7 @@ from droid.sim.mvs.tool_sensor import (SIGMA_HEIGHT_MM, SIGMA_LATERAL_MM, SIGMA_
 from droid.sim.workpiece import Workpiece
 from droid.subunits.mvs.calibration import MvsCalibration
 from droid.subunits.mvs.feature import FeatureParams
-from droid.subunits.mvs.sensor import SensorCore
+from droid.subunits.mvs.station import MvsStation, SensorCore
 from droid.subunits.mvs.wire import ROWS
 from droid.tasks.seam.delay import INVALID_READING, Reading
 
@@ -70,10 +73,14 @@ def _line_to_reading(line: bytes) -> Reading:
 
 
 class LeadSensor:
-    """The MVS lead sensor of one trial: its pose in W -> the Brain's reading."""
+    """The MVS lead sensor of one trial: its pose in W -> the Brain's reading.
+
+    ``frames_per_read``: frame periods between two :meth:`read` calls -- the trial renders
+    only the frames its cycles read (one a 30 Hz cycle: 2); to the station's timeout rule a
+    dropped frame is that many frame periods without a frame."""
 
     def __init__(self, workpiece: Workpiece, model: str = "camera", noise: CameraNoise = DEFAULT_NOISE,
-                 calib: MvsCalibration = MvsCalibration(), seed: int = 0) -> None:
+                 calib: MvsCalibration = MvsCalibration(), seed: int = 0, frames_per_read: int = 1) -> None:
         if model not in SENSOR_MODELS:
             raise ValueError(f"unknown sensor model {model!r} (known: {', '.join(SENSOR_MODELS)})")
         self.model = model
@@ -84,7 +91,8 @@ class LeadSensor:
         self.valid = 0
         if model == "camera":
             self.camera = MvsCamera(workpiece, calib, noise)
-            self.core = SensorCore(calib)
+            self.station = MvsStation(SensorCore(calib))
+            self.frames_per_read = frames_per_read
         else:
             fp = FeatureParams()
             margin = (fp.min_side_rows + fp.guard_rows) * calib.lateral_mm_per_row
@@ -92,12 +100,16 @@ class LeadSensor:
             self.y_limit_mm = half - margin
             self.x_limit_mm = (calib.column_at_origin - 1.0) * calib.depth_mm_per_column
 
-    def read(self, T_W_S: np.ndarray) -> Reading:
-        """The reading of a frame taken with the sensor frame at ``T_W_S`` (4x4, mm)."""
+    def read(self, T_W_S: np.ndarray) -> Reading | None:
+        """The reading of a frame taken with the sensor frame at ``T_W_S`` (4x4, mm); None when
+        the frame brought no line (dropped, inside the retrace timeout: the Status keeps its line)."""
         self.frames += 1
         if self.model == "camera":
             rows = self.camera.frame(T_W_S, self.rng)
-            line = format_line(None) if rows is None else self.core.step(rows)
+            out = self.station.on_wait(self.frames_per_read) if rows is None else self.station.on_frame(rows)
+            if out.line is None:
+                return None
+            line = out.line
         else:
             line = format_line(self._ideal(T_W_S))
         reading = _line_to_reading(line)

@@ -18,7 +18,9 @@ GMF1                  its own rates    ``holder="gmf1"`` (default): the Fanuc tw
                                        ``holder_mm_s`` (no controller, no encoders)
 lead sensor           the tick before  the frame the next cycle reads (sensors.LeadSensor),
                       each cycle       stamped with its capture tick; ``latency_cycles`` holds
-                                       every reading back that many cycles
+                                       every reading back that many cycles; a frame that brings
+                                       no line (droid-mvs's station: dropped, inside the retrace
+                                       timeout) leaves the reading the Status holds
 tool-tip sensor       the tick before  the sample the next log row shows (the lead sensor's
                       each log row     noise model, sensors.ToolTipSensor; the truth --
                                        sensors.tool_reading -- gives the seam progress)
@@ -289,7 +291,7 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None,
                             heartbeat_hz=HEARTBEAT_HZ)
     except ValueError as exc:
         raise BadInput(f"trial {cfg.trial_id}: {exc}") from None
-    lead = LeadSensor(geo.workpiece, cfg.sensor, cfg.noise, seed=cfg.seed)
+    lead = LeadSensor(geo.workpiece, cfg.sensor, cfg.noise, seed=cfg.seed, frames_per_read=cyc.cycle_ticks)
     tool_sensor = ToolTipSensor(lead.crossing, cfg.noise if cfg.tool_noise else CameraNoise(), seed=cfg.seed)
     result = TrialResult(cfg, camera_to_tcp_mm=L)
     T_hold0 = geo.T_global_hold6
@@ -327,9 +329,12 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None,
         if k % ct == ct - 1:  # the frame the next cycle reads (it reaches the Status next tick)
             T_true = arm.true_wcp()
             r = lead.read(T_W_g @ T_true @ T_wcp_sensor)
-            if r.valid:
-                r = replace(r, stamp_tick=float(tick))  # the MVS world's frame stamp: its capture tick
-            in_flight.append((r, tick + 1))
+            if r is None:  # no line from this frame: the Status keeps the reading it holds
+                in_flight.append(in_flight[-1] if in_flight else (state["lead"], state["lead_tick"]))
+            else:
+                if r.valid:
+                    r = replace(r, stamp_tick=float(tick))  # the MVS world's frame stamp: its capture tick
+                in_flight.append((r, tick + 1))
             while len(in_flight) > cfg.latency_cycles:
                 state["lead"], state["lead_tick"] = in_flight.popleft()
         if k % lt == lt - 1:

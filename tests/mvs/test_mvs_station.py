@@ -1,6 +1,6 @@
 """droid-mvs's station (droid.subunits.mvs.station; issue 25 item 3): the per-frame cycle that
-droid-mvs's real-time shell and the lockstep chain both step -- the feature, the line, the
-retrace timeout counted in frame periods, the port's reopening.
+droid-mvs's real-time shell, the lockstep chain and the experiments' lead sensor all step --
+the feature, the line, the retrace timeout counted in frame periods, the port's reopening.
 
 No cell and no clock: the station is fed frames and waits as a shell would; the real-time
 shell runs on a scripted board and port (its per-frame logic, not its timing)."""
@@ -323,3 +323,18 @@ def test_realtime_shell_and_lockstep_send_the_same_lines_for_the_same_frames(mon
     assert rt.count(INVALID) == timeouts and len(rt) == 15 + timeouts
     err = capsys.readouterr().err
     assert "15 frames in" in err and f"{timeouts} retrace timeouts" in err and "0 serial overruns" in err
+
+
+# -- the experiments' lead sensor ------------------------------------------------------------
+
+def test_lead_sensor_dropped_frames_bring_no_line_until_the_timeout():
+    from droid.experiments.sensors import LeadSensor
+
+    lead = LeadSensor(STEP, "camera", CameraNoise(0.5, 0.0, drop_probability=1.0), frames_per_read=2)
+    T = pose_for_reading(STEP, 60.0)
+    got = [lead.read(T) for _ in range(7)]
+    assert got[:2] == [None, None] and got[3:5] == [None, None] and got[6] is None
+    assert not got[2].valid and not got[5].valid  # 'invalid' every 6 frame periods = 3 reads
+    assert (lead.frames, lead.valid, lead.station.timeouts) == (7, 0, 2)
+    ok = LeadSensor(STEP, "camera", CameraNoise(0.5, 0.0), frames_per_read=2).read(T)
+    assert ok.valid and ok.y_mm == pytest.approx(0.0, abs=0.3)

@@ -70,3 +70,21 @@ def test_tracking_result_is_the_reference(kw, ref):
     assert np.sqrt(np.nanmean(lat ** 2)) == pytest.approx(ref["rms_lat"], rel=0.01)
     assert np.sqrt(np.nanmean(dep ** 2)) == pytest.approx(ref["rms_dep"], rel=0.01)
     assert r.stop_s_mm == pytest.approx(ref["stop_s"], abs=0.5)
+
+
+def test_dropped_lead_frames_follow_droid_mvs_timeout_rule():
+    """A dropped frame brings no line (droid-mvs's station, issue 25): the cycle keeps the reading
+    the Status holds, so a 30 % drop rate leaves the lead valid in nearly every log row (it was
+    'invalid' in ~30 % before the rule was shared); with every frame dropped, 'invalid' comes by
+    the retrace timeout and the seam is lost."""
+    from droid.sim.mvs.camera import CameraNoise
+
+    def trial(drop):
+        return run_trial(TrialConfig("drop", "i", 16.0, length_mm=100, arm="fast", holder="fixed", seed=2,
+                                     noise=CameraNoise(0.5, 0.02, drop)))
+
+    some = trial(0.3)
+    assert some.stop_reason == "end of seam" and some.valid_frames < 0.8 * some.frames
+    assert np.mean(some.column("lead_valid") == 0) < 0.1
+    none = trial(1.0)
+    assert none.stop_reason == "seam lost" and none.valid_frames == 0
