@@ -222,6 +222,13 @@ class ToolContact:
         p, v, J_t = self.tool_state(body, q_rad, qd_rad_s)
         self.tool_mm, self.tool_v_mm_s = p, v
         T_W = self.T_global_W
+        if self.max_closing_speed_mm_s is not None:
+            # above every surface (the cheap test first: no search for the surface under it)
+            gap = float(T_W[:3, 2] @ (p - T_W[:3, 3])) - self._top_mm
+            if gap > 0.0:
+                self.depth_mm, self.force_N = -gap, np.zeros(3)  # depth: at least this far above
+                self._skip_s = gap / self.max_closing_speed_mm_s - dt_s
+                return None
         Rg = self.T_global_base[:3, :3]
 
         def slip_limit(t_global) -> float:
