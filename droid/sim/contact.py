@@ -175,13 +175,11 @@ class ToolContact:
         return self._T_W_fixed if self._T_W_now is None else np.asarray(self._T_W_now(), float)
 
     def _clearance_mm(self, p_W: np.ndarray) -> float:
-        """A lower bound on the distance [mm] from a point in W to where it could touch: above the
-        top surface, below the plates (with ``max_depth_mm``), or beside the surfaces' footprint
-        (farther than ``width_mm`` from the seam and its leads).  <= 0: it may touch."""
-        z = float(p_W[2])
-        gap = z - self._top_mm
-        if self.max_depth_mm is not None:
-            gap = max(gap, -self.max_depth_mm - z)
+        """A lower bound on the distance [mm] from a point in W, not above the top surface (that
+        case is answered first in :meth:`joint_torque`), to where it could touch: below the plates
+        (with ``max_depth_mm``) or beside the surfaces' footprint (farther than ``width_mm`` from
+        the seam and its leads).  <= 0: it may touch."""
+        gap = -math.inf if self.max_depth_mm is None else -self.max_depth_mm - float(p_W[2])
         _, lat = self.workpiece.nearest_many(p_W[None, 0:2])
         return max(gap, abs(float(lat[0])) - float(self.workpiece.width_mm))
 
