@@ -52,6 +52,22 @@ def builtin_cell_path() -> Path:
     return Path(__file__).resolve().parent.parent / "cells" / "sim.toml"
 
 
+def without_table(text: str, header: str) -> str:
+    """A cell file's text without one table (``header``, e.g. ``[world.devices.touch]``: its
+    header line up to the next table's header), for programs that derive a cell from the
+    built-in one (droid-experiment --realtime, the tests' fixed arms).  ValueError if the
+    text has no such table."""
+    lines = text.splitlines(keepends=True)
+    try:
+        start = next(i for i, ln in enumerate(lines) if ln.strip() == header)
+    except StopIteration:
+        raise ValueError(f"no table {header} in the cell text") from None
+    end = next((i for i in range(start + 1, len(lines)) if lines[i].lstrip().startswith("[")), len(lines))
+    while end > start + 1 and lines[end - 1].lstrip().startswith("#"):  # the next table's own comments
+        end -= 1
+    return "".join(lines[:start] + lines[end:])
+
+
 def default_cell_path() -> Path:
     env = os.environ.get(ENV_CELL)
     return Path(env) if env else builtin_cell_path()

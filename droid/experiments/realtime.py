@@ -29,7 +29,7 @@ import time
 import uuid
 from pathlib import Path
 
-from droid.brain.cellfile import builtin_cell_path
+from droid.brain.cellfile import builtin_cell_path, without_table
 from droid.cli import RuntimeFailure
 from droid.kinematics.transforms import T_to_pose
 from droid.experiments.geometry import trial_geometry
@@ -58,6 +58,8 @@ def trial_cell_text(cfg: TrialConfig, name: str, run_dir: Path, base_text: str |
     """The cell file of a real-time trial (see the module docstring)."""
     geo = trial_geometry(cfg.position, cfg.workpiece, cfg.wrist)
     text = base_text if base_text is not None else builtin_cell_path().read_text()
+    if "[world.devices.touch]" in text:  # no contact in a seam-tracking trial: as in lockstep, and the
+        text = without_table(text, "[world.devices.touch]")  # trial's workpiece may have no [contact]
     text = _replace(text, "name", f'"{name}"\nrun_dir = "{run_dir}"', 1)
     text = _replace(text, "seed", str(int(cfg.seed)), 1)
     text = _replace(text, "workpiece", f'"{geo.workpiece.name}"', 2)

@@ -175,13 +175,11 @@ class ToolContact:
         return self._T_W_fixed if self._T_W_now is None else np.asarray(self._T_W_now(), float)
 
     def _clearance_mm(self, p_W: np.ndarray) -> float:
-        """A lower bound on the distance [mm] from a point in W to where it could touch: above the
-        top surface, below the plates (with ``max_depth_mm``), or beside the surfaces' footprint
-        (farther than ``width_mm`` from the seam and its leads).  <= 0: it may touch."""
-        z = float(p_W[2])
-        gap = z - self._top_mm
-        if self.max_depth_mm is not None:
-            gap = max(gap, -self.max_depth_mm - z)
+        """A lower bound on the distance [mm] from a point in W, not above the top surface (that
+        case is answered first in :meth:`joint_torque`), to where it could touch: below the plates
+        (with ``max_depth_mm``) or beside the surfaces' footprint (farther than ``width_mm`` from
+        the seam and its leads).  <= 0: it may touch."""
+        gap = -math.inf if self.max_depth_mm is None else -self.max_depth_mm - float(p_W[2])
         _, lat = self.workpiece.nearest_many(p_W[None, 0:2])
         return max(gap, abs(float(lat[0])) - float(self.workpiece.width_mm))
 
@@ -222,6 +220,13 @@ class ToolContact:
         p, v, J_t = self.tool_state(body, q_rad, qd_rad_s)
         self.tool_mm, self.tool_v_mm_s = p, v
         T_W = self.T_global_W
+        if self.max_closing_speed_mm_s is not None:
+            # above every surface (the cheap test first: no search for the surface under it)
+            gap = float(T_W[:3, 2] @ (p - T_W[:3, 3])) - self._top_mm
+            if gap > 0.0:
+                self.depth_mm, self.force_N = -gap, np.zeros(3)  # depth: at least this far above
+                self._skip_s = gap / self.max_closing_speed_mm_s - dt_s
+                return None
         Rg = self.T_global_base[:3, :3]
 
         def slip_limit(t_global) -> float:

@@ -86,8 +86,6 @@ def make_contact(world, name: str, options: dict[str, Any]) -> ContactDevice:
     wp = load_workpiece(opts.get("workpiece", str, "step_input"))
     if wp.contact is None:
         raise opts.bad(f"workpiece {wp.name} has no [contact] table (docs/contact.md)", "workpiece")
-    if not wp.planar:
-        raise opts.bad(f"workpiece {wp.name}: contact is modelled on plane workpieces only", "workpiece")
     fixed = "workpiece_pose" in opts.table
     held = "holder_robot" in opts.table or "workpiece_mount" in opts.table
     if fixed == held:

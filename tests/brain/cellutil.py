@@ -9,7 +9,7 @@ import sys
 import time
 from pathlib import Path
 
-from droid.brain.cellfile import builtin_cell_path
+from droid.brain.cellfile import builtin_cell_path, without_table
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -77,6 +77,8 @@ def stationary_reis(text: str, wcp=(300.0, 100.0, 1340.0, 0.0, 180.0, 0.0)) -> s
     ZYZ deg) run by its agent alone (no servo to drive it): a stationary arm."""
     reis = '[world.devices.arm1]\ntype = "reis_vme"\nsubunit = "arm1"\n'
     assert text.count(reis) == 1
+    if "[world.devices.touch]" in text:  # a fixed twin has no plant for the workpiece to push on
+        text = without_table(text, "[world.devices.touch]")
     text = text.replace(reis, '[world.devices.arm1]\ntype = "fixed_arm"\n'
                               f'wcp = [{", ".join(str(float(v)) for v in wcp)}]\n')
     progs = ('programs = ["droid-watchdog", "droid-servo", "droid-servo-agent", "droid-reis-agent", '
@@ -107,7 +109,7 @@ def fixed_seam_cell(text: str, lateral_mm: float = 0.0, deeper_mm: float = 0.0) 
     T_hold[:3, 3] += -SEAM_BACK_MM * S[:3, 2] + lateral_mm * S[:3, 1] + deeper_mm * S[:3, 0]
     text = stationary_reis(text, wcp=[float(v) for v in T_to_pose(T_reis)])
     holder = 'holder_robot = "gmf1_karel"'
-    assert text.count(holder) == 2  # the camera and the tool sensor
+    assert text.count(holder) == 2  # the camera and the tool sensor (stationary_reis took the touch away)
     text = text.replace(holder, 'holder_robot = "holder"')
     hold = ", ".join(repr(float(v)) for v in T_to_pose(T_hold))
     camera = "[world.devices.mvs_camera]"

@@ -12,6 +12,7 @@ from droid.experiments.cli import main
 from droid.experiments.contact_plan import CONTACT_FIELDS
 from droid.experiments.contact_trial import ContactTrialConfig
 from droid.experiments.plan import load_plan, trial_id
+from tests.sim.test_experiment_plan import assert_bad_plan
 
 PROG = [sys.executable, "-m", "droid.experiments.cli"]
 
@@ -93,14 +94,7 @@ def test_a_gains_file_is_relative_to_the_plan_and_bounds_the_force(tmp_path, cap
     ('trial = "contact"\n[defaults]\ngains = 3\n', "gains", "3"),
 ])
 def test_bad_contact_plans_exit_2_with_one_line_naming_plan_key_and_value(tmp_path, capsys, body, key, value):
-    plan = write_plan(tmp_path / "bad.toml", 'name = "x"\n' + body)
-    out = tmp_path / "out"
-    assert main(["run", "--plan", plan, "--out", str(out)]) == 2
-    err = capsys.readouterr().err
-    assert len(err.strip().splitlines()) == 1, err
-    assert plan in err and key in err and value in err, err
-    assert not out.exists()  # nothing run, nothing written
-    assert main(["list", "--plan", plan]) == 2
+    assert_bad_plan(write_plan(tmp_path / "bad.toml", 'name = "x"\n' + body), tmp_path / "out", capsys, key, value)
 
 
 def test_a_bad_gains_file_is_one_line_too(tmp_path, capsys):

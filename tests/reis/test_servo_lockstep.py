@@ -434,3 +434,50 @@ def test_same_seed_same_run():
         for field in ("encoder_pos", "encoder_cmd", "dac", "motor_counts", "encoder_raw"):
             assert np.array_equal(getattr(pa, field), getattr(pb, field))
     assert not np.array_equal(a[0].encoder_raw, c[0].encoder_raw)
+
+
+def test_after_the_brake_a_far_way_point_is_refused_and_a_near_one_resumes(homed_cell):
+    """The servo braked to rest (its command stream stopped mid-move); a NORMAL way-point
+    that is not where the arm stands -- the target of a sender that missed the stop -- is
+    refused: resuming would start the arm from rest at full ramp speed.  A way-point within
+    ``resume_window_counts`` of the arm resumes.  While still braking, a way-point that
+    continues the path is taken (a late planner is bridged as before)."""
+    ls = homed_cell
+    start = np.asarray(ls.servo.encoder_cmd)
+    goal = start + 30000
+    wp = min_jerk_waypoints(start, goal, 1.0)
+    tr = ls.run(1.0, waypoint_commander(wp, Mode.NORMAL, first_index=ls.command_index, stop_after=30))
+    assert ls.servo.at_rest  # braked to rest mid-move
+    here = np.asarray(ls.servo.encoder_pos)
+    assert np.all(np.abs(goal - here) > 1000)
+    window = ls.servo.params.resume_window_counts
+    assert ls.servo.command(Mode.NORMAL, tuple(int(x) for x in here + window + 1)) is False
+    assert ls.servo.command(Mode.NORMAL, tuple(int(x) for x in goal)) is False
+    assert ls.servo.refused_resumes == 2
+    tr = ls.run(0.2)
+    assert np.all(np.abs(tr.encoder_pos - here) <= POSITION_TOL_COUNTS)  # it never moved
+    assert tr.starved.all()
+    now = np.asarray(ls.servo.encoder_pos)  # where it stands now (it settles by a count)
+    near = now + window
+    assert ls.servo.command(Mode.NORMAL, tuple(int(x) for x in near)) is True
+    tr = ls.run(0.3)
+    assert not tr.starved.all()  # it ran the ramp to it (then, fed no more, coasted, braked and held)
+    moved = np.asarray(ls.servo.encoder_pos) - now
+    assert np.all(moved >= window - POSITION_TOL_COUNTS) and np.all(moved <= 3 * window), moved
+    assert ls.servo.refused_resumes == 2
+
+
+def test_a_way_point_while_still_braking_is_taken(homed_cell):
+    ls = homed_cell
+    start = np.asarray(ls.servo.encoder_cmd)
+    wp = min_jerk_waypoints(start, start + 30000, 1.0)
+    ls.run(0.6, waypoint_commander(wp, Mode.NORMAL, first_index=ls.command_index, stop_after=30))
+    first = ls.command_index
+    # run tick by tick until the brake has begun, then send the path's next way-point
+    for _ in range(200):
+        if ls.servo.starved:
+            break
+        ls.run(1 / ls.base_hz * 12)
+    assert ls.servo.starved and not ls.servo.at_rest
+    assert ls.servo.command(Mode.NORMAL, tuple(int(x) for x in wp[31])) is True
+    assert ls.servo.refused_resumes == 0 and first <= ls.command_index

@@ -136,6 +136,74 @@ def test_servo_agent_station_does_not_blame_the_servo_for_its_own_stall():
     assert int(status.read()["fault"]) & L.FAULT_SERVO
 
 
+def test_servo_agent_after_its_own_gap_does_not_send_a_way_point_on_drained_old_reports():
+    """The agent stopped (SIGSTOP, starved of CPU) for 1.5 s while the servo ran on and braked.
+    The reports it drains on waking are a queue from the start of the gap: not starved, the
+    old target.  On them alone, the planner's way-point of now (1.5 s farther along a slow move,
+    yet within two periods at full speed) would pass every check and the servo would jump to it.
+    So a cycle whose newest report is more servo ticks past the last cycle's than a stale window
+    holds commands nothing (FAULT_BRAKING: the planner cancels); the live reports then show the
+    servo braked, and the agent waits for the planner to re-anchor where the arm stands."""
+    cmd = MemoryDatabase("ctrl_command", L.CTRL_COMMAND_LAYOUT)
+    status = MemoryDatabase("ctrl_status", L.CTRL_STATUS_LAYOUT)
+    st = ServoAgentStation(ServoAgentCore(), cmd, status, command_hz=60.0)
+
+    def rep(tick, pos, starved=False):
+        return sw.pack_status(sw.ServoReport(tick=tick, mode=int(Mode.NORMAL), homed=True, homing_joint=-1,
+                                             starved=starved, braking=False, fault=0, amps_on=True,
+                                             encoder_pos=(pos,) * 6, encoder_cmd=(pos,) * 6,
+                                             following_error=(0,) * 6, dac=(0,) * 6))
+
+    t, tick, wp = 10**9, 1000, 1000
+    for k in range(1, 6):  # a slow move: 2 counts per period
+        wp += 2
+        cmd.update(link_alive=1, cmd_mode=L.NORMAL_MODE, cmd_id=1, brain_tick=k, planner_tick=k,
+                   encoder_cmd_int=(wp,) * 6, encoder_cmd_ext=(5000,) * 6)
+        tick += 8
+        st.take(rep(tick, wp - 2), t + k * P - 1000)
+        assert st.cycle(t + k * P) is not None
+    # the gap: 1.5 s (90 periods); the planner moved on 180 counts, the servo braked at ~wp
+    k += 90
+    cmd.update(brain_tick=k, planner_tick=k, encoder_cmd_int=(wp + 180,) * 6)
+    now = t + k * P
+    for j in range(1, 31):  # the drained queue: the reports of the gap's first 240 ms
+        st.take(rep(tick + 4 * j, wp), now - 1000)
+    assert st.cycle(now, late_ns=90 * P) is None
+    assert "catching up" in st.last.why
+    assert int(status.read()["fault"]) & L.FAULT_BRAKING
+    # the next cycle drains the rest: the live reports say the servo braked and holds at wp
+    k += 1
+    cmd.update(brain_tick=k, planner_tick=k, encoder_cmd_int=(wp + 182,) * 6)
+    st.take(rep(tick + 8 * 91, wp, starved=True), t + k * P - 1000)
+    assert st.cycle(t + k * P) is None  # still the catching-up period (its span is long too)
+    k += 1
+    st.take(rep(tick + 8 * 92, wp, starved=True), t + k * P - 1000)
+    cmd.update(brain_tick=k, planner_tick=k, encoder_cmd_int=(wp + 184,) * 6)
+    assert st.cycle(t + k * P) is None
+    assert st.last.why == "waiting for the planner to re-anchor"
+    # the planner re-anchors where the arm stands: commanded again, from there
+    k += 1
+    st.take(rep(tick + 8 * 93, wp, starved=True), t + k * P - 1000)
+    cmd.update(brain_tick=k, planner_tick=k, encoder_cmd_int=(wp,) * 6)
+    msg = st.cycle(t + k * P)
+    assert msg is not None and sw.unpack_command(msg).counts == (wp,) * 6
+    assert st.catch_ups == 2
+
+
+def test_servo_agent_does_not_distrust_a_whole_host_stall():
+    """A stall of the whole host stops the servo too (its tick barely moves): the agent's
+    late cycle trusts the report, as before (the servo judges the stall by its own queue)."""
+    cmd = MemoryDatabase("ctrl_command", L.CTRL_COMMAND_LAYOUT)
+    status = MemoryDatabase("ctrl_status", L.CTRL_STATUS_LAYOUT)
+    cmd.update(link_alive=1, cmd_mode=L.JOG_MODE, cmd_id=0)
+    st = ServoAgentStation(ServoAgentCore(), cmd, status, command_hz=60.0)
+    st.take(report(tick=8), 10**9)
+    assert st.cycle(10**9 + P) is not None
+    st.take(report(tick=20), 10**9 + 12 * P)  # 11 periods of stall, the servo ticked 12 times
+    assert st.cycle(10**9 + 12 * P, late_ns=10 * P) is not None
+    assert st.catch_ups == 0
+
+
 def test_agent_station_copies_replies_and_declares_a_silent_link_dead():
     brain_cmd = MemoryDatabase("command", L.ARM_COMMAND_LAYOUT)
     ctrl_cmd = MemoryDatabase("ctrl_command", L.CTRL_COMMAND_LAYOUT)

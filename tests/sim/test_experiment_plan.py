@@ -181,8 +181,12 @@ wrist = ["standard", "extension30"]
     ('name = "x"\n[sweep\n', "", ""),
 ])
 def test_bad_plans_exit_2_with_one_line_naming_plan_key_and_value(tmp_path, capsys, body, key, value):
-    plan = write_plan(tmp_path / "bad.toml", body)
-    out = tmp_path / "out"
+    assert_bad_plan(write_plan(tmp_path / "bad.toml", body), tmp_path / "out", capsys, key, value)
+
+
+def assert_bad_plan(plan: str, out, capsys, key: str, value: str) -> None:
+    """``run`` and ``list`` of a bad plan exit 2 with one line naming the plan, key and value;
+    nothing is written (shared with tests/experiments/test_contact_plan.py)."""
     assert main(["run", "--plan", plan, "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1, err

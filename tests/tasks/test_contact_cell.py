@@ -14,7 +14,7 @@ import time
 import numpy as np
 import pytest
 
-from tests.brain.cellutil import droid
+from tests.brain.cellutil import droid, wait_for
 from tests.tasks.test_seamtrack_cell import home_both, snoop
 
 pytestmark = pytest.mark.integration
@@ -36,6 +36,15 @@ def read_rows(path):
 
 
 def assert_standing(cell):
+    """No motion commanded (the servo's command constant, not busy) and the arm still.  Pressed on
+    the surface the servo settles for up to ~0.5 s after its stop (the halt record's settled_tick):
+    that is waited for (a wait, not a verdict), then the command must not change."""
+    def still():
+        x = snoop(cell, "arm1")["encoder_pos"]
+        time.sleep(0.5)
+        return np.max(np.abs(np.subtract(x, snoop(cell, "arm1")["encoder_pos"]))) <= 2
+
+    wait_for(still, timeout=20, what="the arm settled")
     a = snoop(cell, "arm1")
     time.sleep(0.5)
     b = snoop(cell, "arm1")

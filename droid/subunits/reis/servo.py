@@ -91,6 +91,7 @@ class ServoCore:
         self._vel = np.zeros(N, np.int64)  # target increment of the last tick [counts/tick]
         self._dac = (0,) * N
         self._queue = CommandQueue(p)
+        self.refused_resumes = 0  # NORMAL way-points refused after the brake (resume_window_counts)
 
     # -- status ------------------------------------------------------------------
     @property
@@ -128,6 +129,11 @@ class ServoCore:
     def braking(self) -> bool:
         """Starved and still decelerating."""
         return self._queue.braking
+
+    @property
+    def at_rest(self) -> bool:
+        """Starved, and the braking profile has run out: the target stood still last tick."""
+        return self._queue.starved and not self._queue.braking and not np.any(self._vel)
 
     @property
     def home_edge_joints_deg(self) -> np.ndarray | None:
@@ -231,6 +237,14 @@ class ServoCore:
         goal = self._queue.last_goal + cmd if mode == Mode.JOG else cmd + self._zero
         if self._zero is not None:
             goal = np.clip(goal, *self._limits)
+        if (mode == Mode.NORMAL and self.at_rest
+                and np.any(np.abs(goal - self._pos) > self.params.resume_window_counts)):
+            # braked to rest, and the way-point is not where the arm stands: a stale target
+            # (its sender missed the stop); resuming would jump to it at full ramp speed.
+            # (While the brake still runs, a way-point continuing the path is taken: a late
+            # command stream rides through, as §4.1.5.1's cache does.)
+            self.refused_resumes += 1
+            return False
         self._queue.submit(goal, accel_limit=mode == Mode.JOG)
         return True
 

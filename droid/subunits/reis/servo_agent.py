@@ -19,7 +19,11 @@ It sends *nothing* — so the servo's cache empties and it brakes to a stop —
 when the Brain link is dead (``link_alive = 0``), when the planner stopped
 refreshing its way-point (``planner_tick`` more than ``stale_ticks`` behind
 the relayed ``brain_tick``), or, after the servo braked, until the planner
-has re-anchored its way-point at the stopped position.
+has re-anchored its way-point at the stopped position.  A cycle that wakes after the agent
+itself was deaf (stopped, starved of CPU) while the servo ran on drains a queue of old reports
+(not yet starved, the target of then): it trusts none of them and sends nothing
+(:meth:`ServoAgentStation.cycle`); the servo, braked to rest, also refuses a way-point that is
+not where the arm stands (``resume_window_counts``).
 
 When the way-points stop while the arm moves (issue 16, docs/safety.md finding 1)
 it never re-sends the last one: the servo would ramp to it and stop within one
@@ -71,11 +75,14 @@ class AgentDecision:
 class ServoAgentCore:
     """Decides the servo's command for one 60 Hz period.  Pure."""
 
-    def __init__(self, stale_ticks: int = 3, resume_window_counts: int = 20,
+    def __init__(self, stale_ticks: int = 3, resume_window_counts: int | None = None,
                  params: ServoParams | None = None) -> None:
         self.stale_ticks = stale_ticks
-        self.resume_window = resume_window_counts
         p = params or ServoParams()
+        if resume_window_counts is None:
+            resume_window_counts = p.resume_window_counts
+        self.resume_window = resume_window_counts
+        self.servo_rate_hz = float(p.servo_rate_hz)
         # A planner way-point is never farther from the servo's target than the joint
         # can travel in two command periods; a farther one is stale (the planner has
         # not re-anchored yet after the servo braked) and is not sent.
@@ -243,8 +250,14 @@ class ServoAgentStation:
         self.ctrl_command = ctrl_command
         self.ctrl_status = ctrl_status
         self.fresh_ns = int(core.stale_ticks * 1e9 / command_hz)  # [ns]
+        # the servo ticks one stale window holds: more between two cycles' newest reports and
+        # the agent was deaf while the servo ran (stopped, starved of CPU), so what it drained
+        # may be a queue of old reports and the newest of them old too
+        self.catch_up_ticks = core.stale_ticks * core.servo_rate_hz / command_hz
         self.report: sw.ServoReport | None = None
         self.report_ns = 0
+        self._cycle_tick: int | None = None  # the servo tick of the newest report at the last cycle
+        self.catch_ups = 0  # cycles that distrusted a drained queue
         self.bad_frames = 0
         self.last: AgentDecision | None = None
 
@@ -264,7 +277,24 @@ class ServoAgentStation:
         judges the stall itself: its queue runs dry and it brakes).  ``ticked``: a relayed
         heartbeat tick came since the last cycle (see :meth:`ServoAgentCore.step`)."""
         fresh = self.report is not None and now_ns - self.report_ns < self.fresh_ns + max(0, late_ns)
-        d = self.last = self.core.step(self.ctrl_command.read(), self.report, fresh, ticked)
+        catching_up = False
+        if self.report is not None:
+            tick, before = self.report.tick, self._cycle_tick
+            self._cycle_tick = tick
+            if fresh and before is not None and tick - before > self.catch_up_ticks:
+                # the servo ran on while this agent did not hear it: the reports just drained
+                # may be a queue from before the gap (not yet starved, the target of then),
+                # so this period commands nothing; the servo has braked anyway, since its
+                # cache ran dry during the gap.  The next cycle reads the live reports.
+                # (A stall of the whole host stops the servo too: its tick barely moves.)
+                catching_up = True
+                self.catch_ups += 1
+        if catching_up:  # FAULT_BRAKING: the planner cancels the move and re-anchors
+            self.core._forget_motion()
+            d = self.last = AgentDecision(None, {}, FAULT_BRAKING, "catching up on the servo's status "
+                                          f"({tick - before} servo ticks since the last cycle)")
+        else:
+            d = self.last = self.core.step(self.ctrl_command.read(), self.report, fresh, ticked)
         with self.ctrl_status.locked() as st:
             for k, v in d.status.items():
                 st[k] = v

@@ -106,6 +106,11 @@ class ServoParams:
     # 2-7 ms, some 10 ms under load -- docs/benchmarks.md, issue 16)
     starve_grace_ticks: int = 7
     brake_decel_counts_per_tick2: Six = (2.0, 2.0, 2.0, 4.0, 4.0, 4.0)  # 5e5 / 1e6 counts/s^2
+    # after the brake has stopped the arm, a NORMAL way-point farther than this from where the
+    # arm stands is not a resume but a stale target (the planner has not re-anchored): the
+    # servo agent does not send it, and the servo refuses it (DROID addition: a way-point left
+    # over from before a stall must never start the arm at full ramp speed from rest)
+    resume_window_counts: int = 20
 
     # supervision
     max_following_error_counts: Six = (4000.0, 4000.0, 4000.0, 4000.0, 4000.0, 4000.0)

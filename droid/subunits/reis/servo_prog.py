@@ -87,6 +87,7 @@ def main(argv=None) -> int:
         halts = BrakeRecorder()
         lateness_us = np.zeros(LATENESS_WINDOW, np.float32)  # the last minute of wake-ups
         n_late = 0
+        refused_seen, refused_tick = 0, -SERVO_HZ - 1
         while not Stop.requested:
             periods = timer.wait(0.5)
             if not periods:
@@ -112,6 +113,13 @@ def main(argv=None) -> int:
             except (OSError, ValueError) as exc:
                 failed = True
                 raise RuntimeFailure(f"VME access failed: {exc}") from None
+            if core.refused_resumes != refused_seen:  # at most one line per episode of refusals
+                if core.tick - refused_tick > SERVO_HZ:
+                    print(f"{PROG} {sub.name}: refused a way-point at servo tick {core.tick}: braked to rest "
+                          f"at {core.encoder_pos} and the way-point is farther than "
+                          f"{core.params.resume_window_counts} counts (a stale target; "
+                          f"{core.refused_resumes} refused so far)", file=sys.stderr, flush=True)
+                refused_seen, refused_tick = core.refused_resumes, core.tick
             event = halts.step(core.tick, arrived, core.starved, core.encoder_pos, core.homing)
             if event is not None:
                 print(f"{PROG} {sub.name}: halt {json.dumps(event.as_dict())}", file=sys.stderr, flush=True)
