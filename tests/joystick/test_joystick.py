@@ -11,12 +11,14 @@ from droid.brain import cheader
 from droid.brain.cellfile import load_cell
 from droid.brain.classes import CLASSES
 from droid.brain.databases import brain_layouts, local_layouts
+from droid.brain import layouts as L
 from droid.brain.layouts import JOYSTICK_STATUS_LAYOUT, LAYOUTS, new_record
 from droid.cli import BadInput
 from droid.kinematics import load_robot
 from droid.sim.joystick.device import JoystickDevice, JoystickTwin
 from droid.subunits.joystick.driver import EvdevParser, JoystickState, JsParser, open_joystick
-from droid.subunits.joystick.prog import joystick_options, record_fields
+from droid.subunits.joystick.prog import joystick_options
+from droid.subunits.joystick.station import JoystickStation, record_fields
 from droid.tasks.snoop import status_dict, status_text
 from droid.tasks.stick import BUTTON_MODE, BUTTON_QUIT, StickInput, StickJog
 
@@ -103,6 +105,38 @@ def test_driver_reads_a_device_file_and_notices_it_vanish(tmp_path):
     dev.close()
 
 
+def test_station_reads_every_cycle_and_retries_a_lost_device_every_reopen_cycles(tmp_path):
+    """JoystickStation, the cycle droid-joystick's shell steps: a device that goes away reads
+    centred and released with the DEVICE fault (one line), is tried again only every
+    reopen_cycles cycles (counted in cycles, not seconds: lockstep steps it the same way),
+    and reads again once it is back."""
+    path = tmp_path / "js0"
+    lines = []
+    dev = open_joystick(f"js://{path}")
+    st = JoystickStation(dev, 100.0, log=lines.append)
+    assert st.reopen_cycles == 50 and st.reopen_s == 0.5
+    f = st.start(1)
+    assert f["valid"] == 0 and f["fault"] == L.FAULT_DEVICE and f["updated_ns"] == 1
+    assert len(lines) == 1 and "retrying every 0.5 s" in lines[0] and str(path) in lines[0]
+    os.mkfifo(path)
+    r0 = os.open(path, os.O_RDONLY | os.O_NONBLOCK)  # a reader until the station opens it
+    w = os.open(path, os.O_WRONLY)
+    os.write(w, js(0, 32767, 0x82, 1))
+    for c in range(1, 50):  # the device is there now, but not tried before cycle 50
+        assert st.cycle(c)["valid"] == 0 and dev.opens == 0
+    f = st.cycle(50)
+    assert dev.opens == 1 and f["valid"] == 1 and f["fault"] == 0 and f["axes"][1] == 1.0
+    os.close(r0)
+    os.write(w, js(0, -32767, 0x02, 1))
+    assert st.cycle(51)["axes"][1] == -1.0  # open: read every cycle
+    os.close(w)  # the writer goes away
+    f = st.cycle(52)
+    assert f["valid"] == 0 and f["axes"][1] == 0.0 and f["fault"] == L.FAULT_DEVICE
+    assert len(lines) == 2 and lines[1].endswith("end of file; reopening")
+    assert st.cycle(53)["valid"] == 0 and dev.opens == 1  # not retried at once
+    dev.close()
+
+
 def test_twin_core_round_trips_through_the_parser():
     twin = JoystickTwin(2, 8, script=[(0.5, [0.25, -1.0], [0, 0, 1, 0, 0, 0, 0, 0])], resync_s=10.0)
     st = JoystickState()
@@ -132,13 +166,14 @@ def test_twin_on_a_pty_is_read_by_the_real_driver(tmp_path):
         assert dev.state.axes[1] == pytest.approx(0.75, abs=1e-4)
         assert dev.state.buttons[0] == 1 and dev.state.buttons[7] == 1
         rec = new_record(JOYSTICK_STATUS_LAYOUT)
-        for k, v in record_fields(dev).items():
+        for k, v in record_fields(dev, 7).items():
             rec[k] = v
         assert rec["valid"] == 1 and rec["fault"] == 0 and rec["axes"][1] == pytest.approx(0.75, abs=1e-4)
+        assert rec["updated_ns"] == 7  # the caller's clock
     finally:
         twin_dev.close()
     dev.poll()  # the twin is gone: the pty hangs up
-    assert not dev.state.valid and record_fields(dev)["fault"] != 0
+    assert not dev.state.valid and record_fields(dev, 8)["fault"] != 0
     dev.close()
 
 

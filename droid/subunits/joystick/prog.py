@@ -10,7 +10,9 @@ reads the device named by the subunit's ``device`` URL
 copies it into the Brain's Status, where ``droid-snoop`` and ``droid-jog
 --joystick`` read it.  A device that cannot be read sets ``valid = 0``
 (stick centred, buttons released) and the DEVICE fault, and is reopened
-every ``REOPEN_S`` seconds.
+every ``REOPEN_S`` seconds.  The cycle and those rules are one station,
+:class:`~droid.subunits.joystick.station.JoystickStation`; this shell keeps the
+clock, the record and the signals.
 
 Cell file::
 
@@ -26,21 +28,18 @@ from __future__ import annotations
 import sys
 import time
 
-
 from droid.brain.databases import open_local
-from droid.brain.layouts import FAULT_DEVICE
 from droid.brain.registry import open_url, program
 from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
 from droid.brain.rt import PeriodicTimer
 from droid.cli import BadInput, file_number, run
 from droid.numbers import Range
-from droid.subunits.joystick.driver import JoystickDevice
+from droid.subunits.joystick.station import JoystickStation
 
 PROG = "droid-joystick"
 DEFAULT_RATE_HZ = program(PROG).rate_hz  # [Hz], declared in droid.subunits.joystick.device
 #: The read rates a joystick subunit accepts ([subunits.X] rate_hz) [Hz].
 RATE_HZ = Range(1.0, 1000.0, "Hz")
-REOPEN_S = 0.5
 
 
 def joystick_options(sub) -> tuple[str, float]:
@@ -55,14 +54,6 @@ def joystick_options(sub) -> tuple[str, float]:
     return url, rate
 
 
-def record_fields(dev: JoystickDevice) -> dict:
-    """The ctrl_status fields of the device's state now."""
-    st = dev.state
-    return dict(axes=st.axes, buttons=st.buttons, valid=int(st.valid), events=st.events & 0xFFFFFFFF,
-                n_axes=st.n_axes, n_buttons=st.n_buttons, fault=0 if st.valid else FAULT_DEVICE,
-                updated_ns=time.monotonic_ns())
-
-
 @run
 def main(argv=None) -> int:
     args, cell, sub = subunit_program(PROG, "Read a joystick device into its subunit's Status.", argv)
@@ -71,26 +62,16 @@ def main(argv=None) -> int:
     status = open_local(cell, sub, "ctrl_status")
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
     timer = PeriodicTimer(int(round(1e9 / rate)))
-    reopen_every = max(1, int(REOPEN_S * rate))
-    cycles = 0
+    station = JoystickStation(dev, rate, PROG)
     try:
-        dev.poll()
-        if dev.fd < 0:
-            print(f"{PROG}: {dev.last_error}; retrying every {REOPEN_S:g} s", file=sys.stderr, flush=True)
-        status.update(**record_fields(dev))
+        status.update(**station.start(time.monotonic_ns()))
         presence.ready()
         notify_ready(args.ready_fd)
         while not Stop.requested:
             if not timer.wait(0.5):
                 continue
-            cycles += 1
-            was_open = dev.fd >= 0
-            if was_open or cycles % reopen_every == 0:
-                dev.poll()
-            if was_open and dev.fd < 0:
-                print(f"{PROG}: {dev.last_error}; reopening", file=sys.stderr, flush=True)
-            status.update(**record_fields(dev))
-            presence.beat(0, cycles, timer.overruns, timer.lateness_max_ns)
+            status.update(**station.cycle(time.monotonic_ns()))
+            presence.beat(0, station.cycles, timer.overruns, timer.lateness_max_ns)
     finally:
         dev.close()
         timer.close()
