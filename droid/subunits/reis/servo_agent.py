@@ -103,7 +103,9 @@ class ServoAgentCore:
         self._missed = 0  # periods in a row without a new way-point
         self._ahead = np.zeros(6)  # per joint: the direction the arm braked in, until the planner passes
 
-    def _forget_motion(self) -> None:
+    def forget_motion(self) -> None:
+        """Drop what the core knows of the motion in progress (the last way-point, the planner's
+        velocity, the braking direction): the next way-point is judged from scratch."""
         self._wp, self._v, self._plan, self._wp_tick, self._missed = None, np.zeros(6), None, None, 0
         self._ahead = np.zeros(6)
 
@@ -170,7 +172,7 @@ class ServoAgentCore:
                    if mode == NORMAL_MODE and report.homed else None)
             if nxt is not None:
                 return self._send(Mode.NORMAL, nxt, status, faults, "Brain link lost: braking")
-            self._forget_motion()
+            self.forget_motion()
             return AgentDecision(None, status, faults, "Brain link lost")
         try:
             servo_mode = Mode(mode)  # the servo message carries cmd_mode's own numbers
@@ -178,7 +180,7 @@ class ServoAgentCore:
             return AgentDecision(None, status, faults, f"unknown command mode {mode}")
         counts = (0,) * 6
         if servo_mode != Mode.NORMAL or not report.homed:
-            self._forget_motion()
+            self.forget_motion()
         if servo_mode == Mode.HOME:
             if self.home_id != cmd_id:
                 self.home_id = cmd_id
@@ -206,17 +208,17 @@ class ServoAgentCore:
                         return self._send(Mode.NORMAL, nxt, status, faults,
                                           "planner silent: braking" if silent else "")
                     if silent:
-                        self._forget_motion()
+                        self.forget_motion()
                         return AgentDecision(None, status, faults, "planner silent")
                     if self._wp is not None:  # at rest where the braking ended: hold there
                         return self._send(Mode.NORMAL, self._wp, status, faults)
                 target = np.asarray(cmd["encoder_cmd_int"], np.int64)
                 if report.starved and np.any(np.abs(target - np.asarray(report.encoder_pos)) > self.resume_window):
-                    self._forget_motion()
+                    self.forget_motion()
                     return AgentDecision(None, status, faults, "waiting for the planner to re-anchor")
                 if np.any(np.abs(target - np.asarray(report.encoder_cmd)) > self.max_step):
                     faults |= FAULT_BRAKING  # tells the planner to re-anchor where the arm is
-                    self._forget_motion()
+                    self.forget_motion()
                     return AgentDecision(None, status, faults, "way-point too far from the servo's target")
                 if self._plan is not None and self._wp_tick is not None and planner_tick > self._wp_tick:
                     self._v = (target - self._plan) / (planner_tick - self._wp_tick)
@@ -290,7 +292,7 @@ class ServoAgentStation:
                 catching_up = True
                 self.catch_ups += 1
         if catching_up:  # FAULT_BRAKING: the planner cancels the move and re-anchors
-            self.core._forget_motion()
+            self.core.forget_motion()
             d = self.last = AgentDecision(None, {}, FAULT_BRAKING, "catching up on the servo's status "
                                           f"({tick - before} servo ticks since the last cycle)")
         else:
