@@ -7,7 +7,7 @@ its ``netft://`` driver and its twin ``netft``.  No lockstep assembly yet.
 from __future__ import annotations
 
 from droid.brain.classes import SubunitClass
-from droid.brain.layouts import FT6_STATUS_LAYOUT
+from droid.brain.layouts import FT6_COMMAND_LAYOUT, FT6_CTRL_COMMAND_LAYOUT, FT6_STATUS_LAYOUT
 from droid.brain.registry import DevicePackage, Driver, Program, Twin
 
 #: URL scheme -> driver class (droid.subunits.ft.rdt.DRIVERS holds the same classes)
@@ -16,14 +16,15 @@ DRIVER_CLASSES = {"netft": "droid.subunits.ft.rdt:NetFtDevice"}
 FT6 = SubunitClass(
     name="ft6",
     description="six-axis force/torque sensor on Ethernet (ATI Net F/T, RDT; thesis §7.3)",
-    brain={"status": FT6_STATUS_LAYOUT},
-    local={"ctrl_status": FT6_STATUS_LAYOUT},
+    brain={"status": FT6_STATUS_LAYOUT, "command": FT6_COMMAND_LAYOUT},
+    local={"ctrl_status": FT6_STATUS_LAYOUT, "ctrl_command": FT6_CTRL_COMMAND_LAYOUT},
     copy_fields=("force_N", "torque_Nm", "force_tool_N", "torque_tool_Nm", "sample_ns", "sample_age_ms",
                  "rdt_seq", "ft_seq", "status_word", "valid", "saturated", "biased", "dropped",
                  "out_of_order", "bad_datagrams", "records", "fault"),
     snoop_fields=("force_N", "torque_Nm", "force_tool_N", "torque_tool_Nm", "sample_age_ms", "valid",
                   "saturated", "biased", "rdt_seq", "dropped", "out_of_order", "bad_datagrams", "fault"),
     drivers=DRIVER_CLASSES,
+    command_map={"guard_force_n": "guard_force_n", "bias_id": "bias_id", "sent": "sent", "cmd_id": "cmd_id"},
 )
 
 PACKAGE = DevicePackage(
