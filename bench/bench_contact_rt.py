@@ -11,8 +11,9 @@ measures, printing figures (it decides nothing):
    arrived at droid-ft (``sample_ns``, CLOCK_MONOTONIC): p50 / p99 / max [ms] and p99 in
    heartbeat periods (target p99 <= 2);
 3. **over-force stop**: the arm moved over the plate (droid-move), 1 s at rest (the F/T's rest
-   reading), then ``droid-contact arm1 --gains G`` with ``touch_n`` above ``force_max_n``: it
-   presses until the over-force stop.  From the first F/T record past the limit (the tared
+   reading; once droid-contact biases the sensor, the reading inside its tare window after the
+   bias), then ``droid-contact arm1 --gains G`` with ``touch_n`` above ``force_max_n``: it
+   presses until the over-force stop -- droid-ft's guard on arm1 (FAULT_FORCE) or the task's.  From the first F/T record past the limit (the tared
    normal force, ``sample_ns``) to standstill (the arm's encoders within 2 counts from then on
    for 200 ms) [ms] (target <= 50 ms), and the over-force reading seen by the task.
 
@@ -59,14 +60,19 @@ class Sampler(threading.Thread):
     def __init__(self, cell) -> None:
         super().__init__(daemon=True)
         self.ft = open_brain(cell, cell.subunit("ft"), "status")
+        self.ft_cmd = open_brain(cell, cell.subunit("ft"), "command")
         self.arm = open_brain(cell, cell.subunit("arm1"), "status")
+        self.bias_ns: int | None = None  # when the task wrote its bias command (droid-contact's tare)
         self.records: list[tuple[int, int, np.ndarray]] = []
         self.encoders: list[tuple[int, np.ndarray]] = []
         self.stop = threading.Event()
 
     def run(self) -> None:
         last = None
+        bias0 = int(self.ft_cmd.read()["bias_id"])
         while not self.stop.is_set():
+            if self.bias_ns is None and int(self.ft_cmd.read()["bias_id"]) != bias0:
+                self.bias_ns = time.monotonic_ns()
             f = self.ft.read()
             now = time.monotonic_ns()
             seq = int(f["rdt_seq"])
@@ -81,6 +87,7 @@ class Sampler(threading.Thread):
         self.stop.set()
         self.join(2.0)
         self.ft.close()
+        self.ft_cmd.close()
         self.arm.close()
 
 
@@ -117,8 +124,13 @@ def overforce(cell_path: Path, cell, tmp: Path, k: int) -> str:
     s.close()
     if "over-force" not in out.stderr:
         return f"over-force run {k}: no over-force stop: {out.stderr.strip()}"
-    t_rest_end = s.records[0][0] + 0.9e9
-    rest = np.median([f[0] for seen, _, f in s.records if seen < t_rest_end])
+    if s.bias_ns is not None:  # the task biased the sensor: the reference is read after that,
+        # inside its 0.5 s tare window (the bias lands within ~0.15 s; the approach follows the tare)
+        t_rest_end = s.bias_ns + 0.5e9
+        rest = np.median([f[0] for seen, _, f in s.records if s.bias_ns + 0.2e9 <= seen < t_rest_end])
+    else:
+        t_rest_end = s.records[0][0] + 0.9e9
+        rest = np.median([f[0] for seen, _, f in s.records if seen < t_rest_end])
     cross = next(((sample, rest - f[0]) for seen, sample, f in s.records
                   if seen >= t_rest_end and rest - f[0] > FORCE_MAX_N), None)
     if cross is None:

@@ -67,6 +67,14 @@ def test_the_rule_biases_on_a_new_bias_id_only_and_the_guard_trips_above_its_lim
     cmd["guard_force_n"] = 45.0
     rule.take(cmd)
     assert rule.over(fields)
+    rule.take(cmd)
+    assert rule.over({"valid": 1, "force_N": np.zeros(3)})  # latched: a dip below does not open it
+    cmd["guard_force_n"] = 0.0
+    rule.take(cmd)
+    assert not rule.over(fields)  # disarmed: open
+    cmd["guard_force_n"] = 45.0
+    rule.take(cmd)
+    assert not rule.over({"valid": 1, "force_N": np.zeros(3)})  # re-armed, below the limit
     assert rule.over({"valid": 0, "force_N": np.zeros(3)})  # armed and blind: trips
 
 
@@ -148,15 +156,18 @@ def test_the_planner_cancels_on_force_refuses_new_moves_and_takes_them_once_clea
 
     joint([5000] * 6, 60, 4)
     for _ in range(10):
-        core.step(cmd, st)
-    st["encoder_pos"] = [700] * 6
+        wp = list(core.step(cmd, st).encoder_cmd_int)
+    st["encoder_pos"] = [700] * 6  # behind the way-point: a pressing arm's following error
     st["fault"] = L.FAULT_FORCE
     out = core.step(cmd, st)
     assert out.cmd_result == L.CMD_FAILED and out.note == "cancelled command 4: faults: force"
-    assert list(out.encoder_cmd_int) == [700] * 6
+    assert list(out.encoder_cmd_int) == wp and out.busy == 0  # holds its way-point: no step back
     joint([9000] * 6, 30, 5)  # a new move while the guard holds: refused, nothing moves
     out = core.step(cmd, st)
     assert out.cmd_result == L.CMD_REFUSED and out.cmd_id == 5 and "over-force" in out.note
+    assert list(out.encoder_cmd_int) == wp
+    st["fault"] = L.FAULT_FORCE | L.FAULT_BRAKING  # and the servo braked: re-anchored where it is
+    out = core.step(cmd, st)
     assert list(out.encoder_cmd_int) == [700] * 6
     st["fault"] = 0  # the task disarmed the guard
     out = core.step(cmd, st)

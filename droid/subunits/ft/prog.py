@@ -154,9 +154,10 @@ class FtCommandRule:
       through the Brain, the way droid-contact takes the torch's weight out before it touches;
     * ``guard_force_n`` > 0 arms the **over-force guard** (thesis §7.3's force control needs
       one beside the arm, not behind the Brain's two 60 Hz exchanges): while the sensor reads
-      |F| above it -- or cannot be read at all -- :meth:`over` is True and droid-ft sets
-      FAULT_FORCE in the Status of the arm it sits on (``guard_arm``, same host), so that arm's
-      planner cancels its move within its next tick.  0 disarms it.
+      |F| above it -- or cannot be read at all -- :meth:`over` is True, and stays True (a latch)
+      until the limit changes; droid-ft sets FAULT_FORCE in the Status of the arm it sits on
+      (``guard_arm``, same host), so that arm's planner ends its move within its next tick.
+      0 disarms it.
 
     The ``bias_id`` present when the program starts is not replayed (as commands issued
     before an agent starts are not)."""
@@ -164,6 +165,7 @@ class FtCommandRule:
     def __init__(self) -> None:
         self.bias_id: int | None = None
         self.limit_n = 0.0  # [N]; 0 = off
+        self.latched = False  # tripped since the limit was set
         self.biases = 0  # bias requests taken
 
     def take(self, cmd) -> bool:
@@ -172,15 +174,23 @@ class FtCommandRule:
         ask = self.bias_id is not None and bid != self.bias_id
         self.bias_id = bid
         limit = float(cmd["guard_force_n"])
-        self.limit_n = limit if np.isfinite(limit) and limit > 0 else 0.0
+        limit = limit if np.isfinite(limit) and limit > 0 else 0.0
+        if limit != self.limit_n:  # re-armed at another limit, or disarmed: the latch opens
+            self.latched = False
+        self.limit_n = limit
         self.biases += ask
         return ask
 
     def over(self, fields: dict) -> bool:
-        """The guard trips: armed, and the reading is above the limit or not valid."""
+        """The guard trips: armed, and the reading is above the limit or not valid.  It latches:
+        an arm pressing at the limit reads just above and just below it from sample to sample,
+        and each dip would let the planner take the task's next step deeper.  Only a new limit
+        (or 0) opens it."""
         if self.limit_n <= 0:
             return False
-        return not fields["valid"] or float(np.linalg.norm(fields["force_N"])) > self.limit_n
+        if not self.latched:
+            self.latched = not fields["valid"] or float(np.linalg.norm(fields["force_N"])) > self.limit_n
+        return self.latched
 
 
 class FtStation:

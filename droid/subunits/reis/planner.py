@@ -130,8 +130,18 @@ class PlannerCore:
             return out
         dead = int(status["fault"]) & (FAULT_SERVO | FAULT_WATCHDOG)  # nothing can move
         force = int(status["fault"]) & FAULT_FORCE  # the F/T guard on this arm tripped (droid-ft)
-        stop = not int(cmd["link_alive"]) or int(status["fault"]) & FAULT_BRAKING or dead or force
-        if stop and (self.time_count > 0 or np.any(np.abs(self.int_counts - pos) > 0)):
+        hard = not int(cmd["link_alive"]) or int(status["fault"]) & FAULT_BRAKING or dead
+        if force and not hard and self.time_count > 0:
+            # over-force: the move ends at its current way-point and the arm holds there, as on
+            # a stop command (the servo agent keeps sending that way-point): the arm stands at
+            # once.  Re-anchoring at the measured position, as on a lost stream, would move a
+            # pressing arm back by its following error and its drives' deflection.
+            self.ext_counts = self.int_counts.copy()
+            self.time_count = 0
+            out.cmd_result = CMD_FAILED
+            out.cmd_id = self.active_id
+            out.note = f"cancelled command {self.active_id}: {stop_cause(cmd, status)}"
+        if hard and (self.time_count > 0 or np.any(np.abs(self.int_counts - pos) > 0)):
             cancelled = self.time_count > 0
             self.int_counts = pos.copy()
             self.ext_counts = pos.copy()
@@ -140,6 +150,7 @@ class PlannerCore:
                 out.cmd_result = CMD_FAILED
                 out.cmd_id = self.active_id
             out.note = f"cancelled command {self.active_id}: {stop_cause(cmd, status)}" if cancelled else ""
+        stop = hard or force
         new_id = int(cmd["cmd_id"])
         asks_stop = int(cmd["joint_time_count"] if int(cmd["coord"]) == JSPACE else cmd["cart_time_count"]) == STOP_TICKS
         if force and not dead and new_id != self.plan_id and int(cmd["cmd_mode"]) == NORMAL_MODE and not asks_stop:
