@@ -31,7 +31,10 @@ PACKAGE = DevicePackage(
     name="ft",
     description="ATI Net F/T force/torque sensor over RDT (UDP) and its HTTP calibration (docs/ft.md)",
     classes=(FT6,),
-    programs=(Program("droid-ft", "droid.subunits.ft.prog",
+    # SCHED_FIFO 53: droid-ft holds the over-force guard of the arm it sits on (FAULT_FORCE),
+    # so it runs above the agents (51) and the world (52), below the servo (60).  On the normal
+    # scheduler it went 70-100 ms without a record while the pressing cell held both cores.
+    programs=(Program("droid-ft", "droid.subunits.ft.prog", sched="fifo", priority=53,
                       description="reads the sensor's RDT stream at its URL's rate_hz into its Status"),),
     drivers=(Driver("ft", tuple(DRIVER_CLASSES), "droid.subunits.ft.rdt:open_ft",
                     "netft://HOST[:PORT][?rate_hz=HZ&http_port=N&bias=0|1]"),),

@@ -39,7 +39,7 @@ import numpy as np
 from droid.brain.databases import open_local
 from droid.brain.layouts import FAULT_DEVICE, FAULT_FORCE
 from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
-from droid.brain.rt import PeriodicTimer
+from droid.brain.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import BadInput, run
 from droid.kinematics.transforms import pose_to_T
 from droid.numbers import POSE
@@ -257,6 +257,7 @@ def main(argv=None) -> int:
                                       "subunit's Status.", argv, example="ft")
     opts = ft_options(sub, cell)
     dev = open_url(opts.url, "ft")  # droid.subunits.ft.rdt.open_ft, by the registry
+    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)  # the guard is real-time (after bad input is refused)
     status = open_local(cell, sub, "ctrl_status")
     command = open_local(cell, sub, "ctrl_command")
     arm_status = open_local(cell, cell.subunit(opts.guard_arm), "ctrl_status") if opts.guard_arm else None
