@@ -52,6 +52,9 @@ class SubunitClass:
     snoop_fields: tuple[str, ...]  # Status fields droid-snoop prints (besides subunit, tick, stale)
     kinematic: bool = False  # an arm: needs `robot`; droid-remote adds the pose by FK (§4.1.8)
     drivers: dict[str, str] = field(default_factory=dict)  # URL scheme -> "module:Class" (lazy)
+    # a commandable class: the agent copies these Brain Command fields into the local
+    # ctrl_command (Brain field -> local field; droid.subunits.agent.CommandCopier)
+    command_map: dict[str, str] = field(default_factory=dict)
 
     @property
     def commandable(self) -> bool:
@@ -67,6 +70,10 @@ ARM6R = SubunitClass(
                  "cmd_id", "cmd_result"),
     snoop_fields=("x", "y", "z", "R", "encoder_pos", "encoder_cmd", "busy", "homed", "cmd_mode", "fault"),
     kinematic=True,
+    # Brain Command (Table 3.2) -> controller Command (Table 4.3)
+    command_map={"x": "x", "y": "y", "z": "z", "R": "R", "cart_time_count": "cart_time_count",
+                 "joint_time_count": "joint_time_count", "encoder_pos": "encoder_cmd_ext", "coord": "coord",
+                 "cmd_mode": "cmd_mode", "sent": "sent", "cmd_id": "cmd_id"},
 )
 
 LINE_LASER = SubunitClass(

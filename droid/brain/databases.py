@@ -46,7 +46,7 @@ def create_databases(cell: Cell, hosts: set[str] | None = None, *, brain_only: b
             for area, lay in areas:
                 db = Database(db_name(cell.name, sub.name, area), lay, create=True)
                 made.append(db)
-                if area in ("command", "ctrl_command"):
+                if area in ("command", "ctrl_command") and "cmd_mode" in lay.dtype.names:  # an arm's
                     db.update(cmd_mode=JOG_MODE, coord=JSPACE)
     except Exception:
         for db in made:

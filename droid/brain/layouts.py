@@ -45,6 +45,8 @@ KIND_CTRL_COMMAND = 5  # motion controller, Table 4.3
 KIND_PROC_STATUS = 6  # one per running program (droid-cell status)
 KIND_JOYSTICK_STATUS = 7  # an analog joystick (thesis §2.6, §3.4, Figure 2.10)
 KIND_FT6_STATUS = 8  # a six-axis force/torque sensor (thesis §7.3; droid.subunits.ft)
+KIND_FT6_COMMAND = 9  # its Command (Brain): bias, the over-force guard
+KIND_FT6_CTRL_COMMAND = 10  # the same on the sensor's host, with the agent's link fields
 
 # Header flags
 FLAG_RECOVERED = 1  # the semaphore was taken over from a dead holder at least once
@@ -164,6 +166,7 @@ FAULT_LIMIT = 8  # a target was clamped at a joint limit
 FAULT_BRAKING = 16  # the servo ran out of commands and braked
 FAULT_DEVICE = 32  # device driver error (serial port, encoder card)
 FAULT_HEARTBEAT = 64  # Brain side: no heartbeat tick for stale_ticks periods (the Status is not being refreshed)
+FAULT_FORCE = 128  # an arm: the force/torque sensor on it read more than its guard's limit (droid-ft)
 FAULT_NAMES = {
     FAULT_LINK: "link",
     FAULT_WATCHDOG: "watchdog",
@@ -172,6 +175,7 @@ FAULT_NAMES = {
     FAULT_BRAKING: "braking",
     FAULT_DEVICE: "device",
     FAULT_HEARTBEAT: "heartbeat",
+    FAULT_FORCE: "force",
 }
 #: The fault bits after which an arm cannot carry out a command: its servo stopped
 #: (a latched servo fault, or the servo program silent), its amplifiers latched off by
@@ -311,6 +315,23 @@ FT6_STATUS = _dtype(
     208,
 )
 
+_FT6_COMMAND_FIELDS = [
+    ("guard_force_n", "<f8", None),  # over-force guard on the sensor's arm [N]; 0 = off
+    ("bias_id", "<u4", None),  # a new value asks the sensor to bias (zero) its readings now
+    ("sent", "<i4", None),  # 1 = written by a task, not yet delivered; 0 = delivered (Table 3.2)
+    ("cmd_id", "<u4", None),  # incremented by a task for every new command
+]
+FT6_COMMAND = _dtype(HEADER_FIELDS + _FT6_COMMAND_FIELDS, 64)
+FT6_CTRL_COMMAND = _dtype(
+    HEADER_FIELDS
+    + _FT6_COMMAND_FIELDS
+    + [
+        ("link_alive", "<u4", None),  # 0 once the Brain link went silent (the agent's rule)
+        ("brain_tick", "<u8", None),  # last heartbeat tick relayed by the agent
+    ],
+    64,
+)
+
 
 @dataclass(frozen=True)
 class Layout:
@@ -336,6 +357,9 @@ PROC_STATUS_LAYOUT = Layout("proc_status", KIND_PROC_STATUS, 2, PROC_STATUS, "dr
 JOYSTICK_STATUS_LAYOUT = Layout("joystick_status", KIND_JOYSTICK_STATUS, 1, JOYSTICK_STATUS,
                                 "droid_joystick_status")
 FT6_STATUS_LAYOUT = Layout("ft6_status", KIND_FT6_STATUS, 1, FT6_STATUS, "droid_ft6_status")
+FT6_COMMAND_LAYOUT = Layout("ft6_command", KIND_FT6_COMMAND, 1, FT6_COMMAND, "droid_ft6_command")
+FT6_CTRL_COMMAND_LAYOUT = Layout("ft6_ctrl_command", KIND_FT6_CTRL_COMMAND, 1, FT6_CTRL_COMMAND,
+                                 "droid_ft6_ctrl_command")
 
 LAYOUTS = {
     lay.kind: lay
@@ -348,6 +372,8 @@ LAYOUTS = {
         PROC_STATUS_LAYOUT,
         JOYSTICK_STATUS_LAYOUT,
         FT6_STATUS_LAYOUT,
+        FT6_COMMAND_LAYOUT,
+        FT6_CTRL_COMMAND_LAYOUT,
     )
 }
 

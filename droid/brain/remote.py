@@ -124,7 +124,7 @@ class RemoteStation:
 
     def command_payload(self) -> bytes:
         payload = self.command.raw_bytes() if self.command is not None else b""
-        self.sent_cmd_id = _cmd_id(payload)
+        self.sent_cmd_id = _cmd_id(payload, self.command.layout) if self.command is not None else None
         return payload
 
     def on_reply(self, tick: int, payload: bytes, now_ns: int) -> bool:
@@ -228,10 +228,11 @@ def main(argv=None) -> int:
     return 0
 
 
-def _cmd_id(payload: bytes) -> int | None:
-    if len(payload) < ARM_COMMAND_LAYOUT.size:
+def _cmd_id(payload: bytes, layout=ARM_COMMAND_LAYOUT) -> int | None:
+    """The ``cmd_id`` of a Command record's bytes (every commandable class's layout has one)."""
+    if len(payload) < layout.size:
         return None
-    return int(np.frombuffer(payload, dtype=ARM_COMMAND_LAYOUT.dtype, count=1)[0]["cmd_id"])
+    return int(np.frombuffer(payload, dtype=layout.dtype, count=1)[0]["cmd_id"])
 
 
 def _ack_sent(command, delivered_cmd_id: int | None) -> None:

@@ -28,6 +28,7 @@
 #define DROID_FAULT_BRAKING 16
 #define DROID_FAULT_DEVICE 32
 #define DROID_FAULT_HEARTBEAT 64
+#define DROID_FAULT_FORCE 128
 #define DROID_CMD_OK 0
 #define DROID_CMD_REFUSED 2
 #define DROID_CMD_FAILED 1
@@ -468,5 +469,76 @@ _Static_assert(offsetof(droid_ft6_status_t, records) == 196, "droid_ft6_status.r
 _Static_assert(offsetof(droid_ft6_status_t, stale) == 200, "droid_ft6_status.stale offset");
 _Static_assert(offsetof(droid_ft6_status_t, fault) == 204, "droid_ft6_status.fault offset");
 _Static_assert(sizeof(droid_ft6_status_t) == 208, "droid_ft6_status size");
+
+#define DROID_FT6_COMMAND_KIND 9
+#define DROID_FT6_COMMAND_VERSION 1
+#define DROID_FT6_COMMAND_SIZE 64
+#pragma pack(push, 1)
+typedef struct droid_ft6_command {
+    uint32_t magic;
+    uint16_t version;
+    uint16_t kind;
+    uint32_t size;
+    int32_t writer_pid;
+    int32_t holder_pid;
+    uint32_t flags;
+    uint64_t seq;
+    double guard_force_n;
+    uint32_t bias_id;
+    int32_t sent;
+    uint32_t cmd_id;
+    uint8_t _pad0[12];
+} droid_ft6_command_t;
+#pragma pack(pop)
+_Static_assert(offsetof(droid_ft6_command_t, magic) == 0, "droid_ft6_command.magic offset");
+_Static_assert(offsetof(droid_ft6_command_t, version) == 4, "droid_ft6_command.version offset");
+_Static_assert(offsetof(droid_ft6_command_t, kind) == 6, "droid_ft6_command.kind offset");
+_Static_assert(offsetof(droid_ft6_command_t, size) == 8, "droid_ft6_command.size offset");
+_Static_assert(offsetof(droid_ft6_command_t, writer_pid) == 12, "droid_ft6_command.writer_pid offset");
+_Static_assert(offsetof(droid_ft6_command_t, holder_pid) == 16, "droid_ft6_command.holder_pid offset");
+_Static_assert(offsetof(droid_ft6_command_t, flags) == 20, "droid_ft6_command.flags offset");
+_Static_assert(offsetof(droid_ft6_command_t, seq) == 24, "droid_ft6_command.seq offset");
+_Static_assert(offsetof(droid_ft6_command_t, guard_force_n) == 32, "droid_ft6_command.guard_force_n offset");
+_Static_assert(offsetof(droid_ft6_command_t, bias_id) == 40, "droid_ft6_command.bias_id offset");
+_Static_assert(offsetof(droid_ft6_command_t, sent) == 44, "droid_ft6_command.sent offset");
+_Static_assert(offsetof(droid_ft6_command_t, cmd_id) == 48, "droid_ft6_command.cmd_id offset");
+_Static_assert(sizeof(droid_ft6_command_t) == 64, "droid_ft6_command size");
+
+#define DROID_FT6_CTRL_COMMAND_KIND 10
+#define DROID_FT6_CTRL_COMMAND_VERSION 1
+#define DROID_FT6_CTRL_COMMAND_SIZE 64
+#pragma pack(push, 1)
+typedef struct droid_ft6_ctrl_command {
+    uint32_t magic;
+    uint16_t version;
+    uint16_t kind;
+    uint32_t size;
+    int32_t writer_pid;
+    int32_t holder_pid;
+    uint32_t flags;
+    uint64_t seq;
+    double guard_force_n;
+    uint32_t bias_id;
+    int32_t sent;
+    uint32_t cmd_id;
+    uint32_t link_alive;
+    uint64_t brain_tick;
+} droid_ft6_ctrl_command_t;
+#pragma pack(pop)
+_Static_assert(offsetof(droid_ft6_ctrl_command_t, magic) == 0, "droid_ft6_ctrl_command.magic offset");
+_Static_assert(offsetof(droid_ft6_ctrl_command_t, version) == 4, "droid_ft6_ctrl_command.version offset");
+_Static_assert(offsetof(droid_ft6_ctrl_command_t, kind) == 6, "droid_ft6_ctrl_command.kind offset");
+_Static_assert(offsetof(droid_ft6_ctrl_command_t, size) == 8, "droid_ft6_ctrl_command.size offset");
+_Static_assert(offsetof(droid_ft6_ctrl_command_t, writer_pid) == 12, "droid_ft6_ctrl_command.writer_pid offset");
+_Static_assert(offsetof(droid_ft6_ctrl_command_t, holder_pid) == 16, "droid_ft6_ctrl_command.holder_pid offset");
+_Static_assert(offsetof(droid_ft6_ctrl_command_t, flags) == 20, "droid_ft6_ctrl_command.flags offset");
+_Static_assert(offsetof(droid_ft6_ctrl_command_t, seq) == 24, "droid_ft6_ctrl_command.seq offset");
+_Static_assert(offsetof(droid_ft6_ctrl_command_t, guard_force_n) == 32, "droid_ft6_ctrl_command.guard_force_n offset");
+_Static_assert(offsetof(droid_ft6_ctrl_command_t, bias_id) == 40, "droid_ft6_ctrl_command.bias_id offset");
+_Static_assert(offsetof(droid_ft6_ctrl_command_t, sent) == 44, "droid_ft6_ctrl_command.sent offset");
+_Static_assert(offsetof(droid_ft6_ctrl_command_t, cmd_id) == 48, "droid_ft6_ctrl_command.cmd_id offset");
+_Static_assert(offsetof(droid_ft6_ctrl_command_t, link_alive) == 52, "droid_ft6_ctrl_command.link_alive offset");
+_Static_assert(offsetof(droid_ft6_ctrl_command_t, brain_tick) == 56, "droid_ft6_ctrl_command.brain_tick offset");
+_Static_assert(sizeof(droid_ft6_ctrl_command_t) == 64, "droid_ft6_ctrl_command size");
 
 #endif /* DROID_LAYOUTS_H */

@@ -162,8 +162,10 @@ def is_arm(sub: dict) -> bool:
     recording's metadata, not from a list of classes."""
     from droid.brain.registry import classes
 
-    cls = classes().get(sub.get("class"))  # else: a kinematic class of the device registry
-    return "command" in (sub.get("areas") or {}) or bool(sub.get("robot")) or bool(cls and cls.kinematic)
+    cls = classes().get(sub.get("class"))  # a class of the device registry: kinematic or not
+    if cls is not None:  # (a force/torque sensor has a Command too: bias, guard)
+        return cls.kinematic or bool(sub.get("robot"))
+    return "command" in (sub.get("areas") or {}) or bool(sub.get("robot"))
 
 
 def status_T(d: dict) -> np.ndarray:

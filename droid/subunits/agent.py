@@ -31,37 +31,38 @@ import zmq
 from droid.brain import wire
 from droid.brain.curve import CurveHost
 from droid.brain.databases import local_layouts, open_local
-from droid.brain.layouts import ARM_COMMAND_LAYOUT, FAULT_LINK, LayoutError, check_header
+from droid.brain.classes import ARM6R
+from droid.brain.layouts import ARM_COMMAND_LAYOUT, FAULT_LINK, Layout, LayoutError, check_header
 from droid.brain.link import AgentLinkCore
 from droid.brain.names import NameClient
 from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import run
 
-# Brain Command (Table 3.2) -> controller Command (Table 4.3)
-COMMAND_MAP = {
-    "x": "x", "y": "y", "z": "z", "R": "R",
-    "cart_time_count": "cart_time_count",
-    "joint_time_count": "joint_time_count",
-    "encoder_pos": "encoder_cmd_ext",
-    "coord": "coord",
-    "cmd_mode": "cmd_mode",
-    "sent": "sent",
-    "cmd_id": "cmd_id",
-}
+# Brain Command (Table 3.2) -> controller Command (Table 4.3): the arm class's map
+COMMAND_MAP = ARM6R.command_map
 
 
 class CommandCopier:
-    """Copies a Brain Command record into the controller's Command record (field map above)."""
+    """Copies a Brain Command record into the subunit's local Command record: the fields of
+    its class's ``command_map`` (Brain field -> local field), then the relayed tick and
+    ``link_alive = 1``.  A record of another layout is refused (LayoutError), nothing copied."""
 
-    def __init__(self, ctrl_command) -> None:
+    def __init__(self, ctrl_command, layout: Layout = ARM_COMMAND_LAYOUT,
+                 field_map: dict[str, str] | None = None) -> None:
         self.db = ctrl_command
+        self.layout = layout
+        self.field_map = dict(COMMAND_MAP if field_map is None else field_map)
+
+    @classmethod
+    def for_subunit(cls, ctrl_command, sub) -> "CommandCopier":
+        return cls(ctrl_command, sub.kind.brain["command"], sub.kind.command_map)
 
     def __call__(self, payload: bytes, tick: int) -> None:
-        check_header(payload, ARM_COMMAND_LAYOUT, "command from the Brain")
-        rec = np.frombuffer(payload, dtype=ARM_COMMAND_LAYOUT.dtype, count=1)[0]
+        check_header(payload, self.layout, "command from the Brain")
+        rec = np.frombuffer(payload, dtype=self.layout.dtype, count=1)[0]
         with self.db.locked() as v:
-            for src, dst in COMMAND_MAP.items():
+            for src, dst in self.field_map.items():
                 v[dst] = rec[src]
             v["brain_tick"] = tick
             v["link_alive"] = 1
@@ -80,10 +81,12 @@ class AgentStation:
     command clears FAULT_LINK.  Times [ns] are the caller's clock (monotonic or virtual).
     """
 
-    def __init__(self, status, ctrl_command, period_ns: int, stale_ticks: int) -> None:
+    def __init__(self, status, ctrl_command, period_ns: int, stale_ticks: int,
+                 copier: CommandCopier | None = None) -> None:
         self.status = status
         self.ctrl_command = ctrl_command
-        self.copier = CommandCopier(ctrl_command) if ctrl_command is not None else None
+        # an arm's copier unless the caller gives its class's (CommandCopier.for_subunit)
+        self.copier = copier or (CommandCopier(ctrl_command) if ctrl_command is not None else None)
         self.link = AgentLinkCore(period_ns, stale_ticks)
         self.period_ns = period_ns
         self.alive = False  # the Brain link as last declared
@@ -135,7 +138,8 @@ def agent_main(prog: str, argv=None) -> int:
     relay = ctx.socket(zmq.PUB)
     relay.setsockopt(zmq.LINGER, 0)
     names = None
-    station = AgentStation(status, ctrl_cmd, cell.period_ns, cell.stale_ticks)
+    station = AgentStation(status, ctrl_cmd, cell.period_ns, cell.stale_ticks,
+                           CommandCopier.for_subunit(ctrl_cmd, sub) if ctrl_cmd is not None else None)
     link = station.link
     timer = PeriodicTimer(cell.period_ns)  # checks Brain-link liveness between commands
     bad_frames = 0

@@ -169,8 +169,8 @@ def test_wrench_moves_to_the_tool_frame():
 
 def test_options_of_the_shipped_ft_subunit():
     cell = load_cell()
-    opts = ft_options(cell.subunit("ft"))
-    assert opts.url == cell.subunit("ft").options["device"]
+    opts = ft_options(cell.subunit("ft"), cell)
+    assert opts.url == cell.subunit("ft").options["device"] and opts.guard_arm == "arm1"
     assert np.allclose(opts.T_sensor_tool[:3, 3], [0.0, 0.0, 150.0])
     assert cell.subunit("ft").programs == ["droid-ft", "droid-agent"]
     with pytest.raises(BadInput, match="not an ft6"):

@@ -41,6 +41,10 @@ def test_droid_ft_writes_the_twin_s_wrench_and_goes_stale_when_records_stop(tmp_
     cell = load_cell(path)
     sub = cell.subunit("ft")
     db = Database(db_name(cell.name, "ft", "ctrl_status"), local_layouts(sub)["ctrl_status"], create=True)
+    # droid-ft also reads its Command and guards arm1 (the shipped cell's guard_arm): their records
+    cmd_db = Database(db_name(cell.name, "ft", "ctrl_command"), local_layouts(sub)["ctrl_command"], create=True)
+    arm = cell.subunit("arm1")
+    arm_db = Database(db_name(cell.name, "arm1", "ctrl_status"), local_layouts(arm)["ctrl_status"], create=True)
     stepper = Stepper(dev)
     proc = subprocess.Popen([sys.executable, "-m", "droid.subunits.ft.prog", "--cell", str(path), "ft"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -55,6 +59,7 @@ def test_droid_ft_writes_the_twin_s_wrench_and_goes_stale_when_records_stop(tmp_
         rec = wait_for(db.read, lambda r: int(r["valid"]) == 0)
         assert int(rec["valid"]) == 0 and int(rec["stale"]) == 1 and int(rec["fault"]) != 0
         assert np.all(np.abs(SIGMA) > 0)
+        assert int(arm_db.read()["fault"]) == 0  # the guard is not armed: a silent sensor faults no arm
     finally:
         stepper.close()
         if proc.poll() is None:
@@ -64,8 +69,9 @@ def test_droid_ft_writes_the_twin_s_wrench_and_goes_stale_when_records_stop(tmp_
         except subprocess.TimeoutExpired:
             proc.kill()
             out, err = proc.communicate()
-        db.close()
-        db.unlink()
+        for d in (db, cmd_db, arm_db):
+            d.close()
+            d.unlink()
         dev.close()
     assert proc.returncode == 0, err
     lines = err.strip().splitlines()

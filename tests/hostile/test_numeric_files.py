@@ -62,7 +62,7 @@ def check_cell(path) -> None:
         if sub.cls == "joystick":
             joystick_options(sub)
         if sub.cls == "ft6":
-            ft_options(sub)
+            ft_options(sub, cell)
     if cell.world.get("enabled", True):
         file_number(cell.world.get("rate_hz", 1000.0), WORLD_RATE_HZ, "[world]", "rate_hz")
         build_world(cell).close()

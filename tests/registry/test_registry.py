@@ -153,7 +153,7 @@ def test_builtin_packages_make_the_old_tables():
     assert {"reis_vme", "karel_s400", "fixed_arm", "mvs_camera", "tool_sensor", "serial_cable",
             "joystick", "netft", "abb_egm", "contact"} <= set(DEVICE_TYPES)
     assert rt.FIFO_PRIORITIES == {
-        "droid-servo": 60, "droid-watchdog": 55, "droid-servo-agent": 54, "droid-egm": 54, "droid-sim": 52,
+        "droid-servo": 60, "droid-watchdog": 55, "droid-servo-agent": 54, "droid-egm": 54, "droid-ft": 53, "droid-sim": 52,
         "droid-planner": 51, "droid-agent": 51, "droid-reis-agent": 51, "droid-gmf1-agent": 51,
         "droid-heartbeat": 50, "droid-remote": 50, "droid-fault": 50, "droid-seamtrack": 49,
         "droid-contact": 49, "droid-mvs": 48, "droid-gmf1-encoder": 45, "droid-record": 10}

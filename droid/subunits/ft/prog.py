@@ -37,9 +37,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from droid.brain.databases import open_local
-from droid.brain.layouts import FAULT_DEVICE
+from droid.brain.layouts import FAULT_DEVICE, FAULT_FORCE
 from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
-from droid.brain.rt import PeriodicTimer
+from droid.brain.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import BadInput, run
 from droid.kinematics.transforms import pose_to_T
 from droid.numbers import POSE
@@ -56,10 +56,12 @@ U32 = 0xFFFFFFFF
 class FtOptions:
     url: str
     T_sensor_tool: np.ndarray  # 4x4, mm
+    guard_arm: str | None = None  # the arm the sensor sits on, whose Status gets FAULT_FORCE
 
 
-def ft_options(sub) -> FtOptions:
-    """(device URL, the tool frame in the sensor frame) of an ft6 subunit; BadInput names the key."""
+def ft_options(sub, cell=None) -> FtOptions:
+    """(device URL, the tool frame in the sensor frame, the guarded arm) of an ft6 subunit of
+    ``cell`` (needed for ``guard_arm``); BadInput names the key."""
     where = f"[subunits.{sub.name}]"
     if sub.cls != "ft6":
         raise BadInput(f"{sub.name} is a {sub.cls} subunit, not an ft6 force/torque sensor")
@@ -73,10 +75,21 @@ def ft_options(sub) -> FtOptions:
         vals = [rng.check(v, f"{where} sensor_tool_pose[{i}]") for i, (v, rng) in enumerate(zip(pose, POSE))]
     except ValueError as exc:
         raise BadInput(str(exc)) from None
-    unknown = sorted(set(sub.options) - {"device", "sensor_tool_pose"})
+    unknown = sorted(set(sub.options) - {"device", "sensor_tool_pose", "guard_arm"})
     if unknown:
         raise BadInput(f"{where} unknown key(s) for an ft6 sensor: {', '.join(unknown)}")
-    return FtOptions(url, pose_to_T(*vals))
+    guard_arm = sub.options.get("guard_arm")
+    if guard_arm is not None:
+        subs = cell.subunits if cell is not None else {}
+        if not isinstance(guard_arm, str) or guard_arm not in subs:
+            raise BadInput(f"{where} guard_arm must name an arm subunit of the cell, got {guard_arm!r}")
+        arm = subs[guard_arm]
+        if not arm.kind.kinematic or "ctrl_status" not in arm.kind.local:
+            raise BadInput(f"{where} guard_arm {guard_arm!r} is a {arm.cls} subunit, not an arm")
+        if arm.host != sub.host:
+            raise BadInput(f"{where} guard_arm {guard_arm!r} runs on host {arm.host!r}, the sensor on "
+                           f"{sub.host!r}: the guard writes the arm's own Status, on the same host")
+    return FtOptions(url, pose_to_T(*vals), guard_arm)
 
 
 def wrench_in_tool(force_N, torque_Nm, T_sensor_tool) -> tuple[np.ndarray, np.ndarray]:
@@ -133,6 +146,53 @@ class FtCore:
         )
 
 
+class FtCommandRule:
+    """The sensor's Command (``ft6_ctrl_command``, copied in by droid-agent from the Brain):
+
+    * a ``bias_id`` other than the last one seen asks the device to bias once (RDT's set-bias:
+      it subtracts its present reading from every later one) -- a task tares the sensor so,
+      through the Brain, the way droid-contact takes the torch's weight out before it touches;
+    * ``guard_force_n`` > 0 arms the **over-force guard** (thesis §7.3's force control needs
+      one beside the arm, not behind the Brain's two 60 Hz exchanges): while the sensor reads
+      |F| above it -- or cannot be read at all -- :meth:`over` is True, and stays True (a latch)
+      until the limit changes; droid-ft sets FAULT_FORCE in the Status of the arm it sits on
+      (``guard_arm``, same host), so that arm's planner ends its move within its next tick.
+      0 disarms it.
+
+    The ``bias_id`` present when the program starts is not replayed (as commands issued
+    before an agent starts are not)."""
+
+    def __init__(self) -> None:
+        self.bias_id: int | None = None
+        self.limit_n = 0.0  # [N]; 0 = off
+        self.latched = False  # tripped since the limit was set
+        self.biases = 0  # bias requests taken
+
+    def take(self, cmd) -> bool:
+        """Read one Command record; True when it asks for a bias now."""
+        bid = int(cmd["bias_id"])
+        ask = self.bias_id is not None and bid != self.bias_id
+        self.bias_id = bid
+        limit = float(cmd["guard_force_n"])
+        limit = limit if np.isfinite(limit) and limit > 0 else 0.0
+        if limit != self.limit_n:  # re-armed at another limit, or disarmed: the latch opens
+            self.latched = False
+        self.limit_n = limit
+        self.biases += ask
+        return ask
+
+    def over(self, fields: dict) -> bool:
+        """The guard trips: armed, and the reading is above the limit or not valid.  It latches:
+        an arm pressing at the limit reads just above and just below it from sample to sample,
+        and each dip would let the planner take the task's next step deeper.  Only a new limit
+        (or 0) opens it."""
+        if self.limit_n <= 0:
+            return False
+        if not self.latched:
+            self.latched = not fields["valid"] or float(np.linalg.norm(fields["force_N"])) > self.limit_n
+        return self.latched
+
+
 class FtStation:
     """The program's cycle with its driver (the shell only keeps time and writes the record):
     calibrate and start, read everything waiting, restart a silent stream, bias once if asked."""
@@ -146,14 +206,19 @@ class FtStation:
         self._start_at = -1 << 62  # when a silent stream may be asked again [ns]
         self._said = ""
         self._bias_pending = dev.url.bias
+        self.rule = FtCommandRule()
 
     def _say(self, line: str) -> None:
         if line != self._said:  # one line per new reason, not one per retry
             self._said = line
             self.log(line)
 
-    def step(self, now_ns: int) -> dict:
+    def step(self, now_ns: int, command=None) -> dict:
+        """One cycle at ``now_ns`` [ns]; ``command``: the sensor's Command record (or None),
+        read by :attr:`rule` (a bias it asks for is sent once records flow)."""
         dev = self.dev
+        if command is not None and self.rule.take(command):
+            self._bias_pending = True
         if dev.calibration is None and now_ns >= self._calibrate_at:
             self._calibrate_at = now_ns + self.restart_ns
             try:
@@ -169,7 +234,7 @@ class FtStation:
         if dev.calibration is not None and self.core.silent(now_ns) and now_ns >= self._start_at:
             dev.start()  # the first time, or records stopped: ask (again) every RESTART_S
             self._start_at = now_ns + self.restart_ns
-            self._bias_pending = dev.url.bias
+            self._bias_pending = self._bias_pending or dev.url.bias
         if records and self._bias_pending:
             self._bias_pending = not dev.bias()
         if dev.last_error:
@@ -178,34 +243,59 @@ class FtStation:
         return self.core.fields(dev.stream, dev.calibration, dev.biased, now_ns)
 
 
+def set_guard_fault(arm_status, over: bool) -> None:
+    """FAULT_FORCE in the guarded arm's own Status (its other bits kept; every program of the
+    arm masks its own bits the same way)."""
+    with arm_status.locked() as st:
+        st["fault"] = (int(st["fault"]) & ~FAULT_FORCE) | (FAULT_FORCE if over else 0)
+        arm_status.mark_written()
+
+
 @run
 def main(argv=None) -> int:
     args, cell, sub = subunit_program(PROG, "Read a force/torque sensor (ATI Net F/T, RDT) into its "
                                       "subunit's Status.", argv, example="ft")
-    opts = ft_options(sub)
+    opts = ft_options(sub, cell)
     dev = open_url(opts.url, "ft")  # droid.subunits.ft.rdt.open_ft, by the registry
+    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)  # the guard is real-time (after bad input is refused)
     status = open_local(cell, sub, "ctrl_status")
+    command = open_local(cell, sub, "ctrl_command")
+    arm_status = open_local(cell, cell.subunit(opts.guard_arm), "ctrl_status") if opts.guard_arm else None
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
     timer = PeriodicTimer(int(round(1e9 / dev.url.rate_hz)))
     station = FtStation(dev, FtCore(opts.T_sensor_tool, cell.stale_ticks * cell.period_ns), int(RESTART_S * 1e9))
     cycles = 0
+    tripped = False
     try:
-        status.update(**station.step(time.monotonic_ns()))
+        status.update(**station.step(time.monotonic_ns(), command.read()))
         presence.ready()
         notify_ready(args.ready_fd)
         while not Stop.requested:
             if not timer.wait(0.5):
                 continue
             cycles += 1
-            status.update(**station.step(time.monotonic_ns()))
+            fields = station.step(time.monotonic_ns(), command.read())
+            status.update(**fields)
+            over = station.rule.over(fields)
+            if over != tripped and arm_status is not None:
+                set_guard_fault(arm_status, over)
+                f = float(np.linalg.norm(fields["force_N"]))
+                print(f"{PROG} {sub.name}: over-force guard {'tripped' if over else 'clear'} on "
+                      f"{opts.guard_arm}: |F| {f:.1f} N, limit {station.rule.limit_n:g} N"
+                      f"{'' if fields['valid'] else ' (no valid reading)'}", file=sys.stderr, flush=True)
+            tripped = over
             presence.beat(0, cycles, timer.overruns, timer.lateness_max_ns, bad_frames=dev.stream.bad_datagrams)
     finally:
+        if arm_status is not None:
+            if tripped:
+                set_guard_fault(arm_status, False)  # a clean stop; a restart re-reads the guard at once
+            arm_status.close()
         dev.close()
         timer.close()
+        command.close()
         status.close()
         presence.close()
     return 0
-
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -23,7 +23,9 @@ controller's Command and Status records and
   where the arm is, e.g. after droid-jog);
 * cancels the move and holds where the arm is if the Brain link is lost
   (``link_alive = 0``) or the servo ran out of commands and braked
-  (FAULT_BRAKING): the arm stays stopped until a new command.
+  (FAULT_BRAKING): the arm stays stopped until a new command;
+* the same on FAULT_FORCE (the force/torque sensor's guard on this arm, set by droid-ft
+  on its host: thesis §7.3), and while it is set a new NORMAL command is refused.
 """
 from __future__ import annotations
 
@@ -41,7 +43,7 @@ from droid.brain.program import close_all, Presence, Stop, notify_ready, presenc
 from droid.cli import run
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T
-from droid.brain.layouts import (CMD_FAILED, CMD_OK, CMD_REFUSED, FAULT_BRAKING, FAULT_SERVO,
+from droid.brain.layouts import (CMD_FAILED, CMD_OK, CMD_REFUSED, FAULT_BRAKING, FAULT_FORCE, FAULT_SERVO,
                                  FAULT_WATCHDOG, JSPACE, NORMAL_MODE, STOP_TICKS, fault_names)
 from droid.kinematics import RobotModel, Unreachable
 
@@ -67,7 +69,7 @@ def stop_cause(cmd, status) -> str:
     its cause): the Brain link, the servo or watchdog faults, or the servo's braking."""
     if not int(cmd["link_alive"]):
         return "Brain link lost"
-    faults = fault_names(int(status["fault"]) & (FAULT_SERVO | FAULT_WATCHDOG | FAULT_BRAKING))
+    faults = fault_names(int(status["fault"]) & (FAULT_SERVO | FAULT_WATCHDOG | FAULT_BRAKING | FAULT_FORCE))
     return "faults: " + ", ".join(faults)
 
 
@@ -127,8 +129,19 @@ class PlannerCore:
             out.joint_time_count = 0
             return out
         dead = int(status["fault"]) & (FAULT_SERVO | FAULT_WATCHDOG)  # nothing can move
-        stop = not int(cmd["link_alive"]) or int(status["fault"]) & FAULT_BRAKING or dead
-        if stop and (self.time_count > 0 or np.any(np.abs(self.int_counts - pos) > 0)):
+        force = int(status["fault"]) & FAULT_FORCE  # the F/T guard on this arm tripped (droid-ft)
+        hard = not int(cmd["link_alive"]) or int(status["fault"]) & FAULT_BRAKING or dead
+        if force and not hard and self.time_count > 0:
+            # over-force: the move ends at its current way-point and the arm holds there, as on
+            # a stop command (the servo agent keeps sending that way-point): the arm stands at
+            # once.  Re-anchoring at the measured position, as on a lost stream, would move a
+            # pressing arm back by its following error and its drives' deflection.
+            self.ext_counts = self.int_counts.copy()
+            self.time_count = 0
+            out.cmd_result = CMD_FAILED
+            out.cmd_id = self.active_id
+            out.note = f"cancelled command {self.active_id}: {stop_cause(cmd, status)}"
+        if hard and (self.time_count > 0 or np.any(np.abs(self.int_counts - pos) > 0)):
             cancelled = self.time_count > 0
             self.int_counts = pos.copy()
             self.ext_counts = pos.copy()
@@ -137,7 +150,16 @@ class PlannerCore:
                 out.cmd_result = CMD_FAILED
                 out.cmd_id = self.active_id
             out.note = f"cancelled command {self.active_id}: {stop_cause(cmd, status)}" if cancelled else ""
+        stop = hard or force
         new_id = int(cmd["cmd_id"])
+        asks_stop = int(cmd["joint_time_count"] if int(cmd["coord"]) == JSPACE else cmd["cart_time_count"]) == STOP_TICKS
+        if force and not dead and new_id != self.plan_id and int(cmd["cmd_mode"]) == NORMAL_MODE and not asks_stop:
+            # refused, not kept waiting: the arm stands pressed until the task that armed the
+            # guard disarms it (droid-contact does on exit) or droid-jog takes it away
+            self.plan_id = new_id
+            out.plan_id = out.cmd_id = new_id
+            out.cmd_result = CMD_REFUSED
+            out.note = f"refused command {new_id}: over-force (the force/torque guard on this arm)"
         if dead and new_id != self.plan_id:
             self.plan_id = new_id
             out.plan_id = out.cmd_id = new_id

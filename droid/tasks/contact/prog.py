@@ -12,9 +12,15 @@ only (a task never touches a device, §3.4), what droid-seamtrack does around it
    (droid/cells/seamtrack_layout.toml, as droid-seamtrack) and then ARM so that its
    touching point stands ``--clearance`` mm above the step workpiece's lower plate,
    ``--lateral`` mm beside the seam, the tool axis along the surface normal;
-3. tare: average the F/T Status's ``force_tool_N`` over ``TARE_S`` at rest, off the surface
-   (the tool's weight in this orientation, the sensor's offset), and subtract it from every
-   reading that follows -- the orientation does not change during the task;
+3. tare: bias the sensor through its Brain Command (the device subtracts its present
+   reading -- the tool's weight in this orientation, its offset -- from what follows), then
+   average the F/T Status's ``force_tool_N`` over ``TARE_S`` at rest, off the surface, and
+   subtract that residue too -- the orientation does not change during the task -- and arm
+   the sensor's over-force guard at the gains' ``force_max_n``: droid-ft, on the arm's host,
+   sets FAULT_FORCE in the arm's own Status past it and the arm's planner cancels the move
+   within its next tick, without the two Brain exchanges the task's own check goes through
+   (the cell's ``[subunits.FT] guard_arm``; without it only the task's check stops).  The
+   guard is disarmed when the program ends, whatever the stop;
 4. every heartbeat tick hand the arm's Status pose and the tared force to the station;
    every ``cycle_ticks`` ticks (the gains file: 30 Hz at 60 Hz) it approaches along the
    tool axis until touch, settles, then slides ``--length`` mm at ``--speed`` holding
@@ -53,6 +59,7 @@ from droid.brain.rt import try_sched_fifo
 from droid.cli import EXIT_INTERRUPTED, EXIT_OK, EXIT_RUNTIME, BadInput, RuntimeFailure, bounded_float, run
 from droid.kinematics.transforms import inv_homo, trans
 from droid.tasks.arm import STALE_GRACE_S, BrainArm
+from droid.tasks.ft_sensor import BrainFt
 from droid.tasks.contact import report
 from droid.tasks.contact.core import STOP_END, ArmStatus, ContactStation, FtStatus, load_gains
 from droid.tasks.seam.layout import POSITION_IDS, T_W_SEAM, load_layout
@@ -61,6 +68,8 @@ from droid.tasks.seamtrack import move_to_start, pose_of
 PROG = "droid-contact"
 HEARTBEAT_LOST_S = STALE_GRACE_S
 TARE_S = 0.5  # the F/T average taken at rest before the approach [s]
+DELIVERY_S = 2.0  # the longest wait for the sensor's agent to take its bias command [s]
+BIAS_SETTLE_S = 0.1  # then droid-ft (100 Hz) sends the bias and the device applies it [s]
 MAX_SPEED_MM_S = 100.0
 MAX_LENGTH_MM = 2000.0
 DEFAULT_TOUCH_OFFSET_MM = 15.0
@@ -137,6 +146,9 @@ class ContactRun:
         self.t0_tick: int | None = None
         self.prev: tuple[int, float] | None = None  # (tick, along_mm) of the last logged cycle
         self.ft_db = None
+        self.ft_cmd = BrainFt(cell, args.ft)
+        self.guarded = isinstance(self.ft_sub.options.get("guard_arm"), str) and \
+            self.ft_sub.options.get("guard_arm") == args.arm
 
     # -- set-up ----------------------------------------------------------------------------
     def connect(self) -> None:
@@ -144,8 +156,14 @@ class ContactRun:
         if self.holder is not None:
             self.holder.connect()
         self.ft_db = open_brain(self.cell, self.ft_sub, "status")
+        self.ft_cmd.connect()
 
     def close(self) -> None:
+        if self.ft_cmd.command is not None:
+            try:  # disarm the guard this run armed (a stop leaves the arm standing: no motion)
+                self.ft_cmd.write(guard_force_n=0.0)
+            finally:
+                self.ft_cmd.close()
         self.arm.close()
         if self.holder is not None:
             self.holder.close()
@@ -178,6 +196,26 @@ class ContactRun:
         T_arm, T_hold = self.start_pose(position)
         move_to_start(self.holder, T_hold, f"holding pose of position ({position})", self.args.quiet)
         move_to_start(self.arm, T_arm, f"start over position ({position})", self.args.quiet)
+
+    def bias_sensor(self) -> None:
+        """Bias the sensor through its Command, and wait until its agent took it (the module
+        docstring, step 3); RuntimeFailure if it is not delivered within DELIVERY_S."""
+        cmd_id = self.ft_cmd.write(bias=True, guard_force_n=0.0)
+        deadline = time.monotonic() + DELIVERY_S
+        while not self.ft_cmd.delivered(cmd_id):
+            if time.monotonic() > deadline:
+                raise RuntimeFailure(f"{self.ft_sub.name}: its bias command was not delivered within "
+                                     f"{DELIVERY_S:g} s")
+            time.sleep(0.01)
+        time.sleep(BIAS_SETTLE_S)  # droid-ft reads the command and the device biases the next records
+
+    def arm_guard(self) -> None:
+        """The sensor's over-force guard at the gains' force_max_n [N] (step 3)."""
+        self.ft_cmd.write(guard_force_n=self.gains.force_max_n)
+        if not self.args.quiet:
+            where = (f"droid-ft sets FAULT_FORCE on {self.args.arm}" if self.guarded else
+                     f"{self.ft_sub.name} has no guard_arm = \"{self.args.arm}\": only this task's check stops")
+            print(f"{PROG}: over-force guard at {self.gains.force_max_n:g} N ({where})", file=sys.stderr)
 
     def take_tare(self) -> None:
         """The mean F/T force over TARE_S at rest (the module docstring, step 3)."""
@@ -277,7 +315,9 @@ def main(argv=None) -> int:
         if Stop.requested:
             code, why = EXIT_INTERRUPTED, "interrupted before the approach"
         else:
+            job.bias_sensor()
             job.take_tare()
+            job.arm_guard()
             code, why = job.run()
     finally:
         job.close()
