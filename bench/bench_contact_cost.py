@@ -40,11 +40,11 @@ import numpy as np
 if "PYTHONPATH" not in os.environ:
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from droid.cli import ArgumentParser, bounded_int  # noqa: E402
-from droid.kinematics.transforms import trans  # noqa: E402
-from droid.sim.contact import ToolContact, surface_contact  # noqa: E402
-from droid.sim.reis.plant import ReisPlant, ReisPlantParams  # noqa: E402
-from droid.sim.workpiece import WORKPIECE_DIR, load_workpiece  # noqa: E402
+from droid.cli import ArgumentParser, BadInput, bounded_int
+from droid.kinematics.transforms import trans
+from droid.sim.contact import ToolContact, surface_contact
+from droid.sim.reis.plant import ReisPlant, ReisPlantParams
+from droid.sim.workpiece import WORKPIECE_DIR, load_workpiece
 
 DT_S = 0.001
 T_TOOL = trans(0.0, 0.0, 250.0)
@@ -119,7 +119,7 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as d:
         try:
             cases = list(_cases(Path(d)))
-        except Exception as exc:  # a tree without 3-D contact refuses the table
+        except BadInput as exc:  # a tree without 3-D contact refuses the table
             cases = list(_cases_plane())
             print(f"3-D cases refused: {exc}")
         for name, wp, x_W in cases:

@@ -50,6 +50,7 @@ import math
 import weakref
 from bisect import bisect_right
 from dataclasses import dataclass
+from itertools import pairwise
 
 import numpy as np
 
@@ -195,7 +196,7 @@ class SeamSurfaces:
         # the long straight extensions alone, the samples between in chunks
         edges = sorted({0, n - 1, n} | set(range(1, n - 1, CHUNK_SEGMENTS)))
         centres, rho = [], []
-        for a, b in zip(edges[:-1], edges[1:]):
+        for a, b in pairwise(edges):
             ends = P[a:b + 1]
             c = 0.5 * (ends.min(axis=0) + ends.max(axis=0))
             centres.append(c)
@@ -280,7 +281,7 @@ class SeamSurfaces:
         return depth, n, dist
 
 
-_SURFACES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_SURFACES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def surfaces_for(workpiece) -> SeamSurfaces:

@@ -189,15 +189,15 @@ def test_away_from_the_wall_the_force_is_bit_for_bit_the_old_models():
             xy, heading = wp.point_at(s0)
             lat = rng.uniform(-55.0, 55.0) if rng.random() < 0.5 else rng.uniform(-1.0, 1.0)
             p_W = np.array([*(xy + lat * np.array([-np.sin(heading), np.cos(heading)])), rng.uniform(-3.0, 3.0)])
-            s, lt = wp.nearest_many(p_W[None, 0:2])
+            _, lt = wp.nearest_many(p_W[None, 0:2])
             side, h = wp.upper_sign * float(lt[0]), wp.step_mm
             if 0.0 <= side and 0.0 < p_W[2] < h and side < h - p_W[2]:
                 continue  # the wall's: not the old model's
             p = (T @ np.r_[p_W, 1.0])[:3]
             v = rng.normal(0.0, 20.0, 3)
             cap = float(rng.uniform(0.0, 5.0))
-            new = surface_contact(wp, T, p, v, params, lambda t: cap)
-            old = _old_surface_contact(wp, T, p, v, params, lambda t: cap)
+            new = surface_contact(wp, T, p, v, params, lambda t, cap=cap: cap)
+            old = _old_surface_contact(wp, T, p, v, params, lambda t, cap=cap: cap)
             assert np.array_equal(new[0], old[0]) and np.array_equal(new[1], old[1]), (wp.name, p_W)
             compared += 1
             touched += bool(old[0].any())
@@ -229,7 +229,7 @@ def test_a_rolled_surface_pushes_along_its_rolled_normal(tmp_path):
     step's wall, each k x depth along its own normal in the seam's local frame."""
     wp = _with_contact(tmp_path, "cad_curve")
     seam = wp.seam
-    p, t, n, l = seam.point_frame(400.0)
+    p, _, n, l = seam.point_frame(400.0)
     assert n[2] < np.cos(np.radians(15.0))  # rolled: the normal is not z_W
     us = seam.upper_sign
     T = _rot_T(np.random.default_rng(8))

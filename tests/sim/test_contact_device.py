@@ -3,6 +3,8 @@ the Reis tool, in droid-sim's world built from the cell file (no processes: the 
 this process, its shared memory closed by world.close())."""
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -176,7 +178,7 @@ def test_skipping_while_far_on_a_3d_workpiece_never_misses_a_touch(tmp_path):
         far = rng.random() < 0.3
         way.append(q + rng.uniform(-70.0, 70.0) * l + (rng.uniform(40.0, 150.0) if far else rng.uniform(-7.0, 3.0)) * n)
     path = [way[0]]
-    for a, b in zip(way[:-1], way[1:]):
+    for a, b in itertools.pairwise(way):
         k = max(1, int(np.ceil(np.linalg.norm(b - a) / (0.97 * v * dt))))
         path += [a + (b - a) * (j / k) for j in range(1, k + 1)]
     state = {"x": path[0]}
