@@ -107,8 +107,12 @@ class ContactKeys:
             if not isinstance(value, str) or not value:
                 raise c.bad(where, key, value, "must be a bundled workpiece name or a path")
             c.workpiece(where, value)
-            if self.workpiece(c.resolved(value)).contact is None:
+            wp = self.workpiece(c.resolved(value))
+            if wp.contact is None:
                 raise c.bad(where, key, value, "has no [contact] table (no contact model: docs/contact.md)")
+            if not wp.planar:  # the world has its contact; the trial's start and path do not follow it
+                raise c.bad(where, key, value, "is a 3-D workpiece: the force trial's start and path lie in "
+                            "W's x-y plane (plane workpieces only; docs/contact.md)")
             return value
         if key == "gains":
             if not isinstance(value, str) or not value:

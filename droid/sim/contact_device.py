@@ -8,7 +8,7 @@ holder)::
     [world.devices.touch]
     type = "contact"
     tool_robot = "arm1"                       # a Reis twin declared before (its plant takes the push)
-    workpiece = "step_input"                  # a plane workpiece with a [contact] table
+    workpiece = "step_input"                  # a workpiece with a [contact] table
     holder_robot = "gmf1_karel"               # the workpiece rides on this arm twin's wrist ...
     workpiece_mount = [x, y, z, A, B, C]      # ... at T_wcp_workpiece (mm, ZYZ deg)
     # or, instead of the two keys above:  workpiece_pose = [x, y, z, A, B, C]  (global T W, fixed)

@@ -437,8 +437,6 @@ class Workpiece:
         if "contact" in data:
             from droid.sim.contact import ContactParams
 
-            if not planar:
-                raise bad("[contact]: contact is modelled on plane workpieces only (lines, arcs, turns)")
             contact = ContactParams.from_table(data["contact"], bad)
         common = dict(name=name, step_mm=step, width_mm=width, upper_side=upper, lead_in_mm=lead_in,
                       lead_out_mm=lead_out, description=description, source=source, contact=contact)

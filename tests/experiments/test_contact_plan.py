@@ -97,6 +97,14 @@ def test_bad_contact_plans_exit_2_with_one_line_naming_plan_key_and_value(tmp_pa
     assert_bad_plan(write_plan(tmp_path / "bad.toml", 'name = "x"\n' + body), tmp_path / "out", capsys, key, value)
 
 
+def test_a_3d_workpiece_with_contact_is_refused_by_the_force_trial(tmp_path, capsys):
+    """The world takes contact on a 3-D workpiece; the trial's start and path are the plane's."""
+    (tmp_path / "climb.toml").write_text('[[segment]]\ntype = "line"\nlength_mm = 300\nrise_mm = 20\n[contact]\n')
+    plan = write_plan(tmp_path / "p.toml", 'name = "x"\ntrial = "contact"\n[defaults]\nworkpiece = "climb.toml"\n')
+    assert_bad_plan(plan, tmp_path / "out", capsys, "workpiece", '"climb.toml"')
+    assert "is a 3-D workpiece" in capsys.readouterr().err  # the line of `list`, after assert_bad_plan's `run`
+
+
 def test_a_bad_gains_file_is_one_line_too(tmp_path, capsys):
     (tmp_path / "unstable.toml").write_text("admittance_mm_per_n_s = 3.0\n")  # K k T = 2
     plan = write_plan(tmp_path / "p.toml", 'name = "x"\ntrial = "contact"\n[defaults]\ngains = "unstable.toml"\n')

@@ -3,6 +3,8 @@ the Reis tool, in droid-sim's world built from the cell file (no processes: the 
 this process, its shared memory closed by world.close())."""
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -116,3 +118,84 @@ def test_bad_contact_devices_are_one_line_and_nothing_is_left(tmp_path, cell_nam
         _world(tmp_path, cell_name, edit)
     assert "\n" not in str(exc.value) and message in str(exc.value), str(exc.value)
     assert "[world.devices.touch]" in str(exc.value) or "tool_robot" not in message
+
+
+def test_a_plant_pressed_into_the_steps_wall_is_pushed_out_sideways():
+    """The tool point 0.5 mm into the step's wall, 1 mm above the lower plate (2 mm step): the
+    wall pushes it along -y_W (out of the wall, toward the lower plate), not up, and the
+    tool, stepped by the plant, moves that way against a plant without contact."""
+    wp = load_workpiece("step_input")
+    T_tool = trans(0.0, 0.0, 250.0)
+    free, pushed = (ReisPlant(ReisPlantParams(), seed=4) for _ in range(2))
+    probe = ToolContact(wp, trans(0.0, 0.0, -5000.0), np.eye(4), T_tool)  # far away: never touches
+    free.contact = probe
+    free.advance(0.002)
+    p = probe.tool_mm.copy()
+    wall = ToolContact(wp, trans(p[0] - 30.0, p[1] - 0.5, p[2] - 1.0), np.eye(4), T_tool)  # p at (30, 0.5, 1) in W
+    pushed.contact = wall
+    pushed.advance(0.002)
+    assert wall.depth_mm == pytest.approx(0.5) and np.allclose(wall.force_N, [0.0, -10.0, 0.0])
+    for _ in range(15):
+        free.advance(0.002)
+        pushed.advance(0.002)
+    moved = wall.tool_mm - probe.tool_mm
+    assert moved[1] < -0.05 and abs(moved[2]) < 0.2 * abs(moved[1]), moved  # out of the wall, not up
+    assert 0.0 < wall.depth_mm < 0.45  # still pressed, less deep
+    f = wall.force_N
+    assert f[1] < 0.0 and abs(f[2]) < 0.2 * abs(f[1]), f  # the wall's push (and its friction)
+
+
+def _cad_curve_with_contact(tmp_path):
+    import shutil
+
+    from droid.sim.workpiece import WORKPIECE_DIR
+
+    for f in WORKPIECE_DIR.glob("cad_curve*"):
+        shutil.copy(f, tmp_path / f.name)
+    path = tmp_path / "cad_curve.toml"
+    path.write_text(path.read_text() + "\n[contact]\n")
+    return load_workpiece(str(path))
+
+
+def test_skipping_while_far_on_a_3d_workpiece_never_misses_a_touch(tmp_path):
+    """cad_curve (rolled, curved) moving about the tool point at up to the bound's speed along
+    a random path through its plates, beside them and far off: the skipping contact answers
+    every step as the one asked every step does (the same torques, None alike)."""
+    wp = _cad_curve_with_contact(tmp_path)
+    assert not wp.planar
+    seam = wp.seam
+    plant = ReisPlant(ReisPlantParams(), seed=4)
+    T_tool = trans(0.0, 0.0, 250.0)
+    plant.contact = probe = ToolContact(wp, trans(0.0, 0.0, -5000.0), np.eye(4), T_tool)
+    plant.advance(0.002)
+    p = probe.tool_mm.copy()
+    rng = np.random.default_rng(15)
+    v, dt = 1000.0, 0.002  # the bound [mm/s], the plant's step [s]
+    # waypoints of the tool point in W: on, in and under the plates, at the wall, beside, far above
+    way = []
+    for _ in range(14):
+        q, _, n, l = seam.point_frame(rng.uniform(-30.0, seam.length_mm + 30.0))
+        far = rng.random() < 0.3
+        way.append(q + rng.uniform(-70.0, 70.0) * l + (rng.uniform(40.0, 150.0) if far else rng.uniform(-7.0, 3.0)) * n)
+    path = [way[0]]
+    for a, b in itertools.pairwise(way):
+        k = max(1, int(np.ceil(np.linalg.norm(b - a) / (0.97 * v * dt))))
+        path += [a + (b - a) * (j / k) for j in range(1, k + 1)]
+    state = {"x": path[0]}
+
+    def T_W():  # W placed so that the tool point is at x in W
+        return trans(*(p - state["x"]))
+
+    every = ToolContact(wp, T_W, np.eye(4), T_tool, max_depth_mm=5.0)
+    skip = ToolContact(wp, T_W, np.eye(4), T_tool, max_closing_speed_mm_s=v, max_depth_mm=5.0)
+    touched = 0
+    for x in path:
+        state["x"] = x
+        a = every.joint_torque(plant.body, plant._q, plant._qd, dt)
+        b = skip.joint_torque(plant.body, plant._q, plant._qd, dt)
+        assert (a is None) == (b is None), x
+        if a is not None:
+            touched += 1
+            assert np.array_equal(a, b) and np.array_equal(every.force_N, skip.force_N)
+    assert touched > 20, touched
+    assert skip.evaluations < 0.8 * every.evaluations, (skip.evaluations, every.evaluations)

@@ -157,7 +157,7 @@ def contact_from_options(where: str, options: dict, T_global_base):
     """The tool's contact with a workpiece (droid.sim.contact.ToolContact) from a device table,
     or None without ``contact_workpiece``::
 
-        contact_workpiece = "step_input"                  # a plane workpiece with a [contact] table
+        contact_workpiece = "step_input"                  # a workpiece with a [contact] table
         contact_workpiece_pose = [x, y, z, A, B, C]       # global T W (mm, ZYZ deg): where it is fixed
         contact_tool_pose = [0, 0, 250, -90, 90, 180]     # T_wcp_tool (default: the seam layout's tool point)
     """
