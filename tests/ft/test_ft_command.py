@@ -118,6 +118,14 @@ def test_guard_arm_must_be_an_arm_on_the_sensors_host(tmp_path):
         c = load_cell(bad)
         with pytest.raises(BadInput, match=why):
             ft_options(c.subunit("ft"), c)
+    # an arm on the same host whose programs do not act on FAULT_FORCE: a guard nobody obeys
+    reis = '"droid-reis-agent", "droid-planner"]'
+    assert text.count(reis) == 1
+    bad = tmp_path / "noplanner.toml"
+    bad.write_text(text.replace(reis, '"droid-reis-agent"]'))
+    c = load_cell(bad)
+    with pytest.raises(BadInput, match="runs no droid-planner"):
+        ft_options(c.subunit("ft"), c)
 
 
 def test_brain_ft_writes_one_command_per_request_and_sees_it_delivered(tmp_path):

@@ -89,6 +89,9 @@ def ft_options(sub, cell=None) -> FtOptions:
         if arm.host != sub.host:
             raise BadInput(f"{where} guard_arm {guard_arm!r} runs on host {arm.host!r}, the sensor on "
                            f"{sub.host!r}: the guard writes the arm's own Status, on the same host")
+        if "droid-planner" not in arm.programs:  # a guard nobody acts on would be a silent one
+            raise BadInput(f"{where} guard_arm {guard_arm!r} runs no droid-planner: only the Reis planner "
+                           f"ends a move on FAULT_FORCE")
     return FtOptions(url, pose_to_T(*vals), guard_arm)
 
 
