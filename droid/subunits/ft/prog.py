@@ -90,7 +90,7 @@ def ft_options(sub, cell=None) -> FtOptions:
             raise BadInput(f"{where} guard_arm {guard_arm!r} runs on host {arm.host!r}, the sensor on "
                            f"{sub.host!r}: the guard writes the arm's own Status, on the same host")
         if "droid-planner" not in arm.programs:  # a guard nobody acts on would be a silent one
-            raise BadInput(f"{where} guard_arm {guard_arm!r} runs no droid-planner: only the Reis planner "
+            raise BadInput(f"{where} guard_arm {guard_arm!r} runs no droid-planner: only the planner "
                            f"ends a move on FAULT_FORCE")
     return FtOptions(url, pose_to_T(*vals), guard_arm)
 
