@@ -9,7 +9,7 @@ Status while |F| is above it, and the arm's planner cancels its move; 0 disarms 
 """
 from __future__ import annotations
 
-from droid.brain.databases import open_brain
+from droid.brain.databases import open_brain, write_command
 from droid.cli import BadInput
 from droid.numbers import Range
 
@@ -47,16 +47,12 @@ class BrainFt:
                 guard_force_n = GUARD_FORCE_N.check(guard_force_n, "guard_force_n")
             except ValueError as exc:  # NumberError
                 raise BadInput(str(exc)) from None
-        with self.command.locked() as rec:
-            if bias:
-                rec["bias_id"] = (int(rec["bias_id"]) + 1) & U32
-            if guard_force_n is not None:
-                rec["guard_force_n"] = guard_force_n
-            cmd_id = (int(rec["cmd_id"]) + 1) & U32
-            rec["cmd_id"] = cmd_id
-            rec["sent"] = 1
-            self.command.mark_written()
-        return cmd_id
+        fields = {}
+        if bias:  # the next bias_id (a task is the Command's one writer, as for an arm's)
+            fields["bias_id"] = (int(self.command.read()["bias_id"]) + 1) & U32
+        if guard_force_n is not None:
+            fields["guard_force_n"] = guard_force_n
+        return write_command(self.command, **fields)
 
     def delivered(self, cmd_id: int) -> bool:
         """The agent acknowledged command ``cmd_id`` (or a later one replaced it)."""

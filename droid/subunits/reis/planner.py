@@ -152,8 +152,9 @@ class PlannerCore:
             out.note = f"cancelled command {self.active_id}: {stop_cause(cmd, status)}" if cancelled else ""
         stop = hard or force
         new_id = int(cmd["cmd_id"])
-        asks_stop = int(cmd["joint_time_count"] if int(cmd["coord"]) == JSPACE else cmd["cart_time_count"]) == STOP_TICKS
-        if force and not dead and new_id != self.plan_id and int(cmd["cmd_mode"]) == NORMAL_MODE and not asks_stop:
+        if (force and not dead and new_id != self.plan_id and int(cmd["cmd_mode"]) == NORMAL_MODE
+                and int(cmd["joint_time_count"] if int(cmd["coord"]) == JSPACE else cmd["cart_time_count"])
+                != STOP_TICKS):  # a stop command is still taken
             # refused, not kept waiting: the arm stands pressed until the task that armed the
             # guard disarms it (droid-contact does on exit) or droid-jog takes it away
             self.plan_id = new_id

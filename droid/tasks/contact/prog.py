@@ -147,8 +147,7 @@ class ContactRun:
         self.prev: tuple[int, float] | None = None  # (tick, along_mm) of the last logged cycle
         self.ft_db = None
         self.ft_cmd = BrainFt(cell, args.ft)
-        self.guarded = isinstance(self.ft_sub.options.get("guard_arm"), str) and \
-            self.ft_sub.options.get("guard_arm") == args.arm
+        self.guarded = self.ft_sub.options.get("guard_arm") == args.arm
 
     # -- set-up ----------------------------------------------------------------------------
     def connect(self) -> None:
