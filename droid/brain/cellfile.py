@@ -119,6 +119,9 @@ class Cell:
     # [interpose] public endpoint -> the endpoint its owner binds instead, so that a
     # fault proxy (droid-fault) can serve the public one (docs/safety.md)
     interpose: dict[str, str] = field(default_factory=dict)
+    # [cell] layout: the cell's seam-tracking layout (droid.tasks.seam.layout), a path relative
+    # to the cell file; None: the bundled seamtrack_layout.toml
+    layout: Path | None = None
 
     def bind_endpoint(self, endpoint: str) -> str:
         """Where the owner of ``endpoint`` binds: itself, or its [interpose] inner endpoint."""
@@ -246,6 +249,7 @@ def parse_cell(raw: dict[str, Any], p: Path) -> Cell:
     fifo = c.get("sched_fifo", bool, False)
     run_root = os.environ.get(ENV_RUN_ROOT, DEFAULT_RUN_ROOT)
     run_dir = c.get("run_dir", str, f"{run_root}/{name}")
+    layout = c.get("layout", str, None)
     c.done()
     run = run_dir
 
@@ -308,7 +312,20 @@ def parse_cell(raw: dict[str, Any], p: Path) -> Cell:
     return Cell(path=p.resolve(), name=name, heartbeat_hz=hb_hz, stale_ticks=stale,
                 sched_fifo=fifo, run_dir=Path(run_dir), brain_host=brain_host,
                 heartbeat=heartbeat, names=names, world=world, subunits=subunits,
-                curve=curve, raw=raw, interpose=interpose)
+                curve=curve, raw=raw, interpose=interpose,
+                layout=_layout_path(p, layout))
+
+
+def _layout_path(p: Path, layout: str | None) -> Path | None:
+    """[cell] layout: relative to the cell file's folder; a bare name found only among the bundled
+    cells (droid/cells, as robot files are found by name) is that one.  A missing file is refused."""
+    if layout is None:
+        return None
+    for folder in (p.resolve().parent, Path(__file__).resolve().parents[1] / "cells"):
+        cand = folder / layout
+        if cand.is_file():
+            return cand
+    raise BadInput(f"{p}: [cell] layout {layout!r}: no such file beside the cell file or among the bundled cells")
 
 
 def _check_programs(p: Path, subunits: dict[str, Subunit]) -> None:

@@ -122,10 +122,10 @@ def scene_meta(cell, layout_path=None) -> dict:
     The workpiece's shape (``workpiece_mesh``, :mod:`droid.sim.workpiece_mesh`) is not here: an
     observer cannot read the simulator's workpiece model (DESIGN §7).  A recording whose maker may
     (a lockstep trial) carries it in its scene metadata."""
-    from droid.tasks.seam.layout import load_layout
+    from droid.tasks.seam.layout import layout_for_cell
 
     try:
-        lay = load_layout(layout_path)
+        lay = layout_for_cell(cell, layout_path)
     except Exception:  # noqa: BLE001 -- a scene is optional: no layout, no tool/sensor frames
         return {}
     wrist = lay.wrist("standard")

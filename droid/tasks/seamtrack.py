@@ -60,7 +60,7 @@ from droid.tasks.seam.core import (DEAD_ZONE_CYCLES, LOST_CYCLES, MAX_CYCLES, MA
 from droid.tasks.seam.cycle import SENSOR_LAG_TICKS, TrackingCycle  # noqa: F401 (SENSOR_LAG_TICKS: docs)
 from droid.tasks.seam.station import ArmStatus, SeamtrackStation
 from droid.tasks.seam.delay import INVALID_READING, Reading
-from droid.tasks.seam.layout import POSITION_IDS, load_layout
+from droid.tasks.seam.layout import POSITION_IDS, layout_for_cell, layout_path_for
 
 PROG = "droid-seamtrack"
 HEARTBEAT_LOST_S = STALE_GRACE_S  # no tick for this long [s]: the Brain's heartbeat is gone
@@ -108,7 +108,8 @@ def build_parser():
     ap.add_argument("--start", choices=POSITION_IDS, default=None, metavar="POSITION",
                     help="first move both robots to this layout start position (i..vii, §6.1.2)")
     ap.add_argument("--layout", metavar="FILE", default=None,
-                    help="seam-tracking layout (default: the bundled cells/seamtrack_layout.toml)")
+                    help="seam-tracking layout (default: the cell file's [cell] layout, else the bundled "
+                         "cells/seamtrack_layout.toml)")
     ap.add_argument("--wrist", default="standard", metavar="NAME",
                     help="wrist set-up of the layout (default standard; extension30: experiment 5)")
     ap.add_argument("--tool-sensor", default="tool", metavar="SUBUNIT",
@@ -356,7 +357,7 @@ class Tracker:
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     cell = open_cell(args)
-    layout = load_layout(args.layout)
+    layout = layout_for_cell(cell, args.layout)
     tr = Tracker(args, cell, layout)
     for p in (args.log, args.figure, args.record):
         if p is not None and Path(p).parent and not Path(p).parent.exists():
@@ -366,7 +367,7 @@ def main(argv=None) -> int:
         if args.record:
             from droid.observe.record import LiveRecorder
 
-            tr.recorder = LiveRecorder(cell, args.record, layout_path=args.layout)
+            tr.recorder = LiveRecorder(cell, args.record, layout_path=layout_path_for(cell, args.layout))
         tr.check_ready()
         Stop.install()
         if args.start:

@@ -62,7 +62,7 @@ from droid.tasks.arm import STALE_GRACE_S, BrainArm
 from droid.tasks.ft_sensor import BrainFt
 from droid.tasks.contact import report
 from droid.tasks.contact.core import STOP_END, ArmStatus, ContactStation, FtStatus, load_gains
-from droid.tasks.seam.layout import POSITION_IDS, T_W_SEAM, load_layout
+from droid.tasks.seam.layout import POSITION_IDS, T_W_SEAM, layout_for_cell
 from droid.tasks.seamtrack import move_to_start, pose_of
 
 PROG = "droid-contact"
@@ -128,7 +128,7 @@ class ContactRun:
         self.ft_sub = cell.subunit(args.ft)
         if self.ft_sub.cls != "ft6":
             raise BadInput(f"--ft {args.ft}: is a {self.ft_sub.cls} subunit, not a force/torque sensor (ft6)")
-        self.layout = load_layout(args.layout)
+        self.layout = layout_for_cell(cell, args.layout)
         self.wrist = self.layout.wrist(args.wrist)
         self.T_wcp_touch = self.wrist.T_wcp_tool @ trans(-args.touch_offset, 0.0, 0.0)
         self.holder = None

@@ -272,3 +272,16 @@ def load_layout(path: str | os.PathLike | None = None) -> Layout:
     """Read a layout file (default: the bundled seamtrack_layout.toml).  Raises BadInput."""
     p = Path(path) if path is not None else BUNDLED_LAYOUT
     return layout_from_dict(read_toml(p, "layout file"), source=str(p))
+
+
+def layout_path_for(cell, path: str | os.PathLike | None = None) -> Path:
+    """The layout file a task on ``cell`` reads: ``path`` (a --layout option) when given, else the
+    cell file's ``[cell] layout``, else the bundled seamtrack_layout.toml."""
+    if path is not None:
+        return Path(path)
+    return cell.layout if getattr(cell, "layout", None) is not None else BUNDLED_LAYOUT
+
+
+def layout_for_cell(cell, path: str | os.PathLike | None = None) -> Layout:
+    """The seam-tracking layout of ``cell`` (:func:`layout_path_for`).  Raises BadInput."""
+    return load_layout(layout_path_for(cell, path))
