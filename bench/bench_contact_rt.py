@@ -14,7 +14,7 @@ measures, printing figures (it decides nothing):
    ``droid-contact arm1 --gains G`` with ``touch_n`` above ``force_max_n``: it presses until
    the over-force stop -- droid-ft's guard on arm1 (FAULT_FORCE in the arm's own Status) or
    the task's.  Measured **on the arm's host**, by polling (~2 kHz) the sensor's and the arm's
-   local records and the world's truth door for arm1 (``droid.sim.reis.truth``, 250 Hz):
+   local records and the world's truth door for arm1 (``droid.sim.truth``, 250 Hz):
    the crossing is the first F/T record, with the guard armed, whose |F| (sensor frame, the
    guard's own test) is above the limit (its ``sample_ns``: when droid-ft received it); the
    trip is when FAULT_FORCE is seen in arm1's ``ctrl_status``; standstill is the first truth
@@ -106,7 +106,7 @@ class ArmHostSampler(threading.Thread):
     def __init__(self, cell) -> None:
         super().__init__(daemon=True)
         from droid.brain.databases import open_local
-        from droid.sim.reis.truth import TruthDoor, door_name
+        from droid.sim.truth import TruthDoor, door_name
         ft = cell.subunit("ft")
         self.ft = open_local(cell, ft, "ctrl_status")
         self.ft_cmd = open_local(cell, ft, "ctrl_command")

@@ -110,7 +110,7 @@ def truth_main(argv) -> int:
 
     import posix_ipc
 
-    from droid.sim.reis.truth import TruthDoor, door_name, truth_dict
+    from droid.sim.truth import TruthDoor, door_name, truth_dict
 
     ap = parser(f"{PROG} truth", "Print an arm's true joint angles and wrist-centre position (the world's truth).")
     ap.add_argument("arm", help="the arm's subunit name (e.g. arm1)")

@@ -16,4 +16,4 @@ def test_twin_imports():
     for path in (DROID / "sim" / "abb").rglob("*.py"):
         for n in droid_imports(path):
             assert within(n, ("droid.brain", "droid.kinematics", "droid.cli", "droid.numbers", "droid.subunits",
-                              "droid.sim.device", "droid.sim.gmf1.dynamics")), (path, n)
+                              "droid.sim.device", "droid.sim.gmf1.dynamics", "droid.sim.truth")), (path, n)

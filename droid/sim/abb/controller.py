@@ -54,6 +54,7 @@ from droid.cli import BadInput, RuntimeFailure
 from droid.kinematics import RobotModel, load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.sim.device import Device, arm_subunit, number_options
+from droid.sim.truth import TRUTH_PERIOD_S, TruthDoor, door_name
 from droid.subunits.abb import egm_schema as es
 from droid.subunits.abb.config import egm_config
 
@@ -265,7 +266,7 @@ class AbbEgmDevice(Device):
     """The controller core behind a UDP socket on 127.0.0.1, stepped by the world."""
 
     def __init__(self, name: str, controller: EgmController, sock: socket.socket, sensor_addr,
-                 model_global: RobotModel) -> None:
+                 model_global: RobotModel, door=None) -> None:
         self.name = name
         self.controller = controller
         self.sock = sock
@@ -273,6 +274,8 @@ class AbbEgmDevice(Device):
         self.model_global = model_global
         self.t_s = 0.0
         self.send_errors = 0
+        self.door = door  # the world's truth door for this arm (droid.sim.truth), or None
+        self._truth_due_s = 0.0  # world time of the next truth-door write [s]
 
     @property
     def address(self) -> tuple[str, int]:
@@ -298,6 +301,9 @@ class AbbEgmDevice(Device):
                 if exc.errno not in (errno.ECONNREFUSED, errno.EAGAIN, errno.ENOBUFS):
                     raise
                 self.send_errors += 1
+        if self.door is not None and t1 >= self._truth_due_s - 1e-9:  # the Reis twin's 250 Hz
+            self._truth_due_s = t1 + TRUTH_PERIOD_S
+            self.door.write(t1, c.q_deg, self.wcp_global()[:3, 3])
 
     def wcp_global(self) -> np.ndarray:
         """The true flange pose (4x4, mm) in the global frame: the model's FK frame (the
@@ -308,6 +314,9 @@ class AbbEgmDevice(Device):
         if self.sock is not None:
             self.sock.close()
             self.sock = None
+        if self.door is not None:
+            self.door.close()
+            self.door = None
 
 
 def open_socket(port: int, where: str, host: str = "127.0.0.1") -> socket.socket:
@@ -363,4 +372,9 @@ def make_abb_egm(world, name: str, options: dict) -> AbbEgmDevice:
         raise BadInput(f"{where} start_deg outside the joint limits: {why}")
     controller = EgmController(model, params, q0)
     sock = open_socket(0, where, host)  # any free port: the controller's source port is EGM's to choose
-    return AbbEgmDevice(name, controller, sock, (host, cfg.port), model.with_base(pose_to_T(*sub.base)))
+    try:  # `droid-sim truth SUBUNIT --json` and the benches read the true joints and flange here
+        door = TruthDoor.create(door_name(cell.name, sub.name))
+    except BaseException:
+        sock.close()
+        raise
+    return AbbEgmDevice(name, controller, sock, (host, cfg.port), model.with_base(pose_to_T(*sub.base)), door)

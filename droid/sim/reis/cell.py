@@ -180,7 +180,7 @@ class LockstepArm:
 
     def truth(self) -> dict:
         """The world's truth about this arm, as ``droid-sim truth ARM --json`` prints it."""
-        from droid.sim.reis.truth import truth_dict
+        from droid.sim.truth import truth_dict
 
         return truth_dict(self.name, self.plant.time_s, self.plant.joint_deg, self.wcp_global()[:3, 3])
 

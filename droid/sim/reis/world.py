@@ -32,7 +32,7 @@ droid-servo and droid-watchdog open the same bytes with ``open_vme(url)``.
 The device also implements the arm-twin interface of the world:
 ``wcp_global()`` -- the true wrist-centre pose [mm] in the global frame, used
 by the camera twin -- and publishes its truth through the world's door
-(:mod:`droid.sim.reis.truth`; ``droid-sim truth ARM --json``).
+(:mod:`droid.sim.truth`; ``droid-sim truth ARM --json``).
 """
 from __future__ import annotations
 
@@ -45,7 +45,7 @@ from droid.kinematics import RobotFileError, load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.sim.reis.dynamics import DhError
 from droid.sim.reis.plant import ReisPlant, ReisPlantParams
-from droid.sim.reis.truth import TruthDoor, door_name
+from droid.sim.truth import TRUTH_PERIOD_S, TruthDoor, door_name
 from droid.sim.reis.vme_shm import SharedVmeMap
 from droid.sim.device import Device
 from droid.subunits.reis.endpoints import reis_endpoints
@@ -59,11 +59,6 @@ _OPTIONS = {"subunit", "seed", "robot", "home_error_deg", "calibration_seed", "l
 #: T_wcp_tool when ``contact_tool_pose`` is not given: the seam layout's tool point (a 100 mm
 #: flange + the fixture's 150 mm, droid/cells/seamtrack_layout.toml) = sim.toml's F/T twin's
 DEFAULT_CONTACT_TOOL_POSE = [0.0, 0.0, 250.0, -90.0, 90.0, 180.0]
-
-
-#: The truth door is rewritten at most this often, in world time [s] (250 Hz: each record carries
-#: its world time ``t_s``; a per-millisecond rewrite cost the world a forward kinematics a step).
-TRUTH_PERIOD_S = 0.004
 
 
 class ReisDevice(Device):

@@ -7,7 +7,8 @@ switch positions and link lengths).  Tests and users who ask get that truth:
 * in lockstep, from the twin itself (``LockstepArm.truth()``);
 * from a running ``droid-sim``, through a small POSIX shared-memory record per
   arm, ``/droid.<cell>.<arm>.truth`` (:class:`TruthDoor`), which the world
-  rewrites every 4 ms of world time (``droid.sim.reis.world.TRUTH_PERIOD_S``);
+  rewrites every 4 ms of world time (:data:`TRUTH_PERIOD_S`; the ABB's EGM twin too, where
+  ``wcp_mm`` is its model's pose frame, the flange);
   ``droid-sim truth ARM --json [--cell FILE]`` prints it as one JSON object
   ``{"arm", "t_s", "q_deg": [6], "wcp_mm": [3]}`` (``q_deg``: the true joint
   angles [deg]; ``wcp_mm``: the true wrist-centre position in the global frame [mm]).
@@ -24,6 +25,9 @@ import time
 
 import posix_ipc
 
+#: The truth door is rewritten at most this often, in world time [s] (250 Hz: each record carries
+#: its world time ``t_s``; a per-millisecond rewrite cost the world a forward kinematics a step).
+TRUTH_PERIOD_S = 0.004
 RECORD = struct.Struct("<Q d 6d 3d")  # seq, t_s, q_deg, wcp_mm
 SIZE = RECORD.size
 
