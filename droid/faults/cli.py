@@ -113,9 +113,9 @@ def main(argv=None) -> int:
         Stop.install()
         # the proxy stands in for a wire: it runs at the priority of the programs it sits between
         try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
-        print(f"{PROG}: proxy on {args.label} ({proxy.ep.public} -> {proxy.inner}), control {proxy.control}",
-              file=sys.stderr, flush=True)
-        proxy.serve(stop=lambda: Stop.requested)
+        proxy.serve(stop=lambda: Stop.requested, on_ready=lambda: print(
+            f"{PROG}: proxy on {args.label} ({proxy.ep.public} -> {proxy.inner}), control {proxy.control}",
+            file=sys.stderr, flush=True))
         print(json.dumps(proxy.counts()))
         return 0
     if args.cmd == "set":
