@@ -139,7 +139,8 @@ class FaultProxy:
             raise BadInput(f"endpoint {label} ({self.ep.public}) is not interposed in the cell file: "
                            f"add an [interpose] entry for it (droid-fault interpose {label})")
         if self.ep.kind == "udp":
-            udp_address(self.ep.public), udp_address(self.inner)  # malformed: BadInput before serving
+            for url in (self.ep.public, self.inner):
+                udp_address(url)  # malformed: BadInput here, before serving
         self.controller: tuple | None = None  # udp: the newest source address seen at the public one
         self.control = control_endpoint(cell, label)
         self.faults = faults or LinkFaults()
