@@ -214,6 +214,27 @@ def _endpoint(v: str) -> str | None:
     return None if v.startswith(("ipc://", "tcp://", "inproc://")) else "must be an ipc://, tcp:// or inproc:// endpoint"
 
 
+def _interposed(public: str, inner: str) -> str | None:
+    """An [interpose] pair: ZeroMQ endpoints, or two ``udp://`` addresses (an EGM link)."""
+    udp = [v.startswith("udp://") for v in (public, inner)]
+    if any(udp) and not all(udp):
+        return "a udp:// address is interposed by a udp:// address only"
+    return None if all(udp) else _endpoint(public) or _endpoint(inner)
+
+
+def _interpose_table(table: dict, p: Path, run: str, cell: str) -> dict[str, str]:
+    """[interpose]: public endpoint -> inner endpoint, checked and expanded."""
+    out = {}
+    for public, inner in table.items():
+        if not isinstance(inner, str):
+            raise BadInput(f"{p}: [interpose] {public!r} must map to a string")
+        msg = _interposed(public, inner)
+        if msg:
+            raise BadInput(f"{p}: [interpose] {public!r} = {inner!r}: {msg}")
+        out[_expand(public, run, cell)] = _expand(inner, run, cell)
+    return out
+
+
 def _pose(v: list) -> str | None:
     if len(v) != 6 or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v):
         return "must be 6 finite numbers: x y z [mm] A B C [ZYZ deg]"
@@ -264,13 +285,7 @@ def parse_cell(raw: dict[str, Any], p: Path) -> Cell:
     world.update(_expand(w.done(allow_extra=True), run, name))
 
     curve_table = top.get("curve", dict, None)
-    interpose = {}
-    for public, inner in top.get("interpose", dict, {}).items():
-        for v in (public, inner):
-            msg = _endpoint(v) if isinstance(v, str) else "must be a string"
-            if msg:
-                raise BadInput(f"{p}: [interpose] {v!r} {msg}")
-        interpose[_expand(public, run, name)] = _expand(inner, run, name)
+    interpose = _interpose_table(top.get("interpose", dict, {}), p, run, name)
 
     subs_raw = top.get("subunits", dict)
     if not subs_raw:

@@ -8,6 +8,8 @@ Links (through a fault proxy on an endpoint of the cell file)::
     droid-fault set arm1.agent --delay-ms 40 --duplicate 0.2
     droid-fault set arm1.agent --clear
     droid-fault cut arm1 / droid-fault restore arm1  # blackhole every proxied endpoint of a host
+    droid-fault interpose abb.egm >> cell.toml       # an ABB arm's EGM link (UDP) too
+    droid-fault set abb.egm --drop 0.05 --jitter-ms 8
 
 Programs (found through droid-cell status)::
 
@@ -20,7 +22,7 @@ Network namespaces (a two-host cell, droid.faults.netns)::
     droid-fault link NS DEV down|up
 
 Exit codes: 0 ok, 2 bad input, 1 runtime failure (no proxy answers, the
-program is not running, ip failed).
+program is not running, a proxy's port is in use, ip failed).
 """
 from __future__ import annotations
 
@@ -113,9 +115,9 @@ def main(argv=None) -> int:
         Stop.install()
         # the proxy stands in for a wire: it runs at the priority of the programs it sits between
         try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
-        print(f"{PROG}: proxy on {args.label} ({proxy.ep.public} -> {proxy.inner}), control {proxy.control}",
-              file=sys.stderr, flush=True)
-        proxy.serve(stop=lambda: Stop.requested)
+        proxy.serve(stop=lambda: Stop.requested, on_ready=lambda: print(
+            f"{PROG}: proxy on {args.label} ({proxy.ep.public} -> {proxy.inner}), control {proxy.control}",
+            file=sys.stderr, flush=True))
         print(json.dumps(proxy.counts()))
         return 0
     if args.cmd == "set":

@@ -10,7 +10,13 @@ forwards every message through a :class:`~droid.faults.core.MessageFate`
   behind, so the agent still sees one peer per remote; both directions faulted;
 * ``pub`` (heartbeat, relay, servo status): XPUB in front, XSUB behind;
   subscriptions pass untouched, data is faulted;
-* ``pull`` (servo commands): PULL in front, PUSH behind, faulted.
+* ``pull`` (servo commands): PULL in front, PUSH behind, faulted;
+* ``udp`` (an ABB arm's EGM link, the subunit's ``egm`` address): plain UDP, no ZeroMQ.  One
+  socket bound at the public address faces the robot controller, one ephemeral socket sends to
+  the inner address droid-egm binds; datagrams to droid-egm go through the ``up`` fates, its
+  replies through the ``down`` fates to the controller's newest source address.  Datagrams pass
+  byte for byte whatever their size (an IPv4 UDP payload is at most 65507 bytes; droid-egm
+  drops the oversized ones itself).  droid-egm sees one source, the proxy's socket.
 
 The proxy answers JSON requests on a REP control socket
 ``ipc://<run_dir>/fault.<label>.ctl``: ``{"set": {"drop": 0.2, ...}}``,
@@ -18,43 +24,59 @@ The proxy answers JSON requests on a REP control socket
 """
 from __future__ import annotations
 
+import errno
 import json
+import socket
 import threading
 import time
 from dataclasses import dataclass
+from urllib.parse import urlsplit
 
 import zmq
 
 from droid.brain.cellfile import Cell
-from droid.cli import BadInput
+from droid.cli import BadInput, RuntimeFailure
 from droid.faults.core import DelayLine, LinkFaults, MessageFate
 
-KINDS = ("router", "pub", "pull")
+KINDS = ("router", "pub", "pull", "udp")
 POLL_MS = 20  # the longest the loop waits with messages held back (delay resolution ~1 ms)
+#: a receive buffer larger than any UDP datagram [bytes] (nothing is ever truncated)
+UDP_RECV_BYTES = 65536
+#: datagrams read from one UDP socket per wake-up, at most (a flood cannot starve the control
+#: socket or the held-back datagrams)
+UDP_READS_PER_WAKE = 256
+#: the UDP sockets' kernel buffers asked for [bytes] (the kernel caps them at its rmem/wmem_max)
+UDP_SOCKET_BUFFER_BYTES = 1 << 20
 
 
 @dataclass(frozen=True)
 class Endpoint:
     label: str  # "brain.heartbeat", "arm1.agent", ...
     public: str  # the endpoint in the cell file (connectors use it)
-    kind: str  # router, pub or pull
+    kind: str  # router, pub, pull or udp
     host: str  # the host whose program binds it
 
 
 def cell_endpoints(cell: Cell) -> dict[str, Endpoint]:
-    """Every endpoint of the cell that a program binds, by label."""
+    """Every endpoint of the cell that a program binds, by label (an ABB subunit's EGM address:
+    ``<sub>.egm``, kind ``udp``; a malformed ``egm`` URL is BadInput)."""
+    from droid.subunits.abb.config import egm_config, egm_url
+
     out = [Endpoint("brain.names", cell.names, "router", cell.brain_host),
            Endpoint("brain.heartbeat", cell.heartbeat, "pub", cell.brain_host)]
     for sub in cell.subunits.values():
-        if not any(p.endswith("agent") and p != "droid-servo-agent" for p in sub.programs):
-            continue  # a serial sensor: no agent
-        out.append(Endpoint(f"{sub.name}.agent", sub.agent, "router", sub.host))
-        out.append(Endpoint(f"{sub.name}.relay", sub.relay, "pub", sub.host))
-        if "droid-servo" in sub.programs:
+        has_agent = any(p.endswith("agent") and p != "droid-servo-agent" for p in sub.programs)
+        if has_agent:  # a serial sensor has none
+            out.append(Endpoint(f"{sub.name}.agent", sub.agent, "router", sub.host))
+            out.append(Endpoint(f"{sub.name}.relay", sub.relay, "pub", sub.host))
+        if has_agent and "droid-servo" in sub.programs:
             for key, kind in (("servo", "pull"), ("servo_status", "pub")):
                 ep = sub.options.get(key)
                 if isinstance(ep, str):
                     out.append(Endpoint(f"{sub.name}.{key}", ep, kind, sub.host))
+        if "droid-egm" in sub.programs or "egm" in sub.options:
+            egm_config(cell, sub)  # checked here: droid-fault list / interpose / proxy refuse a bad one
+            out.append(Endpoint(f"{sub.name}.egm", egm_url(sub), "udp", sub.host))
     return {e.label: e for e in out}
 
 
@@ -67,11 +89,30 @@ def endpoint(cell: Cell, label: str) -> Endpoint:
 
 def inner_endpoint(public: str) -> str:
     """The default inner endpoint for a public one: ``ipc://X`` -> ``ipc://X.inner``,
-    ``tcp://H:P`` -> ``tcp://H:P+1000``."""
+    ``tcp://H:P`` -> ``tcp://H:P+1000``, ``udp://H:P`` -> ``udp://H:P+1000``."""
     if public.startswith("tcp://"):
         host, _, port = public[6:].rpartition(":")
         return f"tcp://{host}:{int(port) + 1000}"
+    if public.startswith("udp://"):
+        host, port = udp_address(public)
+        if port + 1000 > 65535:
+            raise BadInput(f"{public}: no default inner address (port {port} + 1000 > 65535): "
+                           f"write the [interpose] entry by hand")
+        return f"udp://{host}:{port + 1000}"
     return public + ".inner"
+
+
+def udp_address(url: str) -> tuple[str, int]:
+    """``udp://HOST:PORT`` -> (host, port); anything else is BadInput."""
+    try:
+        parts = urlsplit(url)
+        port = parts.port
+    except (ValueError, TypeError, AttributeError):
+        raise BadInput(f"{url!r}: not udp://HOST:PORT (port 1..65535)") from None
+    if parts.scheme != "udp" or not parts.hostname or port is None or not 1 <= port <= 65535 \
+            or parts.path not in ("", "/") or parts.query or parts.fragment:
+        raise BadInput(f"{url!r}: not udp://HOST:PORT (port 1..65535)")
+    return parts.hostname, port
 
 
 def interpose_table(cell: Cell, labels) -> str:
@@ -97,6 +138,10 @@ class FaultProxy:
         if self.inner == self.ep.public:
             raise BadInput(f"endpoint {label} ({self.ep.public}) is not interposed in the cell file: "
                            f"add an [interpose] entry for it (droid-fault interpose {label})")
+        if self.ep.kind == "udp":
+            for url in (self.ep.public, self.inner):
+                udp_address(url)  # malformed: BadInput here, before serving
+        self.controller: tuple | None = None  # udp: the newest source address seen at the public one
         self.control = control_endpoint(cell, label)
         self.faults = faults or LinkFaults()
         self.up = MessageFate(seed)  # towards the owner
@@ -105,6 +150,7 @@ class FaultProxy:
         self._thread: threading.Thread | None = None
         self._ready = threading.Event()
         self._error: BaseException | None = None
+        self._on_ready = None
 
     # -- lifecycle ---------------------------------------------------------------
     def start(self, timeout_s: float = 5.0) -> "FaultProxy":
@@ -143,8 +189,29 @@ class FaultProxy:
             self._ready.set()
 
     # -- the loop ------------------------------------------------------------------
-    def serve(self, stop=None) -> None:
+    def serve(self, stop=None, on_ready=None) -> None:
+        """Forward until ``stop()`` is true or :meth:`stop` is called; ``on_ready()`` once every
+        socket is bound.  A public (or control) endpoint that cannot be bound is a
+        RuntimeFailure (exit 1) of one line."""
         stop = stop or (lambda: False)
+        self._on_ready = on_ready
+        if self.ep.kind == "udp":
+            self._serve_udp(stop)
+        else:
+            self._serve_zmq(stop)
+
+    def _serving(self) -> None:
+        self._ready.set()
+        if self._on_ready is not None:
+            self._on_ready()
+
+    def _bind(self, sock, where: str) -> None:
+        try:
+            sock.bind(where)
+        except zmq.ZMQError as exc:
+            raise RuntimeFailure(f"fault proxy {self.ep.label}: cannot bind {where}: {exc}") from None
+
+    def _serve_zmq(self, stop) -> None:
         ctx = zmq.Context()
         socks: list[zmq.Socket] = []
 
@@ -162,20 +229,17 @@ class FaultProxy:
         held_up, held_down = DelayLine(), DelayLine()
         poller = zmq.Poller()
         try:
-            front.bind(self.ep.public)
-            ctl.bind(self.control)
+            self._bind(front, self.ep.public)
+            self._bind(ctl, self.control)
             if back is not None:
                 back.connect(self.inner)
                 if kind == "pub":
                     poller.register(back, zmq.POLLIN)
             poller.register(front, zmq.POLLIN)
             poller.register(ctl, zmq.POLLIN)
-            self._ready.set()
+            self._serving()
             while not self._stop.is_set() and not stop():
-                now = time.monotonic_ns()
-                nxt = min((t for t in (held_up.next_ns(), held_down.next_ns()) if t is not None), default=None)
-                wait = POLL_MS if nxt is None else max(0, min(POLL_MS, (nxt - now) // 1_000_000))
-                events = dict(poller.poll(wait))
+                events = dict(poller.poll(_wait_ms(held_up, held_down)))
                 now = time.monotonic_ns()
                 faults = self.faults
                 if ctl in events:
@@ -220,6 +284,51 @@ class FaultProxy:
                 s.close(0)
             ctx.term()
 
+    def _serve_udp(self, stop) -> None:
+        """The ``udp`` kind's loop: controller <-> public socket, inner socket <-> droid-egm."""
+        public, inner = udp_address(self.ep.public), udp_address(self.inner)
+        ctx = zmq.Context()
+        ctl = ctx.socket(zmq.REP)
+        ctl.setsockopt(zmq.LINGER, 0)
+        front = back = None
+        held_up, held_down = DelayLine(), DelayLine()
+        try:
+            front = _udp_socket(public, f"fault proxy {self.ep.label}")
+            back = _udp_socket(None, f"fault proxy {self.ep.label}")
+            back.connect(inner)  # an ephemeral port; only droid-egm's datagrams come back on it
+            self._bind(ctl, self.control)
+            poller = zmq.Poller()
+            for s in (front.fileno(), back.fileno(), ctl):
+                poller.register(s, zmq.POLLIN)
+            self._serving()
+            while not self._stop.is_set() and not stop():
+                events = dict(poller.poll(_wait_ms(held_up, held_down)))
+                now = time.monotonic_ns()
+                faults = self.faults
+                if ctl in events:
+                    ctl.send_string(json.dumps(self._control(ctl.recv())))
+                if front.fileno() in events:
+                    for data, source in _recv_all(front):
+                        self.controller = source  # replies go to the controller's newest address
+                        for d in self.up.decide(faults):
+                            held_up.put(now + d, data)
+                if back.fileno() in events:
+                    for data, _ in _recv_all(back):
+                        for d in self.down.decide(faults):
+                            held_down.put(now + d, data)
+                now = time.monotonic_ns()
+                for data in held_up.due(now):
+                    _send_udp(back, data, None)
+                for data in held_down.due(now):
+                    if self.controller is not None:
+                        _send_udp(front, data, self.controller)
+        finally:
+            for s in (front, back):
+                if s is not None:
+                    s.close()
+            ctl.close(0)
+            ctx.term()
+
     def _control(self, raw: bytes) -> dict:
         try:
             req = json.loads(raw)
@@ -234,6 +343,53 @@ class FaultProxy:
             return {"ok": False, "error": str(exc)}
 
 
+def _wait_ms(*lines: DelayLine) -> int:
+    """How long the loop may sleep [ms]: until the next held message is due, POLL_MS at most."""
+    nxt = min((t for t in (ln.next_ns() for ln in lines) if t is not None), default=None)
+    return POLL_MS if nxt is None else max(0, min(POLL_MS, (nxt - time.monotonic_ns()) // 1_000_000))
+
+
+def _udp_socket(address: tuple[str, int] | None, who: str) -> socket.socket:
+    """A non-blocking UDP socket, bound to ``address`` (None: unbound); a bind failure is one
+    line, exit 1 (droid-egm's wording)."""
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        for opt in (socket.SO_RCVBUF, socket.SO_SNDBUF):
+            sock.setsockopt(socket.SOL_SOCKET, opt, UDP_SOCKET_BUFFER_BYTES)
+        if address is not None:
+            sock.bind(address)
+    except OSError as exc:
+        sock.close()
+        why = "in use" if exc.errno == errno.EADDRINUSE else (exc.strerror or str(exc))
+        where = "a UDP socket" if address is None else f"UDP {address[0]}:{address[1]}"
+        raise RuntimeFailure(f"{who}: cannot bind {where}: {why}") from None
+    sock.setblocking(False)
+    return sock
+
+
+def _recv_all(sock: socket.socket) -> list[tuple[bytes, tuple]]:
+    """The datagrams waiting on ``sock`` (UDP_READS_PER_WAKE at most), never blocking."""
+    out = []
+    for _ in range(UDP_READS_PER_WAKE):
+        try:
+            out.append(sock.recvfrom(UDP_RECV_BYTES))
+        except (BlockingIOError, InterruptedError):
+            break
+        except OSError:
+            continue  # an ICMP error of an earlier send (droid-egm not running): nobody heard it
+    return out
+
+
+def _send_udp(sock: socket.socket, data: bytes, address: tuple | None) -> None:
+    try:
+        if address is None:
+            sock.send(data)
+        else:
+            sock.sendto(data, address)
+    except OSError:
+        pass  # the peer is not there, or the buffer is full: a real link would lose it too
+
+
 def _send(s: zmq.Socket, frames) -> None:
     try:
         s.send_multipart(frames, zmq.NOBLOCK)
@@ -243,8 +399,6 @@ def _send(s: zmq.Socket, frames) -> None:
 
 def control(cell: Cell, label: str, request: dict, timeout_s: float = 2.0) -> dict:
     """Send one control request to a running proxy; its JSON answer."""
-    from droid.cli import RuntimeFailure
-
     ctx = zmq.Context()
     s = ctx.socket(zmq.REQ)
     s.setsockopt(zmq.LINGER, 0)

@@ -165,3 +165,62 @@ def test_runs_on_loopback_homes_and_answers(tmp_path, cell_name):
     assert p.returncode == 0, err
     assert f"droid.{cell.name}.abb.egm" not in left  # droid-egm removes its record at exit
     assert f"droid.{cell.name}.abb.ctrl_status" in left  # (the cell's databases are not its own)
+
+
+def interposed_cell(tmp_path, cell_name, public_port: int, inner: str):
+    path = tmp_path / "c.toml"
+    path.write_text(cell_text(cell_name, str(tmp_path / "run"), f"udp://127.0.0.1:{public_port}")
+                    + f'\n[interpose]\n"udp://127.0.0.1:{public_port}" = "{inner}"\n')
+    return path
+
+
+def test_interposed_binds_the_inner_address(tmp_path, cell_name):
+    """With an [interpose] entry (droid-fault on the EGM link) droid-egm binds the inner address:
+    a port in use there is its exit 1, a malformed one exit 2; the public port may be taken (by
+    the fault proxy, here a test socket) and it still answers at the inner address."""
+    holder, public = socket.socket(socket.AF_INET, socket.SOCK_DGRAM), socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    ctrl = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    for s in (holder, public, ctrl):
+        s.bind(("127.0.0.1", 0))
+    p = None
+    try:
+        pport, hport = public.getsockname()[1], holder.getsockname()[1]
+        path = interposed_cell(tmp_path, cell_name, pport, f"udp://127.0.0.1:{hport}")
+        r = run_prog("--cell", str(path), "abb")
+        lines = r.stderr.strip().splitlines()
+        assert r.returncode == 1 and len(lines) == 1 and "in use" in lines[0] and str(hport) in lines[0], r.stderr
+        path = interposed_cell(tmp_path, cell_name, pport, "udp://127.0.0.1:0")
+        r = run_prog("--cell", str(path), "abb")
+        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "interpose" in r.stderr, r.stderr
+
+        inner = free_udp_port()
+        path = interposed_cell(tmp_path, cell_name, pport, f"udp://127.0.0.1:{inner}")
+        for db in create_databases(load_cell(path)):
+            db.close()
+        p = subprocess.Popen(PROG + ["--cell", str(path), "abb"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                             text=True)
+        reply, seq = None, 0
+        deadline = time.monotonic() + 30.0
+        while reply is None and time.monotonic() < deadline:
+            assert p.poll() is None, p.stderr.read()
+            seq += 1
+            ctrl.sendto(robot_bytes(seq), ("127.0.0.1", inner))
+            if select.select([ctrl], [], [], 0.01)[0]:
+                reply = ctrl.recvfrom(65536)
+        assert reply is not None and reply[1] == ("127.0.0.1", inner)
+        m = egm_pb2.EgmSensor()
+        m.ParseFromString(reply[0])
+        assert m.header.mtype == egm_pb2.EgmHeader.MSGTYPE_CORRECTION
+    finally:
+        for s in (holder, public, ctrl):
+            s.close()
+        if p is not None:
+            p.send_signal(signal.SIGTERM)
+            try:
+                p.communicate(timeout=20)
+            finally:
+                if p.poll() is None:
+                    p.kill()
+                    p.wait()
+        remove_cell_objects(cell_name)
+    assert p.returncode == 0

@@ -3,6 +3,9 @@
     egm = "udp://127.0.0.1:6510"   # where droid-egm binds its UDP socket: the address the robot
                                    # controller's EGM transmission configuration names (the
                                    # "remote address"/"remote port number" of its UDPUC device)
+
+With an ``[interpose]`` entry ``"udp://H:P" = "udp://H:P2"`` droid-egm binds ``udp://H:P2`` and a
+fault proxy serves ``udp://H:P`` (droid-fault, docs/safety.md); the controller still sends to P.
 """
 from __future__ import annotations
 
@@ -40,6 +43,21 @@ def parse_egm_url(url, where: str) -> EgmConfig:
     return EgmConfig(parts.hostname, port)
 
 
+def egm_url(sub: Subunit):
+    """The subunit's ``egm`` value as the cell file gives it (unchecked), or the default."""
+    return sub.options.get("egm", f"udp://127.0.0.1:{DEFAULT_EGM_PORT}")
+
+
 def egm_config(cell: Cell, sub: Subunit) -> EgmConfig:
-    url = sub.options.get("egm", f"udp://127.0.0.1:{DEFAULT_EGM_PORT}")
-    return parse_egm_url(url, f"{cell.path}: [subunits.{sub.name}]")
+    """The public address: where the robot controller (and its twin) sends ``EgmRobot``."""
+    return parse_egm_url(egm_url(sub), f"{cell.path}: [subunits.{sub.name}]")
+
+
+def egm_bind_config(cell: Cell, sub: Subunit) -> EgmConfig:
+    """Where droid-egm binds: the public address, or its ``[interpose]`` inner address when a
+    fault proxy (``droid-fault proxy SUB.egm``, docs/safety.md) serves the public one."""
+    public = egm_config(cell, sub)
+    inner = cell.bind_endpoint(egm_url(sub))
+    if inner == egm_url(sub):
+        return public
+    return parse_egm_url(inner, f"{cell.path}: [interpose] for [subunits.{sub.name}]")

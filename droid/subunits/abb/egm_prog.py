@@ -6,7 +6,8 @@ servo: ``droid-reis-agent`` (the generic agent: Brain link, command copy, tick r
 ``droid-servo-agent``, ``droid-servo`` and ``droid-watchdog`` -- the robot controller closes the
 joint loops and keeps its own watchdog (EGM's communication timeout).  docs/abb.md.
 
-The shell: binds the UDP address of the subunit's ``egm`` key (``udp://HOST:PORT``; a port in
+The shell: binds the UDP address of the subunit's ``egm`` key (``udp://HOST:PORT``; its
+``[interpose]`` inner address when a fault proxy serves it, ``droid-fault proxy SUB.egm``; a port in
 use is one line and exit 1), answers every accepted ``EgmRobot`` at once with an ``EgmSensor`` to
 its source, and on each relayed heartbeat tick -- after the planner has written that tick's
 way-point, and on its own clock when the ticks stop, as the servo agent does (``TickPacer``) --
@@ -32,7 +33,7 @@ from droid.brain.rt import try_sched_fifo
 from droid.brain.shmdb import Database, db_name, unlink_database
 from droid.cli import RuntimeFailure, run
 from droid.kinematics import load_robot
-from droid.subunits.abb.config import egm_config
+from droid.subunits.abb.config import egm_bind_config
 from droid.subunits.abb.egm_core import MY_FAULTS, EgmCore, EgmOutput
 from droid.subunits.abb.egm_layout import EGM_STATUS_LAYOUT
 from droid.subunits.reis.servo_agent import TickPacer
@@ -88,7 +89,7 @@ def main(argv=None) -> int:
     args, cell, sub = subunit_program(
         PROG, "Drive an ABB arm through EGM: UDP feedback in, joint targets out, the controller's "
               "databases in between.", argv, arm=True)
-    cfg = egm_config(cell, sub)
+    cfg = egm_bind_config(cell, sub)  # the [interpose] inner address when a fault proxy serves it
     model = load_robot(sub.robot)
     try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     ctrl_command = ctrl_status = egm_db = sock = ctx = ticks = presence = None
