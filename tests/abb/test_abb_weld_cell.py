@@ -51,3 +51,75 @@ def test_home_both_arms_and_track_the_step_seam_in_plus_mode(tmp_path, cell_name
         _, T_hold = layout_for_cell(load_cell(cell)).start_poses("i")
         g = snoop(cell, "gmf1")
         assert np.allclose([g["x"], g["y"], g["z"]], T_hold[:3, 3], atol=0.5)
+
+
+def interposed_abb_cell(tmp_path, cell_name):
+    """abb_weld.toml renamed, with its EGM link interposed for a fault proxy (docs/safety.md)."""
+    from droid.faults.proxy import inner_endpoint
+
+    path = make_cell_file(tmp_path, cell_name, source=ABB_WELD)
+    egm = load_cell(path).subunit("abb").options["egm"]
+    path.write_text(path.read_text() + f'\n[interpose]\n"{egm}" = "{inner_endpoint(egm)}"\n')
+    (tmp_path / "run").mkdir(exist_ok=True)  # the proxy's control socket lives in the run dir
+    return path
+
+
+def test_egm_silence_stops_the_tracker_and_the_arm(tmp_path, cell_name):
+    """Issue 26 item 5: the EGM link falls silent both ways (droid-fault's cut) while the ABB
+    tracks: the twin holds its last target and the arm stops, droid-egm flags the stale feedback
+    (FAULT_DEVICE), and droid-seamtrack stops with ``fault`` (or ``stale``), exit 1; once the link
+    is back the arm stands where it stopped and takes a move again."""
+    import select
+    import subprocess
+    import sys
+    import time
+
+    from droid.faults.proxy import FaultProxy
+    from droid.sim.truth import TruthDoor, door_name
+
+    path = interposed_abb_cell(tmp_path, cell_name)
+    proxy = FaultProxy(load_cell(path), "abb.egm").start()
+    try:
+        with cell_up(path, cell_name) as cell:
+            for arm in ("abb", "gmf1"):
+                out = droid("droid.tasks.home", arm, "--cell", str(cell), timeout=120)
+                assert out.returncode == 0, out.stderr
+            proc = subprocess.Popen([sys.executable, "-m", "droid.tasks.seamtrack", "16", "--mode", "plus",
+                                     "--start", "i", "--cell", str(cell)], cwd=ROOT, stdout=subprocess.PIPE,
+                                    stderr=subprocess.PIPE, text=True)
+            try:
+                seen, deadline = "", time.monotonic() + 120
+                while "tracking" not in seen and time.monotonic() < deadline and proc.poll() is None:
+                    if select.select([proc.stderr], [], [], 0.5)[0]:
+                        seen += proc.stderr.readline()
+                assert "tracking" in seen, seen
+                proxy.set(cut=True)
+                _, err = proc.communicate(timeout=60)
+            finally:
+                if proc.poll() is None:
+                    proc.kill()
+                    proc.wait()
+            print(err.strip().splitlines()[-1])
+            assert proc.returncode == 1, err
+            assert "stopped: fault" in err or "stale" in err, err
+            st = snoop(cell, "abb")
+            assert "device" in st["fault"], st  # droid-egm: the EGM feedback is stale
+            door = TruthDoor.open(door_name(cell_name, "abb"))
+            try:  # silent: the arm stands (the twin holds the last target it had)
+                a = door.read()
+                time.sleep(0.5)
+                b = door.read()
+            finally:
+                door.close()
+            assert b[0] > a[0] and np.max(np.abs(np.subtract(a[2], b[2]))) <= 0.05, (a, b)
+            proxy.set(cut=False)
+            for _ in range(60):  # the link is back: the arm takes a move again
+                out = droid("droid.tasks.move", "abb", "--cell", str(cell), "joint", "--",
+                            "0", "13653", "11378", "0", "54613", "0", "2", timeout=60)
+                if out.returncode == 0:
+                    break
+                time.sleep(0.5)
+            assert out.returncode == 0, out.stderr
+            assert proxy.counts()["up"]["dropped"] > 0
+    finally:
+        proxy.stop()
