@@ -146,8 +146,9 @@ def _await_ready(started: dict, timeout_s: float, log_dir: str) -> None:
                 os.close(fd)
                 if not data:
                     code = proc.wait(timeout=2) if proc.poll() is None else proc.returncode
-                    raise RuntimeFailure(f"{spec.prog} {' '.join(spec.args)} exited (code {code}) "
-                                         f"before it was ready: {_last_line(log_dir, spec.key)}")
+                    fail = BadInput if code == 2 else RuntimeFailure  # a program refusing its input: exit 2
+                    raise fail(f"{spec.prog} {' '.join(spec.args)} exited (code {code}) "
+                               f"before it was ready: {_last_line(log_dir, spec.key)}")
     finally:
         for fd in pending:
             os.close(fd)

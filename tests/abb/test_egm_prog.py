@@ -224,3 +224,52 @@ def test_interposed_binds_the_inner_address(tmp_path, cell_name):
                     p.wait()
         remove_cell_objects(cell_name)
     assert p.returncode == 0
+
+
+def stream(port: int, joints, stop) -> None:
+    """A controller streaming EgmRobot with ``joints`` to 127.0.0.1:``port`` every 4 ms until ``stop``."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        seq = 0
+        while not stop.is_set():
+            seq += 1
+            try:
+                s.sendto(robot_bytes(seq, joints=joints), ("127.0.0.1", port))
+            except OSError:
+                pass  # nobody bound yet
+            time.sleep(0.004)
+
+
+@pytest.mark.parametrize("how", ["program", pytest.param("cell up", marks=pytest.mark.integration)])
+def test_a_controller_with_another_joint_count_is_refused_at_start(tmp_path, cell_name, how):
+    """Issue 26: the robot file has 6 joints; a controller streaming 7 (an arm on a track, say) is
+    refused at start with one line and exit 2 -- by droid-egm itself, and so by `droid-cell up`,
+    which brings nothing up."""
+    import threading
+
+    from droid.brain.shmdb import cell_objects
+    from tests.brain.cellutil import droid
+
+    port = free_udp_port()
+    path = tmp_path / "c.toml"
+    path.write_text(cell_text(cell_name, str(tmp_path / "run"), f"udp://127.0.0.1:{port}"))
+    cell = load_cell(path)
+    stop = threading.Event()
+    th = threading.Thread(target=stream, args=(port, [0.0, 10.0, 10.0, 0.0, 60.0, 0.0, 250.0], stop), daemon=True)
+    th.start()
+    try:
+        if how == "program":
+            for db in create_databases(cell):
+                db.close()
+            r = run_prog("--cell", str(path), "abb")
+        else:
+            r = droid("droid.brain.launcher", "up", "--cell", str(path), timeout=120)
+    finally:
+        stop.set()
+        th.join(5)
+        if how == "cell up":
+            droid("droid.brain.launcher", "down", "--cell", str(path), timeout=60)
+        remove_cell_objects(cell.name)
+    assert r.returncode == 2, r.stdout + r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "reports 7 joints" in lines[0] and "abb_irb2400 has 6" in lines[0], r.stderr
+    assert cell_objects(cell.name) == []

@@ -176,6 +176,21 @@ class EgmOutput:
     why: str = ""  # why the target holds (a log line), "" when it follows or holds by command
 
 
+def reported_joint_count(data: bytes) -> int | None:
+    """How many feedback joints the controller's ``EgmRobot`` DATA message ``data`` carries, or
+    None when it is not one (droid-egm compares it with the robot file's at start)."""
+    if len(data) > MAX_DATAGRAM_BYTES:
+        return None
+    msg = es.EgmRobot()
+    try:
+        msg.ParseFromString(bytes(data))
+    except (es.DecodeError, ValueError, TypeError, RuntimeError):
+        return None
+    if not msg.HasField("header") or not msg.header.HasField("seqno") or msg.header.mtype != es.MSGTYPE_DATA:
+        return None
+    return len(msg.feedBack.joints.joints)
+
+
 class EgmCore:
     """The PC side of one EGM link; see the module docstring.  Times are the caller's [ns]."""
 

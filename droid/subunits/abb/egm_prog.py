@@ -19,6 +19,7 @@ Datagrams dropped by the core count in the presence record's ``bad_frames``.
 from __future__ import annotations
 
 import errno
+import select
 import socket
 import sys
 import time
@@ -31,16 +32,21 @@ from droid.brain.heartbeat import TickSubscriber
 from droid.brain.program import Presence, Stop, close_all, notify_ready, presence_key, subunit_program
 from droid.brain.rt import try_sched_fifo
 from droid.brain.shmdb import Database, db_name, unlink_database
-from droid.cli import RuntimeFailure, run
+from droid.cli import BadInput, RuntimeFailure, run
 from droid.kinematics import load_robot
 from droid.subunits.abb.config import egm_bind_config
-from droid.subunits.abb.egm_core import MY_FAULTS, EgmCore, EgmOutput
+from droid.subunits.abb.egm_core import MY_FAULTS, N as N_JOINTS, EgmCore, EgmOutput, reported_joint_count
 from droid.subunits.abb.egm_layout import EGM_STATUS_LAYOUT
 from droid.subunits.reis.servo_agent import TickPacer
 
 PROG = "droid-egm"
 #: datagrams read per wake-up, at most (a flood cannot starve the heartbeat cycle)
 MAX_READS_PER_WAKE = 256
+#: how long droid-egm waits at start for the controller's first sample before it reports ready
+#: [s]: a controller already streaming (EGMStreamStart runs first in DroidEGM.mod; droid-sim's
+#: twin streams from power-up) has its joint count checked against the robot file at
+#: `droid-cell up`; one that starts later is checked by the core (a wrong count: malformed)
+FIRST_SAMPLE_WAIT_S = 2.0
 
 
 class EgmStation:
@@ -69,6 +75,32 @@ class EgmStation:
             self.ctrl_status.mark_written()
         self.egm_db.update(**out.egm)
         return out
+
+
+def first_sample(sock: socket.socket, station: EgmStation, robot: str, wait_s: float) -> None:
+    """Wait up to ``wait_s`` for the controller's first ``EgmRobot``; a joint count that is not
+    the robot file's is bad input (one line, exit 2: `droid-cell up` fails with it).  The
+    datagrams read here go to the station as any others."""
+    deadline = time.monotonic() + wait_s
+    while (left := deadline - time.monotonic()) > 0:
+        if not select.select([sock], [], [], left)[0]:
+            return
+        try:
+            data, source = sock.recvfrom(65536)
+        except (BlockingIOError, InterruptedError, OSError):
+            continue
+        n = reported_joint_count(data)
+        if n is not None and n != N_JOINTS:
+            raise BadInput(f"the controller at {source[0]}:{source[1]} reports {n} joints; the robot file "
+                           f"{robot} has {N_JOINTS}")
+        reply = station.take(data, source, time.monotonic_ns())
+        if reply is not None:
+            try:
+                sock.sendto(*reply)
+            except OSError:
+                pass
+        if n is not None:
+            return
 
 
 def bind_udp(host: str, port: int) -> socket.socket:
@@ -105,6 +137,7 @@ def main(argv=None) -> int:
         core = EgmCore(model, cell.stale_ticks, cell.heartbeat_hz)
         station = EgmStation(core, ctrl_command, ctrl_status, egm_db)
         pacer = TickPacer(cell.period_ns)
+        first_sample(sock, station, sub.robot, FIRST_SAMPLE_WAIT_S)
         poller = zmq.Poller()
         poller.register(ticks.sock, zmq.POLLIN)
         poller.register(sock.fileno(), zmq.POLLIN)
