@@ -125,7 +125,10 @@ class PlannerCore:
             self.ext_counts = pos.copy()
             self.time_count = 0
             out.encoder_cmd_int = np.rint(pos).astype(np.int32)
-            out.encoder_cmd_ext = out.encoder_cmd_int
+            # encoder_cmd_ext is left as the agent copied it: in JOG mode it is the Brain's
+            # RELATIVE jog [counts] (§3.4) that the servo agent (droid-egm) adds once; writing the
+            # arm's absolute position there made a jog add the whole position (a runaway to the
+            # joint limits on an arm whose home is not at 0 counts)
             out.joint_time_count = 0
             return out
         dead = int(status["fault"]) & (FAULT_SERVO | FAULT_WATCHDOG)  # nothing can move
@@ -210,7 +213,8 @@ def apply(out: PlanOutput, ctrl_command, ctrl_status, tick: int) -> None:
     with ctrl_command.locked() as c:
         if out.encoder_cmd_int is not None:
             c["encoder_cmd_int"] = out.encoder_cmd_int
-            c["encoder_cmd_ext"] = out.encoder_cmd_ext
+            if out.encoder_cmd_ext is not None:
+                c["encoder_cmd_ext"] = out.encoder_cmd_ext
             c["joint_time_count"] = out.joint_time_count
         if out.plan_id is not None:
             c["plan_id"] = out.plan_id
