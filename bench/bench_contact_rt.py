@@ -44,6 +44,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from bench.floor import cyclictest_floor  # noqa: E402
+from bench.truth import standstill  # noqa: E402
 from droid.brain.cellfile import builtin_cell_path, load_cell  # noqa: E402
 from droid.brain.databases import open_brain  # noqa: E402
 from droid.brain.layouts import FAULT_FORCE  # noqa: E402
@@ -147,19 +148,6 @@ class ArmHostSampler(threading.Thread):
         self.join(2.0)
         for db in (self.ft, self.ft_cmd, self.arm, self.truth):
             db.close()
-
-
-def standstill(wcp: list[tuple[int, np.ndarray]], after_ns: int, tol_mm: float = 0.01,
-               hold_ns: int = 200_000_000) -> int | None:
-    """The first truth record at or after ``after_ns`` from which the wrist centre stays within
-    ``tol_mm`` for ``hold_ns`` (None if the record ends first)."""
-    pts = [(t, p) for t, p in wcp if t >= after_ns]
-    for i, (t, p) in enumerate(pts):
-        if pts[-1][0] < t + hold_ns:
-            return None
-        if all(np.max(np.abs(q - p)) <= tol_mm for u, q in pts[i:] if u <= t + hold_ns):
-            return t
-    return None
 
 
 def overforce(cell_path: Path, cell, tmp: Path, k: int, save: Path | None = None) -> str:

@@ -36,28 +36,12 @@ MAX_UDP_PAYLOAD = 65507  # the largest IPv4 UDP datagram (65535 - 8 - 20 bytes o
 
 
 def cell_text(name: str, run: str, public_port: int, inner_port: int | None) -> str:
+    """droid-egm's test cell (tests/abb/test_egm_prog.py) with its EGM link interposed."""
+    from tests.abb.test_egm_prog import cell_text as egm_cell_text
+
     interpose = "" if inner_port is None else \
         f'\n[interpose]\n"udp://{HOST}:{public_port}" = "udp://{HOST}:{inner_port}"\n'
-    return f"""
-[cell]
-name = "{name}"
-heartbeat_hz = 60.0
-stale_ticks = 12
-sched_fifo = false
-run_dir = "{run}"
-
-[brain]
-host = "brain"
-heartbeat = "ipc://{{run}}/heartbeat"
-names = "ipc://{{run}}/names"
-
-[subunits.abb]
-class = "arm6r"
-robot = "abb_irb2400"
-host = "abb"
-programs = ["droid-reis-agent", "droid-planner", "droid-egm"]
-egm = "udp://{HOST}:{public_port}"
-{interpose}"""
+    return egm_cell_text(name, run, f"udp://{HOST}:{public_port}") + interpose
 
 
 def udp(port: int = 0) -> socket.socket:
