@@ -373,17 +373,13 @@ def plan_from_dict(data: dict, source: str = "<plan>", plan_dir: Path | None = N
         if kind != TRIAL_SEAMTRACK:
             config = contact.config(tid, params, where_of)  # its BadInput names the key (and plan) itself
         else:
-            resolved = {"workpiece": checker.resolved(params["workpiece"])}
-            if cell is not None:
-                resolved["cell"] = str(cell.cell.path)
+            resolved = {"workpiece": checker.resolved(params["workpiece"]), **_cell_param(cell)}
             try:
                 config = trial_config(tid, {**params, **resolved}, name)
             except BadInput as exc:  # TrialConfig's own checks (e.g. a mode it does not know)
                 shown = ", ".join(f"{k} = {_toml(params[k])}" for k in keys)
                 raise bad(f"trial {index} ({shown}): {exc}") from None
-            if cell is not None and (config.arm, config.holder) not in checked:
-                checked.add((config.arm, config.holder))
-                _check_cell_for(cell, config, source)
+            _check_cell_for(cell, config, source, checked)
         trials.append(PlanTrial(tid, index, params, config, name, kind))
     return Plan(name, description, source, defaults, sweep, tuple(trials), kind)
 
@@ -406,9 +402,18 @@ def _plan_cell(data: dict, kind: str, source: str, plan_dir: Path):
         raise BadInput(f"plan {source}: cell = {_toml(value)}: {exc}") from None
 
 
-def _check_cell_for(cell, config, source: str) -> None:
+def _cell_param(cell) -> dict:
+    """TrialConfig's ``cell`` (the resolved path) of a plan with a cell, else nothing."""
+    return {} if cell is None else {"cell": str(cell.cell.path)}
+
+
+def _check_cell_for(cell, config, source: str, checked: set) -> None:
+    """The plan's cell checked for a trial's arm and holder models (once a pair, kept in ``checked``)."""
+    if cell is None or (config.arm, config.holder) in checked:
+        return
     from droid.experiments.trial_cell import check_trial_cell
 
+    checked.add((config.arm, config.holder))
     try:
         check_trial_cell(cell.cell, cell.layout, config.arm, config.holder)
     except BadInput as exc:

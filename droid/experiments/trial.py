@@ -273,15 +273,8 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None,
     write an MCAP recording of it there (droid.observe.lockstep, docs/observe.md); ``limit``: when
     a trial the core has not ended times out (:class:`ProgressLimit`)."""
     wall0 = time.perf_counter()
-    tc = None
-    if cfg.cell is not None:  # the cell's layout, welder and holder, checked before anything runs
-        from droid.experiments.trial_cell import check_trial_cell, load_trial_cell
-
-        tc = load_trial_cell(cfg.cell, cfg.arm, cfg.holder)
-        if layout is not None:
-            tc = check_trial_cell(tc.cell, layout, cfg.arm, cfg.holder)
-        layout = tc.layout
-    geo = trial_geometry(cfg.position, cfg.workpiece, cfg.wrist, layout)
+    tc = _trial_cell(cfg, layout)
+    geo = trial_geometry(cfg.position, cfg.workpiece, cfg.wrist, tc.layout if tc is not None else layout)
     L = geo.camera_to_tcp_mm
     length = cfg.length_mm if cfg.length_mm is not None else default_length_mm(geo)
     params = SeamParams(speed_mm_s=cfg.speed_mm_s, yaw_gain=cfg.yaw_gain, pitch_gain=cfg.pitch_gain,
@@ -428,6 +421,17 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None,
         recorder.close()
     result.wall_s = time.perf_counter() - wall0
     return result
+
+
+def _trial_cell(cfg: TrialConfig, layout=None):
+    """The trial's cell (trial_cell.TrialCell: the cell, its layout -- or ``layout`` when given --
+    and its welder's kind), checked before anything runs; None without ``cfg.cell``."""
+    if cfg.cell is None:
+        return None
+    from droid.experiments.trial_cell import check_trial_cell, load_trial_cell
+
+    tc = load_trial_cell(cfg.cell, cfg.arm, cfg.holder)
+    return tc if layout is None else check_trial_cell(tc.cell, layout, cfg.arm, cfg.holder)
 
 
 def _arm_and_holder(cfg: TrialConfig, geo: TrialGeometry, sched: Scheduler, tc=None):
