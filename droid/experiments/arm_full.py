@@ -1,4 +1,4 @@
-"""The ``full`` Reis model for the trial harness: every core of the real-time Reis subunit.
+"""The ``full`` arm model for the trial harness: every core of the real-time arm subunit.
 
 :class:`droid.sim.reis.cell.LockstepArm` runs the plant (2 kHz joint
 dynamics behind the VME register map), the 500 Hz servo core (PID, queue,
@@ -7,6 +7,10 @@ the trial's scheduler.  A trial first homes the arm (the servo's homing from
 a random power-up pose, §4.1.5.3) and moves it to the start pose with a joint
 command, then the seam-tracking core drives it with cartesian commands
 through the Brain Command record, exactly as droid-seamtrack does.
+
+On a trial's cell file (droid.experiments.trial_cell) the arm is that cell's welder: the Reis
+as above, or the ABB on EGM (droid.sim.abb.lockstep.LockstepAbbArm: droid-egm and the
+controller twin; it homes at once).
 
 The experiments' default arm model (issue 13 item 5): every repetition homes from its own
 seeded power-up pose, so experiment 4 measures repeatability.  ~5-10x slower than the
@@ -27,24 +31,31 @@ SETTLE_S = 1.0
 
 
 class FullArm:
-    """The Reis subunit's cores on a scheduler, with the harness's arm interface."""
+    """An arm subunit's cores on a scheduler, with the harness's arm interface.
+
+    Without ``arm``: the Reis (:class:`LockstepArm` of ``robot`` named ``subunit`` at the model's
+    base).  ``arm``: a lockstep arm already built (an ArmChain: the Reis or
+    droid.sim.abb.lockstep.LockstepAbbArm, from a trial's cell file) whose robot model is ``model``."""
 
     def __init__(self, sched: Scheduler, model, q_start_deg, seed: int = 1, robot: str = "reis_v15",
-                 subunit: str = "arm1") -> None:
+                 subunit: str = "arm1", arm=None) -> None:
         self.sched = sched
         self.model = model
-        base = T_to_pose(model.base)
-        self.arm = LockstepArm(sched, subunit, robot=robot, base=tuple(float(v) for v in base), seed=seed)
+        if arm is None:
+            base = T_to_pose(model.base)
+            arm = LockstepArm(sched, subunit, robot=robot, base=tuple(float(v) for v in base), seed=seed)
+        self.arm = arm
         self.q_start = np.asarray(q_start_deg, float)
 
     def prepare(self) -> None:
-        """Home, then move to the start pose; raises RuntimeFailure if either does not finish."""
+        """Home (the Reis searches its switches; the ABB measures absolutely and homes at once),
+        then move to the start pose; raises RuntimeFailure if either does not finish."""
         if not self.arm.home(HOME_TIMEOUT_S):
-            raise RuntimeFailure("full arm model: homing did not finish")
+            raise RuntimeFailure(f"full arm model {self.name}: homing did not finish")
         counts = np.rint(self.model.gearing.joints_to_counts(self.q_start)).astype(np.int32)
         cmd = self.arm.command_joint(counts, self.arm.ticks_for(MOVE_S))
         if not self.arm.move_done(cmd, MOVE_S + 5.0):
-            raise RuntimeFailure("full arm model: the move to the start pose did not finish")
+            raise RuntimeFailure(f"full arm model {self.name}: the move to the start pose did not finish")
         self.sched.run_for(SETTLE_S)
 
     def command_cart(self, T_global_wcp, ticks: int) -> None:
@@ -62,7 +73,7 @@ class FullArm:
 
     @property
     def name(self) -> str:
-        """The arm's subunit name (arm1)."""
+        """The arm's subunit name (arm1; the layout's tool_robot on a cell)."""
         return self.arm.name
 
     def status_fault(self) -> int:

@@ -2,7 +2,7 @@
 
     droid-experiment run ID|TABLE... [--out DIR] [--realtime] [--seed N] [--jobs N]
                          [--sensor camera|ideal] [--arm fast|full] [--mode thesis|listing|plus]
-                         [--no-figures] [--dask ADDRESS]
+                         [--cell FILE] [--no-figures] [--dask ADDRESS]
     droid-experiment run --plan FILE.toml [--out DIR] [--resume] [--jobs N] [--no-figures] [--dask ADDRESS]
     droid-experiment list [ID|TABLE...]
     droid-experiment list --plan FILE.toml
@@ -29,7 +29,9 @@ a summary line on stdout.  Per table: ``DIR/<table>/summary.csv`` and
 ``summary.md`` of the trials of this run; experiment 4 also gets
 ``std.csv``/``std.png``, the per-s standard deviations across its runs
 (§6.2.6).  ``--realtime`` runs each trial, one after the other, on the
-real-time process cell (droid.experiments.realtime).
+real-time process cell (droid.experiments.realtime).  ``--cell FILE`` runs the
+lockstep trials on that cell file: its layout, welder and holder
+(droid.experiments.trial_cell; not with ``--realtime``).
 
 Exit 0 when every trial ran (whatever its tracking outcome), 1 when a trial
 could not run (or the Dask scheduler does not answer), 2 on bad arguments or a
@@ -90,11 +92,14 @@ def build_parser() -> ArgumentParser:
                    help="lead sensor model (default: ideal -- the seam in the field of view with the camera "
                         "chain's noise, ~3x faster; camera: the MVS camera twin and feature code)")
     r.add_argument("--arm", choices=ARM_MODELS, default=None,
-                   help="Reis model (default: full -- every Reis core and the plant twin, homed before each trial; "
-                        "fast: one second-order loop per joint, ~10x faster)")
+                   help="arm model (default: full -- every core of the welder's subunit and its twin, homed before "
+                        "each trial; fast: the Reis's planner and one second-order loop per joint, ~10x faster)")
     r.add_argument("--mode", choices=MODES, default=None,
                    help="tracker: thesis (default, §5.2's patch), listing (the literal port), plus "
                         "(seam map, holds the speed; docs/seamtrack.md)")
+    r.add_argument("--cell", metavar="FILE",
+                   help="run the trials on this cell file (a path, or a bundled cell's name): its layout, its "
+                        "welder (the Reis, or the ABB on EGM) and its holder (docs/experiments.md)")
     r.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     r.add_argument("--record", action="store_true",
                    help="also record each lockstep trial as DIR/<table>/<id>.mcap (docs/observe.md)")
@@ -458,6 +463,8 @@ def cmd_run_plan(args) -> int:
                         ("--arm", args.arm), ("--length", args.length)):
         if value not in (None, False):
             raise BadInput(f"{flag} does not apply to --plan (set it in the plan's [defaults] or [sweep])")
+    if args.cell is not None:
+        raise BadInput("--cell does not apply to --plan (set the plan's top-level cell key)")
     if args.ids:
         raise BadInput(f"give experiment IDs or --plan, not both (got {' '.join(args.ids)})")
     dask = _check_dask(args.dask)
@@ -557,6 +564,8 @@ def cmd_run(args) -> int:
     overrides = {"sensor": args.sensor or DEFAULT_SENSOR}
     if args.arm:
         overrides["arm"] = args.arm
+    if args.cell is not None:
+        overrides["cell"] = _trial_cell(args, picked)
     if getattr(args, "mode", None):
         overrides["mode"] = args.mode
     if args.length:
@@ -576,6 +585,21 @@ def cmd_run(args) -> int:
     files = write_tables(args.out, outcomes, figures)
     return _report(outcomes, t0, workers, dask, f"{len(outcomes)} trial(s)",
                    f"tables: {', '.join(f for f in files if f.endswith('summary.md')) or 'none'}")
+
+
+def _trial_cell(args, picked: list) -> str:
+    """``--cell``: the cell file's path, checked for every trial's arm and holder model before any
+    runs (a missing file, a layout naming a subunit the cell lacks, a welder without a lockstep:
+    one line, exit 2)."""
+    from droid.experiments.trial_cell import load_trial_cell, resolve_cell_path
+
+    if args.realtime:
+        raise BadInput("--cell runs lockstep trials only: --realtime builds its own cell from the built-in one "
+                       "(on a cell of your own: droid-cell up --cell FILE, then droid-seamtrack --cell FILE)")
+    path = resolve_cell_path(args.cell)
+    for arm, holder in sorted({(args.arm or e.config.arm, e.config.holder) for e in picked}):
+        load_trial_cell(path, arm, holder)
+    return str(path)
 
 
 @run

@@ -26,8 +26,9 @@ drifts); :meth:`status_pose`: the pose the tracker reads (the encoder program's
   which places the workpiece for the sensors.
 
 The Fanuc's cell set-up (serial line, encoder cards and rates) is the
-built-in cell's ``[subunits.gmf1]`` (droid/cells/sim.toml); the robot file and
-the base come from the trial's layout.
+built-in cell's ``[subunits.gmf1]`` (droid/cells/sim.toml), or on a trial's cell
+file (``TrialConfig.cell``) that cell's subunit its layout names holder_robot; the
+robot file and the base come from the trial's layout.
 """
 from __future__ import annotations
 
@@ -53,10 +54,13 @@ class Gmf1Holder:
     """The GMF1 in a trial (see the module docstring)."""
 
     def __init__(self, sched: Scheduler, fanuc_model, q_hold_deg, seed: int = 1, subunit: str = "gmf1",
-                 world_hz: float = WORLD_HZ) -> None:
+                 world_hz: float = WORLD_HZ, cell=None) -> None:
+        """``subunit``: the holder's name in ``cell`` (a trial on a cell file: its layout's
+        holder_robot); without a cell, the built-in cell's set-up, whatever $DROID_CELL says."""
         self.sched = sched
         self.q_hold = np.asarray(q_hold_deg, float)
-        cell = load_cell(builtin_cell_path())  # the built-in cell's gmf1 set-up, whatever $DROID_CELL says
+        if cell is None:
+            cell = load_cell(builtin_cell_path())
         self.g = Gmf1Lockstep(cell, subunit, world_hz=world_hz, seed=seed, start_deg=np.zeros(6),
                               params=KarelParams(dynamics=True), sched=sched, robot=str(fanuc_model.source),
                               base_T=fanuc_model.base)
@@ -99,7 +103,7 @@ class Gmf1Holder:
 
     @property
     def name(self) -> str:
-        """The holder's subunit name (gmf1)."""
+        """The holder's subunit name (gmf1; the layout's holder_robot on a cell)."""
         return self.g.sub.name
 
     def status_fault(self) -> int:

@@ -33,6 +33,11 @@ the ``[sweep]`` lists in the order written (the last key varies fastest).
 Each trial's ID is a hash of its parameters (:func:`trial_id`), so it is the
 same whatever else the plan sweeps, which is what ``--resume`` relies on.
 
+A top-level ``cell`` key runs every trial on a cell file (``TrialConfig.cell``,
+droid.experiments.trial_cell): a path relative to the plan file, or a bundled cell's name
+(``abb_weld.toml``), as a cell's ``layout`` key is found.  Positions and wrists are then the
+cell's layout's; the cell joins every trial's parameters (and so its ID) as written.
+
 A top-level ``trial`` key chooses the trial a plan sweeps: ``"seamtrack"`` (the
 default: the seam-tracking trial above) or ``"contact"`` (the lockstep force-control
 trial, thesis §7.3; its keys: droid.experiments.contact_plan).
@@ -66,7 +71,7 @@ BUILTIN_DEFAULTS = {"workpiece": None, "position": "i", "speed_mm_s": 16.0, "yaw
                     "pitch_gain": 0.25, "delay_cycles": 0, "delay_at_mm": 150.0, "wrist": "standard",
                     "mode": None, "arm": "full", "sensor": "ideal", "seed": 1, "length_mm": None}
 
-_TOP_KEYS = ("name", "description", "trial", "defaults", "sweep")
+_TOP_KEYS = ("name", "description", "trial", "cell", "defaults", "sweep")
 TRIAL_SEAMTRACK, TRIAL_CONTACT = "seamtrack", "contact"
 #: The trials a plan can sweep (its ``trial`` key; the first is the default).
 TRIAL_KINDS = (TRIAL_SEAMTRACK, TRIAL_CONTACT)
@@ -144,14 +149,14 @@ def _trial_config_fields() -> set[str]:
 class _Checker:
     """Type and range checks of one plan's values; each failure names plan, key and value."""
 
-    def __init__(self, source: str, plan_dir: Path) -> None:
+    def __init__(self, source: str, plan_dir: Path, layout=None) -> None:
         from droid.experiments.sensors import SENSOR_MODELS
         from droid.experiments.trial import ARM_MODELS
         from droid.tasks.seam.layout import load_layout
 
         self.source = source
         self.plan_dir = plan_dir
-        self.layout = load_layout()
+        self.layout = layout if layout is not None else load_layout()  # the plan cell's, else the bundled
         self.arms = ARM_MODELS
         self.sensors = SENSOR_MODELS
         self._workpieces: dict[str, str] = {}
@@ -299,7 +304,8 @@ def plan_from_dict(data: dict, source: str = "<plan>", plan_dir: Path | None = N
     for table, raw in (("defaults", defaults_raw), ("sweep", sweep_raw)):
         if not isinstance(raw, dict):
             raise bad(f"{table} = {_toml(raw)}: must be a table [{table}]")
-    checker = _Checker(source, plan_dir or Path.cwd())
+    cell = _plan_cell(data, kind, source, plan_dir or Path.cwd())
+    checker = _Checker(source, plan_dir or Path.cwd(), cell.layout if cell is not None else None)
     if kind == TRIAL_SEAMTRACK:
         keys_of, builtin, check = FIELDS, BUILTIN_DEFAULTS, checker.check
     else:
@@ -353,10 +359,13 @@ def plan_from_dict(data: dict, source: str = "<plan>", plan_dir: Path | None = N
     base = {**builtin, **defaults}
     trials = []
     ids: set[str] = set()
+    checked: set[tuple] = set()  # (arm, holder) models the plan's cell was checked for
     keys = list(sweep)
     for index, combo in enumerate(itertools.product(*(sweep[k] for k in keys))):
         params = {**base, **dict(zip(keys, combo))}
         params = {k: params[k] for k in keys_of}
+        if cell is not None:  # as written: the trial's ID says which cell it ran on
+            params["cell"] = data["cell"]
         tid = trial_id(params)
         if tid in ids:  # a hash collision within one plan: 10 hex digits make this ~1e-9 at 10^3 trials
             raise bad(f"two trials have the same ID {tid}")
@@ -364,13 +373,51 @@ def plan_from_dict(data: dict, source: str = "<plan>", plan_dir: Path | None = N
         if kind != TRIAL_SEAMTRACK:
             config = contact.config(tid, params, where_of)  # its BadInput names the key (and plan) itself
         else:
+            resolved = {"workpiece": checker.resolved(params["workpiece"]), **_cell_param(cell)}
             try:
-                config = trial_config(tid, {**params, "workpiece": checker.resolved(params["workpiece"])}, name)
+                config = trial_config(tid, {**params, **resolved}, name)
             except BadInput as exc:  # TrialConfig's own checks (e.g. a mode it does not know)
                 shown = ", ".join(f"{k} = {_toml(params[k])}" for k in keys)
                 raise bad(f"trial {index} ({shown}): {exc}") from None
+            _check_cell_for(cell, config, source, checked)
         trials.append(PlanTrial(tid, index, params, config, name, kind))
     return Plan(name, description, source, defaults, sweep, tuple(trials), kind)
+
+
+def _plan_cell(data: dict, kind: str, source: str, plan_dir: Path):
+    """The plan's ``cell`` key as a checked trial_cell.TrialCell (for the full arm and the GMF1;
+    each trial's models are checked as its config is made), or None without one."""
+    if "cell" not in data:
+        return None
+    value = data["cell"]
+    if kind != TRIAL_SEAMTRACK:
+        raise BadInput(f"plan {source}: cell = {_toml(value)}: applies to seam-tracking plans only")
+    if not isinstance(value, str) or not value:
+        raise BadInput(f"plan {source}: cell = {_toml(value)}: must be a cell file's path or a bundled cell's name")
+    from droid.experiments.trial_cell import load_trial_cell, resolve_cell_path
+
+    try:
+        return load_trial_cell(resolve_cell_path(value, plan_dir), "full", "gmf1")
+    except BadInput as exc:
+        raise BadInput(f"plan {source}: cell = {_toml(value)}: {exc}") from None
+
+
+def _cell_param(cell) -> dict:
+    """TrialConfig's ``cell`` (the resolved path) of a plan with a cell, else nothing."""
+    return {} if cell is None else {"cell": str(cell.cell.path)}
+
+
+def _check_cell_for(cell, config, source: str, checked: set) -> None:
+    """The plan's cell checked for a trial's arm and holder models (once a pair, kept in ``checked``)."""
+    if cell is None or (config.arm, config.holder) in checked:
+        return
+    from droid.experiments.trial_cell import check_trial_cell
+
+    checked.add((config.arm, config.holder))
+    try:
+        check_trial_cell(cell.cell, cell.layout, config.arm, config.holder)
+    except BadInput as exc:
+        raise BadInput(f"plan {source}: cell: {exc}") from None
 
 
 def trial_config(tid: str, params: dict, plan_name: str = ""):

@@ -7,7 +7,11 @@ what                  when             does
 ====================  ===============  ==================================================
 Reis arm              every tick       ``full`` (arm_full, the default: every Reis core + the
                                        plant twin, homed from its power-up pose first) or
-                                       ``fast`` (arm_fast: planner + analytic servo)
+                                       ``fast`` (arm_fast: planner + analytic servo).  With
+                                       ``cell`` (a cell file): the cell's welder, its layout's
+                                       tool_robot -- the Reis, or the ABB on EGM (droid-egm and
+                                       its controller twin, sim.abb.lockstep; full only) --
+                                       and its holder (trial_cell)
 GMF1                  its own rates    ``holder="gmf1"`` (default): the Fanuc twin (KAREL, its
                                        path, the arm of its robot file) and the GMF1 programs'
                                        cores (experiment.holder); homed and moved to the holding
@@ -198,6 +202,8 @@ class TrialConfig:
     latency_cycles: int = 0  # constant extra latency of every lead reading [30 Hz cycles] (stamped)
     holder: str = "gmf1"  # the workpiece holder: gmf1 (its controller and encoder path) or fixed
     tool_noise: bool = True  # the tool-tip sensor through the lead sensor's noise model (False: exact)
+    cell: str | None = None  # a cell file: its layout, welder and holder (droid.experiments.trial_cell);
+    # None: the bundled layout, the Reis and the built-in cell's GMF1
 
     def __post_init__(self) -> None:
         if self.holder not in HOLDER_MODELS:
@@ -219,6 +225,8 @@ class TrialConfig:
             raise BadInput(f"trial {self.trial_id}: holder_mm_s must be 3 finite numbers [mm/s]")
         if not isinstance(self.latency_cycles, int) or self.latency_cycles < 0:
             raise BadInput(f"trial {self.trial_id}: latency_cycles must be an integer >= 0")
+        if self.cell is not None and not (isinstance(self.cell, str) and self.cell):
+            raise BadInput(f"trial {self.trial_id}: cell must be a cell file's path, got {self.cell!r}")
 
 
 @dataclass
@@ -265,7 +273,8 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None,
     write an MCAP recording of it there (droid.observe.lockstep, docs/observe.md); ``limit``: when
     a trial the core has not ended times out (:class:`ProgressLimit`)."""
     wall0 = time.perf_counter()
-    geo = trial_geometry(cfg.position, cfg.workpiece, cfg.wrist, layout)
+    tc = _trial_cell(cfg, layout)
+    geo = trial_geometry(cfg.position, cfg.workpiece, cfg.wrist, tc.layout if tc is not None else layout)
     L = geo.camera_to_tcp_mm
     length = cfg.length_mm if cfg.length_mm is not None else default_length_mm(geo)
     params = SeamParams(speed_mm_s=cfg.speed_mm_s, yaw_gain=cfg.yaw_gain, pitch_gain=cfg.pitch_gain,
@@ -273,19 +282,7 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None,
                         delay_cycles=cfg.delay_cycles, delay_at_mm=cfg.delay_at_mm, mode=cfg.mode,
                         compliance=cfg.arm == "full")  # the fast arm's drives are rigid
     sched = Scheduler(HEARTBEAT_HZ)
-    if cfg.arm == "fast":
-        arm = FastArm(geo.reis, geo.q_reis_start_deg, cfg.fast_params)
-    else:
-        from droid.experiments.arm_full import FullArm
-
-        arm = FullArm(sched, geo.reis, geo.q_reis_start_deg, seed=cfg.seed)
-        arm.prepare()
-    holder = None
-    if cfg.holder == "gmf1":
-        from droid.experiments.holder import Gmf1Holder
-
-        holder = Gmf1Holder(sched, geo.fanuc, geo.q_hold_deg, seed=cfg.seed)
-        holder.prepare()
+    arm, holder = _arm_and_holder(cfg, geo, sched, tc)
     try:
         cyc = TrackingCycle(params, geo.wrist.T_wcp_tool, geo.wrist.T_wcp_sensor, geo.reis,
                             heartbeat_hz=HEARTBEAT_HZ)
@@ -346,8 +343,10 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None,
         from droid.observe.lockstep import TrialRecorder
         from droid.sim.workpiece_mesh import workpiece_mesh
 
+        lay = geo.layout
         recorder = TrialRecorder(record, cfg.trial_id, geo.reis, geo.fanuc, T_wcp_tool, T_wcp_sensor, geo.T_hold6_W,
-                                 geo.q_hold_deg, T_hold0, workpiece_mesh=workpiece_mesh(geo.workpiece))
+                                 geo.q_hold_deg, T_hold0, workpiece_mesh=workpiece_mesh(geo.workpiece),
+                                 names=(lay.tool_robot, lay.holder_robot, lay.sensor, "tool"))
 
     station = SeamtrackStation(cyc, HEARTBEAT_HZ, first_cycle_tick=t0_tick + ct, first_log_tick=t0_tick + 1)
 
@@ -422,6 +421,48 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None,
         recorder.close()
     result.wall_s = time.perf_counter() - wall0
     return result
+
+
+def _trial_cell(cfg: TrialConfig, layout=None):
+    """The trial's cell (trial_cell.TrialCell: the cell, its layout -- or ``layout`` when given --
+    and its welder's kind), checked before anything runs; None without ``cfg.cell``."""
+    if cfg.cell is None:
+        return None
+    from droid.experiments.trial_cell import check_trial_cell, load_trial_cell
+
+    tc = load_trial_cell(cfg.cell, cfg.arm, cfg.holder)
+    return tc if layout is None else check_trial_cell(tc.cell, layout, cfg.arm, cfg.holder)
+
+
+def _arm_and_holder(cfg: TrialConfig, geo: TrialGeometry, sched: Scheduler, tc=None):
+    """The welder (``fast``: FastArm; ``full``: FullArm, homed and at the start pose) and the
+    holder (``gmf1``: Gmf1Holder at the holding pose; ``fixed``: None).  ``tc``: the trial's
+    cell (trial_cell.TrialCell) -- its welder's lockstep arm and its holder subunit."""
+    if cfg.arm == "fast":
+        arm = FastArm(geo.reis, geo.q_reis_start_deg, cfg.fast_params)
+        if tc is not None:
+            arm.name = tc.layout.tool_robot  # the subunit the tracker's fault rule names
+    else:
+        from droid.experiments.arm_full import FullArm
+
+        if tc is None:
+            arm = FullArm(sched, geo.reis, geo.q_reis_start_deg, seed=cfg.seed)
+        else:
+            from droid.experiments.trial_cell import welder_lockstep
+
+            arm = FullArm(sched, geo.reis, geo.q_reis_start_deg, arm=welder_lockstep(sched, tc, cfg.seed))
+        arm.prepare()
+    holder = None
+    if cfg.holder == "gmf1":
+        from droid.experiments.holder import Gmf1Holder
+
+        if tc is None:
+            holder = Gmf1Holder(sched, geo.fanuc, geo.q_hold_deg, seed=cfg.seed)
+        else:
+            holder = Gmf1Holder(sched, geo.fanuc, geo.q_hold_deg, seed=cfg.seed, subunit=tc.layout.holder_robot,
+                                cell=tc.cell)
+        holder.prepare()
+    return arm, holder
 
 
 def _row(t_s: float, lead: Reading, tool, out, L: float, s_of) -> tuple:

@@ -26,7 +26,11 @@ def arm_subunit(world, name: str, options: dict, known) -> tuple[str, object]:
     """An arm twin's factory preamble: its options checked against ``known`` and the arm subunit
     it serves (option ``subunit``, default the device's name).  Returns ``(where, subunit)``;
     ``where`` names the device table in messages.  BadInput (one line) otherwise."""
-    cell = world.cell
+    return cell_arm_subunit(world.cell, name, options, known)
+
+
+def cell_arm_subunit(cell, name: str, options: dict, known) -> tuple[str, object]:
+    """:func:`arm_subunit` from the cell alone (a lockstep assembly has no world)."""
     where = f"{cell.path}: [world.devices.{name}]"
     unknown = sorted(set(options) - set(known))
     if unknown:

@@ -60,13 +60,12 @@ from droid.tasks.seam.core import (DEAD_ZONE_CYCLES, LOST_CYCLES, MAX_CYCLES, MA
 from droid.tasks.seam.cycle import SENSOR_LAG_TICKS, TrackingCycle  # noqa: F401 (SENSOR_LAG_TICKS: docs)
 from droid.tasks.seam.station import ArmStatus, SeamtrackStation
 from droid.tasks.seam.delay import INVALID_READING, Reading
-from droid.tasks.seam.layout import POSITION_IDS, layout_for_cell, layout_path_for
+from droid.tasks.seam.layout import POSITION_IDS, check_bases, layout_for_cell, layout_path_for
 
 PROG = "droid-seamtrack"
 HEARTBEAT_LOST_S = STALE_GRACE_S  # no tick for this long [s]: the Brain's heartbeat is gone
 START_MOVE_MIN_S = 3.0  # the shortest move to a start pose [s]
 START_MOVE_MARGIN = 1.5  # move time = margin x the slowest joint at its speed limit
-BASE_TOL_MM = 1e-3
 SETTLED_COUNTS = 2  # after a start move: encoder change per poll [counts] that counts as still
 SETTLE_POLL_S = 0.1
 SETTLE_TIMEOUT_S = 3.0
@@ -148,19 +147,6 @@ def pose_of(rec) -> np.ndarray:
     return T
 
 
-def _check_bases(layout, cell) -> None:
-    """The layout's robot bases must be the cell's, or every command would land elsewhere."""
-    from droid.kinematics.transforms import pose_to_T
-
-    for name in (layout.tool_robot, layout.holder_robot):
-        sub = cell.subunit(name)
-        if not sub.is_arm:
-            raise BadInput(f"layout {layout.source}: {name} is a {sub.cls} subunit of the cell, not an arm")
-        if not np.allclose(pose_to_T(*sub.base), layout.base(name), atol=BASE_TOL_MM):
-            raise BadInput(f"layout {layout.source}: the base of {name} differs from the cell's "
-                           f"[subunits.{name}] base")
-
-
 def move_to_start(arm: BrainArm, T: np.ndarray, what: str, quiet: bool) -> None:
     """Move ``arm`` to the wrist-centre pose ``T`` (global, mm) as droid-move would, and wait."""
     rec = arm.read()
@@ -205,7 +191,7 @@ class Tracker:
         except ValueError as exc:
             raise BadInput(str(exc)) from None
         self.wrist = layout.wrist(args.wrist)
-        _check_bases(layout, cell)
+        check_bases(layout, cell)
         sensor = cell.subunit(layout.sensor)
         if sensor.is_arm:
             raise BadInput(f"layout sensor {sensor.name} is an arm, not a sensor")

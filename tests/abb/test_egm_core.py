@@ -310,3 +310,31 @@ def test_after_a_fault_hold_an_old_way_point_is_never_resumed():
     q2 = here + [0.5, 0, 0, 0, 0, 0]
     c.cycle(command(brain_tick=33, planner_tick=33, encoder_cmd_int=counts(MODEL, q2)), 2 * 10**9 + 2 * PERIOD_NS)
     assert np.allclose(c.target(2 * 10**9 + 4 * PERIOD_NS)[0], q2, atol=2e-3)
+
+
+def test_a_move_commanded_as_normal_returns_after_home_is_followed_from_its_first_way_point():
+    """In HOME (JOG, OFF) the planner follows the arm: its fresh way-point at the feedback is a
+    re-anchored planner, so a move commanded in the tick NORMAL returns (a task right after
+    droid-home) is followed -- before, it was held forever while the planner reported it done."""
+    c = core()
+    q0 = np.array([0.0, 10.0, 10.0, 0.0, 60.0, 0.0])
+    feed(c, [1], joints=q0)
+    c.cycle(command(HOME_MODE, cmd_id=1, brain_tick=1, planner_tick=1, encoder_cmd_int=counts(MODEL, q0)), MS)
+    assert c.reanchor is False
+    q1 = q0 + [0.5, 0.0, 0.0, 0.0, 0.0, -0.5]  # the move's first way-point, one tick along
+    out = c.cycle(command(NORMAL_MODE, cmd_id=2, brain_tick=2, planner_tick=2, encoder_cmd_int=counts(MODEL, q1)),
+                  MS + PERIOD_NS)
+    assert out.why == "" and out.fault_bits == 0
+    assert np.allclose(c.target(MS + 2 * PERIOD_NS)[0], q1, atol=2e-3)
+
+
+def test_in_home_a_planner_way_point_away_from_the_arm_does_not_end_the_re_anchoring():
+    c = core()
+    q0 = np.array([0.0, 10.0, 10.0, 0.0, 60.0, 0.0])
+    feed(c, [1], joints=q0)
+    old = counts(MODEL, q0 + [3.0, 0, 0, 0, 0, 0])  # a way-point left from before, or a silent planner's
+    c.cycle(command(HOME_MODE, cmd_id=1, brain_tick=1, planner_tick=1, encoder_cmd_int=old), MS)
+    assert c.reanchor is True
+    c.cycle(command(HOME_MODE, cmd_id=1, brain_tick=2 + STALE_TICKS, planner_tick=1,
+                    encoder_cmd_int=counts(MODEL, q0)), MS + PERIOD_NS)
+    assert c.reanchor is True  # at the arm, but the planner is silent

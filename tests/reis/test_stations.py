@@ -281,18 +281,19 @@ def test_arm_commands_are_in_heartbeat_ticks():
 
 
 def test_the_shells_and_lockstep_call_the_same_stations():
-    """Each cycle is written once: the real-time program builds its station, LockstepArm builds
-    the same ones and keeps no copy of a shell's rules (field lists, fault sets, freshness)."""
+    """Each cycle is written once: the real-time program builds its station, LockstepArm (with its
+    ArmChain) builds the same ones and keeps no copy of a shell's rules (field lists, fault sets, freshness)."""
     import inspect
 
     from droid.brain import remote
+    from droid.sim import arm_chain
     from droid.sim.reis import cell
     from droid.subunits import agent
     from droid.subunits.reis import planner, servo_agent, servo_prog, watchdog_prog
 
     shells = {servo_prog: "ServoStation(", watchdog_prog: "WatchdogStation(", servo_agent: "ServoAgentStation(",
               planner: "PlannerStation(", agent: "AgentStation(", remote: "RemoteStation("}
-    lockstep = inspect.getsource(cell)
+    lockstep = inspect.getsource(cell) + inspect.getsource(arm_chain)  # the Reis's stations + the Brain side
     for module, station in shells.items():
         main = inspect.getsource(module)[inspect.getsource(module).index("def main"):]
         if module is agent:

@@ -53,7 +53,7 @@ import numpy as np
 from droid.cli import BadInput, RuntimeFailure
 from droid.kinematics import RobotModel, load_robot
 from droid.kinematics.transforms import pose_to_T
-from droid.sim.device import Device, arm_subunit, number_options
+from droid.sim.device import Device, cell_arm_subunit, number_options
 from droid.sim.truth import TRUTH_PERIOD_S, TruthDoor, door_name
 from droid.subunits.abb import egm_schema as es
 from droid.subunits.abb.config import egm_config
@@ -348,19 +348,12 @@ def twin_params(options: dict, where: str, model: RobotModel) -> EgmTwinParams:
         raise BadInput(f"{where} {exc}") from None
 
 
-def make_abb_egm(world, name: str, options: dict) -> AbbEgmDevice:
-    """Factory of the ``abb_egm`` device type (see the module docstring)."""
-    cell = world.cell
-    where, sub = arm_subunit(world, name, options, OPTIONS)
-    cfg = egm_config(cell, sub)
-    host = "127.0.0.1" if cfg.host == "localhost" else cfg.host
-    try:
-        loopback = ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        loopback = False
-    if not loopback:  # the cell's own loopback address ({loopback}) or 127.0.0.1
-        raise BadInput(f"{where} the simulated controller talks to a loopback address (127.0.0.0/8) only; "
-                       f"subunit {sub.name}'s egm host is {cfg.host!r}")
+def egm_twin(cell, name: str, options: dict) -> tuple[str, object, EgmController]:
+    """The controller of a ``[world.devices.NAME]`` table of type ``abb_egm`` (the options
+    without ``type``): ``(where, subunit, controller)``, before any socket -- the device below
+    puts it behind UDP, ``droid.sim.abb.lockstep`` on a lockstep scheduler.  BadInput (one line)
+    for an unknown option, a subunit that is not an arm, bad parameters or ``start_deg``."""
+    where, sub = cell_arm_subunit(cell, name, options, OPTIONS)
     model = load_robot(sub.robot)
     params = twin_params(options, where, model)
     q0 = options.get("start_deg", [0.0] * 6)
@@ -370,11 +363,28 @@ def make_abb_egm(world, name: str, options: dict) -> AbbEgmDevice:
     why = model.limit_violation(np.array(q0, float))
     if why:
         raise BadInput(f"{where} start_deg outside the joint limits: {why}")
-    controller = EgmController(model, params, q0)
+    return where, sub, EgmController(model, params, q0)
+
+
+def make_abb_egm(world, name: str, options: dict) -> AbbEgmDevice:
+    """Factory of the ``abb_egm`` device type (see the module docstring)."""
+    cell = world.cell
+    where, sub = cell_arm_subunit(cell, name, options, OPTIONS)
+    cfg = egm_config(cell, sub)
+    host = "127.0.0.1" if cfg.host == "localhost" else cfg.host
+    try:
+        loopback = ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        loopback = False
+    if not loopback:  # the cell's own loopback address ({loopback}) or 127.0.0.1
+        raise BadInput(f"{where} the simulated controller talks to a loopback address (127.0.0.0/8) only; "
+                       f"subunit {sub.name}'s egm host is {cfg.host!r}")
+    _, _, controller = egm_twin(cell, name, options)
     sock = open_socket(0, where, host)  # any free port: the controller's source port is EGM's to choose
     try:  # `droid-sim truth SUBUNIT --json` and the benches read the true joints and flange here
         door = TruthDoor.create(door_name(cell.name, sub.name))
     except BaseException:
         sock.close()
         raise
-    return AbbEgmDevice(name, controller, sock, (host, cfg.port), model.with_base(pose_to_T(*sub.base)), door)
+    return AbbEgmDevice(name, controller, sock, (host, cfg.port), controller.model.with_base(pose_to_T(*sub.base)),
+                        door)

@@ -23,30 +23,25 @@ replies before its relayed tick reaches the planner (so its reply shows the prev
 
 Task programs use :class:`LockstepArm` like BrainArm uses the shared
 databases: ``command_joint``, ``command_cart`` (ticks, as BrainArm's), ``command_home``
-write the Brain's Command record; ``status`` is the Brain's Status record.
+write the Brain's Command record; ``status`` is the Brain's Status record.  That Brain side
+(records, remote, agent, planner, the tick's order) is :class:`droid.sim.arm_chain.ArmChain`,
+which the ABB's lockstep arm (droid.sim.abb.lockstep) shares.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from droid.brain import arm_command
-from droid.brain.classes import ARM6R
 from droid.brain.wire import LIVENESS_TICKS
-from droid.brain.layouts import (ARM_COMMAND_LAYOUT, ARM_STATUS_LAYOUT, CTRL_COMMAND_LAYOUT,
-                                 CTRL_STATUS_LAYOUT, JOG_MODE, JSPACE)
-from droid.brain.remote import RemoteStation, StatusTranslator
-from droid.brain.shmdb import MemoryDatabase
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T
-from droid.sim.lockstep import ORDER_DEVICE, ORDER_HEARTBEAT, ORDER_WORLD, Scheduler
+from droid.sim.arm_chain import ArmChain
+from droid.sim.lockstep import ORDER_DEVICE, ORDER_WORLD, Scheduler
 from droid.sim.reis.plant import ReisPlant, ReisPlantParams
-from droid.subunits.agent import AgentStation
-from droid.subunits.reis.planner import PlannerCore
 from droid.subunits.reis.servo import ServoCore
 from droid.subunits.reis.servo_agent import COMMAND_HZ as AGENT_HZ
 from droid.subunits.reis.servo_agent import ServoAgentCore
 from droid.subunits.reis.servo_params import ServoParams
-from droid.subunits.reis.station import PlannerStation, ServoAgentStation, ServoStation, WatchdogStation
+from droid.subunits.reis.station import ServoAgentStation, ServoStation, WatchdogStation
 from droid.subunits.reis import device as reis_device
 from droid.subunits.reis.vme import VmeBus
 from droid.subunits.reis.watchdog import WatchdogCore
@@ -59,37 +54,24 @@ WATCHDOG_HZ = int(reis_device.WATCHDOG_HZ)
 STALE_TICKS = LIVENESS_TICKS  # the cell file's default stale_ticks
 
 
-class LockstepArm:
-    """One Reis arm, all of its programs' stations, on a scheduler."""
+class LockstepArm(ArmChain):
+    """One Reis arm, all of its programs' stations, on a scheduler (the Brain side: ArmChain)."""
 
     def __init__(self, sched: Scheduler, name: str = "arm1", robot: str = "reis_v15",
                  base=(0, 0, 0, 0, 0, 0), seed: int = 1, plant_params: ReisPlantParams | None = None,
-                 home_offset_deg=None, **plant_kw) -> None:
-        self.sched = sched
-        self.name = name
-        self.model = load_robot(robot).with_base(pose_to_T(*base))
+                 home_offset_deg=None, stale_ticks: int = STALE_TICKS, **plant_kw) -> None:
+        model = load_robot(robot).with_base(pose_to_T(*base))
         # servo, servo agent, planner and plant read the same robot file (issue 13)
         pp = plant_params if plant_params is not None else ReisPlantParams(robot=robot)
         if pp.robot != robot:
             raise ValueError(f"arm {name}: the controller's robot file {robot!r} and the plant's {pp.robot!r} differ")
         self.plant = ReisPlant(pp, seed, **plant_kw)
         self.bus = VmeBus.from_buffer(self.plant.regs)
-        self.brain_status = MemoryDatabase(f"{name}.status", ARM_STATUS_LAYOUT)
-        self.brain_command = MemoryDatabase(f"{name}.command", ARM_COMMAND_LAYOUT)
-        self.ctrl_status = MemoryDatabase(f"{name}.ctrl_status", CTRL_STATUS_LAYOUT)
-        self.ctrl_command = MemoryDatabase(f"{name}.ctrl_command", CTRL_COMMAND_LAYOUT)
-        for db in (self.brain_command, self.ctrl_command):
-            db.update(cmd_mode=JOG_MODE, coord=JSPACE)
+        self._make_chain(sched, name, model, stale_ticks)
         self.restart_servo(home_offset_deg)
         self.watchdog = WatchdogStation(WatchdogCore(), self.bus, self.ctrl_status)
-        self.agent = ServoAgentStation(ServoAgentCore(STALE_TICKS, params=self.servo_params),
+        self.agent = ServoAgentStation(ServoAgentCore(self.stale_ticks, params=self.servo_params),
                                        self.ctrl_command, self.ctrl_status, AGENT_HZ)
-        self.planner = PlannerStation(PlannerCore(self.model), self.ctrl_command, self.ctrl_status)
-        period_ns = int(round(1e9 / sched.heartbeat_hz))
-        self.reis_agent = AgentStation(self.ctrl_status, self.ctrl_command, period_ns, STALE_TICKS)
-        self.remote = RemoteStation(self.brain_status, self.brain_command,
-                                    StatusTranslator(name, ARM6R, self.wcp_from_counts), STALE_TICKS,
-                                    sched.heartbeat_hz)
         self.alive = {"servo": True, "watchdog": True, "agent": True, "planner": True, "link": True}
         self._relayed = True  # a relayed tick since the servo agent's last cycle
         p = 1e9
@@ -98,7 +80,7 @@ class LockstepArm:
         sched.every(WATCHDOG_HZ, self._watchdog, f"{name}.watchdog", order=ORDER_DEVICE)
         sched.every(AGENT_HZ, self._servo_agent, f"{name}.servo_agent", order=ORDER_DEVICE,
                     phase_ns=int(p / AGENT_HZ / 2))
-        sched.on_tick(self._tick, f"{name}.tick", order=ORDER_HEARTBEAT)
+        self._start_chain()  # planner, agent, remote and the tick (ArmChain._tick)
 
     @property
     def servo(self) -> ServoCore:
@@ -133,20 +115,8 @@ class LockstepArm:
             if msg is not None:
                 self._inbox.append(msg)
 
-    def _tick(self, tick: int) -> None:
-        t_ns = self.sched.t_ns
-        self.remote.on_poll(t_ns)  # the heartbeat-silence rule, on virtual time
-        self.remote.on_tick(tick, t_ns)
-        if self.alive["link"]:  # the remote sends the Brain's command; the agent copies it in
-            self.reis_agent.on_command(self.remote.command_payload(), tick, t_ns)
-            relay = tick
-        else:  # the agent's own timer: the link dies after stale_ticks; then local ticks
-            relay = self.reis_agent.on_timer(t_ns)
+    def _relay_seen(self, relay: int | None) -> None:
         self._relayed |= relay is not None
-        if self.alive["planner"] and relay is not None:
-            self.planner.cycle(relay)
-        if self.alive["link"]:  # the reply: controller Status -> Brain Status, with FK (§4.1.8)
-            self.remote.on_reply(tick, self.ctrl_status.raw_bytes(), t_ns)
 
     def restart_servo(self, home_offset_deg=None) -> None:
         """(Re)start droid-servo with calibrated switch positions (the robot file's plus
@@ -156,10 +126,7 @@ class LockstepArm:
         self.servo_station = ServoStation(ServoCore(self.servo_params), self.bus)
         self._inbox: list[bytes] = []  # servo-agent -> servo messages (ZeroMQ PUSH/PULL)
 
-    # -- what a task program sees --------------------------------------------
-    def wcp_from_counts(self, counts) -> np.ndarray:
-        return self.model.fk(self.model.gearing.counts_to_joints(np.asarray(counts, float)))
-
+    # -- the world's side ---------------------------------------------------------------
     def wcp_global(self) -> np.ndarray:
         """The true wrist-centre pose [mm, global frame] (the world's arm-twin interface): the
         true arm (its D-H errors) at its true link angles (after the drives' deflection)."""
@@ -183,49 +150,6 @@ class LockstepArm:
         from droid.sim.truth import truth_dict
 
         return truth_dict(self.name, self.plant.time_s, self.plant.joint_deg, self.wcp_global()[:3, 3])
-
-    @property
-    def status(self):
-        return self.brain_status.read()
-
-    def command_home(self) -> int:
-        return arm_command.home(self.brain_command)
-
-    def command_joint(self, counts, ticks: int) -> int:
-        """A joint move to ``counts`` [encoder counts wrt home] in ``ticks`` heartbeat ticks."""
-        return arm_command.joint(self.brain_command, counts, ticks)
-
-    def command_cart(self, T, ticks: int) -> int:
-        """A cartesian move of the WCP to ``T`` (4x4, global frame, mm) in ``ticks`` heartbeat ticks."""
-        return arm_command.cart(self.brain_command, T, ticks)
-
-    def ticks_for(self, seconds: float) -> int:
-        """``seconds`` [s] as heartbeat ticks of this arm's scheduler."""
-        return arm_command.ticks_for(seconds, self.sched.heartbeat_hz)
-
-    def set_normal(self) -> None:
-        arm_command.set_normal(self.brain_command)
-
-    def run_until(self, pred, max_s: float, step_s: float = 0.05) -> bool:
-        """Advance virtual time until ``pred()`` or ``max_s`` simulated seconds."""
-        t_end = self.sched.t_ns + int(max_s * 1e9)
-        while self.sched.t_ns < t_end:
-            if pred():
-                return True
-            self.sched.run_for(step_s)
-        return bool(pred())
-
-    def home(self, max_s: float = 60.0) -> bool:
-        cmd_id = self.command_home()
-        ok = self.run_until(lambda: int(self.status["cmd_id"]) == cmd_id and int(self.status["homed"])
-                            and int(self.status["busy"]) == 0, max_s)
-        if ok:
-            self.set_normal()
-        return ok
-
-    def move_done(self, cmd_id: int, max_s: float) -> bool:
-        return self.run_until(lambda: int(self.status["cmd_id"]) == cmd_id and int(self.status["busy"]) == 0,
-                              max_s)
 
 
 def arms_from_cell(sched: Scheduler, cell, seed: int | None = None) -> dict[str, LockstepArm]:

@@ -3,8 +3,9 @@
 Serves class ``arm6r`` like the Reis and the GMF1: an ABB subunit runs the Reis package's
 ``droid-reis-agent`` and ``droid-planner`` and this package's ``droid-egm`` in the servo
 agent's place (docs/abb.md).  Its twin ``abb_egm`` is the controller's side of EGM.  The
-``egm`` key's ``udp://HOST:PORT`` is bound by droid-egm itself (no driver to open).  No
-lockstep assembly yet.
+``egm`` key's ``udp://HOST:PORT`` is bound by droid-egm itself (no driver to open).  Its
+lockstep assembly, :class:`droid.sim.abb.lockstep.LockstepAbbArm`, puts the subunit's stations
+and the twin on a lockstep scheduler from a cell file.
 """
 from __future__ import annotations
 
@@ -17,4 +18,5 @@ PACKAGE = DevicePackage(
     # in the servo agent's place: answers the controller every 4 ms
     programs=(Program("droid-egm", "droid.subunits.abb.egm_prog", sched="fifo", priority=54),),
     twins=(Twin("abb_egm", "droid.sim.abb.controller:make_abb_egm", serves=("arm6r",)),),
+    lockstep="droid.sim.abb.lockstep:LockstepAbbArm",
 )

@@ -48,7 +48,10 @@ Each heartbeat period (:meth:`EgmCore.cycle`, on the relayed tick):
   :data:`RESUME_DEG` of the feedback -- the planner has re-anchored -- so an old way-point
   left in the Command record is never driven to;
 * otherwise (OFF, JOG, HOME, the Brain link lost, the planner silent) the target holds where it
-  was commanded; a new JOG command moves it by its relative counts once (thesis §3.4);
+  was commanded; a new JOG command moves it by its relative counts once (thesis §3.4); in
+  OFF, JOG and HOME the planner follows the arm, so a fresh way-point at the feedback ends a
+  fault hold's re-anchoring there too (a move commanded in the tick NORMAL returns, as a task
+  does after droid-home, is followed from its first way-point);
 * targets are clamped to the joint limits (FAULT_LIMIT while clamped).
 """
 from __future__ import annotations
@@ -377,6 +380,8 @@ class EgmCore:
                     delta = self.gearing.counts_to_joints(np.asarray(cmd["encoder_cmd_ext"], float))
                     self._hold(self.hold_deg + delta)
                     status.update(cmd_id=cmd_id, cmd_result=CMD_OK, busy=0)
+                if mode != NORMAL_MODE and self._planner_at_arm(cmd, s):
+                    self.reanchor = False  # JOG/HOME/OFF: the planner follows the arm (§4.1.7)
             if mode == HOME_MODE and cmd_id != self.home_id:
                 self.home_id = cmd_id
                 status.update(cmd_id=cmd_id, cmd_result=CMD_OK, busy=0)
@@ -389,6 +394,15 @@ class EgmCore:
             status["encoder_cmd"] = np.rint(self.gearing.joints_to_counts(q)).astype(np.int32)
         self.last_fault_bits = faults
         return EgmOutput(status, faults, self.egm_fields(now_ns), why=why)
+
+    def _planner_at_arm(self, cmd, s: Sample) -> bool:
+        """The planner is fresh and its way-point lies within RESUME_DEG of the feedback: it has
+        re-anchored where the arm stands, so the next NORMAL move starts from the arm (one
+        commanded in the very tick NORMAL returns, after droid-home, is followed at once)."""
+        if int(cmd["brain_tick"]) - int(cmd["planner_tick"]) > self.stale_ticks:
+            return False
+        wp = self.gearing.counts_to_joints(np.asarray(cmd["encoder_cmd_int"], float))
+        return bool(np.all(np.abs(wp - s.feedback_deg) <= RESUME_DEG))
 
     def step(self, datagrams, cmd, now_ns: int, late_ns: int = 0) -> EgmOutput:
         """The whole core in one call: every datagram ``(bytes, source, rx_ns)`` received since

@@ -282,6 +282,23 @@ def layout_path_for(cell, path: str | os.PathLike | None = None) -> Path:
     return cell.layout if getattr(cell, "layout", None) is not None else BUNDLED_LAYOUT
 
 
+#: how far a layout's robot base may lie from its cell's [subunits.*] base [mm, and the rotation
+#: matrix's entries]
+BASE_TOL_MM = 1e-3
+
+
+def check_bases(layout: Layout, cell) -> None:
+    """The layout's tool and holder robots are arms of ``cell`` at the cell's bases, or every
+    command would land elsewhere.  BadInput (one line) otherwise."""
+    for name in (layout.tool_robot, layout.holder_robot):
+        sub = cell.subunit(name)
+        if not sub.is_arm:
+            raise BadInput(f"layout {layout.source}: {name} is a {sub.cls} subunit of the cell, not an arm")
+        if not np.allclose(pose_to_T(*sub.base), layout.base(name), atol=BASE_TOL_MM):
+            raise BadInput(f"layout {layout.source}: the base of {name} differs from the cell's "
+                           f"[subunits.{name}] base")
+
+
 def layout_for_cell(cell, path: str | os.PathLike | None = None) -> Layout:
     """The seam-tracking layout of ``cell`` (:func:`layout_path_for`).  Raises BadInput."""
     return load_layout(layout_path_for(cell, path))
