@@ -24,6 +24,9 @@ ABB_WELD = ROOT / "cells" / "abb_weld.toml"
 #: "On the seam" for a live run, loaded host included: RMS lateral tool error after settling [mm]
 #: (measured quiet: 0.06 mm) and the achieved speed within 5 % of the commanded one.
 RT_RMS_LATERAL_MM = 1.0
+#: Real time vs lockstep on the same cell file: mean |difference| of the tool's lateral and depth
+#: error at the same tool travel after settling [mm] (the default cell's bound).
+AGREE_MEAN_MM = 1.0
 
 
 def test_home_both_arms_and_track_the_step_seam_in_plus_mode(tmp_path, cell_name):
@@ -51,6 +54,18 @@ def test_home_both_arms_and_track_the_step_seam_in_plus_mode(tmp_path, cell_name
         _, T_hold = layout_for_cell(load_cell(cell)).start_poses("i")
         g = snoop(cell, "gmf1")
         assert np.allclose([g["x"], g["y"], g["z"]], T_hold[:3, 3], atol=0.5)
+        # the same trial in lockstep on the same cell file (LockstepAbbArm: the ABB's programs'
+        # stations and its controller twin on virtual time) agrees after settling
+        from droid.experiments.trial import TrialConfig, run_trial
+
+        ls = run_trial(TrialConfig("agree", "i", 16.0, length_mm=400.0, seed=1, arm="full", mode="plus",
+                                   cell=str(cell)))
+        assert ls.stop_reason == "end of seam", (ls.stop_reason, ls.stop_detail)
+        ls_travel = ls.column("travel_mm")
+        for name in ("tool_lateral_mm", "tool_depth_mm"):
+            ref = np.interp(travel[settled], ls_travel, ls.column(name))
+            diff = np.abs(d[name][settled] - ref)
+            assert float(np.nanmean(diff)) <= AGREE_MEAN_MM, (name, float(np.nanmean(diff)))
 
 
 def interposed_abb_cell(tmp_path, cell_name):
