@@ -16,7 +16,7 @@ import pytest
 from droid.brain.cellfile import load_cell
 from droid.tasks.seam.layout import layout_for_cell
 from tests.brain.cellutil import ROOT, cell_up, droid, make_cell_file
-from tests.tasks.test_seamtrack_cell import assert_standing, read_log, snoop
+from tests.tasks.test_seamtrack_cell import assert_agrees_with_lockstep, assert_standing, read_log, snoop
 
 pytestmark = pytest.mark.integration
 
@@ -61,11 +61,7 @@ def test_home_both_arms_and_track_the_step_seam_in_plus_mode(tmp_path, cell_name
         ls = run_trial(TrialConfig("agree", "i", 16.0, length_mm=400.0, seed=1, arm="full", mode="plus",
                                    cell=str(cell)))
         assert ls.stop_reason == "end of seam", (ls.stop_reason, ls.stop_detail)
-        ls_travel = ls.column("travel_mm")
-        for name in ("tool_lateral_mm", "tool_depth_mm"):
-            ref = np.interp(travel[settled], ls_travel, ls.column(name))
-            diff = np.abs(d[name][settled] - ref)
-            assert float(np.nanmean(diff)) <= AGREE_MEAN_MM, (name, float(np.nanmean(diff)))
+        assert_agrees_with_lockstep(d, travel, settled, ls, AGREE_MEAN_MM)
 
 
 def interposed_abb_cell(tmp_path, cell_name):

@@ -72,6 +72,16 @@ def assert_standing(cell, arm="arm1"):
     assert not set(b["fault"]) & {"servo", "watchdog", "following"}, b
 
 
+def assert_agrees_with_lockstep(d, travel, settled, ls, bound_mm: float = AGREE_MEAN_MM) -> None:
+    """The real-time log ``d`` and the lockstep trial ``ls`` agree after settling: mean |difference|
+    of the tool's lateral and depth error at the same tool travel <= ``bound_mm``."""
+    ls_travel = ls.column("travel_mm")
+    for name in ("tool_lateral_mm", "tool_depth_mm"):
+        ref = np.interp(travel[settled], ls_travel, ls.column(name))
+        diff = np.abs(d[name][settled] - ref)
+        assert float(np.nanmean(diff)) <= bound_mm, (name, float(np.nanmean(diff)))
+
+
 def test_track_the_step_seam_end_to_end_and_agree_with_lockstep(sim_cell, tmp_path):
     home_both(sim_cell)
     log, fig = tmp_path / "run.csv", tmp_path / "run.png"
@@ -104,12 +114,8 @@ def test_track_the_step_seam_end_to_end_and_agree_with_lockstep(sim_cell, tmp_pa
     from droid.experiments.trial import COLUMNS as LS_COLUMNS, TrialConfig, run_trial
 
     ls = run_trial(TrialConfig("agree", "i", 8.0, length_mm=220.0, seed=1, arm="full"))
-    ls_travel = ls.column("travel_mm")
-    for name in ("tool_lateral_mm", "tool_depth_mm"):
-        assert name in LS_COLUMNS
-        ref = np.interp(travel[settled], ls_travel, ls.column(name))
-        diff = np.abs(d[name][settled] - ref)
-        assert float(np.nanmean(diff)) <= AGREE_MEAN_MM, (name, float(np.nanmean(diff)))
+    assert {"tool_lateral_mm", "tool_depth_mm"} <= set(LS_COLUMNS)
+    assert_agrees_with_lockstep(d, travel, settled, ls)
 
 
 def test_plus_mode_holds_its_speed_on_the_real_time_cell_and_agrees_with_lockstep(sim_cell, tmp_path):
@@ -135,11 +141,7 @@ def test_plus_mode_holds_its_speed_on_the_real_time_cell_and_agrees_with_lockste
     from droid.experiments.trial import TrialConfig, run_trial
 
     ls = run_trial(TrialConfig("agree", "i", 16.0, length_mm=300.0, seed=1, arm="full", mode="plus"))
-    ls_travel = ls.column("travel_mm")
-    for name in ("tool_lateral_mm", "tool_depth_mm"):
-        ref = np.interp(travel[settled], ls_travel, ls.column(name))
-        diff = np.abs(d[name][settled] - ref)
-        assert float(np.nanmean(diff)) <= AGREE_MEAN_MM, (name, float(np.nanmean(diff)))
+    assert_agrees_with_lockstep(d, travel, settled, ls)
 
 
 def start_tracking(cell, log):
