@@ -24,19 +24,18 @@ The proxy answers JSON requests on a REP control socket
 """
 from __future__ import annotations
 
-import errno
 import json
 import socket
 import threading
 import time
 from dataclasses import dataclass
-from urllib.parse import urlsplit
 
 import zmq
 
 from droid.brain.cellfile import Cell
 from droid.cli import BadInput, RuntimeFailure
 from droid.faults.core import DelayLine, LinkFaults, MessageFate
+from droid.subunits.abb.config import bind_udp, egm_config, egm_url, udp_address
 
 KINDS = ("router", "pub", "pull", "udp")
 POLL_MS = 20  # the longest the loop waits with messages held back (delay resolution ~1 ms)
@@ -60,8 +59,6 @@ class Endpoint:
 def cell_endpoints(cell: Cell) -> dict[str, Endpoint]:
     """Every endpoint of the cell that a program binds, by label (an ABB subunit's EGM address:
     ``<sub>.egm``, kind ``udp``; a malformed ``egm`` URL is BadInput)."""
-    from droid.subunits.abb.config import egm_config, egm_url
-
     out = [Endpoint("brain.names", cell.names, "router", cell.brain_host),
            Endpoint("brain.heartbeat", cell.heartbeat, "pub", cell.brain_host)]
     for sub in cell.subunits.values():
@@ -100,19 +97,6 @@ def inner_endpoint(public: str) -> str:
                            f"write the [interpose] entry by hand")
         return f"udp://{host}:{port + 1000}"
     return public + ".inner"
-
-
-def udp_address(url: str) -> tuple[str, int]:
-    """``udp://HOST:PORT`` -> (host, port); anything else is BadInput."""
-    try:
-        parts = urlsplit(url)
-        port = parts.port
-    except (ValueError, TypeError, AttributeError):
-        raise BadInput(f"{url!r}: not udp://HOST:PORT (port 1..65535)") from None
-    if parts.scheme != "udp" or not parts.hostname or port is None or not 1 <= port <= 65535 \
-            or parts.path not in ("", "/") or parts.query or parts.fragment:
-        raise BadInput(f"{url!r}: not udp://HOST:PORT (port 1..65535)")
-    return parts.hostname, port
 
 
 def interpose_table(cell: Cell, labels) -> str:
@@ -293,8 +277,9 @@ class FaultProxy:
         front = back = None
         held_up, held_down = DelayLine(), DelayLine()
         try:
-            front = _udp_socket(public, f"fault proxy {self.ep.label}")
-            back = _udp_socket(None, f"fault proxy {self.ep.label}")
+            who = f"fault proxy {self.ep.label}"
+            front = bind_udp(public, who, UDP_SOCKET_BUFFER_BYTES)
+            back = bind_udp(None, who, UDP_SOCKET_BUFFER_BYTES)
             back.connect(inner)  # an ephemeral port; only droid-egm's datagrams come back on it
             self._bind(ctl, self.control)
             poller = zmq.Poller()
@@ -347,24 +332,6 @@ def _wait_ms(*lines: DelayLine) -> int:
     """How long the loop may sleep [ms]: until the next held message is due, POLL_MS at most."""
     nxt = min((t for t in (ln.next_ns() for ln in lines) if t is not None), default=None)
     return POLL_MS if nxt is None else max(0, min(POLL_MS, (nxt - time.monotonic_ns()) // 1_000_000))
-
-
-def _udp_socket(address: tuple[str, int] | None, who: str) -> socket.socket:
-    """A non-blocking UDP socket, bound to ``address`` (None: unbound); a bind failure is one
-    line, exit 1 (droid-egm's wording)."""
-    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    try:
-        for opt in (socket.SO_RCVBUF, socket.SO_SNDBUF):
-            sock.setsockopt(socket.SOL_SOCKET, opt, UDP_SOCKET_BUFFER_BYTES)
-        if address is not None:
-            sock.bind(address)
-    except OSError as exc:
-        sock.close()
-        why = "in use" if exc.errno == errno.EADDRINUSE else (exc.strerror or str(exc))
-        where = "a UDP socket" if address is None else f"UDP {address[0]}:{address[1]}"
-        raise RuntimeFailure(f"{who}: cannot bind {where}: {why}") from None
-    sock.setblocking(False)
-    return sock
 
 
 def _recv_all(sock: socket.socket) -> list[tuple[bytes, tuple]]:

@@ -50,13 +50,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from droid.cli import BadInput, RuntimeFailure
+from droid.cli import BadInput
 from droid.kinematics import RobotModel, load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.sim.device import Device, cell_arm_subunit, number_options
 from droid.sim.truth import TRUTH_PERIOD_S, TruthDoor, door_name
 from droid.subunits.abb import egm_schema as es
-from droid.subunits.abb.config import egm_config
+from droid.subunits.abb.config import bind_udp, egm_config
 
 OPTIONS = ("subunit", "start_deg", "period_s", "comm_timeout_s", "restart_s", "convergence_deg",
            "accel_time_s", "dynamics", "test_signals")
@@ -321,14 +321,7 @@ class AbbEgmDevice(Device):
 
 def open_socket(port: int, where: str, host: str = "127.0.0.1") -> socket.socket:
     """A non-blocking UDP socket bound to ``host``:``port`` (a loopback address; port 0: any free port)."""
-    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    try:
-        sock.bind((host, port))
-    except OSError as exc:
-        sock.close()
-        raise RuntimeFailure(f"{where} cannot bind UDP {host}:{port}: {exc.strerror}") from None
-    sock.setblocking(False)
-    return sock
+    return bind_udp((host, port), where)
 
 
 def twin_params(options: dict, where: str, model: RobotModel) -> EgmTwinParams:

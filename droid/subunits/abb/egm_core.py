@@ -179,19 +179,29 @@ class EgmOutput:
     why: str = ""  # why the target holds (a log line), "" when it follows or holds by command
 
 
-def reported_joint_count(data: bytes) -> int | None:
-    """How many feedback joints the controller's ``EgmRobot`` DATA message ``data`` carries, or
-    None when it is not one (droid-egm compares it with the robot file's at start)."""
+def parse_robot(data: bytes) -> tuple[es.EgmRobot | None, str]:
+    """The controller's ``EgmRobot`` DATA message in ``data``, or (None, why): ``oversized`` (>
+    MAX_DATAGRAM_BYTES), ``malformed`` (does not decode, no header sequence number) or ``foreign``
+    (not a DATA message).  Its feedback joints are not checked here."""
     if len(data) > MAX_DATAGRAM_BYTES:
-        return None
+        return None, "oversized"
     msg = es.EgmRobot()
     try:
         msg.ParseFromString(bytes(data))
     except (es.DecodeError, ValueError, TypeError, RuntimeError):
-        return None
-    if not msg.HasField("header") or not msg.header.HasField("seqno") or msg.header.mtype != es.MSGTYPE_DATA:
-        return None
-    return len(msg.feedBack.joints.joints)
+        return None, "malformed"
+    if not msg.HasField("header") or not msg.header.HasField("seqno"):
+        return None, "malformed"
+    if msg.header.mtype != es.MSGTYPE_DATA:
+        return None, "foreign"
+    return msg, ""
+
+
+def reported_joint_count(data: bytes) -> int | None:
+    """How many feedback joints the controller's ``EgmRobot`` DATA message ``data`` carries, or
+    None when it is not one (droid-egm compares it with the robot file's at start)."""
+    msg, _ = parse_robot(data)
+    return None if msg is None else len(msg.feedBack.joints.joints)
 
 
 class EgmCore:
@@ -250,21 +260,9 @@ class EgmCore:
     # -- datagrams ---------------------------------------------------------------------
     def _decode(self, data: bytes) -> es.EgmRobot | None:
         """The EgmRobot in ``data``, or None (counted: oversized, malformed or foreign)."""
-        if len(data) > MAX_DATAGRAM_BYTES:
-            self.counters.oversized += 1
-            return None
-        msg = es.EgmRobot()
-        try:
-            msg.ParseFromString(bytes(data))
-        except (es.DecodeError, ValueError, TypeError, RuntimeError):
-            self.counters.malformed += 1
-            return None
-        h = msg.header
-        if not msg.HasField("header") or not h.HasField("seqno"):
-            self.counters.malformed += 1
-            return None
-        if h.mtype != es.MSGTYPE_DATA:
-            self.counters.foreign += 1
+        msg, why = parse_robot(data)
+        if msg is None:
+            setattr(self.counters, why, getattr(self.counters, why) + 1)
             return None
         joints = msg.feedBack.joints.joints
         if len(joints) != N or not all(math.isfinite(v) and abs(v) <= MAX_JOINT_DEG for v in joints):

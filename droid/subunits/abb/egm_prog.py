@@ -18,7 +18,6 @@ Datagrams dropped by the core count in the presence record's ``bad_frames``.
 """
 from __future__ import annotations
 
-import errno
 import select
 import socket
 import sys
@@ -32,9 +31,9 @@ from droid.brain.heartbeat import TickSubscriber
 from droid.brain.program import Presence, Stop, close_all, notify_ready, presence_key, subunit_program
 from droid.brain.rt import try_sched_fifo
 from droid.brain.shmdb import Database, db_name, unlink_database
-from droid.cli import BadInput, RuntimeFailure, run
+from droid.cli import BadInput, run
 from droid.kinematics import load_robot
-from droid.subunits.abb.config import egm_bind_config
+from droid.subunits.abb.config import bind_udp, egm_bind_config
 from droid.subunits.abb.egm_core import MY_FAULTS, N as N_JOINTS, EgmCore, EgmOutput, reported_joint_count
 from droid.subunits.abb.egm_layout import EGM_STATUS_LAYOUT
 from droid.subunits.reis.servo_agent import TickPacer
@@ -77,6 +76,16 @@ class EgmStation:
         return out
 
 
+def answer(sock: socket.socket, station: EgmStation, data: bytes, source) -> None:
+    """One datagram to the station, its reply (if any) straight back to the sender."""
+    reply = station.take(data, source, time.monotonic_ns())
+    if reply is not None:
+        try:
+            sock.sendto(*reply)
+        except OSError:
+            pass  # the controller went away; its next sample finds us
+
+
 def first_sample(sock: socket.socket, station: EgmStation, robot: str, wait_s: float) -> None:
     """Wait up to ``wait_s`` for the controller's first ``EgmRobot``; a joint count that is not
     the robot file's is bad input (one line, exit 2: `droid-cell up` fails with it).  The
@@ -93,27 +102,9 @@ def first_sample(sock: socket.socket, station: EgmStation, robot: str, wait_s: f
         if n is not None and n != N_JOINTS:
             raise BadInput(f"the controller at {source[0]}:{source[1]} reports {n} joints; the robot file "
                            f"{robot} has {N_JOINTS}")
-        reply = station.take(data, source, time.monotonic_ns())
-        if reply is not None:
-            try:
-                sock.sendto(*reply)
-            except OSError:
-                pass
+        answer(sock, station, data, source)
         if n is not None:
             return
-
-
-def bind_udp(host: str, port: int) -> socket.socket:
-    """A non-blocking UDP socket bound to (host, port); RuntimeFailure (exit 1) if it cannot be."""
-    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    try:
-        sock.bind((host, port))
-    except OSError as exc:
-        sock.close()
-        why = "in use" if exc.errno == errno.EADDRINUSE else (exc.strerror or str(exc))
-        raise RuntimeFailure(f"cannot bind UDP {host}:{port}: {why}") from None
-    sock.setblocking(False)
-    return sock
 
 
 @run
@@ -127,7 +118,7 @@ def main(argv=None) -> int:
     ctrl_command = ctrl_status = egm_db = sock = ctx = ticks = presence = None
     egm_name = db_name(cell.name, sub.name, "egm")
     try:
-        sock = bind_udp(cfg.host, cfg.port)
+        sock = bind_udp(cfg.address)
         ctrl_command = open_local(cell, sub, "ctrl_command")
         ctrl_status = open_local(cell, sub, "ctrl_status")
         egm_db = Database(egm_name, EGM_STATUS_LAYOUT, create=True)
@@ -155,12 +146,7 @@ def main(argv=None) -> int:
                         break
                     except OSError:
                         continue  # an ICMP error of an earlier send
-                    reply = station.take(data, source, time.monotonic_ns())
-                    if reply is not None:
-                        try:
-                            sock.sendto(*reply)
-                        except OSError:
-                            pass  # the controller went away; its next sample finds us
+                    answer(sock, station, data, source)
             t = ticks.recv_latest() if ticks.sock in events else None
             if t is not None:
                 last_tick = t.tick
