@@ -49,7 +49,26 @@ ENV_RUN_ROOT = "DROID_RUN_ROOT"
 
 def builtin_cell_path() -> Path:
     """The default simulated cell shipped with the package."""
-    return Path(__file__).resolve().parent.parent / "cells" / "sim.toml"
+    return BUNDLED_CELLS / "sim.toml"
+
+
+#: the folder of the cells (and their layouts) shipped with the package
+BUNDLED_CELLS = Path(__file__).resolve().parent.parent / "cells"
+
+
+def find_file(spec: str, folder: Path, suffix: str = "") -> Path | None:
+    """A file named in a cell or plan file: ``spec`` relative to ``folder``, else, for a bare
+    name, the bundled one of that name (``spec`` or ``spec`` + ``suffix``), as robot files are
+    found by name; None when there is neither."""
+    path = Path(spec)
+    cand = path if path.is_absolute() else folder / path
+    if cand.is_file():
+        return cand.resolve()
+    if len(path.parts) == 1:
+        for name in (spec, spec + suffix) if suffix else (spec,):
+            if (BUNDLED_CELLS / name).is_file():
+                return (BUNDLED_CELLS / name).resolve()
+    return None
 
 
 def without_table(text: str, header: str) -> str:
@@ -332,15 +351,14 @@ def parse_cell(raw: dict[str, Any], p: Path) -> Cell:
 
 
 def _layout_path(p: Path, layout: str | None) -> Path | None:
-    """[cell] layout: relative to the cell file's folder; a bare name found only among the bundled
-    cells (droid/cells, as robot files are found by name) is that one.  A missing file is refused."""
+    """[cell] layout: relative to the cell file's folder, or a bundled layout's name
+    (:func:`find_file`).  A missing file is refused."""
     if layout is None:
         return None
-    for folder in (p.resolve().parent, Path(__file__).resolve().parents[1] / "cells"):
-        cand = folder / layout
-        if cand.is_file():
-            return cand
-    raise BadInput(f"{p}: [cell] layout {layout!r}: no such file beside the cell file or among the bundled cells")
+    found = find_file(layout, p.resolve().parent)
+    if found is None:
+        raise BadInput(f"{p}: [cell] layout {layout!r}: no such file beside the cell file or among the bundled cells")
+    return found
 
 
 def _check_programs(p: Path, subunits: dict[str, Subunit]) -> None:

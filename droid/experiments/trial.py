@@ -444,23 +444,17 @@ def _arm_and_holder(cfg: TrialConfig, geo: TrialGeometry, sched: Scheduler, tc=N
             arm.name = tc.layout.tool_robot  # the subunit the tracker's fault rule names
     else:
         from droid.experiments.arm_full import FullArm
+        from droid.experiments.trial_cell import welder_lockstep
 
-        if tc is None:
-            arm = FullArm(sched, geo.reis, geo.q_reis_start_deg, seed=cfg.seed)
-        else:
-            from droid.experiments.trial_cell import welder_lockstep
-
-            arm = FullArm(sched, geo.reis, geo.q_reis_start_deg, arm=welder_lockstep(sched, tc, cfg.seed))
+        welder = welder_lockstep(sched, tc, cfg.seed) if tc is not None else None  # None: the Reis
+        arm = FullArm(sched, geo.reis, geo.q_reis_start_deg, seed=cfg.seed, arm=welder)
         arm.prepare()
     holder = None
     if cfg.holder == "gmf1":
         from droid.experiments.holder import Gmf1Holder
 
-        if tc is None:
-            holder = Gmf1Holder(sched, geo.fanuc, geo.q_hold_deg, seed=cfg.seed)
-        else:
-            holder = Gmf1Holder(sched, geo.fanuc, geo.q_hold_deg, seed=cfg.seed, subunit=tc.layout.holder_robot,
-                                cell=tc.cell)
+        where = {} if tc is None else {"subunit": tc.layout.holder_robot, "cell": tc.cell}
+        holder = Gmf1Holder(sched, geo.fanuc, geo.q_hold_deg, seed=cfg.seed, **where)
         holder.prepare()
     return arm, holder
 

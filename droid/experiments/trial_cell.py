@@ -25,7 +25,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from droid.brain.cellfile import Cell, builtin_cell_path, load_cell
+from droid.brain.cellfile import BUNDLED_CELLS, Cell, find_file, load_cell
 from droid.brain.device import HEARTBEAT_HZ
 from droid.cli import BadInput
 from droid.tasks.seam.layout import Layout, check_bases, layout_for_cell
@@ -49,23 +49,16 @@ class TrialCell:
 
 
 def bundled_cells() -> list[str]:
-    return sorted(p.name for p in builtin_cell_path().parent.glob("*.toml") if "layout" not in p.name)
+    return sorted(p.name for p in BUNDLED_CELLS.glob("*.toml") if "layout" not in p.name)
 
 
 def resolve_cell_path(spec: str, base_dir: str | os.PathLike | None = None) -> Path:
     """A cell file by path (relative to ``base_dir``, default the working directory), or by the
     bare name of a bundled cell (``abb_weld.toml``, ``abb_weld``).  BadInput when there is none."""
-    path = Path(spec)
-    if not path.is_absolute() and base_dir is not None:
-        path = Path(base_dir) / path
-    if path.is_file():
-        return path.resolve()
-    if os.sep not in spec:
-        bundled = builtin_cell_path().parent
-        for cand in (bundled / spec, bundled / f"{spec}.toml"):
-            if cand.is_file():
-                return cand.resolve()
-    raise BadInput(f"cell file not found: {spec} (bundled cells: {', '.join(bundled_cells())})")
+    found = find_file(spec, Path(base_dir) if base_dir is not None else Path.cwd(), ".toml")
+    if found is None:
+        raise BadInput(f"cell file not found: {spec} (bundled cells: {', '.join(bundled_cells())})")
+    return found
 
 
 def _subunit(cell: Cell, layout: Layout, role: str):
