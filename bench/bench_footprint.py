@@ -27,7 +27,7 @@ import time
 import uuid
 from pathlib import Path
 
-from droid.brain.cellfile import builtin_cell_path
+from droid.brain.cellfile import builtin_cell_path, load_cell
 from droid.cli import ArgumentParser, bounded_float
 
 TICKS_PER_S = os.sysconf("SC_CLK_TCK")
@@ -125,7 +125,7 @@ def main() -> int:
             droid(cell, "droid-cell", "down")
             return 1
         try:
-            for arm in ("arm1", "gmf1"):
+            for arm in [n for n, sub in load_cell(cell).subunits.items() if sub.cls == "arm6r"]:
                 h = droid(cell, "droid-home", arm)
                 if h.returncode != 0:
                     print(f"droid-home {arm} failed: {h.stderr.strip()}", file=sys.stderr)

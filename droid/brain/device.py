@@ -26,14 +26,16 @@ PACKAGE = DevicePackage(
     generic=True,  # droid-agent serves a subunit of any class
     programs=(
         # the Brain (started by droid-cell up for every cell)
-        Program("droid-names", "droid.brain.names", start=0, role="brain"),
+        Program("droid-names", "droid.brain.names", start=0, role="brain", cpu_pct=0.5, rss_mb=40),
         Program("droid-heartbeat", "droid.brain.heartbeat", rate_hz=HEARTBEAT_HZ, sched="fifo", priority=50,
-                role="brain"),
-        Program("droid-remote", "droid.brain.remote", sched="fifo", priority=50, role="brain"),
+                role="brain", cpu_pct=1.5, rss_mb=45),
+        Program("droid-remote", "droid.brain.remote", sched="fifo", priority=50, role="brain",
+                cpu_pct=3.0, rss_mb=47),
         Program("droid-sim", "droid.sim.world", rate_hz=1000.0, sched="fifo", priority=52, start=0,
-                role="brain", description="the world: every twin of the cell"),
+                role="brain", description="the world: every twin of the cell",
+                cpu_pct=20.0, rss_mb=100),  # its 1 kHz loop; each twin adds its Twin.cpu_pct
         # the generic subunit server (any class: copies the command in, replies with the status)
-        Program("droid-agent", "droid.subunits.agent", sched="fifo", priority=51),
+        Program("droid-agent", "droid.subunits.agent", sched="fifo", priority=51, cpu_pct=2.5, rss_mb=42),
         # tools and tasks (run by hand)
         Program("droid-cell", "droid.brain.launcher", role="tool"),
         Program("droid-cheader", "droid.brain.cheader", role="tool"),
@@ -59,5 +61,5 @@ PACKAGE = DevicePackage(
         Driver("serial", SERIAL_SCHEMES, "droid.brain.serial_port:serial_opener",
                "a device path (/dev/ttyS0) or a pyserial URL (socket://HOST:PORT, loop://, ...)"),
     ),
-    twins=(Twin("serial_cable", "droid.sim.serial_cable:serial_cable"),),
+    twins=(Twin("serial_cable", "droid.sim.serial_cable:serial_cable", cpu_pct=1.0),),
 )

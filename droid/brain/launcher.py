@@ -47,7 +47,7 @@ from droid.brain.rt import normal_scheduler
 from droid.brain.shmdb import (Database, NoDatabase, cell_objects, db_name, pid_alive,
                                remove_cell_objects, unlink_database)
 from droid.cli import ArgumentParser, BadInput, RuntimeFailure, run, timeout_s
-from droid.brain.registry import program, programs, validate_cell
+from droid.brain.registry import program, programs, twin, validate_cell
 
 PROG = "droid-cell"
 READY_TIMEOUT_S = 30.0
@@ -88,6 +88,68 @@ def cell_programs(cell: Cell, hosts: set[str] | None = None) -> tuple[list[Spec]
     first = [s for s in specs if program(s.prog).start == 0]
     rest = [s for s in specs if program(s.prog).start != 0]
     return first, rest
+
+
+#: Share of this host's CPUs a cell may ask for before droid-cell up warns: above it the
+#: heartbeat's exchanges start to miss (docs/benchmarks.md "Scale", bench/bench_scale.py).
+HOST_CPU_BUDGET = 0.8
+
+
+@dataclass
+class Demand:
+    """What the programs ``droid-cell up`` starts here ask of this host (issue 28 item 4):
+    the sums of their declared ``cpu_pct`` (droid-sim with its twins') and ``rss_mb``."""
+
+    programs: int
+    cpu_pct: float  # share of one core [%]
+    rss_mb: float
+    cpus: int  # CPUs this process may run on
+    mem_available_mb: float | None
+
+    def warnings(self) -> list[str]:
+        out = []
+        budget = HOST_CPU_BUDGET * 100.0 * self.cpus
+        if self.cpu_pct > budget:
+            out.append(f"its {self.programs} programs need about {self.cpu_pct:.0f} % of one core when idle "
+                       f"(their declared costs), over {HOST_CPU_BUDGET:.0%} of this host's {self.cpus} "
+                       f"CPU{'s' if self.cpus != 1 else ''}: expect missed heartbeat exchanges and programs "
+                       f"LAGGING in droid-cell status; split the cell over hosts (docs/benchmarks.md \"Scale\")")
+        if self.mem_available_mb is not None and self.rss_mb > self.mem_available_mb:
+            out.append(f"its {self.programs} programs need about {self.rss_mb:.0f} MB resident and this "
+                       f"host has {self.mem_available_mb:.0f} MB available")
+        return out
+
+
+def _mem_available_mb() -> float | None:
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) / 1024.0
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def demand(cell: Cell, specs: list[Spec]) -> Demand:
+    """The host's share of ``specs``: each program's declared cost, droid-sim's with the
+    twins of ``[world.devices]`` (droid.brain.registry.Program.cpu_pct, Twin.cpu_pct)."""
+    cpu = rss = 0.0
+    for s in specs:
+        p = program(s.prog)
+        cpu += p.cpu_pct
+        rss += p.rss_mb
+        if s.prog == "droid-sim":
+            for opts in cell.world.get("devices", {}).values():
+                try:
+                    cpu += twin(opts["type"]).cpu_pct
+                except (KeyError, TypeError):
+                    pass  # validate_cell names an unknown twin before this runs
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        cpus = os.cpu_count() or 1
+    return Demand(len(specs), cpu, rss, cpus, _mem_available_mb())
 
 
 def state_path(cell: Cell, hosts: set[str] | None = None) -> str:
@@ -189,6 +251,8 @@ def up(cell: Cell, hosts: set[str] | None, timeout_s: float) -> list[Spec]:
     for db in dbs:
         db.close()
     first, rest = cell_programs(cell, hosts)
+    for line in demand(cell, first + rest).warnings():  # before any program starts
+        print(f"{PROG}: warning: cell {cell.name}: {line}", file=sys.stderr, flush=True)
     specs: list[Spec] = []
     try:
         for group in (first, rest):
@@ -330,6 +394,8 @@ STATUS_KEYS = {  # droid-cell status --json: one object a line with these keys
     "cycles": "loop cycles (agents: commands served; remotes: replies received)",
     "overruns": "missed deadlines (tick-driven programs: missed ticks)",
     "bad_frames": "malformed messages received and dropped",
+    "missed_pct": "share of its periods missed in the last 2 s window [%] (null without a record)",
+    "lagging": "it cannot keep its rate: missed_pct >= 5 % (its log says so too)",
 }
 
 
@@ -377,7 +443,8 @@ def status(cell: Cell) -> list[dict]:
     for p in progs:
         row = {"name": " ".join([p["prog"], *p["args"]]), "key": p["key"], "host": p["host"],
                "pid": p["pid"], "alive": pid_alive(p["pid"]), "state": "dead", "live": False,
-               "last_tick": None, "age_s": None, "cycles": None, "overruns": None, "bad_frames": None}
+               "last_tick": None, "age_s": None, "cycles": None, "overruns": None, "bad_frames": None,
+               "missed_pct": None, "lagging": False}
         try:
             db = Database(db_name(cell.name, "proc", p["key"]), PROC_STATUS_LAYOUT, timeout_s=0.2)
         except (NoDatabase, BadInput):
@@ -391,6 +458,8 @@ def status(cell: Cell) -> list[dict]:
                 row["cycles"] = int(rec["cycles"])
                 row["overruns"] = int(rec["overruns"])
                 row["bad_frames"] = int(rec["bad_frames"])
+                row["missed_pct"] = round(float(rec["missed_pct"]), 1)
+                row["lagging"] = bool(rec["lagging"])
             finally:
                 db.close()
         if not row["alive"]:
@@ -465,8 +534,11 @@ def main(argv=None) -> int:
                 print(json.dumps(r))
             else:
                 live = "live" if r["live"] else ("STALLED" if r["alive"] else "DEAD")
+                if r["live"] and r["lagging"]:
+                    live = "LAGGING"  # alive and beating, but missing its periods
                 tick = "-" if r["last_tick"] is None else r["last_tick"]
-                print(f"{r['name']:<28} pid {r['pid']:>7}  {r['state']:<9} {live:<8} tick {tick}")
+                lag = f"  missed {r['missed_pct']:.1f} % of its periods" if r["lagging"] else ""
+                print(f"{r['name']:<28} pid {r['pid']:>7}  {r['state']:<9} {live:<8} tick {tick}{lag}")
         return 0 if all(r["live"] for r in rows) else 1
     n, hard, removed = down(cell, args.timeout)
     msg = f"cell {cell.name} down: {n} programs stopped"

@@ -259,8 +259,10 @@ PROC_STATUS = _dtype(
         ("overruns", "<u8", None),  # missed deadlines (tick-driven programs: missed ticks)
         ("lateness_max_ns", "<i8", None),  # worst wake-up lateness [ns]
         ("bad_frames", "<u8", None),  # malformed messages received and dropped (version 2)
+        ("missed_pct", "<f4", None),  # share of its periods missed in the last window [%] (version 3)
+        ("lagging", "<u4", None),  # 1 while it cannot keep its rate (missed_pct >= LAG_PCT; version 3)
     ],
-    120,
+    128,
 )
 
 
@@ -353,7 +355,7 @@ ARM_COMMAND_LAYOUT = Layout("arm_command", KIND_ARM_COMMAND, 1, ARM_COMMAND, "dr
 SENSOR_STATUS_LAYOUT = Layout("sensor_status", KIND_SENSOR_STATUS, 2, SENSOR_STATUS, "droid_sensor_status")
 CTRL_STATUS_LAYOUT = Layout("ctrl_status", KIND_CTRL_STATUS, 1, CTRL_STATUS, "droid_ctrl_status")
 CTRL_COMMAND_LAYOUT = Layout("ctrl_command", KIND_CTRL_COMMAND, 1, CTRL_COMMAND, "droid_ctrl_command")
-PROC_STATUS_LAYOUT = Layout("proc_status", KIND_PROC_STATUS, 2, PROC_STATUS, "droid_proc_status")
+PROC_STATUS_LAYOUT = Layout("proc_status", KIND_PROC_STATUS, 3, PROC_STATUS, "droid_proc_status")
 JOYSTICK_STATUS_LAYOUT = Layout("joystick_status", KIND_JOYSTICK_STATUS, 1, JOYSTICK_STATUS,
                                 "droid_joystick_status")
 FT6_STATUS_LAYOUT = Layout("ft6_status", KIND_FT6_STATUS, 1, FT6_STATUS, "droid_ft6_status")

@@ -99,6 +99,64 @@ def process_age_s() -> float | None:
         return None
 
 
+class RateWatch:
+    """Does a program keep its rate?  The share of its periods it missed, over windows of
+    :attr:`WINDOW_NS` (issue 28: no program starves silently).
+
+    A tick-driven program (``last_tick`` > 0: agents, remotes, the planner) had as many
+    periods in a window as heartbeat ticks went by, and missed the ticks it counts as
+    overruns; a program on its own timer had ``cycles + overruns`` periods and missed
+    ``overruns``.  A window with :attr:`LAG_PCT` or more missed makes it *lagging*: the
+    program's log says so when it starts and at most every :attr:`REPEAT_S` while it lasts,
+    and once when it keeps its rate again; ``droid-cell status`` shows it (LAGGING)."""
+
+    WINDOW_NS = 2_000_000_000  # the window the share is taken over [ns]
+    LAG_PCT = 5.0  # missing this share of its periods or more in a window is lagging [%]
+    REPEAT_S = 30.0  # while lagging, the log repeats it at most this often [s]
+
+    def __init__(self, display: str, out=None) -> None:
+        self.display = display
+        self.out = out  # where the log lines go (None: sys.stderr, the program's log)
+        self.missed_pct = 0.0  # in the last whole window [%]
+        self.lagging = False
+        self._start = None  # (ns, last_tick, cycles, overruns) at the window's start
+        self._since_ns = 0  # lagging since [ns]
+        self._said_ns = 0  # the last lagging line [ns]
+
+    def update(self, now_ns: int, last_tick: int, cycles: int, overruns: int) -> None:
+        start = self._start
+        if start is None or now_ns - start[0] < self.WINDOW_NS:
+            if start is None:
+                self._start = (now_ns, last_tick, cycles, overruns)
+            return
+        t0, tick0, cycles0, over0 = start
+        self._start = (now_ns, last_tick, cycles, overruns)
+        missed = max(0, overruns - over0)
+        if last_tick > 0 and tick0 > 0:
+            periods = max(0, last_tick - tick0)  # ticks that went by, missed ones included
+        else:
+            periods = max(0, cycles - cycles0) + missed
+        pct = 100.0 * missed / periods if periods else 0.0
+        self.missed_pct = pct
+        window_s = (now_ns - t0) / 1e9
+        lag = pct >= self.LAG_PCT
+        if lag and not self.lagging:
+            self._since_ns = self._said_ns = now_ns
+            self._say(f"cannot keep its rate: missed {missed} of {periods} periods ({pct:.1f} %) "
+                      f"in the last {window_s:.1f} s")
+        elif lag and (now_ns - self._said_ns) / 1e9 >= self.REPEAT_S:
+            self._said_ns = now_ns
+            self._say(f"still cannot keep its rate: missed {missed} of {periods} periods ({pct:.1f} %) "
+                      f"in the last {window_s:.1f} s; lagging for {(now_ns - self._since_ns) / 1e9:.0f} s")
+        elif not lag and self.lagging:
+            self._say(f"keeps its rate again ({pct:.1f} % missed in the last {window_s:.1f} s; "
+                      f"lagged for {(now_ns - self._since_ns) / 1e9:.0f} s)")
+        self.lagging = lag
+
+    def _say(self, text: str) -> None:
+        print(f"{self.display}: {text}", file=self.out or sys.stderr, flush=True)
+
+
 class Presence:
     """A program's own record in ``/droid.<cell>.proc.<key>`` (for droid-cell status)."""
 
@@ -113,17 +171,22 @@ class Presence:
         self.db.update(name=display.encode()[:31], pid=os.getpid(), state=PROC_STARTING,
                        updated_ns=time.monotonic_ns())
         self._last = 0
+        self.rate = RateWatch(display)
 
     def beat(self, last_tick: int = 0, cycles: int = 0, overruns: int = 0,
              lateness_max_ns: int = 0, *, bad_frames: int = 0, force: bool = False) -> None:
         """Refresh the record: last heartbeat tick, loop cycles, overruns (missed deadlines
-        or ticks), worst lateness [ns], malformed messages dropped so far."""
+        or ticks), worst lateness [ns], malformed messages dropped so far; and whether the
+        program keeps its rate (:class:`RateWatch`: ``missed_pct``, ``lagging``)."""
         now = time.monotonic_ns()
         if not force and now - self._last < self.UPDATE_NS:
             return
         self._last = now
+        rate = self.rate
+        rate.update(now, last_tick, cycles, overruns)
         self.db.update(last_tick=last_tick, updated_ns=now, cycles=cycles, overruns=overruns,
-                       lateness_max_ns=lateness_max_ns, bad_frames=bad_frames)
+                       lateness_max_ns=lateness_max_ns, bad_frames=bad_frames,
+                       missed_pct=rate.missed_pct, lagging=int(rate.lagging))
 
     def set_state(self, state: int) -> None:
         self.db.update(state=state, updated_ns=time.monotonic_ns())

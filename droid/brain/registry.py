@@ -91,6 +91,12 @@ class Program:
     start: int = 1
     role: str = "cell"
     description: str = ""
+    # what it costs a host: its share of one core [%] in an idle cell, and its resident
+    # memory [MB], measured on the reference host (2-vCPU VM; bench/bench_footprint.py,
+    # docs/benchmarks.md "Scale"); droid-cell up sums them per cell (issue 28: it warns when a
+    # cell asks for more than the host can carry).  A program left at 0 counts as free.
+    cpu_pct: float = 0.0
+    rss_mb: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -115,6 +121,7 @@ class Twin:
     type: str
     factory: str  # "module:function"
     serves: tuple[str, ...] = ()
+    cpu_pct: float = 0.0  # what one of it adds to droid-sim's share of one core [%] (as Program's)
 
 
 @dataclass(frozen=True)
@@ -381,6 +388,11 @@ def layouts():
 
     registry()
     return LAYOUTS
+
+
+def twin(typ: str) -> Twin:
+    """The declaration of world twin ``typ``; KeyError if none is registered."""
+    return registry().twins[typ]
 
 
 def twin_factory(typ: str) -> Callable:

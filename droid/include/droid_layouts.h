@@ -317,8 +317,8 @@ _Static_assert(offsetof(droid_ctrl_command_t, planner_tick) == 216, "droid_ctrl_
 _Static_assert(sizeof(droid_ctrl_command_t) == 224, "droid_ctrl_command size");
 
 #define DROID_PROC_STATUS_KIND 6
-#define DROID_PROC_STATUS_VERSION 2
-#define DROID_PROC_STATUS_SIZE 120
+#define DROID_PROC_STATUS_VERSION 3
+#define DROID_PROC_STATUS_SIZE 128
 #pragma pack(push, 1)
 typedef struct droid_proc_status {
     uint32_t magic;
@@ -338,6 +338,8 @@ typedef struct droid_proc_status {
     uint64_t overruns;
     int64_t lateness_max_ns;
     uint64_t bad_frames;
+    float missed_pct;
+    uint32_t lagging;
 } droid_proc_status_t;
 #pragma pack(pop)
 _Static_assert(offsetof(droid_proc_status_t, magic) == 0, "droid_proc_status.magic offset");
@@ -357,7 +359,9 @@ _Static_assert(offsetof(droid_proc_status_t, cycles) == 88, "droid_proc_status.c
 _Static_assert(offsetof(droid_proc_status_t, overruns) == 96, "droid_proc_status.overruns offset");
 _Static_assert(offsetof(droid_proc_status_t, lateness_max_ns) == 104, "droid_proc_status.lateness_max_ns offset");
 _Static_assert(offsetof(droid_proc_status_t, bad_frames) == 112, "droid_proc_status.bad_frames offset");
-_Static_assert(sizeof(droid_proc_status_t) == 120, "droid_proc_status size");
+_Static_assert(offsetof(droid_proc_status_t, missed_pct) == 120, "droid_proc_status.missed_pct offset");
+_Static_assert(offsetof(droid_proc_status_t, lagging) == 124, "droid_proc_status.lagging offset");
+_Static_assert(sizeof(droid_proc_status_t) == 128, "droid_proc_status size");
 
 #define DROID_JOYSTICK_STATUS_KIND 7
 #define DROID_JOYSTICK_STATUS_VERSION 1

@@ -16,7 +16,8 @@ PACKAGE = DevicePackage(
     description="ABB IRB arm over EGM (UDP, protobuf) with its controller closing the joint loops",
     serves=("arm6r",),
     # in the servo agent's place: answers the controller every 4 ms
-    programs=(Program("droid-egm", "droid.subunits.abb.egm_prog", sched="fifo", priority=54),),
-    twins=(Twin("abb_egm", "droid.sim.abb.controller:make_abb_egm", serves=("arm6r",)),),
+    programs=(Program("droid-egm", "droid.subunits.abb.egm_prog", sched="fifo", priority=54, cpu_pct=8.0,
+                      rss_mb=45),),
+    twins=(Twin("abb_egm", "droid.sim.abb.controller:make_abb_egm", serves=("arm6r",), cpu_pct=3.0),),
     lockstep="droid.sim.abb.lockstep:LockstepAbbArm",
 )

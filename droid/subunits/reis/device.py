@@ -22,17 +22,18 @@ PACKAGE = DevicePackage(
     serves=("arm6r",),
     programs=(
         Program("droid-watchdog", "droid.subunits.reis.watchdog_prog", rate_hz=WATCHDOG_HZ, sched="fifo",
-                priority=55),
-        Program("droid-servo", "droid.subunits.reis.servo_prog", rate_hz=SERVO_HZ, sched="fifo", priority=60),
+                priority=55, cpu_pct=1.5, rss_mb=44),
+        Program("droid-servo", "droid.subunits.reis.servo_prog", rate_hz=SERVO_HZ, sched="fifo", priority=60,
+                cpu_pct=10.0, rss_mb=48),
         Program("droid-servo-agent", "droid.subunits.reis.servo_agent", rate_hz=HEARTBEAT_HZ, sched="fifo",
-                priority=54),
-        Program("droid-reis-agent", "droid.subunits.reis.agent", sched="fifo", priority=51),
-        Program("droid-planner", "droid.subunits.reis.planner", sched="fifo", priority=51),
+                priority=54, cpu_pct=4.0, rss_mb=47),
+        Program("droid-reis-agent", "droid.subunits.reis.agent", sched="fifo", priority=51, cpu_pct=3.0, rss_mb=42),
+        Program("droid-planner", "droid.subunits.reis.planner", sched="fifo", priority=51, cpu_pct=2.0, rss_mb=47),
         Program("droid-calibrate", "droid.sim.reis.calibrate", role="tool"),
     ),
     drivers=(Driver("vme", ("shm", "mem"), "droid.subunits.reis.vme:open_vme",
                     "shm://NAME or mem:///PATH?offset=0xADDR"),),
-    twins=(Twin("reis_vme", "droid.sim.reis.world:make_reis", serves=("arm6r",)),
-           Twin("contact", "droid.sim.contact_device:make_contact")),  # a workpiece pushing on its tool
+    twins=(Twin("reis_vme", "droid.sim.reis.world:make_reis", serves=("arm6r",), cpu_pct=12.0),
+           Twin("contact", "droid.sim.contact_device:make_contact", cpu_pct=0.5)),  # a workpiece pushing on its tool
     lockstep="droid.sim.reis.lockstep:ReisLockstep",
 )
