@@ -275,22 +275,7 @@ def parse_cell(raw: dict[str, Any], p: Path) -> Cell:
     except NumberError as exc:
         raise BadInput(f"{p}: {exc}") from None
     top = _Reader(p, "top level", raw)
-    c = _Reader(p, "cell", top.get("cell", dict))
-    name = c.get("name", str)
-    try:
-        check_name_part(name, "cell")
-    except BadInput as exc:
-        raise BadInput(f"{p}: [cell] {exc}") from None
-    hb_hz = c.get("heartbeat_hz", float, _registry.program("droid-heartbeat").rate_hz, check=_positive)
-    lo, hi = HEARTBEAT_HZ_RANGE
-    if not lo <= hb_hz <= hi:
-        raise BadInput(f"{p}: [cell] heartbeat_hz {hb_hz:g} is outside [{lo:g}, {hi:g}] Hz")
-    stale = c.get("stale_ticks", int, LIVENESS_TICKS, check=lambda v: None if v >= 1 else "must be >= 1")
-    fifo = c.get("sched_fifo", bool, False)
-    run_root = os.environ.get(ENV_RUN_ROOT, DEFAULT_RUN_ROOT)
-    run_dir = c.get("run_dir", str, f"{run_root}/{name}")
-    layout = c.get("layout", str, None)
-    c.done()
+    name, hb_hz, stale, fifo, run_dir, layout = _cell_table(p, top)
     run = run_dir
 
     b = _Reader(p, "brain", top.get("brain", dict, {}))
@@ -311,32 +296,7 @@ def parse_cell(raw: dict[str, Any], p: Path) -> Cell:
         raise BadInput(f"{p}: [subunits] names no subunit")
     subunits: dict[str, Subunit] = {}
     for sname, table in subs_raw.items():
-        try:
-            check_name_part(sname, "subunit")
-        except BadInput as exc:
-            raise BadInput(f"{p}: [subunits] {exc}") from None
-        r = _Reader(p, f"subunits.{sname}", table)
-        reg = _registry.registry()
-        cls = r.get("class", str, check=lambda v: None if v in reg.classes else
-                    reg.unknown("class", v, reg.classes))
-        sub = Subunit(
-            name=sname,
-            cls=cls,
-            host=r.get("host", str, brain_host),
-            agent=_expand(r.get("agent", str, f"ipc://{{run}}/{sname}.agent", check=_endpoint), run, name),
-            relay=_expand(r.get("relay", str, f"ipc://{{run}}/{sname}.relay", check=_endpoint), run, name),
-            programs=r.get("programs", list, []),
-            robot=r.get("robot", str, None),
-            base=[float(v) for v in r.get("base", list, [0.0] * 6, check=_pose)],
-            description=r.get("description", str, ""),
-        )
-        for prog in sub.programs:
-            if not isinstance(prog, str):
-                raise BadInput(f"{p}: [subunits.{sname}] programs must be a list of program names")
-        if sub.is_arm and not sub.robot:
-            raise BadInput(f"{p}: [subunits.{sname}] an {sub.cls} subunit needs 'robot'")
-        sub.options = _expand(r.done(allow_extra=True), run, name)
-        subunits[sname] = sub
+        subunits[sname] = _subunit(p, sname, table, brain_host, run, name)
     top.done(allow_extra=False)
     _check_programs(p, subunits)
     curve = None
@@ -348,6 +308,58 @@ def parse_cell(raw: dict[str, Any], p: Path) -> Cell:
                 heartbeat=heartbeat, names=names, world=world, subunits=subunits,
                 curve=curve, raw=raw, interpose=interpose,
                 layout=_layout_path(p, layout))
+
+
+def _cell_table(p: Path, top: "_Reader") -> tuple:
+    """``[cell]``: name, heartbeat rate [Hz], stale_ticks, sched_fifo, run_dir and layout."""
+    c = _Reader(p, "cell", top.get("cell", dict))
+    name = c.get("name", str)
+    try:
+        check_name_part(name, "cell")
+    except BadInput as exc:
+        raise BadInput(f"{p}: [cell] {exc}") from None
+    hb_hz = c.get("heartbeat_hz", float, _registry.program("droid-heartbeat").rate_hz, check=_positive)
+    lo, hi = HEARTBEAT_HZ_RANGE
+    if not lo <= hb_hz <= hi:
+        raise BadInput(f"{p}: [cell] heartbeat_hz {hb_hz:g} is outside [{lo:g}, {hi:g}] Hz")
+    stale = c.get("stale_ticks", int, LIVENESS_TICKS, check=lambda v: None if v >= 1 else "must be >= 1")
+    fifo = c.get("sched_fifo", bool, False)
+    run_root = os.environ.get(ENV_RUN_ROOT, DEFAULT_RUN_ROOT)
+    run_dir = c.get("run_dir", str, f"{run_root}/{name}")
+    layout = c.get("layout", str, None)
+    c.done()
+    return name, hb_hz, stale, fifo, run_dir, layout
+
+
+def _subunit(p: Path, sname: str, table, brain_host: str, run: str, name: str) -> Subunit:
+    """One ``[subunits.NAME]`` table: its class, host, endpoints, programs, robot and base pose;
+    the keys its class reads stay in ``options``."""
+    try:
+        check_name_part(sname, "subunit")
+    except BadInput as exc:
+        raise BadInput(f"{p}: [subunits] {exc}") from None
+    r = _Reader(p, f"subunits.{sname}", table)
+    reg = _registry.registry()
+    cls = r.get("class", str, check=lambda v: None if v in reg.classes else
+                reg.unknown("class", v, reg.classes))
+    sub = Subunit(
+        name=sname,
+        cls=cls,
+        host=r.get("host", str, brain_host),
+        agent=_expand(r.get("agent", str, f"ipc://{{run}}/{sname}.agent", check=_endpoint), run, name),
+        relay=_expand(r.get("relay", str, f"ipc://{{run}}/{sname}.relay", check=_endpoint), run, name),
+        programs=r.get("programs", list, []),
+        robot=r.get("robot", str, None),
+        base=[float(v) for v in r.get("base", list, [0.0] * 6, check=_pose)],
+        description=r.get("description", str, ""),
+    )
+    for prog in sub.programs:
+        if not isinstance(prog, str):
+            raise BadInput(f"{p}: [subunits.{sname}] programs must be a list of program names")
+    if sub.is_arm and not sub.robot:
+        raise BadInput(f"{p}: [subunits.{sname}] an {sub.cls} subunit needs 'robot'")
+    sub.options = _expand(r.done(allow_extra=True), run, name)
+    return sub
 
 
 def _layout_path(p: Path, layout: str | None) -> Path | None:

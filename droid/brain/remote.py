@@ -155,70 +155,17 @@ def main(argv=None) -> int:
     ticks = TickSubscriber(ctx, cell.heartbeat, curve, cell.brain_host)
     station = RemoteStation(status, command, StatusTranslator.for_subunit(sub), cell.stale_ticks,
                             cell.heartbeat_hz)
-    core = station.core
-    dealer = None
-    endpoint = None
-    bad_frames = 0
-
-    def connect() -> None:
-        nonlocal dealer, endpoint
-        if dealer is not None:
-            dealer.close(0)
-            dealer = None
-        endpoint = names.locate(sub.name, timeout_s=0.05)
-        if endpoint:
-            dealer = ctx.socket(zmq.DEALER)
-            dealer.setsockopt(zmq.LINGER, 0)
-            dealer.setsockopt(zmq.SNDHWM, 2)
-            dealer.setsockopt(zmq.RCVHWM, 8)
-            curve.client(dealer, endpoint, sub.host)
-            dealer.connect(endpoint)
-
+    link = _AgentLink(ctx, names, curve, sub)
     try:
         status.update(stale=1, fault=FAULT_LINK)
-        connect()
+        link.connect()
         presence.ready()
         notify_ready(args.ready_fd)
-        last_tick = 0
-        while not Stop.requested:
-            socks = [ticks.sock] + ([dealer] if dealer is not None else [])
-            poller = zmq.Poller()
-            for s in socks:
-                poller.register(s, zmq.POLLIN)
-            events = dict(poller.poll(station.watch.poll_ms))
-            station.on_poll(time.monotonic_ns())
-            if ticks.sock in events:
-                t = ticks.recv_latest()
-                if t is not None:
-                    last_tick = t.tick
-                    act = station.on_tick(t.tick, time.monotonic_ns())
-                    if act.reconnect or dealer is None:
-                        connect()
-                    if dealer is not None:
-                        try:
-                            dealer.send_multipart(wire.pack_link(wire.KIND_CMD, t.tick, station.command_payload()),
-                                                  zmq.NOBLOCK)
-                        except zmq.Again:
-                            pass
-            if dealer is not None and dealer in events:
-                while True:
-                    try:
-                        frames = dealer.recv_multipart(zmq.NOBLOCK)
-                    except zmq.Again:
-                        break
-                    try:
-                        tick, payload = wire.unpack_link(frames, wire.KIND_STA)
-                        station.on_reply(tick, payload, time.monotonic_ns())
-                    except (wire.BadFrame, LayoutError):
-                        bad_frames += 1
-                        continue
-            presence.beat(last_tick, core.replies, ticks.monitor.missed,
-                          bad_frames=bad_frames + ticks.bad_frames)
+        _serve(station, ticks, link, presence)
     finally:
         names.close()
         ticks.close()
-        if dealer is not None:
-            dealer.close(0)
+        link.close()
         curve.close()
         ctx.term()
         status.close()
@@ -226,6 +173,82 @@ def main(argv=None) -> int:
             command.close()
         presence.close()
     return 0
+
+
+class _AgentLink:
+    """The DEALER socket to the subunit's agent, at the endpoint the name service gives (located
+    again whenever the link core asks for a reconnect or there is none)."""
+
+    def __init__(self, ctx, names: NameClient, curve: CurveHost, sub) -> None:
+        self.ctx, self.names, self.curve, self.sub = ctx, names, curve, sub
+        self.dealer = None
+        self.endpoint = None
+        self.bad_frames = 0  # replies that were not a Status record of ours
+
+    def connect(self) -> None:
+        if self.dealer is not None:
+            self.dealer.close(0)
+            self.dealer = None
+        self.endpoint = self.names.locate(self.sub.name, timeout_s=0.05)
+        if self.endpoint:
+            dealer = self.dealer = self.ctx.socket(zmq.DEALER)
+            dealer.setsockopt(zmq.LINGER, 0)
+            dealer.setsockopt(zmq.SNDHWM, 2)
+            dealer.setsockopt(zmq.RCVHWM, 8)
+            self.curve.client(dealer, self.endpoint, self.sub.host)
+            dealer.connect(self.endpoint)
+
+    def send(self, tick: int, payload: bytes) -> None:
+        """The Command record for heartbeat ``tick`` (dropped when the agent is not keeping up)."""
+        try:
+            self.dealer.send_multipart(wire.pack_link(wire.KIND_CMD, tick, payload), zmq.NOBLOCK)
+        except zmq.Again:
+            pass
+
+    def drain(self, station: RemoteStation) -> None:
+        """Every reply that arrived, into the station; bad frames counted."""
+        while True:
+            try:
+                frames = self.dealer.recv_multipart(zmq.NOBLOCK)
+            except zmq.Again:
+                break
+            try:
+                tick, payload = wire.unpack_link(frames, wire.KIND_STA)
+                station.on_reply(tick, payload, time.monotonic_ns())
+            except (wire.BadFrame, LayoutError):
+                self.bad_frames += 1
+                continue
+
+    def close(self) -> None:
+        if self.dealer is not None:
+            self.dealer.close(0)
+
+
+def _serve(station: RemoteStation, ticks: TickSubscriber, link: _AgentLink, presence: Presence) -> None:
+    """droid-remote's loop, until SIGTERM: on each heartbeat tick send the Command to the agent;
+    every reply into the Status record; the silence rule on every wake-up."""
+    core = station.core
+    last_tick = 0
+    while not Stop.requested:
+        socks = [ticks.sock] + ([link.dealer] if link.dealer is not None else [])
+        poller = zmq.Poller()
+        for s in socks:
+            poller.register(s, zmq.POLLIN)
+        events = dict(poller.poll(station.watch.poll_ms))
+        station.on_poll(time.monotonic_ns())
+        if ticks.sock in events:
+            t = ticks.recv_latest()
+            if t is not None:
+                last_tick = t.tick
+                act = station.on_tick(t.tick, time.monotonic_ns())
+                if act.reconnect or link.dealer is None:
+                    link.connect()
+                if link.dealer is not None:
+                    link.send(t.tick, station.command_payload())
+        if link.dealer is not None and link.dealer in events:
+            link.drain(station)
+        presence.beat(last_tick, core.replies, ticks.monitor.missed,
+                      bad_frames=link.bad_frames + ticks.bad_frames)
 
 
 def _cmd_id(payload: bytes, layout=ARM_COMMAND_LAYOUT) -> int | None:

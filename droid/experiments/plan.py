@@ -279,109 +279,150 @@ def load_plan(spec: str | os.PathLike) -> Plan:
 
 def plan_from_dict(data: dict, source: str = "<plan>", plan_dir: Path | None = None) -> Plan:
     """Validate a parsed plan and expand its trials (see the module docstring)."""
-    def bad(msg: str) -> BadInput:
-        return BadInput(f"plan {source}: {msg}")
+    name, description, kind = _plan_head(data, source)
+    cell = _plan_cell(data, kind, source, plan_dir or Path.cwd())
+    checker = _Checker(source, plan_dir or Path.cwd(), cell.layout if cell is not None else None)
+    keys = _PlanKeys(source, kind, checker)
+    defaults = keys.defaults_table(data.get("defaults", {}))
+    sweep = keys.sweep_table(data.get("sweep", {}), defaults)
+    keys.check_builtin(defaults, sweep)
+    trials = keys.expand(data, name, cell, defaults, sweep)
+    return Plan(name, description, source, defaults, sweep, tuple(trials), kind)
 
+
+def _bad(source: str, msg: str) -> BadInput:
+    return BadInput(f"plan {source}: {msg}")
+
+
+def _plan_head(data: dict, source: str) -> tuple[str, str, str]:
+    """The plan's top-level keys checked: its name, description and trial kind; every number in
+    its range; ``[defaults]`` and ``[sweep]`` tables."""
     for key in data:
         if key not in _TOP_KEYS:
-            raise bad(f"{key} = {_toml(data[key])}: unknown key (expected one of {', '.join(_TOP_KEYS)})")
+            raise _bad(source, f"{key} = {_toml(data[key])}: unknown key (expected one of {', '.join(_TOP_KEYS)})")
     try:
         check_numbers(data)  # every number finite and inside its key's range (issue 16)
     except NumberError as exc:
-        raise bad(str(exc)) from None
+        raise _bad(source, str(exc)) from None
     name = data.get("name")
     if not isinstance(name, str) or not _NAME.fullmatch(name):
-        raise bad(f"name = {_toml(name) if name is not None else '(missing)'}: needs a name of letters, "
-                  "digits, _ . - (the output directory)")
+        raise _bad(source, f"name = {_toml(name) if name is not None else '(missing)'}: needs a name of letters, "
+                           "digits, _ . - (the output directory)")
     description = data.get("description", "")
     if not isinstance(description, str):
-        raise bad(f"description = {_toml(description)}: must be a string")
+        raise _bad(source, f"description = {_toml(description)}: must be a string")
     kind = data.get("trial", TRIAL_SEAMTRACK)
     if kind not in TRIAL_KINDS:
-        raise bad(f"trial = {_toml(kind)}: unknown trial (known: {', '.join(TRIAL_KINDS)})")
-    defaults_raw = data.get("defaults", {})
-    sweep_raw = data.get("sweep", {})
-    for table, raw in (("defaults", defaults_raw), ("sweep", sweep_raw)):
+        raise _bad(source, f"trial = {_toml(kind)}: unknown trial (known: {', '.join(TRIAL_KINDS)})")
+    for table in ("defaults", "sweep"):
+        raw = data.get(table, {})
         if not isinstance(raw, dict):
-            raise bad(f"{table} = {_toml(raw)}: must be a table [{table}]")
-    cell = _plan_cell(data, kind, source, plan_dir or Path.cwd())
-    checker = _Checker(source, plan_dir or Path.cwd(), cell.layout if cell is not None else None)
-    if kind == TRIAL_SEAMTRACK:
-        keys_of, builtin, check = FIELDS, BUILTIN_DEFAULTS, checker.check
-    else:
-        from droid.experiments.contact_plan import ContactKeys
+            raise _bad(source, f"{table} = {_toml(raw)}: must be a table [{table}]")
+    return name, description, kind
 
-        contact = ContactKeys(checker)
-        keys_of, builtin, check = contact.fields, contact.defaults, contact.check
 
-    def unknown(where: str, key: str, value) -> BadInput:
+class _PlanKeys:
+    """The keys of one kind of plan's ``[defaults]`` and ``[sweep]``: their checks, the built-in
+    defaults, and the expansion of the sweep into trials (seam-tracking: :data:`FIELDS`;
+    contact: droid.experiments.contact_plan)."""
+
+    def __init__(self, source: str, kind: str, checker: _Checker) -> None:
+        self.source, self.kind, self.checker = source, kind, checker
+        if kind == TRIAL_SEAMTRACK:
+            self.keys_of, self.builtin, self.check = FIELDS, BUILTIN_DEFAULTS, checker.check
+        else:
+            from droid.experiments.contact_plan import ContactKeys
+
+            self.contact = ContactKeys(checker)
+            self.keys_of, self.builtin, self.check = self.contact.fields, self.contact.defaults, self.contact.check
+
+    def bad(self, msg: str) -> BadInput:
+        return _bad(self.source, msg)
+
+    def unknown(self, where: str, key: str, value) -> BadInput:
+        kind, keys_of = self.kind, self.keys_of
         if kind != TRIAL_SEAMTRACK and key in FIELDS:
-            return bad(f"{where} {key} = {_toml(value)}: a seam-tracking key, not one of a {kind} plan "
-                       f"(its keys: {', '.join(keys_of)})")
+            return self.bad(f"{where} {key} = {_toml(value)}: a seam-tracking key, not one of a {kind} plan "
+                            f"(its keys: {', '.join(keys_of)})")
         hint = ""
         if kind == TRIAL_SEAMTRACK:
             from droid.experiments.contact_plan import CONTACT_FIELDS
 
             if key in CONTACT_FIELDS:
                 hint = '; a contact plan\'s key: set trial = "contact"'
-        return bad(f"{where} {key} = {_toml(value)}: unknown key (expected one of {', '.join(keys_of)}){hint}")
+        return self.bad(f"{where} {key} = {_toml(value)}: unknown key (expected one of {', '.join(keys_of)}){hint}")
 
-    defaults: dict = {}
-    for key, value in defaults_raw.items():
-        if key not in keys_of:
-            raise unknown("[defaults]", key, value)
-        defaults[key] = check("[defaults] ", key, value)
-    sweep: dict = {}
-    for key, values in sweep_raw.items():
-        if key not in keys_of:
-            raise unknown("[sweep]", key, values)
-        if key in defaults:
-            raise bad(f"[sweep] {key} = {_toml(values)}: also set in [defaults] (give it in one of them)")
-        if not isinstance(values, list):
-            raise bad(f"[sweep] {key} = {_toml(values)}: must be a list of values")
-        if not values:
-            raise bad(f"[sweep] {key} = []: empty list (give at least one value)")
-        checked = [check("[sweep] ", key, v) for v in values]
-        seen = set()
-        for raw_v, v in zip(values, checked):
-            if v in seen:
-                raise bad(f"[sweep] {key} = {_toml(values)}: {_toml(raw_v)} appears twice")
-            seen.add(v)
-        sweep[key] = checked
-    if kind != TRIAL_SEAMTRACK:  # a builtin default's checks too (its workpiece is loaded, its gains read)
-        for key, value in builtin.items():
-            if key not in defaults and key not in sweep and value is not None:
-                check("(default) ", key, value)
+    def defaults_table(self, defaults_raw: dict) -> dict:
+        """``[defaults]``, every value checked."""
+        defaults: dict = {}
+        for key, value in defaults_raw.items():
+            if key not in self.keys_of:
+                raise self.unknown("[defaults]", key, value)
+            defaults[key] = self.check("[defaults] ", key, value)
+        return defaults
 
-    def where_of(key: str) -> str:
-        return "[sweep] " if key in sweep else "[defaults] " if key in defaults else "(default) "
+    def sweep_table(self, sweep_raw: dict, defaults: dict) -> dict:
+        """``[sweep]``: a non-empty list of distinct checked values per key, none also in ``[defaults]``."""
+        sweep: dict = {}
+        for key, values in sweep_raw.items():
+            if key not in self.keys_of:
+                raise self.unknown("[sweep]", key, values)
+            if key in defaults:
+                raise self.bad(f"[sweep] {key} = {_toml(values)}: also set in [defaults] (give it in one of them)")
+            if not isinstance(values, list):
+                raise self.bad(f"[sweep] {key} = {_toml(values)}: must be a list of values")
+            if not values:
+                raise self.bad(f"[sweep] {key} = []: empty list (give at least one value)")
+            checked = [self.check("[sweep] ", key, v) for v in values]
+            seen = set()
+            for raw_v, v in zip(values, checked):
+                if v in seen:
+                    raise self.bad(f"[sweep] {key} = {_toml(values)}: {_toml(raw_v)} appears twice")
+                seen.add(v)
+            sweep[key] = checked
+        return sweep
 
-    base = {**builtin, **defaults}
-    trials = []
-    ids: set[str] = set()
-    checked: set[tuple] = set()  # (arm, holder) models the plan's cell was checked for
-    keys = list(sweep)
-    for index, combo in enumerate(itertools.product(*(sweep[k] for k in keys))):
-        params = {**base, **dict(zip(keys, combo))}
-        params = {k: params[k] for k in keys_of}
-        if cell is not None:  # as written: the trial's ID says which cell it ran on
-            params["cell"] = data["cell"]
-        tid = trial_id(params)
-        if tid in ids:  # a hash collision within one plan: 10 hex digits make this ~1e-9 at 10^3 trials
-            raise bad(f"two trials have the same ID {tid}")
-        ids.add(tid)
-        if kind != TRIAL_SEAMTRACK:
-            config = contact.config(tid, params, where_of)  # its BadInput names the key (and plan) itself
-        else:
-            resolved = {"workpiece": checker.resolved(params["workpiece"]), **_cell_param(cell)}
-            try:
-                config = trial_config(tid, {**params, **resolved}, name)
-            except BadInput as exc:  # TrialConfig's own checks (e.g. a mode it does not know)
-                shown = ", ".join(f"{k} = {_toml(params[k])}" for k in keys)
-                raise bad(f"trial {index} ({shown}): {exc}") from None
-            _check_cell_for(cell, config, source, checked)
-        trials.append(PlanTrial(tid, index, params, config, name, kind))
-    return Plan(name, description, source, defaults, sweep, tuple(trials), kind)
+    def check_builtin(self, defaults: dict, sweep: dict) -> None:
+        """A contact plan: a builtin default's checks too (its workpiece is loaded, its gains read)."""
+        if self.kind != TRIAL_SEAMTRACK:
+            for key, value in self.builtin.items():
+                if key not in defaults and key not in sweep and value is not None:
+                    self.check("(default) ", key, value)
+
+    def expand(self, data: dict, name: str, cell, defaults: dict, sweep: dict) -> list[PlanTrial]:
+        """The trials: the product of the ``[sweep]`` lists over ``[defaults]`` and the builtin
+        defaults, each with its ID and its checked config."""
+        kind, keys_of = self.kind, self.keys_of
+
+        def where_of(key: str) -> str:
+            return "[sweep] " if key in sweep else "[defaults] " if key in defaults else "(default) "
+
+        base = {**self.builtin, **defaults}
+        trials = []
+        ids: set[str] = set()
+        checked: set[tuple] = set()  # (arm, holder) models the plan's cell was checked for
+        keys = list(sweep)
+        for index, combo in enumerate(itertools.product(*(sweep[k] for k in keys))):
+            params = {**base, **dict(zip(keys, combo))}
+            params = {k: params[k] for k in keys_of}
+            if cell is not None:  # as written: the trial's ID says which cell it ran on
+                params["cell"] = data["cell"]
+            tid = trial_id(params)
+            if tid in ids:  # a hash collision within one plan: 10 hex digits make this ~1e-9 at 10^3 trials
+                raise self.bad(f"two trials have the same ID {tid}")
+            ids.add(tid)
+            if kind != TRIAL_SEAMTRACK:
+                config = self.contact.config(tid, params, where_of)  # its BadInput names the key (and plan) itself
+            else:
+                resolved = {"workpiece": self.checker.resolved(params["workpiece"]), **_cell_param(cell)}
+                try:
+                    config = trial_config(tid, {**params, **resolved}, name)
+                except BadInput as exc:  # TrialConfig's own checks (e.g. a mode it does not know)
+                    shown = ", ".join(f"{k} = {_toml(params[k])}" for k in keys)
+                    raise self.bad(f"trial {index} ({shown}): {exc}") from None
+                _check_cell_for(cell, config, self.source, checked)
+            trials.append(PlanTrial(tid, index, params, config, name, kind))
+        return trials
 
 
 def _plan_cell(data: dict, kind: str, source: str, plan_dir: Path):

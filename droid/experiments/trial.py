@@ -273,154 +273,195 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None,
     write an MCAP recording of it there (droid.observe.lockstep, docs/observe.md); ``limit``: when
     a trial the core has not ended times out (:class:`ProgressLimit`)."""
     wall0 = time.perf_counter()
-    tc = _trial_cell(cfg, layout)
-    geo = trial_geometry(cfg.position, cfg.workpiece, cfg.wrist, tc.layout if tc is not None else layout)
-    L = geo.camera_to_tcp_mm
-    length = cfg.length_mm if cfg.length_mm is not None else default_length_mm(geo)
-    params = SeamParams(speed_mm_s=cfg.speed_mm_s, yaw_gain=cfg.yaw_gain, pitch_gain=cfg.pitch_gain,
-                        dead_zone_cycles=cfg.dead_zone_cycles, lost_cycles=cfg.lost_cycles, length_mm=length,
-                        delay_cycles=cfg.delay_cycles, delay_at_mm=cfg.delay_at_mm, mode=cfg.mode,
-                        compliance=cfg.arm == "full")  # the fast arm's drives are rigid
-    sched = Scheduler(HEARTBEAT_HZ)
-    arm, holder = _arm_and_holder(cfg, geo, sched, tc)
-    try:
-        cyc = TrackingCycle(params, geo.wrist.T_wcp_tool, geo.wrist.T_wcp_sensor, geo.reis,
-                            heartbeat_hz=HEARTBEAT_HZ)
-    except ValueError as exc:
-        raise BadInput(f"trial {cfg.trial_id}: {exc}") from None
-    lead = LeadSensor(geo.workpiece, cfg.sensor, cfg.noise, seed=cfg.seed, frames_per_read=cyc.cycle_ticks)
-    tool_sensor = ToolTipSensor(lead.crossing, cfg.noise if cfg.tool_noise else CameraNoise(), seed=cfg.seed)
-    result = TrialResult(cfg, camera_to_tcp_mm=L)
-    T_hold0 = geo.T_global_hold6
-    v_hold = np.asarray(cfg.holder_mm_s, float)
-    moving_holder = bool(np.any(v_hold != 0.0))
-    T_wcp_sensor, T_wcp_tool = geo.wrist.T_wcp_sensor, geo.wrist.T_wcp_tool
-    T_W_hold6 = inv_homo(geo.T_hold6_W)  # the holder's wrist-centre frame -> the workpiece frame W
-    crossing = lead.crossing
-    t0_tick = sched.tick
-    ct, lt = cyc.cycle_ticks, cyc.log_ticks
-    state = {"lead": INVALID_READING, "lead_tick": 0, "tool": None, "tool_tick": 0, "out": None, "done": False,
-             "T_hold": T_hold0, "T_W_g": inv_homo(T_hold0 @ geo.T_hold6_W)}
-    in_flight: deque = deque()  # (reading, Status tick) of the constant extra latency
+    trial = _LockstepTrial(cfg, layout, record)
+    trial.run(limit)
+    result = trial.finish()
+    result.wall_s = time.perf_counter() - wall0
+    return result
 
-    def hold_at(k: int) -> None:
+
+class _LockstepTrial:
+    """One trial's world on a 60 Hz scheduler (the module docstring's table): the welder and the
+    holder, the lead and tool-tip sensors, the tracking station, and the tick callbacks that join
+    them -- arm, then sensors, then the task within each tick."""
+
+    def __init__(self, cfg: TrialConfig, layout=None, record: str | None = None) -> None:
+        self.cfg = cfg
+        tc = _trial_cell(cfg, layout)
+        geo = self.geo = trial_geometry(cfg.position, cfg.workpiece, cfg.wrist,
+                                        tc.layout if tc is not None else layout)
+        self.L = geo.camera_to_tcp_mm
+        self.length = cfg.length_mm if cfg.length_mm is not None else default_length_mm(geo)
+        params = SeamParams(speed_mm_s=cfg.speed_mm_s, yaw_gain=cfg.yaw_gain, pitch_gain=cfg.pitch_gain,
+                            dead_zone_cycles=cfg.dead_zone_cycles, lost_cycles=cfg.lost_cycles,
+                            length_mm=self.length, delay_cycles=cfg.delay_cycles, delay_at_mm=cfg.delay_at_mm,
+                            mode=cfg.mode, compliance=cfg.arm == "full")  # the fast arm's drives are rigid
+        self.sched = Scheduler(HEARTBEAT_HZ)
+        self.arm, self.holder = _arm_and_holder(cfg, geo, self.sched, tc)
+        try:
+            self.cyc = TrackingCycle(params, geo.wrist.T_wcp_tool, geo.wrist.T_wcp_sensor, geo.reis,
+                                     heartbeat_hz=HEARTBEAT_HZ)
+        except ValueError as exc:
+            raise BadInput(f"trial {cfg.trial_id}: {exc}") from None
+        self.lead = LeadSensor(geo.workpiece, cfg.sensor, cfg.noise, seed=cfg.seed,
+                               frames_per_read=self.cyc.cycle_ticks)
+        self.tool_sensor = ToolTipSensor(self.lead.crossing, cfg.noise if cfg.tool_noise else CameraNoise(),
+                                         seed=cfg.seed)
+        self.result = TrialResult(cfg, camera_to_tcp_mm=self.L)
+        self.T_hold0 = geo.T_global_hold6
+        self.v_hold = np.asarray(cfg.holder_mm_s, float)
+        self.moving_holder = bool(np.any(self.v_hold != 0.0))
+        self.T_wcp_sensor, self.T_wcp_tool = geo.wrist.T_wcp_sensor, geo.wrist.T_wcp_tool
+        self.T_W_hold6 = inv_homo(geo.T_hold6_W)  # the holder's wrist-centre frame -> the workpiece frame W
+        self.t0_tick = self.sched.tick
+        self.ct, self.lt = self.cyc.cycle_ticks, self.cyc.log_ticks
+        self.state = {"lead": INVALID_READING, "lead_tick": 0, "tool": None, "tool_tick": 0, "out": None,
+                      "done": False, "T_hold": self.T_hold0, "T_W_g": inv_homo(self.T_hold0 @ geo.T_hold6_W)}
+        self.in_flight: deque = deque()  # (reading, Status tick) of the constant extra latency
+        self.recorder = self._recorder(record) if record is not None else None
+        self.station = SeamtrackStation(self.cyc, HEARTBEAT_HZ, first_cycle_tick=self.t0_tick + self.ct,
+                                        first_log_tick=self.t0_tick + 1)
+        self.t_start = self.sched.t_ns / 1e9
+        self.T_hold_start = self.T_hold0
+
+    def _recorder(self, record: str):
+        """The MCAP recorder of the trial (droid.observe.lockstep, docs/observe.md)."""
+        from droid.observe.lockstep import TrialRecorder
+        from droid.sim.workpiece_mesh import workpiece_mesh
+
+        geo, lay = self.geo, self.geo.layout
+        return TrialRecorder(record, self.cfg.trial_id, geo.reis, geo.fanuc, self.T_wcp_tool, self.T_wcp_sensor,
+                             geo.T_hold6_W, geo.q_hold_deg, self.T_hold0,
+                             workpiece_mesh=workpiece_mesh(geo.workpiece),
+                             names=(lay.tool_robot, lay.holder_robot, lay.sensor, "tool"))
+
+    def hold_at(self, k: int) -> None:
         """The holder's pose at trial tick k: the GMF1's Status pose (the tracker's) and its true
         pose (the sensors'); a fixed holder drifts at ``holder_mm_s``."""
+        state, holder = self.state, self.holder
         if holder is not None:
             state["T_hold"] = holder.status_pose()
             T_true = holder.true_wcp()
             if T_true is not state.get("T_true"):
-                state["T_true"], state["T_W_g"] = T_true, inv_homo(T_true @ geo.T_hold6_W)
-        elif moving_holder:
-            T = T_hold0.copy()
-            T[:3, 3] += v_hold * (k / HEARTBEAT_HZ)
-            state["T_hold"], state["T_W_g"] = T, inv_homo(T @ geo.T_hold6_W)
+                state["T_true"], state["T_W_g"] = T_true, inv_homo(T_true @ self.geo.T_hold6_W)
+        elif self.moving_holder:
+            T = self.T_hold0.copy()
+            T[:3, 3] += self.v_hold * (k / HEARTBEAT_HZ)
+            state["T_hold"], state["T_W_g"] = T, inv_homo(T @ self.geo.T_hold6_W)
 
-    def s_of(m) -> float:
-        return m.s_mm + L  # seam progress of the tool: 0 at the start (tool at s = -CAMERA_TO_TCP)
+    def s_of(self, m) -> float:
+        return m.s_mm + self.L  # seam progress of the tool: 0 at the start (tool at s = -CAMERA_TO_TCP)
 
-    def sensors(tick: int) -> None:
-        k = tick - t0_tick
-        hold_at(k)
+    def tool_s_now(self) -> float:
+        """The tool's seam progress now, from the truth [mm]; NaN off the seam."""
+        m = tool_reading(self.state["T_W_g"] @ self.arm.true_wcp() @ self.T_wcp_tool, self.lead.crossing)
+        return self.s_of(m) if m is not None else math.nan
+
+    def sensors(self, tick: int) -> None:
+        """The lead frame the next cycle reads, held back ``latency_cycles``; the tool-tip sample
+        the next log row shows."""
+        state, in_flight, ct, lt = self.state, self.in_flight, self.ct, self.lt
+        k = tick - self.t0_tick
+        self.hold_at(k)
         T_W_g = state["T_W_g"]
         if k % ct == ct - 1:  # the frame the next cycle reads (it reaches the Status next tick)
-            T_true = arm.true_wcp()
-            r = lead.read(T_W_g @ T_true @ T_wcp_sensor)
+            T_true = self.arm.true_wcp()
+            r = self.lead.read(T_W_g @ T_true @ self.T_wcp_sensor)
             if r is None:  # no line from this frame: the Status keeps the reading it holds
                 in_flight.append(in_flight[-1] if in_flight else (state["lead"], state["lead_tick"]))
             else:
                 if r.valid:
                     r = replace(r, stamp_tick=float(tick))  # the MVS world's frame stamp: its capture tick
                 in_flight.append((r, tick + 1))
-            while len(in_flight) > cfg.latency_cycles:
+            while len(in_flight) > self.cfg.latency_cycles:
                 state["lead"], state["lead_tick"] = in_flight.popleft()
         if k % lt == lt - 1:
-            state["tool"] = tool_sensor.read(T_W_g @ arm.true_wcp() @ T_wcp_tool)
+            state["tool"] = self.tool_sensor.read(T_W_g @ self.arm.true_wcp() @ self.T_wcp_tool)
             state["tool_tick"] = tick  # its capture stamp
 
-    recorder = None
-    if record is not None:
-        from droid.observe.lockstep import TrialRecorder
-        from droid.sim.workpiece_mesh import workpiece_mesh
+    def lead_now(self):
+        return self.state["lead"], self.state["lead_tick"]
 
-        lay = geo.layout
-        recorder = TrialRecorder(record, cfg.trial_id, geo.reis, geo.fanuc, T_wcp_tool, T_wcp_sensor, geo.T_hold6_W,
-                                 geo.q_hold_deg, T_hold0, workpiece_mesh=workpiece_mesh(geo.workpiece),
-                                 names=(lay.tool_robot, lay.holder_robot, lay.sensor, "tool"))
-
-    station = SeamtrackStation(cyc, HEARTBEAT_HZ, first_cycle_tick=t0_tick + ct, first_log_tick=t0_tick + 1)
-
-    def lead_now():
-        return state["lead"], state["lead_tick"]
-
-    def task(tick: int) -> None:
-        if recorder is not None:
-            recorder.sample(tick, sched.t_ns, arm, state)
+    def task(self, tick: int) -> None:
+        """The tracking station's tick, as droid-seamtrack's: its commands to the arms, its log row."""
+        state, arm, holder = self.state, self.arm, self.holder
+        if self.recorder is not None:
+            self.recorder.sample(tick, self.sched.t_ns, arm, state)
         if state["done"]:
             return
         reis = ArmStatus(arm.name, tick, arm.status_pose(), arm.status_fault(), joints_deg=arm.status_joints)
         hold = ArmStatus(holder.name if holder is not None else "holder", tick, state["T_hold"],
                          holder.status_fault() if holder is not None else None)  # a fixed holder: no faults
-        res = station.on_tick(tick, reis, hold, lead_now)
-        state["out"] = station.out
+        res = self.station.on_tick(tick, reis, hold, self.lead_now)
+        state["out"] = self.station.out
         if res.stop is not None:
             state["done"] = True
-            m = tool_reading(state["T_W_g"] @ arm.true_wcp() @ T_wcp_tool, crossing)
+            result = self.result
             result.stop_reason, result.stop_detail = res.stop.reason, res.stop.detail
-            result.stop_s_mm = s_of(m) if m is not None else math.nan
-            result.stop_t_s = (sched.t_ns / 1e9)
+            result.stop_s_mm = self.tool_s_now()
+            result.stop_t_s = (self.sched.t_ns / 1e9)
             return
         if res.reis_cmd is not None:
-            arm.command_cart(res.reis_cmd, ct)
-        if res.hold_cmd is not None and holder is not None and not moving_holder:
-            holder.hold(res.hold_cmd, ct / HEARTBEAT_HZ)  # gen_hold_robot_wcp, as droid-seamtrack
+            arm.command_cart(res.reis_cmd, self.ct)
+        if res.hold_cmd is not None and holder is not None and not self.moving_holder:
+            holder.hold(res.hold_cmd, self.ct / HEARTBEAT_HZ)  # gen_hold_robot_wcp, as droid-seamtrack
         if res.log:
-            tool = state["tool"]
-            if tool is not None:  # placed with the poses of its capture, as droid-seamtrack's log does
-                placed = cyc.place_tool(Reading(tool.height_mm, tool.lateral_mm, tool.roll_rad, True,
-                                                stamp_tick=float(state["tool_tick"])), tick, T_wcp_tool)
-                if placed is not None:
-                    result.tool_seam_mm.append((T_W_hold6 @ np.append(placed.seam_in_hold_mm, 1.0))[:3])
-            result.rows.append(_row(sched.t_ns / 1e9 - t_start, state["lead"], state["tool"], state["out"], L,
-                                    s_of))
+            self.log_row(tick)
 
-    t_start = sched.t_ns / 1e9
-    T_hold_start = T_hold0
-    watch = limit.watch(length, cfg.speed_mm_s)
-    if holder is not None:
-        hold_at(0)
-        T_hold_start = state["T_hold"]
-        if moving_holder:  # one slow cartesian MOVE through KAREL, lasting past the hard cap
-            holder.drift(v_hold, watch.cap_s + 1.0)
-    sched.on_tick(lambda tick: arm.tick(), "arm", order=ORDER_WORLD)
-    sched.on_tick(sensors, "sensors", order=ORDER_DEVICE)
-    sched.on_tick(task, "seamtrack", order=ORDER_TASK)
-    while not state["done"]:
-        sched.run_ticks(60)  # 1 s of simulated time, then the progress check
-        if state["done"]:
-            break
-        m = tool_reading(state["T_W_g"] @ arm.true_wcp() @ T_wcp_tool, crossing)
-        s_now = s_of(m) if m is not None else math.nan
-        why = watch.check(sched.t_ns / 1e9 - t_start, s_now)
-        if why is not None:
-            result.stop_reason, result.stop_detail = "timeout", why
-            result.stop_t_s = sched.t_ns / 1e9
-            result.stop_s_mm = s_now
-            break
-    result.stop_t_s -= t_start
-    result.sim_s = sched.t_ns / 1e9 - t_start
-    result.prep_s = t_start
-    result.frames, result.valid_frames = lead.frames, lead.valid
-    result.dropped = cyc.dropped
-    result.tool_dropped = cyc.tool_dropped
-    if holder is not None:
-        result.holder_moved_mm = float(np.linalg.norm(holder.status_pose()[:3, 3] - T_hold_start[:3, 3]))
-    elif moving_holder:
-        result.holder_moved_mm = float(np.linalg.norm(v_hold) * result.sim_s)
-    if recorder is not None:
-        recorder.close()
-    result.wall_s = time.perf_counter() - wall0
-    return result
+    def log_row(self, tick: int) -> None:
+        """One 10 Hz log row, and the tool-tip reading placed with the poses of its capture."""
+        state, result = self.state, self.result
+        tool = state["tool"]
+        if tool is not None:  # placed with the poses of its capture, as droid-seamtrack's log does
+            placed = self.cyc.place_tool(Reading(tool.height_mm, tool.lateral_mm, tool.roll_rad, True,
+                                                 stamp_tick=float(state["tool_tick"])), tick, self.T_wcp_tool)
+            if placed is not None:
+                result.tool_seam_mm.append((self.T_W_hold6 @ np.append(placed.seam_in_hold_mm, 1.0))[:3])
+        result.rows.append(_row(self.sched.t_ns / 1e9 - self.t_start, state["lead"], state["tool"], state["out"],
+                                self.L, self.s_of))
+
+    def run(self, limit: ProgressLimit) -> None:
+        """Start the holder, wire the tick callbacks, and run until the core stops or ``limit``
+        (checked once a simulated second) ends the trial as ``timeout``."""
+        sched, state, arm, holder, result = self.sched, self.state, self.arm, self.holder, self.result
+        watch = limit.watch(self.length, self.cfg.speed_mm_s)
+        if holder is not None:
+            self.hold_at(0)
+            self.T_hold_start = state["T_hold"]
+            if self.moving_holder:  # one slow cartesian MOVE through KAREL, lasting past the hard cap
+                holder.drift(self.v_hold, watch.cap_s + 1.0)
+        sched.on_tick(lambda tick: arm.tick(), "arm", order=ORDER_WORLD)
+        sched.on_tick(self.sensors, "sensors", order=ORDER_DEVICE)
+        sched.on_tick(self.task, "seamtrack", order=ORDER_TASK)
+        while not state["done"]:
+            sched.run_ticks(60)  # 1 s of simulated time, then the progress check
+            if state["done"]:
+                break
+            s_now = self.tool_s_now()
+            why = watch.check(sched.t_ns / 1e9 - self.t_start, s_now)
+            if why is not None:
+                result.stop_reason, result.stop_detail = "timeout", why
+                result.stop_t_s = sched.t_ns / 1e9
+                result.stop_s_mm = s_now
+                break
+
+    def finish(self) -> TrialResult:
+        """The result's times, frame counts and holder travel; the recording closed."""
+        result, holder = self.result, self.holder
+        t_start = self.t_start
+        result.stop_t_s -= t_start
+        result.sim_s = self.sched.t_ns / 1e9 - t_start
+        result.prep_s = t_start
+        result.frames, result.valid_frames = self.lead.frames, self.lead.valid
+        result.dropped = self.cyc.dropped
+        result.tool_dropped = self.cyc.tool_dropped
+        if holder is not None:
+            result.holder_moved_mm = float(np.linalg.norm(holder.status_pose()[:3, 3] - self.T_hold_start[:3, 3]))
+        elif self.moving_holder:
+            result.holder_moved_mm = float(np.linalg.norm(self.v_hold) * result.sim_s)
+        if self.recorder is not None:
+            self.recorder.close()
+        return result
 
 
 def _trial_cell(cfg: TrialConfig, layout=None):

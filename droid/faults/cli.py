@@ -58,8 +58,7 @@ def _faults_from(args) -> dict:
     return d
 
 
-@run
-def main(argv=None) -> int:
+def build_parser() -> ArgumentParser:
     ap = ArgumentParser(prog=PROG, description="Inject faults into a running DROID cell: lossy, late or "
                         "duplicated links, killed or paused programs, hosts cut off.")
     ap.add_argument("--cell", metavar="FILE", default=None,
@@ -90,68 +89,96 @@ def main(argv=None) -> int:
     p.add_argument("netns")
     p.add_argument("dev")
     p.add_argument("state", choices=("down", "up"))
-    args = ap.parse_args(argv)
-    cell = load_cell(args.cell)
+    return ap
 
-    if args.cmd == "list":
-        for e in cell_endpoints(cell).values():
-            row = {"endpoint": e.label, "public": e.public, "kind": e.kind, "host": e.host,
-                   "interposed": cell.bind_endpoint(e.public) != e.public}
-            print(json.dumps(row) if args.json else
-                  f"{e.label:<20} {e.kind:<6} host {e.host:<6} {e.public}{'  (interposed)' if row['interposed'] else ''}")
-        try:
-            rows = procs.programs(cell)
-        except DroidError:  # the cell is not up: endpoints only
-            rows = []
-        for r in rows:
-            print(json.dumps({"program": r["name"], "key": r["key"], "pid": r["pid"], "live": r["live"]})
-                  if args.json else f"{r['name']:<28} key {r['key']:<24} pid {r['pid']}")
-        return 0
-    if args.cmd == "interpose":
-        sys.stdout.write(interpose_table(cell, args.labels))
-        return 0
-    if args.cmd == "proxy":
-        proxy = FaultProxy(cell, args.label, LinkFaults.from_dict(_faults_from(args)), seed=args.seed)
-        Stop.install()
-        # the proxy stands in for a wire: it runs at the priority of the programs it sits between
-        try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
-        proxy.serve(stop=lambda: Stop.requested, on_ready=lambda: print(
-            f"{PROG}: proxy on {args.label} ({proxy.ep.public} -> {proxy.inner}), control {proxy.control}",
-            file=sys.stderr, flush=True))
-        print(json.dumps(proxy.counts()))
-        return 0
-    if args.cmd == "set":
-        endpoint(cell, args.label)
-        d = _faults_from(args)
-        if args.clear:
-            d = {**LinkFaults().as_dict(), **d}
-        LinkFaults.from_dict(d)  # bad values: exit 2 here, not in the proxy
-        ans = control(cell, args.label, {"set": d})
-        if not ans.get("ok"):
-            raise BadInput(ans.get("error", "refused"))
+
+def _list(cell, args) -> int:
+    """The cell's endpoints (interposed or not), then its running programs when the cell is up."""
+    for e in cell_endpoints(cell).values():
+        row = {"endpoint": e.label, "public": e.public, "kind": e.kind, "host": e.host,
+               "interposed": cell.bind_endpoint(e.public) != e.public}
+        print(json.dumps(row) if args.json else
+              f"{e.label:<20} {e.kind:<6} host {e.host:<6} {e.public}{'  (interposed)' if row['interposed'] else ''}")
+    try:
+        rows = procs.programs(cell)
+    except DroidError:  # the cell is not up: endpoints only
+        rows = []
+    for r in rows:
+        print(json.dumps({"program": r["name"], "key": r["key"], "pid": r["pid"], "live": r["live"]})
+              if args.json else f"{r['name']:<28} key {r['key']:<24} pid {r['pid']}")
+    return 0
+
+
+def _interpose(cell, args) -> int:
+    sys.stdout.write(interpose_table(cell, args.labels))
+    return 0
+
+
+def _proxy(cell, args) -> int:
+    """Run a fault proxy on one endpoint until SIGTERM; print its counts."""
+    proxy = FaultProxy(cell, args.label, LinkFaults.from_dict(_faults_from(args)), seed=args.seed)
+    Stop.install()
+    # the proxy stands in for a wire: it runs at the priority of the programs it sits between
+    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
+    proxy.serve(stop=lambda: Stop.requested, on_ready=lambda: print(
+        f"{PROG}: proxy on {args.label} ({proxy.ep.public} -> {proxy.inner}), control {proxy.control}",
+        file=sys.stderr, flush=True))
+    print(json.dumps(proxy.counts()))
+    return 0
+
+
+def _set(cell, args) -> int:
+    """Change a running proxy's faults (``--clear``: from a clean link)."""
+    endpoint(cell, args.label)
+    d = _faults_from(args)
+    if args.clear:
+        d = {**LinkFaults().as_dict(), **d}
+    LinkFaults.from_dict(d)  # bad values: exit 2 here, not in the proxy
+    ans = control(cell, args.label, {"set": d})
+    if not ans.get("ok"):
+        raise BadInput(ans.get("error", "refused"))
+    print(json.dumps(ans))
+    return 0
+
+
+def _cut_or_restore(cell, args) -> int:
+    """Blackhole (or restore) every interposed endpoint of a host."""
+    labels = [e.label for e in cell_endpoints(cell).values()
+              if e.host == args.host and cell.bind_endpoint(e.public) != e.public]
+    if args.host not in cell.hosts():
+        raise BadInput(f"unknown host {args.host!r} (cell hosts: {', '.join(cell.hosts())})")
+    if not labels:
+        raise BadInput(f"no endpoint of host {args.host} is interposed (droid-fault interpose ...)")
+    for label in labels:
+        ans = control(cell, label, {"set": {"cut": args.cmd == "cut"}})
         print(json.dumps(ans))
-        return 0
-    if args.cmd in ("cut", "restore"):
-        labels = [e.label for e in cell_endpoints(cell).values()
-                  if e.host == args.host and cell.bind_endpoint(e.public) != e.public]
-        if args.host not in cell.hosts():
-            raise BadInput(f"unknown host {args.host!r} (cell hosts: {', '.join(cell.hosts())})")
-        if not labels:
-            raise BadInput(f"no endpoint of host {args.host} is interposed (droid-fault interpose ...)")
-        for label in labels:
-            ans = control(cell, label, {"set": {"cut": args.cmd == "cut"}})
-            print(json.dumps(ans))
-        return 0
-    if args.cmd in ("kill", "pause", "resume"):
-        pid = procs.signal_program(cell, args.program, args.cmd)
-        print(f"{PROG}: {args.cmd} {args.program} (pid {pid})")
-        return 0
-    if args.cmd == "link":
-        from droid.faults.netns import ip
+    return 0
 
-        ip("-n", args.netns, "link", "set", args.dev, args.state)
-        return 0
-    return 2
+
+def _signal(cell, args) -> int:
+    """kill / pause / resume a program: SIGKILL, SIGSTOP, SIGCONT."""
+    pid = procs.signal_program(cell, args.program, args.cmd)
+    print(f"{PROG}: {args.cmd} {args.program} (pid {pid})")
+    return 0
+
+
+def _link(cell, args) -> int:
+    from droid.faults.netns import ip
+
+    ip("-n", args.netns, "link", "set", args.dev, args.state)
+    return 0
+
+
+_COMMANDS = {"list": _list, "interpose": _interpose, "proxy": _proxy, "set": _set, "cut": _cut_or_restore,
+             "restore": _cut_or_restore, "kill": _signal, "pause": _signal, "resume": _signal, "link": _link}
+
+
+@run
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    cell = load_cell(args.cell)
+    command = _COMMANDS.get(args.cmd)
+    return command(cell, args) if command is not None else 2
 
 
 if __name__ == "__main__":

@@ -94,154 +94,192 @@ def _ik_chunk(p: OpwParams, t, hint_deg=None, hint_used=None) -> np.ndarray:
     are used at the shoulder and wrist singularities (default 0).
     Same numbering and policy as :func:`ik`.  Vectorised: sines and cosines
     come from the geometry (complex unit numbers), not from trig calls.
+    Level by level, each once per chunk: the shoulder (:func:`_shoulder_level`), the arm
+    (:func:`_arm_level`), the wrist (:func:`_wrist_level`), then :func:`_assemble`.
     """
     t = np.asarray(t, float)
     n = t.shape[0]
     out = np.empty((n, 8, 6))
     if n == 0:
         return out
+    with np.errstate(invalid="ignore", divide="ignore"):
+        q1, s1, c1, x, cz = _shoulder_level(p, t, hint_deg, hint_used)
+        q2, q3, s23, c23 = _arm_level(p, x, cz)
+        wrist = _wrist_level(p, t, s1, c1, s23, c23, hint_deg, hint_used)
+        _assemble(p, out, q1, q2, q3, *wrist)
+    return out
+
+
+def _shoulder_level(p: OpwParams, t: np.ndarray, hint_deg, hint_used):
+    """Joint 1 of the two shoulder solutions (N, 2) -- front, back -- from the wrist centre
+    (the hint's joint 1 on the axis); its sine and cosine, the wrist centre's reach x in the
+    joint-1 plane, and its height cz [mm]."""
+    n = t.shape[0]
     sg = p.signs
     of = p.offsets_deg
-    g = p._gain
-    bias = [wrap_scalar(b) for b in p._bias]
-    k = p._k
-    c2 = p.c2
-    r00, r02 = t[:, 0, 0], t[:, 0, 2]
-    r10, r12 = t[:, 1, 0], t[:, 1, 2]
-    r20, r22 = t[:, 2, 0], t[:, 2, 2]
+    r02 = t[:, 0, 2]
+    r12 = t[:, 1, 2]
+    r22 = t[:, 2, 2]
     if p.c4 != 0.0:
         cx = t[:, 0, 3] - p.c4 * r02
         cy = t[:, 1, 3] - p.c4 * r12
         cz = t[:, 2, 3] - p.c4 * r22
     else:
         cx, cy, cz = t[:, 0, 3], t[:, 1, 3], t[:, 2, 3]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rr = cx * cx + cy * cy
-        nx2 = rr - p.b * p.b
-        nx2[(nx2 < 0) & (nx2 > -1e-9 * max(1.0, p.b * p.b))] = 0.0
-        nx = np.sqrt(nx2)  # NaN where the shoulder cannot reach (r < |b|)
-        r = np.sqrt(rr)
-        phi = np.arctan2(cy, cx)
-        zphi = (cx + 1j * cy) / r  # e^{i phi}
-        if p.b == 0.0:
-            on_axis = rr < SHOULDER_EPS_MM * SHOULDER_EPS_MM
-            if on_axis.any():
-                hint = np.broadcast_to(
-                    np.zeros(6) if hint_deg is None else np.asarray(hint_deg, float), (n, 6)
-                )
-                ph = (sg[0] * hint[on_axis, 0] - of[0]) * RAD
-                phi[on_axis] = ph
-                zphi[on_axis] = np.exp(1j * ph)
-                if hint_used is not None:
-                    hint_used |= on_axis
-        # ---- shoulder level (N, 2): front, back
-        x = np.empty((n, 2))
-        x[:, 0] = nx
-        x[:, 1] = -nx
-        q1 = np.empty((n, 2))
-        z1 = np.empty((n, 2), complex)
-        if p.b == 0.0:
-            q1[:, 0] = phi
-            q1[:, 1] = phi + PI
-            z1[:, 0] = zphi
-            z1[:, 1] = -zphi
-        else:
-            zb = (x + 1j * p.b) / r[:, None]  # e^{i atan2(b, x)}
-            q1[:] = phi[:, None] - np.arctan2(p.b, x)
-            z1[:] = zphi[:, None] * zb.conj()
-        s1, c1 = z1.imag, z1.real
-        u = x - p.a1
-        v = (cz - p.c1)[:, None]
-        rho2 = u * u + v * v
-        d = (rho2 - (c2 * c2 + k * k)) / (2.0 * c2 * k)
-        d[~(np.abs(d) <= 1.0 + ELBOW_EPS)] = np.nan
-        np.clip(d, -1.0, 1.0, out=d)
-        acd = np.arccos(d)
-        sa = np.sqrt(1.0 - d * d)  # sin(acos d) >= 0
-        rho = np.sqrt(rho2)
-        atuv = np.arctan2(u, v)
-        delta = np.arctan2(k * sa, c2 + k * d)  # shoulder angle of the triangle, elbow 0
-        # e^{i(atuv - delta + acd)} for elbow 0; elbow 1 flips delta and acd
-        zuv = (v + 1j * u) / rho
-        zd = (c2 + k * d + 1j * (k * sa)) / rho
-        zA = d + 1j * sa
-        zpsi = (p.c3 - 1j * p.a2) / k
-        # ---- arm level (N, 4) in index order [s0e0, s0e1, s1e0, s1e1]
-        q2 = np.empty((n, 2, 2))
-        q2[:, :, 0] = atuv - delta
-        q2[:, :, 1] = atuv + delta
-        q3 = np.empty((n, 2, 2))
-        q3[:, :, 0] = acd - p._psi3
-        q3[:, :, 1] = -acd - p._psi3
-        z23 = np.empty((n, 2, 2), complex)
-        zc = zuv * zpsi
-        z23[:, :, 0] = zc * zd.conj() * zA
-        z23[:, :, 1] = zc * zd * zA.conj()
-        s23, c23 = z23.imag, z23.real
-        # target rotation seen from the joint-1 plane (N, 2) -> broadcast to (N, 2, 2)
-        p0 = (c1 * r00[:, None] + s1 * r10[:, None])[:, :, None]
-        p2 = (c1 * r02[:, None] + s1 * r12[:, None])[:, :, None]
-        o10 = (-s1 * r00[:, None] + c1 * r10[:, None])[:, :, None]
-        o12 = (-s1 * r02[:, None] + c1 * r12[:, None])[:, :, None]
-        r20e = r20[:, None, None]
-        r22e = r22[:, None, None]
-        o00 = c23 * p0 - s23 * r20e
-        o20 = s23 * p0 + c23 * r20e
-        o02 = c23 * p2 - s23 * r22e
-        o22 = s23 * p2 + c23 * r22e
-        o12 = o12 + 0.0 * o02  # materialise (N, 2, 2)
-        sb = np.sqrt(o02 * o02 + o12 * o12)
-        beta = np.arctan2(sb, o22)
-        alpha = np.arctan2(o12, o02)
-        ca = o02 / sb
-        sa_ = o12 / sb
-        singular = sb <= WRIST_EPS
-        any_singular = bool(singular.any())
-        if any_singular:
+    rr = cx * cx + cy * cy
+    nx2 = rr - p.b * p.b
+    nx2[(nx2 < 0) & (nx2 > -1e-9 * max(1.0, p.b * p.b))] = 0.0
+    nx = np.sqrt(nx2)  # NaN where the shoulder cannot reach (r < |b|)
+    r = np.sqrt(rr)
+    phi = np.arctan2(cy, cx)
+    zphi = (cx + 1j * cy) / r  # e^{i phi}
+    if p.b == 0.0:
+        on_axis = rr < SHOULDER_EPS_MM * SHOULDER_EPS_MM
+        if on_axis.any():
             hint = np.broadcast_to(
                 np.zeros(6) if hint_deg is None else np.asarray(hint_deg, float), (n, 6)
             )
-            h4 = np.broadcast_to(((sg[3] * hint[:, 3] - of[3]) * RAD)[:, None, None], sb.shape)
+            ph = (sg[0] * hint[on_axis, 0] - of[0]) * RAD
+            phi[on_axis] = ph
+            zphi[on_axis] = np.exp(1j * ph)
             if hint_used is not None:
-                hint_used |= singular.reshape(n, 4).any(axis=1)
-            alpha[singular] = h4[singular]
-            ca[singular] = np.cos(h4[singular])
-            sa_[singular] = np.sin(h4[singular])
-        w = ca * o00 + sa_ * o10
-        m10 = ca * o10 - sa_ * o00
-        gamma = np.arctan2(m10, o22 * w - sb * o20)
-        # ---- assemble (N, 2, 2, 2, 6) in robot degrees
-        o = out.reshape(n, 2, 2, 2, 6)
-        j = g[0] * q1 + bias[0]
-        o[..., 0] = _wrap_inplace(j)[:, :, None, None]
-        j = g[1] * q2 + bias[1]
-        o[..., 1] = _wrap_inplace(_wrap_inplace(j))[..., None]
-        j = g[2] * q3 + bias[2]
-        o[..., 2] = _wrap_inplace(_wrap_inplace(j))[..., None]
-        j4 = _wrap_inplace(g[3] * alpha + bias[3])
-        j5 = _wrap_inplace(g[4] * beta + bias[4])
-        j6 = _wrap_inplace(g[5] * gamma + bias[5])
-        o[:, :, :, 0, 3] = j4
-        o[:, :, :, 0, 4] = j5
-        o[:, :, :, 0, 5] = j6
-        # wrist branch 1: (alpha + pi, -beta, gamma + pi)
-        j4 += 180.0
-        o[:, :, :, 1, 3] = _wrap_inplace(j4)
-        j5 *= -1.0
-        j5 += 2.0 * bias[4]
-        o[:, :, :, 1, 4] = _wrap_inplace(_wrap_inplace(j5))
-        j6 += 180.0
-        o[:, :, :, 1, 5] = _wrap_inplace(j6)
-        if any_singular:
-            # singular wrist: branch 1 keeps alpha, gamma from the residual
-            gb = np.arctan2(m10[singular], (o22 * w + sb * o20)[singular])
-            sel = o[:, :, :, 1, :]
-            vals = sel[singular]
-            vals[:, 3] = o[:, :, :, 0, 3][singular]
-            vals[:, 5] = _wrap_inplace(g[5] * gb + bias[5])
-            sel[singular] = vals
-        # unreachable arm solutions (NaN elbow) -> whole row NaN
-        bad = np.isnan(out[:, :, 2])
-        if bad.any():
-            out[bad] = np.nan
-    return out
+                hint_used |= on_axis
+    x = np.empty((n, 2))
+    x[:, 0] = nx
+    x[:, 1] = -nx
+    q1 = np.empty((n, 2))
+    z1 = np.empty((n, 2), complex)
+    if p.b == 0.0:
+        q1[:, 0] = phi
+        q1[:, 1] = phi + PI
+        z1[:, 0] = zphi
+        z1[:, 1] = -zphi
+    else:
+        zb = (x + 1j * p.b) / r[:, None]  # e^{i atan2(b, x)}
+        q1[:] = phi[:, None] - np.arctan2(p.b, x)
+        z1[:] = zphi[:, None] * zb.conj()
+    return q1, z1.imag, z1.real, x, cz
+
+
+def _arm_level(p: OpwParams, x: np.ndarray, cz: np.ndarray):
+    """Joints 2 and 3 (N, 2, 2) in index order [shoulder][elbow], and sin/cos of q2 + q3: the
+    triangle of c2 and k over the wrist centre (NaN elbow where it cannot close)."""
+    n = x.shape[0]
+    k = p._k
+    c2 = p.c2
+    u = x - p.a1
+    v = (cz - p.c1)[:, None]
+    rho2 = u * u + v * v
+    d = (rho2 - (c2 * c2 + k * k)) / (2.0 * c2 * k)
+    d[~(np.abs(d) <= 1.0 + ELBOW_EPS)] = np.nan
+    np.clip(d, -1.0, 1.0, out=d)
+    acd = np.arccos(d)
+    sa = np.sqrt(1.0 - d * d)  # sin(acos d) >= 0
+    rho = np.sqrt(rho2)
+    atuv = np.arctan2(u, v)
+    delta = np.arctan2(k * sa, c2 + k * d)  # shoulder angle of the triangle, elbow 0
+    # e^{i(atuv - delta + acd)} for elbow 0; elbow 1 flips delta and acd
+    zuv = (v + 1j * u) / rho
+    zd = (c2 + k * d + 1j * (k * sa)) / rho
+    zA = d + 1j * sa
+    zpsi = (p.c3 - 1j * p.a2) / k
+    # ---- arm level (N, 4) in index order [s0e0, s0e1, s1e0, s1e1]
+    q2 = np.empty((n, 2, 2))
+    q2[:, :, 0] = atuv - delta
+    q2[:, :, 1] = atuv + delta
+    q3 = np.empty((n, 2, 2))
+    q3[:, :, 0] = acd - p._psi3
+    q3[:, :, 1] = -acd - p._psi3
+    z23 = np.empty((n, 2, 2), complex)
+    zc = zuv * zpsi
+    z23[:, :, 0] = zc * zd.conj() * zA
+    z23[:, :, 1] = zc * zd * zA.conj()
+    return q2, q3, z23.imag, z23.real
+
+
+def _wrist_level(p: OpwParams, t: np.ndarray, s1, c1, s23, c23, hint_deg, hint_used):
+    """The wrist's ZYZ angles (alpha, beta, gamma) (N, 2, 2) of O = R_0c^T R; at a singular
+    wrist alpha is the hint's joint 4, and ``gb`` the residual gamma of branch 1 there.
+    Returns alpha, beta, gamma, singular, any_singular, gb (None when no wrist is singular)."""
+    n = t.shape[0]
+    sg = p.signs
+    of = p.offsets_deg
+    r00, r02 = t[:, 0, 0], t[:, 0, 2]
+    r10, r12 = t[:, 1, 0], t[:, 1, 2]
+    r20, r22 = t[:, 2, 0], t[:, 2, 2]
+    # target rotation seen from the joint-1 plane (N, 2) -> broadcast to (N, 2, 2)
+    p0 = (c1 * r00[:, None] + s1 * r10[:, None])[:, :, None]
+    p2 = (c1 * r02[:, None] + s1 * r12[:, None])[:, :, None]
+    o10 = (-s1 * r00[:, None] + c1 * r10[:, None])[:, :, None]
+    o12 = (-s1 * r02[:, None] + c1 * r12[:, None])[:, :, None]
+    r20e = r20[:, None, None]
+    r22e = r22[:, None, None]
+    o00 = c23 * p0 - s23 * r20e
+    o20 = s23 * p0 + c23 * r20e
+    o02 = c23 * p2 - s23 * r22e
+    o22 = s23 * p2 + c23 * r22e
+    o12 = o12 + 0.0 * o02  # materialise (N, 2, 2)
+    sb = np.sqrt(o02 * o02 + o12 * o12)
+    beta = np.arctan2(sb, o22)
+    alpha = np.arctan2(o12, o02)
+    ca = o02 / sb
+    sa_ = o12 / sb
+    singular = sb <= WRIST_EPS
+    any_singular = bool(singular.any())
+    if any_singular:
+        hint = np.broadcast_to(
+            np.zeros(6) if hint_deg is None else np.asarray(hint_deg, float), (n, 6)
+        )
+        h4 = np.broadcast_to(((sg[3] * hint[:, 3] - of[3]) * RAD)[:, None, None], sb.shape)
+        if hint_used is not None:
+            hint_used |= singular.reshape(n, 4).any(axis=1)
+        alpha[singular] = h4[singular]
+        ca[singular] = np.cos(h4[singular])
+        sa_[singular] = np.sin(h4[singular])
+    w = ca * o00 + sa_ * o10
+    m10 = ca * o10 - sa_ * o00
+    gamma = np.arctan2(m10, o22 * w - sb * o20)
+    # singular wrist: branch 1 keeps alpha, gamma from the residual
+    gb = np.arctan2(m10[singular], (o22 * w + sb * o20)[singular]) if any_singular else None
+    return alpha, beta, gamma, singular, any_singular, gb
+
+
+def _assemble(p: OpwParams, out: np.ndarray, q1, q2, q3, alpha, beta, gamma, singular, any_singular, gb) -> None:
+    """The joint angles in robot degrees into ``out`` (N, 8, 6) = (N, 2, 2, 2, 6)
+    [shoulder][elbow][wrist]: gains, biases, wrapped into (-180, 180]; wrist branch 1 is
+    (alpha + pi, -beta, gamma + pi); a NaN elbow makes the whole row NaN."""
+    n = out.shape[0]
+    g = p._gain
+    bias = [wrap_scalar(b) for b in p._bias]
+    o = out.reshape(n, 2, 2, 2, 6)
+    j = g[0] * q1 + bias[0]
+    o[..., 0] = _wrap_inplace(j)[:, :, None, None]
+    j = g[1] * q2 + bias[1]
+    o[..., 1] = _wrap_inplace(_wrap_inplace(j))[..., None]
+    j = g[2] * q3 + bias[2]
+    o[..., 2] = _wrap_inplace(_wrap_inplace(j))[..., None]
+    j4 = _wrap_inplace(g[3] * alpha + bias[3])
+    j5 = _wrap_inplace(g[4] * beta + bias[4])
+    j6 = _wrap_inplace(g[5] * gamma + bias[5])
+    o[:, :, :, 0, 3] = j4
+    o[:, :, :, 0, 4] = j5
+    o[:, :, :, 0, 5] = j6
+    # wrist branch 1: (alpha + pi, -beta, gamma + pi)
+    j4 += 180.0
+    o[:, :, :, 1, 3] = _wrap_inplace(j4)
+    j5 *= -1.0
+    j5 += 2.0 * bias[4]
+    o[:, :, :, 1, 4] = _wrap_inplace(_wrap_inplace(j5))
+    j6 += 180.0
+    o[:, :, :, 1, 5] = _wrap_inplace(j6)
+    if any_singular:
+        # singular wrist: branch 1 keeps alpha, gamma from the residual
+        sel = o[:, :, :, 1, :]
+        vals = sel[singular]
+        vals[:, 3] = o[:, :, :, 0, 3][singular]
+        vals[:, 5] = _wrap_inplace(g[5] * gb + bias[5])
+        sel[singular] = vals
+    # unreachable arm solutions (NaN elbow) -> whole row NaN
+    bad = np.isnan(out[:, :, 2])
+    if bad.any():
+        out[bad] = np.nan

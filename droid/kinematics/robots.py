@@ -156,51 +156,11 @@ def model_from_dict(data: dict, source: str = "") -> RobotModel:
     if not isinstance(description, str) or not isinstance(assumed, bool):
         raise ValueError("'description' must be a string and 'assumed' true/false")
 
-    o = _table(data, "opw")
-    params = OpwParams(
-        a1=_num("opw", "a1_mm", o.get("a1_mm", 0.0)),
-        a2=_num("opw", "a2_mm", o.get("a2_mm", 0.0)),
-        b=_num("opw", "b_mm", o.get("b_mm", 0.0)),
-        c1=_num("opw", "c1_mm", o["c1_mm"]),
-        c2=_num("opw", "c2_mm", o["c2_mm"]),
-        c3=_num("opw", "c3_mm", o["c3_mm"]),
-        c4=_num("opw", "c4_mm", o.get("c4_mm", 0.0)),
-        offsets_deg=tuple(_six("opw", "offsets_deg", o.get("offsets_deg", [0.0] * 6))),
-        signs=tuple(_six("opw", "signs", o.get("signs", [1] * 6))),
-    )
-
-    d = _table(data, "dh")
-    dh = None
-    if d:
-        convention = d.get("convention", "standard")
-        if convention != "standard":
-            raise ValueError("[dh] convention: only 'standard' (Rz Tz Tx Rx, thesis eq. 4.1) is supported")
-        for key in ("theta_offset_deg", "d_mm", "a_mm", "alpha_deg"):
-            if key not in d:
-                raise ValueError(f"[dh]: missing key {key}")
-        dh = DhTable(
-            theta_offset_deg=tuple(_six("dh", "theta_offset_deg", d["theta_offset_deg"])),
-            d_mm=tuple(_six("dh", "d_mm", d["d_mm"])),
-            a_mm=tuple(_six("dh", "a_mm", d["a_mm"])),
-            alpha_deg=tuple(_six("dh", "alpha_deg", d["alpha_deg"])),
-        )
-        check_dh_matches_opw(dh, params)
-
-    g = _table(data, "gearing")
-    gearing = Gearing.from_table(g)
-
+    params = _opw_params(_table(data, "opw"))
+    dh = _dh_table(_table(data, "dh"), params)
+    gearing = Gearing.from_table(_table(data, "gearing"))
     lim = _table(data, "limits")
-    qmin = np.array(_six("limits", "joint_min_deg", lim["joint_min_deg"]))
-    qmax = np.array(_six("limits", "joint_max_deg", lim["joint_max_deg"]))
-    if np.any(qmin >= qmax):
-        raise ValueError("[limits]: joint_min_deg must be < joint_max_deg for every joint")
-    if ("counts_min" in lim) != ("counts_max" in lim):
-        raise ValueError("[limits]: give both counts_min and counts_max, or neither")
-    if "counts_min" in lim:
-        cmin = np.array(_six("limits", "counts_min", lim["counts_min"]))
-        cmax = np.array(_six("limits", "counts_max", lim["counts_max"]))
-    else:
-        cmin, cmax = counts_box(gearing, qmin, qmax)
+    qmin, qmax, cmin, cmax = _joint_limits(lim, gearing)
 
     home = _table(data, "home")
     planner = _table(data, "planner")
@@ -231,6 +191,57 @@ def model_from_dict(data: dict, source: str = "") -> RobotModel:
         axis_servo=axis_servo,
         geometry=geometry,
     )
+
+
+def _opw_params(o: dict) -> OpwParams:
+    """``[opw]``: the OPW parameters [mm], joint offsets [deg] and signs."""
+    return OpwParams(
+        a1=_num("opw", "a1_mm", o.get("a1_mm", 0.0)),
+        a2=_num("opw", "a2_mm", o.get("a2_mm", 0.0)),
+        b=_num("opw", "b_mm", o.get("b_mm", 0.0)),
+        c1=_num("opw", "c1_mm", o["c1_mm"]),
+        c2=_num("opw", "c2_mm", o["c2_mm"]),
+        c3=_num("opw", "c3_mm", o["c3_mm"]),
+        c4=_num("opw", "c4_mm", o.get("c4_mm", 0.0)),
+        offsets_deg=tuple(_six("opw", "offsets_deg", o.get("offsets_deg", [0.0] * 6))),
+        signs=tuple(_six("opw", "signs", o.get("signs", [1] * 6))),
+    )
+
+
+def _dh_table(d: dict, params: OpwParams) -> DhTable | None:
+    """``[dh]`` (standard D-H, thesis eq. 4.1), checked against ``[opw]``; None without it."""
+    if not d:
+        return None
+    convention = d.get("convention", "standard")
+    if convention != "standard":
+        raise ValueError("[dh] convention: only 'standard' (Rz Tz Tx Rx, thesis eq. 4.1) is supported")
+    for key in ("theta_offset_deg", "d_mm", "a_mm", "alpha_deg"):
+        if key not in d:
+            raise ValueError(f"[dh]: missing key {key}")
+    dh = DhTable(
+        theta_offset_deg=tuple(_six("dh", "theta_offset_deg", d["theta_offset_deg"])),
+        d_mm=tuple(_six("dh", "d_mm", d["d_mm"])),
+        a_mm=tuple(_six("dh", "a_mm", d["a_mm"])),
+        alpha_deg=tuple(_six("dh", "alpha_deg", d["alpha_deg"])),
+    )
+    check_dh_matches_opw(dh, params)
+    return dh
+
+
+def _joint_limits(lim: dict, gearing: Gearing):
+    """``[limits]``: joint limits [deg] and encoder limits [counts] (given, or the joint box's)."""
+    qmin = np.array(_six("limits", "joint_min_deg", lim["joint_min_deg"]))
+    qmax = np.array(_six("limits", "joint_max_deg", lim["joint_max_deg"]))
+    if np.any(qmin >= qmax):
+        raise ValueError("[limits]: joint_min_deg must be < joint_max_deg for every joint")
+    if ("counts_min" in lim) != ("counts_max" in lim):
+        raise ValueError("[limits]: give both counts_min and counts_max, or neither")
+    if "counts_min" in lim:
+        cmin = np.array(_six("limits", "counts_min", lim["counts_min"]))
+        cmax = np.array(_six("limits", "counts_max", lim["counts_max"]))
+    else:
+        cmin, cmax = counts_box(gearing, qmin, qmax)
+    return qmin, qmax, cmin, cmax
 
 
 def _geometry(t: dict) -> Geometry:

@@ -325,31 +325,11 @@ class Workpiece:
     @classmethod
     def from_dict(cls, data: dict, source: str = "<dict>") -> "Workpiece":
         """Build and validate from a parsed TOML table; BadInput names the fault."""
-
-        def bad(msg: str) -> BadInput:
-            return BadInput(f"workpiece {source}: {msg}")
-
-        def check_keys(table: dict, allowed: set[str], where: str) -> None:
-            for key in table:
-                if key not in allowed:
-                    raise bad(f"{where}unknown key {key!r} (expected one of {', '.join(sorted(allowed))})")
-
-        def number(table: dict, key: str, where: str, default=None, minimum=None,
-                   exclusive=False, required=False) -> float:
-            if key not in table:
-                if required or default is None:
-                    raise bad(f"{where}missing {key}")
-                return float(default)
-            value = table[key]
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise bad(f"{where}{key} must be a finite number, got {value!r}")
-            if minimum is not None and (value <= minimum if exclusive else value < minimum):
-                raise bad(f"{where}{key} must be {'>' if exclusive else '>='} {minimum:g}, got {value!r}")
-            return float(value)
-
+        rd = _TableReader(source)
+        bad = rd.bad
         if not isinstance(data, dict):
             raise bad("not a table")
-        check_keys(data, _TOP_KEYS, "")
+        rd.check_keys(data, _TOP_KEYS, "")
         try:
             check_numbers(data)  # every number finite and inside its key's range (issue 16)
         except NumberError as exc:
@@ -358,81 +338,25 @@ class Workpiece:
         description = data.get("description", "")
         if not isinstance(name, str) or not name or not isinstance(description, str):
             raise bad("name and description must be strings")
-        step = number(data, "step_mm", "", default=2.0, minimum=0.0, exclusive=True)
-        width = number(data, "width_mm", "", default=50.0, minimum=0.0, exclusive=True)
-        lead_in = number(data, "lead_in_mm", "", default=0.0, minimum=0.0)
-        lead_out = number(data, "lead_out_mm", "", default=0.0, minimum=0.0)
+        step = rd.number(data, "step_mm", "", default=2.0, minimum=0.0, exclusive=True)
+        width = rd.number(data, "width_mm", "", default=50.0, minimum=0.0, exclusive=True)
+        lead_in = rd.number(data, "lead_in_mm", "", default=0.0, minimum=0.0)
+        lead_out = rd.number(data, "lead_out_mm", "", default=0.0, minimum=0.0)
         upper = data.get("upper_side", "left")
         if upper not in ("left", "right"):
             raise bad(f"upper_side must be \"left\" or \"right\", got {upper!r}")
-        start = data.get("start", {})
-        if not isinstance(start, dict):
-            raise bad("[start] must be a table")
-        check_keys(start, _START_KEYS, "[start]: ")
-        xy = (number(start, "x_mm", "[start]: ", default=0.0), number(start, "y_mm", "[start]: ", default=0.0))
-        heading = math.radians(number(start, "heading_deg", "[start]: ", default=0.0))
-
+        xy, heading = _start_pose(data, rd)
         raw = data.get("segment")
-        if not isinstance(raw, list) or not raw:
-            raise bad("needs at least one [[segment]]")
+        segments, builder = _segments(raw, rd, xy, heading, width)
         planar = not any(k in data for k in ("roll_profile", "step_profile", "gap", "tack")) and all(
             isinstance(seg, dict) and seg.get("type") != "curve" and not seg.get("rise_mm") for seg in raw)
-        segments: list[Segment] = []
-        builder = _SeamBuilder(xy, heading)
-        s = 0.0
-        for i, seg in enumerate(raw, 1):
-            where = f"segment {i}: "
-            if not isinstance(seg, dict):
-                raise bad(f"{where}must be a table")
-            kind = seg.get("type")
-            if kind not in _SEGMENT_KEYS:
-                raise bad(f"{where}type must be one of line, arc, turn, curve, got {kind!r}")
-            check_keys(seg, _SEGMENT_KEYS[kind], where)
-            if kind == "turn":
-                angle = number(seg, "angle_deg", where, required=True)
-                if not -180.0 < angle < 180.0:
-                    raise bad(f"{where}angle_deg must be within (-180, 180), got {angle:g}")
-                heading += math.radians(angle)
-                builder.turn(math.radians(angle))
-                continue
-            if kind == "curve":
-                points = _curve_points(seg, where, source, bad)
-                interp = seg.get("interpolation", "spline")
-                if interp not in ("spline", "linear"):
-                    raise bad(f"{where}interpolation must be \"spline\" or \"linear\", got {interp!r}")
-                try:
-                    builder.curve(points, interp)
-                except ValueError as exc:
-                    raise bad(f"{where}points_mm: {exc}") from None
-                continue
-            rise = number(seg, "rise_mm", where, default=0.0)
-            if kind == "line":
-                length = number(seg, "length_mm", where, minimum=0.0, exclusive=True, required=True)
-                new = Segment(s, length, xy, heading)
-                builder.line(length, rise)
-            else:
-                radius = number(seg, "radius_mm", where, minimum=0.0, exclusive=True, required=True)
-                angle = number(seg, "angle_deg", where, required=True)
-                if radius <= width:
-                    raise bad(f"{where}radius_mm ({radius:g}) must exceed width_mm ({width:g})")
-                if angle == 0.0 or abs(angle) > 360.0:
-                    raise bad(f"{where}angle_deg must be non-zero and within [-360, 360], got {angle:g}")
-                sweep = math.radians(angle)
-                new = Segment(s, radius * abs(sweep), xy, heading, radius, sweep)
-                builder.arc(radius, sweep, rise)
-            segments.append(new)
-            end_xy, heading = new.end()
-            xy = (float(end_xy[0]), float(end_xy[1]))
-            s += new.length_mm
-        if not builder.pieces:
-            raise bad("needs at least one line or arc (or curve) segment")
         length_total = builder.s
         roll_profile = _profile(data, "roll_profile", "roll_deg", bad, lo=-MAX_ROLL_DEG, hi=MAX_ROLL_DEG)
         step_profile = _profile(data, "step_profile", "step_mm", bad, lo=0.0, lo_exclusive=True)
         gaps = tuple((g["s_mm"], g["length_mm"]) for g in
-                     _intervals(data, "gap", _GAP_KEYS, length_total, check_keys, number, bad))
+                     _intervals(data, "gap", _GAP_KEYS, length_total, rd.check_keys, rd.number, bad))
         tacks = tuple((t["s_mm"], t["length_mm"], t["height_mm"]) for t in
-                      _intervals(data, "tack", _TACK_KEYS, length_total, check_keys, number, bad))
+                      _intervals(data, "tack", _TACK_KEYS, length_total, rd.check_keys, rd.number, bad))
         contact = None
         if "contact" in data:
             from droid.sim.contact import ContactParams
@@ -450,6 +374,104 @@ class Workpiece:
                       gaps=[(a, a + n) for a, n in gaps], tacks=[(a, a + n, h) for a, n, h in tacks])
         return cls(segments=(), seam3d=seam, planar=False, roll_profile=roll_profile, step_profile=step_profile,
                    gaps=gaps, tacks=tacks, **common)
+
+
+class _TableReader:
+    """The checks of a workpiece file's tables; every BadInput names the file (``source``)."""
+
+    def __init__(self, source: str) -> None:
+        self.source = source
+
+    def bad(self, msg: str) -> BadInput:
+        return BadInput(f"workpiece {self.source}: {msg}")
+
+    def check_keys(self, table: dict, allowed: set[str], where: str) -> None:
+        for key in table:
+            if key not in allowed:
+                raise self.bad(f"{where}unknown key {key!r} (expected one of {', '.join(sorted(allowed))})")
+
+    def number(self, table: dict, key: str, where: str, default=None, minimum=None,
+               exclusive=False, required=False) -> float:
+        if key not in table:
+            if required or default is None:
+                raise self.bad(f"{where}missing {key}")
+            return float(default)
+        value = table[key]
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise self.bad(f"{where}{key} must be a finite number, got {value!r}")
+        if minimum is not None and (value <= minimum if exclusive else value < minimum):
+            raise self.bad(f"{where}{key} must be {'>' if exclusive else '>='} {minimum:g}, got {value!r}")
+        return float(value)
+
+
+def _start_pose(data: dict, rd: _TableReader) -> tuple[tuple[float, float], float]:
+    """``[start]``: the seam's start point (x_mm, y_mm) in W and its heading [rad]."""
+    start = data.get("start", {})
+    if not isinstance(start, dict):
+        raise rd.bad("[start] must be a table")
+    rd.check_keys(start, _START_KEYS, "[start]: ")
+    xy = (rd.number(start, "x_mm", "[start]: ", default=0.0), rd.number(start, "y_mm", "[start]: ", default=0.0))
+    heading = math.radians(rd.number(start, "heading_deg", "[start]: ", default=0.0))
+    return xy, heading
+
+
+def _segments(raw, rd: _TableReader, xy: tuple[float, float], heading: float,
+              width: float) -> tuple[list[Segment], "_SeamBuilder"]:
+    """``[[segment]]`` in order (line, arc, turn, curve): the planar segments and the seam's
+    builder, which holds every piece."""
+    bad = rd.bad
+    if not isinstance(raw, list) or not raw:
+        raise bad("needs at least one [[segment]]")
+    segments: list[Segment] = []
+    builder = _SeamBuilder(xy, heading)
+    s = 0.0
+    for i, seg in enumerate(raw, 1):
+        where = f"segment {i}: "
+        if not isinstance(seg, dict):
+            raise bad(f"{where}must be a table")
+        kind = seg.get("type")
+        if kind not in _SEGMENT_KEYS:
+            raise bad(f"{where}type must be one of line, arc, turn, curve, got {kind!r}")
+        rd.check_keys(seg, _SEGMENT_KEYS[kind], where)
+        if kind == "turn":
+            angle = rd.number(seg, "angle_deg", where, required=True)
+            if not -180.0 < angle < 180.0:
+                raise bad(f"{where}angle_deg must be within (-180, 180), got {angle:g}")
+            heading += math.radians(angle)
+            builder.turn(math.radians(angle))
+            continue
+        if kind == "curve":
+            points = _curve_points(seg, where, rd.source, bad)
+            interp = seg.get("interpolation", "spline")
+            if interp not in ("spline", "linear"):
+                raise bad(f"{where}interpolation must be \"spline\" or \"linear\", got {interp!r}")
+            try:
+                builder.curve(points, interp)
+            except ValueError as exc:
+                raise bad(f"{where}points_mm: {exc}") from None
+            continue
+        rise = rd.number(seg, "rise_mm", where, default=0.0)
+        if kind == "line":
+            length = rd.number(seg, "length_mm", where, minimum=0.0, exclusive=True, required=True)
+            new = Segment(s, length, xy, heading)
+            builder.line(length, rise)
+        else:
+            radius = rd.number(seg, "radius_mm", where, minimum=0.0, exclusive=True, required=True)
+            angle = rd.number(seg, "angle_deg", where, required=True)
+            if radius <= width:
+                raise bad(f"{where}radius_mm ({radius:g}) must exceed width_mm ({width:g})")
+            if angle == 0.0 or abs(angle) > 360.0:
+                raise bad(f"{where}angle_deg must be non-zero and within [-360, 360], got {angle:g}")
+            sweep = math.radians(angle)
+            new = Segment(s, radius * abs(sweep), xy, heading, radius, sweep)
+            builder.arc(radius, sweep, rise)
+        segments.append(new)
+        end_xy, heading = new.end()
+        xy = (float(end_xy[0]), float(end_xy[1]))
+        s += new.length_mm
+    if not builder.pieces:
+        raise bad("needs at least one line or arc (or curve) segment")
+    return segments, builder
 
 
 def _profile(data: dict, key: str, value_name: str, bad, lo: float, hi: float = math.inf,

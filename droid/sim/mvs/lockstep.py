@@ -111,7 +111,6 @@ def mvs_lockstep(scheduler, devices: Mapping[str, Any], camera: dict[str, Any],
     reports it), ``invalid`` outside the sensor calibration's field of view.
     No pixels, no noise; use it where only the geometry matters.
     """
-    from droid.sim.lockstep import ORDER_DEVICE, ORDER_WORLD
     from droid.brain.registry import open_url
 
     uid = next(_LOCKSTEP_IDS)
@@ -124,27 +123,42 @@ def mvs_lockstep(scheduler, devices: Mapping[str, Any], camera: dict[str, Any],
     board = open_url(url, "dsp")
     calib = MvsCalibration.from_table(sensor_calibration or {}, source="mvs_lockstep sensor_calibration")
     sensor = SensorCore(calib)
-
-    def chain(what: str) -> SensorChain:
-        return SensorChain(PacedPipe(baud), SensorStatusCore(stale_ticks),
-                           MemoryDatabase(f"/{name}.{what}.status", SENSOR_STATUS_LAYOUT))
-
-    run = MvsLockstep(cam, sensor, board, chain("mvs"))
+    run = MvsLockstep(cam, sensor, board, _sensor_chain(name, "mvs", baud, stale_ticks))
     if tool is not None:
-        opts = DeviceOptions(world, "tool_sensor", dict(tool))
-        mount, core, rate = tool_parts(opts)
-        opts.done()
-        run.tool = ToolSensorDevice("tool_sensor", mount, core, output=None, rate_hz=rate)
-        run.tool_chain = chain("tool")
+        run.tool, run.tool_chain = _tool_sensor(world, tool), _sensor_chain(name, "tool", baud, stale_ticks)
     if not ideal_sensor:  # the retrace timeout in the camera's frame periods
         run.station = MvsStation(sensor, CablePort(run.mvs.pipe, lambda: scheduler.t_ns),
                                  timeout_frames=retrace_timeout_s * cam.clock.rate_hz)
+    ideal = IdealSensorCore(cam.twin.camera.workpiece, calib) if ideal_sensor else None
+    _schedule(scheduler, run, ideal, name)
+    return run
+
+
+def _sensor_chain(name: str, what: str, baud: int, stale_ticks: int) -> SensorChain:
+    """A sensor's paced line, droid-remote's core for it and its Status record."""
+    return SensorChain(PacedPipe(baud), SensorStatusCore(stale_ticks),
+                       MemoryDatabase(f"/{name}.{what}.status", SENSOR_STATUS_LAYOUT))
+
+
+def _tool_sensor(world, tool: dict[str, Any]) -> ToolSensorDevice:
+    """The tool-tip sensor from its option table (no serial output: the lockstep line takes it)."""
+    opts = DeviceOptions(world, "tool_sensor", dict(tool))
+    mount, core, rate = tool_parts(opts)
+    opts.done()
+    return ToolSensorDevice("tool_sensor", mount, core, output=None, rate_hz=rate)
+
+
+def _schedule(scheduler, run: MvsLockstep, ideal: IdealSensorCore | None, name: str) -> None:
+    """The chain's tasks on the scheduler (mvs_lockstep's docstring): camera and sensor station
+    (or the ideal sensor) at the camera's rate, the tool-tip sensor at its own, the links on
+    every heartbeat tick."""
+    from droid.sim.lockstep import ORDER_DEVICE, ORDER_WORLD
+
+    cam, sensor, board = run.camera, run.sensor, run.board
     waited = [0.0]  # frame periods since the previous slot: none at the first (the station starts there)
 
     def camera_task(t_ns: int) -> None:
         cam.frame(t_ns)
-
-    ideal = IdealSensorCore(cam.twin.camera.workpiece, calib) if ideal_sensor else None
 
     def ideal_task(t_ns: int) -> None:
         sensor.frames += 1
@@ -175,4 +189,3 @@ def mvs_lockstep(scheduler, devices: Mapping[str, Any], camera: dict[str, Any],
         scheduler.every(tool_dev.clock.rate_hz, lambda t_ns: tool_chain.pipe.write(tool_dev.line(t_ns), t_ns),
                         f"{name}.tool_sensor", order=ORDER_WORLD)
         scheduler.on_tick(link_task(tool_chain), f"{name}.tool_link")
-    return run

@@ -199,12 +199,30 @@ class ReisPlant:
     ):
         p = self.params = params if params is not None else ReisPlantParams()
         self._rng = np.random.default_rng(seed)
+        self._attach_registers(regs)
+        self._drive_constants(p)
+        self._limit_constants(p)
+        self._F0, self._G0 = self._system_matrices(np.zeros((6, 6)))  # the M(q)-free blocks
+        self._initial_state(p, initial_joint_deg)
+        self.time_s = 0.0
+        #: contact with the world (droid.sim.contact.ToolContact, or None): asked at each advance's
+        #: start for the joint torques J^T F of the environment's force on the tool, held over the
+        #: step; None (the default) or a None answer leaves the step exactly as without contact
+        self.contact = None
+        self._power_up(encoder_power_up_counts)
+
+    def _attach_registers(self, regs) -> None:
+        """The VME register map's bytes (``regs``, or a private bytearray), zeroed."""
         self.regs = regs if regs is not None else bytearray(vm.MAP_SIZE)
         self._view = memoryview(self.regs).cast("B")
         if self._view.nbytes < vm.MAP_SIZE:
             raise ValueError(f"register buffer has {self._view.nbytes} bytes, need {vm.MAP_SIZE}")
         self._view[: vm.MAP_SIZE] = bytes(vm.MAP_SIZE)
 
+    def _drive_constants(self, p: ReisPlantParams) -> None:
+        """The drive train from the robot file: gearing and coupling (motor -> link), the links'
+        rigid body (with the DH errors), the harmonic drives' stiffness and damping, the motors'
+        torque limits and friction."""
         robot = p.model
         dyn = self.dynamics = robot.dynamics
         m = robot.gearing.joint_to_counts_matrix
@@ -237,6 +255,9 @@ class ReisPlant:
         self._w0 = np.asarray(dyn.motor_no_load_speed_rad_s, float)
         self._tau_max_w0 = self._tau_max / self._w0
         self._bal = dyn.balancer_moment_nm if p.balancer else 0.0
+
+    def _limit_constants(self, p: ReisPlantParams) -> None:
+        """The home switches and hard stops [rad], and the per-advance constants as plain floats."""
         self._sw = np.radians(np.asarray(p.switch_joint_deg, float))
         self._side = np.asarray(p.switch_active_side, float)
         self._stop_min = np.radians(np.asarray(p.hard_stop_min_deg, float))
@@ -257,8 +278,10 @@ class ReisPlant:
         self._z = np.empty(36)  # the exact step's input [x; tau_motor; tau_link] (filled in place)
         self._n_substeps: dict = {}  # dt_s -> substeps per advance (validated once)
         self._tau_c_list = self._tau_c.tolist()
-        self._F0, self._G0 = self._system_matrices(np.zeros((6, 6)))  # the M(q)-free blocks
 
+    def _initial_state(self, p: ReisPlantParams, initial_joint_deg) -> None:
+        """The power-up pose (seeded spread about ``initial_joint_deg``), at rest against gravity;
+        the integrator's state."""
         if initial_joint_deg is None:
             spread = self._rng.uniform(-p.initial_spread_deg, p.initial_spread_deg, vm.N_JOINTS)
             initial_joint_deg = np.asarray(p.initial_joint_deg, float) + spread
@@ -277,12 +300,6 @@ class ReisPlant:
         self._lin_q = None  # q [rad] of the current linearisation (exact integrator)
         self._relin_rad = math.radians(p.relinearise_deg)
         self._disc: dict = {}  # dt -> (Phi, Gamma) at that linearisation
-        self.time_s = 0.0
-        #: contact with the world (droid.sim.contact.ToolContact, or None): asked at each advance's
-        #: start for the joint torques J^T F of the environment's force on the tool, held over the
-        #: step; None (the default) or a None answer leaves the step exactly as without contact
-        self.contact = None
-        self._power_up(encoder_power_up_counts)
 
     def _static_load(self, q_rad) -> np.ndarray:
         """Joint torques [N m] the drives carry to hold the links at rest: gravity minus the balancer."""

@@ -119,18 +119,32 @@ class PlannerCore:
             self.plan_id = int(cmd["cmd_id"])  # whatever was pending before homing is not replayed
             out.plan_id = self.plan_id
         if int(cmd["cmd_mode"]) != NORMAL_MODE:
-            # JOG/HOME/OFF move the arm without the planner: follow it, so that the
-            # next NORMAL command is planned from where the arm really is
-            self.int_counts = pos.copy()
-            self.ext_counts = pos.copy()
-            self.time_count = 0
-            out.encoder_cmd_int = np.rint(pos).astype(np.int32)
-            # encoder_cmd_ext is left as the agent copied it: in JOG mode it is the Brain's
-            # RELATIVE jog [counts] (§3.4) that the servo agent (droid-egm) adds once; writing the
-            # arm's absolute position there made a jog add the whole position (a runaway to the
-            # joint limits on an arm whose home is not at 0 counts)
-            out.joint_time_count = 0
-            return out
+            return self._follow_arm(pos, out)
+        stop = self._on_faults(cmd, status, pos, out)
+        new_id = int(cmd["cmd_id"])
+        if not stop and new_id != self.plan_id and int(cmd["cmd_mode"]) == NORMAL_MODE:
+            self._take_command(cmd, new_id, out)
+        self._next_waypoint(out)
+        return out
+
+    def _follow_arm(self, pos: np.ndarray, out: PlanOutput) -> PlanOutput:
+        """JOG/HOME/OFF move the arm without the planner: follow it, so that the next NORMAL
+        command is planned from where the arm really is."""
+        self.int_counts = pos.copy()
+        self.ext_counts = pos.copy()
+        self.time_count = 0
+        out.encoder_cmd_int = np.rint(pos).astype(np.int32)
+        # encoder_cmd_ext is left as the agent copied it: in JOG mode it is the Brain's
+        # RELATIVE jog [counts] (§3.4) that the servo agent (droid-egm) adds once; writing the
+        # arm's absolute position there made a jog add the whole position (a runaway to the
+        # joint limits on an arm whose home is not at 0 counts)
+        out.joint_time_count = 0
+        return out
+
+    def _on_faults(self, cmd, status, pos: np.ndarray, out: PlanOutput) -> bool:
+        """The Status faults and the link: cancel the move in progress (an over-force holds at
+        its way-point; a hard stop re-anchors at the measured position), refuse or fail a new
+        command that cannot move; True when no new command may start this tick."""
         dead = int(status["fault"]) & (FAULT_SERVO | FAULT_WATCHDOG)  # nothing can move
         force = int(status["fault"]) & FAULT_FORCE  # the F/T guard on this arm tripped (droid-ft)
         hard = not int(cmd["link_alive"]) or int(status["fault"]) & FAULT_BRAKING or dead
@@ -153,7 +167,6 @@ class PlannerCore:
                 out.cmd_result = CMD_FAILED
                 out.cmd_id = self.active_id
             out.note = f"cancelled command {self.active_id}: {stop_cause(cmd, status)}" if cancelled else ""
-        stop = hard or force
         new_id = int(cmd["cmd_id"])
         if (force and not dead and new_id != self.plan_id and int(cmd["cmd_mode"]) == NORMAL_MODE
                 and int(cmd["joint_time_count"] if int(cmd["coord"]) == JSPACE else cmd["cart_time_count"])
@@ -169,31 +182,37 @@ class PlannerCore:
             out.plan_id = out.cmd_id = new_id
             out.cmd_result = CMD_FAILED
             out.note = f"command {new_id} failed: the servo or its amplifiers are down"
-        if not stop and new_id != self.plan_id and int(cmd["cmd_mode"]) == NORMAL_MODE:
-            self.plan_id = new_id
-            out.plan_id = new_id
-            out.cmd_id = new_id
-            ticks = int(cmd["joint_time_count"] if int(cmd["coord"]) == JSPACE else cmd["cart_time_count"])
-            if ticks == STOP_TICKS:  # a stop: end the move in progress where it is and hold (issue 16)
-                if self.time_count > 0:
-                    out.note = f"command {self.active_id} stopped by command {new_id}"
-                self.ext_counts = self.int_counts.copy()
-                self.time_count = 0
-                self.active_id = new_id
-                out.cmd_result = CMD_OK
-            else:
-                try:
-                    target = self._resolve(cmd)
-                except Unreachable as exc:
-                    self.refused += 1
-                    out.cmd_result = CMD_REFUSED
-                    out.note = f"refused command {new_id}: {exc}"
-                else:
-                    self.ext_counts = target
-                    self.time_count = max(ticks, 1)
-                    self.active_id = new_id
-                    out.cmd_result = CMD_OK
-        # plan_joint_cmd(): the next interpolated way-point (thesis §4.1.7 listing)
+        return bool(hard or force)
+
+    def _take_command(self, cmd, new_id: int, out: PlanOutput) -> None:
+        """A new NORMAL command: a stop ends the move in progress where it is; any other is
+        resolved to its encoder target (or refused) and planned over its time count."""
+        self.plan_id = new_id
+        out.plan_id = new_id
+        out.cmd_id = new_id
+        ticks = int(cmd["joint_time_count"] if int(cmd["coord"]) == JSPACE else cmd["cart_time_count"])
+        if ticks == STOP_TICKS:  # a stop: end the move in progress where it is and hold (issue 16)
+            if self.time_count > 0:
+                out.note = f"command {self.active_id} stopped by command {new_id}"
+            self.ext_counts = self.int_counts.copy()
+            self.time_count = 0
+            self.active_id = new_id
+            out.cmd_result = CMD_OK
+            return
+        try:
+            target = self._resolve(cmd)
+        except Unreachable as exc:
+            self.refused += 1
+            out.cmd_result = CMD_REFUSED
+            out.note = f"refused command {new_id}: {exc}"
+        else:
+            self.ext_counts = target
+            self.time_count = max(ticks, 1)
+            self.active_id = new_id
+            out.cmd_result = CMD_OK
+
+    def _next_waypoint(self, out: PlanOutput) -> None:
+        """plan_joint_cmd(): the next interpolated way-point (thesis §4.1.7 listing)."""
         if self.time_count > 1:
             step = (self.ext_counts - self.int_counts) / self.time_count
             self.int_counts = self.int_counts + step
@@ -205,7 +224,6 @@ class PlannerCore:
         out.encoder_cmd_ext = np.rint(self.ext_counts).astype(np.int32)
         out.joint_time_count = self.time_count
         out.busy = self.time_count
-        return out
 
 
 def apply(out: PlanOutput, ctrl_command, ctrl_status, tick: int) -> None:

@@ -140,18 +140,8 @@ class ServoAgentCore:
         """One period.  ``ticked``: a relayed heartbeat tick came since the last period
         (False: the Brain or its link is silent, so a missing way-point is a real pause)."""
         status: dict = {}
-        faults = 0
         self.periods += 1
-        if report is not None:
-            status.update(encoder_pos=np.asarray(report.encoder_pos, np.int32),
-                          encoder_cmd=np.asarray(report.encoder_cmd, np.int32),
-                          homed=HOMED if report.homed else 0)
-            if report.starved:
-                faults |= FAULT_BRAKING
-            if report.fault:
-                faults |= FAULT_SERVO
-        if not report_fresh and (report is not None or self.periods > STARTUP_GRACE_PERIODS):
-            faults |= FAULT_SERVO  # silent (a servo still starting up gets a grace period)
+        faults = self._read_report(report, report_fresh, status)
         mode = int(cmd["cmd_mode"])
         cmd_id = int(cmd["cmd_id"])
         status["cmd_mode"] = mode
@@ -166,14 +156,7 @@ class ServoAgentCore:
             return AgentDecision(None, status, faults, f"servo fault {Fault(report.fault).name} "
                                                         f"(command OFF to clear)")
         if not int(cmd["link_alive"]):
-            # the way-points stopped with the link: finish the stop through the braking
-            # profile (bounded by the move's target), then fall silent (the servo holds)
-            nxt = (self._next_without_way_point(cmd["encoder_cmd_ext"], False)
-                   if mode == NORMAL_MODE and report.homed else None)
-            if nxt is not None:
-                return self._send(Mode.NORMAL, nxt, status, faults, "Brain link lost: braking")
-            self.forget_motion()
-            return AgentDecision(None, status, faults, "Brain link lost")
+            return self._link_lost(cmd, mode, report, status, faults)
         try:
             servo_mode = Mode(mode)  # the servo message carries cmd_mode's own numbers
         except ValueError:
@@ -198,42 +181,75 @@ class ServoAgentCore:
             if not report.homed:
                 servo_mode = Mode.JOG  # hold where it is until homed
             else:
-                brain_tick, planner_tick = int(cmd["brain_tick"]), int(cmd["planner_tick"])
-                silent = brain_tick - planner_tick > self.stale_ticks
-                if silent or planner_tick == self._wp_tick:
-                    # no new way-point this period: never the same one again (the servo would
-                    # stop within one period); bridge a late planner, brake if the ticks stopped
-                    nxt = self._next_without_way_point(cmd["encoder_cmd_ext"], ticked and not silent)
-                    if nxt is not None:
-                        return self._send(Mode.NORMAL, nxt, status, faults,
-                                          "planner silent: braking" if silent else "")
-                    if silent:
-                        self.forget_motion()
-                        return AgentDecision(None, status, faults, "planner silent")
-                    if self._wp is not None:  # at rest where the braking ended: hold there
-                        return self._send(Mode.NORMAL, self._wp, status, faults)
-                target = np.asarray(cmd["encoder_cmd_int"], np.int64)
-                if report.starved and np.any(np.abs(target - np.asarray(report.encoder_pos)) > self.resume_window):
-                    self.forget_motion()
-                    return AgentDecision(None, status, faults, "waiting for the planner to re-anchor")
-                if np.any(np.abs(target - np.asarray(report.encoder_cmd)) > self.max_step):
-                    faults |= FAULT_BRAKING  # tells the planner to re-anchor where the arm is
-                    self.forget_motion()
-                    return AgentDecision(None, status, faults, "way-point too far from the servo's target")
-                if self._plan is not None and self._wp_tick is not None and planner_tick > self._wp_tick:
-                    self._v = (target - self._plan) / (planner_tick - self._wp_tick)
-                send = target.astype(float)
-                if np.any(self._ahead):
-                    # the ticks came back after the arm braked ahead of the planner's way-points:
-                    # a joint the planner still drives the same way waits for them to pass it
-                    # (it does not back up); a joint the planner turned is released
-                    wait = (self._ahead * (send - self._wp) < 0) & (self._ahead * self._v > 0)
-                    send[wait] = self._wp[wait]
-                    self._ahead[~wait] = 0.0
-                self._wp, self._plan = send, target.astype(float)
-                self._wp_tick, self._missed = planner_tick, 0
-                counts = tuple(int(round(v)) for v in send)
+                return self._follow_planner(cmd, report, status, faults, ticked)
         return self._send(servo_mode, counts, status, faults)
+
+    def _read_report(self, report: sw.ServoReport | None, report_fresh: bool, status: dict) -> int:
+        """The servo's report into ``status`` (encoders, homed); its fault bits (FAULT_BRAKING when
+        it starved, FAULT_SERVO on a fault or a silence after the start-up grace)."""
+        faults = 0
+        if report is not None:
+            status.update(encoder_pos=np.asarray(report.encoder_pos, np.int32),
+                          encoder_cmd=np.asarray(report.encoder_cmd, np.int32),
+                          homed=HOMED if report.homed else 0)
+            if report.starved:
+                faults |= FAULT_BRAKING
+            if report.fault:
+                faults |= FAULT_SERVO
+        if not report_fresh and (report is not None or self.periods > STARTUP_GRACE_PERIODS):
+            faults |= FAULT_SERVO  # silent (a servo still starting up gets a grace period)
+        return faults
+
+    def _link_lost(self, cmd, mode: int, report: sw.ServoReport, status: dict, faults: int) -> AgentDecision:
+        """The way-points stopped with the link: finish the stop through the braking profile
+        (bounded by the move's target), then fall silent (the servo holds)."""
+        nxt = (self._next_without_way_point(cmd["encoder_cmd_ext"], False)
+               if mode == NORMAL_MODE and report.homed else None)
+        if nxt is not None:
+            return self._send(Mode.NORMAL, nxt, status, faults, "Brain link lost: braking")
+        self.forget_motion()
+        return AgentDecision(None, status, faults, "Brain link lost")
+
+    def _follow_planner(self, cmd, report: sw.ServoReport, status: dict, faults: int,
+                        ticked: bool) -> AgentDecision:
+        """NORMAL mode on a homed arm: the planner's new way-point, checked against the servo's
+        target; without one, bridge a late planner or brake (_next_without_way_point)."""
+        brain_tick, planner_tick = int(cmd["brain_tick"]), int(cmd["planner_tick"])
+        silent = brain_tick - planner_tick > self.stale_ticks
+        if silent or planner_tick == self._wp_tick:
+            # no new way-point this period: never the same one again (the servo would
+            # stop within one period); bridge a late planner, brake if the ticks stopped
+            nxt = self._next_without_way_point(cmd["encoder_cmd_ext"], ticked and not silent)
+            if nxt is not None:
+                return self._send(Mode.NORMAL, nxt, status, faults,
+                                  "planner silent: braking" if silent else "")
+            if silent:
+                self.forget_motion()
+                return AgentDecision(None, status, faults, "planner silent")
+            if self._wp is not None:  # at rest where the braking ended: hold there
+                return self._send(Mode.NORMAL, self._wp, status, faults)
+        target = np.asarray(cmd["encoder_cmd_int"], np.int64)
+        if report.starved and np.any(np.abs(target - np.asarray(report.encoder_pos)) > self.resume_window):
+            self.forget_motion()
+            return AgentDecision(None, status, faults, "waiting for the planner to re-anchor")
+        if np.any(np.abs(target - np.asarray(report.encoder_cmd)) > self.max_step):
+            faults |= FAULT_BRAKING  # tells the planner to re-anchor where the arm is
+            self.forget_motion()
+            return AgentDecision(None, status, faults, "way-point too far from the servo's target")
+        if self._plan is not None and self._wp_tick is not None and planner_tick > self._wp_tick:
+            self._v = (target - self._plan) / (planner_tick - self._wp_tick)
+        send = target.astype(float)
+        if np.any(self._ahead):
+            # the ticks came back after the arm braked ahead of the planner's way-points:
+            # a joint the planner still drives the same way waits for them to pass it
+            # (it does not back up); a joint the planner turned is released
+            wait = (self._ahead * (send - self._wp) < 0) & (self._ahead * self._v > 0)
+            send[wait] = self._wp[wait]
+            self._ahead[~wait] = 0.0
+        self._wp, self._plan = send, target.astype(float)
+        self._wp_tick, self._missed = planner_tick, 0
+        counts = tuple(int(round(v)) for v in send)
+        return self._send(Mode.NORMAL, counts, status, faults)
 
 
 class ServoAgentStation:

@@ -71,7 +71,7 @@ def main(argv=None) -> int:
     pub.setsockopt(zmq.SNDHWM, 4)
     bus = None
     timer = None
-    failed = False
+    loop = None
     try:
         curve.bind(cell, (pull, ep.servo), (pub, ep.servo_status))
         bus = open_vme_waiting(ep.vme, OPEN_WAIT_S)
@@ -83,55 +83,9 @@ def main(argv=None) -> int:
         timer = PeriodicTimer(int(round(1e9 / SERVO_HZ)))
         presence.ready()
         notify_ready(args.ready_fd)
-        station = ServoStation(core, bus)
-        halts = BrakeRecorder()
-        lateness_us = np.zeros(LATENESS_WINDOW, np.float32)  # the last minute of wake-ups
-        n_late = 0
-        refused_seen, refused_tick = 0, -SERVO_HZ - 1
-        while not Stop.requested:
-            periods = timer.wait(0.5)
-            if not periods:
-                continue
-            lateness_us[n_late % LATENESS_WINDOW] = timer.lateness_ns / 1e3
-            n_late += 1
-            arrived = False
-            while True:  # every 60 Hz command, in order
-                try:
-                    msg = pull.recv(zmq.NOBLOCK)
-                except zmq.Again:
-                    break
-                arrived = station.take(msg) or arrived
-            try:
-                fault_before = core.fault
-                report = station.cycle(periods)
-                if core.fault != fault_before:
-                    s = core.status()
-                    print(f"{PROG} {sub.name}: fault {s.fault.name} at servo tick {s.tick}: raw encoders "
-                          f"{station.raw}, positions {s.encoder_pos}, following error {s.following_error}, "
-                          f"{timer.overruns} overruns so far; registers re-read now: "
-                          f"{bus.read_encoders_raw()}", file=sys.stderr, flush=True)
-            except (OSError, ValueError) as exc:
-                failed = True
-                raise RuntimeFailure(f"VME access failed: {exc}") from None
-            if core.refused_resumes != refused_seen:  # at most one line per episode of refusals
-                if core.tick - refused_tick > SERVO_HZ:
-                    print(f"{PROG} {sub.name}: refused a way-point at servo tick {core.tick}: braked to rest "
-                          f"at {core.encoder_pos} and the way-point is farther than "
-                          f"{core.params.resume_window_counts} counts (a stale target; "
-                          f"{core.refused_resumes} refused so far)", file=sys.stderr, flush=True)
-                refused_seen, refused_tick = core.refused_resumes, core.tick
-            event = halts.step(core.tick, arrived, core.starved, core.encoder_pos, core.homing)
-            if event is not None:
-                print(f"{PROG} {sub.name}: halt {json.dumps(event.as_dict())}", file=sys.stderr, flush=True)
-            if report is not None:
-                pub.send(report, zmq.NOBLOCK)
-            presence.beat(0, timer.cycles, timer.overruns, timer.lateness_max_ns, bad_frames=station.bad_frames)
-        if n_late:
-            w = lateness_us[: min(n_late, LATENESS_WINDOW)]
-            print(f"{PROG} {sub.name}: {timer.cycles} cycles, {timer.overruns} overruns "
-                  f"({100.0 * timer.overruns / max(1, timer.cycles + timer.overruns):.3f} %); wake-up "
-                  f"lateness over the last {len(w)} cycles: median {np.median(w):.0f} us, p99 "
-                  f"{np.percentile(w, 99):.0f} us, max {w.max():.0f} us", file=sys.stderr, flush=True)
+        loop = _ServoLoop(sub.name, core, bus, timer, pull, pub, presence)
+        loop.run()
+        loop.report_lateness()
     finally:
         if bus is not None:
             try:
@@ -145,8 +99,93 @@ def main(argv=None) -> int:
         pub.close(0)
         curve.close()
         ctx.term()
-        presence.close(failed=failed)
+        presence.close(failed=loop is not None and loop.failed)
     return 0
+
+
+class _ServoLoop:
+    """droid-servo's 500 Hz loop (the module docstring): each period the commands that arrived,
+    one ServoStation cycle (read, core, write), its status published, the halts and refusals
+    logged.  Everything a period touches is made here, before the loop starts."""
+
+    def __init__(self, name: str, core: ServoCore, bus, timer: PeriodicTimer, pull, pub, presence) -> None:
+        self.name, self.core, self.bus, self.timer = name, core, bus, timer
+        self.pull, self.pub, self.presence = pull, pub, presence
+        self.station = ServoStation(core, bus)
+        self.halts = BrakeRecorder()
+        self.lateness_us = np.zeros(LATENESS_WINDOW, np.float32)  # the last minute of wake-ups
+        self.n_late = 0
+        self.refused_seen, self.refused_tick = 0, -SERVO_HZ - 1
+        self.failed = False  # the VME access failed (the exit is a failure)
+
+    def run(self) -> None:
+        """Until SIGTERM/SIGINT, on absolute deadlines."""
+        timer, core, station, presence = self.timer, self.core, self.station, self.presence
+        while not Stop.requested:
+            periods = timer.wait(0.5)
+            if not periods:
+                continue
+            self.lateness_us[self.n_late % LATENESS_WINDOW] = timer.lateness_ns / 1e3
+            self.n_late += 1
+            arrived = self._receive()
+            report = self._cycle(periods)
+            if core.refused_resumes != self.refused_seen:  # at most one line per episode of refusals
+                self._log_refusal()
+            event = self.halts.step(core.tick, arrived, core.starved, core.encoder_pos, core.homing)
+            if event is not None:
+                print(f"{PROG} {self.name}: halt {json.dumps(event.as_dict())}", file=sys.stderr, flush=True)
+            if report is not None:
+                self.pub.send(report, zmq.NOBLOCK)
+            presence.beat(0, timer.cycles, timer.overruns, timer.lateness_max_ns, bad_frames=station.bad_frames)
+
+    def _receive(self) -> bool:
+        """Every 60 Hz command that arrived, in order; whether one did."""
+        arrived = False
+        while True:
+            try:
+                msg = self.pull.recv(zmq.NOBLOCK)
+            except zmq.Again:
+                break
+            arrived = self.station.take(msg) or arrived
+        return arrived
+
+    def _cycle(self, periods: int):
+        """One station cycle (encoders and switches in, DACs out); its status message or None.
+        A new fault is logged with the registers re-read; a VME error ends the program."""
+        core, station = self.core, self.station
+        try:
+            fault_before = core.fault
+            report = station.cycle(periods)
+            if core.fault != fault_before:
+                s = core.status()
+                print(f"{PROG} {self.name}: fault {s.fault.name} at servo tick {s.tick}: raw encoders "
+                      f"{station.raw}, positions {s.encoder_pos}, following error {s.following_error}, "
+                      f"{self.timer.overruns} overruns so far; registers re-read now: "
+                      f"{self.bus.read_encoders_raw()}", file=sys.stderr, flush=True)
+        except (OSError, ValueError) as exc:
+            self.failed = True
+            raise RuntimeFailure(f"VME access failed: {exc}") from None
+        return report
+
+    def _log_refusal(self) -> None:
+        """A refused way-point: one line per episode (none within a second of the last)."""
+        core = self.core
+        if core.tick - self.refused_tick > SERVO_HZ:
+            print(f"{PROG} {self.name}: refused a way-point at servo tick {core.tick}: braked to rest "
+                  f"at {core.encoder_pos} and the way-point is farther than "
+                  f"{core.params.resume_window_counts} counts (a stale target; "
+                  f"{core.refused_resumes} refused so far)", file=sys.stderr, flush=True)
+        self.refused_seen, self.refused_tick = core.refused_resumes, core.tick
+
+    def report_lateness(self) -> None:
+        """The exit report: cycles, overruns, and the wake-up lateness of the last minute."""
+        timer, n_late = self.timer, self.n_late
+        if n_late:
+            w = self.lateness_us[: min(n_late, LATENESS_WINDOW)]
+            print(f"{PROG} {self.name}: {timer.cycles} cycles, {timer.overruns} overruns "
+                  f"({100.0 * timer.overruns / max(1, timer.cycles + timer.overruns):.3f} %); wake-up "
+                  f"lateness over the last {len(w)} cycles: median {np.median(w):.0f} us, p99 "
+                  f"{np.percentile(w, 99):.0f} us, max {w.max():.0f} us", file=sys.stderr, flush=True)
 
 
 if __name__ == "__main__":

@@ -172,60 +172,18 @@ class PlusTracker:
         if self.q_prev is None and q_reis_deg is not None:
             self.q_prev = np.asarray(q_reis_deg, float)
 
-        # -- the reading, placed where it was taken -------------------------------
-        if not reading.valid:
-            reading = INVALID_READING
-        used, delay_state = self.delay.filter(reading, self.travel_mm)
-        if not used.zeroed:
-            if used.valid:
-                located = locate(used) if locate is not None else (T_global_reis6_sensed, T_global_hold6_sensed)
-                if located is not None:
-                    reis_s = T_global_reis6 if located[0] is None else self._link_pose(located[0])
-                    hold_s_inv = hold_inv if located[1] is None else inv_homo(np.asarray(located[1], float))
-                    frame = hold_s_inv @ reis_s @ self.Tcamera_6 @ _seam_transform(used)  # eq. 5.1/5.3
-                    self.map.add(frame[:3, 3], frame[:3, 0])
-                    self.used_readings += 1
-            if not in_dead_zone:
-                self.invalid_run = 0 if used.valid else self.invalid_run + 1
-                if self.invalid_run > self.p.lost_cycles:
-                    return self._stop(cycle, STOP_LOST, f"lead sensor invalid for {self.invalid_run} cycles")
-
-        # -- travel: the commanded speed, from rest with the acceleration limit -----
-        dt = 1.0 / self.p.cycle_hz
-        if self.map.first_reading_s is not None:  # nothing sensed yet: stand at the start
-            self.v = min(self.p.speed_mm_s, self.v + self.p.accel_mm_s2 * dt)
-        s_next = self.s_cmd + self.v * dt
-        f = self.map.fit(s_next, wide=POSITION_WIDE) if s_next <= self.map.front_s else self.map.fit(s_next)
+        used, delay_state = self._map_reading(reading, locate, T_global_reis6, hold_inv,
+                                              (T_global_reis6_sensed, T_global_hold6_sensed))
+        if not used.zeroed and not in_dead_zone:
+            self.invalid_run = 0 if used.valid else self.invalid_run + 1
+            if self.invalid_run > self.p.lost_cycles:
+                return self._stop(cycle, STOP_LOST, f"lead sensor invalid for {self.invalid_run} cycles")
+        f = self._travel()
         if f is None:
             return self._stop(cycle, STOP_LOST, f"no seam mapped within {self.p.gap_mm:g} mm ahead of the tool "
                                                 f"(map ends at {self.map.front_s:.1f} mm)")
-        self.s_cmd = s_next
-
-        # -- integral action on depth (the measured tool against the map) ----------
-        ft = self.map.fit(self.s_tool)
-        if ft is not None and not in_dead_zone:
-            e_depth = float((tool - ft.p) @ ft.n)  # + : the tool is below the seam (into the surface)
-            self.depth_bias_mm = float(np.clip(self.depth_bias_mm + DEPTH_KI * e_depth, -DEPTH_LIMIT_MM,
-                                               DEPTH_LIMIT_MM))
-
-        # -- the tool frame: normal to the surface, the sensor aimed at the seam ahead ----
-        fo = self.map.fit(f.s_mm, wide=ORIENT_WIDE) or f  # the frame from a wider fit: no jitter of the knots
-        x = self.map.normal(f.s_mm, NORMAL_HALF_MM, fo.t)
-        t = fo.t - x * float(fo.t @ x)
-        t = t / max(float(np.linalg.norm(t)), 1e-12)
-        # where no chord of CAMERA_TO_TCP reaches the map (the end of a tight arc: the map and its
-        # extrapolation bend back toward the tool), aim at the farthest mapped seam, never along
-        # the tool's tangent (docs/seamtrack.md, "The R25 arc")
-        ahead = chord_point(self.map, f.s_mm, f.p, self.camera_to_tcp_mm, farthest=True)
-        z = (ahead.p - f.p) if ahead is not None else t
-        z = z - x * float(z @ x)
-        z = z / max(float(np.linalg.norm(z)), 1e-12)
-        z = self._smooth_aim(z, x)
-        y = np.cross(z, x)
-        T_target = np.eye(4)
-        T_target[:3, 0], T_target[:3, 1], T_target[:3, 2] = x, y, z
-        T_target[:3, 3] = f.p - self.depth_bias_mm * x
-        aim_rad = math.atan2(float(np.cross(t, z) @ x), float(t @ z))
+        self._depth_integral(tool, in_dead_zone)
+        T_target, aim_rad = self._tool_frame(f)
         reis_cmd = T_hold @ T_target @ self.T67tool_inv  # eq. 5.11
         q = None
         if self.reis_model is not None:
@@ -243,3 +201,62 @@ class PlusTracker:
         return CycleOutput(cycle=cycle, reis_cmd=reis_cmd, gmf1_cmd=self.hold_cmd, stop=None, phase=phase,
                            travel_mm=self.travel_mm, yaw_rad=aim_rad, pitch_rad=0.0, reading=used,
                            delay_state=delay_state, tcp_idx=0, queue_len=self.map.size, q_reis_deg=q)
+
+    def _map_reading(self, reading: Reading, locate, T_global_reis6, hold_inv, sensed):
+        """The reading, placed where it was taken: through the transport delay, then (when valid
+        and its capture poses are known) its seam point and tangent added to the map (eq. 5.1/5.3).
+        Returns the reading used and the delay's state."""
+        if not reading.valid:
+            reading = INVALID_READING
+        used, delay_state = self.delay.filter(reading, self.travel_mm)
+        if not used.zeroed and used.valid:
+            located = locate(used) if locate is not None else sensed
+            if located is not None:
+                reis_s = T_global_reis6 if located[0] is None else self._link_pose(located[0])
+                hold_s_inv = hold_inv if located[1] is None else inv_homo(np.asarray(located[1], float))
+                frame = hold_s_inv @ reis_s @ self.Tcamera_6 @ _seam_transform(used)  # eq. 5.1/5.3
+                self.map.add(frame[:3, 3], frame[:3, 0])
+                self.used_readings += 1
+        return used, delay_state
+
+    def _travel(self):
+        """Travel: the commanded speed, from rest with the acceleration limit; the map's fit at the
+        next commanded arc length (None: no seam mapped there; the arc length stays)."""
+        dt = 1.0 / self.p.cycle_hz
+        if self.map.first_reading_s is not None:  # nothing sensed yet: stand at the start
+            self.v = min(self.p.speed_mm_s, self.v + self.p.accel_mm_s2 * dt)
+        s_next = self.s_cmd + self.v * dt
+        f = self.map.fit(s_next, wide=POSITION_WIDE) if s_next <= self.map.front_s else self.map.fit(s_next)
+        if f is not None:
+            self.s_cmd = s_next
+        return f
+
+    def _depth_integral(self, tool: np.ndarray, in_dead_zone: bool) -> None:
+        """Integral action on depth: the measured tool against the map (not in the dead zone)."""
+        ft = self.map.fit(self.s_tool)
+        if ft is not None and not in_dead_zone:
+            e_depth = float((tool - ft.p) @ ft.n)  # + : the tool is below the seam (into the surface)
+            self.depth_bias_mm = float(np.clip(self.depth_bias_mm + DEPTH_KI * e_depth, -DEPTH_LIMIT_MM,
+                                               DEPTH_LIMIT_MM))
+
+    def _tool_frame(self, f) -> tuple[np.ndarray, float]:
+        """The tool frame in the holder's frame: normal to the surface, the sensor aimed at the
+        seam ahead; and the aim's angle from the seam's tangent [rad]."""
+        fo = self.map.fit(f.s_mm, wide=ORIENT_WIDE) or f  # the frame from a wider fit: no jitter of the knots
+        x = self.map.normal(f.s_mm, NORMAL_HALF_MM, fo.t)
+        t = fo.t - x * float(fo.t @ x)
+        t = t / max(float(np.linalg.norm(t)), 1e-12)
+        # where no chord of CAMERA_TO_TCP reaches the map (the end of a tight arc: the map and its
+        # extrapolation bend back toward the tool), aim at the farthest mapped seam, never along
+        # the tool's tangent (docs/seamtrack.md, "The R25 arc")
+        ahead = chord_point(self.map, f.s_mm, f.p, self.camera_to_tcp_mm, farthest=True)
+        z = (ahead.p - f.p) if ahead is not None else t
+        z = z - x * float(z @ x)
+        z = z / max(float(np.linalg.norm(z)), 1e-12)
+        z = self._smooth_aim(z, x)
+        y = np.cross(z, x)
+        T_target = np.eye(4)
+        T_target[:3, 0], T_target[:3, 1], T_target[:3, 2] = x, y, z
+        T_target[:3, 3] = f.p - self.depth_bias_mm * x
+        aim_rad = math.atan2(float(np.cross(t, z) @ x), float(t @ z))
+        return T_target, aim_rad
