@@ -265,6 +265,15 @@ def test_an_arm_at_rest_with_unchanged_inputs_is_not_integrated_and_gives_the_sa
     assert abs(plants[0].joint_deg[5] - q_rest[5]) > 0.1
     run(1.0, constant_commander(Mode.JOG))  # and hold it again
     assert plants[0].rest_steps > held
+    rested = plants[0].rest_steps
+    for write in (False, False, True, False):  # an encoder register written at rest resets its counter
+        for c in cells:
+            if write:
+                c.bus.write_u16(vm.ENCODER_OFFSET + 4, 1234)
+            c.plant.advance(DT)
+        assert bytes(plants[0].regs) == bytes(plants[1].regs)
+    assert plants[0].rest_steps >= rested + 3
+    run(0.2)
     for c in cells:  # the watchdog stops kicking: the amplifiers latch off, the brakes hold
         c.watchdog_running = False
     run(1.0)

@@ -78,6 +78,15 @@ _ENCODERS, _DACS, _U16 = struct.Struct(vm.ENCODERS_FORMAT), struct.Struct(vm.DAC
 # the two watchdog registers are adjacent u16s: one unpack reads both
 _WATCHDOGS = struct.Struct("<2H")
 assert vm.WATCHDOG_OFFSETS[1] == vm.WATCHDOG_OFFSETS[0] + 2 and vm.U16_FORMAT == "<H"
+# numpy.linalg.solve's own kernel (LAPACK gesv, one right-hand side) without its per-call checks and
+# error-state context (~10 us of 20 at the rigid integrator's two solves a millisecond): the same
+# routine on the same arrays, the same bits; the rigid arm's mass matrix is never singular
+try:
+    from numpy.linalg import _umath_linalg
+
+    _solve = functools.partial(_umath_linalg.solve1, signature="dd->d")
+except (ImportError, AttributeError):  # pragma: no cover - another numpy: its public solve
+    _solve = np.linalg.solve
 # AMP_STATUS's two bytes by (amps on, watchdog fault)
 _AMP_STATUS = {(on, fault): _U16.pack((vm.AMP_STATUS_POWERED if on else 0) | (vm.AMP_STATUS_WATCHDOG_FAULT if fault else 0))
                for on in (False, True) for fault in (False, True)}
@@ -278,6 +287,7 @@ class ReisPlant:
         self._relin_rad = math.radians(p.relinearise_deg)
         self._disc: dict = {}  # dt -> (Phi, Gamma) at that linearisation
         self._rest: tuple | None = None  # the key (_rest_key) of the last advance if it changed nothing
+        self._rest_out: tuple | None = None  # (encoder offsets, encoders, their bytes, switch bytes) at that rest
         self.rest_steps = 0  # advances that found the arm at rest with unchanged inputs (not integrated)
         self.time_s = 0.0
         #: contact with the world (droid.sim.contact.ToolContact, or None): asked at each advance's
@@ -402,10 +412,11 @@ class ReisPlant:
         if key is not None and key == self._rest:
             self.rest_steps += 1
             self.time_s += n * p.substep_s
-            self._write_outputs()
+            self._write_rest_outputs()
             return
         self._integrate(n, ext)
         self._rest = key if key is not None and key == self._rest_key(n) else None
+        self._rest_out = None
 
     def _rest_key(self, n: int) -> tuple:
         """Everything an advance of ``n`` substeps reads besides the constant parameters (no
@@ -415,6 +426,24 @@ class ReisPlant:
         return (n, self._amps_on, bytes(self._view[vm.DAC_OFFSET:vm.DAC_OFFSET + _DACS.size]) if self._amps_on else None,
                 self._theta.tobytes(), self._omega.tobytes(), self._q.tobytes(), self._qd.tobytes(),
                 None if lin is None else lin.tobytes())
+
+    def _write_rest_outputs(self) -> None:
+        """:meth:`_write_outputs` for an arm at rest: the encoder and switch registers' bytes are
+        functions of the state (the rest key's) and the encoder offsets, so they are packed once
+        per rest and offsets, then copied in each step (AMP_STATUS as ever)."""
+        out, offsets = self._rest_out, self._enc_offset_list
+        if out is None or out[0] != offsets:
+            self._write_outputs()
+            view = self._view
+            self._rest_out = (list(offsets), self._enc_written,
+                              bytes(view[vm.ENCODER_OFFSET:vm.ENCODER_OFFSET + _ENCODERS.size]),
+                              bytes(view[vm.LIMIT_SWITCH_OFFSET:vm.LIMIT_SWITCH_OFFSET + 2]))
+            return
+        view = self._view
+        self._enc_written = out[1]
+        view[vm.ENCODER_OFFSET:vm.ENCODER_OFFSET + _ENCODERS.size] = out[2]
+        view[vm.LIMIT_SWITCH_OFFSET:vm.LIMIT_SWITCH_OFFSET + 2] = out[3]
+        view[vm.AMP_STATUS_OFFSET:vm.AMP_STATUS_OFFSET + 2] = _AMP_STATUS[(self._amps_on, self._wd_fault)]
 
     def _integrate(self, n: int, ext) -> None:
         """One advance of ``n`` substeps from the inputs just read (``ext``: the contact's joint
@@ -633,7 +662,7 @@ class ReisPlant:
             m_tot = self.body.mass(q) + self._J_rotor_ref
             # Coulomb friction with stiction, per motor: friction opposes the motion, or holds
             # the motor at rest while the net torque is below it
-            qdd = np.linalg.solve(m_tot, tau)
+            qdd = _solve(m_tot, tau)
             w = omega + h * (self._Ainv @ qdd)
             j_eff = np.einsum("ji,jk,ki->i", A, m_tot, A)  # motor-side inertia seen by each motor
             fr = h * tau_c / j_eff  # the speed friction removes in one step [rad/s]
