@@ -647,23 +647,27 @@ class ReisPlant:
         self._write_outputs(xl[0:6], xl[12:18], q)
 
     def _steps_rigid(self, n: int, h: float, drive, tau_c, ext=None) -> None:
-        A, AinvT = self._A, self._AinvT
+        A, AinvT, Ainv = self._A, self._AinvT, self._Ainv
         theta, omega = self._theta, self._omega
         stops = self._jammed.any() or self._near_stop(n * h, self._q.tolist())
+        tau_max, w0, b, bal, j_rotor = self._tau_max, self._w0, self._b, self._bal, self._J_rotor_ref
+        amps, sin, mass = self._amps_on, math.sin, self.body.mass
+        model, data, nle = self._pin_model, self._pin_data, pin.nonLinearEffects
         for _ in range(n):
             q = A @ theta
             qd = A @ omega
-            fade = self._tau_max * (omega / self._w0) if self._amps_on else 0.0
-            tau_m = np.minimum(np.maximum(drive, -self._tau_max - fade), self._tau_max - fade)
-            tau = AinvT @ (tau_m - self._b * omega) - self.body.bias(q, qd)
-            tau[1] += self._balancer(q)
+            fade = tau_max * (omega / w0) if amps else 0.0
+            tau_m = np.minimum(np.maximum(drive, -tau_max - fade), tau_max - fade)
+            # C qd + g in Pinocchio's buffer, read at once by the subtraction (body.bias copies it)
+            tau = AinvT @ (tau_m - b * omega) - nle(model, data, q, qd)
+            tau[1] += -bal * sin(q[1])  # the balancer (_balancer)
             if ext is not None:
                 tau = tau + ext
-            m_tot = self.body.mass(q) + self._J_rotor_ref
+            m_tot = mass(q) + j_rotor
             # Coulomb friction with stiction, per motor: friction opposes the motion, or holds
             # the motor at rest while the net torque is below it
             qdd = _solve(m_tot, tau)
-            w = omega + h * (self._Ainv @ qdd)
+            w = omega + h * (Ainv @ qdd)
             j_eff = np.einsum("ji,jk,ki->i", A, m_tot, A)  # motor-side inertia seen by each motor
             fr = h * tau_c / j_eff  # the speed friction removes in one step [rad/s]
             omega = np.where(w > fr, w - fr, np.where(w < -fr, w + fr, 0.0))
