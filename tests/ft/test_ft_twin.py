@@ -246,6 +246,9 @@ def test_true_wrench_follows_the_pose_and_the_contact_to_the_bit():
         want = wrench_on_sensor(T @ np.eye(4), TOOL, 1.5, np.array([0.0, 0.0, 60.0]), tuple(contact))
         assert all(g.tobytes() == w.tobytes() for g, w in zip(got, want)), i
         got[0][:] = 0.0  # the caller's copy: the next answer does not change
+    dev.tool_mass_kg = 2.0  # another tool at the same pose
+    want = wrench_on_sensor(arm.T @ np.eye(4), TOOL, 2.0, np.array([0.0, 0.0, 60.0]), tuple(contact))
+    assert all(g.tobytes() == w.tobytes() for g, w in zip(dev.true_wrench(), want))
 
 
 # ---------------------------------------------------------------------------- the sim cell

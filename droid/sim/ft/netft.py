@@ -340,10 +340,11 @@ class NetFtTwinDevice(Device):
         hook = getattr(self.arm, "contact_wrench_N_Nm", None)
         contact = hook() if callable(hook) else None
         wcp = np.asarray(self.arm.wcp_global())
-        # a function of the wrist's pose and the contact wrench alone: unchanged to the bit (the
-        # arm at rest, no contact), the load is the one computed last time
+        # a function of the wrist's pose, the contact wrench and the tool alone: unchanged to the
+        # bit (the arm at rest, no contact), the load is the one computed last time
         key = (wcp.dtype.str, wcp.tobytes(), None if contact is None else
-               tuple((np.asarray(v).dtype.str, np.asarray(v).tobytes()) for v in contact))
+               tuple((np.asarray(v).dtype.str, np.asarray(v).tobytes()) for v in contact),
+               self.tool_mass_kg, self.tool_com_mm.tobytes(), self.T_wcp_sensor.tobytes(), self.T_sensor_tool.tobytes())
         seen = self._seen
         if seen is None or seen[0] != key:
             T_gs = wcp @ self.T_wcp_sensor

@@ -137,7 +137,7 @@ class ToolSensorCore:
         self.last: ToolReading | None = None
         self.lines = 0
         self.valid = 0
-        self._seen: tuple | None = None  # (pose key, reading) of the last step (see step)
+        self._seen: tuple | None = None  # (pose key, workpiece, reading) of the last step (see step)
 
     def reading(self, T_W_tool: np.ndarray) -> ToolReading | None:
         """The deviation, or None when the seam point is not on the workpiece."""
@@ -154,9 +154,9 @@ class ToolSensorCore:
         # holder at rest) reads what it read last time; the noise is drawn every line regardless
         key = pose_key(T_W_tool)
         seen = self._seen
-        if seen is None or seen[0] != key:
-            seen = self._seen = (key, self.reading(T_W_tool))
-        self.last = noisy(seen[1], self.noise, self.rng)
+        if seen is None or seen[0] != key or seen[1] is not self.workpiece:
+            seen = self._seen = (key, self.workpiece, self.reading(T_W_tool))
+        self.last = noisy(seen[2], self.noise, self.rng)
         values = None if self.last is None else _LineValues(self.last.height_mm, self.last.lateral_mm,
                                                             self.last.roll_rad)
         line = format_line(values, stamp_ms_of(t_ns) if (self.stamp and t_ns is not None) else None)
