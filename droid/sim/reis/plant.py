@@ -415,7 +415,8 @@ class ReisPlant:
             self._write_rest_outputs()
             return
         self._integrate(n, ext)
-        self._rest = key if key is not None and key == self._rest_key(n) else None
+        # (the motor angles first: a moving arm is told by them without the whole key)
+        self._rest = key if key is not None and self._theta.tobytes() == key[3] and key == self._rest_key(n) else None
         self._rest_out = None
 
     def _rest_key(self, n: int) -> tuple:
