@@ -4,13 +4,15 @@ Loads ``droid/sim/reis/plant.py`` from an old checkout (``--base DIR``, e.g. mad
 ``git archive COMMIT | tar -x -C DIR``) beside this checkout's, puts each behind its own
 lockstep servo and watchdog (droid.sim.reis.lockstep.ReisLockstep, seed 1), and runs the two
 in alternating 0.5 s chunks -- homing, then ``--moves`` pairs of 2 s minimum-jerk moves of all
-six joints (60-120 deg) out and back -- so both see the same load.  Prints the CPU time
-[us] per 2 ms plant advance of each (thread time around each advance) and whether the two
-plants' registers and states are bit-identical at the end.  A speed-up that is not
+six joints (60-120 deg) out and back, then ``--hold-s`` of the servo holding the last target
+(the idle cell) -- so both see the same load.  Prints the CPU time [us] per plant advance of
+each (thread time around each advance) per phase and whether the two plants' registers and
+states are bit-identical after every chunk.  ``--rigid``: the plant on rigid drives
+(``compliance=False``, droid-sim's default cell) instead of the compliant, exact one.  A speed-up that is not
 bit-identical changes the trial results (bench/fp_order_trial.py, docs/benchmarks.md).
 
 Timing is measured here, never in tests.  Usage:
-PYTHONPATH=. python bench/bench_plant_ab.py --base DIR [--moves N] [--json]
+PYTHONPATH=. python bench/bench_plant_ab.py --base DIR [--moves N] [--hold-s S] [--rigid] [--json]
 """
 from __future__ import annotations
 
@@ -22,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from droid.cli import ArgumentParser, BadInput, bounded_int, run
+from droid.cli import ArgumentParser, BadInput, bounded_float, bounded_int, run
 from droid.sim.reis.lockstep import ReisLockstep, constant_commander, min_jerk_waypoints, waypoint_commander
 from droid.subunits.reis.servo import ServoCore
 from droid.subunits.reis.servo_params import Mode
@@ -39,11 +41,12 @@ def _load(path: Path, name: str):
     return mod
 
 
-def bench(base: Path, moves: int) -> dict:
+def bench(base: Path, moves: int, hold_s: float = 5.0, rigid: bool = False) -> dict:
     mods = {"base": _load(base, "plant_base"), "this": _load(HERE, "plant_this")}
     cells, acc = {}, {}
     for name, mod in mods.items():
-        ls = ReisLockstep(mod.ReisPlant(mod.ReisPlantParams(), seed=1), ServoCore(None))
+        params = mod.ReisPlantParams(compliance=False) if rigid else mod.ReisPlantParams()
+        ls = ReisLockstep(mod.ReisPlant(params, seed=1), ServoCore(None))
         a = acc[name] = [0.0, 0]
         advance = ls.plant.advance
 
@@ -55,9 +58,21 @@ def bench(base: Path, moves: int) -> dict:
         ls.plant.advance = timed
         cells[name] = ls
 
+    pa, pb = cells["base"].plant, cells["this"].plant
+    differ = [0, 0]  # chunks compared, chunks whose registers or state differed
+
+    def same_bits() -> bool:
+        return bytes(pa.regs) == bytes(pb.regs) and pa.time_s == pb.time_s and all(
+            np.array_equal(getattr(pa, k), getattr(pb, k)) for k in ("_theta", "_omega", "_q", "_qd"))
+
+    def compare():
+        differ[0] += 1
+        differ[1] += not same_bits()
+
     def both(fn):
         for name in ("base", "this"):
             fn(cells[name])
+        compare()
     both(lambda ls: ls.run(0.05))
     home = constant_commander(Mode.HOME)
     for _ in range(80):
@@ -77,14 +92,22 @@ def bench(base: Path, moves: int) -> dict:
             for _ in range(5):
                 for n in ("base", "this"):
                     cells[n].run(0.5, cmds[n], record=False)
-    pa, pb = cells["base"].plant, cells["this"].plant
-    same = bytes(pa.regs) == bytes(pb.regs) and all(
-        np.array_equal(getattr(pa, k), getattr(pb, k)) for k in ("motor_counts", "motor_speed_counts_per_s", "joint_deg"))
-    out = {"base": str(base), "sim_s": round(cells["this"].time_s, 3), "bit_identical": bool(same)}
+                compare()
+    moved = {n: tuple(a) for n, a in acc.items()}
+    for _ in range(int(round(hold_s / 0.5))):  # the last commander holds its target: the idle cell
+        for n in ("base", "this"):
+            cells[n].run(0.5, cmds[n], record=False)
+        compare()
+    out = {"base": str(base), "rigid": rigid, "sim_s": round(cells["this"].time_s, 3),
+           "bit_identical": bool(same_bits()) and differ[1] == 0, "chunks_compared": differ[0],
+           "chunks_differing": differ[1]}
     for n, a in acc.items():
         (h_s, h_n), ok = homed[n]
+        m_s, m_n = moved[n]
         out[n] = {"homed": bool(ok), "homing_us_per_advance": round(1e6 * h_s / h_n, 1),
-                  "moves_us_per_advance": round(1e6 * (a[0] - h_s) / max(1, a[1] - h_n), 1)}
+                  "moves_us_per_advance": round(1e6 * (m_s - h_s) / max(1, m_n - h_n), 1),
+                  "hold_us_per_advance": round(1e6 * (a[0] - m_s) / max(1, a[1] - m_n), 1),
+                  "rest_steps": getattr(cells[n].plant, "rest_steps", None)}
     return out
 
 
@@ -93,20 +116,25 @@ def main(argv=None) -> int:
     parser = ArgumentParser(prog="bench_plant_ab", description=__doc__.split("\n")[0])
     parser.add_argument("--base", required=True, help="an old checkout's top directory (holds droid/sim/reis/plant.py)")
     parser.add_argument("--moves", type=bounded_int(1, 1000, "moves"), default=2, help="pairs of out-and-back moves")
+    parser.add_argument("--hold-s", type=bounded_float(0.0, 600.0, "hold"), default=5.0,
+                        help="seconds of the servo holding its last target after the moves (the idle cell)")
+    parser.add_argument("--rigid", action="store_true", help="rigid drives (compliance=False; droid-sim's default cell)")
     parser.add_argument("--json", action="store_true", help="one JSON object")
     args = parser.parse_args(argv)
     base = Path(args.base) / "droid" / "sim" / "reis" / "plant.py"
     if not base.is_file():
         raise BadInput(f"--base: {base} not found")
-    r = bench(base, args.moves)
+    r = bench(base, args.moves, args.hold_s, args.rigid)
     if args.json:
         print(json.dumps(r))
         return 0
     for n in ("base", "this"):
         v = r[n]
         print(f"{n:>5}: homing {v['homing_us_per_advance']:6.1f} us/advance, moves {v['moves_us_per_advance']:6.1f} "
-              f"us/advance (homed: {v['homed']})")
-    print(f"after {r['sim_s']} s simulated, registers and state bit-identical: {r['bit_identical']}")
+              f"us/advance, hold {v['hold_us_per_advance']:6.1f} us/advance (homed: {v['homed']}, "
+              f"advances at rest not integrated: {v['rest_steps']})")
+    print(f"{'rigid' if r['rigid'] else 'compliant'} drives, after {r['sim_s']} s simulated, registers and state "
+          f"bit-identical after each of {r['chunks_compared']} chunks: {r['bit_identical']}")
     return 0
 
 

@@ -229,6 +229,28 @@ def test_contact_wrench_hook_adds_to_the_weight():
     assert np.allclose(with_contact.true_wrench()[0] - without.true_wrench()[0], R.T @ [0.0, 0.0, 20.0])
 
 
+
+def test_true_wrench_follows_the_pose_and_the_contact_to_the_bit():
+    """true_wrench answers an unchanged pose and contact from its last answer (the arm at rest):
+    every answer is wrench_on_sensor's for the pose and contact of that moment."""
+    arm = Arm()
+    contact = [np.zeros(3), np.zeros(3)]
+    arm.contact_wrench_N_Nm = lambda: (contact[0].copy(), contact[1].copy())
+    dev = NetFtTwinDevice("ft", NetFtTwin(GAMMA), arm, np.eye(4), TOOL, 1.5, (0.0, 0.0, 60.0))
+    poses = [arm.T, arm.T, pose_to_T(800.0, 0.0, 900.0, 0.0, 90.0, 1e-12), arm.T]
+    for i, T in enumerate(poses + poses):
+        arm.T = T
+        if i == 5:
+            contact[0] = np.array([0.0, 0.0, 20.0])
+        got = dev.true_wrench()
+        want = wrench_on_sensor(T @ np.eye(4), TOOL, 1.5, np.array([0.0, 0.0, 60.0]), tuple(contact))
+        assert all(g.tobytes() == w.tobytes() for g, w in zip(got, want)), i
+        got[0][:] = 0.0  # the caller's copy: the next answer does not change
+    dev.tool_mass_kg = 2.0  # another tool at the same pose
+    want = wrench_on_sensor(arm.T @ np.eye(4), TOOL, 2.0, np.array([0.0, 0.0, 60.0]), tuple(contact))
+    assert all(g.tobytes() == w.tobytes() for g, w in zip(dev.true_wrench(), want))
+
+
 # ---------------------------------------------------------------------------- the sim cell
 
 

@@ -187,3 +187,23 @@ def test_local_nearest_search_renders_the_reference_frames_bit_for_bit(name, s, 
     pose = seam_frame(camera.workpiece, min(s, camera.workpiece.length_mm + 60.0)) @ translation(dx, dy, dz) \
         @ rot_z(yaw) @ rot_y(tilt) @ rot_x(roll)
     assert camera.profile_mm(pose).tobytes() == reference_profile_mm(camera, pose).tobytes()
+
+
+def test_a_frame_at_an_unchanged_pose_is_the_one_rendered_anew():
+    """frame() renders the noise-free profile once per pose (the arms at rest): frame for frame the
+    same columns and the same random numbers as a camera that renders every frame."""
+    from droid.sim.mvs.devices import ToolSensorCore
+    from droid.sim.mvs.tool_sensor import ToolNoise
+
+    noise = CameraNoise(jitter_px=0.5, spurious_fraction=0.05, drop_probability=0.1)
+    kept, fresh = MvsCamera(STEP, noise=noise), MvsCamera(STEP, noise=noise)
+    a, b = seam_frame(STEP, 50.0), pose_for_reading(STEP, 80.0, 1.0, -2.0, 0.05)
+    rng_k, rng_f = np.random.default_rng(3), np.random.default_rng(3)
+    tool_k, tool_f = (ToolSensorCore(STEP, ToolNoise(0.01, 0.05, 0.001, 0.1), seed=4) for _ in range(2))
+    for pose in (a, a, a.copy(), b, b, a, a):
+        fresh._seen = None  # renders every frame
+        got, want = kept.frame(pose, rng_k), fresh.frame(pose, rng_f)
+        assert (got is None and want is None) or np.array_equal(got, want)
+        tool_f._seen = None
+        assert tool_k.step(pose) == tool_f.step(pose)
+    assert rng_k.bit_generator.state == rng_f.bit_generator.state

@@ -233,3 +233,50 @@ def test_hard_stop_holds_a_joint_driven_into_it():
     run_open_loop(plant, bus, [-1500, 0, 0, 0, 0, 0], 0.1)  # and it can drive away again
     assert plant.joint_deg[0] > params.hard_stop_min_deg[0] + 0.5
     bus.close()
+
+
+def test_an_arm_at_rest_with_unchanged_inputs_is_not_integrated_and_gives_the_same_bits():
+    """The rest shortcut of advance (droid-sim's idle cell) changes no bit: a plant that never
+    takes it, stepped beside one that does through holding, a jog from rest, holding again and
+    a watchdog latch, has the same registers and state after every 50 ms."""
+    from droid.sim.reis.lockstep import NEAR_SWITCH_OFFSET_DEG, constant_commander, make_reis_cell
+    from droid.subunits.reis.servo_params import Mode
+
+    params = ReisPlantParams(compliance=False)  # droid-sim's default cell (compliant links never rest to the bit)
+    cells = [make_reis_cell(seed=21, near_switch_offset_deg=NEAR_SWITCH_OFFSET_DEG, plant_params=params)
+             for _ in range(2)]
+    cells[1].plant._rest_key = lambda n: None  # never at rest: every advance integrated
+    plants = [c.plant for c in cells]
+
+    def run(seconds, commander=None):
+        for _ in range(int(round(seconds / 0.05))):
+            for c in cells:
+                c.run(0.05, commander, record=False)
+            a, b = plants
+            assert bytes(a.regs) == bytes(b.regs) and a.time_s == b.time_s
+            for k in ("_theta", "_omega", "_q", "_qd"):
+                assert getattr(a, k).tobytes() == getattr(b, k).tobytes(), k
+
+    run(1.0)  # the servo holds the arm where it powered up
+    held = plants[0].rest_steps
+    assert held > 0 and plants[1].rest_steps == 0
+    q_rest = plants[0].joint_deg
+    run(0.5, constant_commander(Mode.JOG, (0, 0, 0, 0, 0, 40)))  # the servo's DACs start joint 6 from rest
+    assert abs(plants[0].joint_deg[5] - q_rest[5]) > 0.1
+    run(1.0, constant_commander(Mode.JOG))  # and hold it again
+    assert plants[0].rest_steps > held
+    rested = plants[0].rest_steps
+    for write in (False, False, True, False):  # an encoder register written at rest resets its counter
+        for c in cells:
+            if write:
+                c.bus.write_u16(vm.ENCODER_OFFSET + 4, 1234)
+            c.plant.advance(DT)
+        assert bytes(plants[0].regs) == bytes(plants[1].regs)
+    assert plants[0].rest_steps >= rested + 3
+    run(0.2)
+    for c in cells:  # the watchdog stops kicking: the amplifiers latch off, the brakes hold
+        c.watchdog_running = False
+    run(1.0)
+    assert not plants[0].amps_on
+    for c in cells:
+        c.close()

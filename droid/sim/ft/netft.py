@@ -312,6 +312,7 @@ class NetFtTwinDevice(Device):
         self.page: CalibrationPage | None = None
         self.serve_error = ""
         self._retry_in_s = 0.0
+        self._seen: tuple | None = None  # (wrist pose and contact key, true wrench) of true_wrench's last answer
 
     def serve(self) -> None:
         """Bind the RDT socket and start the calibration page (OSError if a port is taken);
@@ -338,8 +339,19 @@ class NetFtTwinDevice(Device):
         """The true load on the sensor now, in the sensor frame [N, N m] (the world's truth)."""
         hook = getattr(self.arm, "contact_wrench_N_Nm", None)
         contact = hook() if callable(hook) else None
-        T_gs = self.arm.wcp_global() @ self.T_wcp_sensor
-        return wrench_on_sensor(T_gs, self.T_sensor_tool, self.tool_mass_kg, self.tool_com_mm, contact)
+        wcp = np.asarray(self.arm.wcp_global())
+        # a function of the wrist's pose, the contact wrench and the tool alone: unchanged to the
+        # bit (the arm at rest, no contact), the load is the one computed last time
+        key = (wcp.dtype.str, wcp.tobytes(), None if contact is None else
+               tuple((np.asarray(v).dtype.str, np.asarray(v).tobytes()) for v in contact),
+               self.tool_mass_kg, self.tool_com_mm.tobytes(), self.T_wcp_sensor.tobytes(), self.T_sensor_tool.tobytes())
+        seen = self._seen
+        if seen is None or seen[0] != key:
+            T_gs = wcp @ self.T_wcp_sensor
+            seen = self._seen = (key, wrench_on_sensor(T_gs, self.T_sensor_tool, self.tool_mass_kg,
+                                                       self.tool_com_mm, contact))
+        f, m = seen[1]
+        return f.copy(), m.copy()
 
     def _try_serve(self, dt_s: float) -> None:
         self._retry_in_s -= dt_s

@@ -69,6 +69,8 @@ class KarelDevice(Device):
         self.bytes_in = 0
         self.bytes_out = 0
         self.halted = False  # fault injection: the KAREL program hangs (reads nothing, answers nothing)
+        self._wcp_q: tuple | None = None  # the true joint angles of the cached wrist-centre pose (dtype, bytes)
+        self._wcp = None
 
     def advance(self, dt_s: float) -> None:
         t0 = self.t_s
@@ -93,8 +95,16 @@ class KarelDevice(Device):
             self.twin.update(None)
 
     def wcp_global(self) -> np.ndarray:
-        """True wrist-centre pose (4x4, mm) in the global frame."""
-        return self.model_global.fk(self.controller.q_deg)
+        """True wrist-centre pose (4x4, mm) in the global frame (a copy: the caller's to keep).
+
+        Computed when the true joint angles change (bit for bit: the pose is a function of them
+        alone); the holder at rest costs the sensor twins no forward kinematics."""
+        q = self.controller.q_deg
+        a = np.asarray(q)
+        key = (a.dtype.str, a.tobytes())
+        if key != self._wcp_q:
+            self._wcp, self._wcp_q = self.model_global.fk(q), key
+        return self._wcp.copy()
 
     def close(self) -> None:
         self.twin.release()

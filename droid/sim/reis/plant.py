@@ -78,6 +78,25 @@ _ENCODERS, _DACS, _U16 = struct.Struct(vm.ENCODERS_FORMAT), struct.Struct(vm.DAC
 # the two watchdog registers are adjacent u16s: one unpack reads both
 _WATCHDOGS = struct.Struct("<2H")
 assert vm.WATCHDOG_OFFSETS[1] == vm.WATCHDOG_OFFSETS[0] + 2 and vm.U16_FORMAT == "<H"
+# numpy.linalg.solve's own kernel (LAPACK gesv, one right-hand side) without its per-call checks and
+# error-state context (~10 us of 20 at the rigid integrator's two solves a millisecond): the same
+# routine on the same arrays, the same bits; the rigid arm's mass matrix is never singular
+def _gesv():
+    """numpy's private kernel if this numpy has it and it answers as ``np.linalg.solve`` does on
+    a check system (bit for bit), else the public ``np.linalg.solve``."""
+    try:
+        from numpy.linalg import _umath_linalg
+
+        fast = functools.partial(_umath_linalg.solve1, signature="dd->d")
+        a, b = np.array([[4.0, 1.0, 0.5], [1.0, 3.0, 0.25], [0.5, 0.25, 2.0]]), np.array([1.0, -2.0, 0.7])
+        if fast(a, b).tobytes() == np.linalg.solve(a, b).tobytes():
+            return fast
+    except Exception:  # noqa: BLE001 - another numpy: any failure means the public solve  # pragma: no cover
+        pass
+    return np.linalg.solve  # pragma: no cover
+
+
+_solve = _gesv()
 # AMP_STATUS's two bytes by (amps on, watchdog fault)
 _AMP_STATUS = {(on, fault): _U16.pack((vm.AMP_STATUS_POWERED if on else 0) | (vm.AMP_STATUS_WATCHDOG_FAULT if fault else 0))
                for on in (False, True) for fault in (False, True)}
@@ -300,6 +319,9 @@ class ReisPlant:
         self._lin_q = None  # q [rad] of the current linearisation (exact integrator)
         self._relin_rad = math.radians(p.relinearise_deg)
         self._disc: dict = {}  # dt -> (Phi, Gamma) at that linearisation
+        self._rest: tuple | None = None  # the key (_rest_key) of the last advance if it changed nothing
+        self._rest_out: tuple | None = None  # (encoder offsets, encoders, their bytes, switch bytes) at that rest
+        self.rest_steps = 0  # advances that found the arm at rest with unchanged inputs (not integrated)
 
     def _static_load(self, q_rad) -> np.ndarray:
         """Joint torques [N m] the drives carry to hold the links at rest: gravity minus the balancer."""
@@ -407,6 +429,54 @@ class ReisPlant:
             self._n_substeps[dt_s] = n
         self._read_inputs(dt_s)
         ext = None if self.contact is None else self.contact.joint_torque(self.body, self._q, self._qd, dt_s)
+        # An arm at rest whose inputs did not change: the last step computed exactly this one's
+        # arguments and left the state bit for bit as it found it, so this one would too (the
+        # integration is a pure function of what the key holds; the outputs are still written).
+        # Rigid drives and the substep integrator only: the exact integrator's compliant links
+        # never come to rest to the last bit (measured: no such step in 10 s of holding), so
+        # there the key would be a cost without a use.
+        key = None if ext is not None or self._any_jammed or self._exact else self._rest_key(n)
+        if key is not None and key == self._rest:
+            self.rest_steps += 1
+            self.time_s += n * p.substep_s
+            self._write_rest_outputs()
+            return
+        self._integrate(n, ext)
+        # (the motor angles first: a moving arm is told by them without the whole key)
+        self._rest = key if key is not None and self._theta.tobytes() == key[3] and key == self._rest_key(n) else None
+        self._rest_out = None
+
+    def _rest_key(self, n: int) -> tuple:
+        """Everything an advance of ``n`` substeps reads besides the constant parameters (no
+        contact force, no jammed motor): the state, the linearisation of the exact integrator,
+        the amplifiers' power and, when powered, the DAC registers."""
+        lin = self._lin_q
+        return (n, self._amps_on, bytes(self._view[vm.DAC_OFFSET:vm.DAC_OFFSET + _DACS.size]) if self._amps_on else None,
+                self._theta.tobytes(), self._omega.tobytes(), self._q.tobytes(), self._qd.tobytes(),
+                None if lin is None else lin.tobytes())
+
+    def _write_rest_outputs(self) -> None:
+        """:meth:`_write_outputs` for an arm at rest: the encoder and switch registers' bytes are
+        functions of the state (the rest key's) and the encoder offsets, so they are packed once
+        per rest and offsets, then copied in each step (AMP_STATUS as ever)."""
+        out, offsets = self._rest_out, self._enc_offset_list
+        if out is None or out[0] != offsets:
+            self._write_outputs()
+            view = self._view
+            self._rest_out = (list(offsets), self._enc_written,
+                              bytes(view[vm.ENCODER_OFFSET:vm.ENCODER_OFFSET + _ENCODERS.size]),
+                              bytes(view[vm.LIMIT_SWITCH_OFFSET:vm.LIMIT_SWITCH_OFFSET + 2]))
+            return
+        view = self._view
+        self._enc_written = out[1]
+        view[vm.ENCODER_OFFSET:vm.ENCODER_OFFSET + _ENCODERS.size] = out[2]
+        view[vm.LIMIT_SWITCH_OFFSET:vm.LIMIT_SWITCH_OFFSET + 2] = out[3]
+        view[vm.AMP_STATUS_OFFSET:vm.AMP_STATUS_OFFSET + 2] = _AMP_STATUS[(self._amps_on, self._wd_fault)]
+
+    def _integrate(self, n: int, ext) -> None:
+        """One advance of ``n`` substeps from the inputs just read (``ext``: the contact's joint
+        torques or None): the state, ``time_s`` and the output registers."""
+        p = self.params
         lo, hi = vm.DAC_MIN, vm.DAC_MAX
         h = p.substep_s
         cache = self._q_list
@@ -605,23 +675,27 @@ class ReisPlant:
         self._write_outputs(xl[0:6], xl[12:18], q)
 
     def _steps_rigid(self, n: int, h: float, drive, tau_c, ext=None) -> None:
-        A, AinvT = self._A, self._AinvT
+        A, AinvT, Ainv = self._A, self._AinvT, self._Ainv
         theta, omega = self._theta, self._omega
         stops = self._jammed.any() or self._near_stop(n * h, self._q.tolist())
+        tau_max, w0, b, bal, j_rotor = self._tau_max, self._w0, self._b, self._bal, self._J_rotor_ref
+        amps, sin, mass = self._amps_on, math.sin, self.body.mass
+        model, data, nle = self._pin_model, self._pin_data, pin.nonLinearEffects
         for _ in range(n):
             q = A @ theta
             qd = A @ omega
-            fade = self._tau_max * (omega / self._w0) if self._amps_on else 0.0
-            tau_m = np.minimum(np.maximum(drive, -self._tau_max - fade), self._tau_max - fade)
-            tau = AinvT @ (tau_m - self._b * omega) - self.body.bias(q, qd)
-            tau[1] += self._balancer(q)
+            fade = tau_max * (omega / w0) if amps else 0.0
+            tau_m = np.minimum(np.maximum(drive, -tau_max - fade), tau_max - fade)
+            # C qd + g in Pinocchio's buffer, read at once by the subtraction (body.bias copies it)
+            tau = AinvT @ (tau_m - b * omega) - nle(model, data, q, qd)
+            tau[1] += -bal * sin(q[1])  # the balancer (_balancer)
             if ext is not None:
                 tau = tau + ext
-            m_tot = self.body.mass(q) + self._J_rotor_ref
+            m_tot = mass(q) + j_rotor
             # Coulomb friction with stiction, per motor: friction opposes the motion, or holds
             # the motor at rest while the net torque is below it
-            qdd = np.linalg.solve(m_tot, tau)
-            w = omega + h * (self._Ainv @ qdd)
+            qdd = _solve(m_tot, tau)
+            w = omega + h * (Ainv @ qdd)
             j_eff = np.einsum("ji,jk,ki->i", A, m_tot, A)  # motor-side inertia seen by each motor
             fr = h * tau_c / j_eff  # the speed friction removes in one step [rad/s]
             omega = np.where(w > fr, w - fr, np.where(w < -fr, w + fr, 0.0))

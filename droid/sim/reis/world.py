@@ -69,7 +69,7 @@ class ReisDevice(Device):
         self.model = model
         self.door = door
         self._latch_told = False
-        self._wcp_at_s: float | None = None  # world time of the cached true wrist-centre pose [s]
+        self._wcp_q: bytes | None = None  # the true joint angles of the cached wrist-centre pose (their bytes)
         self._wcp = None
         self._truth_due_s = 0.0  # world time of the next truth-door write [s]
 
@@ -88,11 +88,13 @@ class ReisDevice(Device):
     def wcp_global(self) -> np.ndarray:
         """The true wrist-centre pose (4x4, mm, global frame): the true arm at its true angles.
 
-        Computed once per world step and shared by every device that asks in that step (the
-        truth door, the F/T twin, the sensor twins on this arm); callers must not modify it."""
-        t = self.plant.time_s
-        if self._wcp_at_s != t:
-            self._wcp, self._wcp_at_s = self.model.base @ self.plant.wcp_true(), t
+        Computed when the true joint angles change (bit for bit: the pose is a function of them
+        alone) and shared by every device that asks meanwhile (the truth door, the F/T twin, the
+        sensor twins on this arm): an arm at rest costs no forward kinematics.  Callers must
+        not modify it."""
+        q = self.plant.joint_deg.tobytes()
+        if self._wcp_q != q:
+            self._wcp, self._wcp_q = self.model.base @ self.plant.wcp_true(), q
         return self._wcp
 
     def contact_wrench_N_Nm(self) -> tuple[np.ndarray, np.ndarray]:
