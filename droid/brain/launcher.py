@@ -92,7 +92,7 @@ def cell_programs(cell: Cell, hosts: set[str] | None = None) -> tuple[list[Spec]
 
 #: Share of this host's CPUs a cell may ask for before droid-cell up warns: above it the
 #: heartbeat's exchanges start to miss (docs/benchmarks.md "Scale", bench/bench_scale.py).
-HOST_CPU_BUDGET = 0.8
+HOST_CPU_BUDGET = 0.7
 
 
 @dataclass

@@ -36,7 +36,7 @@ PACKAGE = DevicePackage(
     # scheduler it went 70-100 ms without a record while the pressing cell held both cores.
     programs=(Program("droid-ft", "droid.subunits.ft.prog", sched="fifo", priority=53,
                       description="reads the sensor's RDT stream at its URL's rate_hz into its Status",
-                      cpu_pct=3.0, rss_mb=44),),
+                      cpu_pct=4.0, rss_mb=44),),
     drivers=(Driver("ft", tuple(DRIVER_CLASSES), "droid.subunits.ft.rdt:open_ft",
                     "netft://HOST[:PORT][?rate_hz=HZ&http_port=N&bias=0|1]"),),
     twins=(Twin("netft", "droid.sim.ft.netft:make_netft", serves=("ft6",), cpu_pct=1.0),),

@@ -28,7 +28,7 @@ PACKAGE = DevicePackage(
     name="joystick",
     description="a Linux joystick device read into its subunit's Status (docs/joystick.md)",
     classes=(JOYSTICK,),
-    programs=(Program("droid-joystick", "droid.subunits.joystick.prog", rate_hz=100.0, cpu_pct=1.5,
+    programs=(Program("droid-joystick", "droid.subunits.joystick.prog", rate_hz=100.0, cpu_pct=2.0,
                       rss_mb=37),),
     drivers=(Driver("joystick", tuple(DRIVER_CLASSES), "droid.subunits.joystick.driver:open_joystick",
                     "js:///dev/input/jsN or evdev:///dev/input/eventN[?min=LO&max=HI]"),),

@@ -16,13 +16,13 @@ PACKAGE = DevicePackage(
     serves=("line_laser", "arm6r"),  # arm6r: its fixed_arm twin stands in for an arm
     programs=(
         Program("droid-mvs", "droid.subunits.mvs.sensor", rate_hz=FRAME_RATE_HZ, sched="fifo", priority=48,
-                cpu_pct=1.5, rss_mb=41),
+                cpu_pct=2.0, rss_mb=41),
         Program("droid-mvs-board", "droid.sim.mvs.dsp", role="tool",
                 description="a stand-alone DSP board twin for the sensor alone"),
     ),
     drivers=(Driver("dsp", ("shm", "inproc"), "droid.subunits.mvs.dsp:open_dsp", "shm://NAME or inproc://NAME"),),
     twins=(
-        Twin("mvs_camera", "droid.sim.mvs.devices:mvs_camera", serves=("line_laser",), cpu_pct=1.0),
+        Twin("mvs_camera", "droid.sim.mvs.devices:mvs_camera", serves=("line_laser",), cpu_pct=1.5),
         Twin("tool_sensor", "droid.sim.mvs.devices:tool_sensor", serves=("line_laser",), cpu_pct=2.5),
         Twin("fixed_arm", "droid.sim.mvs.arm:fixed_arm", serves=("arm6r",), cpu_pct=0.5),
     ),
