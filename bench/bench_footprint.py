@@ -73,15 +73,21 @@ def cpu_ticks(pid: int) -> int:
     return int(fields[11]) + int(fields[12])
 
 
+def cpu_snapshot(pids: dict[str, int]) -> dict[str, int]:
+    """name -> utime + stime [clock ticks] of every program still alive."""
+    got = {}
+    for name, pid in pids.items():
+        try:
+            got[name] = cpu_ticks(pid)
+        except OSError:
+            pass
+    return got
+
+
 def sample(pids: dict[str, int], seconds: float) -> dict[str, dict[str, float]]:
     """Memory at the end and CPU [% of one core] over ``seconds`` of every program still alive."""
     t0 = time.monotonic()
-    c0 = {}
-    for name, pid in pids.items():
-        try:
-            c0[name] = cpu_ticks(pid)
-        except OSError:
-            pass
+    c0 = cpu_snapshot(pids)
     time.sleep(seconds)
     dt = time.monotonic() - t0
     rows = {}

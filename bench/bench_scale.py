@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import os
 import re
-import subprocess
 import sys
 import tempfile
 import threading
@@ -40,7 +39,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from bench_footprint import cpu_ticks, memory_mb  # noqa: E402
+from bench_footprint import TICKS_PER_S, cpu_snapshot, memory_mb  # noqa: E402
 from bench_under_load import TickLateness, cyclictest, droid, status_json  # noqa: E402
 
 from droid.brain.cellfile import builtin_cell_path, load_cell  # noqa: E402
@@ -115,19 +114,9 @@ def one(n: int, args, tmp: Path) -> dict:
         hb.start()
         ft.start()
         w0 = time.monotonic()
-        c0 = {}
-        for name, pid in pids.items():
-            try:
-                c0[name] = cpu_ticks(pid)
-            except OSError:
-                pass
+        c0 = cpu_snapshot(pids)
         got["idle_pct"] = host_idle_pct(args.seconds)
-        c1 = {}
-        for name, pid in pids.items():
-            try:
-                c1[name] = cpu_ticks(pid)
-            except OSError:
-                pass
+        c1 = cpu_snapshot(pids)
         dt = time.monotonic() - w0  # the CPU window: from the first read to the last
         ft.join(args.seconds + 30)
         got["lateness"] = hb.stop()
@@ -138,7 +127,7 @@ def one(n: int, args, tmp: Path) -> dict:
         biggest = ("", 0.0)
         for name, pid in pids.items():
             try:
-                cpu += (c1[name] - c0[name]) / os.sysconf("SC_CLK_TCK") / dt * 100.0
+                cpu += (c1[name] - c0[name]) / TICKS_PER_S / dt * 100.0
                 mem = memory_mb(pid)
             except (OSError, KeyError):
                 continue
