@@ -27,12 +27,10 @@ the date and the load average it prints, in docs/benchmarks.md.
 from __future__ import annotations
 
 import os
-import re
 import sys
 import tempfile
 import threading
 import time
-import uuid
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -40,6 +38,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
 from bench_footprint import TICKS_PER_S, cpu_snapshot, memory_mb  # noqa: E402
+from bench_footprint import make_cell as footprint_cell  # noqa: E402
 from bench_under_load import TickLateness, cyclictest, droid, status_json  # noqa: E402
 
 from droid.brain.cellfile import builtin_cell_path, load_cell  # noqa: E402
@@ -68,11 +67,9 @@ buttons = 8
 
 
 def make_cell(tmp: Path, source: Path, n: int, rate_hz: float) -> Path:
-    name = f"sc{n}x{uuid.uuid4().hex[:5]}"
-    text = source.read_text()
-    text = re.sub(r'(?m)^name = "[^"]*"', f'name = "{name}"\nrun_dir = "{tmp}/run"', text, count=1)
-    path = tmp / f"{name}.toml"
-    path.write_text(text + "".join(joystick_block(k, rate_hz) for k in range(n)))  # new tables, appended
+    """A renamed copy of ``source`` (bench_footprint's) with ``n`` extra joysticks appended."""
+    path = footprint_cell(tmp, source)
+    path.write_text(path.read_text() + "".join(joystick_block(k, rate_hz) for k in range(n)))  # new tables
     return path
 
 

@@ -397,7 +397,7 @@ def twin(typ: str) -> Twin:
 
 def twin_factory(typ: str) -> Callable:
     """The factory of world twin ``typ`` (imported now); KeyError if none is registered."""
-    return resolve(registry().twins[typ].factory)
+    return resolve(twin(typ).factory)
 
 
 # -- the one URL opener (pyserial's serial_for_url) -----------------------------------

@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import io
 import json
+import re
+import sys
 import time
+from pathlib import Path
 
 from droid.brain import launcher
-from droid.brain.cellfile import load_cell
+from droid.brain.cellfile import builtin_cell_path, load_cell
 from droid.brain.program import Presence, RateWatch
 from droid.brain.shmdb import unlink_database
 from tests.brain.cellutil import make_cell_file
@@ -99,18 +102,12 @@ def test_status_shows_a_lagging_program(tmp_path, cell_name, capsys, monkeypatch
 
 # -- droid-cell up: a cell that asks for more than the host can carry ---------------------
 def _cell_with_joysticks(tmp_path, name, n):
-    import sys
-    from pathlib import Path
-
+    """The default cell plus ``n`` joysticks, as bench/bench_scale.py brings it up, named ``name``."""
     sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
     from bench_scale import make_cell
 
-    from droid.brain.cellfile import builtin_cell_path
-
     path = make_cell(tmp_path, builtin_cell_path(), n, 60.0)
-    text = path.read_text()
-    import re
-    path.write_text(re.sub(r'(?m)^name = "[^"]*"', f'name = "{name}"', text, count=1))
+    path.write_text(re.sub(r'(?m)^name = "[^"]*"', f'name = "{name}"', path.read_text(), count=1))
     return path
 
 
