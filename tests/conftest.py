@@ -117,6 +117,20 @@ def cell_logs(request) -> list[str]:
     return sorted(str(p) for p in tmp.glob("**/logs/*.log")) if tmp is not None else []
 
 
+#: The funcarg a module-scoped shared cell is handed out by (tests/tasks/test_seamtrack_cell.py):
+#: its program logs live beside its cell file, not under the test's tmp_path.
+SHARED_CELL_ARG = "homed_sim_cell"
+
+
+def log_dirs(item) -> list:
+    """Where a test's cell logs are: its tmp_path, and the folder of a shared cell it used."""
+    args = getattr(item, "funcargs", {})
+    dirs = [args["tmp_path"]] if args.get("tmp_path") is not None else []
+    if args.get(SHARED_CELL_ARG) is not None:
+        dirs.append(args[SHARED_CELL_ARG].parent)
+    return dirs
+
+
 @pytest.fixture(autouse=True)
 def no_leaks(monkeypatch, request):
     """Fail a test that leaves droid shm objects, semaphores or processes behind, or the
@@ -158,12 +172,18 @@ def no_leaks(monkeypatch, request):
                           "another live cell")
 
 
-@pytest.fixture
-def cell_name(request) -> str:
-    """A cell name unique to this test (so shm names never collide)."""
+def new_cell_name() -> str:
+    """A cell name unique to this pytest run (so shm names never collide), counted as ours by
+    :func:`droid_shm_entries`."""
     name = f"t{uuid.uuid4().hex[:10]}"
     _MY_CELLS.add(name)
     return name
+
+
+@pytest.fixture
+def cell_name(request) -> str:
+    """A cell name unique to this test (so shm names never collide)."""
+    return new_cell_name()
 
 
 @pytest.fixture
@@ -208,17 +228,80 @@ def pytest_runtest_makereport(item, call):
     report = outcome.get_result()
     if report.passed or report.skipped:
         return
-    tmp_path = item.funcargs.get("tmp_path") if hasattr(item, "funcargs") else None
-    if tmp_path is None:
-        return
     parts = []
-    for log in sorted(tmp_path.glob("**/logs/*.log")):
+    for log in sorted(p for d in log_dirs(item) for p in d.glob("**/logs/*.log")):
         try:
             lines = log.read_text(errors="replace").splitlines()
         except OSError:
             continue
         if lines:
-            parts.append(f"--- {log.relative_to(tmp_path)} (last {min(len(lines), LOG_TAIL_LINES)} "
+            parts.append(f"--- {log} (last {min(len(lines), LOG_TAIL_LINES)} "
                          f"of {len(lines)} lines)\n" + "\n".join(lines[-LOG_TAIL_LINES:]))
     if parts:
         report.sections.append(("cell logs", "\n".join(parts)))
+
+
+HOMED_ARMS = ("arm1", "gmf1")  # the built-in sim cell's arms, homed in this order
+
+
+@pytest.fixture(scope="module")
+def shared_sim_cell(tmp_path_factory):
+    """The built-in simulated cell brought up once for a module and both arms homed (issue 28
+    item 5: live tests share a homed cell where a test does not need a fresh one); brought
+    down after the module's last test, with the same proofs as a test's own cell: ``down``
+    succeeds, nothing of the cell stays in /dev/shm, and none of its programs runs on.
+
+    Its programs carry a tag of their own (not a test's), so each test's leak check sees them
+    neither as its own nor as leaked; they are checked here instead.  Homing costs about 40 s
+    of real time a cell, which is what the sharing saves.  Tests use it through
+    :func:`homed_sim_cell`, which checks it is still whole before each test."""
+    from tests.brain.cellutil import brought_down, droid, make_cell_file
+
+    name = new_cell_name()
+    path = make_cell_file(tmp_path_factory.mktemp("shared"), name)
+    tag, old = uuid.uuid4().hex, os.environ.get(LEAK_TAG_ENV)
+    try:
+        with brought_down(path, name):
+            os.environ[LEAK_TAG_ENV] = tag
+            out = droid("droid.brain.launcher", "up", "--cell", str(path), timeout=120)
+            _restore_env(LEAK_TAG_ENV, old)
+            assert out.returncode == 0, out.stdout + out.stderr
+            for arm in HOMED_ARMS:
+                out = droid("droid.tasks.home", arm, "--cell", str(path), timeout=120)
+                assert out.returncode == 0, out.stderr
+            yield path
+    finally:
+        _restore_env(LEAK_TAG_ENV, old)
+        deadline = time.monotonic() + 5.0
+        while tagged_pids(tag) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        left = tagged_pids(tag)
+        for pid in left:
+            os.kill(pid, 9)
+        assert not left, f"the shared cell {name} left processes running: {sorted(left)}"
+
+
+def _restore_env(key: str, old: str | None) -> None:
+    if old is None:
+        os.environ.pop(key, None)
+    else:
+        os.environ[key] = old
+
+
+@pytest.fixture
+def homed_sim_cell(shared_sim_cell):
+    """The module's shared homed cell (:func:`shared_sim_cell`), checked whole before the test:
+    every program live, both arms homed and without a fault -- a test that broke it fails the
+    next one here, naming what it left, rather than somewhere in the middle of a run."""
+    import json
+
+    from tests.brain.cellutil import cell_status, droid
+
+    dead = [r["name"] for r in cell_status(shared_sim_cell) if not r.get("live")]
+    assert not dead, f"an earlier test left the shared cell with programs not live: {dead}"
+    for arm in HOMED_ARMS:
+        out = droid("droid.tasks.snoop", arm, "--json", "--count", "1", "--cell", str(shared_sim_cell))
+        assert out.returncode == 0, out.stderr
+        st = json.loads(out.stdout)
+        assert st["homed"] == 1 and not st["fault"], f"an earlier test left {arm} so: {st}"
+    return shared_sim_cell

@@ -1,7 +1,11 @@
 """droid-seamtrack on the real-time process cell (issue 7; thesis §5.5, §6.1).
 
-Each test brings its own simulated cell up and down (the leak fixture proves
-nothing stays).  No timing decides a verdict: waits are generous polls, and the
+The tests on a cell share one, brought up and homed once for the module
+(tests/conftest.py ``shared_sim_cell``: homing costs about 40 s a cell); each checks it
+whole before it starts (``homed_sim_cell``).  They run in the order written, which each
+leaves fit for the next: "seam lost" first, while the holder is still at home; the tracking
+runs move both arms to their start themselves; the servo fault last, as it breaks the cell.
+The cell is brought down after the module and the leak checks prove nothing stays.  No timing decides a verdict: waits are generous polls, and the
 tracking tolerances are stated below.
 """
 from __future__ import annotations
@@ -48,12 +52,6 @@ def snoop(cell, sub):
     return json.loads(out.stdout)
 
 
-def home_both(cell):
-    for arm in ("arm1", "gmf1"):
-        out = droid("droid.tasks.home", arm, "--cell", str(cell), timeout=120)
-        assert out.returncode == 0, out.stderr
-
-
 def read_log(path):
     with open(path, newline="") as f:
         rows = list(csv.reader(f))
@@ -82,10 +80,30 @@ def assert_agrees_with_lockstep(d, travel, settled, ls, bound_mm: float = AGREE_
         assert float(np.nanmean(diff)) <= bound_mm, (name, float(np.nanmean(diff)))
 
 
-def test_track_the_step_seam_end_to_end_and_agree_with_lockstep(sim_cell, tmp_path):
-    home_both(sim_cell)
+def test_seam_lost_when_the_sensor_sees_no_seam(homed_sim_cell, tmp_path):
+    """The holder stays at home, so the workpiece is nowhere near the sensor: after the
+    dead zone the lead sensor is invalid, and the run stops as 'seam lost' (exit 1)."""
+    T_reis, _ = load_layout().start_poses("i")
+    out = droid("droid.tasks.move", "--cell", str(homed_sim_cell), "arm1", "cart", "--",
+                *[f"{v:.6f}" for v in T_to_pose(T_reis)], "3", timeout=60)
+    assert out.returncode == 0, out.stderr
+    before = snoop(homed_sim_cell, "arm1")
+    out = run("8", "--dead-zone", "5", "--lost-cycles", "10", "--log", str(tmp_path / "lost.csv"), cell=homed_sim_cell)
+    assert out.returncode == 1, out.stderr
+    assert "stopped: seam lost" in out.stderr
+    assert "seam LOST at s" in out.stdout
+    d = read_log(tmp_path / "lost.csv")
+    assert np.all(np.isnan(d["lead_lateral_mm"]))
+    # straight on for the dead zone and the lost cycles (5 + 11 cycles of 8/30 mm), then stop
+    after = snoop(homed_sim_cell, "arm1")
+    moved = math.dist([before["x"], before["y"], before["z"]], [after["x"], after["y"], after["z"]])
+    assert moved <= 16 * 8 / 30 + 1.0
+    assert_standing(homed_sim_cell)
+
+
+def test_track_the_step_seam_end_to_end_and_agree_with_lockstep(homed_sim_cell, tmp_path):
     log, fig = tmp_path / "run.csv", tmp_path / "run.png"
-    out = run("8", "--start", "i", "--length", "220", "--log", str(log), "--figure", str(fig), cell=sim_cell)
+    out = run("8", "--start", "i", "--length", "220", "--log", str(log), "--figure", str(fig), cell=homed_sim_cell)
     assert out.returncode == 0, out.stderr
     assert "stopped: end of seam" in out.stderr
     line = out.stdout.splitlines()[0]
@@ -104,9 +122,9 @@ def test_track_the_step_seam_end_to_end_and_agree_with_lockstep(sim_cell, tmp_pa
     assert np.isfinite(lat).sum() >= 10 and np.isfinite(dep).sum() >= 10
     assert math.sqrt(np.nanmean(lat ** 2)) <= RT_RMS_LATERAL_MM
     assert math.sqrt(np.nanmean(dep ** 2)) <= RT_RMS_DEPTH_MM
-    assert_standing(sim_cell)
+    assert_standing(homed_sim_cell)
     # the holder was held where the layout puts it
-    g = snoop(sim_cell, "gmf1")
+    g = snoop(homed_sim_cell, "gmf1")
     _, T_hold = load_layout().start_poses("i")
     assert np.allclose([g["x"], g["y"], g["z"]], T_hold[:3, 3], atol=0.5)
 
@@ -118,14 +136,13 @@ def test_track_the_step_seam_end_to_end_and_agree_with_lockstep(sim_cell, tmp_pa
     assert_agrees_with_lockstep(d, travel, settled, ls)
 
 
-def test_plus_mode_holds_its_speed_on_the_real_time_cell_and_agrees_with_lockstep(sim_cell, tmp_path):
+def test_plus_mode_holds_its_speed_on_the_real_time_cell_and_agrees_with_lockstep(homed_sim_cell, tmp_path):
     """Issue 12: plus mode at 16 mm/s over the step seam from position (i): the achieved travel
     speed within 5 % of the commanded one, the summary line prints both, the tool on the seam
     (generous: 1 mm RMS), and the same trial in lockstep (the full arm model) agrees within
     AGREE_MEAN_MM on average after settling.  Lockstep measures 0.04 mm lateral RMS, 16.0 mm/s."""
-    home_both(sim_cell)
     log = tmp_path / "plus.csv"
-    out = run("16", "--mode", "plus", "--start", "i", "--length", "300", "--log", str(log), cell=sim_cell,
+    out = run("16", "--mode", "plus", "--start", "i", "--length", "300", "--log", str(log), cell=homed_sim_cell,
               timeout=180)
     assert out.returncode == 0, out.stderr
     line = out.stdout.splitlines()[0]
@@ -137,7 +154,7 @@ def test_plus_mode_holds_its_speed_on_the_real_time_cell_and_agrees_with_lockste
     assert abs(speed / 16.0 - 1.0) <= 0.05, speed
     lat = d["tool_lateral_mm"][settled]
     assert np.isfinite(lat).sum() >= 20 and math.sqrt(np.nanmean(lat ** 2)) <= 1.0
-    assert_standing(sim_cell)
+    assert_standing(homed_sim_cell)
     from droid.experiments.trial import TrialConfig, run_trial
 
     ls = run_trial(TrialConfig("agree", "i", 16.0, length_mm=300.0, seed=1, arm="full", mode="plus"))
@@ -164,10 +181,9 @@ def start_tracking(cell, log):
     return proc
 
 
-def test_sigint_stops_the_run_cleanly_and_says_so(sim_cell, tmp_path):
-    home_both(sim_cell)
+def test_sigint_stops_the_run_cleanly_and_says_so(homed_sim_cell, tmp_path):
     log = tmp_path / "int.csv"
-    proc = start_tracking(sim_cell, log)
+    proc = start_tracking(homed_sim_cell, log)
     try:
         proc.send_signal(signal.SIGINT)
         out, err = proc.communicate(timeout=30)
@@ -180,18 +196,17 @@ def test_sigint_stops_the_run_cleanly_and_says_so(sim_cell, tmp_path):
     assert "interrupted (SIGINT)" in out.splitlines()[0]
     d = read_log(log)
     assert len(d["s_mm"]) >= 5  # the rows up to the interrupt are kept
-    assert_standing(sim_cell)
+    assert_standing(homed_sim_cell)
 
 
-def test_a_reis_fault_stops_the_run_at_once_naming_the_arm_and_its_faults(sim_cell, tmp_path):
+def test_a_reis_fault_stops_the_run_at_once_naming_the_arm_and_its_faults(homed_sim_cell, tmp_path):
     """Issue 16 item 2: droid-servo dies mid-run (the servo agent reports FAULT_SERVO, the
     watchdog latches the amplifiers off); the tracker stops with exit 1 and one line naming
     arm1 and its faults, and still writes its log -- instead of commanding the dead arm."""
-    home_both(sim_cell)
     log = tmp_path / "fault.csv"
-    proc = start_tracking(sim_cell, log)
+    proc = start_tracking(homed_sim_cell, log)
     try:
-        servo = next(r["pid"] for r in cell_status(sim_cell) if r["name"] == "droid-servo arm1")
+        servo = next(r["pid"] for r in cell_status(homed_sim_cell) if r["name"] == "droid-servo arm1")
         os.kill(servo, signal.SIGKILL)
         out, err = proc.communicate(timeout=30)  # generous: the rule acts on the next 30 Hz cycle
     finally:
@@ -205,28 +220,6 @@ def test_a_reis_fault_stops_the_run_at_once_naming_the_arm_and_its_faults(sim_ce
     assert "fault" in out.splitlines()[0]
     d = read_log(log)
     assert len(d["s_mm"]) >= 5  # the rows up to the fault are kept
-
-
-def test_seam_lost_when_the_sensor_sees_no_seam(sim_cell, tmp_path):
-    """The holder stays at home, so the workpiece is nowhere near the sensor: after the
-    dead zone the lead sensor is invalid, and the run stops as 'seam lost' (exit 1)."""
-    home_both(sim_cell)
-    T_reis, _ = load_layout().start_poses("i")
-    out = droid("droid.tasks.move", "--cell", str(sim_cell), "arm1", "cart", "--",
-                *[f"{v:.6f}" for v in T_to_pose(T_reis)], "3", timeout=60)
-    assert out.returncode == 0, out.stderr
-    before = snoop(sim_cell, "arm1")
-    out = run("8", "--dead-zone", "5", "--lost-cycles", "10", "--log", str(tmp_path / "lost.csv"), cell=sim_cell)
-    assert out.returncode == 1, out.stderr
-    assert "stopped: seam lost" in out.stderr
-    assert "seam LOST at s" in out.stdout
-    d = read_log(tmp_path / "lost.csv")
-    assert np.all(np.isnan(d["lead_lateral_mm"]))
-    # straight on for the dead zone and the lost cycles (5 + 11 cycles of 8/30 mm), then stop
-    after = snoop(sim_cell, "arm1")
-    moved = math.dist([before["x"], before["y"], before["z"]], [after["x"], after["y"], after["z"]])
-    assert moved <= 16 * 8 / 30 + 1.0
-    assert_standing(sim_cell)
 
 
 @pytest.mark.parametrize("args, message", [
