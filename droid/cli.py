@@ -79,6 +79,45 @@ def read_toml(path, what: str) -> dict:
             raise BadInput(f"{what} {os.fspath(path)}: not valid TOML ({exc})") from None
 
 
+
+class TableReader:
+    """Typed, key-checked reading of one TOML table (a cell file's, a device's options).
+
+    Every refusal is one :class:`BadInput` line that starts with ``where`` (the file and the
+    table) and names the key.  With ``finite_floats`` a float value must also be finite."""
+
+    def __init__(self, where: str, table: dict, *, finite_floats: bool = False) -> None:
+        self.where, self.table, self.finite_floats = where, table, finite_floats
+        self.used: set[str] = set()
+
+    def get(self, key: str, typ: type | tuple, default=..., *, check=None):
+        """The value of ``key``, of type ``typ`` (an int is taken as a float; a bool is never a
+        number); ``default`` when absent (without one, a missing key is refused); ``check(value)``
+        returns a reason to refuse it, or None."""
+        self.used.add(key)
+        if key not in self.table:
+            if default is ...:
+                raise BadInput(f"{self.where} is missing '{key}'")
+            return default
+        val = self.table[key]
+        if typ is float and isinstance(val, int) and not isinstance(val, bool):
+            val = float(val)
+        if not isinstance(val, typ) or (typ is int and isinstance(val, bool)):
+            tname = typ.__name__ if isinstance(typ, type) else "/".join(t.__name__ for t in typ)
+            raise BadInput(f"{self.where} {key} must be {tname}, got {val!r}")
+        if self.finite_floats and typ is float and not math.isfinite(val):
+            raise BadInput(f"{self.where} {key} must be finite, got {val!r}")
+        if check is not None:
+            msg = check(val)
+            if msg:
+                raise BadInput(f"{self.where} {key}: {msg}")
+        return val
+
+    def unused(self) -> list[str]:
+        """The table's keys no :meth:`get` asked for, sorted."""
+        return sorted(k for k in self.table if k not in self.used)
+
+
 def droid_version() -> str:
     """The installed package's version (its metadata), else ``droid.__version__``."""
     try:
