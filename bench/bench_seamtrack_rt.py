@@ -16,8 +16,6 @@ Usage: bench/bench_seamtrack_rt.py [--speed 16] [--mode plus] [--length 400] [--
 from __future__ import annotations
 
 import os
-import re
-import subprocess
 import sys
 import tempfile
 import time
@@ -29,14 +27,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from bench.live_cell import droid_module as droid, renamed_cell, up_and_homed  # noqa: E402
 from droid.brain.cellfile import builtin_cell_path  # noqa: E402
 from droid.cli import ArgumentParser, bounded_float, bounded_int  # noqa: E402
 from droid.tasks.seam.report import read_csv, summarize  # noqa: E402
-
-
-def droid(mod: str, *args: str, timeout: float = 300) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", mod, *args], capture_output=True, text=True, timeout=timeout,
-                          cwd=ROOT)
 
 
 def fmt(label: str, s) -> str:
@@ -60,19 +54,14 @@ def main() -> int:
         with tempfile.TemporaryDirectory(prefix="droid-rt-") as tmp:
             name = "b" + uuid.uuid4().hex[:9]
             text = builtin_cell_path().read_text()
-            text = re.sub(r'(?m)^name = "[^"]*"', f'name = "{name}"\nrun_dir = "{tmp}/run"', text, count=1)
+            text = renamed_cell(text, name, f"{tmp}/run")
             cell = Path(tmp) / "cell.toml"
             cell.write_text(text)
-            up = droid("droid.brain.launcher", "up", "--cell", str(cell), timeout=180)
             try:
-                if up.returncode != 0:
-                    print("cell did not come up:", up.stderr.strip().splitlines()[-1:], flush=True)
+                failed = up_and_homed(cell)
+                if failed:
+                    print(failed, flush=True)
                     return 1
-                for arm in ("arm1", "gmf1"):
-                    out = droid("droid.tasks.home", arm, "--cell", str(cell), timeout=200)
-                    if out.returncode != 0:
-                        print(f"droid-home {arm} failed: {out.stderr.strip()}", flush=True)
-                        return 1
                 for i in range(args.runs):
                     log = Path(tmp) / f"rt{i}.csv"
                     out = droid("droid.tasks.seamtrack", f"{args.speed:g}", "--mode", args.mode, "--start", "i",
