@@ -42,7 +42,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench.floor import cyclictest_floor  # noqa: E402
+from bench.floor import cyclictest_floor, when_and_load  # noqa: E402
 from bench.live_cell import droid_module as droid, renamed_cell, up_and_homed  # noqa: E402
 from bench.truth import standstill  # noqa: E402
 from droid.brain.cellfile import builtin_cell_path, load_cell  # noqa: E402
@@ -196,8 +196,7 @@ def main() -> int:
                     help="drop the cell's guard_arm: the over-force stop is the task's, through the Brain")
     ap.add_argument("--save", type=Path, default=None, help="write each over-force run's traces here (.npz)")
     args = ap.parse_args()
-    print(f"{time.strftime('%Y-%m-%d %H:%M:%S UTC', time.gmtime())}, load average "
-          f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}, {os.cpu_count()} CPUs", flush=True)
+    print(when_and_load(), flush=True)
     with tempfile.TemporaryDirectory(prefix="droid-contact-") as tmpd:
         tmp = Path(tmpd)
         name = "b" + uuid.uuid4().hex[:9]

@@ -43,7 +43,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench.floor import cyclictest_floor  # noqa: E402
+from bench.floor import cyclictest_floor, when_and_load  # noqa: E402
 from bench.live_cell import droid_module as droid, renamed_cell  # noqa: E402
 from bench.truth import standstill  # noqa: E402
 from droid.brain.cellfile import load_cell  # noqa: E402
@@ -272,8 +272,7 @@ def main() -> int:
                     help="round-trip datagrams (0: skip)")
     ap.add_argument("--silence", type=bounded_int(0, 50, "runs"), default=5, help="silence runs (0: skip)")
     args = ap.parse_args()
-    print(f"{time.strftime('%Y-%m-%d %H:%M:%S UTC', time.gmtime())}, load average "
-          f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}, {os.cpu_count()} CPUs", flush=True)
+    print(when_and_load(), flush=True)
     with tempfile.TemporaryDirectory(prefix="droid-egm-") as tmpd:
         tmp = Path(tmpd)
         if args.samples:

@@ -15,10 +15,8 @@ Usage: bench/bench_seamtrack_rt.py [--speed 16] [--mode plus] [--length 400] [--
 """
 from __future__ import annotations
 
-import os
 import sys
 import tempfile
-import time
 import uuid
 from pathlib import Path
 
@@ -27,6 +25,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from bench.floor import when_and_load  # noqa: E402
 from bench.live_cell import droid_module as droid, renamed_cell, up_and_homed  # noqa: E402
 from droid.brain.cellfile import builtin_cell_path  # noqa: E402
 from droid.cli import ArgumentParser, bounded_float, bounded_int  # noqa: E402
@@ -47,8 +46,7 @@ def main() -> int:
     ap.add_argument("--runs", type=bounded_int(0, 20, "runs"), default=1, help="real-time runs")
     ap.add_argument("--seeds", type=bounded_int(0, 20, "seeds"), default=3, help="lockstep seeds (1..N)")
     args = ap.parse_args()
-    print(f"{time.strftime('%Y-%m-%d %H:%M:%S UTC', time.gmtime())}, load average "
-          f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}, {os.cpu_count()} CPUs", flush=True)
+    print(when_and_load(), flush=True)
     rt = []
     if args.runs:
         with tempfile.TemporaryDirectory(prefix="droid-rt-") as tmp:
