@@ -261,8 +261,8 @@ def bounded_float(lo: float, hi: float, unit: str = "", *, lo_open: bool = False
     Negative zero is zero.  Every duration, rate and size a program accepts has a
     stated maximum, so no accepted value overflows what the program does with it
     (ticks in an int32 field, a deadline, a sleep)."""
-    u = f" {unit}" if unit else ""
-    span = f"{'(' if lo_open else '['}{lo:g}, {hi:g}]{u}"
+    rng = Range(lo, hi, unit, lo_open=lo_open)
+    span, u = rng.span, f" {unit}" if unit else ""
     rule = f"must be {'>' if lo_open else '>='} {lo:g} and <= {hi:g}{u}"
 
     def parse(text: str) -> float:
@@ -271,18 +271,14 @@ def bounded_float(lo: float, hi: float, unit: str = "", *, lo_open: bool = False
             raise argparse.ArgumentTypeError(f"{rule}: {text!r} is outside {span}")
         return value
 
-    parse.__name__ = f"number in {span}"
-    parse.span, parse.lo, parse.hi, parse.lo_open, parse.unit, parse.integral = span, lo, hi, lo_open, unit, False
-    parse.range = Range(lo, hi, unit, lo_open=lo_open)
-    return parse
+    return _ranged(parse, f"number in {span}", rng)
 
 
 def bounded_int(lo: int, hi: int, unit: str = "") -> Callable[[str], int]:
     """argparse type: a plain decimal integer in [lo, hi]; the message names the range."""
-    u = f" {unit}" if unit else ""
+    rng = Range(lo, hi, unit, integral=True)
+    span, u = rng.span, f" {unit}" if unit else ""
     rule = f"must be {'> 0' if lo == 1 else f'>= {lo}'} and <= {hi}{u}"
-
-    span = f"[{lo}, {hi}]{u}"
 
     def parse(text: str) -> int:
         value = integer(text)
@@ -290,10 +286,7 @@ def bounded_int(lo: int, hi: int, unit: str = "") -> Callable[[str], int]:
             raise argparse.ArgumentTypeError(f"{rule}: {text!r} is outside {span}")
         return value
 
-    parse.__name__ = f"integer in [{lo}, {hi}]"
-    parse.span, parse.lo, parse.hi, parse.lo_open, parse.unit, parse.integral = span, lo, hi, False, unit, True
-    parse.range = Range(lo, hi, unit, integral=True)
-    return parse
+    return _ranged(parse, f"integer in [{lo}, {hi}]", rng)
 
 
 def baud_rate(lo: int) -> Callable[[str], int]:
@@ -309,9 +302,16 @@ def baud_rate(lo: int) -> Callable[[str], int]:
             raise argparse.ArgumentTypeError(f"{text!r} {why}")
         return value
 
-    parse.__name__ = f"serial rate in {rng.span}"
-    parse.span, parse.lo, parse.hi, parse.lo_open, parse.unit, parse.integral = rng.span, rng.lo, rng.hi, False, \
-        "baud", True
+    return _ranged(parse, f"serial rate in {rng.span}", rng)
+
+
+def _ranged(parse, name: str, rng: Range):
+    """``parse``, an argparse type, named ``name`` (argparse's messages) and carrying ``rng``: its
+    span, bounds, unit and integral flag for the help (:class:`_RangeHelpFormatter`) and the range
+    itself for :func:`file_number` (a file's key and the option of the same quantity: one rule)."""
+    parse.__name__ = name
+    parse.span, parse.lo, parse.hi, parse.lo_open, parse.unit, parse.integral = (
+        rng.span, rng.lo, rng.hi, rng.lo_open, rng.unit, rng.integral)
     parse.range = rng
     return parse
 
