@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from droid.cli import BadInput, TableReader, read_toml
-from droid.numbers import NumberError, check_numbers
+from droid.numbers import NumberError, check_numbers, finite_numbers
 from droid.brain.classes import SubunitClass
 from droid.brain import registry as _registry
 from droid.brain.curve import CurveConfig, parse_curve_table
@@ -236,7 +236,7 @@ def _interpose_table(table: dict, p: Path, run: str, cell: str) -> dict[str, str
 
 
 def _pose(v: list) -> str | None:
-    if len(v) != 6 or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v):
+    if not finite_numbers(v, 6):
         return "must be 6 finite numbers: x y z [mm] A B C [ZYZ deg]"
     return None
 

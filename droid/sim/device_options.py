@@ -7,12 +7,12 @@ file.
 """
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
 
 from droid.cli import BadInput, TableReader
+from droid.numbers import finite_numbers
 
 
 class DeviceOptions(TableReader):
@@ -34,8 +34,7 @@ class DeviceOptions(TableReader):
         from droid.kinematics.transforms import pose_to_T
 
         v = self.get(key, list, default)
-        if len(v) != 6 or not all(isinstance(x, (int, float)) and not isinstance(x, bool)
-                                  and math.isfinite(x) for x in v):
+        if not finite_numbers(v, 6):
             raise BadInput(f"{self.where} {key} must be 6 finite numbers: x y z [mm] A B C [ZYZ deg]")
         return pose_to_T(*(float(x) for x in v))
 

@@ -51,6 +51,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from droid.cli import BadInput
+from droid.numbers import finite_numbers
 from droid.kinematics import RobotModel, load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.sim.device import Device, cell_arm_subunit, number_options
@@ -350,8 +351,7 @@ def egm_twin(cell, name: str, options: dict) -> tuple[str, object, EgmController
     model = load_robot(sub.robot)
     params = twin_params(options, where, model)
     q0 = options.get("start_deg", [0.0] * 6)
-    if not (isinstance(q0, list) and len(q0) == 6 and all(
-            isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in q0)):
+    if not finite_numbers(q0, 6):
         raise BadInput(f"{where} start_deg must be 6 joint angles [deg]")
     why = model.limit_violation(np.array(q0, float))
     if why:
