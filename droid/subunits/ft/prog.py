@@ -38,7 +38,7 @@ import numpy as np
 
 from droid.brain.databases import open_local
 from droid.brain.layouts import FAULT_DEVICE, FAULT_FORCE
-from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
+from droid.brain.program import Presence, Stop, close_all, notify_ready, presence_key, subunit_program
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import BadInput, run
 from droid.kinematics.transforms import pose_to_T
@@ -293,11 +293,7 @@ def main(argv=None) -> int:
             if tripped:
                 set_guard_fault(arm_status, False)  # a clean stop; a restart re-reads the guard at once
             arm_status.close()
-        dev.close()
-        timer.close()
-        command.close()
-        status.close()
-        presence.close()
+        close_all(dev, timer, command, status, presence)
     return 0
 
 if __name__ == "__main__":

@@ -30,7 +30,7 @@ import time
 
 from droid.brain.databases import open_local
 from droid.brain.registry import open_url, program
-from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
+from droid.brain.program import Presence, Stop, close_all, notify_ready, presence_key, subunit_program
 from droid.brain.rt import PeriodicTimer
 from droid.cli import BadInput, file_number, run
 from droid.numbers import Range
@@ -73,10 +73,7 @@ def main(argv=None) -> int:
             status.update(**station.cycle(time.monotonic_ns()))
             presence.beat(0, station.cycles, timer.overruns, timer.lateness_max_ns)
     finally:
-        dev.close()
-        timer.close()
-        status.close()
-        presence.close()
+        close_all(dev, timer, status, presence)
     return 0
 
 
