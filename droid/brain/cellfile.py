@@ -117,6 +117,19 @@ class Subunit:
         """A commandable arm with a robot model (its class is kinematic)."""
         return _registry.classes()[self.cls].kinematic
 
+    def check_class(self, cls: str, what: str) -> None:
+        """BadInput ``NAME is a CLS subunit, not WHAT`` unless the subunit is of class ``cls``."""
+        if self.cls != cls:
+            raise BadInput(f"{self.name} is a {self.cls} subunit, not {what}")
+
+    def device_url(self, what: str, example: str) -> str:
+        """The subunit's ``device`` URL (BadInput ``[subunits.NAME] WHAT needs 'device' (e.g. EXAMPLE)``
+        when it has none)."""
+        url = self.options.get("device")
+        if not isinstance(url, str) or not url:
+            raise BadInput(f"[subunits.{self.name}] {what} needs 'device' (e.g. \"{example}\")")
+        return url
+
 
 @dataclass
 class Cell:
