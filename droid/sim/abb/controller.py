@@ -50,6 +50,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from droid.brain.program import close_all
 from droid.cli import BadInput
 from droid.numbers import finite_numbers
 from droid.kinematics import RobotModel, load_robot
@@ -312,12 +313,8 @@ class AbbEgmDevice(Device):
         return self.model_global.fk(self.controller.q_deg)
 
     def close(self) -> None:
-        if self.sock is not None:
-            self.sock.close()
-            self.sock = None
-        if self.door is not None:
-            self.door.close()
-            self.door = None
+        sock, door, self.sock, self.door = self.sock, self.door, None, None
+        close_all(sock, door)
 
 
 def open_socket(port: int, where: str, host: str = "127.0.0.1") -> socket.socket:
