@@ -187,6 +187,7 @@ def overforce(cell_path: Path, cell, tmp: Path, k: int, save: Path | None = None
             f"{m.group(1) if m else '?'} N; largest truth gap {gap:.1f} ms")
 
 
+# Alike in shape only to other benches' mains: its own options, its own figures.
 def main() -> int:
     ap = ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", type=bounded_int(0, 20, "runs"), default=1, help="force-holding runs")

@@ -38,6 +38,7 @@ def fmt(label: str, s) -> str:
             f"end s {s.end_s_mm:.1f} mm, {s.stop_reason or '-'}")
 
 
+# Alike in shape only to other benches' mains: its own options, its own figures.
 def main() -> int:
     ap = ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--speed", type=bounded_float(0.1, 200.0, "mm/s"), default=16.0, help="commanded speed [mm/s]")

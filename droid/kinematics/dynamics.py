@@ -102,6 +102,7 @@ class Dynamics:
     hard_stop_margin_deg: float  # mechanical stops this far outside the joint limits
     source: dict
 
+    # Alike in shape only to ReisPlant's derived properties: products of the file's data.
     @property
     def motor_torque_limit_nm(self) -> np.ndarray:
         """Largest motor torque [N m] the amplifier delivers (current limit x k_t)."""

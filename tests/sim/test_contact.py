@@ -86,6 +86,7 @@ def test_a_3d_workpiece_takes_a_contact_table(tmp_path):
 
 # ---------------------------------------------------------------- the step's wall (issue 27 item 4)
 
+# Deliberate copy: surface_contact before the wall, the reference the new one is held to (never import it).
 def _old_surface_contact(workpiece, T_global_W, p_mm, v_mm_s, params, slip_limit=None):
     """surface_contact as it was before the wall (main 3d7fa1d): the horizontal surfaces only."""
     import math

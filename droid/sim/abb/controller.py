@@ -120,7 +120,7 @@ class EgmController:
         self.restart_at_s: float | None = None
         self.next_tx_s = 0.0
         self.tx_seqno = 0
-        # counters
+        # counters (alike in shape only to droid-gmf1-serial's: each link counts its own events)
         self.received = 0
         self.bad = 0
         self.timeouts = 0
