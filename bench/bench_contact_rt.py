@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import os
 import re
-import subprocess
 import sys
 import tempfile
 import threading
@@ -43,7 +42,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench.floor import cyclictest_floor  # noqa: E402
+from bench.floor import cyclictest_floor, when_and_load  # noqa: E402
+from bench.live_cell import droid_module as droid, renamed_cell, up_and_homed  # noqa: E402
 from bench.truth import standstill  # noqa: E402
 from droid.brain.cellfile import builtin_cell_path, load_cell  # noqa: E402
 from droid.brain.databases import open_brain  # noqa: E402
@@ -54,11 +54,6 @@ from droid.tasks.contact.prog import ContactRun, build_parser  # noqa: E402
 
 FORCE_MAX_N = 40.0
 SAMPLER_PRIORITY = 70  # > droid.brain.rt.CEILING_PRIORITY (61)
-
-
-def droid(mod: str, *args: str, timeout: float = 300) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", mod, *args], capture_output=True, text=True, timeout=timeout,
-                          cwd=ROOT)
 
 
 class Sampler(threading.Thread):
@@ -192,6 +187,7 @@ def overforce(cell_path: Path, cell, tmp: Path, k: int, save: Path | None = None
             f"{m.group(1) if m else '?'} N; largest truth gap {gap:.1f} ms")
 
 
+# Alike in shape only to other benches' mains: its own options, its own figures.
 def main() -> int:
     ap = ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", type=bounded_int(0, 20, "runs"), default=1, help="force-holding runs")
@@ -201,29 +197,23 @@ def main() -> int:
                     help="drop the cell's guard_arm: the over-force stop is the task's, through the Brain")
     ap.add_argument("--save", type=Path, default=None, help="write each over-force run's traces here (.npz)")
     args = ap.parse_args()
-    print(f"{time.strftime('%Y-%m-%d %H:%M:%S UTC', time.gmtime())}, load average "
-          f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}, {os.cpu_count()} CPUs", flush=True)
+    print(when_and_load(), flush=True)
     with tempfile.TemporaryDirectory(prefix="droid-contact-") as tmpd:
         tmp = Path(tmpd)
         name = "b" + uuid.uuid4().hex[:9]
         text = builtin_cell_path().read_text()
-        text = re.sub(r'(?m)^name = "[^"]*"', f'name = "{name}"\nrun_dir = "{tmp}/run"', text, count=1)
+        text = renamed_cell(text, name, f"{tmp}/run")
         if args.no_guard:  # the Brain-only stop (the task's own over-force check), for comparison
             text, n = re.subn(r'(?m)^guard_arm = .*$', "", text)
             assert n == 1, "the built-in cell's guard_arm line"
         cell_path = tmp / "cell.toml"
         cell_path.write_text(text)
         cell = load_cell(str(cell_path))
-        up = droid("droid.brain.launcher", "up", "--cell", str(cell_path), timeout=180)
         try:
-            if up.returncode != 0:
-                print("cell did not come up:", up.stderr.strip().splitlines()[-1:], flush=True)
+            failed = up_and_homed(cell_path)
+            if failed:
+                print(failed, flush=True)
                 return 1
-            for arm in ("arm1", "gmf1"):
-                out = droid("droid.tasks.home", arm, "--cell", str(cell_path), timeout=200)
-                if out.returncode != 0:
-                    print(f"droid-home {arm} failed: {out.stderr.strip()}", flush=True)
-                    return 1
             for i in range(args.runs):
                 out = droid("droid.tasks.contact.prog", "arm1", "--start", "i", "--force", "20", "--speed", "10",
                             "--length", "200", "--quiet", "--log", str(tmp / f"run{i}.csv"), "--cell",

@@ -28,7 +28,6 @@ Usage: bench/bench_egm.py [--samples 2500] [--silence 5]
 from __future__ import annotations
 
 import os
-import re
 import select
 import socket
 import subprocess
@@ -44,7 +43,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench.floor import cyclictest_floor  # noqa: E402
+from bench.floor import cyclictest_floor, when_and_load  # noqa: E402
+from bench.live_cell import droid_module as droid, renamed_cell  # noqa: E402
 from bench.truth import standstill  # noqa: E402
 from droid.brain.cellfile import load_cell  # noqa: E402
 from droid.brain.databases import open_brain  # noqa: E402
@@ -55,11 +55,6 @@ from droid.kinematics import load_robot  # noqa: E402
 SAMPLER_PRIORITY = 70  # > droid.brain.rt.CEILING_PRIORITY (61)
 PERIOD_NS = 4_000_000  # EGM's 4 ms
 REPLY_TIMEOUT_S = 0.020
-
-
-def droid(mod: str, *args: str, timeout: float = 300) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", mod, *args], capture_output=True, text=True, timeout=timeout,
-                          cwd=ROOT)
 
 
 def fifo(prio: int = SAMPLER_PRIORITY) -> bool:
@@ -232,7 +227,7 @@ def silence(tmp: Path, runs: int) -> None:
 
     name = "s" + uuid.uuid4().hex[:9]
     text = (ROOT / "cells" / "abb_weld.toml").read_text()
-    text = re.sub(r'(?m)^name = "[^"]*"', f'name = "{name}"\nrun_dir = "{tmp}/srun"', text, count=1)
+    text = renamed_cell(text, name, f"{tmp}/srun")
     cell_path = tmp / "abb.toml"
     cell_path.write_text(text)
     egm = load_cell(str(cell_path)).subunit("abb").options["egm"]
@@ -277,8 +272,7 @@ def main() -> int:
                     help="round-trip datagrams (0: skip)")
     ap.add_argument("--silence", type=bounded_int(0, 50, "runs"), default=5, help="silence runs (0: skip)")
     args = ap.parse_args()
-    print(f"{time.strftime('%Y-%m-%d %H:%M:%S UTC', time.gmtime())}, load average "
-          f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}, {os.cpu_count()} CPUs", flush=True)
+    print(when_and_load(), flush=True)
     with tempfile.TemporaryDirectory(prefix="droid-egm-") as tmpd:
         tmp = Path(tmpd)
         if args.samples:

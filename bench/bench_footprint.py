@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import subprocess
 import sys
 import tempfile
@@ -27,25 +26,21 @@ import time
 import uuid
 from pathlib import Path
 
-from droid.brain.cellfile import builtin_cell_path, load_cell
-from droid.cli import ArgumentParser, bounded_float
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from bench.live_cell import droid_program as droid, renamed_cell  # noqa: E402
+from droid.brain.cellfile import builtin_cell_path, load_cell  # noqa: E402
+from droid.cli import ArgumentParser, bounded_float  # noqa: E402
 
 TICKS_PER_S = os.sysconf("SC_CLK_TCK")
 
 
 def make_cell(tmp: Path, source: Path) -> Path:
     name = f"fp{uuid.uuid4().hex[:6]}"
-    text = source.read_text()
-    text = re.sub(r'(?m)^name = "[^"]*"', f'name = "{name}"\nrun_dir = "{tmp}/run"', text, count=1)
     path = tmp / f"{name}.toml"
-    path.write_text(text)
+    path.write_text(renamed_cell(source.read_text(), name, f"{tmp}/run"))
     return path
-
-
-def droid(cell: Path, *args: str, timeout: float = 300) -> subprocess.CompletedProcess:
-    exe = Path(sys.executable).parent / args[0]
-    return subprocess.run([str(exe) if exe.exists() else args[0], *args[1:], "--cell", str(cell)],
-                          capture_output=True, text=True, timeout=timeout)
 
 
 def programs(cell: Path) -> dict[str, int]:

@@ -125,6 +125,7 @@ def main(argv=None) -> int:
     if not base.is_file():
         raise BadInput(f"--base: {base} not found")
     r = bench(base, args.moves, args.hold_s, args.rigid)
+    # Alike in shape only to other benches' output: --json one object, else this bench's own table.
     if args.json:
         print(json.dumps(r))
         return 0

@@ -99,6 +99,7 @@ def main(argv=None) -> int:
     if args.json:
         print(json.dumps(r))
         return 0
+    # Alike in shape only to other benches' output: this bench's own figures, one line each.
     print(f"machine               {r['machine']}")
     print(f"homing                {r['homing_sim_s']} s simulated in {r['homing_wall_s']} s wall "
           f"({r['homing_speed_x']}x real time)")

@@ -15,12 +15,8 @@ Usage: bench/bench_seamtrack_rt.py [--speed 16] [--mode plus] [--length 400] [--
 """
 from __future__ import annotations
 
-import os
-import re
-import subprocess
 import sys
 import tempfile
-import time
 import uuid
 from pathlib import Path
 
@@ -29,14 +25,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from bench.floor import when_and_load  # noqa: E402
+from bench.live_cell import droid_module as droid, renamed_cell, up_and_homed  # noqa: E402
 from droid.brain.cellfile import builtin_cell_path  # noqa: E402
 from droid.cli import ArgumentParser, bounded_float, bounded_int  # noqa: E402
 from droid.tasks.seam.report import read_csv, summarize  # noqa: E402
-
-
-def droid(mod: str, *args: str, timeout: float = 300) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", mod, *args], capture_output=True, text=True, timeout=timeout,
-                          cwd=ROOT)
 
 
 def fmt(label: str, s) -> str:
@@ -45,6 +38,7 @@ def fmt(label: str, s) -> str:
             f"end s {s.end_s_mm:.1f} mm, {s.stop_reason or '-'}")
 
 
+# Alike in shape only to other benches' mains: its own options, its own figures.
 def main() -> int:
     ap = ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--speed", type=bounded_float(0.1, 200.0, "mm/s"), default=16.0, help="commanded speed [mm/s]")
@@ -53,26 +47,20 @@ def main() -> int:
     ap.add_argument("--runs", type=bounded_int(0, 20, "runs"), default=1, help="real-time runs")
     ap.add_argument("--seeds", type=bounded_int(0, 20, "seeds"), default=3, help="lockstep seeds (1..N)")
     args = ap.parse_args()
-    print(f"{time.strftime('%Y-%m-%d %H:%M:%S UTC', time.gmtime())}, load average "
-          f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}, {os.cpu_count()} CPUs", flush=True)
+    print(when_and_load(), flush=True)
     rt = []
     if args.runs:
         with tempfile.TemporaryDirectory(prefix="droid-rt-") as tmp:
             name = "b" + uuid.uuid4().hex[:9]
             text = builtin_cell_path().read_text()
-            text = re.sub(r'(?m)^name = "[^"]*"', f'name = "{name}"\nrun_dir = "{tmp}/run"', text, count=1)
+            text = renamed_cell(text, name, f"{tmp}/run")
             cell = Path(tmp) / "cell.toml"
             cell.write_text(text)
-            up = droid("droid.brain.launcher", "up", "--cell", str(cell), timeout=180)
             try:
-                if up.returncode != 0:
-                    print("cell did not come up:", up.stderr.strip().splitlines()[-1:], flush=True)
+                failed = up_and_homed(cell)
+                if failed:
+                    print(failed, flush=True)
                     return 1
-                for arm in ("arm1", "gmf1"):
-                    out = droid("droid.tasks.home", arm, "--cell", str(cell), timeout=200)
-                    if out.returncode != 0:
-                        print(f"droid-home {arm} failed: {out.stderr.strip()}", flush=True)
-                        return 1
                 for i in range(args.runs):
                     log = Path(tmp) / f"rt{i}.csv"
                     out = droid("droid.tasks.seamtrack", f"{args.speed:g}", "--mode", args.mode, "--start", "i",

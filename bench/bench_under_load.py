@@ -46,6 +46,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from bench.live_cell import droid_program, renamed_cell  # noqa: E402
 from droid.brain.cellfile import builtin_cell_path, load_cell  # noqa: E402
 from droid.brain import wire  # noqa: E402
 from droid.cli import ArgumentParser, bounded_int, duration_s, seed_int  # noqa: E402
@@ -135,8 +136,7 @@ def cyclictest(seconds: float) -> dict | None:
 # -- the cell ------------------------------------------------------------------
 def make_cell(tmp: Path, fifo: bool) -> Path:
     name = f"load{uuid.uuid4().hex[:6]}"
-    text = builtin_cell_path().read_text()
-    text = re.sub(r'(?m)^name = "[^"]*"', f'name = "{name}"\nrun_dir = "{tmp}/run"', text, count=1)
+    text = renamed_cell(builtin_cell_path().read_text(), name, f"{tmp}/run")
     text = re.sub(r"(?m)^sched_fifo = \w+", f"sched_fifo = {'true' if fifo else 'false'}", text, count=1)
     p = tmp / f"{name}.toml"
     p.write_text(text)
@@ -144,10 +144,8 @@ def make_cell(tmp: Path, fifo: bool) -> Path:
 
 
 def droid(cell: Path, *args: str, timeout: float = 120) -> subprocess.CompletedProcess:
-    exe = Path(sys.executable).parent / args[0]
-    prog = str(exe) if exe.exists() else args[0]
-    return subprocess.run([prog, *args[1:], "--cell", str(cell)], capture_output=True, text=True,
-                          timeout=timeout)
+    """A droid console script on ``cell`` (two minutes at the most unless told)."""
+    return droid_program(cell, *args, timeout=timeout)
 
 
 def status_json(cell: Path) -> dict[str, dict]:

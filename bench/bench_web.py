@@ -77,6 +77,7 @@ def main(argv=None) -> int:
     wall = t1 - t0
     got = sizes[k0:k1]
     load = os.getloadavg()
+    # Alike in shape only to other benches' output: this bench's own figures, one line each.
     print(f"droid-web --file ({count} ticks), one headless chromium playing it (#play=1) for {wall:.1f} s:")
     print(f"  server CPU      {100.0 * (c1 - c0) / wall:6.2f} % of one core (target <= 15 %)")
     print(f"  page updates    {(n1 - n0) / wall:6.1f} /s (asked: 30)")

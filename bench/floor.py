@@ -12,8 +12,15 @@ import os
 import re
 import shutil
 import subprocess
+import time
 
 _LINE = re.compile(r"Min:\s*(\d+)\s+Act:\s*\d+\s+Avg:\s*(\d+)\s+Max:\s*(\d+)")
+
+
+def when_and_load() -> str:
+    """The line a bench prints before its figures: the date (UTC), the load average and the CPUs."""
+    return (f"{time.strftime('%Y-%m-%d %H:%M:%S UTC', time.gmtime())}, load average "
+            f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}, {os.cpu_count()} CPUs")
 
 
 def cyclictest_floor(seconds: float = 2.0, interval_us: int = 1000, priority: int = 80) -> str:

@@ -70,6 +70,7 @@ def main(argv=None) -> int:
         reis_plant.ReisPlant._discretise = original
     out["delta_rms_lateral_mm"] = out["other_order"]["rms_lateral_mm"] - out["as_is"]["rms_lateral_mm"]
     out["delta_rms_depth_mm"] = out["other_order"]["rms_depth_mm"] - out["as_is"]["rms_depth_mm"]
+    # Alike in shape only to other benches' output: --json one object, else this trial's own table.
     if args.json:
         print(json.dumps(out))
         return 0

@@ -79,6 +79,45 @@ def read_toml(path, what: str) -> dict:
             raise BadInput(f"{what} {os.fspath(path)}: not valid TOML ({exc})") from None
 
 
+
+class TableReader:
+    """Typed, key-checked reading of one TOML table (a cell file's, a device's options).
+
+    Every refusal is one :class:`BadInput` line that starts with ``where`` (the file and the
+    table) and names the key.  With ``finite_floats`` a float value must also be finite."""
+
+    def __init__(self, where: str, table: dict, *, finite_floats: bool = False) -> None:
+        self.where, self.table, self.finite_floats = where, table, finite_floats
+        self.used: set[str] = set()
+
+    def get(self, key: str, typ: type | tuple, default=..., *, check=None):
+        """The value of ``key``, of type ``typ`` (an int is taken as a float; a bool is never a
+        number); ``default`` when absent (without one, a missing key is refused); ``check(value)``
+        returns a reason to refuse it, or None."""
+        self.used.add(key)
+        if key not in self.table:
+            if default is ...:
+                raise BadInput(f"{self.where} is missing '{key}'")
+            return default
+        val = self.table[key]
+        if typ is float and isinstance(val, int) and not isinstance(val, bool):
+            val = float(val)
+        if not isinstance(val, typ) or (typ is int and isinstance(val, bool)):
+            tname = typ.__name__ if isinstance(typ, type) else "/".join(t.__name__ for t in typ)
+            raise BadInput(f"{self.where} {key} must be {tname}, got {val!r}")
+        if self.finite_floats and typ is float and not math.isfinite(val):
+            raise BadInput(f"{self.where} {key} must be finite, got {val!r}")
+        if check is not None:
+            msg = check(val)
+            if msg:
+                raise BadInput(f"{self.where} {key}: {msg}")
+        return val
+
+    def unused(self) -> list[str]:
+        """The table's keys no :meth:`get` asked for, sorted."""
+        return sorted(k for k in self.table if k not in self.used)
+
+
 def droid_version() -> str:
     """The installed package's version (its metadata), else ``droid.__version__``."""
     try:
@@ -222,8 +261,8 @@ def bounded_float(lo: float, hi: float, unit: str = "", *, lo_open: bool = False
     Negative zero is zero.  Every duration, rate and size a program accepts has a
     stated maximum, so no accepted value overflows what the program does with it
     (ticks in an int32 field, a deadline, a sleep)."""
-    u = f" {unit}" if unit else ""
-    span = f"{'(' if lo_open else '['}{lo:g}, {hi:g}]{u}"
+    rng = Range(lo, hi, unit, lo_open=lo_open)
+    span, u = rng.span, f" {unit}" if unit else ""
     rule = f"must be {'>' if lo_open else '>='} {lo:g} and <= {hi:g}{u}"
 
     def parse(text: str) -> float:
@@ -232,18 +271,14 @@ def bounded_float(lo: float, hi: float, unit: str = "", *, lo_open: bool = False
             raise argparse.ArgumentTypeError(f"{rule}: {text!r} is outside {span}")
         return value
 
-    parse.__name__ = f"number in {span}"
-    parse.span, parse.lo, parse.hi, parse.lo_open, parse.unit, parse.integral = span, lo, hi, lo_open, unit, False
-    parse.range = Range(lo, hi, unit, lo_open=lo_open)
-    return parse
+    return _ranged(parse, f"number in {span}", rng)
 
 
 def bounded_int(lo: int, hi: int, unit: str = "") -> Callable[[str], int]:
     """argparse type: a plain decimal integer in [lo, hi]; the message names the range."""
-    u = f" {unit}" if unit else ""
+    rng = Range(lo, hi, unit, integral=True)
+    span, u = rng.span, f" {unit}" if unit else ""
     rule = f"must be {'> 0' if lo == 1 else f'>= {lo}'} and <= {hi}{u}"
-
-    span = f"[{lo}, {hi}]{u}"
 
     def parse(text: str) -> int:
         value = integer(text)
@@ -251,10 +286,7 @@ def bounded_int(lo: int, hi: int, unit: str = "") -> Callable[[str], int]:
             raise argparse.ArgumentTypeError(f"{rule}: {text!r} is outside {span}")
         return value
 
-    parse.__name__ = f"integer in [{lo}, {hi}]"
-    parse.span, parse.lo, parse.hi, parse.lo_open, parse.unit, parse.integral = span, lo, hi, False, unit, True
-    parse.range = Range(lo, hi, unit, integral=True)
-    return parse
+    return _ranged(parse, f"integer in [{lo}, {hi}]", rng)
 
 
 def baud_rate(lo: int) -> Callable[[str], int]:
@@ -270,9 +302,16 @@ def baud_rate(lo: int) -> Callable[[str], int]:
             raise argparse.ArgumentTypeError(f"{text!r} {why}")
         return value
 
-    parse.__name__ = f"serial rate in {rng.span}"
-    parse.span, parse.lo, parse.hi, parse.lo_open, parse.unit, parse.integral = rng.span, rng.lo, rng.hi, False, \
-        "baud", True
+    return _ranged(parse, f"serial rate in {rng.span}", rng)
+
+
+def _ranged(parse, name: str, rng: Range):
+    """``parse``, an argparse type, named ``name`` (argparse's messages) and carrying ``rng``: its
+    span, bounds, unit and integral flag for the help (:class:`_RangeHelpFormatter`) and the range
+    itself for :func:`file_number` (a file's key and the option of the same quantity: one rule)."""
+    parse.__name__ = name
+    parse.span, parse.lo, parse.hi, parse.lo_open, parse.unit, parse.integral = (
+        rng.span, rng.lo, rng.hi, rng.lo_open, rng.unit, rng.integral)
     parse.range = rng
     return parse
 

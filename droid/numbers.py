@@ -45,6 +45,12 @@ def show_number(value) -> str:
     return repr(value)
 
 
+def finite_numbers(value, n: int) -> bool:
+    """``value`` is a list of ``n`` finite numbers (ints or floats; a bool is not a number)."""
+    return isinstance(value, list) and len(value) == n and all(
+        isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in value)
+
+
 @dataclass(frozen=True)
 class Range:
     """The numbers a key accepts: ``[lo, hi] unit`` (``lo_open``: ``(lo, hi]``), integers only

@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from droid.cli import BadInput, read_toml
-from droid.numbers import NumberError, check_numbers
+from droid.cli import BadInput, TableReader, read_toml
+from droid.numbers import NumberError, check_numbers, finite_numbers
 from droid.brain.classes import SubunitClass
 from droid.brain import registry as _registry
 from droid.brain.curve import CurveConfig, parse_curve_table
@@ -117,6 +117,19 @@ class Subunit:
         """A commandable arm with a robot model (its class is kinematic)."""
         return _registry.classes()[self.cls].kinematic
 
+    def check_class(self, cls: str, what: str) -> None:
+        """BadInput ``NAME is a CLS subunit, not WHAT`` unless the subunit is of class ``cls``."""
+        if self.cls != cls:
+            raise BadInput(f"{self.name} is a {self.cls} subunit, not {what}")
+
+    def device_url(self, what: str, example: str) -> str:
+        """The subunit's ``device`` URL (BadInput ``[subunits.NAME] WHAT needs 'device' (e.g. EXAMPLE)``
+        when it has none)."""
+        url = self.options.get("device")
+        if not isinstance(url, str) or not url:
+            raise BadInput(f"[subunits.{self.name}] {what} needs 'device' (e.g. \"{example}\")")
+        return url
+
 
 @dataclass
 class Cell:
@@ -191,37 +204,18 @@ def _expand(value: Any, run: str, cell: str) -> Any:
     return value
 
 
-class _Reader:
-    """Typed, key-checked access to one TOML table."""
+class _Reader(TableReader):
+    """Typed, key-checked access to one TOML table of a cell file."""
 
     def __init__(self, path: Path, where: str, table: Any) -> None:
         if not isinstance(table, dict):
             raise BadInput(f"{path}: [{where}] must be a table")
-        self.path, self.where, self.table = path, where, table
-        self.used: set[str] = set()
-
-    def get(self, key: str, typ: type | tuple, default: Any = ..., *, check=None) -> Any:
-        self.used.add(key)
-        if key not in self.table:
-            if default is ...:
-                raise BadInput(f"{self.path}: [{self.where}] is missing '{key}'")
-            return default
-        val = self.table[key]
-        if typ is float and isinstance(val, int) and not isinstance(val, bool):
-            val = float(val)
-        if not isinstance(val, typ) or (typ is int and isinstance(val, bool)):
-            tname = typ.__name__ if isinstance(typ, type) else "/".join(t.__name__ for t in typ)
-            raise BadInput(f"{self.path}: [{self.where}] {key} must be {tname}, got {val!r}")
-        if check is not None:
-            msg = check(val)
-            if msg:
-                raise BadInput(f"{self.path}: [{self.where}] {key}: {msg}")
-        return val
+        super().__init__(f"{path}: [{where}]", table)
 
     def done(self, allow_extra: bool = False) -> dict[str, Any]:
         extra = {k: v for k, v in self.table.items() if k not in self.used}
         if extra and not allow_extra:
-            raise BadInput(f"{self.path}: [{self.where}] unknown key(s): {', '.join(sorted(extra))}")
+            raise BadInput(f"{self.where} unknown key(s): {', '.join(self.unused())}")
         return extra
 
 
@@ -255,7 +249,7 @@ def _interpose_table(table: dict, p: Path, run: str, cell: str) -> dict[str, str
 
 
 def _pose(v: list) -> str | None:
-    if len(v) != 6 or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v):
+    if not finite_numbers(v, 6):
         return "must be 6 finite numbers: x y z [mm] A B C [ZYZ deg]"
     return None
 

@@ -178,6 +178,7 @@ class ReopeningPort:
         self._wait = 0
         self.failures = 0  # failed opens and lost ports
 
+    # Alike in shape only to other read-only views (ServoCore's): each its own object's state.
     @property
     def port(self):
         return self.link.port

@@ -110,7 +110,7 @@ class FastArm:
         self._q = list(q0)  # true joints at the last tick [deg]
         self._q_status = list(q0)  # joints the Status holds at the last tick [deg]
 
-    # -- joint vectors as arrays [deg] ------------------------------------------
+    # -- joint vectors as arrays [deg] (alike in shape only: four vectors, each a copy) ----------
     @property
     def q(self) -> np.ndarray:
         """True joints at the last tick [deg]."""

@@ -104,9 +104,7 @@ class ContactKeys:
         if key == "position":
             return c.check(where, key, value)
         if key == "workpiece":
-            if not isinstance(value, str) or not value:
-                raise c.bad(where, key, value, "must be a bundled workpiece name or a path")
-            c.workpiece(where, value)
+            c.workpiece(where, c.text(where, key, value, "must be a bundled workpiece name or a path"))
             wp = self.workpiece(c.resolved(value))
             if wp.contact is None:
                 raise c.bad(where, key, value, "has no [contact] table (no contact model: docs/contact.md)")
@@ -115,9 +113,7 @@ class ContactKeys:
                             "W's x-y plane (plane workpieces only; docs/contact.md)")
             return value
         if key == "gains":
-            if not isinstance(value, str) or not value:
-                raise c.bad(where, key, value, "must be a gains file's path (relative to the plan)")
-            self.gains(where, value)
+            self.gains(where, c.text(where, key, value, "must be a gains file's path (relative to the plan)"))
             return value
         raise AssertionError(key)
 

@@ -44,6 +44,7 @@ HEARTBEAT_HZ = 60.0
 FT_POSE_MM = (0.0, 0.0, 100.0)
 
 
+# Alike in shape only to other numeric dataclasses (the contact Gains): a trial's settings, not gains.
 @dataclass(frozen=True)
 class ContactTrialConfig:
     """One trial (defaults: the issue's measure: 20 N at 10 mm/s over 200 mm)."""

@@ -164,6 +164,12 @@ class _Checker:
     def bad(self, where: str, key: str, value, why: str) -> BadInput:
         return BadInput(f"plan {self.source}: {where}{key} = {_toml(value)}: {why}")
 
+    def text(self, where: str, key: str, value, what: str) -> str:
+        """``value`` if it is a non-empty string, else bad: ``what`` says what it must be."""
+        if not isinstance(value, str) or not value:
+            raise self.bad(where, key, value, what)
+        return value
+
     def check(self, where: str, key: str, value):
         """The value, normalised (ints of float keys become floats; workpiece paths resolved)."""
         def is_num(v) -> bool:
@@ -211,16 +217,13 @@ class _Checker:
         if key == "sensor":
             return choice(self.sensors)
         if key == "mode":
-            if not isinstance(value, str) or not value:
-                raise self.bad(where, key, value, "must be a non-empty string")
+            self.text(where, key, value, "must be a non-empty string")
             if "mode" not in _trial_config_fields():
                 raise self.bad(where, key, value, "this droid's TrialConfig has no tracking mode "
                                                   "(a newer droid-experiment is needed)")
             return value
         if key == "workpiece":
-            if not isinstance(value, str) or not value:
-                raise self.bad(where, key, value, "must be a bundled workpiece name or a path")
-            return self.workpiece(where, value)
+            return self.workpiece(where, self.text(where, key, value, "must be a bundled workpiece name or a path"))
         raise AssertionError(key)
 
     def resolved(self, value: str | None) -> str | None:

@@ -195,6 +195,19 @@ class FaultProxy:
         except zmq.ZMQError as exc:
             raise RuntimeFailure(f"fault proxy {self.ep.label}: cannot bind {where}: {exc}") from None
 
+    def _turns(self, poller: zmq.Poller, ctl: zmq.Socket, stop, held_up: DelayLine, held_down: DelayLine):
+        """The loop's turns, once the proxy is serving, until it is stopped: ``(events, now [ns],
+        faults)`` after each poll (woken in time for the next held message), the control socket's
+        request already answered."""
+        self._serving()
+        while not self._stop.is_set() and not stop():
+            events = dict(poller.poll(_wait_ms(held_up, held_down)))
+            now = time.monotonic_ns()
+            faults = self.faults
+            if ctl in events:
+                ctl.send_string(json.dumps(self._control(ctl.recv())))
+            yield events, now, faults
+
     def _serve_zmq(self, stop) -> None:
         ctx = zmq.Context()
         socks: list[zmq.Socket] = []
@@ -221,19 +234,9 @@ class FaultProxy:
                     poller.register(back, zmq.POLLIN)
             poller.register(front, zmq.POLLIN)
             poller.register(ctl, zmq.POLLIN)
-            self._serving()
-            while not self._stop.is_set() and not stop():
-                events = dict(poller.poll(_wait_ms(held_up, held_down)))
-                now = time.monotonic_ns()
-                faults = self.faults
-                if ctl in events:
-                    ctl.send_string(json.dumps(self._control(ctl.recv())))
+            for events, now, faults in self._turns(poller, ctl, stop, held_up, held_down):
                 if front in events:
-                    while True:
-                        try:
-                            frames = front.recv_multipart(zmq.NOBLOCK)
-                        except zmq.Again:
-                            break
+                    for frames in _waiting(front):
                         if kind == "pub":  # a subscription: pass it on untouched
                             back.send_multipart(frames)
                             continue
@@ -242,11 +245,7 @@ class FaultProxy:
                 for s in list(dealers.values()) + ([back] if kind == "pub" else []):
                     if s in events:
                         ident = next((i for i, x in dealers.items() if x is s), None)
-                        while True:
-                            try:
-                                frames = s.recv_multipart(zmq.NOBLOCK)
-                            except zmq.Again:
-                                break
+                        for frames in _waiting(s):
                             for d in self.down.decide(faults):
                                 held_down.put(now + d, frames if ident is None else [ident, *frames])
                 for frames in held_up.due(now):
@@ -285,13 +284,7 @@ class FaultProxy:
             poller = zmq.Poller()
             for s in (front.fileno(), back.fileno(), ctl):
                 poller.register(s, zmq.POLLIN)
-            self._serving()
-            while not self._stop.is_set() and not stop():
-                events = dict(poller.poll(_wait_ms(held_up, held_down)))
-                now = time.monotonic_ns()
-                faults = self.faults
-                if ctl in events:
-                    ctl.send_string(json.dumps(self._control(ctl.recv())))
+            for events, now, faults in self._turns(poller, ctl, stop, held_up, held_down):
                 if front.fileno() in events:
                     for data, source in _recv_all(front):
                         self.controller = source  # replies go to the controller's newest address
@@ -332,6 +325,16 @@ def _wait_ms(*lines: DelayLine) -> int:
     """How long the loop may sleep [ms]: until the next held message is due, POLL_MS at most."""
     nxt = min((t for t in (ln.next_ns() for ln in lines) if t is not None), default=None)
     return POLL_MS if nxt is None else max(0, min(POLL_MS, (nxt - time.monotonic_ns()) // 1_000_000))
+
+
+def _waiting(sock: zmq.Socket):
+    """The multipart messages waiting on ``sock``, each taken as it is asked for, never blocking."""
+    while True:
+        try:
+            frames = sock.recv_multipart(zmq.NOBLOCK)
+        except zmq.Again:
+            return
+        yield frames
 
 
 def _recv_all(sock: socket.socket) -> list[tuple[bytes, tuple]]:

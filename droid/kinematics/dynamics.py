@@ -102,6 +102,7 @@ class Dynamics:
     hard_stop_margin_deg: float  # mechanical stops this far outside the joint limits
     source: dict
 
+    # Alike in shape only to ReisPlant's derived properties: products of the file's data.
     @property
     def motor_torque_limit_nm(self) -> np.ndarray:
         """Largest motor torque [N m] the amplifier delivers (current limit x k_t)."""
@@ -189,6 +190,12 @@ def _parse(table: str, data, keys: dict) -> tuple[dict, dict]:
     return values, _provenance(table, data, keys)
 
 
+def _as_fields(values: dict, keys: dict) -> dict:
+    """A parsed table's ``values`` as its dataclass's fields: a one-number key (shape "1") as a
+    float, the others as parsed (arrays)."""
+    return {k: float(a) if keys[k] == "1" else a for k, a in values.items()}
+
+
 def inertia_matrix(six) -> np.ndarray:
     """3x3 inertia [kg m^2] from (Ixx, Iyy, Izz, Ixy, Ixz, Iyz)."""
     xx, yy, zz, xy, xz, yz = (float(v) for v in six)
@@ -218,26 +225,7 @@ def dynamics_from_table(data) -> Dynamics:
     inertias = np.array([inertia_matrix(row) for row in v["link_inertia_kgm2"]])
     for i, inertia in enumerate(inertias):
         check_inertia(i, inertia)
-    return Dynamics(
-        gravity_mps2=float(v["gravity_mps2"]),
-        link_mass_kg=v["link_mass_kg"],
-        link_com_mm=v["link_com_mm"],
-        link_inertia_kgm2=inertias,
-        rotor_inertia_kgm2=v["rotor_inertia_kgm2"],
-        torque_constant_nm_per_a=v["torque_constant_nm_per_a"],
-        amp_gain_a_per_v=v["amp_gain_a_per_v"],
-        amp_current_limit_a=v["amp_current_limit_a"],
-        motor_no_load_speed_rad_s=v["motor_no_load_speed_rad_s"],
-        dac_full_scale_v=float(v["dac_full_scale_v"]),
-        hd_stiffness_nm_per_rad=v["hd_stiffness_nm_per_rad"],
-        hd_damping_nm_s_per_rad=v["hd_damping_nm_s_per_rad"],
-        coulomb_friction_nm=v["coulomb_friction_nm"],
-        viscous_friction_nm_s_per_rad=v["viscous_friction_nm_s_per_rad"],
-        brake_torque_nm=v["brake_torque_nm"],
-        balancer_moment_nm=float(v["balancer_moment_nm"]),
-        hard_stop_margin_deg=float(v["hard_stop_margin_deg"]),
-        source=src,
-    )
+    return Dynamics(**{**_as_fields(v, DYNAMICS_KEYS), "link_inertia_kgm2": inertias}, source=src)
 
 
 def axis_servo_from_table(data) -> AxisServo:
@@ -252,10 +240,7 @@ def axis_servo_from_table(data) -> AxisServo:
     if np.any(2 * math.pi * v["velocity_bandwidth_hz"] / v["servo_rate_hz"] > 0.5):
         raise ValueError("[axis_servo] velocity_bandwidth_hz: must be below servo_rate_hz / (4 pi) "
                          "(a loop that fast cannot be run at that rate)")
-    return AxisServo(position_gain_per_s=v["position_gain_per_s"], velocity_bandwidth_hz=v["velocity_bandwidth_hz"],
-                     velocity_integral_time_s=v["velocity_integral_time_s"],
-                     velocity_feedforward=v["velocity_feedforward"], servo_rate_hz=float(v["servo_rate_hz"]),
-                     source=src)
+    return AxisServo(**_as_fields(v, AXIS_SERVO_KEYS), source=src)
 
 
 def servo_from_table(data) -> ServoGains:

@@ -170,6 +170,7 @@ def model_from_dict(data: dict, source: str = "") -> RobotModel:
     if axis_servo is not None and dynamics is None:
         raise ValueError("[axis_servo]: needs a [dynamics] table (the loops drive the arm's dynamics)")
     geometry = _geometry(_table(data, "geometry"))
+    # Alike in shape only: one keyword per RobotModel field, each filled once from its table.
     return RobotModel(
         name=name,
         description=description,

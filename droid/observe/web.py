@@ -40,7 +40,7 @@ from pathlib import Path
 
 from aiohttp import WSMsgType, web
 
-from droid.brain.program import open_cell, parser
+from droid.brain.program import close_all, open_cell, parser
 from droid.cli import BadInput, DroidError, RuntimeFailure, rate_hz, run, tcp_port
 from droid.observe.sources import FileSource, LiveSource
 
@@ -256,9 +256,7 @@ def main(argv=None) -> int:
             svc = fox.Service(fox.open_source(args.file, args), args.bind, args.foxglove, args.token, args.rate)
         asyncio.run(serve(WebApp(src, args.token, args.rate), args.bind, args.port, svc))
     finally:
-        if svc is not None:
-            svc.close()
-        src.close()
+        close_all(svc, src)
     return 0
 
 

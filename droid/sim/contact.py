@@ -58,6 +58,7 @@ import numpy as np
 CONTACT_KEYS = ("stiffness_n_per_mm", "damping_n_s_per_mm", "friction_coefficient", "slip_speed_mm_s")
 
 
+# Alike in shape only to other numeric dataclasses (the contact force's Gains): different quantities.
 @dataclass(frozen=True)
 class ContactParams:
     """A penalty contact: normal stiffness [N/mm] and damping [N s/mm], Coulomb friction."""
@@ -119,6 +120,7 @@ def lap_depth(side_mm: float, z_mm: float, h_mm: float) -> tuple[float, bool]:
     return depth, False
 
 
+# tests/sim/test_contact.py keeps a deliberate copy of this law as it was before the wall (its reference).
 def _face_force(depth_mm: float, n, v_mm_s, params: ContactParams, slip_limit) -> np.ndarray:
     """The law on one face (unit outward normal ``n``, global): the normal rate and the
     sliding velocity from the point's velocity, friction capped by ``slip_limit``."""

@@ -7,56 +7,34 @@ file.
 """
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
 
-from droid.cli import BadInput
+from droid.cli import BadInput, TableReader
+from droid.numbers import finite_numbers
 
 
-class DeviceOptions:
-    """Typed, key-checked reading of one device table (``type`` already removed)."""
+class DeviceOptions(TableReader):
+    """Typed, key-checked reading of one device table (``type`` already removed); floats finite."""
 
     def __init__(self, world, name: str, options: dict[str, Any]) -> None:
         cell = getattr(world, "cell", None)
         path = getattr(cell, "path", None)
-        self.where = f"{path}: [world.devices.{name}]" if path else f"[world.devices.{name}]"
+        super().__init__(f"{path}: [world.devices.{name}]" if path else f"[world.devices.{name}]", dict(options),
+                         finite_floats=True)
         self.name = name
         self.world = world
-        self.table = dict(options)
-        self.used: set[str] = set()
 
     def bad(self, message: str, key: str | None = None) -> BadInput:
         return BadInput(f"{self.where} {key + ': ' if key else ''}{message}")
-
-    def get(self, key: str, typ: type | tuple, default: Any = ..., *, check=None) -> Any:
-        self.used.add(key)
-        if key not in self.table:
-            if default is ...:
-                raise BadInput(f"{self.where} is missing '{key}'")
-            return default
-        val = self.table[key]
-        if typ is float and isinstance(val, int) and not isinstance(val, bool):
-            val = float(val)
-        if not isinstance(val, typ) or (typ in (int, float) and isinstance(val, bool)):
-            tname = typ.__name__ if isinstance(typ, type) else "/".join(t.__name__ for t in typ)
-            raise BadInput(f"{self.where} {key} must be {tname}, got {val!r}")
-        if typ is float and not math.isfinite(val):
-            raise BadInput(f"{self.where} {key} must be finite, got {val!r}")
-        if check is not None:
-            msg = check(val)
-            if msg:
-                raise BadInput(f"{self.where} {key}: {msg}")
-        return val
 
     def pose(self, key: str, default: Any = ...) -> np.ndarray:
         """A pose ``[x y z (mm), A B C (ZYZ deg)]`` as a 4x4 transform."""
         from droid.kinematics.transforms import pose_to_T
 
         v = self.get(key, list, default)
-        if len(v) != 6 or not all(isinstance(x, (int, float)) and not isinstance(x, bool)
-                                  and math.isfinite(x) for x in v):
+        if not finite_numbers(v, 6):
             raise BadInput(f"{self.where} {key} must be 6 finite numbers: x y z [mm] A B C [ZYZ deg]")
         return pose_to_T(*(float(x) for x in v))
 
@@ -74,6 +52,6 @@ class DeviceOptions:
         return dev
 
     def done(self) -> None:
-        extra = sorted(k for k in self.table if k not in self.used)
+        extra = self.unused()
         if extra:
             raise BadInput(f"{self.where} unknown key(s): {', '.join(extra)}")

@@ -62,7 +62,7 @@ from pathlib import Path
 import numpy as np
 
 from droid.cli import BadInput, read_toml
-from droid.numbers import NumberError, check_numbers
+from droid.numbers import NumberError, check_numbers, finite_numbers
 
 WORKPIECE_DIR = Path(__file__).parent / "workpieces"
 
@@ -484,9 +484,7 @@ def _profile(data: dict, key: str, value_name: str, bad, lo: float, hi: float = 
         raise bad(f"{key} must be a non-empty list of [s_mm, {value_name}] pairs")
     out = []
     for k, pair in enumerate(raw, 1):
-        ok = isinstance(pair, list) and len(pair) == 2 and all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in pair)
-        if not ok:
+        if not finite_numbers(pair, 2):
             raise bad(f"{key}: point {k} must be [s_mm, {value_name}] (two finite numbers), got {pair!r}")
         s_k, v = float(pair[0]), float(pair[1])
         if out and s_k <= out[-1][0]:
@@ -528,9 +526,7 @@ def _curve_points(seg: dict, where: str, source: str, bad) -> np.ndarray:
             raise bad(f"{where}points_mm must be a list of [x, y, z] points")
         rows = []
         for k, pt in enumerate(raw, 1):
-            ok = isinstance(pt, list) and len(pt) == 3 and all(
-                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in pt)
-            if not ok:
+            if not finite_numbers(pt, 3):
                 raise bad(f"{where}points_mm: point {k} must be [x, y, z] (three finite numbers), got {pt!r}")
             rows.append([float(v) for v in pt])
         what = "points_mm"

@@ -25,7 +25,7 @@ import time
 from typing import Any
 
 from droid.brain.registry import program, registry, twin_factory, validate_cell
-from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
+from droid.brain.program import Presence, Stop, close_all, notify_ready, open_cell, parser, presence_key
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import BadInput, RuntimeFailure, file_number, run, seed_int
 from droid.numbers import SEED, Range
@@ -202,11 +202,7 @@ def main(argv=None) -> int:
             print(f"{PROG}: the world's clock slipped {slipped * dt * 1e3:.0f} ms over {timer.cycles} steps "
                   f"(stalls it could not catch up within {MAX_OWED_S * 1e3:.0f} ms)", file=sys.stderr)
     finally:
-        if timer is not None:
-            timer.close()
-        if world is not None:
-            world.close()
-        presence.close()
+        close_all(timer, world, presence)
     return 0
 
 

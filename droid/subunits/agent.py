@@ -204,12 +204,18 @@ def _set_fault(db, bit: int, on: bool) -> None:
         db.mark_written()
 
 
+def agent_program(prog: str, module: str):
+    """The ``main`` of an agent program: :func:`agent_main` under the name ``prog``, its one-line
+    errors (:func:`droid.cli.run`) named by ``module``'s PROG as every program's are."""
+    def main(argv=None) -> int:
+        return agent_main(prog, argv)
+
+    main.__module__ = module
+    return run(main)
+
+
 PROG = "droid-agent"
-
-
-@run
-def main(argv=None) -> int:
-    return agent_main(PROG, argv)
+main = agent_program(PROG, __name__)
 
 
 if __name__ == "__main__":

@@ -24,8 +24,7 @@ class BrainFt:
 
     def __init__(self, cell, name: str) -> None:
         self.sub = cell.subunit(name)
-        if self.sub.cls != "ft6":
-            raise BadInput(f"{name} is a {self.sub.cls} subunit, not an ft6 force/torque sensor")
+        self.sub.check_class("ft6", "an ft6 force/torque sensor")
         self.cell = cell
         self.command = None
 

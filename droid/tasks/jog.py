@@ -218,8 +218,7 @@ def _keyboard(jog: Jogger) -> int:
 def _joystick(arm: BrainArm, cell, joy_name: str, cart: bool, seconds: float | None) -> int:
     """Drive ``arm`` from the joystick subunit ``joy_name`` once per heartbeat tick (§3.4)."""
     joy = cell.subunit(joy_name)
-    if joy.cls != "joystick":
-        raise BadInput(f"{joy_name} is a {joy.cls} subunit, not a joystick")
+    joy.check_class("joystick", "a joystick")
     status = open_brain(cell, joy, "status")
     core = StickJog(arm.model, arm.hb_hz, cart=cart)
     period_ns = int(round(1e9 / arm.hb_hz))
@@ -278,9 +277,7 @@ def main(argv=None) -> int:
         ap.error("--seconds needs --joystick")
     cell = open_cell(args)
     if args.joystick is not None:  # a bad joystick name: exit 2 before touching the arm
-        joy = cell.subunit(args.joystick)
-        if joy.cls != "joystick":
-            raise BadInput(f"{joy.name} is a {joy.cls} subunit, not a joystick")
+        cell.subunit(args.joystick).check_class("joystick", "a joystick")
     with BrainArm(cell, args.robot) as arm:
         arm.connect()
         arm.check_fresh()

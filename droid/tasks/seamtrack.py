@@ -38,22 +38,18 @@ subunit stale for 2 s, cell not up, heartbeat lost; 2 bad arguments or layout
 from __future__ import annotations
 
 import math
-import signal
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
-import zmq
 
 from droid.brain.databases import open_brain
-from droid.brain.layouts import NO_CAPTURE_AGE
 from droid.brain.heartbeat import TickSubscriber
-from droid.brain.program import Stop, open_cell, parser
-from droid.brain.rt import try_sched_fifo
-from droid.cli import (EXIT_INTERRUPTED, EXIT_OK, EXIT_RUNTIME, BadInput, RuntimeFailure, bounded_float,
+from droid.brain.layouts import NO_CAPTURE_AGE
+from droid.brain.program import Stop, open_cell, parser  # noqa: F401 (Stop: tests patch seamtrack.Stop)
+from droid.cli import (EXIT_OK, EXIT_RUNTIME, BadInput, RuntimeFailure, bounded_float,
                        bounded_int, run)
-from droid.tasks.arm import STALE_GRACE_S, BrainArm
+from droid.tasks.arm import BrainArm
 from droid.tasks.seam import report
 from droid.tasks.seam.core import (DEAD_ZONE_CYCLES, LOST_CYCLES, MAX_CYCLES, MAX_GAIN, MAX_RUN_LENGTH_MM,
                                    MAX_SPEED_MM_S, MODE_THESIS, MODES, STOP_END, SeamParams)
@@ -61,9 +57,9 @@ from droid.tasks.seam.cycle import SENSOR_LAG_TICKS, TrackingCycle  # noqa: F401
 from droid.tasks.seam.station import ArmStatus, SeamtrackStation
 from droid.tasks.seam.delay import INVALID_READING, Reading
 from droid.tasks.seam.layout import POSITION_IDS, check_bases, layout_for_cell, layout_path_for
+from droid.tasks.shell import TickLoop, check_output_dirs, ready_then_run, run_on_ticks, say_outcome
 
 PROG = "droid-seamtrack"
-HEARTBEAT_LOST_S = STALE_GRACE_S  # no tick for this long [s]: the Brain's heartbeat is gone
 START_MOVE_MIN_S = 3.0  # the shortest move to a start pose [s]
 START_MOVE_MARGIN = 1.5  # move time = margin x the slowest joint at its speed limit
 SETTLED_COUNTS = 2  # after a start move: encoder change per poll [counts] that counts as still
@@ -295,30 +291,11 @@ class Tracker:
 
     # -- the run -------------------------------------------------------------
     def run(self) -> tuple[int, str]:
-        # The 30 Hz loop is part of the cell's tick chain: below the remotes (50) when the
-        # cell asks for SCHED_FIFO, so a loaded host does not stretch the loop's delay
-        # (a delay of 2+ cycles destabilises the tracking, §6.2.5).
-        try_sched_fifo(wanted=self.cell.sched_fifo, prog=PROG)
-        ctx = zmq.Context.instance()
-        ticks = TickSubscriber(ctx, self.cell.heartbeat)
-        try:
-            return self._loop(ticks)
-        finally:
-            ticks.close()
+        return run_on_ticks(self.cell, PROG, self._loop)  # the 30 Hz loop: below the remotes (50), SCHED_FIFO
 
     def _loop(self, ticks: TickSubscriber) -> tuple[int, str]:
-        last_tick_wall = time.monotonic()
-        last_progress = 0.0
-        while True:
-            if Stop.requested:  # finish the cycle, then stop: no half-written command
-                return EXIT_INTERRUPTED, f"interrupted ({signal.Signals(Stop.signum).name})"
-            t = ticks.wait(0.1)
-            now = time.monotonic()
-            if t is None:
-                if now - last_tick_wall > HEARTBEAT_LOST_S:
-                    return EXIT_RUNTIME, "heartbeat lost"
-                continue
-            last_tick_wall = now
+        loop, last_progress = TickLoop(ticks), 0.0
+        for t, now in loop:
             if self.t0 is None:
                 self.t0 = t.t_ns
             if self.recorder is not None:
@@ -337,6 +314,7 @@ class Tracker:
                 last_progress = now
                 print(f"{PROG}: {o.travel_mm:7.1f} mm  {o.phase:<9} lead y {lead.y_mm:+6.2f} "
                       f"x {lead.x_mm:+6.2f} mm{'' if lead.valid else ' (invalid)'}", file=sys.stderr)
+        return loop.end
 
 
 @run
@@ -345,23 +323,14 @@ def main(argv=None) -> int:
     cell = open_cell(args)
     layout = layout_for_cell(cell, args.layout)
     tr = Tracker(args, cell, layout)
-    for p in (args.log, args.figure, args.record):
-        if p is not None and Path(p).parent and not Path(p).parent.exists():
-            raise BadInput(f"directory of {p} does not exist")
+    check_output_dirs(args.log, args.figure, args.record)
     tr.connect()
     try:
         if args.record:
             from droid.observe.record import LiveRecorder
 
             tr.recorder = LiveRecorder(cell, args.record, layout_path=layout_path_for(cell, args.layout))
-        tr.check_ready()
-        Stop.install()
-        if args.start:
-            tr.go_to_start(args.start)
-        if Stop.requested:
-            code, why = EXIT_INTERRUPTED, "interrupted before tracking"
-        else:
-            code, why = tr.run()
+        code, why = ready_then_run(tr, args.start, "tracking", tr.run)
     finally:
         if tr.recorder is not None:
             tr.recorder.close()
@@ -377,11 +346,7 @@ def main(argv=None) -> int:
     if args.figure:
         title = f"droid-seamtrack {args.speed:g} mm/s" + (f", position ({args.start})" if args.start else "")
         report.figure(args.figure, tr.rows, title, panels="errors")
-    print(f"{PROG}: stopped: {why}", file=sys.stderr)
-    print(report.summary_line(summary))
-    for label, p in (("log", args.log), ("figure", args.figure)):
-        if p:
-            print(f"{label}: {p}")
+    say_outcome(PROG, why, report.summary_line(summary), args.log, args.figure)
     return code
 
 

@@ -177,15 +177,20 @@ def test_ipc_endpoints_never_use_curve(cell, ctx):
 # ------------------------------------------------------------------ real sockets
 
 
+def _curve_server(ctx, cell, host: str, kind: int):
+    """``host``'s CurveHost and a ``kind`` socket it serves on a loopback TCP port: (host, socket, endpoint)."""
+    server = CurveHost(ctx, cell, host)
+    sock = ctx.socket(kind)
+    sock.setsockopt(zmq.LINGER, 0)
+    assert server.server(sock, "tcp://127.0.0.1:*")
+    sock.bind("tcp://127.0.0.1:*")
+    return server, sock, sock.last_endpoint.decode()
+
+
 def test_pub_sub_only_the_cell_keys_receive(cell, ctx):
     """A heartbeat-like PUB: the a1 host's SUB receives; no key, a stranger's key, or a
     wrong idea of the server's key receive nothing."""
-    server = CurveHost(ctx, cell, "brain")
-    pub = ctx.socket(zmq.PUB)
-    pub.setsockopt(zmq.LINGER, 0)
-    assert server.server(pub, "tcp://127.0.0.1:*")
-    pub.bind("tcp://127.0.0.1:*")
-    ep = pub.last_endpoint.decode()
+    server, pub, ep = _curve_server(ctx, cell, "brain", zmq.PUB)
     socks = {k: ctx.socket(zmq.SUB) for k in ("right", "no key", "stranger", "wrong server key")}
     try:
         for s in socks.values():
@@ -239,12 +244,7 @@ def _first_handshake(mon, timeout_ms: int = 10000) -> str:
 def test_router_dealer_wrong_key_neither_heard_nor_answered(cell, ctx):
     """An agent-like ROUTER: the Brain's DEALER is answered; a stranger's requests never
     reach the server (its handshake failed, so ZeroMQ delivers nothing of it)."""
-    server = CurveHost(ctx, cell, "a1")
-    router = ctx.socket(zmq.ROUTER)
-    router.setsockopt(zmq.LINGER, 0)
-    assert server.server(router, "tcp://127.0.0.1:*")
-    router.bind("tcp://127.0.0.1:*")
-    ep = router.last_endpoint.decode()
+    server, router, ep = _curve_server(ctx, cell, "a1", zmq.ROUTER)
     good, bad = ctx.socket(zmq.DEALER), ctx.socket(zmq.DEALER)
     try:
         for s in (good, bad):

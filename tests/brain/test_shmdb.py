@@ -86,12 +86,21 @@ def _hold_forever(name, ready):
     time.sleep(60)
 
 
-def test_live_holder_times_out(db):
+def _holder(target, name):
+    """A process running ``target(name, ready)``, returned once it has set ``ready`` (killed if it never does)."""
     ready = CTX.Event()
-    p = CTX.Process(target=_hold_forever, args=(db.name, ready))
+    p = CTX.Process(target=target, args=(name, ready))
     p.start()
+    if not ready.wait(10):
+        p.kill()
+        p.join()
+        raise AssertionError(f"{target.__name__} did not get ready")
+    return p
+
+
+def test_live_holder_times_out(db):
+    p = _holder(_hold_forever, db.name)
     try:
-        assert ready.wait(10)
         t0 = time.monotonic()
         with pytest.raises(LockTimeout, match=f"held by pid {p.pid}"):
             db.read()
@@ -121,10 +130,7 @@ def _waiter(name, start, results):
 
 
 def test_sigkilled_holder_recovered_by_exactly_one(db):
-    ready = CTX.Event()
-    holder = CTX.Process(target=_hold_forever, args=(db.name, ready))
-    holder.start()
-    assert ready.wait(10)
+    holder = _holder(_hold_forever, db.name)
     start, results = CTX.Event(), CTX.Queue()
     waiters = [CTX.Process(target=_waiter, args=(db.name, start, results)) for _ in range(4)]
     for w in waiters:
@@ -150,10 +156,7 @@ def _die_without_pid(name, ready):
 
 
 def test_orphaned_semaphore_without_holder_recovered(db):
-    ready = CTX.Event()
-    p = CTX.Process(target=_die_without_pid, args=(db.name, ready))
-    p.start()
-    assert ready.wait(10)
+    p = _holder(_die_without_pid, db.name)
     os.kill(p.pid, signal.SIGKILL)
     p.join()
     db.update(busy=3)  # succeeds after two timeouts with no recorded holder

@@ -116,6 +116,7 @@ def test_socket_url(tmp_path, cell_name):
         world.close()
 
 
+# Rows alike in shape only to other tables of bad input: each spoils its own key.
 @pytest.mark.parametrize("device, sub, msg", [
     ('colour = "red"', "", "unknown option"),
     ("start_deg = [0, 0, 0, 0, 170, 0]", "", "joint limits"),

@@ -100,6 +100,7 @@ def test_bad_urls(url):
         open_card(url)
 
 
+# Alike in shape only to test_vme's refusals: another driver, its own error.
 def test_missing_cards_are_unavailable(tmp_path, cell_name):
     with pytest.raises(CardUnavailable):
         open_card(f"shm://droid.{cell_name}.nocard")

@@ -90,6 +90,7 @@ def _edit(text: str, old: str, new: str) -> str:
     return text.replace(old, new, 1)
 
 
+# Rows alike in shape only: each spoils the robot file its own way.
 @pytest.mark.parametrize(
     "mutate, message",
     [

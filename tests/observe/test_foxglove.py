@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import asyncio
 import math
-import signal
 import socket
 import subprocess
 import sys
@@ -22,7 +21,7 @@ import pytest
 
 from tests.brain.cellutil import ROOT, free_port, make_cell_file
 from tests.observe.foxglove_client import OLD_SUBPROTOCOL, SUBPROTOCOL, FoxgloveClient
-from tests.observe.webutil import lockstep_recording
+from tests.observe.webutil import lockstep_recording, stop_process, taken_port
 
 WELL_KNOWN = {"/tf": "foxglove.FrameTransforms", "/scene": "foxglove.SceneUpdate", "/laser": "foxglove.SceneUpdate",
               "/tool_pose": "foxglove.PoseInFrame", "/arm1/joint_states": "foxglove.JointStates",
@@ -60,13 +59,7 @@ class FoxServer:
                 time.sleep(0.1)
 
     def stop(self) -> tuple[int, str]:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        stop_process(self.proc, 15)
         err = self.proc.stderr.read()
         self.proc.stdout.close()
         self.proc.stderr.close()
@@ -331,10 +324,7 @@ def test_refusals(recording, tmp_path, cell_name):
     assert out.returncode == 2 and "not an MCAP file" in out.stderr
     out = run_fox("--port", "70000")
     assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        s.listen()
-        port = s.getsockname()[1]
+    with taken_port() as port:
         out = run_fox("--port", str(port), "--file", recording)
         assert out.returncode == 1 and f"port {port}" in out.stderr and len(out.stderr.strip().splitlines()) == 1
         out = run_fox("--port", str(port), "--file", recording, "--token", "s3cret-token")
@@ -365,10 +355,7 @@ def test_droid_web_serves_foxglove_beside_the_page(recording):
     # the same port twice, and the Foxglove side's port in use: one line each
     out = run_fox("--file", recording, "--port", "8111", "--foxglove", "8111", module="droid.observe.web")
     assert out.returncode == 2 and "--foxglove 8111" in out.stderr and len(out.stderr.strip().splitlines()) == 1
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        s.listen()
-        port = s.getsockname()[1]
+    with taken_port() as port:
         out = run_fox("--file", recording, "--port", str(free_port()), "--foxglove", str(port), module="droid.observe.web")
     assert out.returncode == 1 and f"port {port}" in out.stderr and len(out.stderr.strip().splitlines()) == 1
 

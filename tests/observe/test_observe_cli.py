@@ -8,7 +8,7 @@ import pytest
 from droid.brain.shmdb import cell_objects
 from tests.brain.cellutil import make_cell_file
 
-BAD = [  # (module, argv, reason)
+BAD = [  # (module, argv, reason); rows alike in shape only: web and foxglove refuse the same mistakes each
     ("droid.observe.record", ["--out", "{tmp}/x.mcap", "--seconds", "nan"], "not a finite number"),
     ("droid.observe.record", ["--out", "{tmp}/x.mcap", "--seconds", "-1"], "must be > 0"),
     ("droid.observe.record", ["--out", "{tmp}/x.mcap", "--seconds", "86401"], "<= 86400 s"),

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import asyncio
-import socket
 import subprocess
 import sys
 import urllib.error
@@ -11,7 +10,7 @@ import urllib.request
 import pytest
 
 from tests.brain.cellutil import ROOT, free_port
-from tests.observe.webutil import WebServer, lockstep_recording
+from tests.observe.webutil import WebServer, lockstep_recording, taken_port
 
 
 @pytest.fixture(scope="module")
@@ -95,10 +94,7 @@ def test_refusals(recording, tmp_path):
     assert out.returncode == 2 and "no such file" in out.stderr
     out = run_web("--port", "70000")
     assert out.returncode == 2
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        s.listen()
-        port = s.getsockname()[1]
+    with taken_port() as port:
         out = run_web("--port", str(port), "--file", recording)
     assert out.returncode == 1 and f"port {port}" in out.stderr and len(out.stderr.strip().splitlines()) == 1
 

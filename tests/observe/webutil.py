@@ -1,8 +1,11 @@
-"""Start droid-web as a process for a test and wait until it listens."""
+"""Start droid-web as a process for a test and wait until it listens; stop a server process;
+hold a port so that a server finds it taken."""
 from __future__ import annotations
 
+import contextlib
 import json
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -10,6 +13,26 @@ import urllib.error
 import urllib.request
 
 from tests.brain.cellutil import ROOT, free_port
+
+
+def stop_process(proc: subprocess.Popen, timeout_s: float) -> None:
+    """SIGTERM ``proc`` if it still runs, SIGKILL if it has not exited within ``timeout_s``; reaped."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+@contextlib.contextmanager
+def taken_port():
+    """A loopback TCP port a listening socket holds for the ``with`` block (yields the port)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        yield s.getsockname()[1]
 
 
 class WebServer:
@@ -41,13 +64,7 @@ class WebServer:
             return json.loads(r.read())
 
     def stop(self) -> int:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        stop_process(self.proc, 10)
         self.proc.stdout.close()
         self.proc.stderr.close()
         return self.proc.returncode

@@ -101,6 +101,7 @@ def _bad_file(tmp_path, old, new):
     return spoiled(V15, tmp_path, old, new)
 
 
+# Rows alike in shape only to test_gmf1_dynamics': the V15's file, its own keys.
 @pytest.mark.parametrize("old, new, words", [
     ("link_mass_kg = [60.0,", "link_mass_kg = [-60.0,", ["link_mass_kg", "outside [0,"]),  # droid.numbers' range
     ("link_mass_kg = [60.0,", "link_mass_kg = [0.0,", ["link_mass_kg", "> 0"]),  # the loader's own rule

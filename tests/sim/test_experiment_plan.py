@@ -156,6 +156,7 @@ wrist = ["standard", "extension30"]
     assert rows[0]["error"] == "" and rows[1]["error"].startswith("error: position iii: the arm1 cannot reach")
 
 
+# Rows alike in shape only to other tables of bad input: each spoils its own key.
 @pytest.mark.parametrize("body, key, value", [
     ('name = "x"\ncolour = "red"\n', "colour", '"red"'),
     ('name = "x"\n[sweep]\nspeed = [1, 2]\n', "speed", "[1, 2]"),

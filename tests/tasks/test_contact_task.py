@@ -10,6 +10,7 @@ from droid.kinematics.transforms import trans
 from droid.tasks.contact.core import (STOP_ARM_FAULT, STOP_ARM_STALE, STOP_END, STOP_FT_STALE, STOP_LOST,
                                       STOP_NO_CONTACT, STOP_OVERFORCE, ArmStatus, ContactStation, FtStatus,
                                       Gains, load_gains)
+from tests.refusals import refused
 
 HZ = 60.0
 TOOL = trans(0.0, 0.0, 250.0)  # the tool point 250 mm along the WCP's z; its x the tool axis
@@ -29,11 +30,8 @@ def test_the_bundled_gains_load_and_keep_a_margin_to_the_limit():
     ("gain = 1\n", "unknown key 'gain'"),
 ])
 def test_bad_or_unstable_gains_are_refused_in_one_line(tmp_path, text, message):
-    path = tmp_path / "g.toml"
-    path.write_text(text)
-    with pytest.raises(BadInput) as exc:
-        load_gains(path, HZ)
-    assert "\n" not in str(exc.value) and message in str(exc.value), str(exc.value)
+    msg = refused(tmp_path / "g.toml", text, lambda path: load_gains(path, HZ))
+    assert message in msg, msg
 
 
 class Spring:

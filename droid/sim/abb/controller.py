@@ -50,7 +50,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from droid.brain.program import close_all
 from droid.cli import BadInput
+from droid.numbers import finite_numbers
 from droid.kinematics import RobotModel, load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.sim.device import Device, cell_arm_subunit, number_options
@@ -118,7 +120,7 @@ class EgmController:
         self.restart_at_s: float | None = None
         self.next_tx_s = 0.0
         self.tx_seqno = 0
-        # counters
+        # counters (alike in shape only to droid-gmf1-serial's: each link counts its own events)
         self.received = 0
         self.bad = 0
         self.timeouts = 0
@@ -311,12 +313,8 @@ class AbbEgmDevice(Device):
         return self.model_global.fk(self.controller.q_deg)
 
     def close(self) -> None:
-        if self.sock is not None:
-            self.sock.close()
-            self.sock = None
-        if self.door is not None:
-            self.door.close()
-            self.door = None
+        sock, door, self.sock, self.door = self.sock, self.door, None, None
+        close_all(sock, door)
 
 
 def open_socket(port: int, where: str, host: str = "127.0.0.1") -> socket.socket:
@@ -350,8 +348,7 @@ def egm_twin(cell, name: str, options: dict) -> tuple[str, object, EgmController
     model = load_robot(sub.robot)
     params = twin_params(options, where, model)
     q0 = options.get("start_deg", [0.0] * 6)
-    if not (isinstance(q0, list) and len(q0) == 6 and all(
-            isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in q0)):
+    if not finite_numbers(q0, 6):
         raise BadInput(f"{where} start_deg must be 6 joint angles [deg]")
     why = model.limit_violation(np.array(q0, float))
     if why:

@@ -60,6 +60,7 @@ from typing import Any
 
 import numpy as np
 
+from droid.brain.program import close_all
 from droid.sim.device import Device
 from droid.subunits.ft.rdt import (CALIBRATION_PATH, CMD_SET_BIAS, CMD_START_BUFFERED, CMD_START_REALTIME,
                                    CMD_STOP, FT_SAMPLES_PER_S, RDT_HEADER, RECORD, REQUEST, STATUS_ERROR,
@@ -391,12 +392,8 @@ class NetFtTwinDevice(Device):
                 self.send_errors += 1
 
     def close(self) -> None:
-        if self.page is not None:
-            self.page.close()
-            self.page = None
-        if self.sock is not None:
-            self.sock.close()
-            self.sock = None
+        page, sock, self.page, self.sock = self.page, self.sock, None, None
+        close_all(page, sock)
 
 
 def make_netft(world, name: str, options: dict[str, Any]) -> NetFtTwinDevice:

@@ -34,11 +34,11 @@ in the global frame — for other twins (the arm-twin interface of the world).
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 
 from droid.cli import BadInput, RuntimeFailure
+from droid.numbers import finite_numbers
 from droid.kinematics import Unreachable, load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.sim.gmf1.cards import Quad04Twin, SharedCard
@@ -138,25 +138,20 @@ def karel_params(options: dict, where: str, model=None) -> KarelParams:
         raise BadInput(f"{where} {exc}") from None
 
 
-def _six_numbers(v) -> bool:
-    return isinstance(v, list) and len(v) == 6 and all(
-        isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)
-
-
 def start_joints(options: dict, model, model_global, where: str) -> np.ndarray:
     """Power-up joint angles [deg] from ``start_deg`` or ``wcp`` (global pose, by IK)."""
     if "wcp" in options:
         if "start_deg" in options:
             raise BadInput(f"{where} give start_deg or wcp, not both")
         wcp = options["wcp"]
-        if not _six_numbers(wcp):
+        if not finite_numbers(wcp, 6):
             raise BadInput(f"{where} wcp must be 6 finite numbers: x y z [mm] A B C [ZYZ deg]")
         try:
             return model_global.ik(pose_to_T(*wcp), np.zeros(6))
         except Unreachable as exc:
             raise BadInput(f"{where} wcp {wcp} is out of reach of {model.name}: {exc}") from None
     q = options.get("start_deg", list(DEFAULT_START_DEG))
-    if not _six_numbers(q):
+    if not finite_numbers(q, 6):
         raise BadInput(f"{where} start_deg must be 6 joint angles [deg]")
     q = np.array(q, float)
     why = model.limit_violation(q)

@@ -47,6 +47,7 @@ TOLERANCE_MM = 1e-9
 MAX_ITERATIONS = 50
 
 
+# Alike in shape only to other numeric dataclasses (OpwParams): a reading, not geometry.
 @dataclass(frozen=True)
 class ToolReading:
     """Deviation of the seam from a sensor-like frame (see the module docstring)."""

@@ -369,6 +369,7 @@ class ReisPlant:
         cpr = self._counts_per_rad
         return [math.floor(th * c) for th, c in zip(self._theta, cpr)]
 
+    # Alike in shape only to Dynamics' derived properties: the plant's state in counts.
     @property
     def motor_counts(self) -> np.ndarray:
         """True motor positions [counts, float], 0 at the undeflected home pose."""

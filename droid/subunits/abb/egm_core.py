@@ -87,6 +87,7 @@ _U32 = 0xFFFFFFFF
 _HALF = 1 << 31
 
 
+# Alike in shape only to other numeric dataclasses (the contact Gains): event counts.
 @dataclass
 class Counters:
     """The link's counters (egm_layout.COUNTERS)."""

@@ -38,7 +38,7 @@ import numpy as np
 
 from droid.brain.databases import open_local
 from droid.brain.layouts import FAULT_DEVICE, FAULT_FORCE
-from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
+from droid.brain.program import Presence, Stop, close_all, notify_ready, presence_key, subunit_program
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import BadInput, run
 from droid.kinematics.transforms import pose_to_T
@@ -63,11 +63,8 @@ def ft_options(sub, cell=None) -> FtOptions:
     """(device URL, the tool frame in the sensor frame, the guarded arm) of an ft6 subunit of
     ``cell`` (needed for ``guard_arm``); BadInput names the key."""
     where = f"[subunits.{sub.name}]"
-    if sub.cls != "ft6":
-        raise BadInput(f"{sub.name} is a {sub.cls} subunit, not an ft6 force/torque sensor")
-    url = sub.options.get("device")
-    if not isinstance(url, str) or not url:
-        raise BadInput(f"{where} an ft6 sensor needs 'device' (e.g. \"netft://192.168.1.1:49152\")")
+    sub.check_class("ft6", "an ft6 force/torque sensor")
+    url = sub.device_url("an ft6 sensor", "netft://192.168.1.1:49152")
     pose = sub.options.get("sensor_tool_pose", [0.0] * 6)
     if not isinstance(pose, list) or len(pose) != 6:
         raise BadInput(f"{where} sensor_tool_pose must be 6 numbers: x y z [mm] A B C [ZYZ deg]")
@@ -293,11 +290,7 @@ def main(argv=None) -> int:
             if tripped:
                 set_guard_fault(arm_status, False)  # a clean stop; a restart re-reads the guard at once
             arm_status.close()
-        dev.close()
-        timer.close()
-        command.close()
-        status.close()
-        presence.close()
+        close_all(dev, timer, command, status, presence)
     return 0
 
 if __name__ == "__main__":

@@ -196,7 +196,7 @@ class SerialCore:
         self.backoff_ticks = self.p.ticks(self.p.reopen_min_s)
         self.status = {"busy": 0}
         self._retries_of_pending = 0
-        # counters
+        # counters (alike in shape only to each other and to the EGM twin's: one int per event counted)
         self.sent = 0
         self.completed = 0
         self.dropped = 0

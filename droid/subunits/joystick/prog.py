@@ -30,9 +30,9 @@ import time
 
 from droid.brain.databases import open_local
 from droid.brain.registry import open_url, program
-from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
+from droid.brain.program import Presence, Stop, close_all, notify_ready, presence_key, subunit_program
 from droid.brain.rt import PeriodicTimer
-from droid.cli import BadInput, file_number, run
+from droid.cli import file_number, run
 from droid.numbers import Range
 from droid.subunits.joystick.station import JoystickStation
 
@@ -45,11 +45,8 @@ RATE_HZ = Range(1.0, 1000.0, "Hz")
 def joystick_options(sub) -> tuple[str, float]:
     """(device URL, rate [Hz]) of a joystick subunit; BadInput names the key."""
     where = f"[subunits.{sub.name}]"
-    if sub.cls != "joystick":
-        raise BadInput(f"{sub.name} is a {sub.cls} subunit, not a joystick")
-    url = sub.options.get("device")
-    if not isinstance(url, str) or not url:
-        raise BadInput(f"{where} a joystick needs 'device' (e.g. \"js:///dev/input/js0\")")
+    sub.check_class("joystick", "a joystick")
+    url = sub.device_url("a joystick", "js:///dev/input/js0")
     rate = file_number(sub.options.get("rate_hz", DEFAULT_RATE_HZ), RATE_HZ, where, "rate_hz")
     return url, rate
 
@@ -73,10 +70,7 @@ def main(argv=None) -> int:
             status.update(**station.cycle(time.monotonic_ns()))
             presence.beat(0, station.cycles, timer.overruns, timer.lateness_max_ns)
     finally:
-        dev.close()
-        timer.close()
-        status.close()
-        presence.close()
+        close_all(dev, timer, status, presence)
     return 0
 
 

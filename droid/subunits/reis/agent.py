@@ -9,15 +9,10 @@ from __future__ import annotations
 
 import sys
 
-from droid.cli import run
-from droid.subunits.agent import agent_main
+from droid.subunits.agent import agent_program
 
 PROG = "droid-reis-agent"
-
-
-@run
-def main(argv=None) -> int:
-    return agent_main(PROG, argv)
+main = agent_program(PROG, __name__)
 
 
 if __name__ == "__main__":

@@ -49,7 +49,8 @@ def read_offsets(cell, arm: str) -> list[float] | None:
     """The calibrated home offsets of ``arm`` [deg] (true switch minus the robot file's), or None
     if the arm was not calibrated.  Raises ValueError for a malformed file."""
     import json
-    import math
+
+    from droid.numbers import finite_numbers
 
     p = offset_file(cell, arm)
     if not p.is_file():
@@ -58,8 +59,7 @@ def read_offsets(cell, arm: str) -> list[float] | None:
         off = json.loads(p.read_text())["home_offset_deg"]
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise ValueError(f"{p}: bad calibration file: {exc}") from None
-    if (not isinstance(off, list) or len(off) != 6
-            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in off)):
+    if not finite_numbers(off, 6):
         raise ValueError(f"{p}: home_offset_deg must be 6 numbers")
     if max(abs(v) for v in off) > 5.0:
         raise ValueError(f"{p}: home offsets above 5 deg are not calibration offsets")

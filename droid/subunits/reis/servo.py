@@ -94,6 +94,7 @@ class ServoCore:
         self.refused_resumes = 0  # NORMAL way-points refused after the brake (resume_window_counts)
 
     # -- status ------------------------------------------------------------------
+    # Alike in shape only to other read-only views (WatchdogCore's, SerialPort's): the core's own state.
     @property
     def tick(self) -> int:
         """Servo ticks executed (the heartbeat a watchdog shell can supervise)."""

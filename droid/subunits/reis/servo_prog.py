@@ -55,12 +55,20 @@ def open_vme_waiting(url: str, wait_s: float):
             time.sleep(0.05)
 
 
+def vme_program_start(prog: str, description: str, argv):
+    """The start the programs on a Reis arm's VME cards share (droid-servo, droid-watchdog): the
+    arguments, cell and arm subunit, the arm's endpoints, SCHED_FIFO when the cell asks for it,
+    and the program's presence record.  Returns ``(args, cell, sub, endpoints, presence)``."""
+    args, cell, sub = subunit_program(prog, description, argv, arm=True)
+    ep = reis_endpoints(cell, sub)
+    try_sched_fifo(wanted=cell.sched_fifo, prog=prog)
+    return args, cell, sub, ep, Presence(cell.name, presence_key(prog, sub.name), f"{prog} {sub.name}")
+
+
 @run
 def main(argv=None) -> int:
-    args, cell, sub = subunit_program(PROG, "Run the 500 Hz servo loop of a Reis arm on its VME interface cards.", argv, arm=True)
-    ep = reis_endpoints(cell, sub)
-    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
-    presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
+    args, cell, sub, ep, presence = vme_program_start(
+        PROG, "Run the 500 Hz servo loop of a Reis arm on its VME interface cards.", argv)
     ctx = zmq.Context()
     curve = CurveHost(ctx, cell, sub.host)
     pull = ctx.socket(zmq.PULL)

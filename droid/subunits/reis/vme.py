@@ -66,6 +66,7 @@ class VmeBus:
         if offset % vm.REGISTER_BYTES or not 0 <= offset <= vm.MAP_SIZE - vm.REGISTER_BYTES:
             raise ValueError(f"register offset {offset:#x} not an aligned offset below {vm.MAP_SIZE:#x}")
 
+    # Deliberate: one accessor per register width and sign, as the register map names them.
     def read_u16(self, offset: int) -> int:
         """Unsigned 16-bit register at byte ``offset``."""
         self._check(offset)

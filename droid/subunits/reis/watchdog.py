@@ -52,6 +52,7 @@ class WatchdogCore:
         self._stale_steps = 0
         self._dead = False
 
+    # Alike in shape only to other read-only views (ServoCore's): the watchdog's own state.
     @property
     def servo_dead(self) -> bool:
         """Latched: the servo was declared dead and kicking has stopped."""

@@ -18,11 +18,10 @@ import zmq
 
 from droid.brain.curve import CurveHost
 from droid.brain.databases import open_local
-from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
-from droid.brain.rt import PeriodicTimer, try_sched_fifo
+from droid.brain.program import Stop, notify_ready
+from droid.brain.rt import PeriodicTimer
 from droid.cli import run
-from droid.subunits.reis.endpoints import reis_endpoints
-from droid.subunits.reis.servo_prog import OPEN_WAIT_S, open_vme_waiting
+from droid.subunits.reis.servo_prog import OPEN_WAIT_S, open_vme_waiting, vme_program_start
 from droid.subunits.reis.station import WatchdogStation
 from droid.subunits.reis.watchdog import WatchdogCore, WatchdogParams, liveness_steps
 
@@ -31,10 +30,8 @@ PROG = "droid-watchdog"
 
 @run
 def main(argv=None) -> int:
-    args, cell, sub = subunit_program(PROG, "Kick a Reis arm's watchdog timers while its servo is alive.", argv, arm=True)
-    ep = reis_endpoints(cell, sub)
-    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
-    presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
+    args, cell, sub, ep, presence = vme_program_start(
+        PROG, "Kick a Reis arm's watchdog timers while its servo is alive.", argv)
     ctx = zmq.Context()
     sub_sock = ctx.socket(zmq.SUB)
     sub_sock.setsockopt(zmq.SUBSCRIBE, b"")

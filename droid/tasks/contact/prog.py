@@ -43,30 +43,26 @@ moves).
 """
 from __future__ import annotations
 
-import signal
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
-import zmq
 
 from droid.brain.layouts import FAULTS_CANNOT_MOVE
 from droid.brain.databases import open_brain
 from droid.brain.heartbeat import TickSubscriber
-from droid.brain.program import Stop, open_cell, parser
-from droid.brain.rt import try_sched_fifo
-from droid.cli import EXIT_INTERRUPTED, EXIT_OK, EXIT_RUNTIME, BadInput, RuntimeFailure, bounded_float, run
+from droid.brain.program import open_cell, parser
+from droid.cli import EXIT_OK, EXIT_RUNTIME, BadInput, RuntimeFailure, bounded_float, run
 from droid.kinematics.transforms import inv_homo, trans
-from droid.tasks.arm import STALE_GRACE_S, BrainArm
+from droid.tasks.arm import BrainArm
 from droid.tasks.ft_sensor import BrainFt
 from droid.tasks.contact import report
 from droid.tasks.contact.core import STOP_END, ArmStatus, ContactStation, FtStatus, load_gains
 from droid.tasks.seam.layout import POSITION_IDS, T_W_SEAM, layout_for_cell
+from droid.tasks.shell import TickLoop, check_output_dirs, ready_then_run, run_on_ticks, say_outcome
 from droid.tasks.seamtrack import move_to_start, pose_of
 
 PROG = "droid-contact"
-HEARTBEAT_LOST_S = STALE_GRACE_S
 TARE_S = 0.5  # the F/T average taken at rest before the approach [s]
 DELIVERY_S = 2.0  # the longest wait for the sensor's agent to take its bias command [s]
 BIAS_SETTLE_S = 0.1  # then droid-ft (100 Hz) sends the bias and the device applies it [s]
@@ -262,29 +258,19 @@ class ContactRun:
                           st.depth_mm, normal_mm, along_mm, speed))
 
     # -- the run ---------------------------------------------------------------------------------
+    def tare_and_run(self) -> tuple[int, str]:
+        """The sensor biased and tared at rest, the guard armed, then :meth:`run`."""
+        self.bias_sensor()
+        self.take_tare()
+        self.arm_guard()
+        return self.run()
+
     def run(self) -> tuple[int, str]:
-        try_sched_fifo(wanted=self.cell.sched_fifo, prog=PROG)
-        ticks = TickSubscriber(zmq.Context.instance(), self.cell.heartbeat)
-        try:
-            return self._loop(ticks)
-        finally:
-            ticks.close()
+        return run_on_ticks(self.cell, PROG, self._loop)
 
     def _loop(self, ticks: TickSubscriber) -> tuple[int, str]:
-        last_wall = time.monotonic()
-        last_progress = 0.0
-        while True:
-            if Stop.requested:
-                self.arm.give_up()
-                return EXIT_INTERRUPTED, f"interrupted ({signal.Signals(Stop.signum).name})"
-            t = ticks.wait(0.1)
-            now = time.monotonic()
-            if t is None:
-                if now - last_wall > HEARTBEAT_LOST_S:
-                    self.arm.give_up()
-                    return EXIT_RUNTIME, "heartbeat lost"
-                continue
-            last_wall = now
+        loop, last_progress = TickLoop(ticks), 0.0
+        for t, now in loop:
             stop = self.on_tick(t.tick)
             if stop is not None:
                 if stop != STOP_END:
@@ -295,29 +281,19 @@ class ContactRun:
                 last_progress = now
                 r = self.rows[-1]
                 print(f"{PROG}: {r[1]:<8} force {r[2]:6.2f} N  along {r[6]:7.1f} mm", file=sys.stderr)
+        self.arm.give_up()  # interrupted, or the heartbeat lost
+        return loop.end
 
 
 @run
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    for p in (args.log, args.figure):
-        if p is not None and Path(p).parent and not Path(p).parent.exists():
-            raise BadInput(f"directory of {p} does not exist")
+    check_output_dirs(args.log, args.figure)
     cell = open_cell(args)
     job = ContactRun(args, cell)
     job.connect()
     try:
-        job.check_ready()
-        Stop.install()
-        if args.start:
-            job.go_to_start(args.start)
-        if Stop.requested:
-            code, why = EXIT_INTERRUPTED, "interrupted before the approach"
-        else:
-            job.bias_sensor()
-            job.take_tare()
-            job.arm_guard()
-            code, why = job.run()
+        code, why = ready_then_run(job, args.start, "the approach", job.tare_and_run)
     finally:
         job.close()
     st = job.station
@@ -327,11 +303,8 @@ def main(argv=None) -> int:
     if args.figure:
         report.figure(args.figure, job.rows, f"{PROG} {args.arm}: {args.force:g} N at {args.speed:g} mm/s"
                       + (f", position ({args.start})" if args.start else ""), args.force)
-    print(f"{PROG}: stopped: {why}", file=sys.stderr)
-    print(s.line(args.force, args.speed, args.length, st.done or why.split(" (")[0], st.detail))
-    for label, p in (("log", args.log), ("figure", args.figure)):
-        if p:
-            print(f"{label}: {p}")
+    say_outcome(PROG, why, s.line(args.force, args.speed, args.length, st.done or why.split(" (")[0], st.detail),
+                args.log, args.figure)
     return code
 
 

@@ -63,7 +63,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from droid.kinematics import RobotModel, Unreachable
-from droid.kinematics.transforms import inv_homo
+from droid.kinematics.transforms import inv_homo, rotx, roty
 from droid.tasks.seam.delay import DELAY_OFF, INVALID_READING, Reading, TransportDelay
 
 #: Largest index of the seam patch (the listing's MAX_QUEUE).  The patch
@@ -325,6 +325,15 @@ class _State:
         return self.travel.travel_mm
 
 
+def hinted_ik(model: RobotModel | None, T_wcp, q_prev) -> np.ndarray | None:
+    """The arm's joints [deg] for the wrist-centre pose ``T_wcp``: the solution nearest ``q_prev``
+    (the last cycle's; zeros before the first), None without a model.  Raises Unreachable or
+    ValueError where there is none."""
+    if model is None:
+        return None
+    return model.ik(T_wcp, q_prev if q_prev is not None else np.zeros(6))
+
+
 def mount(tracker, params: SeamParams, T_wcp_tool, T_wcp_sensor, reis_model: RobotModel | None) -> None:
     """What every tracker core (thesis, listing, plus) keeps of its set-up: the parameters,
     the tool and sensor transforms on the Reis wrist [mm], the camera-to-tool distance [mm],
@@ -406,7 +415,7 @@ class SeamTracker:
         yaw = -(self.Tmvs[1, 3] / L) * self.p.yaw_gain
         pitch = (self.Tmvs[0, 3] / L) * self.p.pitch_gain
         T6tool_hold = self.T6tool_hold if self._T6tool_hold_sensed is None else self._T6tool_hold_sensed
-        frame = T6tool_hold @ self.Tcamera_6 @ self.Tmvs @ _roty(pitch) @ _rotx(yaw)
+        frame = T6tool_hold @ self.Tcamera_6 @ self.Tmvs @ roty(pitch) @ rotx(yaw)
         # rotating the seam queue: seam[i+1] = seam[i] for i = tcp_idx .. 0, seam[0] = newest
         s.seam_pos.insert(0, (float(frame[0, 3]), float(frame[1, 3]), float(frame[2, 3])))
         s.seam_front = frame
@@ -595,12 +604,11 @@ class SeamTracker:
         yaw, pitch = self.update_seam_wrt_holder(used)
         target = self.interpolate(self.p.step_mm)
         reis_cmd = self.gen_tool_robot_wcp(target)
-        q = None
-        if self.reis_model is not None:
-            try:
-                q = self.reis_model.ik(reis_cmd, s.q_prev if s.q_prev is not None else np.zeros(6))
-            except (Unreachable, ValueError) as exc:
-                return self._stop(cycle, STOP_UNREACHABLE, str(exc))
+        try:
+            q = hinted_ik(self.reis_model, reis_cmd, s.q_prev)
+        except (Unreachable, ValueError) as exc:
+            return self._stop(cycle, STOP_UNREACHABLE, str(exc))
+        if q is not None:
             s.q_prev = q
         phase = PHASE_DEAD_ZONE if in_dead_zone else (PHASE_TRACKING if s.initial_done else PHASE_INITIAL)
         return self.write_robot_cmd(
@@ -635,13 +643,3 @@ def _seam_transform(reading: Reading) -> np.ndarray:
     t[0, 0], t[0, 1], t[1, 0], t[1, 1] = c, -s, s, c
     t[0, 3], t[1, 3] = reading.x_mm, reading.y_mm
     return t
-
-
-def _rotx(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[1.0, 0, 0, 0], [0, c, -s, 0], [0, s, c, 0], [0, 0, 0, 1.0]])
-
-
-def _roty(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, 0, s, 0], [0, 1.0, 0, 0], [-s, 0, c, 0], [0, 0, 0, 1.0]])

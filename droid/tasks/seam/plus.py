@@ -42,7 +42,7 @@ import numpy as np
 
 from droid.kinematics import RobotModel, Unreachable
 from droid.kinematics.transforms import inv_homo
-from droid.tasks.seam.core import (mount, PHASE_DEAD_ZONE, PHASE_INITIAL, PHASE_TRACKING, TravelGuard,
+from droid.tasks.seam.core import (hinted_ik, mount, PHASE_DEAD_ZONE, PHASE_INITIAL, PHASE_TRACKING, TravelGuard,
                                    STOP_LOST, STOP_UNREACHABLE,
                                    CycleOutput, SeamParams, TrackingStop, _seam_transform)
 from droid.tasks.seam.compliance import StaticDeflection
@@ -121,7 +121,7 @@ class PlusTracker:
         if self.defl is None:
             return T
         try:
-            q_m = self.reis_model.ik(T, self.q_prev if self.q_prev is not None else np.zeros(6))
+            q_m = hinted_ik(self.reis_model, T, self.q_prev)
         except (Unreachable, ValueError):
             return T
         return self.reis_model.fk(self.defl.link_deg(q_m))
@@ -185,12 +185,11 @@ class PlusTracker:
         self._depth_integral(tool, in_dead_zone)
         T_target, aim_rad = self._tool_frame(f)
         reis_cmd = T_hold @ T_target @ self.T67tool_inv  # eq. 5.11
-        q = None
-        if self.reis_model is not None:
-            try:
-                q = self.reis_model.ik(reis_cmd, self.q_prev if self.q_prev is not None else np.zeros(6))
-            except (Unreachable, ValueError) as exc:
-                return self._stop(cycle, STOP_UNREACHABLE, str(exc))
+        try:
+            q = hinted_ik(self.reis_model, reis_cmd, self.q_prev)
+        except (Unreachable, ValueError) as exc:
+            return self._stop(cycle, STOP_UNREACHABLE, str(exc))
+        if q is not None:
             if self.defl is not None:  # the motor angles that put the deflected links there
                 q = self.defl.motor_deg(q)
                 reis_cmd = self.reis_model.fk(q)
