@@ -36,14 +36,13 @@ def main(argv=None) -> int:
     sub_sock = ctx.socket(zmq.SUB)
     sub_sock.setsockopt(zmq.SUBSCRIBE, b"")
     sub_sock.setsockopt(zmq.LINGER, 0)
-    CurveHost(ctx, cell, sub.host).client(sub_sock, ep.servo_status, sub.host)
-    sub_sock.connect(ep.servo_status)
     params = WatchdogParams(servo_liveness_steps=liveness_steps(cell.stale_ticks, cell.heartbeat_hz))
     core = WatchdogCore(params)
-    bus = None
-    timer = None
-    status = open_local(cell, sub, "ctrl_status")
-    try:
+    bus = timer = status = None
+    try:  # everything that can fail at start (no cell up: no ctrl_status) inside: the presence record is closed
+        CurveHost(ctx, cell, sub.host).client(sub_sock, ep.servo_status, sub.host)
+        sub_sock.connect(ep.servo_status)
+        status = open_local(cell, sub, "ctrl_status")
         bus = open_vme_waiting(ep.vme, OPEN_WAIT_S)
         station = WatchdogStation(core, bus, status)
         timer = PeriodicTimer(int(round(1e9 / params.rate_hz)))
@@ -67,7 +66,8 @@ def main(argv=None) -> int:
     finally:
         if bus is not None:
             bus.close()
-        status.close()
+        if status is not None:
+            status.close()
         if timer is not None:
             timer.close()
         sub_sock.close(0)
