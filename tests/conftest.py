@@ -255,7 +255,7 @@ def shared_sim_cell(tmp_path_factory):
     neither as its own nor as leaked; they are checked here instead.  Homing costs about 40 s
     of real time a cell, which is what the sharing saves.  Tests use it through
     :func:`homed_sim_cell`, which checks it is still whole before each test."""
-    from tests.brain.cellutil import brought_down, droid, make_cell_file
+    from tests.brain.cellutil import brought_down, droid, home_both, make_cell_file
 
     name = new_cell_name()
     path = make_cell_file(tmp_path_factory.mktemp("shared"), name)
@@ -266,9 +266,7 @@ def shared_sim_cell(tmp_path_factory):
             out = droid("droid.brain.launcher", "up", "--cell", str(path), timeout=120)
             _restore_env(LEAK_TAG_ENV, old)
             assert out.returncode == 0, out.stdout + out.stderr
-            for arm in HOMED_ARMS:
-                out = droid("droid.tasks.home", arm, "--cell", str(path), timeout=120)
-                assert out.returncode == 0, out.stderr
+            home_both(path, HOMED_ARMS)
             yield path
     finally:
         _restore_env(LEAK_TAG_ENV, old)

@@ -161,3 +161,10 @@ programs = ["droid-reis-agent"]
     path = tmp_path / f"{name}.toml"
     path.write_text(text + extra)
     return path
+
+
+def home_both(cell, arms=("arm1", "gmf1")) -> None:
+    """droid-home each arm of the built-in sim cell in turn (each must succeed)."""
+    for arm in arms:
+        out = droid("droid.tasks.home", arm, "--cell", str(cell), timeout=120)
+        assert out.returncode == 0, out.stderr

@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from tests.brain.cellutil import droid, wait_for
-from tests.tasks.test_seamtrack_cell import home_both, snoop
+from tests.brain.cellutil import home_both
+from tests.tasks.test_seamtrack_cell import snoop
 
 pytestmark = pytest.mark.integration
 CONTACT = "droid.tasks.contact.prog"
