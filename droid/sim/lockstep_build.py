@@ -11,7 +11,7 @@ real-time programs, :mod:`droid.sim.lockstep`) and its twin on ``ctx.sched`` and
 subunit as a task program sees it.  ``ctx`` carries the scheduler, the cell, the seed, the world
 devices built so far by name (``ctx.twins``: an F/T sensor or a camera finds the arm it sits on or
 looks at there) and the subunits built so far (``ctx.built``); arms are built before everything
-else.  :func:`droid.sim.lockstep_cell.build_lockstep_cell` picks the builder of each subunit by its
+else, and ``ctx.after(fn)`` defers what needs every twin (a contact between two arms).  :func:`droid.sim.lockstep_cell.build_lockstep_cell` picks the builder of each subunit by its
 programs: the builder of a package serving its class whose ``programs`` hold every program the
 subunit runs (so the ABB's, which stands for ``droid-reis-agent`` and ``droid-planner`` beside its
 ``droid-egm``, builds an ABB arm, and the Reis's a Reis arm).
@@ -102,6 +102,12 @@ class BuildContext:
     seed: int
     twins: dict[str, Any] = field(default_factory=dict)
     built: dict[str, LockstepSubunit] = field(default_factory=dict)
+    finish: list[Callable[[], None]] = field(default_factory=list)
+
+    def after(self, fn: Callable[[], None]) -> None:
+        """Call ``fn()`` once every subunit is built (a world device between two subunits' twins:
+        the Reis's ``contact`` device, whose workpiece the holder arm carries)."""
+        self.finish.append(fn)
 
     def where(self, sub) -> str:
         """``FILE: [subunits.NAME]``, the head of a one-line refusal."""

@@ -111,6 +111,8 @@ def build_lockstep_cell(cell_or_path: Cell | str | os.PathLike | None, seed: int
     try:
         for sub, build in chosen:
             ctx.built[sub.name] = build(ctx, sub)
+        for fn in ctx.finish:
+            fn()
     except BaseException:
         for built in ctx.built.values():
             built.close()

@@ -75,6 +75,8 @@ def test_sim_cell_builds_every_class_and_runs():
         assert tasks["mvs.mvs_sensor"].rate_hz == registry().programs["droid-mvs"].rate_hz
         ft = lc.subunits["ft"].status.read()  # the tool's weight on the Reis wrist
         assert int(ft["valid"]) == 1 and 5.0 < np.linalg.norm(ft["force_N"]) < 30.0
+        # the workpiece on the Fanuc pushes back on the Reis's tool (world device "touch")
+        assert lc.subunits["arm1"].parts.plant.contact is not None
 
 
 def test_sim_cell_arms_home_through_the_brain_databases():

@@ -198,6 +198,19 @@ def arm_from_device(sched: Scheduler, cell, name: str, opts: dict, world_seed: i
     return arm
 
 
+def _contacts(ctx, devices: dict) -> None:
+    """The cell's ``contact`` world devices on this arm's device (its ``tool_robot``), built by the
+    twin's own factory once every twin exists (the workpiece may ride on another arm)."""
+    from types import SimpleNamespace
+
+    from droid.sim.contact_device import make_contact
+
+    world = SimpleNamespace(devices=ctx.twins, seed=ctx.seed, cell=ctx.cell)
+    for name, opts in ctx.world_devices("contact").items():
+        if opts.get("tool_robot") in devices:
+            ctx.twins[name] = make_contact(world, name, dict(opts))
+
+
 #: program -> its switch in LockstepArm.alive
 PROGRAM_ALIVE = {"droid-watchdog": "watchdog", "droid-servo": "servo", "droid-servo-agent": "agent",
                  "droid-reis-agent": "link", "droid-planner": "planner"}
@@ -207,8 +220,14 @@ PROGRAM_ALIVE = {"droid-watchdog": "watchdog", "droid-servo": "servo", "droid-se
 def build(ctx, sub):
     """The lockstep slot of the Reis package (droid.sim.lockstep_build): the subunit's arm, from
     its ``reis_vme`` world device when the cell has one (its world errors), else the controller's
-    robot file alone; the cell's ``stale_ticks``.  Stations: the table of the module docstring."""
+    robot file alone; the cell's ``stale_ticks``; the ``contact`` world devices on its tool (once
+    every twin is built).  Stations: the table of the module docstring."""
+    from droid.cli import BadInput
+
     devices = {n: o for n, o in ctx.world_devices("reis_vme").items() if o.get("subunit", n) == sub.name}
+    if len(devices) > 1:
+        raise BadInput(f"{ctx.where(sub)} has {len(devices)} reis_vme world devices ({', '.join(devices)}): "
+                       f"one arm, one twin")
     if devices:
         (device, opts), = devices.items()
         arm = arm_from_device(ctx.sched, ctx.cell, device, opts, ctx.seed, ctx.cell.stale_ticks)
@@ -222,5 +241,6 @@ def build(ctx, sub):
                 "droid-planner": [f"{n}.tick"]}
     for prog, alive in PROGRAM_ALIVE.items():  # a program the subunit does not run does not run
         arm.alive[alive] = prog in sub.programs
+    ctx.after(lambda: _contacts(ctx, devices))
     return LockstepSubunit(n, sub.cls, arm.brain_status, arm.brain_command,
                            {p: t for p, t in stations.items() if p in sub.programs}, arm, arm)
