@@ -20,8 +20,8 @@ from dataclasses import dataclass
 from droid import cli
 from droid.brain.registry import programs
 
-#: argv prefixes a main dispatches on before it builds another parser (``droid-sim truth``).
-ENTRIES = {"droid-sim": [[], ["truth"]]}
+#: argv prefixes a main dispatches on before it builds another parser (``droid-sim truth``, ``droid-sim lockstep``).
+ENTRIES = {"droid-sim": [[], ["truth"], ["lockstep"]]}
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,11 @@ one :class:`DevicePackage`:
   its opener, all opened through :func:`open_url`, as pyserial's
   ``serial_for_url``);
 * its world twins (:class:`Twin`: ``[world.devices.X] type`` -> factory);
-* its lockstep assembly (``"module:function"``, or None).
+* its lockstep builder (``"module:function"``, or None): ``build(ctx, sub) -> LockstepSubunit``,
+  declared with the programs it has stations for (``@builds("droid-x", ...)``), which puts one
+  subunit's stations and twin on a lockstep scheduler and returns its Brain Status/Command
+  records (the protocol: :mod:`droid.sim.lockstep_build`; a whole cell file:
+  ``droid.sim.lockstep_cell.build_lockstep_cell``, ``droid-sim lockstep CELL``).
 
 Built-in packages are the one table :data:`BUILTIN_PACKAGES`; a package
 outside the repository registers through the entry-point group
@@ -135,7 +139,8 @@ class DevicePackage:
     programs: tuple[Program, ...] = ()
     drivers: tuple[Driver, ...] = ()
     twins: tuple[Twin, ...] = ()
-    lockstep: str | None = None  # "module:function" assembling its stations in lockstep
+    # "module:function": build(ctx, sub) -> LockstepSubunit, one subunit in lockstep (droid.sim.lockstep_build)
+    lockstep: str | None = None
     # "module:function" (cell, subunit) -> bool: does this subunit need a world twin when
     # [world] is enabled?  None: the default rule (:func:`drives_the_world`).
     needs_twin: str | None = None

@@ -12,7 +12,8 @@ PlannerStation              tick      droid-planner (on the agent's relayed tick
 RemoteStation               tick      droid-remote (the reply: controller Status -> Brain Status, FK, §4.1.8)
 ==========================  ========  ==============================================
 
-:class:`ArmChain` makes the four records (the Brain's Status and Command, the controller's
+:class:`ArmTasks` is that task side alone, over any arm's Brain records (the GMF1's lockstep
+builder gives it to task programs).  :class:`ArmChain` makes the four records (the Brain's Status and Command, the controller's
 Status and Command: :class:`~droid.brain.shmdb.MemoryDatabase`), those stations and the tick's
 order, and gives a task program what ``BrainArm`` gives it on shared memory: ``status``,
 ``command_home``/``command_joint``/``command_cart`` (heartbeat ticks), ``ticks_for``,
@@ -37,7 +38,66 @@ from droid.subunits.reis.planner import PlannerCore
 from droid.subunits.reis.station import PlannerStation
 
 
-class ArmChain:
+class ArmTasks:
+    """What a task program sees of a lockstep arm: its Brain records on a scheduler, driven as
+    ``BrainArm`` drives them on shared memory (droid.brain.arm_command).  Needs ``sched``,
+    ``brain_status`` and ``brain_command``; :class:`ArmChain` has them, and
+    :meth:`over` makes one for any arm's Brain records (the GMF1's)."""
+
+    @classmethod
+    def over(cls, sched: Scheduler, brain_status, brain_command) -> "ArmTasks":
+        """The task interface of an arm whose Brain records are ``brain_status``/``brain_command``."""
+        arm = cls()
+        arm.sched, arm.brain_status, arm.brain_command = sched, brain_status, brain_command
+        return arm
+
+    @property
+    def status(self):
+        return self.brain_status.read()
+
+    def command_home(self) -> int:
+        return arm_command.home(self.brain_command)
+
+    def command_joint(self, counts, ticks: int) -> int:
+        """A joint move to ``counts`` [encoder counts wrt home] in ``ticks`` heartbeat ticks."""
+        return arm_command.joint(self.brain_command, counts, ticks)
+
+    def command_cart(self, T, ticks: int) -> int:
+        """A cartesian move of the model's pose to ``T`` (4x4, global frame, mm) in ``ticks`` heartbeat ticks."""
+        return arm_command.cart(self.brain_command, T, ticks)
+
+    def ticks_for(self, seconds: float) -> int:
+        """``seconds`` [s] as heartbeat ticks of this arm's scheduler."""
+        return arm_command.ticks_for(seconds, self.sched.heartbeat_hz)
+
+    def set_normal(self) -> None:
+        arm_command.set_normal(self.brain_command)
+
+    def run_until(self, pred, max_s: float, step_s: float = 0.05) -> bool:
+        """Advance virtual time until ``pred()`` or ``max_s`` simulated seconds."""
+        t_end = self.sched.t_ns + int(max_s * 1e9)
+        while self.sched.t_ns < t_end:
+            if pred():
+                return True
+            self.sched.run_for(step_s)
+        return bool(pred())
+
+    def home(self, max_s: float = 60.0) -> bool:
+        """droid-home: HOME, run until homed and idle (``max_s`` [s] at most), then NORMAL."""
+        cmd_id = self.command_home()
+        ok = self.run_until(lambda: int(self.status["cmd_id"]) == cmd_id and int(self.status["homed"])
+                            and int(self.status["busy"]) == 0, max_s)
+        if ok:
+            self.set_normal()
+        return ok
+
+    def move_done(self, cmd_id: int, max_s: float) -> bool:
+        """Run until the Status acknowledges ``cmd_id`` and is idle (``max_s`` [s] at most)."""
+        return self.run_until(lambda: int(self.status["cmd_id"]) == cmd_id and int(self.status["busy"]) == 0,
+                              max_s)
+
+
+class ArmChain(ArmTasks):
     """Records, remote, agent and planner of one arm on ``sched``; see the module docstring.
 
     ``model``: the arm's robot model with its base (mm); ``stale_ticks``: the cell's link
@@ -93,48 +153,3 @@ class ArmChain:
     def wcp_from_counts(self, counts) -> np.ndarray:
         """The model's pose (4x4, mm, global) at encoder ``counts`` (the remote's FK, §4.1.8)."""
         return self.model.fk(self.model.gearing.counts_to_joints(np.asarray(counts, float)))
-
-    @property
-    def status(self):
-        return self.brain_status.read()
-
-    def command_home(self) -> int:
-        return arm_command.home(self.brain_command)
-
-    def command_joint(self, counts, ticks: int) -> int:
-        """A joint move to ``counts`` [encoder counts wrt home] in ``ticks`` heartbeat ticks."""
-        return arm_command.joint(self.brain_command, counts, ticks)
-
-    def command_cart(self, T, ticks: int) -> int:
-        """A cartesian move of the model's pose to ``T`` (4x4, global frame, mm) in ``ticks`` heartbeat ticks."""
-        return arm_command.cart(self.brain_command, T, ticks)
-
-    def ticks_for(self, seconds: float) -> int:
-        """``seconds`` [s] as heartbeat ticks of this arm's scheduler."""
-        return arm_command.ticks_for(seconds, self.sched.heartbeat_hz)
-
-    def set_normal(self) -> None:
-        arm_command.set_normal(self.brain_command)
-
-    def run_until(self, pred, max_s: float, step_s: float = 0.05) -> bool:
-        """Advance virtual time until ``pred()`` or ``max_s`` simulated seconds."""
-        t_end = self.sched.t_ns + int(max_s * 1e9)
-        while self.sched.t_ns < t_end:
-            if pred():
-                return True
-            self.sched.run_for(step_s)
-        return bool(pred())
-
-    def home(self, max_s: float = 60.0) -> bool:
-        """droid-home: HOME, run until homed and idle (``max_s`` [s] at most), then NORMAL."""
-        cmd_id = self.command_home()
-        ok = self.run_until(lambda: int(self.status["cmd_id"]) == cmd_id and int(self.status["homed"])
-                            and int(self.status["busy"]) == 0, max_s)
-        if ok:
-            self.set_normal()
-        return ok
-
-    def move_done(self, cmd_id: int, max_s: float) -> bool:
-        """Run until the Status acknowledges ``cmd_id`` and is idle (``max_s`` [s] at most)."""
-        return self.run_until(lambda: int(self.status["cmd_id"]) == cmd_id and int(self.status["busy"]) == 0,
-                              max_s)

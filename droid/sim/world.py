@@ -153,8 +153,13 @@ def main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] == "truth":
         return truth_main(argv[1:])
+    if argv and argv[0] == "lockstep":
+        from droid.sim.lockstep_cell import lockstep_main
+
+        return lockstep_main(argv[1:], f"{PROG} lockstep")
     ap = parser(PROG, "Run the simulated hardware of a cell (robots, controllers, sensors). "
-                      "'droid-sim truth ARM --json' prints an arm's ground truth from the running world.")
+                      "'droid-sim truth ARM --json' prints an arm's ground truth from the running world; "
+                      "'droid-sim lockstep CELL --seconds S' runs the whole cell in lockstep (virtual time).")
     ap.add_argument("--seed", type=seed_int, default=None, help="random seed (default: the cell file's)")
     args = ap.parse_args(argv)
     cell = open_cell(args)

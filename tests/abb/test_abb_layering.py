@@ -15,8 +15,9 @@ def test_subunit_side_imports_no_world():
 TWIN = ("droid.brain", "droid.kinematics", "droid.cli", "droid.numbers", "droid.subunits", "droid.sim.device",
         "droid.sim.gmf1.dynamics", "droid.sim.truth")
 #: the lockstep assembly (droid.sim.abb.lockstep) also steps the twin on the lockstep scheduler, with
-#: the Brain side every lockstep arm shares and the world's truth record's format
-LOCKSTEP = TWIN + ("droid.sim.abb", "droid.sim.lockstep", "droid.sim.arm_chain")
+#: the Brain side every lockstep arm shares, the world's truth record's format and the registry's
+#: lockstep slot's protocol (droid.sim.lockstep_build)
+LOCKSTEP = TWIN + ("droid.sim.abb", "droid.sim.lockstep", "droid.sim.arm_chain", "droid.sim.lockstep_build")
 
 
 def test_twin_imports():

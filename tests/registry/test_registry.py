@@ -91,17 +91,20 @@ def _dist(root: Path, name: str, entry: str) -> Path:
     return info / "entry_points.txt"
 
 
+def install(site: Path, name: str, files: dict[str, str]) -> None:
+    """Package ``name`` (its modules' texts) and its dist-info registering ``name.device:PACKAGE``."""
+    pkg = site / name
+    pkg.mkdir(parents=True)
+    for fname, text in {"__init__.py": "", **files}.items():
+        (pkg / fname).write_text(text)
+    _dist(site, name, f"{name}.device:PACKAGE")
+
+
 @pytest.fixture
 def lab(tmp_path, monkeypatch):
     """``labsensor`` (and a broken ``labbroken``) installed on sys.path; the registry rebuilt."""
     site = tmp_path / "site"
-    pkg = site / "labsensor"
-    pkg.mkdir(parents=True)
-    (pkg / "__init__.py").write_text("")
-    (pkg / "device.py").write_text(LABSENSOR_DEVICE)
-    (pkg / "prog.py").write_text(LABSENSOR_PROG)
-    (pkg / "twin.py").write_text(LABSENSOR_TWIN)
-    _dist(site, "labsensor", "labsensor.device:PACKAGE")
+    install(site, "labsensor", {"device.py": LABSENSOR_DEVICE, "prog.py": LABSENSOR_PROG, "twin.py": LABSENSOR_TWIN})
     broken = site / "labbroken"
     broken.mkdir()
     (broken / "__init__.py").write_text("")

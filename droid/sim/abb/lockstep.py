@@ -36,6 +36,7 @@ from droid.kinematics.transforms import pose_to_T
 from droid.sim.abb.controller import EgmController, egm_twin
 from droid.sim.arm_chain import ArmChain
 from droid.sim.lockstep import ORDER_WORLD, Scheduler
+from droid.sim.lockstep_build import LockstepSubunit, builds
 from droid.subunits.abb.egm_core import EgmCore
 from droid.subunits.abb.egm_layout import EGM_STATUS_LAYOUT
 from droid.subunits.abb.egm_prog import EgmStation
@@ -120,3 +121,18 @@ class LockstepAbbArm(ArmChain):
         from droid.sim.truth import truth_dict
 
         return truth_dict(self.name, self.controller.t_s, self.controller.q_deg, self.wcp_global()[:3, 3])
+
+
+@builds("droid-egm", "droid-reis-agent", "droid-planner")
+def build(ctx, sub) -> LockstepSubunit:
+    """The lockstep slot of the ABB package (droid.sim.lockstep_build): :class:`LockstepAbbArm` of
+    the subunit and its ``abb_egm`` world device (BadInput naming the file when there is none)."""
+    arm = LockstepAbbArm(ctx.sched, ctx.cell, sub.name)
+    ctx.twins[arm.device] = arm
+    n = sub.name
+    stations = {"droid-egm": [f"{n}.world", f"{n}.tick"], "droid-reis-agent": [f"{n}.tick"],
+                "droid-planner": [f"{n}.tick"]}
+    for prog, alive in (("droid-egm", "egm"), ("droid-planner", "planner"), ("droid-reis-agent", "link")):
+        arm.alive[alive] = prog in sub.programs
+    return LockstepSubunit(n, sub.cls, arm.brain_status, arm.brain_command,
+                           {p: t for p, t in stations.items() if p in sub.programs}, arm, arm)

@@ -12,24 +12,32 @@ Stepped by :class:`droid.sim.lockstep.Scheduler`:
   then :class:`~droid.subunits.gmf1.station.SerialStation` (the relayed tick).
 
 Exactly the code of the real-time programs runs between the records, the port
-and the cards; only the transports differ.  Commands are written into the
+and the cards; only the transports differ.  The package's lockstep builder (:func:`build`,
+droid.sim.lockstep_build) adds droid-remote (:class:`Gmf1Remote`: the Brain Status) and reads
+the cell's ``karel_s400`` world device.  Commands are written into the
 Brain Command record as droid-move / droid-home write them.
 """
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 
 from droid.brain.cellfile import Cell, load_cell
 from droid.brain import arm_command
-from droid.brain.layouts import ARM_COMMAND_LAYOUT, CTRL_COMMAND_LAYOUT, CTRL_STATUS_LAYOUT, JOG_MODE, JSPACE, NORMAL_MODE
+from droid.brain.layouts import (ARM_COMMAND_LAYOUT, ARM_STATUS_LAYOUT, CTRL_COMMAND_LAYOUT, CTRL_STATUS_LAYOUT,
+                                 JOG_MODE, JSPACE, NORMAL_MODE)
+from droid.brain.remote import RemoteStation, StatusTranslator
 from droid.brain.shmdb import MemoryDatabase
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T
+from droid.sim.arm_chain import ArmTasks
 from droid.sim.gmf1.cards import Quad04Twin
 from droid.sim.gmf1.controller import KarelController, KarelParams
 from droid.sim.serial_cable import MemorySerialPair
 from droid.sim.gmf1.karel import DEFAULT_START_DEG, KarelDevice
 from droid.sim.lockstep import ORDER_DEVICE, ORDER_HEARTBEAT, ORDER_WORLD, Scheduler
+from droid.sim.lockstep_build import LockstepSubunit, builds
 from droid.subunits.agent import CommandCopier
 from droid.subunits.gmf1.config import gmf1_config
 from droid.subunits.gmf1.encoder_core import EncoderCore
@@ -45,9 +53,11 @@ class Gmf1Lockstep:
 
     def __init__(self, cell: Cell | None = None, subunit: str = "gmf1", *, world_hz: float = 1000.0,
                  seed: int = 1, start_deg=DEFAULT_START_DEG, params: KarelParams | None = None,
-                 sched: Scheduler | None = None, robot: str | None = None, base_T=None) -> None:
+                 sched: Scheduler | None = None, robot: str | None = None, base_T=None,
+                 prefix: str = "") -> None:
         """``sched``: put the subunit on this scheduler (a trial's) instead of its own; ``robot``
-        and ``base_T`` (4x4, mm): the robot file and base pose instead of the cell's subunit's."""
+        and ``base_T`` (4x4, mm): the robot file and base pose instead of the cell's subunit's;
+        ``prefix``: before its task names (``"gmf1."``: two GMF1s on one scheduler)."""
         self.cell = cell if cell is not None else load_cell(None)
         self.sub = self.cell.subunit(subunit)
         cfg = gmf1_config(self.cell, self.sub)
@@ -86,10 +96,11 @@ class Gmf1Lockstep:
         self.encoder_running = True
         self.serial_running = True
         self._dt = 1.0 / self.world_hz
-        self.sched.every(self.world_hz, self._world, "world", order=ORDER_WORLD)
-        self.sched.every(cfg.encoder_hz, self._encoder, "encoder", order=ORDER_DEVICE)
-        self.sched.on_tick(self._agent, "agent", order=ORDER_HEARTBEAT)
-        self.sched.on_tick(self._serial, "serial", order=ORDER_HEARTBEAT + 1)
+        self.tasks = {k: prefix + k for k in ("world", "encoder", "agent", "serial")}
+        self.sched.every(self.world_hz, self._world, self.tasks["world"], order=ORDER_WORLD)
+        self.sched.every(cfg.encoder_hz, self._encoder, self.tasks["encoder"], order=ORDER_DEVICE)
+        self.sched.on_tick(self._agent, self.tasks["agent"], order=ORDER_HEARTBEAT)
+        self.sched.on_tick(self._serial, self.tasks["serial"], order=ORDER_HEARTBEAT + 1)
 
     # -- tasks -----------------------------------------------------------------------
     def _world(self, t_ns: int) -> None:
@@ -161,3 +172,57 @@ class Gmf1Lockstep:
     def true_pose_global(self) -> np.ndarray:
         """The twin's true wrist-centre pose (4x4, mm, global frame)."""
         return self.device.wcp_global()
+
+
+class Gmf1Remote:
+    """droid-remote of a lockstep GMF1 (thesis §3.2, §4.2.3): on each tick, before the agent's copy,
+    the silence rule and the command sent; after the serial program, the controller's Status
+    into the Brain Status with the WCP by forward kinematics (§4.1.8)."""
+
+    def __init__(self, ls: Gmf1Lockstep, sub, stale_ticks: int, prefix: str) -> None:
+        self.ls = ls
+        self.status = MemoryDatabase(f"{sub.name}.status", ARM_STATUS_LAYOUT)
+        self.remote = RemoteStation(self.status, ls.brain_command, StatusTranslator.for_subunit(sub),
+                                    stale_ticks, ls.sched.heartbeat_hz)
+        ls.sched.on_tick(self._send, f"{prefix}remote", order=ORDER_HEARTBEAT - 1)
+        ls.sched.on_tick(self._reply, f"{prefix}remote.reply", order=ORDER_HEARTBEAT + 2)
+
+    def _send(self, tick: int) -> None:
+        t_ns = self.ls.sched.t_ns
+        self.remote.on_poll(t_ns)
+        self.remote.on_tick(tick, t_ns)
+        self.remote.command_payload()
+
+    def _reply(self, tick: int) -> None:
+        self.remote.on_reply(tick, self.ls.ctrl_status.raw_bytes(), self.ls.sched.t_ns)
+
+
+@builds("droid-gmf1-agent", "droid-gmf1-serial", "droid-gmf1-encoder")
+def build(ctx, sub) -> LockstepSubunit:
+    """The lockstep slot of the GMF1 package (droid.sim.lockstep_build): :class:`Gmf1Lockstep` on
+    the context's scheduler with its ``karel_s400`` world device's start pose, controller
+    parameters and seed (the defaults without one), stepped at the world's rate, and its
+    droid-remote (:class:`Gmf1Remote`)."""
+    from droid.sim.gmf1.karel import karel_params, start_joints
+
+    devices = {n: o for n, o in ctx.world_devices("karel_s400").items() if o.get("subunit", n) == sub.name}
+    device, opts = next(iter(devices.items()), (None, {}))
+    model = load_robot(sub.robot)
+    where = f"{ctx.cell.path}: [world.devices.{device}]"
+    start = start_joints(opts, model, model.with_base(pose_to_T(*sub.base)), where)
+    params = karel_params(opts, where, model) if device is not None else None
+    if params is not None:
+        params = dataclasses.replace(params, baud=gmf1_config(ctx.cell, sub).baud)
+    prefix = f"{sub.name}."
+    ls = Gmf1Lockstep(ctx.cell, sub.name, world_hz=ctx.world_hz, seed=int(opts.get("seed", ctx.seed)),
+                      start_deg=start, params=params, sched=ctx.sched, prefix=prefix)
+    ls.remote = Gmf1Remote(ls, sub, ctx.cell.stale_ticks, prefix)
+    if device is not None:
+        ctx.twins[device] = ls.device
+    stations = {"droid-gmf1-agent": [ls.tasks["agent"], f"{prefix}remote", f"{prefix}remote.reply"],
+                "droid-gmf1-serial": [ls.tasks["serial"]], "droid-gmf1-encoder": [ls.tasks["encoder"]]}
+    ls.encoder_running = "droid-gmf1-encoder" in sub.programs
+    ls.serial_running = "droid-gmf1-serial" in sub.programs
+    arm = ArmTasks.over(ctx.sched, ls.remote.status, ls.brain_command)
+    return LockstepSubunit(sub.name, sub.cls, ls.remote.status, ls.brain_command,
+                           {p: t for p, t in stations.items() if p in sub.programs}, arm, ls)

@@ -131,6 +131,12 @@ def _script(opts, n_axes: int, n_buttons: int) -> list:
 
 def make_joystick(world, name: str, options: dict[str, Any]) -> JoystickDevice:
     """Factory for ``type = "joystick"`` (droid.sim.world.DEVICE_TYPES)."""
+    path, twin = joystick_twin(world, name, options)
+    return JoystickDevice(name, path, twin)
+
+
+def joystick_twin(world, name: str, options: dict[str, Any]) -> tuple[str, JoystickTwin]:
+    """``(device path, twin)`` of a ``joystick`` table (the pty is the caller's: lockstep has none)."""
     from droid.sim.device_options import DeviceOptions
 
     opts = DeviceOptions(world, name, options)
@@ -142,4 +148,4 @@ def make_joystick(world, name: str, options: dict[str, Any]) -> JoystickDevice:
     resync = opts.get("resync_s", float, 1.0, check=lambda v: None if v > 0 else "must be > 0 s")
     script = _script(opts, n_axes, n_buttons)
     opts.done()
-    return JoystickDevice(name, path, JoystickTwin(n_axes, n_buttons, script, resync))
+    return path, JoystickTwin(n_axes, n_buttons, script, resync)

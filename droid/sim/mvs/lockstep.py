@@ -23,6 +23,7 @@ from droid.sim.mvs.devices import IdealSensorCore, MvsCameraDevice, ToolSensorDe
 from droid.sim.serial_cable import PacedPipe
 from droid.subunits.mvs.calibration import MvsCalibration
 from droid.subunits.mvs.station import MvsStation, SensorCore
+from droid.sim.lockstep_build import LockstepSubunit, builds
 
 
 _LOCKSTEP_IDS = itertools.count(1)
@@ -172,20 +173,76 @@ def _schedule(scheduler, run: MvsLockstep, ideal: IdealSensorCore | None, name: 
             run.station.on_wait(waited[0])
         waited[0] = 1.0
 
-    def link_task(ch: SensorChain):
-        def on_tick(tick: int) -> None:
-            t_ns = scheduler.t_ns
-            ch.status.update(**ch.link.on_tick(tick, ch.pipe.read(t_ns), t_ns))
-        return on_tick
-
     if ideal is None:
         scheduler.every(cam.clock.rate_hz, camera_task, f"{name}.mvs_camera", order=ORDER_WORLD)
         scheduler.every(cam.clock.rate_hz, sensor_task, f"{name}.mvs_sensor", order=ORDER_DEVICE)
     else:
         scheduler.every(cam.clock.rate_hz, ideal_task, f"{name}.mvs_sensor", order=ORDER_DEVICE)
-    scheduler.on_tick(link_task(run.mvs), f"{name}.mvs_link")
+    scheduler.on_tick(_link_task(scheduler, run.mvs), f"{name}.mvs_link")
     if run.tool is not None:
-        tool_dev, tool_chain = run.tool, run.tool_chain
-        scheduler.every(tool_dev.clock.rate_hz, lambda t_ns: tool_chain.pipe.write(tool_dev.line(t_ns), t_ns),
-                        f"{name}.tool_sensor", order=ORDER_WORLD)
-        scheduler.on_tick(link_task(tool_chain), f"{name}.tool_link")
+        _schedule_tool(scheduler, run.tool, run.tool_chain, name)
+
+
+def _link_task(scheduler, ch: SensorChain):
+    """droid-remote's tick for a serial-linked sensor: what the paced line delivered by now -> Status."""
+    def on_tick(tick: int) -> None:
+        t_ns = scheduler.t_ns
+        ch.status.update(**ch.link.on_tick(tick, ch.pipe.read(t_ns), t_ns))
+    return on_tick
+
+
+def _schedule_tool(scheduler, tool_dev: ToolSensorDevice, tool_chain: SensorChain, name: str) -> None:
+    """The tool-tip sensor's line at its rate (ORDER_WORLD) and its link on every tick."""
+    from droid.sim.lockstep import ORDER_WORLD
+
+    scheduler.every(tool_dev.clock.rate_hz, lambda t_ns: tool_chain.pipe.write(tool_dev.line(t_ns), t_ns),
+                    f"{name}.tool_sensor", order=ORDER_WORLD)
+    scheduler.on_tick(_link_task(scheduler, tool_chain), f"{name}.tool_link")
+
+
+@dataclass
+class ToolLockstep:
+    """A tool-tip measuring sensor alone on the scheduler (a ``line_laser`` subunit with no program)."""
+
+    tool: ToolSensorDevice
+    tool_chain: SensorChain
+
+    def close(self) -> None:
+        pass
+
+
+def _matching(ctx, typ: str, key: str, value) -> tuple[str, dict] | None:
+    """The first ``[world.devices.*]`` table of ``typ`` whose ``key`` is ``value`` (None: none)."""
+    return next(((n, o) for n, o in ctx.world_devices(typ).items() if value is not None and o.get(key) == value), None)
+
+
+@builds("droid-mvs")
+def build(ctx, sub) -> LockstepSubunit:
+    """The lockstep slot of the MVS package (droid.sim.lockstep_build) for a ``line_laser`` subunit:
+    with ``droid-mvs``, :func:`mvs_lockstep` of the ``mvs_camera`` world device writing its board
+    (its ``dsp`` is the subunit's) looking from and at the arms of ``ctx.twins``; without, the
+    ``tool_sensor`` device writing its line (its ``serial`` is the subunit's).  The line's baud,
+    the sensor's calibration (``[subunits.X.calibration]``) and the cell's ``stale_ticks`` are
+    the subunit's; BadInput (one line) when the world has no such device."""
+    from droid.brain.sensor_line import DEFAULT_BAUD as baud_default
+
+    world = SimpleNamespace(devices=ctx.twins, seed=ctx.seed, cell=None)
+    baud = int(sub.options.get("baud", baud_default))
+    if "droid-mvs" in sub.programs:
+        found = _matching(ctx, "mvs_camera", "dsp", sub.options.get("dsp"))
+        if found is None:
+            raise BadInput(f"{ctx.where(sub)} has no camera: no [world.devices.*] of type mvs_camera writes "
+                           f"its dsp {sub.options.get('dsp')!r}")
+        cam = {k: v for k, v in found[1].items() if k != "dsp"}
+        run = mvs_lockstep(ctx.sched, ctx.twins, cam, seed=ctx.seed, stale_ticks=ctx.cell.stale_ticks, baud=baud,
+                           sensor_calibration=sub.options.get("calibration"), name=sub.name)
+        stations = {"droid-mvs": [f"{sub.name}.mvs_sensor", f"{sub.name}.mvs_link"]}
+        return LockstepSubunit(sub.name, sub.cls, run.mvs.status, None, stations, None, run)
+    found = _matching(ctx, "tool_sensor", "serial", sub.options.get("serial"))
+    if found is None:
+        raise BadInput(f"{ctx.where(sub)} runs no droid-mvs and no [world.devices.*] of type tool_sensor "
+                       f"writes its serial {sub.options.get('serial')!r}: nothing writes its line")
+    tool = {k: v for k, v in found[1].items() if k not in ("serial", "baud")}
+    tool_run = ToolLockstep(_tool_sensor(world, tool), _sensor_chain(sub.name, "tool", baud, ctx.cell.stale_ticks))
+    _schedule_tool(ctx.sched, tool_run.tool, tool_run.tool_chain, sub.name)
+    return LockstepSubunit(sub.name, sub.cls, tool_run.tool_chain.status, None, {}, None, tool_run)

@@ -26,6 +26,10 @@ databases: ``command_joint``, ``command_cart`` (ticks, as BrainArm's), ``command
 write the Brain's Command record; ``status`` is the Brain's Status record.  That Brain side
 (records, remote, agent, planner, the tick's order) is :class:`droid.sim.arm_chain.ArmChain`,
 which the ABB's lockstep arm (droid.sim.abb.lockstep) shares.
+
+:func:`build` is the Reis package's lockstep builder (the registry's ``lockstep`` slot,
+droid.sim.lockstep_build): one arm subunit of a cell file, with its ``reis_vme`` world device's
+errors (:func:`arm_from_device`); a program the subunit does not run is switched off.
 """
 from __future__ import annotations
 
@@ -36,6 +40,7 @@ from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.sim.arm_chain import ArmChain
 from droid.sim.lockstep import ORDER_DEVICE, ORDER_WORLD, Scheduler
+from droid.sim.lockstep_build import LockstepSubunit, builds
 from droid.sim.reis.plant import ReisPlant, ReisPlantParams
 from droid.subunits.reis.servo import ServoCore
 from droid.subunits.reis.servo_agent import COMMAND_HZ as AGENT_HZ
@@ -160,26 +165,82 @@ def arms_from_cell(sched: Scheduler, cell, seed: int | None = None) -> dict[str,
     ``twist_error_deg``; droid.sim.reis.world) and its contact (``contact_workpiece``), and a device naming a different robot file
     than its subunit is refused, as droid-sim refuses it.
     """
-    from droid.cli import BadInput
-    from droid.sim.reis.world import contact_from_options, device_subunit, world_errors
-    from droid.subunits.reis.robot_file import read_offsets
-
     arms = {}
     world_seed = int(cell.world.get("seed", 0)) if seed is None else seed
     for name, opts in cell.world.get("devices", {}).items():
         if not isinstance(opts, dict) or opts.get("type") != "reis_vme":
             continue
-        opts = {k: v for k, v in opts.items() if k != "type"}
-        where, sub = device_subunit(cell, name, opts)
-        model = load_robot(sub.robot)
-        home_error, dh_error = world_errors(where, model, opts)
-        pp = ReisPlantParams(robot=sub.robot, home_error_deg=home_error, dh_error=dh_error)
-        try:  # droid-calibrate's offsets, where droid-servo finds them
-            offsets = read_offsets(cell, sub.name)
-        except ValueError as exc:
-            raise BadInput(str(exc)) from None
-        arms[sub.name] = LockstepArm(sched, sub.name, robot=sub.robot, base=tuple(sub.base),
-                                     seed=int(opts.get("seed", world_seed)), plant_params=pp,
-                                     home_offset_deg=offsets)
-        arms[sub.name].attach_contact(contact_from_options(where, opts, arms[sub.name].model.base))
+        arm = arm_from_device(sched, cell, name, {k: v for k, v in opts.items() if k != "type"}, world_seed)
+        arms[arm.name] = arm
     return arms
+
+
+def arm_from_device(sched: Scheduler, cell, name: str, opts: dict, world_seed: int,
+                    stale_ticks: int = STALE_TICKS) -> LockstepArm:
+    """The Reis arm of world device ``name`` (its ``reis_vme`` table ``opts`` without ``type``) on
+    ``sched``: its subunit's robot file, base and calibrated offsets, the table's world errors
+    and contact (see :func:`arms_from_cell`); ``stale_ticks`` [heartbeat ticks]."""
+    from droid.cli import BadInput
+    from droid.sim.reis.world import contact_from_options, device_subunit, world_errors
+    from droid.subunits.reis.robot_file import read_offsets
+
+    where, sub = device_subunit(cell, name, opts)
+    model = load_robot(sub.robot)
+    home_error, dh_error = world_errors(where, model, opts)
+    pp = ReisPlantParams(robot=sub.robot, home_error_deg=home_error, dh_error=dh_error)
+    try:  # droid-calibrate's offsets, where droid-servo finds them
+        offsets = read_offsets(cell, sub.name)
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None
+    arm = LockstepArm(sched, sub.name, robot=sub.robot, base=tuple(sub.base), seed=int(opts.get("seed", world_seed)),
+                      plant_params=pp, home_offset_deg=offsets, stale_ticks=stale_ticks)
+    arm.attach_contact(contact_from_options(where, opts, arm.model.base))
+    return arm
+
+
+def _contacts(ctx, devices: dict) -> None:
+    """The cell's ``contact`` world devices on this arm's device (its ``tool_robot``), built by the
+    twin's own factory once every twin exists (the workpiece may ride on another arm)."""
+    from types import SimpleNamespace
+
+    from droid.sim.contact_device import make_contact
+
+    world = SimpleNamespace(devices=ctx.twins, seed=ctx.seed, cell=ctx.cell)
+    for name, opts in ctx.world_devices("contact").items():
+        if opts.get("tool_robot") in devices:
+            ctx.twins[name] = make_contact(world, name, dict(opts))
+
+
+#: program -> its switch in LockstepArm.alive
+PROGRAM_ALIVE = {"droid-watchdog": "watchdog", "droid-servo": "servo", "droid-servo-agent": "agent",
+                 "droid-reis-agent": "link", "droid-planner": "planner"}
+
+
+@builds("droid-watchdog", "droid-servo", "droid-servo-agent", "droid-reis-agent", "droid-planner")
+def build(ctx, sub):
+    """The lockstep slot of the Reis package (droid.sim.lockstep_build): the subunit's arm, from
+    its ``reis_vme`` world device when the cell has one (its world errors), else the controller's
+    robot file alone; the cell's ``stale_ticks``; the ``contact`` world devices on its tool (once
+    every twin is built).  Stations: the table of the module docstring."""
+    from droid.cli import BadInput
+
+    devices = {n: o for n, o in ctx.world_devices("reis_vme").items() if o.get("subunit", n) == sub.name}
+    if len(devices) > 1:
+        raise BadInput(f"{ctx.where(sub)} has {len(devices)} reis_vme world devices ({', '.join(devices)}): "
+                       f"one arm, one twin")
+    if devices:
+        (device, opts), = devices.items()
+        arm = arm_from_device(ctx.sched, ctx.cell, device, opts, ctx.seed, ctx.cell.stale_ticks)
+        ctx.twins[device] = arm
+    else:
+        arm = LockstepArm(ctx.sched, sub.name, robot=sub.robot, base=tuple(sub.base), seed=ctx.seed,
+                          stale_ticks=ctx.cell.stale_ticks)
+    n = sub.name
+    stations = {"droid-watchdog": [f"{n}.watchdog"], "droid-servo": [f"{n}.servo"],
+                "droid-servo-agent": [f"{n}.servo_agent"], "droid-reis-agent": [f"{n}.tick"],
+                "droid-planner": [f"{n}.tick"]}
+    for prog, alive in PROGRAM_ALIVE.items():  # a program the subunit does not run does not run
+        arm.alive[alive] = prog in sub.programs
+    ctx.after(lambda: _contacts(ctx, devices))
+    return LockstepSubunit(n, sub.cls, arm.brain_status, arm.brain_command,
+                           {p: t for p, t in stations.items() if p in sub.programs}, arm, arm)

@@ -4,8 +4,8 @@ Serves class ``arm6r`` like the Reis and the GMF1: an ABB subunit runs the Reis 
 ``droid-reis-agent`` and ``droid-planner`` and this package's ``droid-egm`` in the servo
 agent's place (docs/abb.md).  Its twin ``abb_egm`` is the controller's side of EGM.  The
 ``egm`` key's ``udp://HOST:PORT`` is bound by droid-egm itself (no driver to open).  Its
-lockstep assembly, :class:`droid.sim.abb.lockstep.LockstepAbbArm`, puts the subunit's stations
-and the twin on a lockstep scheduler from a cell file.
+lockstep builder, :func:`droid.sim.abb.lockstep.build`, puts the subunit's stations and the twin
+(:class:`~droid.sim.abb.lockstep.LockstepAbbArm`) on a lockstep scheduler from a cell file.
 """
 from __future__ import annotations
 
@@ -19,5 +19,5 @@ PACKAGE = DevicePackage(
     programs=(Program("droid-egm", "droid.subunits.abb.egm_prog", sched="fifo", priority=54, cpu_pct=8.0,
                       rss_mb=45),),
     twins=(Twin("abb_egm", "droid.sim.abb.controller:make_abb_egm", serves=("arm6r",), cpu_pct=3.0),),
-    lockstep="droid.sim.abb.lockstep:LockstepAbbArm",
+    lockstep="droid.sim.abb.lockstep:build",
 )

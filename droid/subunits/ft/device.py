@@ -2,7 +2,7 @@
 
 Defines class ``ft6`` (its layout ``ft6_status`` in :mod:`droid.brain.layouts`), its program
 ``droid-ft`` (served by the generic ``droid-agent``; its read rate is its URL's ``rate_hz``),
-its ``netft://`` driver and its twin ``netft``.  No lockstep assembly yet.
+its ``netft://`` driver, its twin ``netft`` and its lockstep builder (:func:`droid.sim.ft.lockstep.build`).
 """
 from __future__ import annotations
 
@@ -40,4 +40,5 @@ PACKAGE = DevicePackage(
     drivers=(Driver("ft", tuple(DRIVER_CLASSES), "droid.subunits.ft.rdt:open_ft",
                     "netft://HOST[:PORT][?rate_hz=HZ&http_port=N&bias=0|1]"),),
     twins=(Twin("netft", "droid.sim.ft.netft:make_netft", serves=("ft6",), cpu_pct=1.0),),
+    lockstep="droid.sim.ft.lockstep:build",
 )

@@ -2,7 +2,7 @@
 
 Serves class ``arm6r`` like the Reis: the Brain sees one kind of arm.  Its programs,
 the encoder-card driver (the KAREL line uses the Brain's ``serial`` driver), the
-``karel_s400`` twin and the lockstep assembly.
+``karel_s400`` twin and the lockstep builder (:func:`droid.sim.gmf1.lockstep.build`).
 """
 from __future__ import annotations
 
@@ -24,5 +24,5 @@ PACKAGE = DevicePackage(
     drivers=(Driver("encoder_card", ("shm", "mem"), "droid.subunits.gmf1.quad04:open_card",
                     "shm://NAME or mem:///PATH?offset=0xADDR"),),
     twins=(Twin("karel_s400", "droid.sim.gmf1.karel:make_karel", serves=("arm6r",), cpu_pct=2.5),),
-    lockstep="droid.sim.gmf1.lockstep:Gmf1Lockstep",
+    lockstep="droid.sim.gmf1.lockstep:build",
 )

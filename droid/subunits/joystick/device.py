@@ -2,7 +2,8 @@
 
 Defines class ``joystick`` (its layout ``joystick_status``), its program
 ``droid-joystick`` (the generic ``droid-agent`` serves it), its drivers ``js://`` and
-``evdev://`` and its twin, a Linux joystick device on a pty.  No lockstep assembly yet.
+``evdev://``, its twin, a Linux joystick device on a pty, and its lockstep builder
+(:mod:`droid.sim.joystick.lockstep`: the twin's bytes read by droid-joystick's station).
 """
 from __future__ import annotations
 
@@ -33,4 +34,5 @@ PACKAGE = DevicePackage(
     drivers=(Driver("joystick", tuple(DRIVER_CLASSES), "droid.subunits.joystick.driver:open_joystick",
                     "js:///dev/input/jsN or evdev:///dev/input/eventN[?min=LO&max=HI]"),),
     twins=(Twin("joystick", "droid.sim.joystick.device:make_joystick", serves=("joystick",), cpu_pct=0.2),),
+    lockstep="droid.sim.joystick.lockstep:build",
 )

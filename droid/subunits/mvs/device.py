@@ -3,7 +3,7 @@
 Serves class ``line_laser`` (Table 3.3, defined by the Brain).  Its program, the DSP
 board driver (its serial line uses the Brain's ``serial`` driver), its twins -- the
 camera and DSP board, the tool-tip measuring sensor, and the fixed arm the sensor
-rigs use -- and the lockstep assembly.
+rigs use -- and the lockstep builder (:func:`droid.sim.mvs.lockstep.build`).
 """
 from __future__ import annotations
 
@@ -26,5 +26,5 @@ PACKAGE = DevicePackage(
         Twin("tool_sensor", "droid.sim.mvs.devices:tool_sensor", serves=("line_laser",), cpu_pct=2.5),
         Twin("fixed_arm", "droid.sim.mvs.arm:fixed_arm", serves=("arm6r",), cpu_pct=0.5),
     ),
-    lockstep="droid.sim.mvs.lockstep:mvs_lockstep",
+    lockstep="droid.sim.mvs.lockstep:build",
 )

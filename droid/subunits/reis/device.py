@@ -3,7 +3,7 @@
 Serves class ``arm6r`` (defined by the Brain: the Reis and the GMF1 are both 6R arms
 to it).  Its programs, in the thesis's start order on a real arm1 (watchdog, servo,
 servo agent, agent, planner), the VME driver, the ``reis_vme`` twin and the lockstep
-assembly.  The servo's 500 Hz is written here once (:data:`SERVO_HZ`).
+builder (:func:`droid.sim.reis.cell.build`: the whole arm, :class:`~droid.sim.reis.cell.LockstepArm`).  The servo's 500 Hz is written here once (:data:`SERVO_HZ`).
 """
 from __future__ import annotations
 
@@ -35,5 +35,5 @@ PACKAGE = DevicePackage(
                     "shm://NAME or mem:///PATH?offset=0xADDR"),),
     twins=(Twin("reis_vme", "droid.sim.reis.world:make_reis", serves=("arm6r",), cpu_pct=2.0),
            Twin("contact", "droid.sim.contact_device:make_contact", cpu_pct=0.5)),  # a workpiece pushing on its tool
-    lockstep="droid.sim.reis.lockstep:ReisLockstep",
+    lockstep="droid.sim.reis.cell:build",
 )

@@ -1,0 +1,160 @@
+"""The lockstep slot of a device package: one builder a package, one subunit a call (DESIGN §2, §11).
+
+A device package's ``DevicePackage.lockstep`` names ``"module:function"``, a **builder**::
+
+    @builds("droid-joystick", "droid-agent")       # the programs it gives stations for
+    def build(ctx: BuildContext, sub: Subunit) -> LockstepSubunit: ...
+
+called once per subunit of a class the package serves, as Drake's ``DiagramBuilder.AddSystem``
+adds a system: it puts the subunit's stations (the same read -> core.step -> write cycles as its
+real-time programs, :mod:`droid.sim.lockstep`) and its twin on ``ctx.sched`` and returns the
+subunit as a task program sees it.  ``ctx`` carries the scheduler, the cell, the seed, the world
+devices built so far by name (``ctx.twins``: an F/T sensor or a camera finds the arm it sits on or
+looks at there) and the subunits built so far (``ctx.built``); arms are built before everything
+else, and ``ctx.after(fn)`` defers what needs every twin (a contact between two arms).  :func:`droid.sim.lockstep_cell.build_lockstep_cell` picks the builder of each subunit by its
+programs: the builder of a package serving its class whose ``programs`` hold every program the
+subunit runs (so the ABB's, which stands for ``droid-reis-agent`` and ``droid-planner`` beside its
+``droid-egm``, builds an ABB arm, and the Reis's a Reis arm).
+
+The result, :class:`LockstepSubunit`, exposes the subunit's Brain databases as real time has them
+in shared memory (``status``, ``command``: :class:`~droid.brain.shmdb.MemoryDatabase` of the same
+layouts, the class's ``brain`` table), its stations (program -> scheduler task names) and, for an
+arm, what a task program drives (``arm``: :class:`droid.sim.arm_chain.ArmChain`'s interface).
+
+:class:`AgentLink` is the generic ``droid-agent`` / ``droid-remote`` pair on the heartbeat tick
+(thesis §3.2, §4.1.8): the Brain Command copied into the subunit's ``ctrl_command`` (if its class
+has one), its ``ctrl_status`` replied into the Brain Status; a sensor's builder writes its
+``ctrl_status`` and adds this link.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from droid.brain.layouts import JOG_MODE, JSPACE
+from droid.brain.remote import RemoteStation, StatusTranslator
+from droid.brain.shmdb import MemoryDatabase
+from droid.sim.lockstep import ORDER_HEARTBEAT, Scheduler
+from droid.subunits.agent import AgentStation, CommandCopier
+
+#: The generic subunit server (droid.brain.device): a sensor's builder names it among its programs.
+AGENT = "droid-agent"
+
+
+def builds(*programs: str) -> Callable:
+    """Declare the programs a lockstep builder gives stations for (see the module docstring)."""
+    def mark(fn: Callable) -> Callable:
+        fn.programs = tuple(programs)
+        return fn
+    return mark
+
+
+def brain_databases(sub) -> dict[str, MemoryDatabase]:
+    """The subunit's Brain records (area -> MemoryDatabase of its class's layout), command records
+    with the safe start values of ``droid.brain.databases.create_databases`` (JOG, joint space)."""
+    return {area: _fresh(f"{sub.name}.{area}", lay) for area, lay in sub.kind.brain.items()}
+
+
+def local_databases(sub) -> dict[str, MemoryDatabase]:
+    """The subunit side's records (``ctrl_status``, ``ctrl_command`` if its class has one)."""
+    return {area: _fresh(f"{sub.name}.{area}", lay) for area, lay in sub.kind.local.items()}
+
+
+def _fresh(name: str, layout) -> MemoryDatabase:
+    db = MemoryDatabase(name, layout)
+    if "cmd_mode" in layout.dtype.names:
+        db.update(cmd_mode=JOG_MODE, coord=JSPACE)
+    return db
+
+
+@dataclass
+class LockstepSubunit:
+    """One subunit on the scheduler: its Brain records, its stations and (arms) its task interface.
+
+    ``status``/``command``: the Brain's Status and Command records (``command`` None for a class
+    without one); ``stations``: program -> the scheduler task names that stand for it (a tick task
+    included); ``arm``: for an arm the object a task program drives (``command_home``,
+    ``command_joint``, ``home``, ``status``, ... as ``BrainArm``); ``parts``: the package's own
+    lockstep object (LockstepArm, Gmf1Lockstep, ...) for inspection and fault injection."""
+
+    name: str
+    cls: str
+    status: MemoryDatabase
+    command: MemoryDatabase | None = None
+    stations: dict[str, list[str]] = field(default_factory=dict)
+    arm: Any = None
+    parts: Any = None
+
+    def close(self) -> None:
+        close = getattr(self.parts, "close", None)
+        if callable(close):
+            close()
+
+
+@dataclass
+class BuildContext:
+    """What a builder gets besides its subunit: the scheduler, the cell, the seed (the world's
+    ``[world] seed`` unless overridden), the world devices built so far (name -> object with the
+    world's arm interface, ``wcp_global()`` 4x4 mm) and the subunits built so far."""
+
+    sched: Scheduler
+    cell: Any  # droid.brain.cellfile.Cell
+    seed: int
+    twins: dict[str, Any] = field(default_factory=dict)
+    built: dict[str, LockstepSubunit] = field(default_factory=dict)
+    finish: list[Callable[[], None]] = field(default_factory=list)
+
+    def after(self, fn: Callable[[], None]) -> None:
+        """Call ``fn()`` once every subunit is built (a world device between two subunits' twins:
+        the Reis's ``contact`` device, whose workpiece the holder arm carries)."""
+        self.finish.append(fn)
+
+    def where(self, sub) -> str:
+        """``FILE: [subunits.NAME]``, the head of a one-line refusal."""
+        return f"{self.cell.path}: [subunits.{sub.name}]"
+
+    def rate_hz(self, program: str) -> float | None:
+        """The rate [Hz] program ``program`` declares in the registry (None: tick-driven)."""
+        from droid.brain.registry import program as declared
+
+        return declared(program).rate_hz
+
+    @property
+    def world_hz(self) -> float:
+        """The world's step rate [Hz]: the cell's ``[world] rate_hz`` (droid-sim's default 1 kHz)."""
+        from droid.sim.world import DEFAULT_RATE_HZ
+
+        return float(self.cell.world.get("rate_hz", DEFAULT_RATE_HZ))
+
+    def world_devices(self, typ: str) -> dict[str, dict]:
+        """The cell's ``[world.devices.*]`` tables of ``type = typ`` (name -> options without type)."""
+        return {n: {k: v for k, v in o.items() if k != "type"} for n, o in self.cell.world.get("devices", {}).items()
+                if isinstance(o, dict) and o.get("type") == typ}
+
+
+class AgentLink:
+    """``droid-agent`` and ``droid-remote`` of one subunit on the heartbeat tick (thesis §3.2, §4.1.8).
+
+    Each tick (at ``order``, after the subunit's own stations wrote): the remote's silence rule and
+    tick, the agent's copy of the Brain Command into ``ctrl_command`` (a class with one), the reply:
+    ``ctrl_status`` translated into the Brain Status (its class's ``copy_fields``)."""
+
+    def __init__(self, ctx: BuildContext, sub, brain: dict, local: dict, order: int = ORDER_HEARTBEAT) -> None:
+        sched = ctx.sched
+        self.sched = sched
+        self.ctrl_status = local["ctrl_status"]
+        ctrl_command = local.get("ctrl_command")
+        command = brain.get("command")
+        copier = CommandCopier.for_subunit(ctrl_command, sub) if ctrl_command is not None else None
+        self.agent = AgentStation(self.ctrl_status, ctrl_command, ctx.cell.period_ns, ctx.cell.stale_ticks, copier)
+        self.remote = RemoteStation(brain["status"], command if ctrl_command is not None else None,
+                                    StatusTranslator(sub.name, sub.kind), ctx.cell.stale_ticks, sched.heartbeat_hz)
+        self.task = f"{sub.name}.agent_link"
+        sched.on_tick(self._tick, self.task, order=order)
+
+    def _tick(self, tick: int) -> None:
+        t_ns = self.sched.t_ns
+        self.remote.on_poll(t_ns)
+        self.remote.on_tick(tick, t_ns)
+        reply = self.agent.on_command(self.remote.command_payload(), tick, t_ns)
+        self.remote.on_reply(tick, reply, t_ns)
