@@ -8,13 +8,18 @@ from __future__ import annotations
 import json
 import os
 import signal
+import subprocess
+import sys
 
 import numpy as np
 import pytest
 
+from droid.brain.cellfile import load_cell
+from droid.brain.databases import open_brain
+from droid.brain.shmdb import pid_alive
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T, T_to_pose
-from tests.brain.cellutil import brought_down, cell_status, droid, make_cell_file, wait_for
+from tests.brain.cellutil import ROOT, brought_down, cell_status, droid, make_cell_file, wait_for
 
 pytestmark = pytest.mark.integration
 CELL = "droid.brain.launcher"
@@ -66,6 +71,40 @@ def test_home_and_cartesian_move_in_the_real_cell(cell):
     wait_for(lambda: "device" in snoop(cell)["fault"], timeout=30, what="gmf1 device fault")
     rows = {r["name"]: r for r in cell_status(cell)}
     assert rows["droid-gmf1-serial gmf1"]["live"] and rows["droid-gmf1-encoder gmf1"]["live"]
+
+
+def test_a_home_acknowledged_while_the_serial_program_is_dead_is_done_after_its_restart(cell):
+    """Tables 3.1-3.2: a command is executed or refused, never lost.  droid-home's command reaches
+    the agent ('sent' cleared) while droid-gmf1-serial is dead; 'droid-cell restart' brings the
+    program back and the arm homes.  (Its first tick used to take the command found as handled:
+    droid-home waited until its time-out.  The same rule lost a droid-home written right after
+    droid-cell up, before the program's first relayed tick: tests/gmf1/test_gmf1_first_command.py.)"""
+    out = droid(CELL, "up", "--cell", str(cell), timeout=120)
+    assert out.returncode == 0, out.stdout + out.stderr
+    wait_for(lambda: (lambda s: not s["stale"] and not s["fault"])(snoop(cell)), timeout=30,
+             what="gmf1 fresh and without faults")
+    serial = next(r for r in cell_status(cell) if r["name"] == "droid-gmf1-serial gmf1")
+    os.kill(serial["pid"], signal.SIGKILL)
+    wait_for(lambda: not pid_alive(serial["pid"]), timeout=30, what="droid-gmf1-serial gone")
+    c = load_cell(cell)
+    command = open_brain(c, c.subunit("gmf1"), "command")
+    home = subprocess.Popen([sys.executable, "-m", "droid.tasks.home", "gmf1", "--timeout", "90", "--cell", str(cell)],
+                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        wait_for(lambda: (lambda r: int(r["cmd_id"]) != 0 and int(r["sent"]) == 0)(command.read()), timeout=60,
+                 what="droid-home's command acknowledged by the agent")
+        assert int(snoop(cell)["homed"]) == 0
+        out = droid(CELL, "restart", "droid-gmf1-serial gmf1", "--cell", str(cell), timeout=60)
+        assert out.returncode == 0, out.stdout + out.stderr
+        _, err = home.communicate(timeout=120)
+        assert home.returncode == 0, err
+    finally:
+        command.close()
+        if home.poll() is None:
+            home.kill()
+            home.wait(10)
+    s = snoop(cell)
+    assert s["homed"] == 1 and all(abs(v) <= 1 for v in s["encoder_pos"])
 
 
 @pytest.mark.parametrize("prog", ["droid.subunits.gmf1.serial_prog", "droid.subunits.gmf1.encoder_prog"])

@@ -64,6 +64,33 @@ def test_the_first_command_seen_is_not_replayed():
     assert c.last_seen == 7 and c.pending is None
 
 
+def test_the_first_command_seen_is_not_replayed_if_status_answers_it():
+    c = SerialCore(MODEL)
+    c.step(1, cmd(7), StatusView(True, np.zeros(6, np.int64), 7), b"", False)
+    assert c.last_seen == 7 and c.pending is None and c.dropped == 0
+    c = SerialCore(MODEL)
+    c.step(1, cmd(0, mode=JOG_MODE), StatusView(False, np.zeros(6, np.int64), 0), b"", False)
+    assert c.last_seen == 0 and c.pending is None  # the safe start values: no command
+
+
+def test_the_first_command_seen_is_taken_if_no_one_answered_it():
+    """Tables 3.1-3.2: executed or refused, never lost (written before the first tick, or
+    pending in a run that died)."""
+    c = SerialCore(MODEL)
+    view = StatusView(False, np.zeros(6, np.int64), 0)
+    c.step(1, cmd(1, mode=HOME_MODE), view, b"", False)
+    assert c.last_seen == 1 and c.pending is not None and c.dropped == 0
+    assert c.step(2, cmd(1, mode=HOME_MODE), view, b"", True).tx.startswith(b"STAT ")  # the link first
+    pid = c.probe_id
+    out = c.step(3, cmd(1, mode=HOME_MODE), view, kw.format_reply(kw.Reply(kw.STAT, pid, state=kw.IDLE)), True)
+    assert out.tx == b"" and c.state == IDLE  # the interpreter's cycle of the probe has not passed
+    tick = 3
+    while not out.tx:
+        tick += 1
+        out = c.step(tick, cmd(1, mode=HOME_MODE), view, b"", True)
+    assert out.tx == b"HOME 1\r" and out.fields["cmd_id"] == 1 and c.sent == 1
+
+
 def test_no_reply_means_fault_probe_and_eventually_reopen():
     c = opened_core()
     c.step(20, cmd(1), HOMED_VIEW, b"", True)

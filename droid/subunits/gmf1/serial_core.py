@@ -30,6 +30,13 @@ Commands (a new command = a new ``cmd_id``):
   so are targets outside the workspace or the joint limits (checked with the
   model's IK and pick, the same as the controller's).
 
+The first tick (a start or a restart): a command is executed or refused, never
+lost (Tables 3.1-3.2: ``sent``, ``cmd_id``, ``cmd_result``, ``busy``).  The
+command found then is not replayed only if Status already answers it
+(:attr:`StatusView.cmd_id`: an earlier run sent, refused or stopped it) or
+there is none (cmd_id 0); any other — written before our first relayed tick,
+or held pending by a run that died — is taken like a new one.
+
 Stop (a NORMAL command with STOP_TICKS, written by a task that gave up): the
 pending command is dropped and nothing new is sent; a move already sent runs to
 its end (the KAREL server has no abort).
@@ -144,6 +151,7 @@ class StatusView:
 
     homed: bool
     encoder_pos: np.ndarray  # [counts wrt home]
+    cmd_id: int | None = None  # the last command answered (sent, refused, stopped); None: not known
 
 
 @dataclass
@@ -227,7 +235,7 @@ class SerialCore:
                 self.fault = True  # shown for at least this tick, even if good lines followed
             self._timeouts(tick, out)
         if cmd is not None:
-            self._take_command(cmd)
+            self._take_command(cmd, st)
         if port_open and self.state != CLOSED:
             self._send(tick, st, out)
         self._busy(tick)
@@ -398,15 +406,26 @@ class SerialCore:
             self.probe_due = tick + self.p.ticks(self.p.probe_interval_s)
 
     # ------------------------------------------------------------------ commands
-    def _take_command(self, cmd: CommandSnapshot) -> None:
+    def _take_command(self, cmd: CommandSnapshot, st: StatusView) -> None:
         if self.last_seen is None:
-            self.last_seen = cmd.cmd_id  # do not replay what was there before we started
+            # The first tick (a start, or a restart: droid-cell restart).  A command is either
+            # executed or refused, and Status says which (Tables 3.1-3.2: cmd_id, cmd_result,
+            # busy): the one found here was handled already only if Status answers it (an
+            # earlier run of this program sent, refused or stopped it), or if there is none
+            # (cmd_id 0: the safe start values, §4.1.4).  Any other was written before our
+            # first tick (droid-home right after droid-cell up, before the relay's first tick
+            # reached us) or while the previous run held it pending; the agent acknowledged
+            # it ('sent' cleared), so dropping it here lost it silently: it is taken.
+            handled = cmd.cmd_id == 0 or st.cmd_id is None or cmd.cmd_id == st.cmd_id
+            self.last_seen = cmd.cmd_id
+            if handled:
+                return  # not replayed
+        elif cmd.cmd_id == self.last_seen:
             return
-        if cmd.cmd_id == self.last_seen:
-            return
-        gap = (cmd.cmd_id - self.last_seen - 1) % (1 << 32)
-        if gap < MAX_ID_GAP:
-            self.dropped += gap
+        else:
+            gap = (cmd.cmd_id - self.last_seen - 1) % (1 << 32)
+            if gap < MAX_ID_GAP:
+                self.dropped += gap
         self.last_seen = cmd.cmd_id
         if cmd.cmd_mode == OFF:
             return

@@ -50,7 +50,7 @@ class SerialStation:
     def cycle(self, tick: int) -> SerialOut:
         cmd = snapshot_command(self.ctrl_command.read())
         st = self.ctrl_status.read()
-        view = StatusView(bool(int(st["homed"])), np.array(st["encoder_pos"], np.int64))
+        view = StatusView(bool(int(st["homed"])), np.array(st["encoder_pos"], np.int64), int(st["cmd_id"]))
         rx = self.link.read()
         out = self.core.step(tick, cmd, view, rx, self.link.is_open)
         if out.close_port:
