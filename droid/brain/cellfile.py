@@ -151,7 +151,7 @@ class Cell:
     # [interpose] public endpoint -> the endpoint its owner binds instead, so that a
     # fault proxy (droid-fault) can serve the public one (docs/safety.md)
     interpose: dict[str, str] = field(default_factory=dict)
-    # [cell] layout: the cell's seam-tracking layout (droid.tasks.seam.layout), a path relative
+    # [cell] layout: the cell's seam-tracking layout (droid.brain.cell_layout), a path relative
     # to the cell file; None: the bundled seamtrack_layout.toml
     layout: Path | None = None
 

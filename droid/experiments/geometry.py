@@ -21,7 +21,7 @@ from droid.kinematics import RobotModel, Unreachable, load_robot
 from droid.kinematics.transforms import inv_homo
 from droid.sim.mvs.tool_sensor import seam_frame
 from droid.sim.workpiece import Workpiece, load_workpiece
-from droid.tasks.seam.layout import Layout, Wrist, load_layout
+from droid.brain.cell_layout import Layout, Wrist, load_layout
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """A lockstep trial on a cell file: ``TrialConfig.cell``, ``droid-experiment run --cell FILE``, a plan's ``cell``.
 
 The trial reads the cell's seam-tracking layout (its ``[cell] layout``, else the bundled one:
-droid.tasks.seam.layout.layout_for_cell); the welder is the layout's ``tool_robot``, the holder
+droid.brain.cell_layout.layout_for_cell); the welder is the layout's ``tool_robot``, the holder
 its ``holder_robot``, both subunits of the cell at the cell's bases with the layout's robot
 files.  The welder's lockstep arm is chosen by what its subunit runs:
 
@@ -28,7 +28,7 @@ from pathlib import Path
 from droid.brain.cellfile import BUNDLED_CELLS, Cell, find_file, load_cell
 from droid.brain.device import HEARTBEAT_HZ
 from droid.cli import BadInput
-from droid.tasks.seam.layout import Layout, check_bases, layout_for_cell
+from droid.brain.cell_layout import Layout, check_bases, layout_for_cell
 
 #: the programs the Reis's lockstep arm stands for (droid.sim.reis.cell)
 REIS_PROGRAMS = ("droid-servo", "droid-servo-agent", "droid-planner")

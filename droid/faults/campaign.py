@@ -196,7 +196,7 @@ class SeamTrackLoop(Workload):
 
     def __init__(self, speed_mm_s: float = 16.0, length_mm: float = 120.0, position: str = "i"):
         from droid.kinematics import load_robot
-        from droid.tasks.seam.layout import load_layout
+        from droid.brain.cell_layout import load_layout
 
         self.speed_mm_s, self.length_mm, self.position = speed_mm_s, length_mm, position
         lay = load_layout()

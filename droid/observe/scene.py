@@ -122,7 +122,7 @@ def scene_meta(cell, layout_path=None) -> dict:
     The workpiece's shape (``workpiece_mesh``, :mod:`droid.sim.workpiece_mesh`) is not here: an
     observer cannot read the simulator's workpiece model (DESIGN §7).  A recording whose maker may
     (a lockstep trial) carries it in its scene metadata."""
-    from droid.tasks.seam.layout import layout_for_cell
+    from droid.brain.cell_layout import layout_for_cell
 
     try:
         lay = layout_for_cell(cell, layout_path)

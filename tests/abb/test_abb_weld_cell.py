@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from droid.brain.cellfile import load_cell
-from droid.tasks.seam.layout import layout_for_cell
+from droid.brain.cell_layout import layout_for_cell
 from tests.brain.cellutil import ROOT, cell_up, droid, make_cell_file
 from tests.tasks.test_seamtrack_cell import assert_agrees_with_lockstep, assert_standing, read_log, snoop
 

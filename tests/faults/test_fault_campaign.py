@@ -59,7 +59,7 @@ def test_the_seam_tracking_workload_starts_at_the_layout_start_inside_its_envelo
     from droid.faults.campaign import WORKLOADS
     from droid.faults.cells import seam_campaign_cell_text
     from droid.kinematics import load_robot
-    from droid.tasks.seam.layout import load_layout
+    from droid.brain.cell_layout import load_layout
 
     w = WORKLOADS["seamtrack"]()
     assert w.needs_holder

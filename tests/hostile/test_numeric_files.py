@@ -72,7 +72,7 @@ def _loaders():
     from droid.experiments.plan import load_plan
     from droid.sim.workpiece import load_workpiece
     from droid.tasks.contact.core import load_gains
-    from droid.tasks.seam.layout import load_layout
+    from droid.brain.cell_layout import load_layout
 
     return {"robot": load_robot, "workpiece": load_workpiece, "layout": load_layout, "plan": load_plan,
             "cell": check_cell, "gains": load_gains}

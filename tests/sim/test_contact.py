@@ -17,7 +17,7 @@ from droid.sim.lockstep import Scheduler
 from droid.sim.reis.cell import LockstepArm
 from droid.sim.reis.plant import ReisPlant, ReisPlantParams
 from droid.sim.workpiece import load_workpiece
-from droid.tasks.seam.layout import T_W_SEAM
+from droid.brain.cell_layout import T_W_SEAM
 from tests.refusals import refused
 
 P = ContactParams(stiffness_n_per_mm=20.0, damping_n_s_per_mm=0.5, friction_coefficient=0.3, slip_speed_mm_s=2.0)

@@ -11,7 +11,7 @@ from droid.brain.cellfile import load_cell
 from droid.kinematics.transforms import inv_homo
 from droid.tasks.contact import report
 from droid.tasks.contact.prog import ContactRun, build_parser
-from droid.tasks.seam.layout import load_layout
+from droid.brain.cell_layout import load_layout
 from tests.brain.cellutil import droid, make_cell_file
 
 PROG = "droid.tasks.contact.prog"

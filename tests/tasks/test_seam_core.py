@@ -17,7 +17,7 @@ from droid.tasks.seam.core import (PHASE_DEAD_ZONE, STOP_END, STOP_LOST, STOP_UN
                                    SeamTracker)
 from droid.tasks.seam.delay import (DELAY_DELAYED, DELAY_OFF, DELAY_ZEROED, INVALID_READING, ZERO_READING,
                                     Reading, TransportDelay)
-from droid.tasks.seam.layout import load_layout
+from droid.brain.cell_layout import load_layout
 
 LAYOUT = load_layout()
 WRIST = LAYOUT.wrist("standard")

@@ -22,7 +22,7 @@ from droid.tasks import seamtrack
 from droid.tasks.seam.core import MODES, STOP_FAULT, SeamParams
 from droid.tasks.seam.cycle import TrackingCycle, arm_faults
 from droid.tasks.seam.delay import INVALID_READING
-from droid.tasks.seam.layout import load_layout
+from droid.brain.cell_layout import load_layout
 
 LAYOUT = load_layout()
 WRIST = LAYOUT.wrist("standard")

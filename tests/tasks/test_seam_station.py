@@ -10,7 +10,7 @@ import pytest
 from droid.tasks.seam.core import STOP_FAULT, STOP_STALE, SeamParams
 from droid.tasks.seam.cycle import TrackingCycle
 from droid.tasks.seam.delay import INVALID_READING
-from droid.tasks.seam.layout import load_layout
+from droid.brain.cell_layout import load_layout
 from droid.tasks.seam.station import STALE_GRACE_S, ArmStatus, SeamtrackStation, stale_grace_ticks
 from droid.brain.layouts import FAULT_SERVO
 
