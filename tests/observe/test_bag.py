@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -15,7 +14,7 @@ from droid.kinematics.transforms import pose_to_T
 from droid.observe.bag import JOINT_NAMES, summary_lines
 from droid.observe.mcapfile import read_recording
 from droid.observe.replay import main as replay_main
-from tests.brain.cellutil import droid
+from tests.brain.cellutil import droid, in_process
 from tests.observe.test_record import record_ticks
 
 
@@ -200,36 +199,25 @@ def test_export_a_tick_range(db_cell, tmp_path):
     assert len(msgs["/arm1/joint_states"]) == 5 and len(msgs["/tf_static"]) == 1
 
 
-def replay_in_process(capsys, *args: str) -> SimpleNamespace:
-    """droid-replay's ``main(args)`` in this process, as ``returncode``, ``stdout``, ``stderr``: the
-    refusal and --force cases below (the export as a program, ``python -m``: the tests above)."""
-    try:
-        code = replay_main(list(args))
-    except SystemExit as exc:  # argparse's usage errors
-        code = exc.code
-    out = capsys.readouterr()
-    return SimpleNamespace(returncode=code, stdout=out.out, stderr=out.err)
-
-
 def test_existing_dir_refused_then_force_replaces(db_cell, tmp_path, capsys):
     path = make_recording(db_cell, tmp_path, n=5)
     bag = tmp_path / "bag"
     bag.mkdir()
     (bag / "keep.txt").write_text("mine")
-    out = replay_in_process(capsys, str(path), "--export", "rosbag2", str(bag))
+    out = in_process(replay_main, capsys, str(path), "--export", "rosbag2", str(bag))
     assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1 and "exists" in out.stderr
     # --force replaces a bag or an empty directory only, never another directory
-    out = replay_in_process(capsys, str(path), "--export", "rosbag2", str(bag), "--force")
+    out = in_process(replay_main, capsys, str(path), "--export", "rosbag2", str(bag), "--force")
     assert out.returncode == 2 and "not a ROS 2 bag" in out.stderr and (bag / "keep.txt").read_text() == "mine"
     os.remove(bag / "keep.txt")
-    assert replay_in_process(capsys, str(path), "--export", "rosbag2", str(bag), "--force").returncode == 0
+    assert in_process(replay_main, capsys, str(path), "--export", "rosbag2", str(bag), "--force").returncode == 0
     first = sorted(os.listdir(bag))
     assert first == ["bag.mcap", "metadata.yaml"]
-    out = replay_in_process(capsys, str(path), "--export", "rosbag2", str(bag))
+    out = in_process(replay_main, capsys, str(path), "--export", "rosbag2", str(bag))
     assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1
     (tmp_path / "s").mkdir()
     short = make_recording(db_cell, tmp_path / "s", n=3)
-    out = replay_in_process(capsys, str(short), "--export", "rosbag2", str(bag), "--force")
+    out = in_process(replay_main, capsys, str(short), "--export", "rosbag2", str(bag), "--force")
     assert out.returncode == 0, out.stderr
     msgs, _ = read_bag(bag)
     assert len(msgs["/arm1/joint_states"]) == 3  # replaced, not appended
@@ -254,9 +242,9 @@ def test_bad_export_arguments(db_cell, tmp_path, capsys):
     path = make_recording(db_cell, tmp_path, n=3)
     for args in (["--export", "rosbag2"], ["--export", "rosbag2", str(tmp_path / "b"), "--subunit", "arm1"],
                  ["--force"], [str(tmp_path / "b")], ["--export", "rosbag2", str(tmp_path)]):
-        out = replay_in_process(capsys, str(path), *args)
+        out = in_process(replay_main, capsys, str(path), *args)
         assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1, (args, out.stderr)
-    out = replay_in_process(capsys, str(path), "--export", "rosbag2", str(tmp_path / "no" / "bag"))
+    out = in_process(replay_main, capsys, str(path), "--export", "rosbag2", str(tmp_path / "no" / "bag"))
     assert out.returncode == 2 and "does not exist" in out.stderr
 
 
