@@ -72,8 +72,9 @@ def test_list_prints_every_trial_with_stable_ids(tmp_path, capsys):
 
 @pytest.fixture(scope="module")
 def small_no_figures(tmp_path_factory):
-    """SMALL's directory after one run without figures (default --jobs): the second run of the
-    determinism check below and the run whose lost result test_resume_skips... resumes (on a copy)."""
+    """SMALL's directory after one run without figures (default --jobs), run once for two tests:
+    the second run of the determinism check below, and (copied) the finished run in which
+    test_resume_skips_trials_whose_results_exist deletes one result and resumes."""
     tmp = tmp_path_factory.mktemp("small")
     plan = write_plan(tmp / "p.toml", SMALL)
     p = run_cli("run", "--plan", plan, "--out", str(tmp / "out"), "--no-figures")
