@@ -34,8 +34,8 @@ def test_droid_experiment_runs_without_matplotlib_and_says_so_once(tmp_path):
     d = tmp_path / "o" / "n"
     assert len(list(d.glob("*.csv"))) == 3 and not list(d.glob("*.png"))  # 2 logs + results.csv
     p = subprocess.run([sys.executable, "-m", "droid.experiments.cli", "run", "exp4", "--length", "170",
-                        "--arm", "fast", "--out", str(tmp_path / "e"), "--jobs", "2"], capture_output=True, text=True, env=env,
-                       timeout=300)
+                        "--arm", "fast", "--out", str(tmp_path / "e"), "--jobs", "2"], capture_output=True, text=True,
+                       env=env, timeout=300)
     assert p.returncode == 0 and "Traceback" not in p.stderr
     assert "exp4: no figures: matplotlib is not installed" in p.stderr
     assert (tmp_path / "e" / "exp4" / "std.csv").is_file() and not (tmp_path / "e" / "exp4" / "std.png").exists()
