@@ -20,9 +20,12 @@ def _blocked_env(tmp_path) -> dict:
 
 
 def test_droid_experiment_runs_without_matplotlib_and_says_so_once(tmp_path):
+    # The figure paths (each trial's, then exp4's std.png) are the same whichever arm model ran
+    # the trials: the fast arm keeps this quick (the default full arm homes before each trial;
+    # it has its own tests in tests/sim/test_full_arm_trial.py).
     env = _blocked_env(tmp_path)
     plan = tmp_path / "p.toml"
-    plan.write_text('name = "n"\n[defaults]\nlength_mm = 120\n[sweep]\nspeed_mm_s = [16, 32]\n')
+    plan.write_text('name = "n"\n[defaults]\nlength_mm = 120\narm = "fast"\n[sweep]\nspeed_mm_s = [16, 32]\n')
     p = subprocess.run([sys.executable, "-m", "droid.experiments.cli", "run", "--plan", str(plan), "--out",
                         str(tmp_path / "o"), "--jobs", "2"], capture_output=True, text=True, env=env, timeout=300)
     assert p.returncode == 0, p.stderr
@@ -31,8 +34,8 @@ def test_droid_experiment_runs_without_matplotlib_and_says_so_once(tmp_path):
     d = tmp_path / "o" / "n"
     assert len(list(d.glob("*.csv"))) == 3 and not list(d.glob("*.png"))  # 2 logs + results.csv
     p = subprocess.run([sys.executable, "-m", "droid.experiments.cli", "run", "exp4", "--length", "170",
-                        "--out", str(tmp_path / "e"), "--jobs", "2"], capture_output=True, text=True, env=env,
-                       timeout=300)
+                        "--arm", "fast", "--out", str(tmp_path / "e"), "--jobs", "2"], capture_output=True, text=True,
+                       env=env, timeout=300)
     assert p.returncode == 0 and "Traceback" not in p.stderr
     assert "exp4: no figures: matplotlib is not installed" in p.stderr
     assert (tmp_path / "e" / "exp4" / "std.csv").is_file() and not (tmp_path / "e" / "exp4" / "std.png").exists()

@@ -8,6 +8,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 from droid.brain.cellfile import builtin_cell_path, without_table
 
@@ -53,6 +54,19 @@ def droid(prog_module: str, *args: str, timeout: float = 60, check: bool = False
     if check and out.returncode != 0:
         raise AssertionError(f"{prog_module} {args} -> {out.returncode}\n{out.stdout}\n{out.stderr}")
     return out
+
+
+def in_process(main, capsys, *args: str) -> SimpleNamespace:
+    """A program's ``main(args)`` called in this process, as ``droid()``'s ``returncode``, ``stdout``,
+    ``stderr`` (from pytest's ``capsys``): for refusals that a program gives before it starts
+    anything, where each ``python -m`` would only add an interpreter's start (keep at least one
+    test of each program that runs it as a program)."""
+    try:
+        code = main(list(args))
+    except SystemExit as exc:  # argparse's own exits (usage errors, --help)
+        code = exc.code
+    out = capsys.readouterr()
+    return SimpleNamespace(returncode=code, stdout=out.out, stderr=out.err)
 
 
 def cell_status(cell_file: Path) -> list[dict]:

@@ -13,7 +13,8 @@ from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.observe.bag import JOINT_NAMES, summary_lines
 from droid.observe.mcapfile import read_recording
-from tests.brain.cellutil import droid
+from droid.observe.replay import main as replay_main
+from tests.brain.cellutil import droid, in_process
 from tests.observe.test_record import record_ticks
 
 
@@ -198,25 +199,25 @@ def test_export_a_tick_range(db_cell, tmp_path):
     assert len(msgs["/arm1/joint_states"]) == 5 and len(msgs["/tf_static"]) == 1
 
 
-def test_existing_dir_refused_then_force_replaces(db_cell, tmp_path):
+def test_existing_dir_refused_then_force_replaces(db_cell, tmp_path, capsys):
     path = make_recording(db_cell, tmp_path, n=5)
     bag = tmp_path / "bag"
     bag.mkdir()
     (bag / "keep.txt").write_text("mine")
-    out = droid("droid.observe.replay", str(path), "--export", "rosbag2", str(bag))
+    out = in_process(replay_main, capsys, str(path), "--export", "rosbag2", str(bag))
     assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1 and "exists" in out.stderr
     # --force replaces a bag or an empty directory only, never another directory
-    out = droid("droid.observe.replay", str(path), "--export", "rosbag2", str(bag), "--force")
+    out = in_process(replay_main, capsys, str(path), "--export", "rosbag2", str(bag), "--force")
     assert out.returncode == 2 and "not a ROS 2 bag" in out.stderr and (bag / "keep.txt").read_text() == "mine"
     os.remove(bag / "keep.txt")
-    assert droid("droid.observe.replay", str(path), "--export", "rosbag2", str(bag), "--force").returncode == 0
+    assert in_process(replay_main, capsys, str(path), "--export", "rosbag2", str(bag), "--force").returncode == 0
     first = sorted(os.listdir(bag))
     assert first == ["bag.mcap", "metadata.yaml"]
-    out = droid("droid.observe.replay", str(path), "--export", "rosbag2", str(bag))
+    out = in_process(replay_main, capsys, str(path), "--export", "rosbag2", str(bag))
     assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1
     (tmp_path / "s").mkdir()
     short = make_recording(db_cell, tmp_path / "s", n=3)
-    out = droid("droid.observe.replay", str(short), "--export", "rosbag2", str(bag), "--force")
+    out = in_process(replay_main, capsys, str(short), "--export", "rosbag2", str(bag), "--force")
     assert out.returncode == 0, out.stderr
     msgs, _ = read_bag(bag)
     assert len(msgs["/arm1/joint_states"]) == 3  # replaced, not appended
@@ -237,13 +238,13 @@ def test_bad_recording_refused_and_nothing_written(db_cell, tmp_path, damage):
     assert not bag.exists() and not [p for p in os.listdir(tmp_path) if "partial" in p]
 
 
-def test_bad_export_arguments(db_cell, tmp_path):
+def test_bad_export_arguments(db_cell, tmp_path, capsys):
     path = make_recording(db_cell, tmp_path, n=3)
     for args in (["--export", "rosbag2"], ["--export", "rosbag2", str(tmp_path / "b"), "--subunit", "arm1"],
                  ["--force"], [str(tmp_path / "b")], ["--export", "rosbag2", str(tmp_path)]):
-        out = droid("droid.observe.replay", str(path), *args)
+        out = in_process(replay_main, capsys, str(path), *args)
         assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1, (args, out.stderr)
-    out = droid("droid.observe.replay", str(path), "--export", "rosbag2", str(tmp_path / "no" / "bag"))
+    out = in_process(replay_main, capsys, str(path), "--export", "rosbag2", str(tmp_path / "no" / "bag"))
     assert out.returncode == 2 and "does not exist" in out.stderr
 
 

@@ -19,7 +19,7 @@ import aiohttp
 import numpy as np
 import pytest
 
-from tests.brain.cellutil import ROOT, free_port, make_cell_file
+from tests.brain.cellutil import ROOT, free_port, in_process, make_cell_file
 from tests.observe.foxglove_client import OLD_SUBPROTOCOL, SUBPROTOCOL, FoxgloveClient
 from tests.observe.webutil import lockstep_recording, stop_process, taken_port
 
@@ -316,13 +316,16 @@ def test_non_loopback_refused_before_binding(recording, monkeypatch, capsys):
     fox.check_host("0.0.0.0", "long-enough-token")
 
 
-def test_refusals(recording, tmp_path, cell_name):
-    out = run_fox("--file", str(tmp_path / "none.mcap"))
+def test_refusals(recording, tmp_path, cell_name, capsys):
+    import droid.observe.foxglove as fox
+
+    # refused before anything is started: main() in-process (the rest run the program)
+    out = in_process(fox.main, capsys, "--file", str(tmp_path / "none.mcap"))
     assert out.returncode == 2 and "no such file" in out.stderr and len(out.stderr.strip().splitlines()) == 1
     (tmp_path / "bad.mcap").write_bytes(b"not mcap at all")
-    out = run_fox("--file", str(tmp_path / "bad.mcap"))
+    out = in_process(fox.main, capsys, "--file", str(tmp_path / "bad.mcap"))
     assert out.returncode == 2 and "not an MCAP file" in out.stderr
-    out = run_fox("--port", "70000")
+    out = in_process(fox.main, capsys, "--port", "70000")
     assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1
     with taken_port() as port:
         out = run_fox("--port", str(port), "--file", recording)

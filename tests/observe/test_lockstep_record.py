@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from droid.brain.layouts import ARM_STATUS_LAYOUT
 from droid.kinematics import load_robot
@@ -10,11 +11,17 @@ from droid.experiments.matrix import resolve
 from droid.experiments.trial import run_trial, with_overrides
 
 
-def test_trial_recording(tmp_path):
-    exp = resolve(["1.3"])[0]
-    cfg = with_overrides(exp.config, length_mm=60.0)
-    path = tmp_path / "t.mcap"
-    res = run_trial(cfg, record=str(path))
+@pytest.fixture(scope="module")
+def recorded_trial(tmp_path_factory):
+    """(config, result, MCAP path) of trial 1.3 shortened to 60 mm, recorded: run once for the
+    two tests below that read its recording."""
+    cfg = with_overrides(resolve(["1.3"])[0].config, length_mm=60.0)
+    path = tmp_path_factory.mktemp("record") / "t.mcap"
+    return cfg, run_trial(cfg, record=str(path)), path
+
+
+def test_trial_recording(recorded_trial):
+    cfg, res, path = recorded_trial
     plain = run_trial(cfg)
     assert res.rows == plain.rows  # recording does not change the trial
     rec = read_recording(path)
@@ -50,21 +57,18 @@ def test_experiment_cli_record(tmp_path):
     assert out.returncode == 0, out.stderr
     rec = read_recording(tmp_path / "table6.1" / "1.3.mcap")
     assert rec.meta["trial"] == "1.3" and rec.meta["source"] == "lockstep" and rec.complete
-    out = droid("droid.experiments.cli", "run", "1.3", "--length", "60", "--no-figures", "--jobs", "1",
-                "--out", str(tmp_path / "plain"), timeout=600)
-    assert out.returncode == 0 and not list((tmp_path / "plain").rglob("*.mcap"))
+    # without --record no .mcap is written: tests/sim/test_experiment_cli.py's
+    # test_one_short_trial_writes_csv_png_summary_line_and_tables lists its run's directory exactly
 
 
-def test_trial_recording_carries_the_workpiece_mesh(tmp_path):
+def test_trial_recording_carries_the_workpiece_mesh(recorded_trial):
     """A lockstep trial puts its workpiece's surfaces (droid.sim.workpiece_mesh) in the scene metadata,
     and droid-web's file source sends only the seam points a page lacks (seam_from)."""
     from droid.observe.sources import FileSource
     from droid.sim.workpiece import load_workpiece
     from droid.sim.workpiece_mesh import workpiece_mesh
 
-    path = tmp_path / "t.mcap"
-    cfg = with_overrides(resolve(["1.3"])[0].config, length_mm=40.0)
-    run_trial(cfg, record=str(path))
+    _, _, path = recorded_trial
     meta = read_recording(path).meta
     assert meta["scene"]["workpiece"] == "step_input"
     assert meta["scene"]["workpiece_mesh"] == workpiece_mesh(load_workpiece("step_input"))

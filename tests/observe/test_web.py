@@ -9,7 +9,7 @@ import urllib.request
 
 import pytest
 
-from tests.brain.cellutil import ROOT, free_port
+from tests.brain.cellutil import ROOT, free_port, in_process
 from tests.observe.webutil import WebServer, lockstep_recording, taken_port
 
 
@@ -87,12 +87,15 @@ def run_web(*args):
                           cwd=ROOT, timeout=60)
 
 
-def test_refusals(recording, tmp_path):
-    out = run_web("--bind", "0.0.0.0", "--file", recording)
+def test_refusals(recording, tmp_path, capsys):
+    import droid.observe.web as web
+
+    # refused before anything is started: main() in-process (the port in use: the program)
+    out = in_process(web.main, capsys, "--bind", "0.0.0.0", "--file", recording)
     assert out.returncode == 2 and "not loopback" in out.stderr and "--token" in out.stderr
-    out = run_web("--file", str(tmp_path / "none.mcap"))
+    out = in_process(web.main, capsys, "--file", str(tmp_path / "none.mcap"))
     assert out.returncode == 2 and "no such file" in out.stderr
-    out = run_web("--port", "70000")
+    out = in_process(web.main, capsys, "--port", "70000")
     assert out.returncode == 2
     with taken_port() as port:
         out = run_web("--port", str(port), "--file", recording)

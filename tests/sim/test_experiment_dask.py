@@ -11,6 +11,7 @@ import pytest
 import distributed  # the [cluster] extra (scripts/venv.sh installs it): its absence fails, never skips
 
 from droid.experiments.cli import main  # noqa: E402
+from tests.sim.sweep20 import NAME as SWEEP20_NAME, SWEEP20, TRIALS as SWEEP20_TRIALS
 
 PROG = [sys.executable, "-m", "droid.experiments.cli"]
 DASK = str(Path(sys.executable).parent / "dask")
@@ -36,10 +37,12 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-@pytest.fixture
-def loopback_cluster(tmp_path):
-    """A dask scheduler and two single-threaded workers on 127.0.0.1, importing this droid."""
+@pytest.fixture(scope="module")
+def loopback_cluster(tmp_path_factory):
+    """A dask scheduler and two single-threaded workers on 127.0.0.1, importing this droid;
+    started once for the module's tests that run on it (stopped after the module's last test)."""
     assert os.path.exists(DASK), f"no dask command at {DASK} (pip install 'droid[cluster]')"
+    tmp_path = tmp_path_factory.mktemp("cluster")
     port = _free_port()
     address = f"tcp://127.0.0.1:{port}"
     env = {**os.environ, "PYTHONPATH": ROOT + os.pathsep + os.environ.get("PYTHONPATH", "")}
@@ -72,8 +75,9 @@ def loopback_cluster(tmp_path):
 def test_two_loopback_workers_give_the_pools_results_value_for_value(tmp_path, loopback_cluster):
     plan = tmp_path / "p.toml"
     plan.write_text(PLAN)
-    pool = subprocess.run(PROG + ["run", "--plan", str(plan), "--out", str(tmp_path / "pool"), "--jobs", "2"],
-                          capture_output=True, text=True, timeout=600)
+    # the pool's figures are not compared (only its tables and logs): its run skips them
+    pool = subprocess.run(PROG + ["run", "--plan", str(plan), "--out", str(tmp_path / "pool"), "--jobs", "2",
+                                  "--no-figures"], capture_output=True, text=True, timeout=600)
     assert pool.returncode == 0, pool.stderr
     dask = subprocess.run(PROG + ["run", "--plan", str(plan), "--out", str(tmp_path / "dask"),
                                   "--dask", loopback_cluster], capture_output=True, text=True, timeout=600)
@@ -90,6 +94,16 @@ def test_two_loopback_workers_give_the_pools_results_value_for_value(tmp_path, l
         assert csv_file.read_bytes() == (tmp_path / "dask" / "dask" / csv_file.name).read_bytes()
 
 
+def test_experiment_ids_run_on_dask_too(tmp_path, loopback_cluster):
+    p = subprocess.run(PROG + ["run", "1.1", "1.2", "--length", "150", "--arm", "fast", "--out", str(tmp_path / "o"),
+                               "--dask", loopback_cluster, "--no-figures"], capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr
+    assert f"on Dask {loopback_cluster}" in p.stderr
+    rows = (tmp_path / "o" / "table6.1" / "summary.csv").read_text().splitlines()
+    assert len(rows) == 3 and rows[1].startswith("1.1,") and rows[2].startswith("1.2,")
+    assert (tmp_path / "o" / "table6.1" / "1.2.csv").is_file()
+
+
 def test_dask_local_runs_a_local_cluster(tmp_path):
     plan = tmp_path / "p.toml"
     plan.write_text(PLAN.replace('position = ["i", "iii"]', 'position = ["i"]'))
@@ -98,15 +112,6 @@ def test_dask_local_runs_a_local_cluster(tmp_path):
     assert p.returncode == 0, p.stderr
     assert "on Dask local" in p.stderr
     assert len((tmp_path / "o" / "dask" / "results.csv").read_text().splitlines()) == 5
-
-
-def test_experiment_ids_run_on_dask_too(tmp_path):
-    p = subprocess.run(PROG + ["run", "1.1", "1.2", "--length", "150", "--arm", "fast", "--out", str(tmp_path / "o"), "--dask", "local",
-                               "--jobs", "2", "--no-figures"], capture_output=True, text=True, timeout=600)
-    assert p.returncode == 0, p.stderr
-    rows = (tmp_path / "o" / "table6.1" / "summary.csv").read_text().splitlines()
-    assert len(rows) == 3 and rows[1].startswith("1.1,") and rows[2].startswith("1.2,")
-    assert (tmp_path / "o" / "table6.1" / "1.2.csv").is_file()
 
 
 def test_an_address_that_does_not_answer_exits_1_naming_it(tmp_path):
@@ -146,22 +151,19 @@ def test_a_malformed_address_is_bad_input(tmp_path, capsys):
     assert "--dask" in capsys.readouterr().err
 
 
-def test_ctrl_c_on_a_local_cluster_then_resume(tmp_path):
+def test_ctrl_c_on_a_local_cluster_then_resume(tmp_path, sweep20_reference):
     """SIGINT to the process group (a terminal's Ctrl-C): exit 130 with no worker's traceback and no
-    process left; --resume on the cluster completes the pool's table."""
+    process left; --resume on the cluster completes the pool's table (``sweep20_reference``: one
+    uninterrupted pool run of the same plan, tests/sim/sweep20.py)."""
     import signal
 
     plan = tmp_path / "p.toml"
-    plan.write_text(PLAN.replace('sensor = "ideal"', 'sensor = "camera"').replace(
-        "[16, 32]", "[8, 12, 16, 24, 32]"))  # 20 trials, ~0.5 s each
-    ref = subprocess.run(PROG + ["run", "--plan", str(plan), "--out", str(tmp_path / "ref"), "--no-figures",
-                                 "--jobs", "2"], capture_output=True, text=True, timeout=600)
-    assert ref.returncode == 0, ref.stderr
+    plan.write_text(SWEEP20)  # 20 trials, ~0.5 s each
     out = tmp_path / "out"
     proc = subprocess.Popen(PROG + ["run", "--plan", str(plan), "--out", str(out), "--no-figures", "--dask", "local",
                                     "--jobs", "2"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True)
-    d = out / "dask"
+    d = out / SWEEP20_NAME
     deadline = time.monotonic() + 300
     while len(list(d.glob("*.json"))) < 2 and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.01)
@@ -170,8 +172,8 @@ def test_ctrl_c_on_a_local_cluster_then_resume(tmp_path):
     assert proc.returncode == 130, err
     assert "Traceback" not in err, err
     done = len(list(d.glob("*.json")))
-    assert 2 <= done < 20, "the run ended before the interrupt: nothing was tested"
+    assert 2 <= done < SWEEP20_TRIALS, "the run ended before the interrupt: nothing was tested"
     p = subprocess.run(PROG + ["run", "--plan", str(plan), "--out", str(out), "--no-figures", "--dask", "local",
                                "--jobs", "2", "--resume"], capture_output=True, text=True, timeout=600)
     assert p.returncode == 0, p.stderr
-    assert (d / "results.csv").read_text() == (tmp_path / "ref" / "dask" / "results.csv").read_text()
+    assert (d / "results.csv").read_text() == sweep20_reference

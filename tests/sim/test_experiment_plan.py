@@ -1,6 +1,7 @@
 """droid-experiment run/list --plan (issue 15): plans, stable IDs, results.csv, --resume, SIGINT, bad input."""
 import csv
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -12,6 +13,7 @@ import pytest
 from droid.experiments.cli import main
 from droid.experiments.plan import FIELDS, bundled_plans, load_plan
 from droid.experiments.trial import TrialConfig
+from tests.sim.sweep20 import NAME as SWEEP20_NAME, SWEEP20, TRIALS as SWEEP20_TRIALS
 
 PROG = [sys.executable, "-m", "droid.experiments.cli"]
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -68,7 +70,19 @@ def test_list_prints_every_trial_with_stable_ids(tmp_path, capsys):
     assert set(ids) <= again and len(again) == 6
 
 
-def test_plan_run_writes_trial_files_and_a_tidy_results_table(tmp_path):
+@pytest.fixture(scope="module")
+def small_no_figures(tmp_path_factory):
+    """SMALL's directory after one run without figures (default --jobs), run once for two tests:
+    the second run of the determinism check below, and (copied) the finished run in which
+    test_resume_skips_trials_whose_results_exist deletes one result and resumes."""
+    tmp = tmp_path_factory.mktemp("small")
+    plan = write_plan(tmp / "p.toml", SMALL)
+    p = run_cli("run", "--plan", plan, "--out", str(tmp / "out"), "--no-figures")
+    assert p.returncode == 0, p.stderr
+    return tmp / "out" / "small"
+
+
+def test_plan_run_writes_trial_files_and_a_tidy_results_table(tmp_path, small_no_figures):
     plan = write_plan(tmp_path / "p.toml", SMALL)
     out = tmp_path / "out"
     p = run_cli("run", "--plan", plan, "--out", str(out), "--jobs", "2")
@@ -87,16 +101,15 @@ def test_plan_run_writes_trial_files_and_a_tidy_results_table(tmp_path):
         assert tid in p.stdout  # a summary line per trial
     assert {(r["speed_mm_s"], r["delay_cycles"]) for r in rows} == {("16.0", "0"), ("16.0", "3"),
                                                                        ("32.0", "0"), ("32.0", "3")}
-    # the same plan again gives the same table, value for value (lockstep, seeded)
-    p2 = run_cli("run", "--plan", plan, "--out", str(tmp_path / "again"), "--no-figures")
-    assert p2.returncode == 0, p2.stderr
-    assert (tmp_path / "again" / "small" / "results.csv").read_text() == (d / "results.csv").read_text()
+    # the same plan again (another process, no figures, one job) gives the same table, value
+    # for value (lockstep, seeded)
+    assert (small_no_figures / "results.csv").read_text() == (d / "results.csv").read_text()
 
 
-def test_resume_skips_trials_whose_results_exist(tmp_path):
+def test_resume_skips_trials_whose_results_exist(tmp_path, small_no_figures):
     plan = write_plan(tmp_path / "p.toml", SMALL)
     out = tmp_path / "out"
-    assert run_cli("run", "--plan", plan, "--out", str(out), "--no-figures").returncode == 0
+    shutil.copytree(small_no_figures, out / "small")  # a finished run of the plan (its own copy)
     d = out / "small"
     full = (d / "results.csv").read_text()
     first = read_results(d / "results.csv")[1]["trial_id"]
@@ -110,18 +123,14 @@ def test_resume_skips_trials_whose_results_exist(tmp_path):
     assert (d / "results.csv").read_text() == full
 
 
-def test_sigint_then_resume_gives_the_uninterrupted_results(tmp_path):
+def test_sigint_then_resume_gives_the_uninterrupted_results(tmp_path, sweep20_reference):
     """Ctrl-C mid-sweep: exit 130, no worker left, results.csv so far; --resume completes it
-    to exactly the table of one uninterrupted run."""
-    text = SMALL.replace('sensor = "ideal"', 'sensor = "camera"').replace(
-        "[16, 32]", "[8, 12, 16, 24, 32]").replace("[0, 3]", "[0, 1, 2, 3]")  # 20 trials, ~0.5 s each
-    plan = write_plan(tmp_path / "p.toml", text)
-    ref = tmp_path / "ref"
-    assert run_cli("run", "--plan", plan, "--out", str(ref), "--no-figures", "--jobs", "2").returncode == 0
+    to exactly the table of one uninterrupted run (``sweep20_reference``: tests/sim/sweep20.py)."""
+    plan = write_plan(tmp_path / "p.toml", SWEEP20)
     out = tmp_path / "out"
     proc = subprocess.Popen(PROG + ["run", "--plan", plan, "--out", str(out), "--no-figures", "--jobs", "2"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
-    d = out / "small"
+    d = out / SWEEP20_NAME
     deadline = time.monotonic() + 300
     while len(list(d.glob("*.json"))) < 2 and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.01)
@@ -129,13 +138,13 @@ def test_sigint_then_resume_gives_the_uninterrupted_results(tmp_path):
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err
     done = len(list(d.glob("*.json")))
-    assert 2 <= done < 20, "the run ended before the interrupt: nothing was tested"
+    assert 2 <= done < SWEEP20_TRIALS, "the run ended before the interrupt: nothing was tested"
     partial = read_results(d / "results.csv")
     assert sum(r["error"] == "" for r in partial) == done
     p = run_cli("run", "--plan", plan, "--out", str(out), "--no-figures", "--jobs", "2", "--resume")
     assert p.returncode == 0, p.stderr
-    assert f"{done} of 20 trial(s) have results" in p.stderr
-    assert (d / "results.csv").read_text() == (ref / "small" / "results.csv").read_text()
+    assert f"{done} of {SWEEP20_TRIALS} trial(s) have results" in p.stderr
+    assert (d / "results.csv").read_text() == sweep20_reference
 
 
 def test_a_trial_that_cannot_run_exits_1_and_is_listed(tmp_path):
