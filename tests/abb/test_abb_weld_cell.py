@@ -81,16 +81,24 @@ def test_egm_silence_stops_the_tracker_and_the_arm(tmp_path, cell_name):
     (FAULT_DEVICE), and droid-seamtrack stops with ``fault`` (or ``stale``), exit 1; once the link
     is back the arm stands where it stopped and takes a move again."""
     import select
+    import signal
     import subprocess
     import sys
     import time
 
-    from droid.faults.proxy import FaultProxy
+    from droid.faults.proxy import control
     from droid.sim.truth import TruthDoor, door_name
 
     path = interposed_abb_cell(tmp_path, cell_name)
-    proxy = FaultProxy(load_cell(path), "abb.egm").start()
+    # the proxy as users run it, `droid-fault proxy`: its own process at the priority of the
+    # programs it sits between (a thread of this test process, on the normal scheduler, was
+    # starved past the EGM stale rule on a loaded host before the cut: a false "seam lost")
+    proxy = subprocess.Popen([sys.executable, "-m", "droid.faults.cli", "--cell", str(path), "proxy", "abb.egm"],
+                             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    ctl = load_cell(path)
     try:
+        assert select.select([proxy.stderr], [], [], 30)[0], "droid-fault proxy said nothing"
+        assert "proxy on abb.egm" in proxy.stderr.readline()
         with cell_up(path, cell_name) as cell:
             for arm in ("abb", "gmf1"):
                 out = droid("droid.tasks.home", arm, "--cell", str(cell), timeout=120)
@@ -104,7 +112,7 @@ def test_egm_silence_stops_the_tracker_and_the_arm(tmp_path, cell_name):
                     if select.select([proc.stderr], [], [], 0.5)[0]:
                         seen += proc.stderr.readline()
                 assert "tracking" in seen, seen
-                proxy.set(cut=True)
+                assert control(ctl, "abb.egm", {"set": {"cut": True}}, timeout_s=10)["ok"]
                 _, err = proc.communicate(timeout=60)
             finally:
                 if proc.poll() is None:
@@ -123,7 +131,7 @@ def test_egm_silence_stops_the_tracker_and_the_arm(tmp_path, cell_name):
             finally:
                 door.close()
             assert b[0] > a[0] and np.max(np.abs(np.subtract(a[2], b[2]))) <= 0.05, (a, b)
-            proxy.set(cut=False)
+            assert control(ctl, "abb.egm", {"set": {"cut": False}}, timeout_s=10)["ok"]
             for _ in range(60):  # the link is back: the arm takes a move again
                 out = droid("droid.tasks.move", "abb", "--cell", str(cell), "joint", "--",
                             "0", "13653", "11378", "0", "54613", "0", "2", timeout=60)
@@ -131,6 +139,13 @@ def test_egm_silence_stops_the_tracker_and_the_arm(tmp_path, cell_name):
                     break
                 time.sleep(0.5)
             assert out.returncode == 0, out.stderr
-            assert proxy.counts()["up"]["dropped"] > 0
+            assert control(ctl, "abb.egm", {"get": True}, timeout_s=10)["counts"]["up"]["dropped"] > 0
     finally:
-        proxy.stop()
+        proxy.send_signal(signal.SIGTERM)
+        try:
+            proxy.communicate(timeout=30)
+        finally:
+            if proxy.poll() is None:
+                proxy.kill()
+                proxy.wait()
+    assert proxy.returncode == 0
