@@ -41,10 +41,13 @@ from droid.subunits.agent import AgentStation, CommandCopier
 AGENT = "droid-agent"
 
 
-def builds(*programs: str) -> Callable:
-    """Declare the programs a lockstep builder gives stations for (see the module docstring)."""
+def builds(*programs: str, check: Callable | None = None) -> Callable:
+    """Declare the programs a lockstep builder gives stations for (see the module docstring);
+    ``check(cell, sub)``: what the builder refuses, asked without building anything (BadInput, one
+    line) -- a task that builds later (a seam-tracking trial) refuses a bad cell before it runs."""
     def mark(fn: Callable) -> Callable:
         fn.programs = tuple(programs)
+        fn.check = check if check is not None else (lambda cell, sub: None)
         return fn
     return mark
 
@@ -95,11 +98,19 @@ class LockstepSubunit:
 class BuildContext:
     """What a builder gets besides its subunit: the scheduler, the cell, the seed (the world's
     ``[world] seed`` unless overridden), the world devices built so far (name -> object with the
-    world's arm interface, ``wcp_global()`` 4x4 mm) and the subunits built so far."""
+    world's arm interface, ``wcp_global()`` 4x4 mm) and the subunits built so far.
+
+    ``bare``: the cell's ``[world.devices.*]`` tables are left out (:meth:`world_devices` finds
+    none): each twin is what its subunit's robot file makes it -- a Reis without its ``reis_vme``
+    world errors and contacts, a GMF1 at its default start.  A seam-tracking trial
+    (droid.experiments.trial) builds its welder so: the trial brings its own world (its seed,
+    its workpiece, its exact arm), as it did before it built through the registry.  A twin that
+    *is* its world device (the ABB's ``abb_egm``: its controller) is still read by its builder."""
 
     sched: Scheduler
     cell: Any  # droid.brain.cellfile.Cell
     seed: int
+    bare: bool = False
     twins: dict[str, Any] = field(default_factory=dict)
     built: dict[str, LockstepSubunit] = field(default_factory=dict)
     finish: list[Callable[[], None]] = field(default_factory=list)
@@ -127,7 +138,10 @@ class BuildContext:
         return float(self.cell.world.get("rate_hz", DEFAULT_RATE_HZ))
 
     def world_devices(self, typ: str) -> dict[str, dict]:
-        """The cell's ``[world.devices.*]`` tables of ``type = typ`` (name -> options without type)."""
+        """The cell's ``[world.devices.*]`` tables of ``type = typ`` (name -> options without type);
+        none when the context is ``bare``."""
+        if self.bare:
+            return {}
         return {n: {k: v for k, v in o.items() if k != "type"} for n, o in self.cell.world.get("devices", {}).items()
                 if isinstance(o, dict) and o.get("type") == typ}
 
