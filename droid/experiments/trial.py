@@ -290,8 +290,7 @@ class _LockstepTrial:
 
     def __init__(self, cfg: TrialConfig, layout=None, record: str | None = None) -> None:
         tc = _trial_cell(cfg.cell, cfg.arm, cfg.holder, layout)
-        geo = self.geo = trial_geometry(cfg.position, cfg.workpiece, cfg.wrist,
-                                        tc.layout if tc is not None else layout)
+        geo = self.geo = trial_geometry(cfg.position, cfg.workpiece, cfg.wrist, tc.layout)
         self.L = geo.camera_to_tcp_mm
         self.length = cfg.length_mm if cfg.length_mm is not None else default_length_mm(geo)
         self.speed_mm_s, self.latency_cycles = cfg.speed_mm_s, cfg.latency_cycles
@@ -462,13 +461,14 @@ class _LockstepTrial:
 
 
 def _trial_cell(cell: str | None, arm_model: str, holder_model: str, layout=None):
-    """The trial's cell (trial_cell.TrialCell: the cell file ``cell``, its layout -- or ``layout``
-    when given -- and its welder's builder), checked before anything runs; None without a cell."""
-    if cell is None:
-        return None
-    from droid.experiments.trial_cell import check_trial_cell, load_trial_cell
+    """The trial's cell (trial_cell.TrialCell: the cell file ``cell`` -- None: the built-in cell --
+    its layout, or ``layout`` when given, and its welder's builder), checked before anything runs."""
+    from droid.experiments.trial_cell import builtin_trial_cell, check_trial_cell, load_trial_cell
 
-    tc = load_trial_cell(cell, arm_model, holder_model)
+    if cell is None:
+        tc = builtin_trial_cell(arm_model, holder_model)
+    else:
+        tc = load_trial_cell(cell, arm_model, holder_model)
     return tc if layout is None else check_trial_cell(tc.cell, layout, arm_model, holder_model)
 
 
@@ -489,33 +489,30 @@ def _tracking_cycle(params: SeamParams, geo: TrialGeometry, trial_id: str) -> Tr
         raise BadInput(f"trial {trial_id}: {exc}") from None
 
 
-def _welder(model: str, seed: int, fast_params: FastArmParams, geo: TrialGeometry, sched: Scheduler, tc=None):
-    """The welder: ``fast``, a FastArm; ``full``, a FullArm homed and at the start pose -- on a
-    trial's cell ``tc`` (trial_cell.TrialCell) the arm its tool_robot's builder builds, without one
-    the Reis of the trial's layout."""
+def _welder(model: str, seed: int, fast_params: FastArmParams, geo: TrialGeometry, sched: Scheduler, tc):
+    """The welder, the trial cell ``tc``'s tool_robot: ``fast``, a FastArm; ``full``, a FullArm
+    over the arm its builder builds, homed and at the start pose."""
     if model == "fast":
         arm = FastArm(geo.reis, geo.q_reis_start_deg, fast_params)
-        if tc is not None:
-            arm.name = tc.layout.tool_robot  # the subunit the tracker's fault rule names
+        arm.name = tc.layout.tool_robot  # the subunit the tracker's fault rule names
         return arm
     from droid.experiments.arm_full import FullArm
     from droid.experiments.trial_cell import welder_lockstep
 
-    welder = welder_lockstep(sched, tc, seed) if tc is not None else None  # None: the Reis
-    arm = FullArm(sched, geo.reis, geo.q_reis_start_deg, seed=seed, arm=welder)
+    arm = FullArm(sched, geo.reis, geo.q_reis_start_deg, welder_lockstep(sched, tc, seed))
     arm.prepare()
     return arm
 
 
-def _holder(model: str, seed: int, geo: TrialGeometry, sched: Scheduler, tc=None):
-    """The holder: ``gmf1``, a Gmf1Holder at the holding pose (on ``tc`` its holder_robot, else the
-    built-in cell's GMF1); ``fixed``: None."""
+def _holder(model: str, seed: int, geo: TrialGeometry, sched: Scheduler, tc):
+    """The holder, the trial cell ``tc``'s holder_robot: ``gmf1``, a Gmf1Holder over the GMF1 its
+    builder builds, at the holding pose; ``fixed``: None."""
     if model != "gmf1":
         return None
     from droid.experiments.holder import Gmf1Holder
+    from droid.experiments.trial_cell import holder_lockstep
 
-    where = {} if tc is None else {"subunit": tc.layout.holder_robot, "cell": tc.cell}
-    holder = Gmf1Holder(sched, geo.fanuc, geo.q_hold_deg, seed=seed, **where)
+    holder = Gmf1Holder(sched, holder_lockstep(sched, tc, seed), geo.q_hold_deg)
     holder.prepare()
     return holder
 

@@ -9,11 +9,15 @@ must stand for no program the subunit does not run (the builder's own ``@builds`
 
 * the welder's, one of :func:`welder_builders` -- the ABB on EGM
   (:class:`droid.sim.abb.lockstep.LockstepAbbArm`, its ``abb_egm`` world device: its controller)
-  or the Reis (:class:`droid.sim.reis.cell.LockstepArm`); built by that builder
-  (:func:`welder_lockstep`) with the trial's seed and ``bare`` -- the trial's own world, no Reis
-  world errors or contacts: the arm the ``full`` model always ran -- and the cell's ``stale_ticks``;
+  or the Reis (:class:`droid.sim.reis.cell.LockstepArm`);
 * the holder's (``holder = "gmf1"``), :func:`holder_builder`: the GMF1's;
 * anything else: one line naming the file, the subunit and what a lockstep arm needs.
+
+Both are built by those builders (:func:`welder_lockstep`, :func:`holder_lockstep`) with the
+trial's seed, the cell's ``stale_ticks`` and the trial's own world (:func:`trial_world`) instead
+of the cell's world-device tables.  A trial without a cell file runs on the built-in cell
+(droid/cells/sim.toml, whatever $DROID_CELL says; :func:`builtin_trial_cell`): the Reis ``arm1``
+and the GMF1 ``gmf1``.
 
 The ``fast`` arm model is the Reis's (calibrated against its servo and plant,
 droid.experiments.arm_fast): a welder that is not a Reis with ``arm = "fast"`` is refused.  The
@@ -23,11 +27,12 @@ droid.brain.device.HEARTBEAT_HZ (its 30 Hz cycle is 2 ticks): a cell of another 
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
-from droid.brain.cellfile import BUNDLED_CELLS, Cell, find_file, load_cell
+from droid.brain.cellfile import BUNDLED_CELLS, Cell, builtin_cell_path, find_file, load_cell
 from droid.brain.device import HEARTBEAT_HZ
+from droid.brain.wire import LIVENESS_TICKS
 from droid.cli import BadInput
 from droid.tasks.seam.layout import Layout, check_bases, layout_for_cell
 
@@ -53,7 +58,7 @@ def holder_builder():
 
 @dataclass(frozen=True)
 class TrialCell:
-    """A checked cell of a trial: the cell, its layout and the kind of its welder."""
+    """A checked cell of a trial: the cell, its layout and its welder's lockstep builder."""
 
     cell: Cell
     layout: Layout
@@ -102,7 +107,7 @@ def _whole_builder(cell: Cell, layout: Layout, role: str, what: str, builders: d
     except BadInput:
         build = None
     if build in builders and set(build.programs) <= set(sub.programs):
-        build.check(cell, sub)  # what the builder refuses (the ABB: no controller twin), before anything runs
+        getattr(build, "check", lambda c, s: None)(cell, sub)  # what the builder refuses (the ABB: no controller twin), before anything runs
         return build
     runs = ", ".join(sub.programs) or "no programs"
     needs = " or ".join(f"{' + '.join(b.programs)} ({name})" for b, name in builders.items())
@@ -142,12 +147,41 @@ def load_trial_cell(path: str | os.PathLike, arm_model: str = "full", holder: st
     return check_trial_cell(cell, layout_for_cell(cell), arm_model, holder)
 
 
-def welder_lockstep(sched, tc: TrialCell, seed: int):
-    """The welder's lockstep arm on ``sched`` (an ArmChain: LockstepArm or LockstepAbbArm), built
-    by its package's builder (lockstep_cell.build_subunits) with the trial's ``seed`` and ``bare``:
-    the trial's own world, not the cell's world-device tables (no Reis world errors, no contacts:
-    the arm the trial always ran); the cell's ``stale_ticks``."""
+def builtin_trial_cell(arm_model: str = "full", holder: str = "gmf1") -> TrialCell:
+    """The cell of a trial without a cell file: the built-in cell (droid/cells/sim.toml, whatever
+    $DROID_CELL says) with the cell file's default ``stale_ticks`` (LIVENESS_TICKS, the thesis's 3)
+    for its 12 -- the arms such a trial always ran: sim.toml's 12 is set against this host's
+    real-time stalls, which virtual time has none of, and a fault's order in the Status (a dead
+    servo: the servo agent's fault before the watchdog's) follows it."""
+    cell = replace(load_cell(builtin_cell_path()), stale_ticks=LIVENESS_TICKS)
+    return check_trial_cell(cell, layout_for_cell(cell), arm_model, holder)
+
+
+def trial_world(tc: TrialCell) -> dict:
+    """The trial's own ``[world]`` table, which its subunits' builders read instead of the cell's
+    (droid.sim.lockstep_build.BuildContext.world): no world device for the welder -- a Reis
+    without world errors or contacts, the arm the ``full`` model always ran (the ABB's builder
+    reads its ``abb_egm`` controller twin from the cell) -- and the holder's twin
+    (droid.experiments.holder.holder_device) stepped at the holder's world rate."""
+    from droid.experiments.holder import WORLD_HZ, holder_device
+
+    return {"rate_hz": WORLD_HZ, "devices": {"trial_holder": holder_device(tc.layout.holder_robot)}}
+
+
+def _built(sched, tc: TrialCell, name: str, seed: int):
     from droid.sim.lockstep_cell import build_subunits
 
-    name = tc.layout.tool_robot
-    return build_subunits(sched, tc.cell, [name], seed, bare=True)[name].arm
+    return build_subunits(sched, tc.cell, [name], seed, world=trial_world(tc))[name]
+
+
+def welder_lockstep(sched, tc: TrialCell, seed: int):
+    """The welder's lockstep arm on ``sched`` (an ArmChain: LockstepArm or LockstepAbbArm), built
+    by its package's builder (lockstep_cell.build_subunits) in the trial's world
+    (:func:`trial_world`) with the trial's ``seed`` and the cell's ``stale_ticks``."""
+    return _built(sched, tc, tc.layout.tool_robot, seed).arm
+
+
+def holder_lockstep(sched, tc: TrialCell, seed: int):
+    """The holder's Gmf1Lockstep on ``sched``, built by the GMF1 package's builder in the trial's
+    world (:func:`trial_world`) with the trial's ``seed``."""
+    return _built(sched, tc, tc.layout.holder_robot, seed).parts

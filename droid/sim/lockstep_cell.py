@@ -128,14 +128,14 @@ def build_lockstep_cell(cell_or_path: Cell | str | os.PathLike | None, seed: int
     return LockstepCell(cell, ctx.sched, {n: ctx.built[n] for n in cell.subunits})
 
 
-def build_subunits(sched: Scheduler, cell: Cell, names, seed: int, *, bare: bool = False) -> dict[str, LockstepSubunit]:
+def build_subunits(sched: Scheduler, cell: Cell, names, seed: int, *, world: dict | None = None) -> dict[str, LockstepSubunit]:
     """Only the subunits ``names`` of ``cell`` (already checked by the caller), in that order, on
     ``sched`` -- a task's own scheduler at the cell's heartbeat -- each through the builder
-    :func:`choose_builder` picks; ``seed``: the context's; ``bare``: without the cell's world-device
-    tables (:class:`~droid.sim.lockstep_build.BuildContext`).  What a builder defers
+    :func:`choose_builder` picks; ``seed``: the context's; ``world``: a ``[world]`` table instead of
+    the cell's (:class:`~droid.sim.lockstep_build.BuildContext`).  What a builder defers
     (``ctx.after``) runs once all are built."""
     chosen = [(sub, choose_builder(cell, sub)) for sub in (cell.subunit(n) for n in names)]
-    ctx = BuildContext(sched, cell, seed, bare=bare)
+    ctx = BuildContext(sched, cell, seed, world=world)
     try:
         for sub, build in chosen:
             ctx.built[sub.name] = build(ctx, sub)
