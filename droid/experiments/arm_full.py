@@ -8,9 +8,9 @@ a random power-up pose, §4.1.5.3) and moves it to the start pose with a joint
 command, then the seam-tracking core drives it with cartesian commands
 through the Brain Command record, exactly as droid-seamtrack does.
 
-On a trial's cell file (droid.experiments.trial_cell) the arm is that cell's welder: the Reis
-as above, or the ABB on EGM (droid.sim.abb.lockstep.LockstepAbbArm: droid-egm and the
-controller twin; it homes at once).
+The arm is the trial cell's welder (droid.experiments.trial_cell; without a cell file the
+built-in cell's Reis), built by its package's lockstep builder: the Reis as above, or the ABB on
+EGM (droid.sim.abb.lockstep.LockstepAbbArm: droid-egm and the controller twin; it homes at once).
 
 The experiments' default arm model (issue 13 item 5): every repetition homes from its own
 seeded power-up pose, so experiment 4 measures repeatability.  ~5-10x slower than the
@@ -21,9 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from droid.cli import RuntimeFailure
-from droid.kinematics.transforms import T_to_pose
 from droid.sim.lockstep import Scheduler
-from droid.sim.reis.cell import LockstepArm
 
 HOME_TIMEOUT_S = 60.0
 MOVE_S = 4.0  # the move from home to the start pose
@@ -33,17 +31,13 @@ SETTLE_S = 1.0
 class FullArm:
     """An arm subunit's cores on a scheduler, with the harness's arm interface.
 
-    Without ``arm``: the Reis (:class:`LockstepArm` of ``robot`` named ``subunit`` at the model's
-    base).  ``arm``: a lockstep arm already built (an ArmChain: the Reis or
-    droid.sim.abb.lockstep.LockstepAbbArm, from a trial's cell file) whose robot model is ``model``."""
+    ``arm``: the lockstep arm its package's builder built on ``sched`` (an ArmChain: the Reis's
+    :class:`~droid.sim.reis.cell.LockstepArm` or droid.sim.abb.lockstep.LockstepAbbArm; the trial
+    cell's welder, droid.experiments.trial_cell.welder_lockstep) whose robot model is ``model``."""
 
-    def __init__(self, sched: Scheduler, model, q_start_deg, seed: int = 1, robot: str = "reis_v15",
-                 subunit: str = "arm1", arm=None) -> None:
+    def __init__(self, sched: Scheduler, model, q_start_deg, arm) -> None:
         self.sched = sched
         self.model = model
-        if arm is None:
-            base = T_to_pose(model.base)
-            arm = LockstepArm(sched, subunit, robot=robot, base=tuple(float(v) for v in base), seed=seed)
         self.arm = arm
         self.q_start = np.asarray(q_start_deg, float)
 

@@ -25,18 +25,18 @@ drifts); :meth:`status_pose`: the pose the tracker reads (the encoder program's
   :meth:`true_wcp`: the world's truth (the links, after the reducers' twist),
   which places the workpiece for the sensors.
 
-The Fanuc's cell set-up (serial line, encoder cards and rates) is the
-built-in cell's ``[subunits.gmf1]`` (droid/cells/sim.toml), or on a trial's cell
-file (``TrialConfig.cell``) that cell's subunit its layout names holder_robot; the
-robot file and the base come from the trial's layout.
+The GMF1 is built by its package's lockstep builder (droid.sim.gmf1.lockstep.build, through the
+registry: droid.experiments.trial_cell.build_arms) from the trial's cell -- the built-in cell
+(droid/cells/sim.toml) or ``TrialConfig.cell`` -- at the subunit its layout names holder_robot: its
+serial line, encoder cards and rates, robot file and base; the twin is the trial's own
+(:func:`holder_device`): homing from the zero pose, the arm's dynamics, the world stepped at
+:data:`WORLD_HZ`.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from droid.brain.cellfile import builtin_cell_path, load_cell
 from droid.cli import RuntimeFailure
-from droid.sim.gmf1.controller import KarelParams
 from droid.sim.gmf1.lockstep import Gmf1Lockstep
 from droid.sim.lockstep import Scheduler
 
@@ -50,20 +50,23 @@ SETTLE_S = 0.5
 MOVE_S = 1.0
 
 
+def holder_device(subunit: str) -> dict:
+    """The trial's ``karel_s400`` world-device table of the holder ``subunit`` (the GMF1 builder
+    reads it, droid.sim.lockstep_build.BuildContext.world): power-up at the zero pose (homing
+    zeroes the counters there, as droid-home does) and the KAREL twin with the robot file's arm
+    dynamics.  Its world rate is :data:`WORLD_HZ` (the table's ``rate_hz``)."""
+    return {"type": "karel_s400", "subunit": subunit, "start_deg": [0.0] * 6, "dynamics": True}
+
+
 class Gmf1Holder:
     """The GMF1 in a trial (see the module docstring)."""
 
-    def __init__(self, sched: Scheduler, fanuc_model, q_hold_deg, seed: int = 1, subunit: str = "gmf1",
-                 world_hz: float = WORLD_HZ, cell=None) -> None:
-        """``subunit``: the holder's name in ``cell`` (a trial on a cell file: its layout's
-        holder_robot); without a cell, the built-in cell's set-up, whatever $DROID_CELL says."""
+    def __init__(self, sched: Scheduler, g: Gmf1Lockstep, q_hold_deg) -> None:
+        """``g``: the GMF1 the builder put on ``sched`` (the module docstring); ``q_hold_deg``:
+        the holding pose [deg]."""
         self.sched = sched
         self.q_hold = np.asarray(q_hold_deg, float)
-        if cell is None:
-            cell = load_cell(builtin_cell_path())
-        self.g = Gmf1Lockstep(cell, subunit, world_hz=world_hz, seed=seed, start_deg=np.zeros(6),
-                              params=KarelParams(dynamics=True), sched=sched, robot=str(fanuc_model.source),
-                              base_T=fanuc_model.base)
+        self.g = g
         self.model = self.g.model
         self._q_seen = None
         self._T_true = None

@@ -276,6 +276,7 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None,
     trial = _LockstepTrial(cfg, layout, record)
     trial.run(limit)
     result = trial.finish()
+    result.config = cfg
     result.wall_s = time.perf_counter() - wall0
     return result
 
@@ -283,31 +284,26 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None,
 class _LockstepTrial:
     """One trial's world on a 60 Hz scheduler (the module docstring's table): the welder and the
     holder, the lead and tool-tip sensors, the tracking station, and the tick callbacks that join
-    them -- arm, then sensors, then the task within each tick."""
+    them -- arm, then sensors, then the task within each tick.  It keeps of its TrialConfig only
+    the few values its ticks read (the speed, the latency, the holder's drift); run_trial puts
+    the config into the result."""
 
     def __init__(self, cfg: TrialConfig, layout=None, record: str | None = None) -> None:
-        self.cfg = cfg
-        tc = _trial_cell(cfg, layout)
-        geo = self.geo = trial_geometry(cfg.position, cfg.workpiece, cfg.wrist,
-                                        tc.layout if tc is not None else layout)
+        tc = _trial_cell(cfg.cell, cfg.arm, cfg.holder, layout)
+        geo = self.geo = trial_geometry(cfg.position, cfg.workpiece, cfg.wrist, tc.layout)
         self.L = geo.camera_to_tcp_mm
         self.length = cfg.length_mm if cfg.length_mm is not None else default_length_mm(geo)
-        params = SeamParams(speed_mm_s=cfg.speed_mm_s, yaw_gain=cfg.yaw_gain, pitch_gain=cfg.pitch_gain,
-                            dead_zone_cycles=cfg.dead_zone_cycles, lost_cycles=cfg.lost_cycles,
-                            length_mm=self.length, delay_cycles=cfg.delay_cycles, delay_at_mm=cfg.delay_at_mm,
-                            mode=cfg.mode, compliance=cfg.arm == "full")  # the fast arm's drives are rigid
+        self.speed_mm_s, self.latency_cycles = cfg.speed_mm_s, cfg.latency_cycles
+        params = _seam_params(cfg, self.length)
         self.sched = Scheduler(HEARTBEAT_HZ)
-        self.arm, self.holder = _arm_and_holder(cfg, geo, self.sched, tc)
-        try:
-            self.cyc = TrackingCycle(params, geo.wrist.T_wcp_tool, geo.wrist.T_wcp_sensor, geo.reis,
-                                     heartbeat_hz=HEARTBEAT_HZ)
-        except ValueError as exc:
-            raise BadInput(f"trial {cfg.trial_id}: {exc}") from None
+        self.arm = _welder(cfg.arm, cfg.seed, cfg.fast_params, geo, self.sched, tc)
+        self.holder = _holder(cfg.holder, cfg.seed, geo, self.sched, tc)
+        self.cyc = _tracking_cycle(params, geo, cfg.trial_id)
         self.lead = LeadSensor(geo.workpiece, cfg.sensor, cfg.noise, seed=cfg.seed,
                                frames_per_read=self.cyc.cycle_ticks)
         self.tool_sensor = ToolTipSensor(self.lead.crossing, cfg.noise if cfg.tool_noise else CameraNoise(),
                                          seed=cfg.seed)
-        self.result = TrialResult(cfg, camera_to_tcp_mm=self.L)
+        self.result = TrialResult(None, camera_to_tcp_mm=self.L)  # its config: run_trial's
         self.T_hold0 = geo.T_global_hold6
         self.v_hold = np.asarray(cfg.holder_mm_s, float)
         self.moving_holder = bool(np.any(self.v_hold != 0.0))
@@ -318,19 +314,19 @@ class _LockstepTrial:
         self.state = {"lead": INVALID_READING, "lead_tick": 0, "tool": None, "tool_tick": 0, "out": None,
                       "done": False, "T_hold": self.T_hold0, "T_W_g": inv_homo(self.T_hold0 @ geo.T_hold6_W)}
         self.in_flight: deque = deque()  # (reading, Status tick) of the constant extra latency
-        self.recorder = self._recorder(record) if record is not None else None
+        self.recorder = self._recorder(record, cfg.trial_id) if record is not None else None
         self.station = SeamtrackStation(self.cyc, HEARTBEAT_HZ, first_cycle_tick=self.t0_tick + self.ct,
                                         first_log_tick=self.t0_tick + 1)
         self.t_start = self.sched.t_ns / 1e9
         self.T_hold_start = self.T_hold0
 
-    def _recorder(self, record: str):
+    def _recorder(self, record: str, trial_id: str):
         """The MCAP recorder of the trial (droid.observe.lockstep, docs/observe.md)."""
         from droid.observe.lockstep import TrialRecorder
         from droid.sim.workpiece_mesh import workpiece_mesh
 
         geo, lay = self.geo, self.geo.layout
-        return TrialRecorder(record, self.cfg.trial_id, geo.reis, geo.fanuc, self.T_wcp_tool, self.T_wcp_sensor,
+        return TrialRecorder(record, trial_id, geo.reis, geo.fanuc, self.T_wcp_tool, self.T_wcp_sensor,
                              geo.T_hold6_W, geo.q_hold_deg, self.T_hold0,
                              workpiece_mesh=workpiece_mesh(geo.workpiece),
                              names=(lay.tool_robot, lay.holder_robot, lay.sensor, "tool"))
@@ -373,7 +369,7 @@ class _LockstepTrial:
                 if r.valid:
                     r = replace(r, stamp_tick=float(tick))  # the MVS world's frame stamp: its capture tick
                 in_flight.append((r, tick + 1))
-            while len(in_flight) > self.cfg.latency_cycles:
+            while len(in_flight) > self.latency_cycles:
                 state["lead"], state["lead_tick"] = in_flight.popleft()
         if k % lt == lt - 1:
             state["tool"] = self.tool_sensor.read(T_W_g @ self.arm.true_wcp() @ self.T_wcp_tool)
@@ -424,7 +420,7 @@ class _LockstepTrial:
         """Start the holder, wire the tick callbacks, and run until the core stops or ``limit``
         (checked once a simulated second) ends the trial as ``timeout``."""
         sched, state, arm, holder, result = self.sched, self.state, self.arm, self.holder, self.result
-        watch = limit.watch(self.length, self.cfg.speed_mm_s)
+        watch = limit.watch(self.length, self.speed_mm_s)
         if holder is not None:
             self.hold_at(0)
             self.T_hold_start = state["T_hold"]
@@ -464,40 +460,61 @@ class _LockstepTrial:
         return result
 
 
-def _trial_cell(cfg: TrialConfig, layout=None):
-    """The trial's cell (trial_cell.TrialCell: the cell, its layout -- or ``layout`` when given --
-    and its welder's kind), checked before anything runs; None without ``cfg.cell``."""
-    if cfg.cell is None:
-        return None
-    from droid.experiments.trial_cell import check_trial_cell, load_trial_cell
+def _trial_cell(cell: str | None, arm_model: str, holder_model: str, layout=None):
+    """The trial's cell (trial_cell.TrialCell: the cell file ``cell`` -- None: the built-in cell --
+    its layout, or ``layout`` when given, and its welder's builder), checked before anything runs."""
+    from droid.experiments.trial_cell import builtin_trial_cell, check_trial_cell, load_trial_cell
 
-    tc = load_trial_cell(cfg.cell, cfg.arm, cfg.holder)
-    return tc if layout is None else check_trial_cell(tc.cell, layout, cfg.arm, cfg.holder)
-
-
-def _arm_and_holder(cfg: TrialConfig, geo: TrialGeometry, sched: Scheduler, tc=None):
-    """The welder (``fast``: FastArm; ``full``: FullArm, homed and at the start pose) and the
-    holder (``gmf1``: Gmf1Holder at the holding pose; ``fixed``: None).  ``tc``: the trial's
-    cell (trial_cell.TrialCell) -- its welder's lockstep arm and its holder subunit."""
-    if cfg.arm == "fast":
-        arm = FastArm(geo.reis, geo.q_reis_start_deg, cfg.fast_params)
-        if tc is not None:
-            arm.name = tc.layout.tool_robot  # the subunit the tracker's fault rule names
+    if cell is None:
+        tc = builtin_trial_cell(arm_model, holder_model)
     else:
-        from droid.experiments.arm_full import FullArm
-        from droid.experiments.trial_cell import welder_lockstep
+        tc = load_trial_cell(cell, arm_model, holder_model)
+    return tc if layout is None else check_trial_cell(tc.cell, layout, arm_model, holder_model)
 
-        welder = welder_lockstep(sched, tc, cfg.seed) if tc is not None else None  # None: the Reis
-        arm = FullArm(sched, geo.reis, geo.q_reis_start_deg, seed=cfg.seed, arm=welder)
-        arm.prepare()
-    holder = None
-    if cfg.holder == "gmf1":
-        from droid.experiments.holder import Gmf1Holder
 
-        where = {} if tc is None else {"subunit": tc.layout.holder_robot, "cell": tc.cell}
-        holder = Gmf1Holder(sched, geo.fanuc, geo.q_hold_deg, seed=cfg.seed, **where)
-        holder.prepare()
-    return arm, holder
+def _seam_params(cfg: TrialConfig, length_mm: float) -> SeamParams:
+    """The tracking core's parameters of the trial (a run of ``length_mm``)."""
+    return SeamParams(speed_mm_s=cfg.speed_mm_s, yaw_gain=cfg.yaw_gain, pitch_gain=cfg.pitch_gain,
+                      dead_zone_cycles=cfg.dead_zone_cycles, lost_cycles=cfg.lost_cycles,
+                      length_mm=length_mm, delay_cycles=cfg.delay_cycles, delay_at_mm=cfg.delay_at_mm,
+                      mode=cfg.mode, compliance=cfg.arm == "full")  # the fast arm's drives are rigid
+
+
+def _tracking_cycle(params: SeamParams, geo: TrialGeometry, trial_id: str) -> TrackingCycle:
+    """The tracking cycle of ``params`` (BadInput naming the trial when they do not fit)."""
+    try:
+        return TrackingCycle(params, geo.wrist.T_wcp_tool, geo.wrist.T_wcp_sensor, geo.reis,
+                             heartbeat_hz=HEARTBEAT_HZ)
+    except ValueError as exc:
+        raise BadInput(f"trial {trial_id}: {exc}") from None
+
+
+def _welder(model: str, seed: int, fast_params: FastArmParams, geo: TrialGeometry, sched: Scheduler, tc):
+    """The welder, the trial cell ``tc``'s tool_robot: ``fast``, a FastArm; ``full``, a FullArm
+    over the arm its builder builds, homed and at the start pose."""
+    if model == "fast":
+        arm = FastArm(geo.reis, geo.q_reis_start_deg, fast_params)
+        arm.name = tc.layout.tool_robot  # the subunit the tracker's fault rule names
+        return arm
+    from droid.experiments.arm_full import FullArm
+    from droid.experiments.trial_cell import welder_lockstep
+
+    arm = FullArm(sched, geo.reis, geo.q_reis_start_deg, welder_lockstep(sched, tc, seed))
+    arm.prepare()
+    return arm
+
+
+def _holder(model: str, seed: int, geo: TrialGeometry, sched: Scheduler, tc):
+    """The holder, the trial cell ``tc``'s holder_robot: ``gmf1``, a Gmf1Holder over the GMF1 its
+    builder builds, at the holding pose; ``fixed``: None."""
+    if model != "gmf1":
+        return None
+    from droid.experiments.holder import Gmf1Holder
+    from droid.experiments.trial_cell import holder_lockstep
+
+    holder = Gmf1Holder(sched, holder_lockstep(sched, tc, seed), geo.q_hold_deg)
+    holder.prepare()
+    return holder
 
 
 def _row(t_s: float, lead: Reading, tool, out, L: float, s_of) -> tuple:

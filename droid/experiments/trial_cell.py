@@ -3,49 +3,71 @@
 The trial reads the cell's seam-tracking layout (its ``[cell] layout``, else the bundled one:
 droid.brain.cell_layout.layout_for_cell); the welder is the layout's ``tool_robot``, the holder
 its ``holder_robot``, both subunits of the cell at the cell's bases with the layout's robot
-files.  The welder's lockstep arm is chosen by what its subunit runs:
+files.  Both are chosen through the registry: the builder its device package registers in the
+``lockstep`` slot (droid.sim.lockstep_cell.choose_builder, by the programs the subunit runs), which
+must stand for no program the subunit does not run (the builder's own ``@builds``):
 
-* ``droid-egm`` (with ``droid-planner``): the ABB on EGM, :class:`droid.sim.abb.lockstep.LockstepAbbArm`
-  (its ``abb_egm`` world device, the cell's ``stale_ticks``);
-* the Reis set (``droid-servo``, ``droid-servo-agent``, ``droid-planner``):
-  :class:`droid.sim.reis.cell.LockstepArm`, built as the ``full`` arm model builds it (the
-  subunit's name, robot file and base, the trial's seed; no world errors), with the cell's
-  ``stale_ticks``;
-* anything else has no lockstep: one line naming the file, the subunit and what is missing.
+* the welder's, one of :func:`welder_builders` -- the ABB on EGM
+  (:class:`droid.sim.abb.lockstep.LockstepAbbArm`, its ``abb_egm`` world device: its controller)
+  or the Reis (:class:`droid.sim.reis.cell.LockstepArm`);
+* the holder's (``holder = "gmf1"``), :func:`holder_builder`: the GMF1's;
+* anything else: one line naming the file, the subunit and what a lockstep arm needs.
+
+Both are built by those builders (:func:`welder_lockstep`, :func:`holder_lockstep`) with the
+trial's seed, the cell's ``stale_ticks`` and the trial's own world (:func:`trial_world`) instead
+of the cell's world-device tables.  A trial without a cell file runs on the built-in cell
+(droid/cells/sim.toml, whatever $DROID_CELL says; :func:`builtin_trial_cell`): the Reis ``arm1``
+and the GMF1 ``gmf1``.
 
 The ``fast`` arm model is the Reis's (calibrated against its servo and plant,
 droid.experiments.arm_fast): a welder that is not a Reis with ``arm = "fast"`` is refused.  The
-holder is the GMF1 (``droid-gmf1-serial``, ``droid-gmf1-encoder``) with the cell's serial and
-encoder set-up (droid.experiments.holder).  The trial runs at the heartbeat of
+holder is the GMF1 with the cell's serial and encoder set-up (droid.experiments.holder).  The trial runs at the heartbeat of
 droid.brain.device.HEARTBEAT_HZ (its 30 Hz cycle is 2 ticks): a cell of another rate is refused.
 """
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
-from droid.brain.cellfile import BUNDLED_CELLS, Cell, find_file, load_cell
+from droid.brain.cellfile import BUNDLED_CELLS, Cell, builtin_cell_path, find_file, load_cell
 from droid.brain.device import HEARTBEAT_HZ
+from droid.brain.wire import LIVENESS_TICKS
 from droid.cli import BadInput
 from droid.brain.cell_layout import Layout, check_bases, layout_for_cell
 
-#: the programs the Reis's lockstep arm stands for (droid.sim.reis.cell)
-REIS_PROGRAMS = ("droid-servo", "droid-servo-agent", "droid-planner")
-#: the programs the ABB's lockstep arm stands for (droid.sim.abb.lockstep)
-EGM_PROGRAMS = ("droid-egm", "droid-planner")
-#: the programs the GMF1 holder's lockstep stands for (droid.sim.gmf1.lockstep)
-GMF1_PROGRAMS = ("droid-gmf1-serial", "droid-gmf1-encoder")
-WELDER_REIS, WELDER_ABB = "reis", "abb"
+
+
+def welder_builders() -> dict:
+    """The lockstep builders whose arm the ``full`` model drives (an ArmChain with the world's
+    ``wcp_global``), by what the trial calls them: the Reis's (droid.sim.reis.cell) and the ABB's
+    on EGM (droid.sim.abb.lockstep).  What their subunits run is the builders' own ``@builds``."""
+    from droid.sim.abb.lockstep import build as abb
+    from droid.sim.reis.cell import build as reis
+
+    return {reis: "the Reis", abb: "the ABB"}
+
+
+def holder_builder():
+    """The lockstep builder of the ``gmf1`` holder model's subunit (droid.sim.gmf1.lockstep): the
+    trial's Gmf1Holder steps the same cores (droid.experiments.holder)."""
+    from droid.sim.gmf1.lockstep import build
+
+    return build
 
 
 @dataclass(frozen=True)
 class TrialCell:
-    """A checked cell of a trial: the cell, its layout and the kind of its welder."""
+    """A checked cell of a trial: the cell, its layout and its welder's lockstep builder."""
 
     cell: Cell
     layout: Layout
-    welder: str  # WELDER_REIS or WELDER_ABB
+    welder: object  # its tool_robot's lockstep builder (one of welder_builders())
+
+    @property
+    def reis(self) -> bool:
+        """Whether the welder is the Reis (the ``fast`` arm model's)."""
+        return welder_builders()[self.welder] == "the Reis"
 
 
 def bundled_cells() -> list[str]:
@@ -69,31 +91,27 @@ def _subunit(cell: Cell, layout: Layout, role: str):
     return cell.subunit(name)
 
 
-def welder_kind(cell: Cell, layout: Layout) -> str:
-    """:data:`WELDER_ABB` or :data:`WELDER_REIS` by the programs the tool robot's subunit runs."""
-    sub = _subunit(cell, layout, "tool_robot")
-    where = f"{cell.path}: [subunits.{sub.name}] (the layout's tool_robot)"
+def _whole_builder(cell: Cell, layout: Layout, role: str, what: str, builders: dict):
+    """The lockstep builder of the layout's ``role`` subunit: the one lockstep_cell.choose_builder
+    picks (by the programs the subunit runs), which must be one of ``builders`` (builder -> what
+    the trial calls it) and stand for no program the subunit does not run (the trial needs every
+    station of its arm); BadInput, one line naming the file, the subunit and what is missing."""
+    from droid.sim.lockstep_cell import choose_builder
+
+    sub = _subunit(cell, layout, role)
+    where = f"{cell.path}: [subunits.{sub.name}] (the layout's {role})"
     if not sub.is_arm:
-        raise BadInput(f"{where} is a {sub.cls} subunit, not an arm: it has no lockstep arm")
-    progs = set(sub.programs)
-    if all(p in progs for p in EGM_PROGRAMS):
-        from droid.sim.abb.lockstep import egm_device
-
-        egm_device(cell, sub.name)  # its controller twin, or one line
-        return WELDER_ABB
-    if all(p in progs for p in REIS_PROGRAMS):
-        return WELDER_REIS
+        raise BadInput(f"{where} is a {sub.cls} subunit, not an arm: it has no lockstep {what}")
+    try:
+        build = choose_builder(cell, sub)
+    except BadInput:
+        build = None
+    if build in builders and set(build.programs) <= set(sub.programs):
+        getattr(build, "check", lambda c, s: None)(cell, sub)  # what the builder refuses (the ABB: no controller twin), before anything runs
+        return build
     runs = ", ".join(sub.programs) or "no programs"
-    raise BadInput(f"{where} has no lockstep arm: it runs {runs}; a lockstep arm needs "
-                   f"{' + '.join(EGM_PROGRAMS)} (the ABB) or {' + '.join(REIS_PROGRAMS)} (the Reis)")
-
-
-def check_holder(cell: Cell, layout: Layout) -> None:
-    sub = _subunit(cell, layout, "holder_robot")
-    if not sub.is_arm or not all(p in sub.programs for p in GMF1_PROGRAMS):
-        runs = ", ".join(sub.programs) or "no programs"
-        raise BadInput(f"{cell.path}: [subunits.{sub.name}] (the layout's holder_robot) has no lockstep "
-                       f"holder: it runs {runs}; the GMF1's needs {' + '.join(GMF1_PROGRAMS)}")
+    needs = " or ".join(f"{' + '.join(b.programs)} ({name})" for b, name in builders.items())
+    raise BadInput(f"{where} has no lockstep {what}: it runs {runs}; a lockstep {what} needs {needs}")
 
 
 def _check_robots(cell: Cell, layout: Layout) -> None:
@@ -110,17 +128,17 @@ def check_trial_cell(cell: Cell, layout: Layout, arm_model: str = "full", holder
     if cell.heartbeat_hz != HEARTBEAT_HZ:
         raise BadInput(f"{cell.path}: heartbeat_hz {cell.heartbeat_hz:g}: the lockstep trial runs at "
                        f"{HEARTBEAT_HZ:g} Hz (its 30 Hz tracking cycle is 2 ticks)")
-    welder = welder_kind(cell, layout)
+    tc = TrialCell(cell, layout, _whole_builder(cell, layout, "tool_robot", "arm", welder_builders()))
     if holder == "gmf1":
-        check_holder(cell, layout)
+        _whole_builder(cell, layout, "holder_robot", "holder", {holder_builder(): "the GMF1"})
     else:
         _subunit(cell, layout, "holder_robot")
     check_bases(layout, cell)
     _check_robots(cell, layout)
-    if arm_model == "fast" and welder != WELDER_REIS:
+    if arm_model == "fast" and not tc.reis:
         raise BadInput(f"{cell.path}: [subunits.{layout.tool_robot}] is not a Reis: the fast arm model is "
                        f"the Reis's (calibrated against its servo); use the full model (--arm full)")
-    return TrialCell(cell, layout, welder)
+    return tc
 
 
 def load_trial_cell(path: str | os.PathLike, arm_model: str = "full", holder: str = "gmf1") -> TrialCell:
@@ -129,14 +147,41 @@ def load_trial_cell(path: str | os.PathLike, arm_model: str = "full", holder: st
     return check_trial_cell(cell, layout_for_cell(cell), arm_model, holder)
 
 
+def builtin_trial_cell(arm_model: str = "full", holder: str = "gmf1") -> TrialCell:
+    """The cell of a trial without a cell file: the built-in cell (droid/cells/sim.toml, whatever
+    $DROID_CELL says) with the cell file's default ``stale_ticks`` (LIVENESS_TICKS, the thesis's 3)
+    for its 12 -- the arms such a trial always ran: sim.toml's 12 is set against this host's
+    real-time stalls, which virtual time has none of, and a fault's order in the Status (a dead
+    servo: the servo agent's fault before the watchdog's) follows it."""
+    cell = replace(load_cell(builtin_cell_path()), stale_ticks=LIVENESS_TICKS)
+    return check_trial_cell(cell, layout_for_cell(cell), arm_model, holder)
+
+
+def trial_world(tc: TrialCell) -> dict:
+    """The trial's own ``[world]`` table, which its subunits' builders read instead of the cell's
+    (droid.sim.lockstep_build.BuildContext.world): no world device for the welder -- a Reis
+    without world errors or contacts, the arm the ``full`` model always ran (the ABB's builder
+    reads its ``abb_egm`` controller twin from the cell) -- and the holder's twin
+    (droid.experiments.holder.holder_device) stepped at the holder's world rate."""
+    from droid.experiments.holder import WORLD_HZ, holder_device
+
+    return {"rate_hz": WORLD_HZ, "devices": {"trial_holder": holder_device(tc.layout.holder_robot)}}
+
+
+def _built(sched, tc: TrialCell, name: str, seed: int):
+    from droid.sim.lockstep_cell import build_subunits
+
+    return build_subunits(sched, tc.cell, [name], seed, world=trial_world(tc))[name]
+
+
 def welder_lockstep(sched, tc: TrialCell, seed: int):
-    """The welder's lockstep arm on ``sched`` (an ArmChain: LockstepAbbArm or LockstepArm)."""
-    sub = tc.cell.subunit(tc.layout.tool_robot)
-    if tc.welder == WELDER_ABB:
-        from droid.sim.abb.lockstep import LockstepAbbArm
+    """The welder's lockstep arm on ``sched`` (an ArmChain: LockstepArm or LockstepAbbArm), built
+    by its package's builder (lockstep_cell.build_subunits) in the trial's world
+    (:func:`trial_world`) with the trial's ``seed`` and the cell's ``stale_ticks``."""
+    return _built(sched, tc, tc.layout.tool_robot, seed).arm
 
-        return LockstepAbbArm(sched, tc.cell, sub.name)
-    from droid.sim.reis.cell import LockstepArm
 
-    return LockstepArm(sched, sub.name, robot=sub.robot, base=tuple(sub.base), seed=seed,
-                       stale_ticks=tc.cell.stale_ticks)
+def holder_lockstep(sched, tc: TrialCell, seed: int):
+    """The holder's Gmf1Lockstep on ``sched``, built by the GMF1 package's builder in the trial's
+    world (:func:`trial_world`) with the trial's ``seed``."""
+    return _built(sched, tc, tc.layout.holder_robot, seed).parts

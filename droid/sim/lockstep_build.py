@@ -41,10 +41,13 @@ from droid.subunits.agent import AgentStation, CommandCopier
 AGENT = "droid-agent"
 
 
-def builds(*programs: str) -> Callable:
-    """Declare the programs a lockstep builder gives stations for (see the module docstring)."""
+def builds(*programs: str, check: Callable | None = None) -> Callable:
+    """Declare the programs a lockstep builder gives stations for (see the module docstring);
+    ``check(cell, sub)``: what the builder refuses, asked without building anything (BadInput, one
+    line) -- a task that builds later (a seam-tracking trial) refuses a bad cell before it runs."""
     def mark(fn: Callable) -> Callable:
         fn.programs = tuple(programs)
+        fn.check = check if check is not None else (lambda cell, sub: None)
         return fn
     return mark
 
@@ -95,11 +98,20 @@ class LockstepSubunit:
 class BuildContext:
     """What a builder gets besides its subunit: the scheduler, the cell, the seed (the world's
     ``[world] seed`` unless overridden), the world devices built so far (name -> object with the
-    world's arm interface, ``wcp_global()`` 4x4 mm) and the subunits built so far."""
+    world's arm interface, ``wcp_global()`` 4x4 mm) and the subunits built so far.
+
+    ``world``: a ``[world]`` table the builders read instead of the cell's (``rate_hz`` and the
+    ``devices`` tables, :attr:`world_hz` and :meth:`world_devices`): a task that brings its own
+    world.  A seam-tracking trial (droid.experiments.trial_cell.trial_world) builds its welder and
+    holder so: no ``reis_vme`` table for its Reis (no world errors, no contacts: the arm the trial
+    always ran, on the trial's seed), its GMF1 homing from the zero pose through a dynamic KAREL
+    twin at the trial's world rate.  A twin that *is* its subunit's controller (the ABB's
+    ``abb_egm``) is still read from the cell by its builder."""
 
     sched: Scheduler
     cell: Any  # droid.brain.cellfile.Cell
     seed: int
+    world: dict | None = None
     twins: dict[str, Any] = field(default_factory=dict)
     built: dict[str, LockstepSubunit] = field(default_factory=dict)
     finish: list[Callable[[], None]] = field(default_factory=list)
@@ -120,15 +132,20 @@ class BuildContext:
         return declared(program).rate_hz
 
     @property
+    def _world(self) -> dict:
+        return self.cell.world if self.world is None else self.world
+
+    @property
     def world_hz(self) -> float:
         """The world's step rate [Hz]: the cell's ``[world] rate_hz`` (droid-sim's default 1 kHz)."""
         from droid.sim.world import DEFAULT_RATE_HZ
 
-        return float(self.cell.world.get("rate_hz", DEFAULT_RATE_HZ))
+        return float(self._world.get("rate_hz", DEFAULT_RATE_HZ))
 
     def world_devices(self, typ: str) -> dict[str, dict]:
-        """The cell's ``[world.devices.*]`` tables of ``type = typ`` (name -> options without type)."""
-        return {n: {k: v for k, v in o.items() if k != "type"} for n, o in self.cell.world.get("devices", {}).items()
+        """The ``[world.devices.*]`` tables of ``type = typ`` (name -> options without type): the
+        cell's, or those of the context's own ``world``."""
+        return {n: {k: v for k, v in o.items() if k != "type"} for n, o in self._world.get("devices", {}).items()
                 if isinstance(o, dict) and o.get("type") == typ}
 
 

@@ -31,6 +31,24 @@ def choose_builder(cell: Cell, sub) -> Callable:
     """The lockstep builder of ``sub`` (see the module docstring of droid.sim.lockstep_build):
     of the packages serving its class, the first whose builder stands for every program the
     subunit runs, preferring one that stands for any of them.  BadInput, one line, otherwise."""
+    where = f"{cell.path}: [subunits.{sub.name}]"
+    builders = class_builders(cell, sub)
+    need = set(sub.programs)
+    fits = [b for _, b in builders if need <= set(b.programs)]
+    if fits:
+        return next((b for b in fits if need & set(b.programs)), fits[0])
+    stood = set().union(*(b.programs for _, b in builders))
+    missing = [p for p in sub.programs if p not in stood]
+    if missing:
+        raise BadInput(f"{where} program {missing[0]!r} has no lockstep station (the lockstep builders of "
+                       f"class {sub.cls!r} stand for {', '.join(sorted(stood))})")
+    raise BadInput(f"{where} no one lockstep builder stands for all its programs ({', '.join(sub.programs)}): "
+                   + "; ".join(f"{n}: {', '.join(b.programs)}" for n, b in builders))
+
+
+def class_builders(cell: Cell, sub) -> list[tuple[str, Callable]]:
+    """(package name, lockstep builder) of every package serving ``sub``'s class that registers
+    one, in the registry's order; BadInput, one line, for an unknown class or one without any."""
     from droid.brain.registry import registry
 
     reg = registry()
@@ -43,17 +61,7 @@ def choose_builder(cell: Cell, sub) -> Callable:
         names = ", ".join(repr(p.name) for p in pkgs) or "none"
         raise BadInput(f"{where} class {sub.cls!r} has no lockstep builder (package {names} registers none "
                        f"in its lockstep slot)")
-    need = set(sub.programs)
-    fits = [b for _, b in builders if need <= set(b.programs)]
-    if fits:
-        return next((b for b in fits if need & set(b.programs)), fits[0])
-    stood = set().union(*(b.programs for _, b in builders))
-    missing = [p for p in sub.programs if p not in stood]
-    if missing:
-        raise BadInput(f"{where} program {missing[0]!r} has no lockstep station (the lockstep builders of "
-                       f"class {sub.cls!r} stand for {', '.join(sorted(stood))})")
-    raise BadInput(f"{where} no one lockstep builder stands for all its programs ({', '.join(sub.programs)}): "
-                   + "; ".join(f"{n}: {', '.join(b.programs)}" for n, b in builders))
+    return builders
 
 
 def _builder(reg, pkg, where: str) -> Callable:
@@ -118,6 +126,26 @@ def build_lockstep_cell(cell_or_path: Cell | str | os.PathLike | None, seed: int
             built.close()
         raise
     return LockstepCell(cell, ctx.sched, {n: ctx.built[n] for n in cell.subunits})
+
+
+def build_subunits(sched: Scheduler, cell: Cell, names, seed: int, *, world: dict | None = None) -> dict[str, LockstepSubunit]:
+    """Only the subunits ``names`` of ``cell`` (already checked by the caller), in that order, on
+    ``sched`` -- a task's own scheduler at the cell's heartbeat -- each through the builder
+    :func:`choose_builder` picks; ``seed``: the context's; ``world``: a ``[world]`` table instead of
+    the cell's (:class:`~droid.sim.lockstep_build.BuildContext`).  What a builder defers
+    (``ctx.after``) runs once all are built."""
+    chosen = [(sub, choose_builder(cell, sub)) for sub in (cell.subunit(n) for n in names)]
+    ctx = BuildContext(sched, cell, seed, world=world)
+    try:
+        for sub, build in chosen:
+            ctx.built[sub.name] = build(ctx, sub)
+        for fn in ctx.finish:
+            fn()
+    except BaseException:
+        for built in ctx.built.values():
+            built.close()
+        raise
+    return dict(ctx.built)
 
 
 def status_summary(sub: LockstepSubunit) -> dict:
