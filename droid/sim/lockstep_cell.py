@@ -116,15 +116,7 @@ def build_lockstep_cell(cell_or_path: Cell | str | os.PathLike | None, seed: int
     subs = sorted(cell.subunits.values(), key=lambda s: not s.is_arm)  # arms first, stable
     chosen = [(sub, choose_builder(cell, sub)) for sub in subs]
     ctx = BuildContext(Scheduler(cell.heartbeat_hz), cell, int(cell.world.get("seed", 0)) if seed is None else seed)
-    try:
-        for sub, build in chosen:
-            ctx.built[sub.name] = build(ctx, sub)
-        for fn in ctx.finish:
-            fn()
-    except BaseException:
-        for built in ctx.built.values():
-            built.close()
-        raise
+    _build_all(ctx, chosen)
     return LockstepCell(cell, ctx.sched, {n: ctx.built[n] for n in cell.subunits})
 
 
@@ -136,6 +128,13 @@ def build_subunits(sched: Scheduler, cell: Cell, names, seed: int, *, world: dic
     (``ctx.after``) runs once all are built."""
     chosen = [(sub, choose_builder(cell, sub)) for sub in (cell.subunit(n) for n in names)]
     ctx = BuildContext(sched, cell, seed, world=world)
+    _build_all(ctx, chosen)
+    return dict(ctx.built)
+
+
+def _build_all(ctx: BuildContext, chosen) -> None:
+    """Build each (subunit, builder) of ``chosen`` into ``ctx.built``, then run what the builders
+    deferred (``ctx.after``); on any error close what was built and raise it."""
     try:
         for sub, build in chosen:
             ctx.built[sub.name] = build(ctx, sub)
@@ -145,7 +144,6 @@ def build_subunits(sched: Scheduler, cell: Cell, names, seed: int, *, world: dic
         for built in ctx.built.values():
             built.close()
         raise
-    return dict(ctx.built)
 
 
 def status_summary(sub: LockstepSubunit) -> dict:

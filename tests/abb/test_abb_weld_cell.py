@@ -81,12 +81,12 @@ def test_egm_silence_stops_the_tracker_and_the_arm(tmp_path, cell_name):
     (FAULT_DEVICE), and droid-seamtrack stops with ``fault`` (or ``stale``), exit 1; once the link
     is back the arm stands where it stopped and takes a move again."""
     import select
-    import signal
     import subprocess
     import sys
     import time
 
     from droid.faults.proxy import control
+    from tests.observe.webutil import stop_process
     from droid.sim.truth import TruthDoor, door_name
 
     path = interposed_abb_cell(tmp_path, cell_name)
@@ -141,11 +141,5 @@ def test_egm_silence_stops_the_tracker_and_the_arm(tmp_path, cell_name):
             assert out.returncode == 0, out.stderr
             assert control(ctl, "abb.egm", {"get": True}, timeout_s=10)["counts"]["up"]["dropped"] > 0
     finally:
-        proxy.send_signal(signal.SIGTERM)
-        try:
-            proxy.communicate(timeout=30)
-        finally:
-            if proxy.poll() is None:
-                proxy.kill()
-                proxy.wait()
+        stop_process(proxy, 30)
     assert proxy.returncode == 0
