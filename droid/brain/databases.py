@@ -29,6 +29,13 @@ def local_layouts(sub: Subunit) -> dict[str, Layout]:
     return dict(sub.kind.local)
 
 
+def safe_start(db) -> None:
+    """Give a fresh Command record (shm or in memory) the safe start values of §4.1.4: JOG mode and
+    JOINT coordinates (§3.3), no command -- where its layout has them (an arm's)."""
+    if "cmd_mode" in db.layout.dtype.names:
+        db.update(cmd_mode=JOG_MODE, coord=JSPACE)
+
+
 def create_databases(cell: Cell, hosts: set[str] | None = None, *, brain_only: bool = False) -> list[Database]:
     """Create (fresh) every database of the cell for ``hosts`` (default all); ``brain_only``:
     the Brain's Status/Command records only (a replay cell), no subunit's local records.
@@ -46,8 +53,8 @@ def create_databases(cell: Cell, hosts: set[str] | None = None, *, brain_only: b
             for area, lay in areas:
                 db = Database(db_name(cell.name, sub.name, area), lay, create=True)
                 made.append(db)
-                if area in ("command", "ctrl_command") and "cmd_mode" in lay.dtype.names:  # an arm's
-                    db.update(cmd_mode=JOG_MODE, coord=JSPACE)
+                if area in ("command", "ctrl_command"):
+                    safe_start(db)
     except Exception:
         for db in made:
             db.unlink()

@@ -29,7 +29,8 @@ import numpy as np
 from droid.brain import arm_command
 from droid.brain.classes import ARM6R
 from droid.brain.layouts import (ARM_COMMAND_LAYOUT, ARM_STATUS_LAYOUT, CTRL_COMMAND_LAYOUT,
-                                 CTRL_STATUS_LAYOUT, JOG_MODE, JSPACE)
+                                 CTRL_STATUS_LAYOUT)
+from droid.brain.databases import safe_start
 from droid.brain.remote import RemoteStation, StatusTranslator
 from droid.brain.shmdb import MemoryDatabase
 from droid.sim.lockstep import ORDER_HEARTBEAT, Scheduler
@@ -114,7 +115,7 @@ class ArmChain(ArmTasks):
         self.ctrl_status = MemoryDatabase(f"{name}.ctrl_status", CTRL_STATUS_LAYOUT)
         self.ctrl_command = MemoryDatabase(f"{name}.ctrl_command", CTRL_COMMAND_LAYOUT)
         for db in (self.brain_command, self.ctrl_command):
-            db.update(cmd_mode=JOG_MODE, coord=JSPACE)
+            safe_start(db)
 
     def _start_chain(self) -> None:
         sched, name = self.sched, self.name

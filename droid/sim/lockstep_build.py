@@ -31,7 +31,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
-from droid.brain.layouts import JOG_MODE, JSPACE
+from droid.brain.databases import safe_start
 from droid.brain.remote import RemoteStation, StatusTranslator
 from droid.brain.shmdb import MemoryDatabase
 from droid.sim.lockstep import ORDER_HEARTBEAT, Scheduler
@@ -65,8 +65,7 @@ def local_databases(sub) -> dict[str, MemoryDatabase]:
 
 def _fresh(name: str, layout) -> MemoryDatabase:
     db = MemoryDatabase(name, layout)
-    if "cmd_mode" in layout.dtype.names:
-        db.update(cmd_mode=JOG_MODE, coord=JSPACE)
+    safe_start(db)
     return db
 
 

@@ -26,7 +26,8 @@ import numpy as np
 from droid.brain.cellfile import Cell, load_cell
 from droid.brain import arm_command
 from droid.brain.layouts import (ARM_COMMAND_LAYOUT, ARM_STATUS_LAYOUT, CTRL_COMMAND_LAYOUT, CTRL_STATUS_LAYOUT,
-                                 JOG_MODE, JSPACE, NORMAL_MODE)
+                                 NORMAL_MODE)
+from droid.brain.databases import safe_start
 from droid.brain.remote import RemoteStation, StatusTranslator
 from droid.brain.shmdb import MemoryDatabase
 from droid.kinematics import load_robot
@@ -82,7 +83,7 @@ class Gmf1Lockstep:
         self.ctrl_command = MemoryDatabase("ctrl_command", CTRL_COMMAND_LAYOUT)
         self.ctrl_status = MemoryDatabase("ctrl_status", CTRL_STATUS_LAYOUT)
         for db in (self.brain_command, self.ctrl_command):
-            db.update(cmd_mode=JOG_MODE, coord=JSPACE)  # safe start values, as create_databases
+            safe_start(db)
         self.copier = CommandCopier(self.ctrl_command)
         # the programs
         self.bank = Quad04Bank([Quad04Card(b, f"lockstep card {i}") for i, b in enumerate(self.card_bufs)])
