@@ -203,9 +203,7 @@ NAMED: dict[str, Range | tuple] = {
 }
 
 
-def _by_name(key: str):
-    if key in NAMED:
-        return NAMED[key]
+def _suffix_range(key: str):
     best = ""
     for suffix in SUFFIXES:
         if key.endswith(suffix) and len(suffix) > len(best):
@@ -213,18 +211,32 @@ def _by_name(key: str):
     return SUFFIXES[best] if best else None
 
 
+def _by_name(key: str):
+    return NAMED[key] if key in NAMED else _suffix_range(key)
+
+
 def range_of(path: tuple):
     """The :class:`Range` of the number at ``path`` (keys and list indices from the top of a
-    file), or None if none of its keys states one."""
-    for part in reversed(path):
-        if isinstance(part, str):
-            found = _by_name(part)
-            if found is not None:
-                if isinstance(found, tuple):
-                    i = next((p for p in reversed(path) if isinstance(p, int)), 0)
-                    return found[i] if i < len(found) else None
-                return found
-    return None
+    file), or None if none of its keys states one.
+
+    Which key speaks for the number, in this order: its own key by name (``baud``); the nearest
+    enclosing key by name, for tables whose entries are named by the user (``bases.arm1``,
+    ``fixture.tool``); its own key by unit suffix (``speed_mm_s``).  An enclosing key's unit
+    suffix never counts: enclosing keys are often names a user chose (a subunit ``arm_a``, a
+    world device ``joy_a``), and a name is not a unit."""
+    strings = [p for p in path if isinstance(p, str)]
+    if not strings:
+        return None
+    own = strings[-1]
+    found = NAMED.get(own)
+    if found is None:
+        found = next((NAMED[p] for p in reversed(strings[:-1]) if p in NAMED), None)
+    if found is None:
+        found = _suffix_range(own)
+    if isinstance(found, tuple):
+        i = next((p for p in reversed(path) if isinstance(p, int)), 0)
+        return found[i] if i < len(found) else None
+    return found
 
 
 def key_name(path: tuple) -> str:

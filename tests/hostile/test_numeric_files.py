@@ -186,6 +186,18 @@ def test_the_range_of_a_pose_is_per_element():
         numbers.check_numbers({"a": {"b": [0, math.nan]}})
 
 
+def test_a_name_the_user_chose_is_not_a_unit():
+    """Subunit and device names are the user's: ``joy_a`` or ``arm_a`` end like the ampere
+    suffix ``_a`` but say nothing of the numbers under them (a joystick script's axes are -1..1)."""
+    script = {"world": {"devices": {"joy_a": {"script": [[1.0, [-0.5, 0.25], [0, 1]]]}}}}
+    numbers.check_numbers(script)
+    assert numbers.range_of(("world", "devices", "joy_a", "script", 0, 1, 0)) is None
+    assert numbers.range_of(("bases", "arm_a", 5)).unit == "deg"  # the table's name speaks, not the entry's
+    assert numbers.range_of(("subunits", "arm_a", "speed_mm_s")).unit == "mm/s"
+    with pytest.raises(numbers.NumberError, match=r"^subunits\.arm_a\.peak_a = -1: is outside"):
+        numbers.check_numbers({"subunits": {"arm_a": {"peak_a": -1}}})
+
+
 @pytest.mark.parametrize("key", ["lateral_mm_per_row", "depth_mm_per_column", "row_at_origin", "column_at_origin"])
 @pytest.mark.parametrize("value", [math.nan, math.inf, 1e308, -1e308])
 def test_an_mvs_calibration_refuses_numbers_out_of_range(key, value, tmp_path):
