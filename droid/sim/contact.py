@@ -54,7 +54,6 @@ from itertools import pairwise
 
 import numpy as np
 
-# Alike in shape only to other numeric dataclasses (the contact force's Gains): different quantities.
 @dataclass(frozen=True)
 class ContactParams:
     """A penalty contact: normal stiffness [N/mm] and damping [N s/mm], Coulomb friction."""
