@@ -102,10 +102,7 @@ def subunit_class(name: str) -> SubunitClass:
     from droid.brain.registry import registry
 
     reg = registry()
-    try:
-        return reg.classes[name]
-    except KeyError:
-        raise KeyError(reg.unknown("subunit class", name, reg.classes)) from None
+    return reg.named("subunit class", name, reg.classes)
 
 
 def field_json(rec, name: str):

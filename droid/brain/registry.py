@@ -271,6 +271,13 @@ class Registry:
             msg += "; not loaded: " + "; ".join(self.failed)
         return msg
 
+    def named(self, what: str, name: str, table: dict):
+        """``table[name]``; else a KeyError saying :meth:`unknown` (the known names)."""
+        try:
+            return table[name]
+        except KeyError:
+            raise KeyError(self.unknown(what, name, table)) from None
+
 
 def _entry_points():
     from importlib import metadata  # imported when the registry is first built (about 0.1 s)
@@ -381,10 +388,7 @@ def fifo_priorities() -> dict[str, int]:
 def program(name: str) -> Program:
     """The declaration of program ``name``; KeyError names the known ones."""
     reg = registry()
-    try:
-        return reg.programs[name]
-    except KeyError:
-        raise KeyError(reg.unknown("program", name, reg.programs)) from None
+    return reg.named("program", name, reg.programs)
 
 
 def layouts():

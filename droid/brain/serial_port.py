@@ -178,18 +178,10 @@ class ReopeningPort:
         self._wait = 0
         self.failures = 0  # failed opens and lost ports
 
-    # Alike in shape only to other read-only views (ServoCore's): each its own object's state.
-    @property
-    def port(self):
-        return self.link.port
-
-    @property
-    def opens(self) -> int:
-        return self.link.opens
-
-    @property
-    def last_error(self) -> str:
-        return self.link.last_error
+    # the link's state, read-only
+    port = property(lambda self: self.link.port, doc="The open port, None while closed.")
+    opens = property(lambda self: self.link.opens, doc="How many times the port was opened.")
+    last_error = property(lambda self: self.link.last_error, doc="Why the port last failed or did not open.")
 
     def _fail(self) -> None:
         self.failures += 1

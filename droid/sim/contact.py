@@ -49,16 +49,11 @@ from __future__ import annotations
 import math
 import weakref
 from bisect import bisect_right
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from itertools import pairwise
 
 import numpy as np
 
-#: keys of a workpiece's ``[contact]`` table
-CONTACT_KEYS = ("stiffness_n_per_mm", "damping_n_s_per_mm", "friction_coefficient", "slip_speed_mm_s")
-
-
-# Alike in shape only to other numeric dataclasses (the contact force's Gains): different quantities.
 @dataclass(frozen=True)
 class ContactParams:
     """A penalty contact: normal stiffness [N/mm] and damping [N s/mm], Coulomb friction."""
@@ -79,6 +74,9 @@ class ContactParams:
             raise bad(f"[contact]: unknown key {unknown[0]!r} (expected one of {', '.join(CONTACT_KEYS)})")
         return cls(**{k: float(v) for k, v in table.items()})
 
+
+#: keys of a workpiece's ``[contact]`` table: the fields of ContactParams
+CONTACT_KEYS = tuple(f.name for f in fields(ContactParams))
 
 ZERO3 = np.zeros(3)
 

@@ -15,7 +15,7 @@ import pytest
 
 from droid.brain.cellfile import load_cell
 from droid.brain.cell_layout import layout_for_cell
-from tests.brain.cellutil import ROOT, cell_up, droid, make_cell_file
+from tests.brain.cellutil import ROOT, cell_up, droid, make_cell_file, reaped
 from tests.tasks.test_seamtrack_cell import assert_agrees_with_lockstep, assert_standing, read_log, snoop
 
 pytestmark = pytest.mark.integration
@@ -106,7 +106,7 @@ def test_egm_silence_stops_the_tracker_and_the_arm(tmp_path, cell_name):
             proc = subprocess.Popen([sys.executable, "-m", "droid.tasks.seamtrack", "16", "--mode", "plus",
                                      "--start", "i", "--cell", str(cell)], cwd=ROOT, stdout=subprocess.PIPE,
                                     stderr=subprocess.PIPE, text=True)
-            try:
+            with reaped(proc):
                 seen, deadline = "", time.monotonic() + 120
                 while "tracking" not in seen and time.monotonic() < deadline and proc.poll() is None:
                     if select.select([proc.stderr], [], [], 0.5)[0]:
@@ -114,10 +114,6 @@ def test_egm_silence_stops_the_tracker_and_the_arm(tmp_path, cell_name):
                 assert "tracking" in seen, seen
                 assert control(ctl, "abb.egm", {"set": {"cut": True}}, timeout_s=10)["ok"]
                 _, err = proc.communicate(timeout=60)
-            finally:
-                if proc.poll() is None:
-                    proc.kill()
-                    proc.wait()
             print(err.strip().splitlines()[-1])
             assert proc.returncode == 1, err
             assert "stopped: fault" in err or "stale" in err, err

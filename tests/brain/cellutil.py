@@ -47,6 +47,18 @@ def cell_up(path: Path, cell_name: str):
         yield path
 
 
+@contextlib.contextmanager
+def reaped(proc: subprocess.Popen):
+    """The body works with the running ``proc``, which does not outlive it: killed and reaped
+    if it still runs when the body ends (a failed assertion, a timeout)."""
+    try:
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
 def droid(prog_module: str, *args: str, timeout: float = 60, check: bool = False) -> subprocess.CompletedProcess:
     """Run a DROID program as ``python -m MODULE ARGS``."""
     out = subprocess.run([sys.executable, "-m", prog_module, *args], capture_output=True, text=True,

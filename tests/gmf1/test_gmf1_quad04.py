@@ -100,12 +100,10 @@ def test_bad_urls(url):
         open_card(url)
 
 
-# Alike in shape only to test_vme's refusals: another driver, its own error.
-def test_missing_cards_are_unavailable(tmp_path, cell_name):
+@pytest.mark.parametrize("url", ["shm://droid.{cell}.nocard", "mem://{tmp}/nothing?offset=0"])
+def test_missing_cards_are_unavailable(tmp_path, cell_name, url):
     with pytest.raises(CardUnavailable):
-        open_card(f"shm://droid.{cell_name}.nocard")
-    with pytest.raises(CardUnavailable):
-        open_card(f"mem://{tmp_path}/nothing?offset=0")
+        open_card(url.format(cell=cell_name, tmp=tmp_path))
 
 
 def test_shm_card_and_replacement(cell_name):

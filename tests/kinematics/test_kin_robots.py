@@ -90,31 +90,32 @@ def _edit(text: str, old: str, new: str) -> str:
     return text.replace(old, new, 1)
 
 
-# Rows alike in shape only: each spoils the robot file its own way.
+# Each row spoils the robot file its own way: ``old`` replaced by ``new``.
 @pytest.mark.parametrize(
-    "mutate, message",
+    "old, new, message",
     [
-        (lambda t: t + "\n[extra]\nx = 1\n", "unknown key"),
-        (lambda t: _edit(t, "c2_mm = 700.0", "c2_mmm = 700.0"), "unknown key"),
-        (lambda t: _edit(t, "[planner]\nweights = [3, 3, 3, 1, 1, 1]", ""), "missing table [planner]"),
-        (lambda t: _edit(t, "weights = [3, 3, 3, 1, 1, 1]", "weights = [3, 3, 3, 1, 1]"), "6 numbers"),
-        (lambda t: _edit(t, "weights = [3, 3, 3, 1, 1, 1]", "weights = [3, 3, 3, 1, 1, -1]"), "weights"),
-        (lambda t: _edit(t, "c3_mm = 800.0", "c3_mm = 810.0"), "[dh] and [opw] disagree"),
-        (lambda t: _edit(t, "signs = [1, -1, -1, 1, 1, 1]", "signs = [1, 1, -1, 1, 1, 1]"), "disagree"),
-        (lambda t: _edit(t, "signs = [1, -1, -1, 1, 1, 1]", "signs = [1, 2, -1, 1, 1, 1]"), "signs"),
-        (lambda t: _edit(t, "joint_max_deg = [170,", "joint_max_deg = [-175,"), "joint_min_deg must be <"),
-        (lambda t: _edit(t, "switch_deg = [0, 0, 0, 0, 0, 0]", "switch_deg = [175, 0, 0, 0, 0, 0]"), "home switch"),
-        (lambda t: _edit(t, "vmax_deg_s = [150,", "vmax_deg_s = [0,"), "vmax_deg_s[0] = 0: is outside (0, "),
-        (lambda t: _edit(t, "c1_mm = 650.0", 'c1_mm = "650"'), "finite number"),
-        (lambda t: _edit(t, "c1_mm = 650.0", "c1_mm = nan"), "finite number"),
-        (lambda t: t.replace("[gearing]", "[gearing", 1), "not valid TOML"),
-        (lambda t: _edit(t, "encoder_bits = 16", "encoder_bits = 16\nfoo = 1"), "unknown key"),
-        (lambda t: _edit(t, "vmax_deg_s = [150", "counts_min = [0, 0, 0, 0, 0, 0]\nvmax_deg_s = [150"), "both counts_min"),
+        (None, "\n[extra]\nx = 1\n", "unknown key"),  # None: appended to the file
+        ("c2_mm = 700.0", "c2_mmm = 700.0", "unknown key"),
+        ("[planner]\nweights = [3, 3, 3, 1, 1, 1]", "", "missing table [planner]"),
+        ("weights = [3, 3, 3, 1, 1, 1]", "weights = [3, 3, 3, 1, 1]", "6 numbers"),
+        ("weights = [3, 3, 3, 1, 1, 1]", "weights = [3, 3, 3, 1, 1, -1]", "weights"),
+        ("c3_mm = 800.0", "c3_mm = 810.0", "[dh] and [opw] disagree"),
+        ("signs = [1, -1, -1, 1, 1, 1]", "signs = [1, 1, -1, 1, 1, 1]", "disagree"),
+        ("signs = [1, -1, -1, 1, 1, 1]", "signs = [1, 2, -1, 1, 1, 1]", "signs"),
+        ("joint_max_deg = [170,", "joint_max_deg = [-175,", "joint_min_deg must be <"),
+        ("switch_deg = [0, 0, 0, 0, 0, 0]", "switch_deg = [175, 0, 0, 0, 0, 0]", "home switch"),
+        ("vmax_deg_s = [150,", "vmax_deg_s = [0,", "vmax_deg_s[0] = 0: is outside (0, "),
+        ("c1_mm = 650.0", 'c1_mm = "650"', "finite number"),
+        ("c1_mm = 650.0", "c1_mm = nan", "finite number"),
+        ("[gearing]", "[gearing", "not valid TOML"),
+        ("encoder_bits = 16", "encoder_bits = 16\nfoo = 1", "unknown key"),
+        ("vmax_deg_s = [150", "counts_min = [0, 0, 0, 0, 0, 0]\nvmax_deg_s = [150", "both counts_min"),
     ],
 )
-def test_bad_robot_files_are_rejected_with_a_reason(tmp_path, mutate, message):
+def test_bad_robot_files_are_rejected_with_a_reason(tmp_path, old, new, message):
+    text = offset_robot_toml("bad")
     path = tmp_path / "bad.toml"
-    path.write_text(mutate(offset_robot_toml("bad")))
+    path.write_text(text + new if old is None else _edit(text, old, new))
     with pytest.raises(RobotFileError) as info:
         load_robot(str(path))
     assert message in str(info.value)

@@ -18,6 +18,7 @@ from droid.sim.workpiece import load_workpiece
 from droid.subunits.mvs.calibration import MvsCalibration
 from droid.subunits.mvs.protocol import SensorClientCore, parse_line
 from droid.subunits.mvs.sensor import SensorCore, format_frame_line, main
+from tests.brain.cellutil import reaped
 
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 ENV = {**os.environ, "PYTHONPATH": REPO}
@@ -192,14 +193,12 @@ def test_live_sensor_stops_cleanly_on_sigterm(board):
         [sys.executable, "-m", "droid.subunits.mvs.sensor", "--dsp", board, "--serial", os.ttyname(slave)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO, env=ENV)
     try:
-        data = read_pty(master, 5)
-        assert data.count(b"\n") >= 5
-        proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=10)
+        with reaped(proc):
+            data = read_pty(master, 5)
+            assert data.count(b"\n") >= 5
+            proc.send_signal(signal.SIGTERM)
+            _, err = proc.communicate(timeout=10)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
         os.close(master)
         os.close(slave)
     assert proc.returncode == 0, err

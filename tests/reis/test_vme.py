@@ -135,7 +135,6 @@ def test_mem_url_maps_a_file_at_an_offset(tmp_path, offset):
     assert data[:offset] == bytes(offset)  # nothing written before the window
 
 
-# Alike in shape only to test_gmf1_quad04's refusals: another driver, its own error.
 def test_mem_url_file_too_short(tmp_path):
     path = tmp_path / "short.bin"
     path.write_bytes(bytes(vm.MAP_SIZE))

@@ -166,6 +166,7 @@ wrist = ["standard", "extension30"]
 
 
 # Rows alike in shape only to other tables of bad input: each spoils its own key.
+# Rows alike in shape only to other tables of bad input: each spoils its own plan key.
 @pytest.mark.parametrize("body, key, value", [
     ('name = "x"\ncolour = "red"\n', "colour", '"red"'),
     ('name = "x"\n[sweep]\nspeed = [1, 2]\n', "speed", "[1, 2]"),

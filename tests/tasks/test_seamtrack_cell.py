@@ -26,7 +26,7 @@ import pytest
 from droid.kinematics.transforms import T_to_pose
 from droid.brain.cell_layout import load_layout
 from droid.tasks.seam.report import COLUMNS
-from tests.brain.cellutil import ROOT, cell_status, droid
+from tests.brain.cellutil import ROOT, cell_status, droid, reaped
 
 pytestmark = pytest.mark.integration
 SEAMTRACK = "droid.tasks.seamtrack"
@@ -183,14 +183,9 @@ def start_tracking(cell, log):
 
 def test_sigint_stops_the_run_cleanly_and_says_so(homed_sim_cell, tmp_path):
     log = tmp_path / "int.csv"
-    proc = start_tracking(homed_sim_cell, log)
-    try:
+    with reaped(start_tracking(homed_sim_cell, log)) as proc:
         proc.send_signal(signal.SIGINT)
         out, err = proc.communicate(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
     assert proc.returncode == 130, err
     assert "stopped: interrupted (SIGINT)" in err
     assert "interrupted (SIGINT)" in out.splitlines()[0]
@@ -204,15 +199,10 @@ def test_a_reis_fault_stops_the_run_at_once_naming_the_arm_and_its_faults(homed_
     watchdog latches the amplifiers off); the tracker stops with exit 1 and one line naming
     arm1 and its faults, and still writes its log -- instead of commanding the dead arm."""
     log = tmp_path / "fault.csv"
-    proc = start_tracking(homed_sim_cell, log)
-    try:
+    with reaped(start_tracking(homed_sim_cell, log)) as proc:
         servo = next(r["pid"] for r in cell_status(homed_sim_cell) if r["name"] == "droid-servo arm1")
         os.kill(servo, signal.SIGKILL)
         out, err = proc.communicate(timeout=30)  # generous: the rule acts on the next 30 Hz cycle
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
     assert proc.returncode == 1, err
     stop = [ln for ln in err.splitlines() if "stopped: " in ln]
     assert len(stop) == 1 and "stopped: fault at " in stop[0] and "(arm1 faults: " in stop[0], err

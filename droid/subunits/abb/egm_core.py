@@ -57,7 +57,7 @@ Each heartbeat period (:meth:`EgmCore.cycle`, on the relayed tick):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, make_dataclass
 
 import numpy as np
 
@@ -65,6 +65,7 @@ from droid.brain.layouts import (CMD_OK, FAULT_BRAKING, FAULT_DEVICE, FAULT_LIMI
                                  HOMED, JOG_MODE, NORMAL_MODE)
 from droid.kinematics import RobotModel
 from droid.subunits.abb import egm_schema as es
+from droid.subunits.abb.egm_layout import COUNTERS
 
 N = 6
 #: a datagram longer than this is dropped unread [bytes] (an EgmRobot with every field is
@@ -87,21 +88,13 @@ _U32 = 0xFFFFFFFF
 _HALF = 1 << 31
 
 
-# Alike in shape only to other numeric dataclasses (the contact Gains): event counts.
-@dataclass
-class Counters:
-    """The link's counters (egm_layout.COUNTERS)."""
+#: one int field per counter of the EGM record, in its order (generated from egm_layout.COUNTERS)
+_CounterFields = make_dataclass("_CounterFields", [(name, int, 0) for name in COUNTERS])
 
-    accepted: int = 0
-    lost: int = 0
-    late: int = 0
-    duplicated: int = 0
-    reordered: int = 0
-    malformed: int = 0
-    oversized: int = 0
-    foreign: int = 0
-    reconnects: int = 0
-    replies: int = 0
+
+class Counters(_CounterFields):
+    """The link's counters: accepted, lost, late, duplicated, reordered, malformed, oversized,
+    foreign, reconnects, replies (the fields come from egm_layout.COUNTERS, the record's list)."""
 
     @property
     def dropped(self) -> int:
@@ -419,7 +412,7 @@ class EgmCore:
         """The EGM record's fields (egm_layout.EGM_STATUS) at ``now_ns``."""
         s = self.sample
         q, _ = self.target(now_ns)
-        f = {name: getattr(self.counters, name) for name in Counters.__dataclass_fields__}
+        f = {name: getattr(self.counters, name) for name in COUNTERS}
         f["updated_ns"] = now_ns
         if q is not None:
             f["target_deg"] = q

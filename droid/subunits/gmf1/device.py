@@ -11,6 +11,7 @@ from droid.brain.registry import DevicePackage, Driver, Program, Twin
 #: The encoder program's rate [Hz] (§4.2.5).
 ENCODER_HZ = 120.0
 
+# Alike in shape only to the Reis package's declaration: one DevicePackage each, its own programs.
 PACKAGE = DevicePackage(
     name="gmf1",
     description="GM Fanuc S400 over its KAREL serial server and CIO-QUAD04 encoder cards (thesis §4.2)",

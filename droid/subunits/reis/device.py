@@ -16,6 +16,7 @@ SERVO_HZ = 500.0
 #: The watchdog's kick rate [Hz] (§2.3).
 WATCHDOG_HZ = 50.0
 
+# Alike in shape only to the GMF1 package's declaration: one DevicePackage each, its own programs.
 PACKAGE = DevicePackage(
     name="reis",
     description="Reis Robotstar V15 motion controller on VME cards (thesis §4.1)",

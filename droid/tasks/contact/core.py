@@ -56,7 +56,7 @@ STOP_FT_STALE, STOP_ARM_FAULT, STOP_ARM_STALE = "ft stale", "arm fault", "arm st
 PHASES = ("approach", "settle", "path", "done")
 
 
-# Alike in shape only to other numeric dataclasses (ContactParams, ContactTrialConfig, EGM Counters).
+# Alike in shape only to other numeric dataclasses (contact_trial's ContactTrialConfig): the controller's gains.
 @dataclass(frozen=True)
 class Gains:
     """The controller's numbers (gains.toml; module docstring)."""
