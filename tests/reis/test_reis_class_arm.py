@@ -22,6 +22,7 @@ def test_both_arms_home_move_and_arrive_in_lockstep():
     arms = arms_from_cell(s, cell)
     assert set(arms) == {"arm1", "arm2"}
     a1, a2 = arms["arm1"], arms["arm2"]
+    assert cell.stale_ticks != 3 and a1.stale_ticks == a2.stale_ticks == cell.stale_ticks  # the cell's, not the default
     # each arm's servo, planner and plant read its own file
     assert a2.servo_params.home_switch_deg == tuple(a2.model.home_switch_deg)
     assert a2.servo_params.home_switch_deg != a1.servo_params.home_switch_deg

@@ -163,14 +163,16 @@ def arms_from_cell(sched: Scheduler, cell, seed: int | None = None) -> dict[str,
     Each arm reads its subunit's robot file and base; its plant carries the device table's
     world errors (``home_error_deg``, ``calibration_seed``, ``link_error_mm``,
     ``twist_error_deg``; droid.sim.reis.world) and its contact (``contact_workpiece``), and a device naming a different robot file
-    than its subunit is refused, as droid-sim refuses it.
+    than its subunit is refused, as droid-sim refuses it.  Its agents count the cell's
+    ``stale_ticks``, as in real time and as the cell's lockstep builder (:func:`build`) does.
     """
     arms = {}
     world_seed = int(cell.world.get("seed", 0)) if seed is None else seed
     for name, opts in cell.world.get("devices", {}).items():
         if not isinstance(opts, dict) or opts.get("type") != "reis_vme":
             continue
-        arm = arm_from_device(sched, cell, name, {k: v for k, v in opts.items() if k != "type"}, world_seed)
+        arm = arm_from_device(sched, cell, name, {k: v for k, v in opts.items() if k != "type"}, world_seed,
+                              cell.stale_ticks)
         arms[arm.name] = arm
     return arms
 
