@@ -159,6 +159,46 @@ def user_cell(tmp_path: Path) -> Path:
     return p
 
 
+def test_the_ft_sensor_biases_and_guards_its_arm_through_the_brain():
+    """droid-ft's whole cycle in lockstep (issue 25 item 3): its station calibrates from the twin's
+    page and starts the stream; a task's bias and over-force limit go through the Brain Command,
+    droid-remote and droid-agent; the guard sets FAULT_FORCE in arm1's own Status, and a
+    limit of 0 clears it, with the lines droid-ft would print."""
+    from droid.brain.layouts import FAULT_FORCE
+
+    with build_lockstep_cell(SIM) as lc:
+        ft, arm1 = lc.subunits["ft"], lc.subunits["arm1"].parts
+        lc.run_for(1.0)
+        st = ft.status.read()
+        assert int(st["valid"]) == 1 and int(st["biased"]) == 0
+        weight_n = float(np.linalg.norm(st["force_N"]))
+        assert weight_n > 5.0  # the torch hangs on the sensor: its weight, before the bias
+
+        def command(**fields) -> None:
+            with ft.command.locked() as c:
+                for k, v in fields.items():
+                    c[k] = v
+                c["cmd_id"] = int(c["cmd_id"]) + 1
+                c["sent"] = 1
+                ft.command.mark_written()
+
+        command(bias_id=1)
+        lc.run_for(0.5)
+        st = ft.status.read()
+        assert int(st["biased"]) == 1 and float(np.linalg.norm(st["force_N"])) < 0.05 * weight_n
+        assert not int(arm1.ctrl_status.read()["fault"]) & FAULT_FORCE
+        command(guard_force_n=1e-6)  # any reading is over it
+        lc.run_for(0.5)
+        assert int(arm1.ctrl_status.read()["fault"]) & FAULT_FORCE
+        command(guard_force_n=0.0)
+        lc.run_for(0.5)
+        assert not int(arm1.ctrl_status.read()["fault"]) & FAULT_FORCE
+        lines = ft.parts.lines
+        assert any(line.startswith("calibration:") for line in lines), lines
+        assert any("over-force guard tripped on arm1" in line for line in lines), lines
+        assert any("over-force guard clear on arm1" in line for line in lines), lines
+
+
 def test_a_users_cell_three_arms_two_joysticks_a_robot_file(tmp_path):
     with build_lockstep_cell(user_cell(tmp_path)) as lc:
         assert sorted(lc.subunits) == ["arm1", "arm2", "arm3", "joy_a", "joy_b"]

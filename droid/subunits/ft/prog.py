@@ -251,6 +251,36 @@ def set_guard_fault(arm_status, over: bool) -> None:
         arm_status.mark_written()
 
 
+class FtGuard:
+    """The over-force guard's shell (thesis §7.3; droid-ft's loop and lockstep's alike): each
+    cycle's fields through :attr:`rule` (:class:`FtCommandRule`), FAULT_FORCE set or cleared in
+    the guarded arm's Status (``arm_status``, its ``ctrl_status``; None: no guard) when the
+    verdict changes, with one line naming the arm, |F| [N] and the limit [N]."""
+
+    def __init__(self, rule: FtCommandRule, arm_status, arm_name: str | None, sub_name: str, log) -> None:
+        self.rule, self.arm_status, self.arm_name, self.sub_name, self.log = rule, arm_status, arm_name, sub_name, log
+        self.tripped = False
+        self.trips = 0  # times it tripped
+
+    def step(self, fields: dict) -> bool:
+        """The verdict on one cycle's ``fields`` (True: tripped, FAULT_FORCE set)."""
+        over = self.rule.over(fields)
+        if over != self.tripped and self.arm_status is not None:
+            set_guard_fault(self.arm_status, over)
+            self.trips += over
+            f = float(np.linalg.norm(fields["force_N"]))
+            self.log(f"{self.sub_name}: over-force guard {'tripped' if over else 'clear'} on {self.arm_name}: "
+                     f"|F| {f:.1f} N, limit {self.rule.limit_n:g} N{'' if fields['valid'] else ' (no valid reading)'}")
+        self.tripped = over
+        return over
+
+    def release(self) -> None:
+        """A clean stop: FAULT_FORCE cleared if this guard set it (a restart re-reads the guard at once)."""
+        if self.tripped and self.arm_status is not None:
+            set_guard_fault(self.arm_status, False)
+        self.tripped = False
+
+
 @run
 def main(argv=None) -> int:
     args, cell, sub = subunit_program(PROG, "Read a force/torque sensor (ATI Net F/T, RDT) into its "
@@ -264,8 +294,9 @@ def main(argv=None) -> int:
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
     timer = PeriodicTimer(int(round(1e9 / dev.url.rate_hz)))
     station = FtStation(dev, FtCore(opts.T_sensor_tool, cell.stale_ticks * cell.period_ns), int(RESTART_S * 1e9))
+    guard = FtGuard(station.rule, arm_status, opts.guard_arm, sub.name,
+                    lambda line: print(f"{PROG} {line}", file=sys.stderr, flush=True))
     cycles = 0
-    tripped = False
     try:
         status.update(**station.step(time.monotonic_ns(), command.read()))
         presence.ready()
@@ -276,19 +307,11 @@ def main(argv=None) -> int:
             cycles += 1
             fields = station.step(time.monotonic_ns(), command.read())
             status.update(**fields)
-            over = station.rule.over(fields)
-            if over != tripped and arm_status is not None:
-                set_guard_fault(arm_status, over)
-                f = float(np.linalg.norm(fields["force_N"]))
-                print(f"{PROG} {sub.name}: over-force guard {'tripped' if over else 'clear'} on "
-                      f"{opts.guard_arm}: |F| {f:.1f} N, limit {station.rule.limit_n:g} N"
-                      f"{'' if fields['valid'] else ' (no valid reading)'}", file=sys.stderr, flush=True)
-            tripped = over
+            guard.step(fields)
             presence.beat(0, cycles, timer.overruns, timer.lateness_max_ns, bad_frames=dev.stream.bad_datagrams)
     finally:
+        guard.release()
         if arm_status is not None:
-            if tripped:
-                set_guard_fault(arm_status, False)  # a clean stop; a restart re-reads the guard at once
             arm_status.close()
         close_all(dev, timer, command, status, presence)
     return 0
