@@ -24,6 +24,7 @@ import uuid
 from typing import Callable
 
 from droid.cli import RuntimeFailure
+from droid.experiments.jobs import Outcome
 
 #: How long to wait for the scheduler to answer [s] (the issue's bound: exit 1 within 10 s).
 CONNECT_TIMEOUT_S = 5.0
@@ -93,7 +94,6 @@ def run_on_dask(jobs: list, address: str, workers: int, run_job: Callable, done:
     """Submit every job, call ``done(job, outcome)`` as each finishes (a failed task: an error Outcome)."""
     from distributed import as_completed
 
-    from droid.experiments.cli import Outcome  # noqa: PLC0415 (the caller's type)
 
     client, cluster = connect(address, workers)
     try:
