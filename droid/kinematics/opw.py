@@ -60,7 +60,7 @@ WRIST_EPS = 1e-9
 _SIX = 6
 
 
-# Alike in shape only to other numeric dataclasses (tool_sensor's ToolReading): geometry, not a reading.
+# Alike in shape only to other numeric dataclasses (seam3d's ToolReading): geometry, not a reading.
 @dataclass(frozen=True)
 class OpwParams:
     """OPW geometry [mm] and the joint map ``q_opw = sign * q - offset`` [deg]."""

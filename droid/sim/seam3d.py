@@ -37,8 +37,22 @@ Renderers (each a pure function of a pose):
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
+
+# Alike in shape only to other numeric dataclasses (OpwParams): a reading, not geometry.
+@dataclass(frozen=True)
+class ToolReading:
+    """Deviation of the seam from a sensor-like frame (:meth:`Seam3D.measure`; the tool-tip
+    sensor's reading, droid.sim.mvs.tool_sensor): lateral and height offsets [mm] of the seam
+    foot in the frame, the seam's roll about the frame's z [rad] and its arc length s [mm]."""
+
+    lateral_mm: float
+    height_mm: float
+    roll_rad: float
+    s_mm: float
+
 
 #: Largest spacing [mm] of the samples along a curved piece (a 200 mm radius: 0.16 um chord error).
 SAMPLE_MM = 0.5
@@ -172,8 +186,6 @@ class Seam3D:
 
     def measure(self, T_W_F: np.ndarray):
         """The seam seen from frame F (tool_sensor.measure's reading), or None when it does not cross F's x-y plane."""
-        from droid.sim.mvs.tool_sensor import ToolReading
-
         t = np.asarray(T_W_F, float)
         s = self.crossing_s(t)
         if s is None:

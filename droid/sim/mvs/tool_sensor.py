@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from droid.sim.mvs.frames import apply, invert, rot_z, translation
+from droid.sim.seam3d import ToolReading  # noqa: F401 (the sensor's reading; defined beside Seam3D.measure)
 from droid.sim.workpiece import Workpiece
 
 #: The lead sensor's reading scatter through the camera chain at REFERENCE_JITTER_PX of stripe
@@ -45,17 +46,6 @@ SIGMA_ROLL_RAD = 0.0005
 #: Stop the search when the seam point is this close to the sheet [mm].
 TOLERANCE_MM = 1e-9
 MAX_ITERATIONS = 50
-
-
-# Alike in shape only to other numeric dataclasses (OpwParams): a reading, not geometry.
-@dataclass(frozen=True)
-class ToolReading:
-    """Deviation of the seam from a sensor-like frame (see the module docstring)."""
-
-    lateral_mm: float
-    height_mm: float
-    roll_rad: float
-    s_mm: float
 
 
 @dataclass(frozen=True)
