@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import ipaddress
 import math
 import os
 import re
@@ -357,6 +358,17 @@ def rate_hz(lo: float, hi: float) -> Callable[[str], float]:
     if not lo > 0:
         raise ValueError(f"a rate's lower limit must be > 0 Hz, got {lo!r}")
     return bounded_float(lo, hi, "Hz")
+
+
+def is_loopback(host: str) -> bool:
+    """``host`` (a name or an address) is this machine's loopback: the servers that show a cell
+    (droid-web, droid-foxglove) bind nothing else without a token."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
 
 
 def run(main: Callable[[Sequence[str] | None], int | None]) -> Callable[..., int]:

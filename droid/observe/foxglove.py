@@ -51,7 +51,7 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 
-from droid.cli import BadInput, DroidError, RuntimeFailure, rate_hz, run, tcp_port
+from droid.cli import BadInput, DroidError, RuntimeFailure, is_loopback, rate_hz, run, tcp_port
 from droid.observe.mcapfile import stamp
 from droid.observe.scene import WORKPIECE_BOX_MM, SceneBuilder, is_arm, quat
 
@@ -630,8 +630,6 @@ class TokenGate:
 
 def check_host(host: str, token: str | None) -> None:
     """droid-web's rule: loopback only unless a token is given (checked before anything binds)."""
-    from droid.observe.web import is_loopback
-
     if token is not None and (len(token) < 8 or not token.isprintable()):
         raise BadInput("--token must be at least 8 printable characters")
     if not is_loopback(host) and token is None:

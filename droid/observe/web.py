@@ -32,7 +32,6 @@ from __future__ import annotations
 import asyncio
 import errno
 import hmac
-import ipaddress
 import json
 import signal
 import sys
@@ -41,22 +40,13 @@ from pathlib import Path
 from aiohttp import WSMsgType, web
 
 from droid.brain.program import close_all, open_cell, parser
-from droid.cli import BadInput, DroidError, RuntimeFailure, rate_hz, run, tcp_port
+from droid.cli import BadInput, DroidError, RuntimeFailure, is_loopback, rate_hz, run, tcp_port
 from droid.observe.sources import FileSource, LiveSource
 
 PROG = "droid-web"
 STATIC = Path(__file__).resolve().parent / "static"
 DEFAULT_PORT = 8060
 DEFAULT_RATE_HZ = 30.0
-
-
-def is_loopback(host: str) -> bool:
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
 
 
 class WebApp:

@@ -137,9 +137,7 @@ class BuildContext:
     @property
     def world_hz(self) -> float:
         """The world's step rate [Hz]: the cell's ``[world] rate_hz`` (droid-sim's default 1 kHz)."""
-        from droid.sim.world import DEFAULT_RATE_HZ
-
-        return float(self._world.get("rate_hz", DEFAULT_RATE_HZ))
+        return float(self._world.get("rate_hz", self.rate_hz("droid-sim")))
 
     def world_devices(self, typ: str) -> dict[str, dict]:
         """The ``[world.devices.*]`` tables of ``type = typ`` (name -> options without type): the
