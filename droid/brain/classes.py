@@ -6,7 +6,7 @@ Command; the subunit side's own records), the fields ``droid-remote`` copies
 from the agent's reply into the Brain's Status, the fields ``droid-snoop``
 prints, and the drivers its programs open.  A class is declared by a device
 package (``droid/subunits/<pkg>/device.py``) and registered in the device
-registry (:mod:`droid.brain.registry`); :data:`CLASSES` is the registry's view.
+registry (:mod:`droid.brain.registry`; its view ``registry.classes()``).
 The Brain (databases, remote), ``droid-snoop`` and ``droid-cheader`` read it and
 never name a class.
 
@@ -85,24 +85,6 @@ LINE_LASER = SubunitClass(
     snoop_fields=("x", "y", "z", "R", "encoder_pos", "encoder_cmd", "busy", "homed", "cmd_mode", "fault",
                   "invalid", "valid_count", "invalid_count", "garbled_count"),
 )
-
-
-def __getattr__(name: str):
-    # CLASSES is a view of the device registry (droid.brain.registry): every class a
-    # cell file may name, whichever package defines it (PEP 562: computed on first use)
-    if name == "CLASSES":
-        from droid.brain.registry import classes
-
-        return classes()
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def subunit_class(name: str) -> SubunitClass:
-    """The class called ``name``; KeyError names the known ones."""
-    from droid.brain.registry import registry
-
-    reg = registry()
-    return reg.named("subunit class", name, reg.classes)
 
 
 def field_json(rec, name: str):

@@ -32,7 +32,7 @@ Every reference is a lazy ``"module:attr"`` string (python-can's
 ``droid.sim``; a device package's module is imported when the registry is
 first read, a program's, driver's or twin's module only when it is used.
 
-``droid.brain.classes.CLASSES``, ``droid.programs.PROGRAMS``,
+``classes()`` (class name -> SubunitClass), ``droid.programs.PROGRAMS``,
 ``droid.sim.world.DEVICE_TYPES``, ``droid.brain.rt.FIFO_PRIORITIES`` and
 ``droid.brain.layouts.LAYOUTS`` (the layouts of packages outside the
 repository are added to it) are views of this registry.
@@ -296,7 +296,7 @@ def _ep_origin(ep) -> str:
 
 _REGISTRY: Registry | None = None
 # the views: one dict object each, refilled in place by reset(), so a module that
-# imported one (from droid.brain.classes import CLASSES) keeps seeing the registry
+# imported one (from droid.programs import PROGRAMS) keeps seeing the registry
 CLASSES_VIEW: dict[str, SubunitClass] = {}
 PROGRAMS_VIEW: dict[str, str] = {}
 DEVICE_TYPES_VIEW: dict[str, tuple[str, str]] = {}
@@ -362,7 +362,8 @@ def metadata_cache_clear() -> None:
 
 
 def classes() -> dict[str, SubunitClass]:
-    """class name -> :class:`SubunitClass` (the view ``droid.brain.classes.CLASSES``)."""
+    """class name -> :class:`SubunitClass`: every class a cell file may name, whichever package
+    defines it (one dict, refilled in place when the registry is rebuilt)."""
     registry()
     return CLASSES_VIEW
 

@@ -16,7 +16,7 @@ import pytest
 
 from droid.brain import cheader
 from droid.brain.cellfile import load_cell
-from droid.brain.classes import CLASSES
+from droid.brain.registry import classes
 from droid.brain.layouts import FAULT_DEVICE, FT6_STATUS_LAYOUT, LAYOUTS, new_record
 from droid.cli import BadInput
 from droid.kinematics.transforms import pose_to_T
@@ -33,7 +33,7 @@ CAL = rdt.Calibration(1e6, 1e3, "N", "N-mm", "test")
 
 
 def test_ft6_is_a_class_with_its_layout_in_the_c_header_and_the_docs():
-    c = CLASSES["ft6"]
+    c = classes()["ft6"]
     assert c.brain["status"] is FT6_STATUS_LAYOUT and c.local["ctrl_status"] is FT6_STATUS_LAYOUT
     assert LAYOUTS[FT6_STATUS_LAYOUT.kind] is FT6_STATUS_LAYOUT
     names = FT6_STATUS_LAYOUT.dtype.names

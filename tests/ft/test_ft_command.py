@@ -9,7 +9,7 @@ import pytest
 
 from droid.brain import layouts as L
 from droid.brain.cellfile import load_cell
-from droid.brain.classes import CLASSES
+from droid.brain.registry import classes
 from droid.brain.shmdb import MemoryDatabase
 from droid.cli import BadInput
 from droid.kinematics import load_robot
@@ -31,7 +31,7 @@ def ft_command(**fields) -> bytes:
 
 
 def test_ft6_has_a_command_that_the_agent_copies_with_its_link_fields():
-    c = CLASSES["ft6"]
+    c = classes()["ft6"]
     assert c.brain["command"] is L.FT6_COMMAND_LAYOUT and c.local["ctrl_command"] is L.FT6_CTRL_COMMAND_LAYOUT
     assert not c.kinematic and not is_arm({"class": "ft6", "areas": {"status": 1, "command": 1}})
     assert is_arm({"class": "arm6r", "areas": {"status": 1, "command": 1}})

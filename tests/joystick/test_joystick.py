@@ -9,7 +9,7 @@ import pytest
 
 from droid.brain import cheader
 from droid.brain.cellfile import load_cell
-from droid.brain.classes import CLASSES
+from droid.brain.registry import classes
 from droid.brain.databases import brain_layouts, local_layouts
 from droid.brain import layouts as L
 from droid.brain.layouts import JOYSTICK_STATUS_LAYOUT, LAYOUTS, new_record
@@ -32,7 +32,7 @@ def js(ms, value, typ, number):
 
 
 def test_every_class_is_data_and_every_layout_is_known():
-    for c in CLASSES.values():
+    for c in classes().values():
         assert "status" in c.brain and "ctrl_status" in c.local
         for lay in (*c.brain.values(), *c.local.values()):
             assert LAYOUTS[lay.kind] is lay
@@ -187,7 +187,7 @@ def test_snoop_prints_axes_and_buttons():
     d = status_dict(cell.subunit("joy"), rec)
     assert d["axes"][:2] == [0.5, -0.25] and d["buttons"][3] == 1 and d["valid"] == 1
     assert "buttons [3]" in status_text(d)
-    arm = status_dict(cell.subunit("arm1"), new_record(CLASSES["arm6r"].brain["status"]))
+    arm = status_dict(cell.subunit("arm1"), new_record(classes()["arm6r"].brain["status"]))
     assert list(arm) == ["subunit", "tick", "stale", "x", "y", "z", "R", "encoder_pos", "encoder_cmd",
                          "busy", "homed", "cmd_mode", "fault"]
 
@@ -260,7 +260,7 @@ def test_the_class_table_names_the_drivers_the_url_table_opens():
 
     from droid.subunits.joystick.driver import DRIVERS
 
-    table = CLASSES["joystick"].drivers
+    table = classes()["joystick"].drivers
     assert set(table) == set(DRIVERS)
     for scheme, ref in table.items():
         module, name = ref.split(":")

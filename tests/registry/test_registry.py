@@ -146,11 +146,11 @@ gain = 2.0
 # -- the built-in table ----------------------------------------------------------------
 def test_builtin_packages_make_the_old_tables():
     from droid.brain import rt
-    from droid.brain.classes import CLASSES
+    from droid.brain.registry import classes
     from droid.programs import PROGRAMS
     from droid.sim.world import DEVICE_TYPES
 
-    assert set(CLASSES) == {"arm6r", "line_laser", "joystick", "ft6"}
+    assert set(classes()) == {"arm6r", "line_laser", "joystick", "ft6"}
     assert PROGRAMS["droid-servo"] == "droid.subunits.reis.servo_prog"
     assert DEVICE_TYPES["reis_vme"] == ("droid.sim.reis.world", "make_reis")
     assert {"reis_vme", "karel_s400", "fixed_arm", "mvs_camera", "tool_sensor", "serial_cable",
@@ -231,7 +231,8 @@ def test_open_url_names_the_known_schemes(url, kind, words):
 # -- a package outside the repository ------------------------------------------------------
 def test_an_external_package_brings_its_class_up(lab, tmp_path):
     from droid.brain import cheader
-    from droid.brain.classes import CLASSES, field_json
+    from droid.brain.classes import field_json
+    from droid.brain.registry import classes
     from droid.brain.cellfile import load_cell
     from droid.brain.launcher import cell_programs
     from droid.brain.layouts import LAYOUTS, new_record
@@ -241,7 +242,7 @@ def test_an_external_package_brings_its_class_up(lab, tmp_path):
     cell = load_cell(cell_text(tmp_path, "labcell", LAB_SUBUNIT, LAB_TWIN))
     R.validate_cell(cell)
     sub = cell.subunit("lab1")
-    assert sub.kind is CLASSES["labsensor"] and not sub.is_arm
+    assert sub.kind is classes()["labsensor"] and not sub.is_arm
     # droid-cheader writes its layout (with the offsets' static asserts)
     header = cheader.generate()
     assert "typedef struct droid_labsensor_status {" in header
