@@ -10,6 +10,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import trans
@@ -249,3 +251,24 @@ def test_chord_travel_follows_an_arc_and_never_decreases():
         last = guard.travel_mm
     assert last == pytest.approx(119.9, rel=0.01)
     assert guard.path_mm > 2.0 * last  # the per-cycle sum: more than twice the arc
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.sampled_from(["push", "keep"]),
+                          st.tuples(*[st.floats(-1e4, 1e4, allow_nan=False)] * 3), st.integers(0, 12)),
+                max_size=60))
+def test_the_patch_array_holds_the_same_values_as_its_points(ops):
+    """SeamPatch keeps its float64 array beside its points (issue 28 item 2): after any pushes and
+    cuts it is, bit for bit, what converting the points would give -- the thesis-mode search reads
+    the array instead of converting the list each cycle."""
+    from droid.tasks.seam.core import SeamPatch
+
+    patch = SeamPatch([(0.5, -1.25, 3.0)])
+    for op, point, n in ops:
+        if op == "push":
+            patch.push_front(point)
+        else:
+            patch.keep(n)
+        want = np.asarray(patch.points, float).reshape(-1, 3)
+        assert patch.array.shape == want.shape and patch.array.tobytes() == want.tobytes()
+        assert len(patch) == len(patch.points) and (not len(patch) or patch[0] == patch.points[0])

@@ -303,6 +303,36 @@ class TravelGuard:
         return self.chords_mm + open_mm
 
 
+class SeamPatch:
+    """The seam patch's positions (x, y, z) [mm], index 0 the newest (thesis §5.2: the seam from
+    below the camera back to the tool tip): the list of tuples the listing's walk reads
+    (``len``, ``patch[i]``), and the same values as one float64 array ``array`` (n x 3), kept
+    beside it as points arrive and leave, so thesis mode's search over the whole patch does not
+    convert the list every cycle (issue 28 item 2; the same values, the same bits)."""
+
+    __slots__ = ("points", "array")
+
+    def __init__(self, points=()) -> None:
+        self.points = [tuple(p) for p in points]
+        self.array = np.array(self.points, float).reshape(-1, 3)
+
+    def push_front(self, point: tuple) -> None:
+        """The newest position becomes index 0."""
+        self.points.insert(0, point)
+        self.array = np.concatenate((np.array((point,), float), self.array))
+
+    def keep(self, n: int) -> None:
+        """Drop everything from index ``n`` on (the oldest)."""
+        del self.points[n:]
+        self.array = self.array[:n]
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    def __getitem__(self, i):
+        return self.points[i]
+
+
 @dataclass
 class _State:
     cycle: int = 0
@@ -315,7 +345,7 @@ class _State:
     q_prev: np.ndarray | None = None
     hold_cmd: np.ndarray | None = None
     stop: TrackingStop | None = None
-    seam_pos: list = field(default_factory=list)  # positions (x, y, z) of the patch, index 0 newest
+    seam_pos: SeamPatch = field(default_factory=SeamPatch)  # positions (x, y, z) of the patch, index 0 newest
     seam_front: np.ndarray | None = None  # the newest patch frame (4x4)
     travel: TravelGuard | None = None  # set by SeamTracker from its parameters
 
@@ -404,7 +434,7 @@ class SeamTracker:
         s = self.s
         if s.first:  # seed the patch with the tool point (the listing's Treis7_gmf1)
             s.first = False
-            s.seam_pos = [tuple(self.Ttool7_hold[:3, 3])]
+            s.seam_pos = SeamPatch([tuple(self.Ttool7_hold[:3, 3])])
             s.seam_front = self.Ttool7_hold.copy()
         if s.dead_zone > 0:
             s.dead_zone -= 1
@@ -417,11 +447,11 @@ class SeamTracker:
         T6tool_hold = self.T6tool_hold if self._T6tool_hold_sensed is None else self._T6tool_hold_sensed
         frame = T6tool_hold @ self.Tcamera_6 @ self.Tmvs @ roty(pitch) @ rotx(yaw)
         # rotating the seam queue: seam[i+1] = seam[i] for i = tcp_idx .. 0, seam[0] = newest
-        s.seam_pos.insert(0, (float(frame[0, 3]), float(frame[1, 3]), float(frame[2, 3])))
+        s.seam_pos.push_front((float(frame[0, 3]), float(frame[1, 3]), float(frame[2, 3])))
         s.seam_front = frame
         s.tcp_idx += 1
         s.pushes += 1
-        del s.seam_pos[min(s.tcp_idx, self.p.max_queue + 1) + 1:]
+        s.seam_pos.keep(min(s.tcp_idx, self.p.max_queue + 1) + 1)
         return yaw, pitch
 
     def interpolate(self, vel_mm: float) -> np.ndarray:
@@ -455,7 +485,7 @@ class SeamTracker:
             dist = float(np.linalg.norm(d))
             out[:3, 3] = tool + (d * min(1.0, vel_mm / dist) if dist > 1e-9 else 0.0)
             return out
-        P = np.asarray(seam, float)  # index 0 newest
+        P = seam.array  # index 0 newest
         a, b = P[1:], P[:-1]  # segment j: from the older a[j] = seam[j+1] to the newer b[j] = seam[j]
         ab = b - a
         L2 = np.einsum("ij,ij->i", ab, ab)
