@@ -124,11 +124,13 @@ def resolve_cell_path(spec: str, base_dir: str | os.PathLike | None = None) -> P
 
 
 def _subunit(cell: Cell, layout: Layout, role: str):
+    """The subunit of ``cell`` that the layout names ``role`` (tool_robot, holder_robot); BadInput,
+    one line naming both files, when the cell has none of that name."""
     name = getattr(layout, role)
     if name not in cell.subunits:
         raise BadInput(f"{cell.path}: its layout {layout.source} names {role} {name!r}, a subunit the cell "
                        f"does not have (its subunits: {', '.join(sorted(cell.subunits))})")
-    return cell.subunit(name)
+    return cell.subunits[name]
 
 
 def _whole_builder(cell: Cell, layout: Layout, role: str, what: str, builders: dict):
