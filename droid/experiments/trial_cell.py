@@ -90,24 +90,26 @@ class TrialCell:
         its builder builds, homed and at the start pose -- then the holder, the ``holder_robot``
         -- a Gmf1Holder over the GMF1 its builder builds, at ``geo``'s holding pose; None for a
         fixed holder (no holder builder).  Each subunit is built with the trial's ``seed``."""
-        welder, holder = self.layout.tool_robot, self.layout.holder_robot
+        tool_robot, holder_robot = self.layout.tool_robot, self.layout.holder_robot
         if arm_model == "fast":
             from droid.experiments.arm_fast import FastArm
 
             arm = FastArm(geo.reis, geo.q_reis_start_deg, fast_params)
-            arm.name = welder  # the subunit the tracker's fault rule names
+            arm.name = tool_robot  # the subunit the tracker's fault rule names
         else:
             from droid.experiments.arm_full import FullArm
 
-            arm = FullArm(sched, geo.reis, geo.q_reis_start_deg, self.build(sched, welder, seed).arm)
+            welder = self.build(sched, tool_robot, seed)
+            arm = FullArm(sched, geo.reis, geo.q_reis_start_deg, welder.arm)
             arm.prepare()
-        if holder not in self.builders:
+        if holder_robot not in self.builders:
             return arm, None
         from droid.experiments.holder import Gmf1Holder
 
-        gmf1 = Gmf1Holder(sched, self.build(sched, holder, seed).parts, geo.q_hold_deg)
-        gmf1.prepare()
-        return arm, gmf1
+        gmf1 = self.build(sched, holder_robot, seed)
+        holder = Gmf1Holder(sched, gmf1.parts, geo.q_hold_deg)
+        holder.prepare()
+        return arm, holder
 
 
 def bundled_cells() -> list[str]:
