@@ -299,6 +299,16 @@ def check_bases(layout: Layout, cell) -> None:
                            f"[subunits.{name}] base")
 
 
+def check_robots(layout: Layout, cell) -> None:
+    """The layout's tool and holder robots have the robot files of ``cell``'s subunits (one arm,
+    one robot file: a layout's ``[robots]`` entry may be left out).  BadInput (one line) otherwise."""
+    for name in (layout.tool_robot, layout.holder_robot):
+        robot, sub = layout.robots.get(name), cell.subunit(name)
+        if robot is not None and robot != sub.robot:
+            raise BadInput(f"{cell.path}: [subunits.{name}] robot {sub.robot!r} differs from its layout "
+                           f"{layout.source}'s {robot!r}: one arm, one robot file")
+
+
 def layout_for_cell(cell, path: str | os.PathLike | None = None) -> Layout:
     """The seam-tracking layout of ``cell`` (:func:`layout_path_for`).  Raises BadInput."""
     return load_layout(layout_path_for(cell, path))

@@ -33,7 +33,7 @@ class FullArm:
 
     ``arm``: the lockstep arm its package's builder built on ``sched`` (an ArmChain: the Reis's
     :class:`~droid.sim.reis.cell.LockstepArm` or droid.sim.abb.lockstep.LockstepAbbArm; the trial
-    cell's welder, droid.experiments.trial_cell.welder_lockstep) whose robot model is ``model``."""
+    cell's welder, built by droid.experiments.trial_cell.TrialCell.build_arms) whose robot model is ``model``."""
 
     def __init__(self, sched: Scheduler, model, q_start_deg, arm) -> None:
         self.sched = sched

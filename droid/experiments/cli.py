@@ -430,14 +430,14 @@ def _trial_cell(args, picked: list) -> str:
     """``--cell``: the cell file's path, checked for every trial's arm and holder model before any
     runs (a missing file, a layout naming a subunit the cell lacks, a welder without a lockstep:
     one line, exit 2)."""
-    from droid.experiments.trial_cell import load_trial_cell, resolve_cell_path
+    from droid.experiments.trial_cell import resolve_cell_path, resolve_trial_cell
 
     if args.realtime:
         raise BadInput("--cell runs lockstep trials only: --realtime builds its own cell from the built-in one "
                        "(on a cell of your own: droid-cell up --cell FILE, then droid-seamtrack --cell FILE)")
     path = resolve_cell_path(args.cell)
     for arm, holder in sorted({(args.arm or e.config.arm, e.config.holder) for e in picked}):
-        load_trial_cell(path, arm, holder)
+        resolve_trial_cell(path, arm, holder)
     return str(path)
 
 

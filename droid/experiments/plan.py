@@ -438,10 +438,10 @@ def _plan_cell(data: dict, kind: str, source: str, plan_dir: Path):
         raise BadInput(f"plan {source}: cell = {_toml(value)}: applies to seam-tracking plans only")
     if not isinstance(value, str) or not value:
         raise BadInput(f"plan {source}: cell = {_toml(value)}: must be a cell file's path or a bundled cell's name")
-    from droid.experiments.trial_cell import load_trial_cell, resolve_cell_path
+    from droid.experiments.trial_cell import resolve_cell_path, resolve_trial_cell
 
     try:
-        return load_trial_cell(resolve_cell_path(value, plan_dir), "full", "gmf1")
+        return resolve_trial_cell(resolve_cell_path(value, plan_dir), "full", "gmf1")
     except BadInput as exc:
         raise BadInput(f"plan {source}: cell = {_toml(value)}: {exc}") from None
 
@@ -455,11 +455,11 @@ def _check_cell_for(cell, config, source: str, checked: set) -> None:
     """The plan's cell checked for a trial's arm and holder models (once a pair, kept in ``checked``)."""
     if cell is None or (config.arm, config.holder) in checked:
         return
-    from droid.experiments.trial_cell import check_trial_cell
+    from droid.experiments.trial_cell import resolve_trial_cell
 
     checked.add((config.arm, config.holder))
     try:
-        check_trial_cell(cell.cell, cell.layout, config.arm, config.holder)
+        resolve_trial_cell(cell.cell, config.arm, config.holder, cell.layout)
     except BadInput as exc:
         raise BadInput(f"plan {source}: cell: {exc}") from None
 

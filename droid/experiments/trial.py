@@ -58,8 +58,9 @@ import numpy as np
 
 from droid.cli import BadInput
 from droid.kinematics.transforms import inv_homo
-from droid.experiments.arm_fast import FastArm, FastArmParams
+from droid.experiments.arm_fast import FastArmParams
 from droid.experiments.geometry import TrialGeometry, trial_geometry
+from droid.experiments.trial_cell import resolve_trial_cell
 from droid.experiments.sensors import DEFAULT_NOISE, SENSOR_MODELS, LeadSensor, ToolTipSensor, tool_reading
 from droid.sim.lockstep import ORDER_DEVICE, ORDER_TASK, ORDER_WORLD, Scheduler
 from droid.sim.mvs.camera import CameraNoise
@@ -271,9 +272,29 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None,
               limit: ProgressLimit = ProgressLimit()) -> TrialResult:
     """Run one trial in lockstep and return its log (see the module docstring); ``record``: also
     write an MCAP recording of it there (droid.observe.lockstep, docs/observe.md); ``limit``: when
-    a trial the core has not ended times out (:class:`ProgressLimit`)."""
+    a trial the core has not ended times out (:class:`ProgressLimit`).
+
+    The config is read here, once (thesis §6.1): the trial's cell, resolved and checked
+    (trial_cell.resolve_trial_cell; ``layout`` instead of its own), the geometry of the position,
+    workpiece and wrist, the tracking core's parameters; from those values the welder and the
+    holder are built on the cell, then the tracking cycle, the two sensors and the recorder;
+    :class:`_LockstepTrial` runs the loop."""
     wall0 = time.perf_counter()
-    trial = _LockstepTrial(cfg, layout, record)
+    tc = resolve_trial_cell(cfg.cell, cfg.arm, cfg.holder, layout)
+    geo = trial_geometry(cfg.position, cfg.workpiece, cfg.wrist, tc.layout)
+    params = SeamParams(speed_mm_s=cfg.speed_mm_s, yaw_gain=cfg.yaw_gain, pitch_gain=cfg.pitch_gain,
+                        dead_zone_cycles=cfg.dead_zone_cycles, lost_cycles=cfg.lost_cycles,
+                        length_mm=cfg.length_mm if cfg.length_mm is not None else default_length_mm(geo),
+                        delay_cycles=cfg.delay_cycles, delay_at_mm=cfg.delay_at_mm,
+                        mode=cfg.mode, compliance=cfg.arm == "full")  # the fast arm's drives are rigid
+    sched = Scheduler(HEARTBEAT_HZ)
+    arm, holder = tc.build_arms(sched, geo, cfg.arm, cfg.seed, cfg.fast_params)
+    cyc = _tracking_cycle(params, geo, cfg.trial_id)
+    lead = LeadSensor(geo.workpiece, cfg.sensor, cfg.noise, seed=cfg.seed, frames_per_read=cyc.cycle_ticks)
+    tool_sensor = ToolTipSensor(lead.crossing, cfg.noise if cfg.tool_noise else CameraNoise(), seed=cfg.seed)
+    recorder = _recorder(record, cfg.trial_id, geo) if record is not None else None
+    trial = _LockstepTrial(sched, geo, arm, holder, cyc, (lead, tool_sensor), recorder,
+                           latency_cycles=cfg.latency_cycles, holder_mm_s=cfg.holder_mm_s)
     trial.run(limit)
     result = trial.finish()
     result.config = cfg
@@ -281,55 +302,48 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None,
     return result
 
 
-class _LockstepTrial:
-    """One trial's world on a 60 Hz scheduler (the module docstring's table): the welder and the
-    holder, the lead and tool-tip sensors, the tracking station, and the tick callbacks that join
-    them -- arm, then sensors, then the task within each tick.  It keeps of its TrialConfig only
-    the few values its ticks read (the speed, the latency, the holder's drift); run_trial puts
-    the config into the result."""
+def _recorder(record: str, trial_id: str, geo: TrialGeometry):
+    """The MCAP recorder of the trial (droid.observe.lockstep, docs/observe.md) into file ``record``."""
+    from droid.observe.lockstep import TrialRecorder
+    from droid.sim.workpiece_mesh import workpiece_mesh
 
-    def __init__(self, cfg: TrialConfig, layout=None, record: str | None = None) -> None:
-        tc = _trial_cell(cfg.cell, cfg.arm, cfg.holder, layout)
-        geo = self.geo = trial_geometry(cfg.position, cfg.workpiece, cfg.wrist, tc.layout)
+    lay, mesh = geo.layout, workpiece_mesh(geo.workpiece)
+    return TrialRecorder(record, trial_id, geo.reis, geo.fanuc, geo.wrist.T_wcp_tool, geo.wrist.T_wcp_sensor,
+                         geo.T_hold6_W, geo.q_hold_deg, geo.T_global_hold6, workpiece_mesh=mesh,
+                         names=(lay.tool_robot, lay.holder_robot, lay.sensor, "tool"))
+
+
+class _LockstepTrial:
+    """One trial's loop on a 60 Hz scheduler (the module docstring's table): the welder and the
+    holder, the lead and tool-tip sensors, the tracking station on ``cyc``, and the tick callbacks
+    that join them -- arm, then sensors, then the task within each tick.  It is handed what
+    run_trial made of the config: ``geo``, the geometry; ``holder``, None for a fixed one;
+    ``sensors``, the lead and the tool-tip sensor; ``recorder``, or None; the lead readings'
+    extra latency [30 Hz cycles] and the holder's drift [mm/s]; the run length and the speed
+    are the tracking core's (``cyc.params``)."""
+
+    def __init__(self, sched: Scheduler, geo: TrialGeometry, arm, holder, cyc: TrackingCycle, sensors: tuple,
+                 recorder, *, latency_cycles: int, holder_mm_s) -> None:
+        self.sched, self.geo, self.arm, self.holder, self.cyc, self.recorder = sched, geo, arm, holder, cyc, recorder
+        self.lead, self.tool_sensor = sensors
         self.L = geo.camera_to_tcp_mm
-        self.length = cfg.length_mm if cfg.length_mm is not None else default_length_mm(geo)
-        self.speed_mm_s, self.latency_cycles = cfg.speed_mm_s, cfg.latency_cycles
-        params = _seam_params(cfg, self.length)
-        self.sched = Scheduler(HEARTBEAT_HZ)
-        self.arm = _welder(cfg.arm, cfg.seed, cfg.fast_params, geo, self.sched, tc)
-        self.holder = _holder(cfg.holder, cfg.seed, geo, self.sched, tc)
-        self.cyc = _tracking_cycle(params, geo, cfg.trial_id)
-        self.lead = LeadSensor(geo.workpiece, cfg.sensor, cfg.noise, seed=cfg.seed,
-                               frames_per_read=self.cyc.cycle_ticks)
-        self.tool_sensor = ToolTipSensor(self.lead.crossing, cfg.noise if cfg.tool_noise else CameraNoise(),
-                                         seed=cfg.seed)
+        self.length, self.speed_mm_s = cyc.params.length_mm, cyc.params.speed_mm_s
+        self.latency_cycles = latency_cycles
         self.result = TrialResult(None, camera_to_tcp_mm=self.L)  # its config: run_trial's
         self.T_hold0 = geo.T_global_hold6
-        self.v_hold = np.asarray(cfg.holder_mm_s, float)
+        self.v_hold = np.asarray(holder_mm_s, float)
         self.moving_holder = bool(np.any(self.v_hold != 0.0))
         self.T_wcp_sensor, self.T_wcp_tool = geo.wrist.T_wcp_sensor, geo.wrist.T_wcp_tool
         self.T_W_hold6 = inv_homo(geo.T_hold6_W)  # the holder's wrist-centre frame -> the workpiece frame W
-        self.t0_tick = self.sched.tick
-        self.ct, self.lt = self.cyc.cycle_ticks, self.cyc.log_ticks
+        self.t0_tick = sched.tick
+        self.ct, self.lt = cyc.cycle_ticks, cyc.log_ticks
         self.state = {"lead": INVALID_READING, "lead_tick": 0, "tool": None, "tool_tick": 0, "out": None,
                       "done": False, "T_hold": self.T_hold0, "T_W_g": inv_homo(self.T_hold0 @ geo.T_hold6_W)}
         self.in_flight: deque = deque()  # (reading, Status tick) of the constant extra latency
-        self.recorder = self._recorder(record, cfg.trial_id) if record is not None else None
-        self.station = SeamtrackStation(self.cyc, HEARTBEAT_HZ, first_cycle_tick=self.t0_tick + self.ct,
+        self.station = SeamtrackStation(cyc, HEARTBEAT_HZ, first_cycle_tick=self.t0_tick + self.ct,
                                         first_log_tick=self.t0_tick + 1)
-        self.t_start = self.sched.t_ns / 1e9
+        self.t_start = sched.t_ns / 1e9
         self.T_hold_start = self.T_hold0
-
-    def _recorder(self, record: str, trial_id: str):
-        """The MCAP recorder of the trial (droid.observe.lockstep, docs/observe.md)."""
-        from droid.observe.lockstep import TrialRecorder
-        from droid.sim.workpiece_mesh import workpiece_mesh
-
-        geo, lay = self.geo, self.geo.layout
-        return TrialRecorder(record, trial_id, geo.reis, geo.fanuc, self.T_wcp_tool, self.T_wcp_sensor,
-                             geo.T_hold6_W, geo.q_hold_deg, self.T_hold0,
-                             workpiece_mesh=workpiece_mesh(geo.workpiece),
-                             names=(lay.tool_robot, lay.holder_robot, lay.sensor, "tool"))
 
     def hold_at(self, k: int) -> None:
         """The holder's pose at trial tick k: the GMF1's Status pose (the tracker's) and its true
@@ -460,26 +474,6 @@ class _LockstepTrial:
         return result
 
 
-def _trial_cell(cell: str | None, arm_model: str, holder_model: str, layout=None):
-    """The trial's cell (trial_cell.TrialCell: the cell file ``cell`` -- None: the built-in cell --
-    its layout, or ``layout`` when given, and its welder's builder), checked before anything runs."""
-    from droid.experiments.trial_cell import builtin_trial_cell, check_trial_cell, load_trial_cell
-
-    if cell is None:
-        tc = builtin_trial_cell(arm_model, holder_model)
-    else:
-        tc = load_trial_cell(cell, arm_model, holder_model)
-    return tc if layout is None else check_trial_cell(tc.cell, layout, arm_model, holder_model)
-
-
-def _seam_params(cfg: TrialConfig, length_mm: float) -> SeamParams:
-    """The tracking core's parameters of the trial (a run of ``length_mm``)."""
-    return SeamParams(speed_mm_s=cfg.speed_mm_s, yaw_gain=cfg.yaw_gain, pitch_gain=cfg.pitch_gain,
-                      dead_zone_cycles=cfg.dead_zone_cycles, lost_cycles=cfg.lost_cycles,
-                      length_mm=length_mm, delay_cycles=cfg.delay_cycles, delay_at_mm=cfg.delay_at_mm,
-                      mode=cfg.mode, compliance=cfg.arm == "full")  # the fast arm's drives are rigid
-
-
 def _tracking_cycle(params: SeamParams, geo: TrialGeometry, trial_id: str) -> TrackingCycle:
     """The tracking cycle of ``params`` (BadInput naming the trial when they do not fit)."""
     try:
@@ -487,34 +481,6 @@ def _tracking_cycle(params: SeamParams, geo: TrialGeometry, trial_id: str) -> Tr
                              heartbeat_hz=HEARTBEAT_HZ)
     except ValueError as exc:
         raise BadInput(f"trial {trial_id}: {exc}") from None
-
-
-def _welder(model: str, seed: int, fast_params: FastArmParams, geo: TrialGeometry, sched: Scheduler, tc):
-    """The welder, the trial cell ``tc``'s tool_robot: ``fast``, a FastArm; ``full``, a FullArm
-    over the arm its builder builds, homed and at the start pose."""
-    if model == "fast":
-        arm = FastArm(geo.reis, geo.q_reis_start_deg, fast_params)
-        arm.name = tc.layout.tool_robot  # the subunit the tracker's fault rule names
-        return arm
-    from droid.experiments.arm_full import FullArm
-    from droid.experiments.trial_cell import welder_lockstep
-
-    arm = FullArm(sched, geo.reis, geo.q_reis_start_deg, welder_lockstep(sched, tc, seed))
-    arm.prepare()
-    return arm
-
-
-def _holder(model: str, seed: int, geo: TrialGeometry, sched: Scheduler, tc):
-    """The holder, the trial cell ``tc``'s holder_robot: ``gmf1``, a Gmf1Holder over the GMF1 its
-    builder builds, at the holding pose; ``fixed``: None."""
-    if model != "gmf1":
-        return None
-    from droid.experiments.holder import Gmf1Holder
-    from droid.experiments.trial_cell import holder_lockstep
-
-    holder = Gmf1Holder(sched, holder_lockstep(sched, tc, seed), geo.q_hold_deg)
-    holder.prepare()
-    return holder
 
 
 def _row(t_s: float, lead: Reading, tool, out, L: float, s_of) -> tuple:

@@ -13,11 +13,12 @@ must stand for no program the subunit does not run (the builder's own ``@builds`
 * the holder's (``holder = "gmf1"``), :func:`holder_builder`: the GMF1's;
 * anything else: one line naming the file, the subunit and what a lockstep arm needs.
 
-Both are built by those builders (:func:`welder_lockstep`, :func:`holder_lockstep`) with the
-trial's seed, the cell's ``stale_ticks`` and the trial's own world (:func:`trial_world`) instead
-of the cell's world-device tables.  A trial without a cell file runs on the built-in cell
-(droid/cells/sim.toml, whatever $DROID_CELL says; :func:`builtin_trial_cell`): the Reis ``arm1``
-and the GMF1 ``gmf1``.
+:func:`resolve_trial_cell` reads and checks all of it once, before anything runs, into a
+:class:`TrialCell`, whose :meth:`TrialCell.build` builds each subunit with its builder
+(droid.sim.lockstep_cell.build_subunits) with the trial's seed, the cell's ``stale_ticks`` and
+the trial's own world (:func:`trial_world`) instead of the cell's world-device tables.  A trial
+without a cell file runs on the built-in cell (droid/cells/sim.toml, whatever $DROID_CELL says;
+:func:`builtin_cell`): the Reis ``arm1`` and the GMF1 ``gmf1``.
 
 The ``fast`` arm model is the Reis's (calibrated against its servo and plant,
 droid.experiments.arm_fast): a welder that is not a Reis with ``arm = "fast"`` is refused.  The
@@ -34,7 +35,7 @@ from droid.brain.cellfile import BUNDLED_CELLS, Cell, builtin_cell_path, find_fi
 from droid.brain.device import HEARTBEAT_HZ
 from droid.brain.wire import LIVENESS_TICKS
 from droid.cli import BadInput
-from droid.brain.cell_layout import Layout, check_bases, layout_for_cell
+from droid.brain.cell_layout import Layout, check_bases, check_robots, layout_for_cell
 
 
 
@@ -58,16 +59,57 @@ def holder_builder():
 
 @dataclass(frozen=True)
 class TrialCell:
-    """A checked cell of a trial: the cell, its layout and its welder's lockstep builder."""
+    """A checked cell of a trial (thesis §6.1: the Reis welds, the GMF1 holds), resolved once by
+    :func:`resolve_trial_cell`: the cell, its layout (which subunit welds, ``tool_robot``; which
+    holds, ``holder_robot``), the lockstep builder of each subunit the trial builds, and the
+    trial's own ``[world]`` table those builders read (:func:`trial_world`)."""
 
     cell: Cell
     layout: Layout
-    welder: object  # its tool_robot's lockstep builder (one of welder_builders())
+    builders: dict  # subunit name -> its lockstep builder: the welder's; the holder's (gmf1 holder only)
+    world: dict
 
     @property
     def reis(self) -> bool:
         """Whether the welder is the Reis (the ``fast`` arm model's)."""
-        return welder_builders()[self.welder] == "the Reis"
+        return welder_builders()[self.builders[self.layout.tool_robot]] == "the Reis"
+
+    def build(self, sched, name: str, seed: int):
+        """Subunit ``name`` (the welder or the holder) on ``sched``, built by its builder
+        (lockstep_cell.build_subunits) in the trial's world with the trial's ``seed`` and the cell's
+        ``stale_ticks``: a LockstepSubunit (the welder's ``arm``, an ArmChain; the GMF1's ``parts``,
+        a Gmf1Lockstep)."""
+        from droid.sim.lockstep_cell import build_subunits
+
+        return build_subunits(sched, self.cell, {name: self.builders[name]}, seed, world=self.world)[name]
+
+    def build_arms(self, sched, geo, arm_model: str, seed: int, fast_params):
+        """The trial's welder and holder on ``sched``, ready at the start (thesis §6.1.1-6.1.2):
+        the welder, the ``tool_robot`` -- ``fast``: a FastArm (droid.experiments.arm_fast, the
+        Reis model at ``geo``'s start pose with ``fast_params``); ``full``: a FullArm over the arm
+        its builder builds, homed and at the start pose -- then the holder, the ``holder_robot``
+        -- a Gmf1Holder over the GMF1 its builder builds, at ``geo``'s holding pose; None for a
+        fixed holder (no holder builder).  Each subunit is built with the trial's ``seed``."""
+        tool_robot, holder_robot = self.layout.tool_robot, self.layout.holder_robot
+        if arm_model == "fast":
+            from droid.experiments.arm_fast import FastArm
+
+            arm = FastArm(geo.reis, geo.q_reis_start_deg, fast_params)
+            arm.name = tool_robot  # the subunit the tracker's fault rule names
+        else:
+            from droid.experiments.arm_full import FullArm
+
+            welder = self.build(sched, tool_robot, seed)
+            arm = FullArm(sched, geo.reis, geo.q_reis_start_deg, welder.arm)
+            arm.prepare()
+        if holder_robot not in self.builders:
+            return arm, None
+        from droid.experiments.holder import Gmf1Holder
+
+        gmf1 = self.build(sched, holder_robot, seed)
+        holder = Gmf1Holder(sched, gmf1.parts, geo.q_hold_deg)
+        holder.prepare()
+        return arm, holder
 
 
 def bundled_cells() -> list[str]:
@@ -84,11 +126,13 @@ def resolve_cell_path(spec: str, base_dir: str | os.PathLike | None = None) -> P
 
 
 def _subunit(cell: Cell, layout: Layout, role: str):
+    """The subunit of ``cell`` that the layout names ``role`` (tool_robot, holder_robot); BadInput,
+    one line naming both files, when the cell has none of that name."""
     name = getattr(layout, role)
     if name not in cell.subunits:
         raise BadInput(f"{cell.path}: its layout {layout.source} names {role} {name!r}, a subunit the cell "
                        f"does not have (its subunits: {', '.join(sorted(cell.subunits))})")
-    return cell.subunit(name)
+    return cell.subunits[name]
 
 
 def _whole_builder(cell: Cell, layout: Layout, role: str, what: str, builders: dict):
@@ -114,74 +158,47 @@ def _whole_builder(cell: Cell, layout: Layout, role: str, what: str, builders: d
     raise BadInput(f"{where} has no lockstep {what}: it runs {runs}; a lockstep {what} needs {needs}")
 
 
-def _check_robots(cell: Cell, layout: Layout) -> None:
-    for name in (layout.tool_robot, layout.holder_robot):
-        robot, sub = layout.robots.get(name), cell.subunit(name)
-        if robot is not None and robot != sub.robot:
-            raise BadInput(f"{cell.path}: [subunits.{name}] robot {sub.robot!r} differs from its layout "
-                           f"{layout.source}'s {robot!r}: one arm, one robot file")
-
-
-def check_trial_cell(cell: Cell, layout: Layout, arm_model: str = "full", holder: str = "gmf1") -> TrialCell:
-    """Everything a trial on ``cell`` needs, checked before anything runs (see the module
-    docstring); BadInput, one line, otherwise."""
+def resolve_trial_cell(cell: str | os.PathLike | Cell | None = None, arm_model: str = "full",
+                       holder: str = "gmf1", layout: Layout | None = None) -> TrialCell:
+    """The cell of a trial, read and checked once before anything runs (see the module
+    docstring): ``cell`` a cell file's path, a parsed Cell, or None -- the built-in cell
+    (:func:`builtin_cell`); its layout, or ``layout`` when given.  BadInput, one line, otherwise."""
+    cell = builtin_cell() if cell is None else cell if isinstance(cell, Cell) else load_cell(cell)
+    layout = layout_for_cell(cell) if layout is None else layout
     if cell.heartbeat_hz != HEARTBEAT_HZ:
         raise BadInput(f"{cell.path}: heartbeat_hz {cell.heartbeat_hz:g}: the lockstep trial runs at "
                        f"{HEARTBEAT_HZ:g} Hz (its 30 Hz tracking cycle is 2 ticks)")
-    tc = TrialCell(cell, layout, _whole_builder(cell, layout, "tool_robot", "arm", welder_builders()))
+    builders = {layout.tool_robot: _whole_builder(cell, layout, "tool_robot", "arm", welder_builders())}
     if holder == "gmf1":
-        _whole_builder(cell, layout, "holder_robot", "holder", {holder_builder(): "the GMF1"})
+        builders[layout.holder_robot] = _whole_builder(cell, layout, "holder_robot", "holder",
+                                                       {holder_builder(): "the GMF1"})
     else:
         _subunit(cell, layout, "holder_robot")
     check_bases(layout, cell)
-    _check_robots(cell, layout)
+    check_robots(layout, cell)
+    tc = TrialCell(cell, layout, builders, trial_world(layout.holder_robot))
     if arm_model == "fast" and not tc.reis:
         raise BadInput(f"{cell.path}: [subunits.{layout.tool_robot}] is not a Reis: the fast arm model is "
                        f"the Reis's (calibrated against its servo); use the full model (--arm full)")
     return tc
 
 
-def load_trial_cell(path: str | os.PathLike, arm_model: str = "full", holder: str = "gmf1") -> TrialCell:
-    """Read a cell file and its layout and check them for a trial (:func:`check_trial_cell`)."""
-    cell = load_cell(path)
-    return check_trial_cell(cell, layout_for_cell(cell), arm_model, holder)
-
-
-def builtin_trial_cell(arm_model: str = "full", holder: str = "gmf1") -> TrialCell:
+def builtin_cell() -> Cell:
     """The cell of a trial without a cell file: the built-in cell (droid/cells/sim.toml, whatever
     $DROID_CELL says) with the cell file's default ``stale_ticks`` (LIVENESS_TICKS, the thesis's 3)
     for its 12 -- the arms such a trial always ran: sim.toml's 12 is set against this host's
     real-time stalls, which virtual time has none of, and a fault's order in the Status (a dead
     servo: the servo agent's fault before the watchdog's) follows it."""
-    cell = replace(load_cell(builtin_cell_path()), stale_ticks=LIVENESS_TICKS)
-    return check_trial_cell(cell, layout_for_cell(cell), arm_model, holder)
+    return replace(load_cell(builtin_cell_path()), stale_ticks=LIVENESS_TICKS)
 
 
-def trial_world(tc: TrialCell) -> dict:
+def trial_world(holder_robot: str) -> dict:
     """The trial's own ``[world]`` table, which its subunits' builders read instead of the cell's
     (droid.sim.lockstep_build.BuildContext.world): no world device for the welder -- a Reis
     without world errors or contacts, the arm the ``full`` model always ran (the ABB's builder
     reads its ``abb_egm`` controller twin from the cell) -- and the holder's twin
-    (droid.experiments.holder.holder_device) stepped at the holder's world rate."""
+    (droid.experiments.holder.holder_device) of subunit ``holder_robot``, stepped at the holder's
+    world rate."""
     from droid.experiments.holder import WORLD_HZ, holder_device
 
-    return {"rate_hz": WORLD_HZ, "devices": {"trial_holder": holder_device(tc.layout.holder_robot)}}
-
-
-def _built(sched, tc: TrialCell, name: str, seed: int):
-    from droid.sim.lockstep_cell import build_subunits
-
-    return build_subunits(sched, tc.cell, [name], seed, world=trial_world(tc))[name]
-
-
-def welder_lockstep(sched, tc: TrialCell, seed: int):
-    """The welder's lockstep arm on ``sched`` (an ArmChain: LockstepArm or LockstepAbbArm), built
-    by its package's builder (lockstep_cell.build_subunits) in the trial's world
-    (:func:`trial_world`) with the trial's ``seed`` and the cell's ``stale_ticks``."""
-    return _built(sched, tc, tc.layout.tool_robot, seed).arm
-
-
-def holder_lockstep(sched, tc: TrialCell, seed: int):
-    """The holder's Gmf1Lockstep on ``sched``, built by the GMF1 package's builder in the trial's
-    world (:func:`trial_world`) with the trial's ``seed``."""
-    return _built(sched, tc, tc.layout.holder_robot, seed).parts
+    return {"rate_hz": WORLD_HZ, "devices": {"trial_holder": holder_device(holder_robot)}}

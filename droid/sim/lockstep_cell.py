@@ -120,15 +120,15 @@ def build_lockstep_cell(cell_or_path: Cell | str | os.PathLike | None, seed: int
     return LockstepCell(cell, ctx.sched, {n: ctx.built[n] for n in cell.subunits})
 
 
-def build_subunits(sched: Scheduler, cell: Cell, names, seed: int, *, world: dict | None = None) -> dict[str, LockstepSubunit]:
-    """Only the subunits ``names`` of ``cell`` (already checked by the caller), in that order, on
-    ``sched`` -- a task's own scheduler at the cell's heartbeat -- each through the builder
-    :func:`choose_builder` picks; ``seed``: the context's; ``world``: a ``[world]`` table instead of
-    the cell's (:class:`~droid.sim.lockstep_build.BuildContext`).  What a builder defers
-    (``ctx.after``) runs once all are built."""
-    chosen = [(sub, choose_builder(cell, sub)) for sub in (cell.subunit(n) for n in names)]
+def build_subunits(sched: Scheduler, cell: Cell, chosen: dict[str, Callable], seed: int, *,
+                   world: dict | None = None) -> dict[str, LockstepSubunit]:
+    """Only the subunits of ``cell`` that ``chosen`` names (subunit name -> its builder, chosen and
+    checked by the caller: :func:`choose_builder`), in that order, on ``sched`` -- a task's own
+    scheduler at the cell's heartbeat; ``seed``: the context's; ``world``: a ``[world]`` table
+    instead of the cell's (:class:`~droid.sim.lockstep_build.BuildContext`).  What a builder
+    defers (``ctx.after``) runs once all are built."""
     ctx = BuildContext(sched, cell, seed, world=world)
-    _build_all(ctx, chosen)
+    _build_all(ctx, [(cell.subunit(name), build) for name, build in chosen.items()])
     return dict(ctx.built)
 
 
