@@ -336,8 +336,8 @@ static PyObject *py_matvec(PyObject *self, PyObject *const *args, Py_ssize_t nar
  * state: float64 (2, n) -- the integrals (updated) and the previous errors (updated);
  * first: true when there is no previous error (after a reset: no derivative kick);
  * errors: the n errors [counts] (a sequence of ints or floats).
- * Returns the n limited outputs [DAC counts]: floats, or Python ints rounded half to even
- * (ServoCore.step's round()) when ``rounded``.  Pid.step's arithmetic, in its order. */
+ * Returns the n limited outputs [DAC counts]: a list of floats, or a tuple of Python ints rounded
+ * half to even (ServoCore.step's round()) when ``rounded``.  Pid.step's arithmetic, in its order. */
 static PyObject *pid_step(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
     if (nargs != 5) {
@@ -385,7 +385,7 @@ static PyObject *pid_step(PyObject *self, PyObject *const *args, Py_ssize_t narg
     const double *kp = g, *ki = g + n, *kd = g + 2 * n, *lim_ = g + 3 * n;
     double lo = g[4 * n], hi = g[4 * n + 1];
     double *integral = st, *prev = st + n;
-    PyObject *out = PyTuple_New(n);
+    PyObject *out = rounded ? PyTuple_New(n) : PyList_New(n);  /* as Pid.step_rounded / Pid.step */
     if (out == NULL) {
         release(&bs);
         return NULL;
@@ -421,7 +421,10 @@ static PyObject *pid_step(PyObject *self, PyObject *const *args, Py_ssize_t narg
             release(&bs);
             return NULL;
         }
-        PyTuple_SET_ITEM(out, j, v);
+        if (rounded)
+            PyTuple_SET_ITEM(out, j, v);
+        else
+            PyList_SET_ITEM(out, j, v);
     }
     for (Py_ssize_t j = 0; j < n; j++)
         prev[j] = e_now[j];

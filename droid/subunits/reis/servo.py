@@ -65,7 +65,8 @@ class ServoStatus:
 class ServoCore:
     """Six-joint servo: queue + cache, planner, braking, PID, homing.  No I/O."""
 
-    def __init__(self, params: ServoParams | None = None):
+    def __init__(self, params: ServoParams | None = None, *, kernel: str | None = None):
+        """``kernel``: "c" or "python" overrides ``DROID_KERNEL`` for the PID (droid.kernel; tests)."""
         p = self.params = params if params is not None else ServoParams()
         self._tmin = np.asarray(p.target_min_counts, np.int64)
         self._tmax = np.asarray(p.target_max_counts, np.int64)
@@ -77,6 +78,7 @@ class ServoCore:
             p.integral_limit_dac,
             p.dac_min_counts,
             p.dac_max_counts,
+            kernel=kernel,
         )
         self._homing = Homing(p)
         self._mode = Mode.NORMAL  # hold position until told otherwise (thesis: waits for HOME)
@@ -293,7 +295,7 @@ class ServoCore:
             self._pid.reset()
             self._dac = (0,) * N
             return self._dac
-        self._dac = tuple(map(round, self._pid.step(error)))
+        self._dac = self._pid.step_rounded(error)
         return self._dac
 
     def _read_encoders(self, encoders_raw, periods: int = 1) -> None:
