@@ -432,6 +432,115 @@ static PyObject *pid_step(PyObject *self, PyObject *const *args, Py_ssize_t narg
     return out;
 }
 
+/* -- the servo tick's integer parts (droid/subunits/reis/servo.py, vme.py) ------------------------- */
+/* extend_counters(pos, raw, span, max_step, out) -> jumped
+ * ServoCore._read_encoders: the six 16-bit counters ``raw`` [counts] extended to unbounded counts
+ * from the last positions ``pos`` (int64) into ``out`` (int64); True if one moved more than
+ * ``max_step`` counts (an encoder jump, thesis §4.1.5.1's sanity check). */
+static PyObject *extend_counters(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 5) {
+        PyErr_SetString(PyExc_TypeError, "extend_counters takes 5 arguments");
+        return NULL;
+    }
+    long long span = PyLong_AsLongLong(args[2]), jump = PyLong_AsLongLong(args[3]);
+    if (PyErr_Occurred())
+        return NULL;
+    if (span <= 0 || span > (1LL << 32)) {
+        PyErr_SetString(PyExc_ValueError, "extend_counters: span out of range");
+        return NULL;
+    }
+    PyObject *seq = PySequence_Fast(args[1], "extend_counters: raw must be a sequence");
+    if (seq == NULL)
+        return NULL;
+    if (PySequence_Fast_GET_SIZE(seq) != N) {
+        PyErr_Format(PyExc_ValueError, "need %d encoder values, got %zd", N, PySequence_Fast_GET_SIZE(seq));
+        Py_DECREF(seq);
+        return NULL;
+    }
+    long long raw[N];
+    for (int j = 0; j < N; j++) {
+        PyObject *o = PySequence_Fast_GET_ITEM(seq, j);
+        PyObject *i = PyNumber_Long(o);  /* int(x), as the Python reference does */
+        raw[j] = i ? PyLong_AsLongLong(i) : -1;
+        Py_XDECREF(i);
+        if (i == NULL || (raw[j] == -1 && PyErr_Occurred())) {
+            Py_DECREF(seq);
+            return NULL;
+        }
+    }
+    Py_DECREF(seq);
+    Bufs bs = {.n = 0};
+    const int64_t *pos = get(&bs, args[0], N * 8, 0, "pos");
+    int64_t *out = pos ? get(&bs, args[4], N * 8, 1, "out") : NULL;
+    if (out == NULL) {
+        release(&bs);
+        return NULL;
+    }
+    long long half = span >> 1;
+    int jumped = 0;
+    for (int j = 0; j < N; j++) {
+        long long delta = (raw[j] - pos[j]) % span;  /* Python's %: the result has the sign of span */
+        if (delta < 0)
+            delta += span;
+        if (delta >= half)
+            delta -= span;
+        if (delta > jump || -delta > jump)
+            jumped = 1;
+        out[j] = pos[j] + delta;
+    }
+    release(&bs);
+    return PyBool_FromLong(jumped);
+}
+
+/* write_dacs(regs, values) -> the six values written, or None
+ * VmeBus.write_dacs for six Python ints (ServoCore.step's output): clamped to the DAC's
+ * -2048..2047 and stored little-endian; None (nothing written) for anything else, which the
+ * Python driver then handles (floats: round half to even first). */
+static PyObject *write_dacs(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 2) {
+        PyErr_SetString(PyExc_TypeError, "write_dacs takes 2 arguments");
+        return NULL;
+    }
+    PyObject *v = args[1];
+    if (!PyTuple_CheckExact(v) && !PyList_CheckExact(v))
+        Py_RETURN_NONE;
+    if (PySequence_Fast_GET_SIZE(v) != N)
+        Py_RETURN_NONE;
+    long d[N];
+    int same = 1;
+    for (int j = 0; j < N; j++) {
+        PyObject *o = PySequence_Fast_GET_ITEM(v, j);
+        if (!PyLong_CheckExact(o))
+            Py_RETURN_NONE;
+        int overflow = 0;
+        long long x = PyLong_AsLongLongAndOverflow(o, &overflow);
+        if (overflow) {
+            x = overflow > 0 ? DAC_MAX : DAC_MIN;
+            same = 0;
+        } else if (x == -1 && PyErr_Occurred()) {
+            return NULL;
+        }
+        d[j] = x < DAC_MIN ? DAC_MIN : (x > DAC_MAX ? DAC_MAX : (long)x);
+        same &= d[j] == x;
+    }
+    Bufs bs = {.n = 0};
+    unsigned char *regs = get(&bs, args[0], -MAP_MIN_SIZE, 1, "regs");
+    if (regs == NULL) {
+        release(&bs);
+        return NULL;
+    }
+    for (int j = 0; j < N; j++)
+        wr_u16(regs + DAC_OFFSET + 2 * j, (unsigned)(uint16_t)(int16_t)d[j]);
+    release(&bs);
+    if (same && PyTuple_CheckExact(v)) {  /* nothing clamped: the caller's tuple is the answer */
+        Py_INCREF(v);
+        return v;
+    }
+    return enc_tuple(d);
+}
+
 static PyMethodDef methods[] = {
     {"set_gemv", set_gemv, METH_VARARGS, "set_gemv(address, int64): the cblas_dgemv to call (numpy's)"},
     {"exact_step", (PyCFunction)(void (*)(void))exact_step, METH_FASTCALL,
@@ -442,6 +551,10 @@ static PyMethodDef methods[] = {
     {"matvec", (PyCFunction)(void (*)(void))py_matvec, METH_FASTCALL, "matvec(a, x, y): y = a @ x by the dgemv set"},
     {"pid_step", (PyCFunction)(void (*)(void))pid_step, METH_FASTCALL,
      "pid_step(gains, state, first, errors, rounded) -> outputs: droid.subunits.reis.pid.Pid.step"},
+    {"extend_counters", (PyCFunction)(void (*)(void))extend_counters, METH_FASTCALL,
+     "extend_counters(pos, raw, span, max_step, out) -> jumped: ServoCore._read_encoders"},
+    {"write_dacs", (PyCFunction)(void (*)(void))write_dacs, METH_FASTCALL,
+     "write_dacs(regs, values) -> written or None: VmeBus.write_dacs for six ints"},
     {NULL, NULL, 0, NULL},
 };
 

@@ -299,6 +299,13 @@ class ServoCore:
         return self._dac
 
     def _read_encoders(self, encoders_raw, periods: int = 1) -> None:
+        k, jump = self._pid._k, self.params.max_encoder_step_counts * periods
+        if k is not None and self._pos is not None and type(jump) is int:  # the compiled kernel (DROID_KERNEL=c)
+            new = np.empty(N, np.int64)
+            if k.extend_counters(self._pos, encoders_raw, self._span, jump, new):
+                self._fault = Fault.ENCODER_JUMP
+            self._pos = new
+            return
         raw = [int(x) for x in encoders_raw]
         if len(raw) != N:
             raise ValueError(f"need {N} encoder values, got {len(raw)}")
