@@ -111,11 +111,14 @@ static int write_outputs(unsigned char *regs, const double *k, const double *the
     unsigned bits = 0;
     for (int j = 0; j < N; j++) {
         double f = floor(theta[j] * k[C_CPR + j]);
-        if (!(f > -9.0e15 && f < 9.0e15)) {  /* Python's floor would raise or make a huge int */
-            PyErr_Format(PyExc_OverflowError, "motor %d: encoder count %g out of range", j + 1, f);
+        if (!isfinite(f)) {  /* as Python's math.floor: NaN -> ValueError, inf -> OverflowError */
+            PyErr_SetString(isnan(f) ? PyExc_ValueError : PyExc_OverflowError,
+                            isnan(f) ? "cannot convert float NaN to integer" : "cannot convert float infinity to integer");
             return -1;
         }
-        long long v = ((long long)f + offset[j]) % ENCODER_MODULUS;
+        /* (floor + offset) mod 2^16 as Python's ints do it, for any size of floor: fmod of an
+           integral double is exact, and (a + b) mod m = ((a mod m) + b mod m) mod m */
+        long long v = ((long long)fmod(f, (double)ENCODER_MODULUS) + offset[j] % ENCODER_MODULUS) % ENCODER_MODULUS;
         if (v < 0)
             v += ENCODER_MODULUS;
         enc[j] = (long)v;

@@ -267,3 +267,20 @@ def test_dac_write_is_the_drivers(values):
     assert k.write_dacs(memoryview(regs_c), tuple(values)) == written
     assert regs_c == regs_py
     assert k.write_dacs(memoryview(regs_c), (1.5, 0, 0, 0, 0, 0)) is None  # floats: the Python path's
+
+
+@pytest.mark.parametrize("theta", [1e17, -3.3e18, 123456.789, -0.5, float("nan"), float("inf")])
+def test_encoder_write_matches_the_reference_for_any_motor_angle(theta):
+    """The encoder registers of a far-off (diverged) motor angle: the same value as Python's
+    floor and modulo on unbounded ints, the same exception for NaN and infinity."""
+    plants = [ReisPlant(ReisPlantParams(compliance=False), seed=2, kernel=k) for k in ("python", "c")]
+    outcome = []
+    for p in plants:
+        p._theta = p._theta.copy()
+        p._theta[2] = theta
+        try:
+            p._write_outputs()
+            outcome.append(bytes(p.regs))
+        except (ValueError, OverflowError) as e:
+            outcome.append(type(e))
+    assert outcome[0] == outcome[1]
