@@ -334,6 +334,61 @@ static PyObject *py_matvec(PyObject *self, PyObject *const *args, Py_ssize_t nar
 }
 
 /* -- the servo's PID (thesis §4.1.5.1; droid/subunits/reis/pid.py) ------------------------------ */
+/* Pid.step's arithmetic, in its order, on n channels: gains g (5, n), state st (2, n: the integrals,
+ * then the previous errors; both updated), errors e_now [counts].  A list of floats, or (rounded) a
+ * tuple of ints rounded half to even as round() does; NULL with an exception on failure. */
+static PyObject *pid_run(const double *g, double *st, Py_ssize_t n, int first, const double *e_now, int rounded)
+{
+    const double *kp = g, *ki = g + n, *kd = g + 2 * n, *lim_ = g + 3 * n;
+    double lo = g[4 * n], hi = g[4 * n + 1];
+    double *integral = st, *prev = st + n;
+    double outv[64];
+    for (Py_ssize_t j = 0; j < n; j++) {
+        double e = e_now[j], ep = first ? e : prev[j], lim = lim_[j], i0 = integral[j];
+        double pd = kp[j] * e + kd[j] * (e - ep);
+        double candidate = i0 + ki[j] * e;
+        if (candidate > lim)
+            candidate = lim;
+        else if (candidate < -lim)
+            candidate = -lim;
+        double u = pd + candidate;
+        if (!((u > hi && e > 0.0) || (u < lo && e < 0.0)))
+            integral[j] = i0 = candidate;
+        u = pd + i0;
+        outv[j] = u > hi ? hi : (u < lo ? lo : u);
+    }
+    for (Py_ssize_t j = 0; j < n; j++)
+        prev[j] = e_now[j];
+    PyObject *out = rounded ? PyTuple_New(n) : PyList_New(n);  /* as Pid.step_rounded / Pid.step */
+    if (out == NULL)
+        return NULL;
+    for (Py_ssize_t j = 0; j < n; j++) {
+        double u = outv[j];
+        PyObject *v;
+        if (rounded) {
+            double r = nearbyint(u);  /* round(): half to even */
+            if (isfinite(r)) {
+                v = PyLong_FromDouble(r);
+            } else {  /* round(nan) raises ValueError, round(inf) OverflowError */
+                v = NULL;
+                PyErr_SetString(isnan(r) ? PyExc_ValueError : PyExc_OverflowError,
+                                "cannot convert float NaN or infinity to integer");
+            }
+        } else {
+            v = PyFloat_FromDouble(u);
+        }
+        if (v == NULL) {
+            Py_DECREF(out);
+            return NULL;
+        }
+        if (rounded)
+            PyTuple_SET_ITEM(out, j, v);
+        else
+            PyList_SET_ITEM(out, j, v);
+    }
+    return out;
+}
+
 /* pid_step(gains, state, errors, rounded) -> outputs
  * gains: float64 (5, n) -- kp, ki, kd, integral limit, then [out_min, out_max, ...];
  * state: float64 (2, n) -- the integrals (updated) and the previous errors (updated);
@@ -385,52 +440,7 @@ static PyObject *pid_step(PyObject *self, PyObject *const *args, Py_ssize_t narg
         }
     }
     Py_DECREF(seq);
-    const double *kp = g, *ki = g + n, *kd = g + 2 * n, *lim_ = g + 3 * n;
-    double lo = g[4 * n], hi = g[4 * n + 1];
-    double *integral = st, *prev = st + n;
-    PyObject *out = rounded ? PyTuple_New(n) : PyList_New(n);  /* as Pid.step_rounded / Pid.step */
-    if (out == NULL) {
-        release(&bs);
-        return NULL;
-    }
-    for (Py_ssize_t j = 0; j < n; j++) {
-        double e = e_now[j], ep = first ? e : prev[j], lim = lim_[j], i0 = integral[j];
-        double pd = kp[j] * e + kd[j] * (e - ep);
-        double candidate = i0 + ki[j] * e;
-        if (candidate > lim)
-            candidate = lim;
-        else if (candidate < -lim)
-            candidate = -lim;
-        double u = pd + candidate;
-        if (!((u > hi && e > 0.0) || (u < lo && e < 0.0)))
-            integral[j] = i0 = candidate;
-        u = pd + i0;
-        u = u > hi ? hi : (u < lo ? lo : u);
-        PyObject *v;
-        if (rounded) {
-            double r = nearbyint(u);  /* round(): half to even */
-            v = isfinite(r) ? PyLong_FromDouble(r) : PyFloat_FromDouble(u);
-            if (v != NULL && !isfinite(r)) {  /* round(nan) raises ValueError, round(inf) OverflowError */
-                Py_DECREF(v);
-                v = NULL;
-                PyErr_SetString(isnan(r) ? PyExc_ValueError : PyExc_OverflowError,
-                                "cannot convert float NaN or infinity to integer");
-            }
-        } else {
-            v = PyFloat_FromDouble(u);
-        }
-        if (v == NULL) {
-            Py_DECREF(out);
-            release(&bs);
-            return NULL;
-        }
-        if (rounded)
-            PyTuple_SET_ITEM(out, j, v);
-        else
-            PyList_SET_ITEM(out, j, v);
-    }
-    for (Py_ssize_t j = 0; j < n; j++)
-        prev[j] = e_now[j];
+    PyObject *out = pid_run(g, st, n, first, e_now, rounded);
     release(&bs);
     return out;
 }
@@ -544,6 +554,64 @@ static PyObject *write_dacs(PyObject *self, PyObject *const *args, Py_ssize_t na
     return enc_tuple(d);
 }
 
+/* servo_tail(target, previous, lo, hi, pos, fe_max, vel, gains, state, first) -> dacs or None
+ * ServoCore.step after the tick's target is picked (thesis §4.1.5.1, figure 4.8): the target
+ * clipped in place to [lo, hi] (the min/max counts once homed; None before), vel = target -
+ * previous [counts/tick], the following error target - pos [counts] checked against fe_max
+ * (None: a following-error fault, the caller stops), then the PID and round().  int64 arrays
+ * of six; fe_max float64; gains/state as pid_step.  Integer arithmetic is exact as Python's
+ * for |counts| < 2^62; the error limit is compared as Python compares an int with a float. */
+static PyObject *servo_tail(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 10) {
+        PyErr_SetString(PyExc_TypeError, "servo_tail takes 10 arguments");
+        return NULL;
+    }
+    Bufs bs = {.n = 0};
+    int64_t *target = get(&bs, args[0], N * 8, 1, "target");
+    const int64_t *previous = target ? get(&bs, args[1], N * 8, 0, "previous") : NULL;
+    const int64_t *lo = NULL, *hi = NULL;
+    int ok = previous != NULL;
+    if (ok && args[2] != Py_None) {
+        lo = get(&bs, args[2], N * 8, 0, "lo");
+        hi = lo ? get(&bs, args[3], N * 8, 0, "hi") : NULL;
+        ok = hi != NULL;
+    }
+    const int64_t *pos = ok ? get(&bs, args[4], N * 8, 0, "pos") : NULL;
+    const double *fe_max = pos ? get(&bs, args[5], N * 8, 0, "fe_max") : NULL;
+    int64_t *vel = fe_max ? get(&bs, args[6], N * 8, 1, "vel") : NULL;
+    const double *g = vel ? get(&bs, args[7], 5 * N * 8, 0, "gains") : NULL;
+    double *st = g ? get(&bs, args[8], 2 * N * 8, 1, "state") : NULL;
+    int first = st ? PyObject_IsTrue(args[9]) : -1;
+    if (first < 0) {
+        release(&bs);
+        return NULL;
+    }
+    double e_now[N];
+    int fault = 0;
+    for (int j = 0; j < N; j++) {
+        int64_t t = target[j];
+        if (lo != NULL) {  /* np.minimum(np.maximum(target, lo), hi) */
+            t = t > lo[j] ? t : lo[j];
+            t = t < hi[j] ? t : hi[j];
+            target[j] = t;
+        }
+        vel[j] = t - previous[j];
+        int64_t e = t - pos[j];
+        long double el = (long double)e, lim = (long double)fe_max[j];  /* exact: 64-bit mantissa */
+        if (el > lim || -el > lim)
+            fault = 1;
+        e_now[j] = (double)e;  /* float(e): round to nearest */
+    }
+    if (fault) {
+        release(&bs);
+        Py_RETURN_NONE;
+    }
+    PyObject *out = pid_run(g, st, N, first, e_now, 1);
+    release(&bs);
+    return out;
+}
+
 static PyMethodDef methods[] = {
     {"set_gemv", set_gemv, METH_VARARGS, "set_gemv(address, int64): the cblas_dgemv to call (numpy's)"},
     {"exact_step", (PyCFunction)(void (*)(void))exact_step, METH_FASTCALL,
@@ -556,6 +624,8 @@ static PyMethodDef methods[] = {
      "pid_step(gains, state, first, errors, rounded) -> outputs: droid.subunits.reis.pid.Pid.step"},
     {"extend_counters", (PyCFunction)(void (*)(void))extend_counters, METH_FASTCALL,
      "extend_counters(pos, raw, span, max_step, out) -> jumped: ServoCore._read_encoders"},
+    {"servo_tail", (PyCFunction)(void (*)(void))servo_tail, METH_FASTCALL,
+     "servo_tail(target, previous, lo, hi, pos, fe_max, vel, gains, state, first) -> dacs or None: ServoCore.step"},
     {"write_dacs", (PyCFunction)(void (*)(void))write_dacs, METH_FASTCALL,
      "write_dacs(regs, values) -> written or None: VmeBus.write_dacs for six ints"},
     {NULL, NULL, 0, NULL},

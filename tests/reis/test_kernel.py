@@ -284,3 +284,44 @@ def test_encoder_write_matches_the_reference_for_any_motor_angle(theta):
         except (ValueError, OverflowError) as e:
             outcome.append(type(e))
     assert outcome[0] == outcome[1]
+
+
+@settings(max_examples=150, deadline=None)
+@given(walk=st.lists(st.lists(st.integers(-900, 900), min_size=6, max_size=6), min_size=2, max_size=40),
+       jogs=st.lists(st.tuples(st.integers(0, 39), st.lists(st.integers(-5000, 5000), min_size=6, max_size=6)),
+                     max_size=6),
+       home_at=st.one_of(st.none(), st.integers(0, 39)))
+def test_servo_tick_is_the_references(walk, jogs, home_at):
+    """Whole servo ticks (ServoCore.step: counters, target, clip, velocity, following-error check,
+    PID, round) on random encoder walks with JOG commands and HOME (a switch never found fails
+    it): the same DACs, faults, targets and velocities, tick for tick."""
+    cores = [ServoCore(None, kernel=k) for k in ("python", "c")]
+    counts = np.array([1000, 20000, 40000, 60000, 300, 30000], np.int64)
+    sw = (False,) * 6
+    jog_at = dict(jogs)
+    for i, step in enumerate(walk):
+        counts = counts + np.array(step, np.int64)
+        raw = tuple(int(x) % 65536 for x in counts)
+        if i == home_at:
+            for c in cores:
+                c.command(Mode.HOME)
+        if i in jog_at:
+            for c in cores:
+                c.command(Mode.JOG, jog_at[i])
+        out = [c.step(raw, sw) for c in cores]
+        a, b = cores
+        assert out[0] == out[1] and all(type(x) is int for x in out[1])
+        assert a.fault == b.fault and a._target.tolist() == b._target.tolist() and a._vel.tolist() == b._vel.tolist()
+        assert a.integral_dac == b.integral_dac
+
+
+@pytest.mark.parametrize("err", [3999, 4000, 4001, -4000, -4001, 2**53 + 1, -(2**62)])
+def test_following_error_limit_is_compared_as_python_compares_int_and_float(err):
+    """The fault verdict at and around the limit (4000.0 counts) and far beyond 2^53."""
+    k = _k()
+    pid = Pid([1.0] * 6, [0.0] * 6, [0.0] * 6, [0.0] * 6, -2048, 2047, kernel="c")
+    target = np.array([err, 0, 0, 0, 0, 0], np.int64)
+    fe_max = np.full(6, 4000.0)
+    dac = k.servo_tail(target, target.copy(), None, None, np.zeros(6, np.int64), fe_max, np.empty(6, np.int64),
+                       pid._gains, pid._state, True)
+    assert (dac is None) == any(e > lim or -e > lim for e, lim in zip([err, 0, 0, 0, 0, 0], fe_max.tolist()))

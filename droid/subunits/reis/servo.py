@@ -71,6 +71,7 @@ class ServoCore:
         self._tmin = np.asarray(p.target_min_counts, np.int64)
         self._tmax = np.asarray(p.target_max_counts, np.int64)
         self._fe_max = [float(x) for x in p.max_following_error_counts]
+        self._fe_max_arr = np.array(self._fe_max)  # the compiled kernel's copy
         self._pid = Pid(
             p.kp_dac_per_count,
             p.ki_dac_per_count_tick,
@@ -282,6 +283,21 @@ class ServoCore:
             if self._target is previous:
                 previous = previous.copy()
         target = self._target
+        pid = self._pid
+        if pid._k is not None:  # the compiled kernel (DROID_KERNEL=c): the lines below, the same bits
+            lims = self._limits if self._limits is not None else (None, None)
+            self._vel = vel = np.empty(N, np.int64)
+            dac = pid._k.servo_tail(target, previous, lims[0], lims[1], self._pos, self._fe_max_arr, vel, pid._gains,
+                                    pid._state, pid._first)
+            if dac is None:
+                self._fault = Fault.FOLLOWING_ERROR
+            if self._fault != Fault.NONE:  # this one, or homing's switch not found
+                pid.reset()
+                self._dac = (0,) * N
+            else:
+                pid._first = False
+                self._dac = dac
+            return self._dac
         if self._limits is not None:  # the min/max counts once homed: clip in place
             lo, hi = self._limits
             np.minimum(np.maximum(target, lo, out=target), hi, out=target)
