@@ -612,6 +612,52 @@ static PyObject *servo_tail(PyObject *self, PyObject *const *args, Py_ssize_t na
     return out;
 }
 
+/* exact_checks(q, lin_q, relin_rad, stop_mid, stop_lim) -> 0, 1 or 2
+ * The exact step's two guards (ReisPlant._near_stop and _discretise's test), the same comparisons:
+ * 2 if a link could reach a hard stop within the step (|q - mid| >= lim: the substep integrator
+ * takes the advance), else 1 if a joint moved more than relin_rad from the linearisation lin_q
+ * (None: none yet), else 0.  Float64 arrays of six [rad]. */
+static PyObject *exact_checks(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 5) {
+        PyErr_SetString(PyExc_TypeError, "exact_checks takes 5 arguments");
+        return NULL;
+    }
+    double r = PyFloat_AsDouble(args[2]);
+    if (r == -1.0 && PyErr_Occurred())
+        return NULL;
+    Bufs bs = {.n = 0};
+    const double *q = get(&bs, args[0], N * 8, 0, "q");
+    const double *lin = NULL;
+    int ok = q != NULL;
+    if (ok && args[1] != Py_None)
+        ok = (lin = get(&bs, args[1], N * 8, 0, "lin_q")) != NULL;
+    const double *mid = ok ? get(&bs, args[3], N * 8, 0, "stop_mid") : NULL;
+    const double *lim = mid ? get(&bs, args[4], N * 8, 0, "stop_lim") : NULL;
+    if (lim == NULL) {
+        release(&bs);
+        return NULL;
+    }
+    long code = 0;
+    for (int j = 0; j < N; j++)
+        if (fabs(q[j] - mid[j]) >= lim[j]) {
+            code = 2;
+            break;
+        }
+    if (code == 0) {
+        if (lin == NULL)
+            code = 1;
+        else
+            for (int j = 0; j < N; j++)
+                if (fabs(q[j] - lin[j]) > r) {
+                    code = 1;
+                    break;
+                }
+    }
+    release(&bs);
+    return PyLong_FromLong(code);
+}
+
 static PyMethodDef methods[] = {
     {"set_gemv", set_gemv, METH_VARARGS, "set_gemv(address, int64): the cblas_dgemv to call (numpy's)"},
     {"exact_step", (PyCFunction)(void (*)(void))exact_step, METH_FASTCALL,
@@ -624,6 +670,8 @@ static PyMethodDef methods[] = {
      "pid_step(gains, state, first, errors, rounded) -> outputs: droid.subunits.reis.pid.Pid.step"},
     {"extend_counters", (PyCFunction)(void (*)(void))extend_counters, METH_FASTCALL,
      "extend_counters(pos, raw, span, max_step, out) -> jumped: ServoCore._read_encoders"},
+    {"exact_checks", (PyCFunction)(void (*)(void))exact_checks, METH_FASTCALL,
+     "exact_checks(q, lin_q, relin_rad, stop_mid, stop_lim) -> 0, 1 (relinearise) or 2 (near a stop)"},
     {"servo_tail", (PyCFunction)(void (*)(void))servo_tail, METH_FASTCALL,
      "servo_tail(target, previous, lo, hi, pos, fe_max, vel, gains, state, first) -> dacs or None: ServoCore.step"},
     {"write_dacs", (PyCFunction)(void (*)(void))write_dacs, METH_FASTCALL,

@@ -325,3 +325,20 @@ def test_following_error_limit_is_compared_as_python_compares_int_and_float(err)
     dac = k.servo_tail(target, target.copy(), None, None, np.zeros(6, np.int64), fe_max, np.empty(6, np.int64),
                        pid._gains, pid._state, True)
     assert (dac is None) == any(e > lim or -e > lim for e, lim in zip([err, 0, 0, 0, 0, 0], fe_max.tolist()))
+
+
+@settings(max_examples=300, deadline=None)
+@given(q_deg=st.lists(st.floats(-400.0, 400.0), min_size=6, max_size=6),
+       moved_deg=st.one_of(st.none(), st.lists(st.floats(-1.0, 1.0), min_size=6, max_size=6)))
+def test_exact_step_guards_are_the_references(q_deg, moved_deg):
+    """The stop and relinearisation guards of the exact step: the compiled exact_checks answers as
+    ReisPlant._near_stop and _discretise's test do (links anywhere, near and past the stops)."""
+    p = _plants()[0]
+    k = _k()
+    q = np.radians(np.asarray(q_deg))
+    lin = None if moved_deg is None else q + np.radians(np.asarray(moved_deg))
+    p._stop_lim.clear()
+    near = p._near_stop(0.002, q.tolist())
+    relin = lin is None or any(abs(a - b) > p._relin_rad for a, b in zip(q.tolist(), lin.tolist()))
+    want = 2 if near else (1 if relin else 0)
+    assert k.exact_checks(q, lin, p._relin_rad, p._stop_mid, np.array(p._stop_lim[0.002])) == want

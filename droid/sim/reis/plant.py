@@ -293,6 +293,7 @@ class ReisPlant:
         self._stop_mid = 0.5 * (self._stop_min + self._stop_max)
         self._stop_half = 0.5 * (self._stop_max - self._stop_min)
         self._stop_lim: dict = {}  # dt -> half range minus the margin of _near_stop
+        self._stop_lim_arr: dict = {}  # the same as float64 arrays (the compiled kernel's exact_checks)
         self._bit_weights = np.array([1 << j for j in range(vm.N_JOINTS)], np.int64)
         # the same constants as plain floats: the per-advance work on six values is cheaper in
         # Python floats than in numpy calls (issue 13 item 6; the same IEEE operations, same bits)
@@ -492,13 +493,19 @@ class ReisPlant:
         p = self.params
         lo, hi = vm.DAC_MIN, vm.DAC_MAX
         h = p.substep_s
+        if self._k is not None and self._exact and not self._any_jammed:  # the compiled kernel's guards
+            lim = self._stop_lim_arr.get(n * h)
+            if lim is None:
+                self._near_stop(n * h, self._q.tolist())  # fills _stop_lim
+                lim = self._stop_lim_arr[n * h] = np.array(self._stop_lim[n * h])
+            code = self._k.exact_checks(self._q, self._lin_q, self._relin_rad, self._stop_mid, lim)
+            if code != 2:
+                self._step_exact_compiled(n * h, ext, relin=code == 1)
+                self.time_s += n * h
+                return
         cache = self._q_list
         ql = cache[1] if cache[0] is self._q else self._q.tolist()
         if self._exact and not (self._any_jammed or self._near_stop(n * h, ql)):
-            if self._k is not None:
-                self._step_exact_compiled(n * h, ql, ext)
-                self.time_s += n * h
-                return
             if self._amps_on:
                 # the DACs -> amplifier torques, clipped to +-tau_max, then to the back-EMF range at the
                 # step's start speed, in one loop over plain floats (the same IEEE operations as the
@@ -575,12 +582,16 @@ class ReisPlant:
         self._theta, self._omega, self._q, self._qd = theta.copy(), omega.copy(), q.copy(), qd.copy()
 
     # -- the exact (linearised, zero-order-hold) integrator --------------------------------
-    def _discretise(self, dt: float, ql: list) -> tuple[np.ndarray, np.ndarray]:
-        """(Phi, Gamma) at the current linearisation; ``ql``: ``self._q`` as floats."""
+    def _discretise(self, dt: float, ql: list | None, relin: bool | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(Phi, Gamma) at the current linearisation; ``ql``: ``self._q`` as floats.  ``relin``:
+        whether to relinearise, when the caller has tested it (the compiled kernel; ``ql`` is then
+        only needed if True), else None: tested here."""
         q = self._q
         lin, r = self._lin_q, self._relin_rad
-        relin = lin is None
-        if not relin:
+        tested = relin is not None
+        if not tested:
+            relin = lin is None
+        if not relin and not tested:
             for a, b in zip(ql, self._lin_list):
                 if abs(a - b) > r:
                     relin = True
@@ -691,11 +702,12 @@ class ReisPlant:
         xl = x.tolist()
         self._write_outputs(xl[0:6], xl[12:18], q)
 
-    def _step_exact_compiled(self, dt: float, ql: list, ext=None) -> None:
+    def _step_exact_compiled(self, dt: float, ext=None, relin: bool = False) -> None:
         """The exact branch of :meth:`_integrate` (DAC -> torque) and :meth:`_step_exact` in the
         compiled kernel (droid/_kernel.c ``exact_step``: the same operations in the same order,
-        the same bits; droid.kernel).  ``ql``: ``self._q`` as floats [rad]."""
-        pg, g_m, _ = self._discretise(dt, ql)
+        the same bits; droid.kernel).  ``relin``: the kernel's ``exact_checks`` found the
+        linearisation too far (the test :meth:`_discretise` makes)."""
+        pg, g_m, _ = self._discretise(dt, self._q.tolist() if relin else None, relin)
         q, qd = self._q, self._qd
         tau_link = pin.nonLinearEffects(self._pin_model, self._pin_data, q, qd)  # C qd + g (Pinocchio's buffer)
         if ext is not None:
@@ -703,9 +715,7 @@ class ReisPlant:
         x = np.empty(24)
         self._enc_written = self._k.exact_step(self._view, self._consts, pg, g_m, self._theta, self._omega, q, qd,
                                                tau_link, ext, self._amps_on, self._wd_fault, self._enc_offset, x)
-        q = x[12:18]
-        self._theta, self._omega, self._q, self._qd = x[0:6], x[6:12], q, x[18:24]
-        self._q_list = (q, q.tolist())
+        self._theta, self._omega, self._q, self._qd = x[0:6], x[6:12], x[12:18], x[18:24]
 
     def _steps_rigid(self, n: int, h: float, drive, tau_c, ext=None) -> None:
         A, AinvT, Ainv = self._A, self._AinvT, self._Ainv
