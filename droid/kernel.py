@@ -5,7 +5,8 @@ twin's exact zero-order-hold step (:mod:`droid.sim.reis.plant`) exist twice: the
 reference and one compiled implementation, :mod:`droid._kernel` (``droid/_kernel.c``, a CPython
 C extension built by pip at install; setup.py).  ``DROID_KERNEL`` chooses, read once at import:
 
-* ``python`` (the default) -- the Python reference;
+* ``python`` (the default) -- the Python reference.  The same bits as ``c``; it stays the default
+  so that a checkout whose extension has not been built by ``pip install -e .`` still runs;
 * ``c`` -- the compiled kernel, in every process that reads the variable: droid-servo,
   droid-sim's arm device and every lockstep trial run the same code.  If it cannot be used
   (not built, or numpy's BLAS not reachable or not answering bit for bit) importing this module
