@@ -7,7 +7,9 @@ with its own loops, or another BLAS, would do) -- and prints the tool errors' RM
 s = 150 mm, the simulated trial length and a hash of each log.  Nothing else changes.
 
 The answer decides whether the plant may be compiled (numba, C) with a result tolerance:
-docs/benchmarks.md, "Lockstep speed, session 6".  Usage:
+docs/benchmarks.md, "Lockstep speed, session 6".  It measures the Python reference
+(``DROID_KERNEL=python``, the default): the compiled kernel takes C-ordered matrices only and
+refuses the Fortran-ordered ones (BufferError).  Usage:
 PYTHONPATH=. python bench/fp_order_trial.py [--position i] [--speed 64] [--seed 1] [--json]
 """
 from __future__ import annotations

@@ -61,6 +61,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from droid import kernel as _kernel_switch
 from droid.kinematics import load_robot
 from droid.sim.reis.dynamics import DhError, RigidBody
 from droid.subunits.reis import vme_map as vm
@@ -215,8 +216,15 @@ class ReisPlant:
         regs=None,
         encoder_power_up_counts=None,
         initial_joint_deg=None,
+        kernel: str | None = None,
     ):
         p = self.params = params if params is not None else ReisPlantParams()
+        #: the compiled kernel (droid._kernel) or None for the Python reference: DROID_KERNEL
+        #: (droid.kernel) unless ``kernel`` ("c" or "python") says otherwise (tests, benches)
+        self._k = (_kernel_switch.compiled() if kernel is None else
+                   _kernel_switch.load_compiled() if kernel == "c" else None)
+        if kernel not in (None, "c", "python"):
+            raise ValueError(f"kernel {kernel!r}: 'c', 'python' or None (DROID_KERNEL)")
         self._rng = np.random.default_rng(seed)
         self._attach_registers(regs)
         self._drive_constants(p)
@@ -285,6 +293,7 @@ class ReisPlant:
         self._stop_mid = 0.5 * (self._stop_min + self._stop_max)
         self._stop_half = 0.5 * (self._stop_max - self._stop_min)
         self._stop_lim: dict = {}  # dt -> half range minus the margin of _near_stop
+        self._stop_lim_arr: dict = {}  # the same as float64 arrays (the compiled kernel's exact_checks)
         self._bit_weights = np.array([1 << j for j in range(vm.N_JOINTS)], np.int64)
         # the same constants as plain floats: the per-advance work on six values is cheaper in
         # Python floats than in numpy calls (issue 13 item 6; the same IEEE operations, same bits)
@@ -297,6 +306,10 @@ class ReisPlant:
         self._z = np.empty(36)  # the exact step's input [x; tau_motor; tau_link] (filled in place)
         self._n_substeps: dict = {}  # dt_s -> substeps per advance (validated once)
         self._tau_c_list = self._tau_c.tolist()
+        # the compiled kernel's constants, one float64 vector (droid/_kernel.c: C_TAU_PER_DAC ..)
+        self._consts = np.concatenate([np.broadcast_to(np.asarray(v, float), 6) for v in (
+            self._tau_per_dac, self._tau_max, self._tau_max_w0, self._tau_c, self._tau_brake, self._counts_per_rad,
+            self._sw, self._side)] + [np.array([self._bal], float)])
 
     def _initial_state(self, p: ReisPlantParams, initial_joint_deg) -> None:
         """The power-up pose (seeded spread about ``initial_joint_deg``), at rest against gravity;
@@ -480,6 +493,16 @@ class ReisPlant:
         p = self.params
         lo, hi = vm.DAC_MIN, vm.DAC_MAX
         h = p.substep_s
+        if self._k is not None and self._exact and not self._any_jammed:  # the compiled kernel's guards
+            lim = self._stop_lim_arr.get(n * h)
+            if lim is None:
+                self._near_stop(n * h, self._q.tolist())  # fills _stop_lim
+                lim = self._stop_lim_arr[n * h] = np.array(self._stop_lim[n * h])
+            code = self._k.exact_checks(self._q, self._lin_q, self._relin_rad, self._stop_mid, lim)
+            if code != 2:
+                self._step_exact_compiled(n * h, ext, relin=code == 1)
+                self.time_s += n * h
+                return
         cache = self._q_list
         ql = cache[1] if cache[0] is self._q else self._q.tolist()
         if self._exact and not (self._any_jammed or self._near_stop(n * h, ql)):
@@ -559,12 +582,16 @@ class ReisPlant:
         self._theta, self._omega, self._q, self._qd = theta.copy(), omega.copy(), q.copy(), qd.copy()
 
     # -- the exact (linearised, zero-order-hold) integrator --------------------------------
-    def _discretise(self, dt: float, ql: list) -> tuple[np.ndarray, np.ndarray]:
-        """(Phi, Gamma) at the current linearisation; ``ql``: ``self._q`` as floats."""
+    def _discretise(self, dt: float, ql: list | None, relin: bool | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(Phi, Gamma) at the current linearisation; ``ql``: ``self._q`` as floats.  ``relin``:
+        whether to relinearise, when the caller has tested it (the compiled kernel; ``ql`` is then
+        only needed if True), else None: tested here."""
         q = self._q
         lin, r = self._lin_q, self._relin_rad
-        relin = lin is None
-        if not relin:
+        tested = relin is not None
+        if not tested:
+            relin = lin is None
+        if not relin and not tested:
             for a, b in zip(ql, self._lin_list):
                 if abs(a - b) > r:
                     relin = True
@@ -675,6 +702,21 @@ class ReisPlant:
         xl = x.tolist()
         self._write_outputs(xl[0:6], xl[12:18], q)
 
+    def _step_exact_compiled(self, dt: float, ext=None, relin: bool = False) -> None:
+        """The exact branch of :meth:`_integrate` (DAC -> torque) and :meth:`_step_exact` in the
+        compiled kernel (droid/_kernel.c ``exact_step``: the same operations in the same order,
+        the same bits; droid.kernel).  ``relin``: the kernel's ``exact_checks`` found the
+        linearisation too far (the test :meth:`_discretise` makes)."""
+        pg, g_m, _ = self._discretise(dt, self._q.tolist() if relin else None, relin)
+        q, qd = self._q, self._qd
+        tau_link = pin.nonLinearEffects(self._pin_model, self._pin_data, q, qd)  # C qd + g (Pinocchio's buffer)
+        if ext is not None:
+            ext = np.ascontiguousarray(ext, float)
+        x = np.empty(24)
+        self._enc_written = self._k.exact_step(self._view, self._consts, pg, g_m, self._theta, self._omega, q, qd,
+                                               tau_link, ext, self._amps_on, self._wd_fault, self._enc_offset, x)
+        self._theta, self._omega, self._q, self._qd = x[0:6], x[6:12], x[12:18], x[18:24]
+
     def _steps_rigid(self, n: int, h: float, drive, tau_c, ext=None) -> None:
         A, AinvT, Ainv = self._A, self._AinvT, self._Ainv
         theta, omega = self._theta, self._omega
@@ -755,6 +797,13 @@ class ReisPlant:
     def _write_outputs(self, theta_l: list | None = None, q_l: list | None = None, q=None) -> None:
         """Encoders, limit switches and AMP_STATUS into the map.  ``theta_l``/``q_l``: the state's
         motor and link angles as floats when the caller has them (``q``: the array ``q_l`` is of)."""
+        if self._k is not None:  # the compiled kernel's (the same operations; droid/_kernel.c)
+            q = self._q if q is None else q
+            self._q_list = (q, q.tolist() if q_l is None else q_l)
+            self._enc_written = self._k.write_outputs(self._view, self._consts, np.ascontiguousarray(self._theta),
+                                                      np.ascontiguousarray(q), self._amps_on, self._wd_fault,
+                                                      self._enc_offset)
+            return
         # encoder_raw and the switch bits in plain floats (the same operations as the properties)
         if theta_l is None:
             theta_l, q_l, q = self._theta.tolist(), self._q.tolist(), self._q

@@ -65,11 +65,13 @@ class ServoStatus:
 class ServoCore:
     """Six-joint servo: queue + cache, planner, braking, PID, homing.  No I/O."""
 
-    def __init__(self, params: ServoParams | None = None):
+    def __init__(self, params: ServoParams | None = None, *, kernel: str | None = None):
+        """``kernel``: "c" or "python" overrides ``DROID_KERNEL`` for the PID (droid.kernel; tests)."""
         p = self.params = params if params is not None else ServoParams()
         self._tmin = np.asarray(p.target_min_counts, np.int64)
         self._tmax = np.asarray(p.target_max_counts, np.int64)
         self._fe_max = [float(x) for x in p.max_following_error_counts]
+        self._fe_max_arr = np.array(self._fe_max)  # the compiled kernel's copy
         self._pid = Pid(
             p.kp_dac_per_count,
             p.ki_dac_per_count_tick,
@@ -77,6 +79,7 @@ class ServoCore:
             p.integral_limit_dac,
             p.dac_min_counts,
             p.dac_max_counts,
+            kernel=kernel,
         )
         self._homing = Homing(p)
         self._mode = Mode.NORMAL  # hold position until told otherwise (thesis: waits for HOME)
@@ -280,6 +283,21 @@ class ServoCore:
             if self._target is previous:
                 previous = previous.copy()
         target = self._target
+        pid = self._pid
+        if pid._k is not None:  # the compiled kernel (DROID_KERNEL=c): the lines below, the same bits
+            lims = self._limits if self._limits is not None else (None, None)
+            self._vel = vel = np.empty(N, np.int64)
+            dac = pid._k.servo_tail(target, previous, lims[0], lims[1], self._pos, self._fe_max_arr, vel, pid._gains,
+                                    pid._state, pid._first)
+            if dac is None:
+                self._fault = Fault.FOLLOWING_ERROR
+            if self._fault != Fault.NONE:  # this one, or homing's switch not found
+                pid.reset()
+                self._dac = (0,) * N
+            else:
+                pid._first = False
+                self._dac = dac
+            return self._dac
         if self._limits is not None:  # the min/max counts once homed: clip in place
             lo, hi = self._limits
             np.minimum(np.maximum(target, lo, out=target), hi, out=target)
@@ -293,10 +311,17 @@ class ServoCore:
             self._pid.reset()
             self._dac = (0,) * N
             return self._dac
-        self._dac = tuple(map(round, self._pid.step(error)))
+        self._dac = self._pid.step_rounded(error)
         return self._dac
 
     def _read_encoders(self, encoders_raw, periods: int = 1) -> None:
+        k, jump = self._pid._k, self.params.max_encoder_step_counts * periods
+        if k is not None and self._pos is not None and type(jump) is int:  # the compiled kernel (DROID_KERNEL=c)
+            new = np.empty(N, np.int64)
+            if k.extend_counters(self._pos, encoders_raw, self._span, jump, new):
+                self._fault = Fault.ENCODER_JUMP
+            self._pos = new
+            return
         raw = [int(x) for x in encoders_raw]
         if len(raw) != N:
             raise ValueError(f"need {N} encoder values, got {len(raw)}")

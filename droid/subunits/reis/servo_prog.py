@@ -24,6 +24,7 @@ import time
 import numpy as np
 import zmq
 
+from droid import kernel
 from droid.brain.curve import CurveHost
 from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
@@ -193,7 +194,8 @@ class _ServoLoop:
             print(f"{PROG} {self.name}: {timer.cycles} cycles, {timer.overruns} overruns "
                   f"({100.0 * timer.overruns / max(1, timer.cycles + timer.overruns):.3f} %); wake-up "
                   f"lateness over the last {len(w)} cycles: median {np.median(w):.0f} us, p99 "
-                  f"{np.percentile(w, 99):.0f} us, max {w.max():.0f} us", file=sys.stderr, flush=True)
+                  f"{np.percentile(w, 99):.0f} us, max {w.max():.0f} us; kernel {kernel.NAME}", file=sys.stderr,
+                  flush=True)
 
 
 if __name__ == "__main__":

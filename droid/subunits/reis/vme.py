@@ -18,6 +18,7 @@ from __future__ import annotations
 import struct
 from typing import Callable, Sequence
 
+from droid import kernel as _kernel_switch
 from droid.subunits.regmap import MapUnavailable, MapUrlError, open_region
 from droid.subunits.reis import vme_map as vm
 
@@ -33,6 +34,9 @@ _SWITCH_STATES = tuple(tuple(bool(bits >> j & 1) for j in range(vm.N_JOINTS)) fo
 #: this driver has always used
 VmeUrlError = MapUrlError
 VmeOpenError = MapUnavailable
+
+
+_K = _kernel_switch.compiled()  # droid._kernel when DROID_KERNEL=c (droid.kernel), else None
 
 
 class VmeBus:
@@ -96,6 +100,10 @@ class VmeBus:
         """Write six amplifier commands [DAC counts], clamped to -2048..2047; returns what was written."""
         if len(values) != vm.N_JOINTS:
             raise ValueError(f"write_dacs needs {vm.N_JOINTS} values, got {len(values)}")
+        if _K is not None:  # the compiled kernel (DROID_KERNEL=c): six ints clamped and stored
+            written = _K.write_dacs(self._view, values)
+            if written is not None:
+                return written
         hi, lo = vm.DAC_MAX, vm.DAC_MIN
         clamped = tuple([min(hi, max(lo, int(round(v)))) for v in values])
         self._view[vm.DAC_OFFSET:vm.DAC_OFFSET + _DACS.size] = _DACS.pack(*clamped)  # vm.store's one copy

@@ -1,0 +1,129 @@
+"""Which implementation runs the 500 Hz pair: the compiled kernel or the Python reference (issue 28 item 1).
+
+The servo program's PID (thesis §4.1.5.1, :mod:`droid.subunits.reis.pid`) and the Reis plant
+twin's exact zero-order-hold step (:mod:`droid.sim.reis.plant`) exist twice: the Python
+reference and one compiled implementation, :mod:`droid._kernel` (``droid/_kernel.c``, a CPython
+C extension built by pip at install; setup.py).  ``DROID_KERNEL`` chooses, read once at import:
+
+* ``python`` (the default) -- the Python reference.  The same bits as ``c``; it stays the default
+  so that a checkout whose extension has not been built by ``pip install -e .`` still runs;
+* ``c`` -- the compiled kernel, in every process that reads the variable: droid-servo,
+  droid-sim's arm device and every lockstep trial run the same code.  If it cannot be used
+  (not built, or numpy's BLAS not reachable or not answering bit for bit) importing this module
+  raises :class:`KernelUnavailable`: an explicit request never falls back silently.
+
+The compiled kernel gives the **same bits** as the reference: the same IEEE operations in the
+same order (built without FMA contraction or fast-math), libm's ``sin`` as ``math.sin``, and the
+two matrix-vector products of the plant's step through the very ``cblas_dgemv`` numpy's ``@``
+calls (its bundled OpenBLAS, found here and checked against ``@`` on :data:`CHECK_SHAPES` before
+use).  tests/reis/test_kernel.py compares the two per step on random inputs, bit for bit;
+docs/benchmarks.md "Issue 28 item 1" has the trial logs compared and the speed.
+"""
+from __future__ import annotations
+
+import ctypes
+import os
+import sys
+
+import numpy as np
+
+KERNELS = ("python", "c")
+#: the environment variable that chooses (read once, at import)
+ENV = "DROID_KERNEL"
+#: (m, n) of the products the bit check compares with numpy's ``@`` before the kernel is used
+CHECK_SHAPES = ((24, 36), (24, 6))
+#: cblas_dgemv's names in numpy's BLAS builds, with their integer width: (symbol, 64-bit ints)
+_GEMV_SYMBOLS = (("scipy_cblas_dgemv64_", True), ("cblas_dgemv64_", True), ("scipy_cblas_dgemv", False),
+                 ("cblas_dgemv", False))
+
+
+class KernelUnavailable(ImportError):
+    """``DROID_KERNEL=c`` and the compiled kernel cannot be used (the message says why)."""
+
+
+def _blas_libraries() -> list[str]:
+    """Shared libraries this process has mapped whose name says BLAS (numpy's, once imported)."""
+    paths = []
+    try:
+        with open("/proc/self/maps") as f:
+            for line in f:
+                path = line.rsplit(" ", 1)[-1].strip()
+                if "blas" in os.path.basename(path).lower() and ".so" in path and path not in paths:
+                    paths.append(path)
+    except OSError:  # pragma: no cover - not Linux
+        pass
+    return paths
+
+
+def _find_gemv() -> tuple[int, bool, str]:
+    """(address, 64-bit ints, where) of the cblas_dgemv numpy's ``@`` calls."""
+    np.dot(np.ones((2, 2)), np.ones(2))  # numpy's BLAS is loaded by now in any case
+    for path in _blas_libraries():
+        try:
+            lib = ctypes.CDLL(path)  # already loaded: the same handle, the same code
+        except OSError:  # pragma: no cover
+            continue
+        for name, int64 in _GEMV_SYMBOLS:
+            fn = getattr(lib, name, None)
+            if fn is not None:
+                return ctypes.cast(fn, ctypes.c_void_p).value, int64, f"{os.path.basename(path)}:{name}"
+    raise KernelUnavailable("numpy's BLAS (cblas_dgemv) not found among the loaded libraries "
+                            f"({', '.join(map(os.path.basename, _blas_libraries())) or 'none'})")
+
+
+def _check(k) -> None:
+    """The kernel's products against numpy's ``@``, bit for bit, on seeded inputs spanning
+    twelve decades (what the plant's matrices hold: 1e-9 .. 1e3)."""
+    rng = np.random.default_rng(28)
+    for m, n in CHECK_SHAPES * 20:
+        a = rng.standard_normal((m, n)) * 10.0 ** rng.uniform(-6, 6, (m, n))
+        x = rng.standard_normal(n) * 10.0 ** rng.uniform(-6, 6, n)
+        y = np.empty(m)
+        k.matvec(a, x, y)
+        if y.tobytes() != (a @ x).tobytes():
+            raise KernelUnavailable(f"the kernel's {m}x{n} product differs from numpy's @ (another BLAS?)")
+
+
+def _load():
+    try:
+        from droid import _kernel
+    except ImportError as e:
+        raise KernelUnavailable(f"{ENV}=c but droid._kernel is not built ({e}); reinstall with "
+                                "`pip install -e .` (needs gcc and Python's headers: scripts/venv.sh)") from e
+    addr, int64, where = _find_gemv()
+    _kernel.set_gemv(addr, int64)
+    _check(_kernel)
+    return _kernel, where
+
+
+def _choose():
+    name = os.environ.get(ENV, "python").strip().lower() or "python"
+    if name not in KERNELS:
+        raise KernelUnavailable(f"{ENV}={name!r}: known kernels are {', '.join(KERNELS)}")
+    if name == "python":
+        return name, None, None
+    k, where = _load()
+    return name, k, where
+
+
+#: "python" or "c": the implementation in use in this process
+NAME, _K, GEMV = _choose()
+
+
+def compiled():
+    """The compiled module (:mod:`droid._kernel`) when ``DROID_KERNEL=c``, else None."""
+    return _K
+
+
+def describe() -> str:
+    """One line: which kernel runs (for logs and benches)."""
+    return f"kernel {NAME}" + (f" ({_K.__file__}, BLAS {GEMV})" if _K is not None else "")
+
+
+def load_compiled():
+    """The compiled module, set up and checked, whatever ``DROID_KERNEL`` says (tests, benches)."""
+    return _K if _K is not None else _load()[0]
+
+
+if __name__ == "__main__":  # pragma: no cover
+    print(describe(), file=sys.stdout)
