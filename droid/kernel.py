@@ -5,12 +5,15 @@ twin's exact zero-order-hold step (:mod:`droid.sim.reis.plant`) exist twice: the
 reference and one compiled implementation, :mod:`droid._kernel` (``droid/_kernel.c``, a CPython
 C extension built by pip at install; setup.py).  ``DROID_KERNEL`` chooses, read once at import:
 
-* ``python`` (the default) -- the Python reference.  The same bits as ``c``; it stays the default
-  so that a checkout whose extension has not been built by ``pip install -e .`` still runs;
-* ``c`` -- the compiled kernel, in every process that reads the variable: droid-servo,
-  droid-sim's arm device and every lockstep trial run the same code.  If it cannot be used
-  (not built, or numpy's BLAS not reachable or not answering bit for bit) importing this module
-  raises :class:`KernelUnavailable`: an explicit request never falls back silently.
+* ``auto`` (the default) -- the compiled kernel when it is built and answers bit for bit, else
+  the Python reference (:data:`UNAVAILABLE` says why): results are the same bits either way,
+  only the speed differs, so droid-servo, droid-sim's arm device and every lockstep trial run
+  the compiled code in any install scripts/venv.sh made, and a checkout whose extension was
+  not built still runs;
+* ``c`` -- the compiled kernel, or nothing: if it cannot be used (not built, or numpy's BLAS
+  not reachable or not answering bit for bit) importing this module raises
+  :class:`KernelUnavailable` -- an explicit request never falls back;
+* ``python`` -- the Python reference, which stays the specification (tests, benches).
 
 The compiled kernel gives the **same bits** as the reference: the same IEEE operations in the
 same order (built without FMA contraction or fast-math), libm's ``sin`` as ``math.sin``, and the
@@ -27,7 +30,7 @@ import sys
 
 import numpy as np
 
-KERNELS = ("python", "c")
+KERNELS = ("auto", "c", "python")
 #: the environment variable that chooses (read once, at import)
 ENV = "DROID_KERNEL"
 #: (m, n) of the products the bit check compares with numpy's ``@`` before the kernel is used
@@ -97,17 +100,23 @@ def _load():
 
 
 def _choose():
-    name = os.environ.get(ENV, "python").strip().lower() or "python"
+    name = os.environ.get(ENV, "auto").strip().lower() or "auto"
     if name not in KERNELS:
         raise KernelUnavailable(f"{ENV}={name!r}: known kernels are {', '.join(KERNELS)}")
     if name == "python":
-        return name, None, None
-    k, where = _load()
-    return name, k, where
+        return "python", None, None, ""
+    try:
+        k, where = _load()
+    except KernelUnavailable as exc:
+        if name == "c":
+            raise
+        return "python", None, None, str(exc)  # auto: the reference, the same bits
+    return "c", k, where, ""
 
 
-#: "python" or "c": the implementation in use in this process
-NAME, _K, GEMV = _choose()
+#: "python" or "c": the implementation in use in this process; UNAVAILABLE: why ``auto`` chose
+#: the reference ("" when it did not, or was not asked to)
+NAME, _K, GEMV, UNAVAILABLE = _choose()
 
 
 def compiled():
@@ -117,7 +126,8 @@ def compiled():
 
 def describe() -> str:
     """One line: which kernel runs (for logs and benches)."""
-    return f"kernel {NAME}" + (f" ({_K.__file__}, BLAS {GEMV})" if _K is not None else "")
+    return (f"kernel {NAME}" + (f" ({_K.__file__}, BLAS {GEMV})" if _K is not None else "")
+            + (f" (the compiled one is not usable: {UNAVAILABLE})" if UNAVAILABLE else ""))
 
 
 def load_compiled():

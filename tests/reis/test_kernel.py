@@ -224,6 +224,34 @@ def test_droid_kernel_python_uses_the_reference():
     assert r.stdout.split() == ["python", "False", "False", "True"]
 
 
+def test_the_default_uses_the_compiled_kernel_when_it_is_built():
+    """``auto`` (DROID_KERNEL unset or empty): the compiled kernel wherever the install built it
+    -- this checkout's is (scripts/venv.sh) -- so real time and lockstep run the same code."""
+    r = _probe("")
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split() == ["c", "True", "True", "False"]
+
+
+def test_auto_falls_back_to_the_reference_and_says_why_while_c_refuses(tmp_path):
+    """A checkout without the built extension: ``auto`` runs the reference (the same bits) and
+    ``describe()`` says why; an explicit ``c`` stops at import instead."""
+    shadow = tmp_path / "droid"
+    shadow.mkdir()
+    (shadow / "_kernel.py").write_text("raise ImportError('not built here')\n")
+    code = ("import sys; import droid; droid.__path__.insert(0, sys.argv[1]); "
+            "from droid import kernel; print(kernel.NAME); print(kernel.describe())")
+    for value, ok in (("auto", True), ("c", False)):
+        env = dict(os.environ, DROID_KERNEL=value, PYTHONPATH=str(ROOT))
+        r = subprocess.run([sys.executable, "-c", code, str(shadow)], env=env, capture_output=True, text=True,
+                           timeout=300)
+        if ok:
+            assert r.returncode == 0, r.stderr
+            name, line = r.stdout.splitlines()
+            assert name == "python" and "not usable" in line and "not built here" in line
+        else:
+            assert r.returncode != 0 and "KernelUnavailable" in r.stderr and "not built here" in r.stderr
+
+
 def test_an_unknown_kernel_is_refused():
     r = _probe("fortran")
     assert r.returncode != 0 and "KernelUnavailable" in r.stderr and "fortran" in r.stderr
