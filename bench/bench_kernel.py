@@ -69,7 +69,10 @@ def record_states(path: str) -> None:
 
 
 def _python_core(data):
-    """The reference's step core, as plant.py's ``_integrate`` (exact branch) and ``_step_exact``."""
+    """The reference's step core, as plant.py's ``_integrate`` (exact branch) and ``_step_exact``.
+
+    A copy on purpose (the friction loop repeats ReisPlant._step_exact's): every candidate is
+    timed on the same bare core, outside the plant object, on recorded states."""
     import math
     import struct
     k = data["consts"].tolist()
@@ -315,10 +318,9 @@ def candidates(numba_python: str | None) -> list[dict]:
 
 # -- two cells side by side ----------------------------------------------------------------------
 def cells(moves: int) -> dict:
-    from droid.sim.reis.lockstep import ReisLockstep, constant_commander, min_jerk_waypoints, waypoint_commander
+    from droid.sim.reis.lockstep import ReisLockstep, drive_side_by_side, plants_same_bits
     from droid.sim.reis.plant import ReisPlant, ReisPlantParams
     from droid.subunits.reis.servo import ServoCore
-    from droid.subunits.reis.servo_params import Mode
 
     cs, acc = {}, {}
     for k in ("python", "c"):
@@ -334,35 +336,13 @@ def cells(moves: int) -> dict:
                 _a[1] += 1
                 return r
             setattr(owner, attr, timed)
-    differ = 0
+    differ = [0]
 
-    def same() -> bool:
-        a, b = cs["python"].plant, cs["c"].plant
-        return bytes(a.regs) == bytes(b.regs) and all(
-            getattr(a, s).tobytes() == getattr(b, s).tobytes() for s in ("_theta", "_omega", "_q", "_qd"))
-    for c in cs.values():
-        c.run(0.05)
-    home = constant_commander(Mode.HOME)
-    for _ in range(120):
-        if all(c.servo.homed for c in cs.values()):
-            break
-        for c in cs.values():
-            c.run(0.5, home, record=False)
-        differ += not same()
-    m = np.asarray(cs["c"].servo.params.joint_to_counts)
-    step = np.rint(m @ MOVE_DEG).astype(np.int64)
-    for _ in range(moves):
-        for sign in (1, -1):
-            cmds = {}
-            for k, c in cs.items():
-                s0 = np.asarray(c.servo.encoder_cmd)
-                cmds[k] = waypoint_commander(min_jerk_waypoints(s0, s0 + sign * step, 2.0), Mode.NORMAL,
-                                             first_index=c.command_index)
-            for _ in range(5):
-                for k, c in cs.items():
-                    c.run(0.5, cmds[k], record=False)
-                differ += not same()
-    return {"sim_s": round(cs["c"].time_s, 2), "bit_identical": differ == 0 and same(),
+    def compare() -> None:
+        differ[0] += not plants_same_bits(cs["python"].plant, cs["c"].plant)
+    drive_side_by_side(cs, MOVE_DEG, moves, compare)
+    return {"sim_s": round(cs["c"].time_s, 2),
+            "bit_identical": differ[0] == 0 and plants_same_bits(cs["python"].plant, cs["c"].plant),
             **{f"{k}_{part}_us": round(1e6 * v[0] / max(1, v[1]), 1) for k, a in acc.items() for part, v in a.items()}}
 
 

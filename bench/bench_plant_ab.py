@@ -25,9 +25,8 @@ from pathlib import Path
 import numpy as np
 
 from droid.cli import ArgumentParser, BadInput, bounded_float, bounded_int, run
-from droid.sim.reis.lockstep import ReisLockstep, constant_commander, min_jerk_waypoints, waypoint_commander
+from droid.sim.reis.lockstep import ReisLockstep, drive_side_by_side, plants_same_bits
 from droid.subunits.reis.servo import ServoCore
-from droid.subunits.reis.servo_params import Mode
 
 MOVE_DEG = np.array([60.0, 45.0, -50.0, 90.0, 70.0, 120.0])
 HERE = Path(__file__).resolve().parent.parent / "droid" / "sim" / "reis" / "plant.py"
@@ -61,45 +60,21 @@ def bench(base: Path, moves: int, hold_s: float = 5.0, rigid: bool = False) -> d
     pa, pb = cells["base"].plant, cells["this"].plant
     differ = [0, 0]  # chunks compared, chunks whose registers or state differed
 
-    def same_bits() -> bool:
-        return bytes(pa.regs) == bytes(pb.regs) and pa.time_s == pb.time_s and all(
-            np.array_equal(getattr(pa, k), getattr(pb, k)) for k in ("_theta", "_omega", "_q", "_qd"))
-
     def compare():
         differ[0] += 1
-        differ[1] += not same_bits()
+        differ[1] += not plants_same_bits(pa, pb)
+    homed: dict = {}
 
-    def both(fn):
-        for name in ("base", "this"):
-            fn(cells[name])
-        compare()
-    both(lambda ls: ls.run(0.05))
-    home = constant_commander(Mode.HOME)
-    for _ in range(80):
-        if all(c.servo.homed for c in cells.values()):
-            break
-        both(lambda ls: ls.run(0.5, home, record=False))
-    homed = {n: (tuple(a), cells[n].servo.homed) for n, a in acc.items()}
-    m = np.asarray(cells["this"].servo.params.joint_to_counts)
-    step = np.rint(m @ MOVE_DEG).astype(np.int64)
-    for _ in range(moves):
-        for sign in (1, -1):
-            cmds = {}
-            for n, c in cells.items():
-                start = np.asarray(c.servo.encoder_cmd)
-                cmds[n] = waypoint_commander(min_jerk_waypoints(start, start + sign * step, 2.0), Mode.NORMAL,
-                                             first_index=c.command_index)
-            for _ in range(5):
-                for n in ("base", "this"):
-                    cells[n].run(0.5, cmds[n], record=False)
-                compare()
+    def mark_homed() -> None:
+        homed.update({n: (tuple(a), cells[n].servo.homed) for n, a in acc.items()})
+    cmds = drive_side_by_side(cells, MOVE_DEG, moves, compare, max_homing_chunks=80, on_homed=mark_homed)
     moved = {n: tuple(a) for n, a in acc.items()}
     for _ in range(int(round(hold_s / 0.5))):  # the last commander holds its target: the idle cell
         for n in ("base", "this"):
             cells[n].run(0.5, cmds[n], record=False)
         compare()
     out = {"base": str(base), "rigid": rigid, "sim_s": round(cells["this"].time_s, 3),
-           "bit_identical": bool(same_bits()) and differ[1] == 0, "chunks_compared": differ[0],
+           "bit_identical": plants_same_bits(pa, pb) and differ[1] == 0, "chunks_compared": differ[0],
            "chunks_differing": differ[1]}
     for n, a in acc.items():
         (h_s, h_n), ok = homed[n]

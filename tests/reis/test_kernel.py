@@ -18,7 +18,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from droid import kernel
-from droid.sim.reis.lockstep import ReisLockstep, constant_commander, min_jerk_waypoints, waypoint_commander
+from droid.sim.reis.lockstep import ReisLockstep, drive_side_by_side, plants_same_bits
 from droid.sim.reis.plant import ReisPlant, ReisPlantParams
 from droid.subunits.reis import vme_map as vm
 from droid.subunits.reis.pid import Pid
@@ -136,9 +136,7 @@ def _cells(rigid=False):
 
 
 def _same(cells) -> bool:
-    a, b = cells["python"].plant, cells["c"].plant
-    return (bytes(a.regs) == bytes(b.regs) and a.time_s == b.time_s
-            and all(getattr(a, k).tobytes() == getattr(b, k).tobytes() for k in STATE))
+    return plants_same_bits(cells["python"].plant, cells["c"].plant)
 
 
 @pytest.mark.parametrize("rigid", [False, True], ids=["compliant-exact", "rigid"])
@@ -146,28 +144,11 @@ def test_a_servo_and_plant_pair_stays_bit_identical_through_homing_and_a_move(ri
     """Two cells, the reference and the kernel (plant and PID), side by side: homing from power-up,
     then a 2 s move of all six joints out and back -- the same bits after every 0.5 s."""
     cells = _cells(rigid)
-    home = constant_commander(Mode.HOME)
-    for c in cells.values():
-        c.run(0.05)
-    for _ in range(120):
-        if all(c.servo.homed for c in cells.values()):
-            break
-        for c in cells.values():
-            c.run(0.5, home, record=False)
+
+    def check() -> None:
         assert _same(cells)
+    drive_side_by_side(cells, [60.0, 45.0, -50.0, 90.0, 70.0, 120.0], 1, check)
     assert all(c.servo.homed for c in cells.values())
-    m = np.asarray(cells["c"].servo.params.joint_to_counts)
-    step = np.rint(m @ np.array([60.0, 45.0, -50.0, 90.0, 70.0, 120.0])).astype(np.int64)
-    for sign in (1, -1):
-        cmds = {}
-        for k, c in cells.items():
-            s0 = np.asarray(c.servo.encoder_cmd)
-            cmds[k] = waypoint_commander(min_jerk_waypoints(s0, s0 + sign * step, 2.0), Mode.NORMAL,
-                                         first_index=c.command_index)
-        for _ in range(5):
-            for k, c in cells.items():
-                c.run(0.5, cmds[k], record=False)
-            assert _same(cells)
     assert cells["c"].servo.dac == cells["python"].servo.dac
 
 

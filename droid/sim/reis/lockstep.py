@@ -280,6 +280,49 @@ def run_homing(ls: ReisLockstep, max_s: float = 60.0, chunk_s: float = 0.5) -> l
     return pieces
 
 
+def plants_same_bits(a, b) -> bool:
+    """Two Reis plants hold the same bits: registers, simulated time and state (motor and link
+    angles and speeds) -- an A/B comparison's verdict (bench_plant_ab, bench_kernel, the tests)."""
+    return bytes(a.regs) == bytes(b.regs) and a.time_s == b.time_s and all(
+        getattr(a, k).tobytes() == getattr(b, k).tobytes() for k in ("_theta", "_omega", "_q", "_qd"))
+
+
+def drive_side_by_side(cells: dict[str, ReisLockstep], move_deg, moves: int, after_chunk,
+                       max_homing_chunks: int = 120, on_homed=None) -> dict[str, Commander]:
+    """Drive several Reis cells with the same commands, chunk by chunk (thesis §4.1.5: HOME, then
+    way-points at the command rate): 0.05 s of power-up, HOME in 0.5 s chunks until every one is
+    homed (``max_homing_chunks`` at most), then ``moves`` times a 2 s minimum-jerk move of every
+    joint by ``move_deg`` [deg] and back, each followed by 2 s more; ``after_chunk()`` after every
+    chunk (an A/B comparison's check), ``on_homed()`` once homing ended (a bench's phase mark).
+    Returns each cell's last commander (it holds its target)."""
+    for c in cells.values():
+        c.run(0.05)
+    after_chunk()
+    home = constant_commander(Mode.HOME)
+    for _ in range(max_homing_chunks):
+        if all(c.servo.homed for c in cells.values()):
+            break
+        for c in cells.values():
+            c.run(0.5, home, record=False)
+        after_chunk()
+    if on_homed is not None:
+        on_homed()
+    cmds: dict[str, Commander] = {n: home for n in cells}
+    first = next(iter(cells.values()))
+    step = np.rint(np.asarray(first.servo.params.joint_to_counts) @ np.asarray(move_deg, float)).astype(np.int64)
+    for _ in range(moves):
+        for sign in (1, -1):
+            for n, c in cells.items():
+                s0 = np.asarray(c.servo.encoder_cmd)
+                cmds[n] = waypoint_commander(min_jerk_waypoints(s0, s0 + sign * step, 2.0), Mode.NORMAL,
+                                             first_index=c.command_index)
+            for _ in range(5):
+                for n, c in cells.items():
+                    c.run(0.5, cmds[n], record=False)
+                after_chunk()
+    return cmds
+
+
 #: power-up pose a little off the home switches (both sides), so homing takes ~3 s simulated
 #: before the edges are bracketed at rest (homing.py step 5: ~3 s more a joint)
 NEAR_SWITCH_OFFSET_DEG = (0.4, -0.3, 0.3, -0.4, 0.3, -0.3)

@@ -677,7 +677,8 @@ class ReisPlant:
         else:  # every motor at rest: no kinetic friction, each one may stick
             kin, keep = None, (False,) * 6
         # a motor at rest or reversing (most steps: the wrist motors stand still while the main
-        # axes track); per motor in plain floats -- six of them are cheaper than a dozen numpy calls
+        # axes track); per motor in plain floats -- six of them are cheaper than a dozen numpy calls.
+        # (bench/bench_kernel.py's _python_core copies these lines on purpose: the bare core it times.)
         w_end = free[6:12].tolist()
         fric, rest = [0.0] * 6, []
         for j, (tc, gw) in enumerate(zip(tcl, g_wd)):
