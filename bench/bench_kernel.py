@@ -36,6 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
+from droid.cli import run
+
 ROOT = Path(__file__).resolve().parent.parent
 MOVE_DEG = np.array([60.0, 45.0, -50.0, 90.0, 70.0, 120.0])
 STEPS = 20_000
@@ -365,15 +367,24 @@ def trials(n: int, position: str, speed: float) -> list[dict]:
     return out
 
 
+@run
 def main(argv=None) -> int:
     import argparse
-    parser = argparse.ArgumentParser(prog="bench_kernel", description=__doc__.split("\n")[0])
+
+    from droid.brain.cell_layout import load_layout
+    from droid.cli import ArgumentParser, bounded_float, bounded_int
+
+    parser = ArgumentParser(prog="bench_kernel", description=__doc__.split("\n")[0])
     parser.add_argument("--candidates", action="store_true", help="measure the candidates in fresh processes")
     parser.add_argument("--numba-python", help="an interpreter with numba (the numba candidate; else skipped)")
-    parser.add_argument("--moves", type=int, default=2, help="pairs of out-and-back moves in the cell comparison")
-    parser.add_argument("--trials", type=int, default=0, help="trial runs per kernel (alternating)")
-    parser.add_argument("--position", default="i")
-    parser.add_argument("--speed", type=float, default=64.0)
+    parser.add_argument("--moves", type=bounded_int(0, 100, "moves"), default=2,
+                        help="pairs of out-and-back moves in the cell comparison")
+    parser.add_argument("--trials", type=bounded_int(0, 20, "trials"), default=0,
+                        help="trial runs per kernel (alternating)")
+    parser.add_argument("--position", default="i", choices=sorted(load_layout().positions),
+                        help="the trial's start position (thesis §6.1)")
+    parser.add_argument("--speed", type=bounded_float(0.1, 200.0, "mm/s"), default=64.0,
+                        help="the trial's speed [mm/s]")
     parser.add_argument("--json", action="store_true")
     parser.add_argument("--worker", help=argparse.SUPPRESS)
     parser.add_argument("--data", help=argparse.SUPPRESS)
