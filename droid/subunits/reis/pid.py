@@ -12,7 +12,7 @@ in the direction of the error (conditional integration) and is also bounded by
 ``integral_limit``.  Six joints in plain Python floats: at this size that is
 several times faster than numpy, and the servo tick is the hot loop.
 
-With ``DROID_KERNEL=c`` (droid.kernel) :meth:`Pid.step` and :meth:`Pid.step_rounded` run in the
+With the compiled kernel in use (droid.kernel) :meth:`Pid.step` and :meth:`Pid.step_rounded` run in the
 compiled kernel (droid/_kernel.c ``pid_step``): the same operations in the same order, the same
 bits -- droid-servo and every lockstep trial alike.
 """
@@ -75,6 +75,15 @@ class Pid:
         out = self._k.pid_step(self._gains, self._state, self._first, error_counts, True)
         self._first = False
         return out
+
+    def tail_compiled(self, target, previous, lo, hi, pos, fe_max, vel) -> tuple[int, ...] | None:
+        """ServoCore's tick tail in the compiled kernel (``servo_tail``: clip ``target`` to
+        ``lo``/``hi`` [counts] when given, ``vel`` = target - previous, the following-error check
+        against ``fe_max``, then this PID, rounded): the DAC words, or None on a following error."""
+        dac = self._k.servo_tail(target, previous, lo, hi, pos, fe_max, vel, self._gains, self._state, self._first)
+        if dac is not None:
+            self._first = False
+        return dac
 
     def step_rounded(self, error_counts) -> tuple[int, ...]:
         """One tick, the outputs rounded half to even [DAC counts, int] (ServoCore.step's DACs)."""

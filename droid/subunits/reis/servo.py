@@ -283,40 +283,39 @@ class ServoCore:
             if self._target is previous:
                 previous = previous.copy()
         target = self._target
-        pid = self._pid
-        if pid._k is not None:  # the compiled kernel (DROID_KERNEL=c): the lines below, the same bits
-            lims = self._limits if self._limits is not None else (None, None)
-            self._vel = vel = np.empty(N, np.int64)
-            dac = pid._k.servo_tail(target, previous, lims[0], lims[1], self._pos, self._fe_max_arr, vel, pid._gains,
-                                    pid._state, pid._first)
-            if dac is None:
-                self._fault = Fault.FOLLOWING_ERROR
-            if self._fault != Fault.NONE:  # this one, or homing's switch not found
-                pid.reset()
-                self._dac = (0,) * N
-            else:
-                pid._first = False
-                self._dac = dac
+        dac = self._tail(target, previous)
+        if dac is None:
+            self._fault = Fault.FOLLOWING_ERROR
+        if self._fault != Fault.NONE:  # this one, or homing's switch not found
+            self._pid.reset()
+            self._dac = (0,) * N
             return self._dac
-        if self._limits is not None:  # the min/max counts once homed: clip in place
+        self._dac = dac
+        return self._dac
+
+    def _tail(self, target: np.ndarray, previous: np.ndarray) -> tuple[int, ...] | None:
+        """The tick after the target is picked: clip it to the min/max counts once homed, the
+        velocity [counts/tick], the following-error check (None when an error is over its limit)
+        and the PID's DAC words, rounded -- in the compiled kernel when it is in use (droid.kernel:
+        the same operations, the same bits), else here."""
+        pid = self._pid
+        if pid._k is not None:
+            lo, hi = self._limits if self._limits is not None else (None, None)
+            self._vel = np.empty(N, np.int64)
+            return pid.tail_compiled(target, previous, lo, hi, self._pos, self._fe_max_arr, self._vel)
+        if self._limits is not None:  # clip in place
             lo, hi = self._limits
             np.minimum(np.maximum(target, lo, out=target), hi, out=target)
         self._vel = target - previous
         error = (target - self._pos).tolist()
         for e, limit in zip(error, self._fe_max):
             if e > limit or -e > limit:
-                self._fault = Fault.FOLLOWING_ERROR
-                break
-        if self._fault != Fault.NONE:
-            self._pid.reset()
-            self._dac = (0,) * N
-            return self._dac
-        self._dac = self._pid.step_rounded(error)
-        return self._dac
+                return None
+        return pid.step_rounded(error)
 
     def _read_encoders(self, encoders_raw, periods: int = 1) -> None:
         k, jump = self._pid._k, self.params.max_encoder_step_counts * periods
-        if k is not None and self._pos is not None and type(jump) is int:  # the compiled kernel (DROID_KERNEL=c)
+        if k is not None and self._pos is not None and type(jump) is int:  # the compiled kernel (droid.kernel)
             new = np.empty(N, np.int64)
             if k.extend_counters(self._pos, encoders_raw, self._span, jump, new):
                 self._fault = Fault.ENCODER_JUMP

@@ -36,7 +36,7 @@ VmeUrlError = MapUrlError
 VmeOpenError = MapUnavailable
 
 
-_K = _kernel_switch.compiled()  # droid._kernel when DROID_KERNEL=c (droid.kernel), else None
+_K = _kernel_switch.compiled()  # droid._kernel when it is in use (droid.kernel), else None
 
 
 class VmeBus:
@@ -100,7 +100,7 @@ class VmeBus:
         """Write six amplifier commands [DAC counts], clamped to -2048..2047; returns what was written."""
         if len(values) != vm.N_JOINTS:
             raise ValueError(f"write_dacs needs {vm.N_JOINTS} values, got {len(values)}")
-        if _K is not None:  # the compiled kernel (DROID_KERNEL=c): six ints clamped and stored
+        if _K is not None:  # the compiled kernel: six ints clamped and stored
             written = _K.write_dacs(self._view, values)
             if written is not None:
                 return written
