@@ -124,8 +124,8 @@ def cell_logs(request) -> list[str]:
     return sorted(str(p) for p in tmp.glob("**/logs/*.log")) if tmp is not None else []
 
 
-#: The funcarg a module-scoped shared cell is handed out by (tests/tasks/test_seamtrack_cell.py):
-#: its program logs live beside its cell file, not under the test's tmp_path.
+#: The funcarg the session's shared homed cell is handed out by (:func:`homed_sim_cell`): its
+#: program logs live beside its cell file, not under the test's tmp_path.
 SHARED_CELL_ARG = "homed_sim_cell"
 
 
@@ -250,18 +250,40 @@ def pytest_runtest_makereport(item, call):
 
 HOMED_ARMS = ("arm1", "gmf1")  # the built-in sim cell's arms, homed in this order
 
+#: Markers that place a test among those on the session's shared homed cell
+#: (:func:`pytest_collection_modifyitems`): first, while both arms still stand where homing left
+#: them; last, because the test breaks the cell.
+SHARED_FIRST, SHARED_LAST = "shared_cell_first", "shared_cell_last"
 
-@pytest.fixture(scope="module")
+
+def pytest_collection_modifyitems(config, items):
+    """Run every test on the shared homed cell (:func:`shared_sim_cell`) after all the others,
+    in one block: the cell is then up only while its own tests run -- never beside another
+    test's cell on this two-core machine -- and comes down at the session's end, right after
+    them.  Within the block: tests marked ``shared_cell_first``, then the rest in the order
+    collected, then those marked ``shared_cell_last`` (they leave the cell broken)."""
+    def rank(item):
+        if SHARED_CELL_ARG not in getattr(item, "fixturenames", ()):
+            return 0
+        if item.get_closest_marker(SHARED_FIRST):
+            return 1
+        return 3 if item.get_closest_marker(SHARED_LAST) else 2
+
+    items[:] = sorted(items, key=rank)  # sorted() is stable: the collected order within a rank
+
+
+@pytest.fixture(scope="session")
 def shared_sim_cell(tmp_path_factory):
-    """The built-in simulated cell brought up once for a module and both arms homed (issue 28
+    """The built-in simulated cell brought up once for the session and both arms homed (issue 28
     item 5: live tests share a homed cell where a test does not need a fresh one); brought
-    down after the module's last test, with the same proofs as a test's own cell: ``down``
+    down after the session's last test, with the same proofs as a test's own cell: ``down``
     succeeds, nothing of the cell stays in /dev/shm, and none of its programs runs on.
 
     Its programs carry a tag of their own (not a test's), so each test's leak check sees them
-    neither as its own nor as leaked; they are checked here instead.  Homing costs about 40 s
+    neither as its own nor as leaked; they are checked here instead.  Homing costs about 30 s
     of real time a cell, which is what the sharing saves.  Tests use it through
-    :func:`homed_sim_cell`, which checks it is still whole before each test."""
+    :func:`homed_sim_cell`, which checks it is still whole before each test; the tests that use
+    it run last, in one block (:func:`pytest_collection_modifyitems`)."""
     from tests.brain.cellutil import brought_down, droid, home_both, make_cell_file
 
     name = new_cell_name()
@@ -295,18 +317,29 @@ def _restore_env(key: str, old: str | None) -> None:
 
 @pytest.fixture
 def homed_sim_cell(shared_sim_cell):
-    """The module's shared homed cell (:func:`shared_sim_cell`), checked whole before the test:
-    every program live, both arms homed and without a fault -- a test that broke it fails the
-    next one here, naming what it left, rather than somewhere in the middle of a run."""
-    import json
+    """The session's shared homed cell (:func:`shared_sim_cell`), checked whole before the test:
+    every program live, both arms homed, fresh and without a fault -- a test that broke it fails
+    the next one here, naming what it left, rather than somewhere in the middle of a run.  The
+    check reads the cell's state and the Brain's Status records in this process (no program
+    started: it runs before each of many tests)."""
+    from droid.brain.cellfile import load_cell
+    from droid.brain.databases import open_brain
+    from droid.brain.launcher import status
+    from tests.brain.cellutil import wait_for
 
-    from tests.brain.cellutil import cell_status, droid
-
-    dead = [r["name"] for r in cell_status(shared_sim_cell) if not r.get("live")]
+    cell = load_cell(shared_sim_cell)
+    dead = [r["name"] for r in status(cell) if not r["live"]]
     assert not dead, f"an earlier test left the shared cell with programs not live: {dead}"
+
+    def whole(arm):
+        with open_brain(cell, cell.subunit(arm), "status") as st:
+            r = st.read()
+        return {k: int(r[k]) for k in ("homed", "fault", "stale")}
+
     for arm in HOMED_ARMS:
-        out = droid("droid.tasks.snoop", arm, "--json", "--count", "1", "--cell", str(shared_sim_cell))
-        assert out.returncode == 0, out.stderr
-        st = json.loads(out.stdout)
-        assert st["homed"] == 1 and not st["fault"], f"an earlier test left {arm} so: {st}"
+        try:  # a Status stale for a moment (a host stall) is waited out, not a verdict
+            wait_for(lambda: (lambda s: s["homed"] == 1 and not s["fault"] and not s["stale"])(whole(arm)),
+                     timeout=10, what=f"{arm} homed, fresh, no fault")
+        except AssertionError:
+            raise AssertionError(f"an earlier test left {arm} so: {whole(arm)}") from None
     return shared_sim_cell

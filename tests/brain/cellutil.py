@@ -189,6 +189,22 @@ programs = ["droid-reis-agent"]
     return path
 
 
+def home_at_once(cell, arms, timeout: float = 180) -> None:
+    """droid-home every arm in ``arms`` at the same time, as ``droid-home arm1 & droid-home arm2;
+    wait`` in a shell script does (thesis §3.4); each must succeed."""
+    procs = {arm: subprocess.Popen([sys.executable, "-m", "droid.tasks.home", arm, "--cell", str(cell)], cwd=ROOT,
+                                   stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for arm in arms}
+    try:
+        for arm, proc in procs.items():
+            _, err = proc.communicate(timeout=timeout)
+            assert proc.returncode == 0, f"droid-home {arm}: {err}"
+    finally:
+        for proc in procs.values():
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+
+
 def home_both(cell, arms=("arm1", "gmf1")) -> None:
     """droid-home each arm of the built-in sim cell in turn (each must succeed)."""
     for arm in arms:

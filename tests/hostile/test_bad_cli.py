@@ -1,7 +1,7 @@
 """Hostile command lines (issue 8; DESIGN §6): every bad invocation exits 2 with exactly one
 line on stderr naming the reason, never a traceback, and the robot does not move.
 
-One simulated cell is brought up for the module and arm1 homed once.  Each
+The session's shared simulated cell, both arms homed (tests/conftest.py).  Each
 invocation aimed at it (droid-move, droid-home, droid-jog) is then checked for
 "no motion": the Brain's arm1 Command record is byte for byte unchanged with
 the same write counter (no command, no command id written), and the arm's
@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import io
 import sys
-import uuid
 
 import numpy as np
 import pytest
@@ -22,34 +21,15 @@ import pytest
 from droid.brain.cellfile import load_cell
 from droid.brain.databases import open_brain, open_local
 from droid.brain.shmdb import cell_objects
-from tests.brain.cellutil import droid, make_cell_file, wait_for
+from tests.brain.cellutil import make_cell_file, wait_for
 
 pytestmark = pytest.mark.integration
-CELL = "droid.brain.launcher"
 
 
-@pytest.fixture(scope="module")
-def live(tmp_path_factory):
-    """The default sim cell, up for the whole module, arm1 homed; yields its cell file."""
-    from tests import conftest
-
-    name = f"t{uuid.uuid4().hex[:10]}"
-    conftest._MY_CELLS.add(name)
-    path = make_cell_file(tmp_path_factory.mktemp("hostile"), name)
-    try:
-        for attempt in (1, 2):  # a host stall on a loaded 2-core machine can fault the servo
-            out = droid(CELL, "up", "--cell", str(path), timeout=120)
-            assert out.returncode == 0, out.stdout + out.stderr
-            home = droid("droid.tasks.home", "arm1", "--cell", str(path), timeout=240)
-            if home.returncode == 0:
-                break
-            assert attempt == 1, home.stderr
-            droid(CELL, "down", "--cell", str(path))
-        yield path
-    finally:
-        out = droid(CELL, "down", "--cell", str(path))
-        assert out.returncode == 0, out.stderr
-        assert cell_objects(name) == []
+@pytest.fixture
+def live(homed_sim_cell):
+    """The session's shared homed cell (tests/conftest.py ``homed_sim_cell``)."""
+    return homed_sim_cell
 
 
 def arm_state(path):

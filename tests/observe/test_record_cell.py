@@ -15,10 +15,9 @@ from tests.brain.cellutil import droid
 pytestmark = pytest.mark.integration
 
 
-def test_seamtrack_records_the_live_cell(sim_cell, tmp_path):
-    for arm in ("arm1", "gmf1"):
-        out = droid("droid.tasks.home", arm, "--cell", str(sim_cell), timeout=120)
-        assert out.returncode == 0, out.stderr
+def test_seamtrack_records_the_live_cell(homed_sim_cell, tmp_path):
+    """On the session's shared homed cell (tests/conftest.py)."""
+    sim_cell = homed_sim_cell
     path = tmp_path / "run.mcap"
     out = droid("droid.tasks.seamtrack", "8", "--start", "i", "--length", "40", "--record", str(path),
                 "--cell", str(sim_cell), timeout=180)

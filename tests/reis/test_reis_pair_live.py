@@ -12,7 +12,7 @@ import pytest
 
 from droid.brain.shmdb import cell_objects
 from droid.kinematics import load_robot
-from tests.brain.cellutil import droid, make_cell_file
+from tests.brain.cellutil import droid, home_at_once, make_cell_file
 
 pytestmark = pytest.mark.integration
 PAIR = Path(__file__).resolve().parents[2] / "droid" / "cells" / "reis_pair.toml"
@@ -24,9 +24,9 @@ def test_both_arms_home_move_and_the_world_tells_the_truth(tmp_path, cell_name):
     try:
         assert out.returncode == 0, out.stdout + out.stderr
         goal_deg = [20, 10, 15, 5, 30, -10]
+        home_at_once(path, ("arm1", "arm2"))  # both Reis servos search their switches at once
         for arm, robot in (("arm1", "reis_v15"), ("arm2", "reis_class_b")):
             counts = load_robot(robot).gearing.joints_to_counts_int(np.asarray(goal_deg, float))
-            droid("droid.tasks.home", arm, "--cell", str(path), timeout=180, check=True)
             droid("droid.tasks.move", arm, "joint", *(str(int(c)) for c in counts), "3", "--cell", str(path),
                   timeout=60, check=True)  # droid-move's joint targets are encoder counts
         t = droid("droid.sim.world", "truth", "arm2", "--json", "--cell", str(path))

@@ -2,7 +2,7 @@
 Reis presses its nozzle on the step workpiece the GMF1 holds, through droid-sim's contact
 device, read by droid-ft from the Net F/T twin.
 
-One cell for the test (brought up and down by the sim_cell fixture; the leak fixture
+On the session's shared homed cell (tests/conftest.py ``homed_sim_cell``; its fixture
 proves nothing stays).  No timing decides a verdict: the tolerances are stated below and
 the waits are generous.
 """
@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 
 from tests.brain.cellutil import droid, wait_for
-from tests.brain.cellutil import home_both
 from tests.tasks.test_seamtrack_cell import snoop
 
 pytestmark = pytest.mark.integration
@@ -53,8 +52,8 @@ def assert_standing(cell):
     assert np.max(np.abs(np.subtract(a["encoder_pos"], b["encoder_pos"]))) <= 2, (a, b)
 
 
-def test_droid_contact_presses_slides_and_stops_on_over_force(sim_cell, tmp_path):
-    home_both(sim_cell)
+def test_droid_contact_presses_slides_and_stops_on_over_force(homed_sim_cell, tmp_path):
+    sim_cell = homed_sim_cell
     log, fig = tmp_path / "f.csv", tmp_path / "f.png"
     out = droid(CONTACT, "arm1", "--start", "i", "--force", "20", "--speed", "10", "--length", "40",
                 "--log", str(log), "--figure", str(fig), "--cell", str(sim_cell), timeout=240)

@@ -1,11 +1,12 @@
 """droid-seamtrack on the real-time process cell (issue 7; thesis §5.5, §6.1).
 
-The tests on a cell share one, brought up and homed once for the module
-(tests/conftest.py ``shared_sim_cell``: homing costs about 40 s a cell); each checks it
-whole before it starts (``homed_sim_cell``).  They run in the order written, which each
-leaves fit for the next: "seam lost" first, while the holder is still at home; the tracking
-runs move both arms to their start themselves; the servo fault last, as it breaks the cell.
-The cell is brought down after the module and the leak checks prove nothing stays.  No timing decides a verdict: waits are generous polls, and the
+The tests on a cell share one with other modules' tests, brought up and homed once for the
+session (tests/conftest.py ``shared_sim_cell``: homing costs about 30 s a cell); each checks it
+whole before it starts (``homed_sim_cell``).  Their order leaves each fit for the next: "seam
+lost" runs first of every test on the shared cell (marked ``shared_cell_first``), while the
+holder is still at home; the tracking runs move both arms to their start themselves; the servo
+fault runs last of all (``shared_cell_last``), as it breaks the cell.  The cell is brought down
+after the session and the leak checks prove nothing stays.  No timing decides a verdict: waits are generous polls, and the
 tracking tolerances are stated below.
 """
 from __future__ import annotations
@@ -26,7 +27,7 @@ import pytest
 from droid.kinematics.transforms import T_to_pose
 from droid.brain.cell_layout import load_layout
 from droid.tasks.seam.report import COLUMNS
-from tests.brain.cellutil import ROOT, cell_status, droid, reaped
+from tests.brain.cellutil import ROOT, cell_status, droid, reaped, wait_for
 
 pytestmark = pytest.mark.integration
 SEAMTRACK = "droid.tasks.seamtrack"
@@ -80,6 +81,7 @@ def assert_agrees_with_lockstep(d, travel, settled, ls, bound_mm: float = AGREE_
         assert float(np.nanmean(diff)) <= bound_mm, (name, float(np.nanmean(diff)))
 
 
+@pytest.mark.shared_cell_first
 def test_seam_lost_when_the_sensor_sees_no_seam(homed_sim_cell, tmp_path):
     """The holder stays at home, so the workpiece is nowhere near the sensor: after the
     dead zone the lead sensor is invalid, and the run stops as 'seam lost' (exit 1)."""
@@ -194,10 +196,13 @@ def test_sigint_stops_the_run_cleanly_and_says_so(homed_sim_cell, tmp_path):
     assert_standing(homed_sim_cell)
 
 
+@pytest.mark.shared_cell_last
 def test_a_reis_fault_stops_the_run_at_once_naming_the_arm_and_its_faults(homed_sim_cell, tmp_path):
     """Issue 16 item 2: droid-servo dies mid-run (the servo agent reports FAULT_SERVO, the
     watchdog latches the amplifiers off); the tracker stops with exit 1 and one line naming
-    arm1 and its faults, and still writes its log -- instead of commanding the dead arm."""
+    arm1 and its faults, and still writes its log -- instead of commanding the dead arm.
+    Then (issue 4, §4.1.4): arm1's Status reports the watchdog's trip beside the servo's death,
+    and nothing can move it -- droid-move is not carried out."""
     log = tmp_path / "fault.csv"
     with reaped(start_tracking(homed_sim_cell, log)) as proc:
         servo = next(r["pid"] for r in cell_status(homed_sim_cell) if r["name"] == "droid-servo arm1")
@@ -210,6 +215,12 @@ def test_a_reis_fault_stops_the_run_at_once_naming_the_arm_and_its_faults(homed_
     assert "fault" in out.splitlines()[0]
     d = read_log(log)
     assert len(d["s_mm"]) >= 5  # the rows up to the fault are kept
+    st = wait_for(lambda: (lambda s: s if "watchdog" in s["fault"] else None)(snoop(homed_sim_cell, "arm1")),
+                  timeout=15, what="watchdog fault reported")
+    assert "servo" in st["fault"], st
+    out = droid("droid.tasks.move", "arm1", "joint", "0", "0", "0", "0", "0", "0", "1", "--cell",
+                str(homed_sim_cell), timeout=60)
+    assert out.returncode == 1, out.stderr  # nothing can move: the command is not carried out
 
 
 @pytest.mark.parametrize("args, message", [
