@@ -19,7 +19,7 @@ twin in droid-sim), is brought up, left idle for ``--seconds`` and brought down.
 * CPU of the cell's programs summed [% of one core], the host's idle share, and
   memory (Pss, Rss summed; largest Rss).
 
-    .venv/bin/python bench/bench_scale.py [--n 8,16,32,64] [--seconds 60] [--rate-hz 60]
+    .venv/bin/python bench/bench_scale.py [--n 8,16,32,64] [--seconds 60] [--rate-hz 60] [--remotes one]
 
 Run it alone on the machine (no other cell, no test run).  Record the printed block, with
 the date and the load average it prints, in docs/benchmarks.md.
@@ -66,10 +66,16 @@ buttons = 8
 """
 
 
-def make_cell(tmp: Path, source: Path, n: int, rate_hz: float) -> Path:
-    """A renamed copy of ``source`` (bench_footprint's) with ``n`` extra joysticks appended."""
+def make_cell(tmp: Path, source: Path, n: int, rate_hz: float, remotes: str = "each") -> Path:
+    """A renamed copy of ``source`` (bench_footprint's) with ``n`` extra joysticks appended, and
+    ``[brain] remotes`` set (``one``: one droid-remote serves every agent-linked subunit)."""
     path = footprint_cell(tmp, source)
-    path.write_text(path.read_text() + "".join(joystick_block(k, rate_hz) for k in range(n)))  # new tables
+    text = path.read_text()
+    if remotes != "each":
+        if "\n[brain]\n" not in text:
+            raise SystemExit(f"bench_scale: {source} has no [brain] table to set remotes in")
+        text = text.replace("\n[brain]\n", f'\n[brain]\nremotes = "{remotes}"\n', 1)
+    path.write_text(text + "".join(joystick_block(k, rate_hz) for k in range(n)))  # new tables
     return path
 
 
@@ -86,7 +92,7 @@ def host_idle_pct(seconds_window):
 
 
 def one(n: int, args, tmp: Path) -> dict:
-    cell = make_cell(tmp, args.cell, n, args.rate_hz)
+    cell = make_cell(tmp, args.cell, n, args.rate_hz, args.remotes)
     got: dict = {"n": n}
     t0 = time.monotonic()
     up = droid(cell, "droid-cell", "up", "--timeout", "240", timeout=600)
@@ -181,6 +187,8 @@ def main() -> int:
                     help="wait after every program is live, before the window [s]")
     ap.add_argument("--rate-hz", type=bounded_float(1.0, 1000.0), default=60.0,
                     help="the extra joysticks' rate [Hz]")
+    ap.add_argument("--remotes", choices=("each", "one"), default="each",
+                    help="[brain] remotes: one droid-remote a subunit (each) or one for all (one)")
     args = ap.parse_args()
     try:
         ns = [int(x) for x in args.n.split(",") if x.strip()]
@@ -189,7 +197,8 @@ def main() -> int:
     if not ns or min(ns) < 0:
         ap.error("--n needs at least one count >= 0")
     print(f"bench_scale: {time.strftime('%Y-%m-%d %H:%M:%S UTC', time.gmtime())}, {os.cpu_count()} CPUs, "
-          f"load average {' '.join(open('/proc/loadavg').read().split()[:3])}, cell {args.cell.name}")
+          f"load average {' '.join(open('/proc/loadavg').read().split()[:3])}, cell {args.cell.name}, "
+          f"remotes {args.remotes}")
     with tempfile.TemporaryDirectory(prefix="droid-scale-") as d:
         for n in ns:
             g = one(n, args, Path(d))

@@ -131,6 +131,9 @@ class Subunit:
         return url
 
 
+REMOTES_EACH, REMOTES_ONE = "each", "one"
+
+
 @dataclass
 class Cell:
     """A parsed, validated cell file."""
@@ -154,6 +157,10 @@ class Cell:
     # [cell] layout: the cell's seam-tracking layout (droid.brain.cell_layout), a path relative
     # to the cell file; None: the bundled seamtrack_layout.toml
     layout: Path | None = None
+    # [brain] remotes: "each" -- one droid-remote per subunit (thesis §3.2); "one" -- one
+    # droid-remote process serves every agent-linked subunit (issue 28 item 4: a subunit's
+    # remote costs its wake-ups, not its work; serial-linked sensors keep their own)
+    remotes: str = REMOTES_EACH
 
     def bind_endpoint(self, endpoint: str) -> str:
         """Where the owner of ``endpoint`` binds: itself, or its [interpose] inner endpoint."""
@@ -276,6 +283,8 @@ def parse_cell(raw: dict[str, Any], p: Path) -> Cell:
     brain_host = b.get("host", str, "localhost")
     heartbeat = _expand(b.get("heartbeat", str, "ipc://{run}/heartbeat", check=_endpoint), run, name)
     names = _expand(b.get("names", str, "ipc://{run}/names", check=_endpoint), run, name)
+    remotes = b.get("remotes", str, REMOTES_EACH, check=lambda v: None if v in (REMOTES_EACH, REMOTES_ONE)
+                    else f'must be "{REMOTES_EACH}" (one droid-remote a subunit) or "{REMOTES_ONE}"')
     b.done()
 
     w = _Reader(p, "world", top.get("world", dict, {}))
@@ -301,7 +310,7 @@ def parse_cell(raw: dict[str, Any], p: Path) -> Cell:
                 sched_fifo=fifo, run_dir=Path(run_dir), brain_host=brain_host,
                 heartbeat=heartbeat, names=names, world=world, subunits=subunits,
                 curve=curve, raw=raw, interpose=interpose,
-                layout=_layout_path(p, layout))
+                layout=_layout_path(p, layout), remotes=remotes)
 
 
 def _cell_table(p: Path, top: "_Reader") -> tuple:

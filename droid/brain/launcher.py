@@ -39,11 +39,12 @@ import sys
 import time
 from dataclasses import asdict, dataclass, field
 
-from droid.brain.cellfile import Cell, load_cell
+from droid.brain.cellfile import REMOTES_ONE, Cell, load_cell
 from droid.brain.databases import create_databases
 from droid.brain.layouts import PROC_STATE_NAMES, PROC_STATUS_LAYOUT
 from droid.brain.program import presence_key, use_cell
 from droid.brain.rt import normal_scheduler
+from droid.brain.sensor_link import LINK_AGENT, link_kind
 from droid.brain.shmdb import (Database, NoDatabase, cell_objects, db_name, pid_alive,
                                remove_cell_objects, unlink_database)
 from droid.cli import ArgumentParser, BadInput, RuntimeFailure, run, timeout_s
@@ -76,9 +77,7 @@ def cell_programs(cell: Cell, hosts: set[str] | None = None) -> tuple[list[Spec]
     if want(cell.brain_host):
         specs.append(Spec(presence_key("droid-names"), "droid-names", [], cell.brain_host))
         specs.append(Spec(presence_key("droid-heartbeat"), "droid-heartbeat", [], cell.brain_host))
-        for sub in cell.subunits.values():
-            specs.append(Spec(presence_key("droid-remote", sub.name), "droid-remote", [sub.name],
-                              cell.brain_host))
+        specs.extend(remote_specs(cell))
     if cell.world.get("enabled", True) and want(cell.world.get("host", cell.brain_host)):
         specs.append(Spec(presence_key("droid-sim"), "droid-sim", [], cell.world["host"]))
     for sub in cell.subunits.values():
@@ -88,6 +87,19 @@ def cell_programs(cell: Cell, hosts: set[str] | None = None) -> tuple[list[Spec]
     first = [s for s in specs if program(s.prog).start == 0]
     rest = [s for s in specs if program(s.prog).start != 0]
     return first, rest
+
+
+def remote_specs(cell: Cell) -> list[Spec]:
+    """The Brain's remotes (thesis §3.2): one ``droid-remote NAME`` a subunit; with ``[brain]
+    remotes = "one"`` one ``droid-remote NAME...`` for every agent-linked subunit (presence
+    ``remote``), and each serial-linked sensor still its own."""
+    subs = list(cell.subunits.values())
+    shared = [s.name for s in subs if link_kind(cell, s) == LINK_AGENT] if cell.remotes == REMOTES_ONE else []
+    specs = [Spec(presence_key("droid-remote", s.name), "droid-remote", [s.name], cell.brain_host)
+             for s in subs if s.name not in shared]
+    if shared:
+        specs.insert(0, Spec(presence_key("droid-remote"), "droid-remote", shared, cell.brain_host))
+    return specs
 
 
 #: Share of this host's CPUs a cell may ask for before droid-cell up warns: above it the

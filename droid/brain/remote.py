@@ -1,4 +1,4 @@
-"""droid-remote NAME: the Brain-side remote client of one subunit (thesis §3.2, §4.1.8, §4.2.3).
+"""droid-remote NAME...: the Brain-side remote client of a subunit (thesis §3.2, §4.1.8, §4.2.3).
 
 Each heartbeat tick it copies the subunit's Command record from the Brain's
 database into a message for the subunit's agent (located through the name
@@ -15,6 +15,12 @@ instead (:mod:`droid.brain.sensor_link`).
 Liveness (:class:`~droid.brain.link.RemoteLinkCore`): ``stale_ticks`` ticks
 without a reply set ``stale = 1`` in the Status record; the remote then
 reconnects with back-off and clears ``stale`` on the next reply.
+
+One process serves one subunit, as in the thesis, unless the cell says ``[brain] remotes =
+"one"``: then ``droid-cell up`` starts one ``droid-remote`` naming every agent-linked subunit,
+which serves them all from one loop on one heartbeat subscription (issue 28 item 4: each
+remote process costs its wake-ups, 2-3 % of a core at 60 Hz, not its work).  Each subunit keeps
+its own station, agent link, stale rule and Status; a subunit's link failing touches no other.
 """
 from __future__ import annotations
 
@@ -32,10 +38,10 @@ from droid.brain.heartbeat import TickSubscriber
 from droid.brain.layouts import ARM_COMMAND_LAYOUT, FAULT_HEARTBEAT, FAULT_LINK, LayoutError, check_header
 from droid.brain.link import HeartbeatWatch, RemoteAction, RemoteLinkCore
 from droid.brain.names import NameClient
-from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
+from droid.brain.program import Presence, Stop, close_all, notify_ready, open_cell, parser, presence_key
 from droid.brain.rt import try_sched_fifo
 from droid.brain.sensor_link import LINK_SERIAL, link_kind, serve_serial
-from droid.cli import run
+from droid.cli import BadInput, run
 
 PROG = "droid-remote"
 
@@ -139,39 +145,63 @@ class RemoteStation:
         return True
 
 
+def _remote_program(argv):
+    """``droid-remote [--cell FILE] NAME...``: the cell and its subunits (each named once; more
+    than one only when every one is agent-linked -- a serial-linked sensor has its own)."""
+    ap = parser(PROG, "Keep subunits' Brain databases in step with their agents, once per heartbeat.")
+    ap.add_argument("subunit", nargs="+", help="subunit name(s), e.g. arm1 (several: one process for all)")
+    args = ap.parse_args(argv)
+    cell = open_cell(args)
+    subs = [cell.subunit(n) for n in args.subunit]
+    twice = sorted({n for n in args.subunit if args.subunit.count(n) > 1})
+    if twice:
+        raise BadInput(f"subunit {twice[0]!r} named twice")
+    serial = [s.name for s in subs if link_kind(cell, s) == LINK_SERIAL]
+    if serial and len(subs) > 1:
+        raise BadInput(f"{serial[0]} is serial-linked: its remote reads its port alone (name it by itself)")
+    Stop.install()
+    return args, cell, subs
+
+
+class _Served:
+    """One subunit a droid-remote serves: its Brain records, its station and its agent link."""
+
+    def __init__(self, ctx, cell, sub, names: NameClient, curve: CurveHost) -> None:
+        self.status = open_brain(cell, sub, "status")
+        self.command = open_brain(cell, sub, "command") if "command" in brain_layouts(sub) else None
+        self.station = RemoteStation(self.status, self.command, StatusTranslator.for_subunit(sub),
+                                     cell.stale_ticks, cell.heartbeat_hz)
+        self.link = _AgentLink(ctx, names, curve, sub)
+
+    def close(self) -> None:
+        close_all(self.link, self.status, self.command)
+
+
 @run
 def main(argv=None) -> int:
-    args, cell, sub = subunit_program(
-        PROG, "Keep one subunit's Brain database in step with its agent, once per heartbeat.", argv)
+    args, cell, subs = _remote_program(argv)
     try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
-    if link_kind(cell, sub) == LINK_SERIAL:
-        return serve_serial(cell, sub, args.ready_fd, PROG)
-    status = open_brain(cell, sub, "status")
-    command = open_brain(cell, sub, "command") if "command" in brain_layouts(sub) else None
+    if link_kind(cell, subs[0]) == LINK_SERIAL:
+        return serve_serial(cell, subs[0], args.ready_fd, PROG)
     ctx = zmq.Context()
     curve = CurveHost(ctx, cell, cell.brain_host)
-    presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
+    one = len(subs) == 1
+    presence = Presence(cell.name, presence_key(PROG, subs[0].name if one else None),
+                        f"{PROG} {subs[0].name}" if one else PROG)
     names = NameClient(ctx, cell.names, curve=curve, server_host=cell.brain_host)
     ticks = TickSubscriber(ctx, cell.heartbeat, curve, cell.brain_host)
-    station = RemoteStation(status, command, StatusTranslator.for_subunit(sub), cell.stale_ticks,
-                            cell.heartbeat_hz)
-    link = _AgentLink(ctx, names, curve, sub)
+    served: list[_Served] = []
     try:
-        status.update(stale=1, fault=FAULT_LINK)
-        link.connect()
+        for sub in subs:
+            served.append(_Served(ctx, cell, sub, names, curve))
+        for s in served:
+            s.status.update(stale=1, fault=FAULT_LINK)
+            s.link.connect()
         presence.ready()
         notify_ready(args.ready_fd)
-        _serve(station, ticks, link, presence)
+        _serve(served, ticks, presence)
     finally:
-        names.close()
-        ticks.close()
-        link.close()
-        curve.close()
-        ctx.term()
-        status.close()
-        if command is not None:
-            command.close()
-        presence.close()
+        close_all(names, ticks, *served, curve, ctx.term, presence)
     return 0
 
 
@@ -224,31 +254,37 @@ class _AgentLink:
             self.dealer.close(0)
 
 
-def _serve(station: RemoteStation, ticks: TickSubscriber, link: _AgentLink, presence: Presence) -> None:
-    """droid-remote's loop, until SIGTERM: on each heartbeat tick send the Command to the agent;
-    every reply into the Status record; the silence rule on every wake-up."""
-    core = station.core
+def _serve(served: list[_Served], ticks: TickSubscriber, presence: Presence) -> None:
+    """droid-remote's loop, until SIGTERM: on each heartbeat tick send each subunit's Command to
+    its agent; every reply into its Status record; the silence rule on every wake-up."""
     last_tick = 0
+    poll_ms = min(s.station.watch.poll_ms for s in served)
     while not Stop.requested:
-        socks = [ticks.sock] + ([link.dealer] if link.dealer is not None else [])
         poller = zmq.Poller()
-        for s in socks:
-            poller.register(s, zmq.POLLIN)
-        events = dict(poller.poll(station.watch.poll_ms))
-        station.on_poll(time.monotonic_ns())
+        poller.register(ticks.sock, zmq.POLLIN)
+        for s in served:
+            if s.link.dealer is not None:
+                poller.register(s.link.dealer, zmq.POLLIN)
+        events = dict(poller.poll(poll_ms))
+        now = time.monotonic_ns()
+        for s in served:
+            s.station.on_poll(now)
         if ticks.sock in events:
             t = ticks.recv_latest()
             if t is not None:
                 last_tick = t.tick
-                act = station.on_tick(t.tick, time.monotonic_ns())
-                if act.reconnect or link.dealer is None:
-                    link.connect()
-                if link.dealer is not None:
-                    link.send(t.tick, station.command_payload())
-        if link.dealer is not None and link.dealer in events:
-            link.drain(station)
-        presence.beat(last_tick, core.replies, ticks.monitor.missed,
-                      bad_frames=link.bad_frames + ticks.bad_frames)
+                now = time.monotonic_ns()
+                for s in served:
+                    act = s.station.on_tick(t.tick, now)
+                    if act.reconnect or s.link.dealer is None:
+                        s.link.connect()
+                    if s.link.dealer is not None:
+                        s.link.send(t.tick, s.station.command_payload())
+        for s in served:
+            if s.link.dealer is not None and s.link.dealer in events:
+                s.link.drain(s.station)
+        presence.beat(last_tick, sum(s.station.core.replies for s in served), ticks.monitor.missed,
+                      bad_frames=sum(s.link.bad_frames for s in served) + ticks.bad_frames)
 
 
 def _cmd_id(payload: bytes, layout=ARM_COMMAND_LAYOUT) -> int | None:
