@@ -80,12 +80,21 @@ def pack_status(s, amps_on: bool = True) -> bytes:
                         *counts, *[int(v) for v in s.dac])
 
 
+_last_status: list = [b"", None]  # the last message unpacked and its (frozen) report
+
+
 def unpack_status(b: bytes) -> ServoReport:
+    """A status message -> its :class:`ServoReport`.  The servo's watchdog and agent each unpack
+    the same message: the last one's report (frozen, immutable) is handed out again."""
+    if b == _last_status[0]:
+        return _last_status[1]
     if len(b) != _STATUS.size:
         raise BadServoMessage(f"servo status of {len(b)} bytes, expected {_STATUS.size}")
     v = _STATUS.unpack(b)
     if v[0] != STATUS_MAGIC:
         raise BadServoMessage(f"servo status magic {v[0]!r}")
-    return ServoReport(tick=v[1], mode=v[2], homed=bool(v[3]), homing_joint=v[4], starved=bool(v[5]),
-                       braking=bool(v[6]), fault=v[7], amps_on=bool(v[8]), encoder_pos=tuple(v[9:15]),
-                       encoder_cmd=tuple(v[15:21]), following_error=tuple(v[21:27]), dac=tuple(v[27:33]))
+    rep = ServoReport(tick=v[1], mode=v[2], homed=bool(v[3]), homing_joint=v[4], starved=bool(v[5]),
+                      braking=bool(v[6]), fault=v[7], amps_on=bool(v[8]), encoder_pos=v[9:15],
+                      encoder_cmd=v[15:21], following_error=v[21:27], dac=v[27:33])
+    _last_status[0], _last_status[1] = bytes(b), rep
+    return rep

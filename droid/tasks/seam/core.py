@@ -66,6 +66,8 @@ from droid.kinematics import RobotModel, Unreachable
 from droid.kinematics.transforms import inv_homo, rotx, roty
 from droid.tasks.seam.delay import DELAY_OFF, INVALID_READING, Reading, TransportDelay
 
+from numpy._core.multiarray import c_einsum  # what np.einsum(optimize=False) calls
+
 #: Largest index of the seam patch (the listing's MAX_QUEUE).  The patch
 #: between the camera and the tool holds CAMERA_TO_TCP / (speed / 30 Hz)
 #: frames: 750 at 4 mm/s with the 100 mm sensor lead; 2048 covers 1.5 mm/s.
@@ -488,18 +490,18 @@ class SeamTracker:
         P = seam.array  # index 0 newest
         a, b = P[1:], P[:-1]  # segment j: from the older a[j] = seam[j+1] to the newer b[j] = seam[j]
         ab = b - a
-        L2 = np.einsum("ij,ij->i", ab, ab)
-        u = np.einsum("ij,ij->i", tool - a, ab) / np.where(L2 > 1e-18, L2, 1.0)
+        L2 = c_einsum("ij,ij->i", ab, ab)  # np.einsum (optimize=False) without its wrapper
+        u = c_einsum("ij,ij->i", tool - a, ab) / np.where(L2 > 1e-18, L2, 1.0)
         u = np.clip(np.where(L2 > 1e-18, u, 0.0), 0.0, 1.0)
         foot = a + u[:, None] * ab
-        d2 = np.einsum("ij,ij->i", foot - tool, foot - tool)
+        d2 = c_einsum("ij,ij->i", foot - tool, foot - tool)
         j = int(np.argmin(d2))
         pos = foot[j]
         left = float(vel_mm)
         target = None
         while True:
             seg = P[j] - pos
-            ls = float(np.linalg.norm(seg))
+            ls = math.sqrt(float(seg.dot(seg)))  # np.linalg.norm(seg), without its overhead
             if ls >= left and ls > 1e-12:
                 target = pos + seg * (left / ls)
                 break

@@ -60,6 +60,9 @@ from droid.brain.sensor_line import seam_transform
 from droid.tasks.seam.core import MODE_PLUS, STOP_FAULT, CycleOutput, SeamParams, SeamTracker, TrackingStop
 from droid.tasks.seam.delay import INVALID_READING, Reading
 
+_EYE4 = np.eye(4)  # copied where a fresh identity is filled in (np.eye's call costs more: issue 28 item 2)
+_EYE3 = np.eye(3)
+
 #: The 10 Hz log of §6.1 [Hz].
 LOG_HZ = 10.0
 #: A lead reading that reaches the Brain's Status at tick m left the camera about a tick
@@ -108,18 +111,18 @@ def _rot_log(R: np.ndarray) -> np.ndarray:
 
 
 def _rot_exp(v: np.ndarray) -> np.ndarray:
-    a = float(np.linalg.norm(v))
+    a = math.sqrt(float(v.dot(v)))  # np.linalg.norm(v), without its overhead
     if a < 1e-12:
-        return np.eye(3)
+        return _EYE3.copy()
     k = v / a
     K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + math.sin(a) * K + (1.0 - math.cos(a)) * (K @ K)
+    return _EYE3 + math.sin(a) * K + (1.0 - math.cos(a)) * (K @ K)
 
 
 def interpolate_pose(T0: np.ndarray, T1: np.ndarray, u: float) -> np.ndarray:
     """The pose a fraction ``u`` (0..1) of the way from ``T0`` to ``T1`` (translation linear,
     rotation along the geodesic)."""
-    out = np.eye(4)
+    out = _EYE4.copy()
     out[:3, 3] = T0[:3, 3] + u * (T1[:3, 3] - T0[:3, 3])
     out[:3, :3] = T0[:3, :3] @ _rot_exp(u * _rot_log(T0[:3, :3].T @ T1[:3, :3]))
     return out
