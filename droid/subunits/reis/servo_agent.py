@@ -133,7 +133,8 @@ class ServoAgentCore:
 
     def _send(self, mode: Mode, counts, status, faults, why: str = "") -> AgentDecision:
         self.seq += 1
-        return AgentDecision(sw.ServoCommand(self.seq, int(mode), tuple(int(round(v)) for v in counts)),
+        vals = counts.tolist() if isinstance(counts, np.ndarray) else counts  # plain floats round faster
+        return AgentDecision(sw.ServoCommand(self.seq, int(mode), tuple([int(round(v)) for v in vals])),
                              status, faults, why)
 
     def step(self, cmd, report: sw.ServoReport | None, report_fresh: bool, ticked: bool = True) -> AgentDecision:
@@ -248,7 +249,7 @@ class ServoAgentCore:
             self._ahead[~wait] = 0.0
         self._wp, self._plan = send, target.astype(float)
         self._wp_tick, self._missed = planner_tick, 0
-        counts = tuple(int(round(v)) for v in send)
+        counts = tuple([round(v) for v in send.tolist()])  # half to even, as round(np.float64)
         return self._send(Mode.NORMAL, counts, status, faults)
 
 

@@ -73,11 +73,13 @@ def _clip32(v) -> int:
 
 def pack_status(s, amps_on: bool = True) -> bytes:
     """``s``: a droid.subunits.reis.servo.ServoStatus; ``amps_on`` from the VME AMP_STATUS register."""
-    lo, hi = -(2**31), 2**31 - 1  # _clip32, inlined over the 18 counts (every 4th servo tick)
-    counts = [min(hi, max(lo, int(v))) for v in (*s.encoder_pos, *s.encoder_cmd, *s.following_error)]
+    lo, hi = -(2**31), 2**31 - 1  # _clip32 over the 18 counts (every 4th servo tick), when one is out
+    counts = list(map(int, (*s.encoder_pos, *s.encoder_cmd, *s.following_error)))
+    if min(counts) < lo or max(counts) > hi:
+        counts = [min(hi, max(lo, v)) for v in counts]
     return _STATUS.pack(STATUS_MAGIC, s.tick, int(s.mode), int(s.homed), int(s.homing_joint),
                         int(s.starved), int(s.braking), int(s.fault), int(bool(amps_on)),
-                        *counts, *[int(v) for v in s.dac])
+                        *counts, *map(int, s.dac))
 
 
 _last_status: list = [b"", None]  # the last message unpacked and its (frozen) report
