@@ -102,9 +102,10 @@ def arm_faults(arms) -> str | None:
 
 def _rot_log(R: np.ndarray) -> np.ndarray:
     """Rotation vector of a rotation matrix [rad]."""
-    c = max(-1.0, min(1.0, (float(np.trace(R)) - 1.0) / 2.0))
+    c = max(-1.0, min(1.0, (float(R.trace()) - 1.0) / 2.0))  # what np.trace(R) calls
     a = math.acos(c)
-    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R.tolist()  # plain floats: the same differences
+    w = np.array([r21 - r12, r02 - r20, r10 - r01])
     if a < 1e-9:
         return w / 2.0
     return w * (a / (2.0 * math.sin(a)))
@@ -114,8 +115,8 @@ def _rot_exp(v: np.ndarray) -> np.ndarray:
     a = math.sqrt(float(v.dot(v)))  # np.linalg.norm(v), without its overhead
     if a < 1e-12:
         return _EYE3.copy()
-    k = v / a
-    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    k0, k1, k2 = (v / a).tolist()
+    K = np.array([[0.0, -k2, k1], [k2, 0.0, -k0], [-k1, k0, 0.0]])
     return _EYE3 + math.sin(a) * K + (1.0 - math.cos(a)) * (K @ K)
 
 
