@@ -137,7 +137,7 @@ class ServoCore:
     @property
     def at_rest(self) -> bool:
         """Starved, and the braking profile has run out: the target stood still last tick."""
-        return self._queue.starved and not self._queue.braking and not np.any(self._vel)
+        return self._queue.starved and not self._queue.braking and not self._vel.any()
 
     @property
     def home_edge_joints_deg(self) -> np.ndarray | None:
