@@ -406,8 +406,9 @@ class MemoryDatabase:
         return self.write(None, **fields)
 
     def _bump(self) -> int:
-        self._view["seq"] = int(self._view["seq"]) + 1
-        return int(self._view["seq"])
+        seq = int(self._view["seq"]) + 1
+        self._view["seq"] = seq
+        return seq
 
     def mark_written(self) -> int:
         return self._bump()

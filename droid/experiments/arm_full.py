@@ -23,6 +23,8 @@ import numpy as np
 from droid.cli import RuntimeFailure
 from droid.sim.lockstep import Scheduler
 
+_EYE4 = np.eye(4)  # copied where a fresh identity is filled in (np.eye's call costs more: issue 28 item 2)
+
 HOME_TIMEOUT_S = 60.0
 MOVE_S = 4.0  # the move from home to the start pose
 SETTLE_S = 1.0
@@ -57,7 +59,7 @@ class FullArm:
 
     def status_pose(self) -> np.ndarray:
         st = self.arm.status
-        T = np.eye(4)
+        T = _EYE4.copy()
         T[:3, :3] = st["R"]
         T[:3, 3] = (float(st["x"]), float(st["y"]), float(st["z"]))
         return T

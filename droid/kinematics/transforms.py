@@ -18,6 +18,8 @@ import math
 
 import numpy as np
 
+from numpy._core.multiarray import c_einsum  # what np.einsum(optimize=False) calls
+
 DEG_PER_RAD = 180.0 / math.pi
 RAD_PER_DEG = math.pi / 180.0
 
@@ -133,7 +135,7 @@ def inv_homo(T) -> np.ndarray:
     rt = np.swapaxes(t[..., :3, :3], -1, -2)
     out = np.zeros(t.shape)
     out[..., :3, :3] = rt
-    out[..., :3, 3] = -np.einsum("...ij,...j->...i", rt, t[..., :3, 3])
+    out[..., :3, 3] = -c_einsum("...ij,...j->...i", rt, t[..., :3, 3])  # np.einsum without its wrapper
     out[..., 3, 3] = 1.0
     return out
 

@@ -53,6 +53,9 @@ class CommandCopier:
         self.db = ctrl_command
         self.layout = layout
         self.field_map = dict(COMMAND_MAP if field_map is None else field_map)
+        dst_layout = getattr(ctrl_command, "layout", None)
+        self._runs = None if dst_layout is None else _byte_runs(layout.dtype, dst_layout.dtype, self.field_map)
+        self._dst: tuple | None = None  # (the record view, its bytes as a writable memoryview)
 
     @classmethod
     def for_subunit(cls, ctrl_command, sub) -> "CommandCopier":
@@ -60,13 +63,36 @@ class CommandCopier:
 
     def __call__(self, payload: bytes, tick: int) -> None:
         check_header(payload, self.layout, "command from the Brain")
-        rec = np.frombuffer(payload, dtype=self.layout.dtype, count=1)[0]
         with self.db.locked() as v:
-            for src, dst in self.field_map.items():
-                v[dst] = rec[src]
+            if self._runs is not None:  # every field the same type on both sides: its bytes
+                if self._dst is None or self._dst[0] is not v:
+                    self._dst = (v, memoryview(v.reshape(1).view(np.uint8)))
+                raw, src = self._dst[1], memoryview(payload)
+                for s0, d0, n in self._runs:
+                    raw[d0:d0 + n] = src[s0:s0 + n]
+            else:
+                rec = np.frombuffer(payload, dtype=self.layout.dtype, count=1)[0]
+                for src, dst in self.field_map.items():
+                    v[dst] = rec[src]
             v["brain_tick"] = tick
             v["link_alive"] = 1
             self.db.mark_written()
+
+
+def _byte_runs(src_dtype, dst_dtype, field_map: dict[str, str]) -> tuple | None:
+    """The copy ``dst[field_map[f]] = src[f]`` as byte ranges (source offset, destination offset,
+    bytes), neighbours merged -- or None unless each pair has the very same type (then a field's
+    assignment is a copy of its bytes, the same bits; issue 28 item 2)."""
+    runs: list[list[int]] = []
+    for s, d in sorted(field_map.items(), key=lambda sd: src_dtype.fields[sd[0]][1]):
+        (st, so), (dt, do) = src_dtype.fields[s][:2], dst_dtype.fields[d][:2]
+        if st != dt:
+            return None
+        if runs and runs[-1][0] + runs[-1][2] == so and runs[-1][1] + runs[-1][2] == do:
+            runs[-1][2] += st.itemsize
+        else:
+            runs.append([so, do, st.itemsize])
+    return tuple(tuple(r) for r in runs)
 
 
 class AgentStation:

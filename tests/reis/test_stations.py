@@ -303,3 +303,26 @@ def test_the_shells_and_lockstep_call_the_same_stations():
     for copy in ("MY_FAULTS", "COMMAND_MAP", "copy_fields", '"encoder_cmd", "busy"', "3e9", "STATUS_EVERY_TICKS",
                  "unpack_status", "pack_command", "counts_to_joints(np.asarray(st"):
         assert copy not in lockstep, copy
+
+
+def test_servo_status_snapshot_is_what_its_properties_say():
+    """ServoCore.status (every 4th tick; issue 28 item 2 subtracts the counts as Python ints) gives
+    the fields its properties give, as Python ints, unhomed or homed, before and after a reading."""
+    from droid.kinematics import load_robot
+    from droid.subunits.reis.servo import ServoStatus
+
+    core = ServoCore(ServoParams.from_robot(load_robot("reis_v15")))
+    rng = np.random.default_rng(28)
+    for i in range(300):
+        if i:
+            core._pos = None if i % 7 == 0 else rng.integers(-10**9, 10**9, 6)
+            core._target = rng.integers(-10**9, 10**9, 6)
+            core._zero = None if i % 3 == 0 else rng.integers(-10**9, 10**9, 6)
+        want = ServoStatus(tick=core.tick, mode=core.mode, homed=core.homed,
+                           homing_joint=-1 if core.homing_joint is None else core.homing_joint,
+                           starved=core.starved, braking=core.braking, fault=core.fault,
+                           encoder_pos=core.encoder_pos, encoder_cmd=core.encoder_cmd,
+                           following_error=core.following_error, dac=core.dac)
+        got = core.status()
+        assert got == want
+        assert all(type(v) is int for v in got.encoder_pos + got.encoder_cmd + got.following_error)

@@ -260,10 +260,19 @@ def test_chord_travel_follows_an_arc_and_never_decreases():
 def test_the_patch_array_holds_the_same_values_as_its_points(ops):
     """SeamPatch keeps its float64 array beside its points (issue 28 item 2): after any pushes and
     cuts it is, bit for bit, what converting the points would give -- the thesis-mode search reads
-    the array instead of converting the list each cycle."""
+    the array instead of converting the list each cycle; so are its segments' vectors and
+    divisors, computed once per segment."""
     from droid.tasks.seam.core import SeamPatch
 
-    patch = SeamPatch([(0.5, -1.25, 3.0)])
+    class Tight(SeamPatch):  # reallocates on almost every push
+        __slots__ = ()
+        ROOM_ROWS = 1
+
+    for patch in (SeamPatch([(0.5, -1.25, 3.0)]), Tight([(0.5, -1.25, 3.0)])):
+        _check_patch_ops(patch, ops)
+
+
+def _check_patch_ops(patch, ops) -> None:
     for op, point, n in ops:
         if op == "push":
             patch.push_front(point)
@@ -272,3 +281,9 @@ def test_the_patch_array_holds_the_same_values_as_its_points(ops):
         want = np.asarray(patch.points, float).reshape(-1, 3)
         assert patch.array.shape == want.shape and patch.array.tobytes() == want.tobytes()
         assert len(patch) == len(patch.points) and (not len(patch) or patch[0] == patch.points[0])
+        if len(patch) > 1:  # the segments' numbers: what the search computed from the array each cycle
+            ab, den, ok = patch.segments()
+            want_ab = want[:-1] - want[1:]
+            l2 = np.einsum("ij,ij->i", want_ab, want_ab)
+            assert ab.tobytes() == want_ab.tobytes() and ok.tolist() == (l2 > 1e-18).tolist()
+            assert den.tobytes() == np.where(l2 > 1e-18, l2, 1.0).tobytes()

@@ -708,7 +708,8 @@ class ReisPlant:
         compiled kernel (droid/_kernel.c ``exact_step``: the same operations in the same order,
         the same bits; droid.kernel).  ``relin``: the kernel's ``exact_checks`` found the
         linearisation too far (the test :meth:`_discretise` makes)."""
-        pg, g_m, _ = self._discretise(dt, self._q.tolist() if relin else None, relin)
+        got = None if relin else self._disc.get(dt)  # _discretise's own look-up, without its call
+        pg, g_m, _ = got if got is not None else self._discretise(dt, self._q.tolist() if relin else None, relin)
         q, qd = self._q, self._qd
         tau_link = pin.nonLinearEffects(self._pin_model, self._pin_data, q, qd)  # C qd + g (Pinocchio's buffer)
         if ext is not None:
@@ -782,16 +783,22 @@ class ReisPlant:
                 if regs[j] != self._enc_written[j]:
                     self._enc_offset[j] = (-counts[j]) % vm.ENCODER_MODULUS
             self._enc_offset_list = self._enc_offset.tolist()
-        for i, value in enumerate(_WATCHDOGS.unpack_from(view, vm.WATCHDOG_OFFSETS[0])):
-            if value != self._wd_last[i]:
-                self._wd_last[i] = value
-                self._wd_age_s[i] = 0.0
-                self._wd_armed[i] = True
-            else:
-                self._wd_age_s[i] += dt_s
+        wd, last, age = _WATCHDOGS.unpack_from(view, vm.WATCHDOG_OFFSETS[0]), self._wd_last, self._wd_age_s
+        if wd[0] == last[0] and wd[1] == last[1]:  # neither register kicked (most advances: 50 Hz kicks)
+            age[0] += dt_s
+            age[1] += dt_s
+        else:
+            for i, value in enumerate(wd):
+                if value != last[i]:
+                    last[i] = value
+                    age[i] = 0.0
+                    self._wd_armed[i] = True
+                else:
+                    age[i] += dt_s
         if not self._wd_fault and not self._amps_on and all(self._wd_armed):
             self._amps_on = True
-        if self._amps_on and max(self._wd_age_s) > self.params.watchdog_timeout_s:
+        timeout = self.params.watchdog_timeout_s
+        if self._amps_on and (age[0] > timeout or age[1] > timeout):  # max(age) > timeout
             self._amps_on = False
             self._wd_fault = True
 

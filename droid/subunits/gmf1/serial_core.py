@@ -81,6 +81,8 @@ from droid.kinematics import RobotModel, Unreachable
 from droid.kinematics.transforms import T_to_pose, inv_homo
 from droid.subunits.gmf1 import karel_wire as kw
 
+_EYE4 = np.eye(4)  # copied where a fresh identity is filled in (np.eye's call costs more: issue 28 item 2)
+
 # core states
 CLOSED = "closed"  # no port
 PROBING = "probing"  # a STAT is out; the controller's state is unknown
@@ -137,7 +139,7 @@ def is_stop(cmd: CommandSnapshot) -> bool:
 
 def snapshot_command(rec) -> CommandSnapshot:
     """A :class:`CommandSnapshot` of a CTRL_COMMAND record."""
-    T = np.eye(4)
+    T = _EYE4.copy()
     T[:3, :3] = rec["R"]
     T[0, 3], T[1, 3], T[2, 3] = float(rec["x"]), float(rec["y"]), float(rec["z"])
     return CommandSnapshot(int(rec["cmd_id"]), int(rec["cmd_mode"]), int(rec["coord"]), T,

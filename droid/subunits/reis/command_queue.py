@@ -72,7 +72,7 @@ class CommandQueue:
     @property
     def braking(self) -> bool:
         """Starved and still decelerating."""
-        return self._starved and bool(np.any(self._brake_vel != 0.0))
+        return self._starved and bool((self._brake_vel != 0.0).any())
 
     @property
     def last_goal(self) -> np.ndarray:
@@ -108,7 +108,7 @@ class CommandQueue:
     def next_target(self, tick: int, target: np.ndarray, velocity: np.ndarray) -> np.ndarray:
         """The way-point [counts] for servo tick ``tick``, given the previous tick's
         ``target`` and ``velocity`` [counts/tick]."""
-        holding = self._starved and not np.any(self._brake_vel != 0.0)
+        holding = self._starved and not (self._brake_vel != 0.0).any()
         if self._qi < len(self._queue) and not (holding and self._cache_full):
             self._qi += 1
             return self._queue[self._qi - 1].copy()

@@ -61,6 +61,9 @@ class HomePhase(IntEnum):
     PROBE = 8
 
 
+_NOT_HOMING = (HomePhase.IDLE, HomePhase.DONE, HomePhase.FAILED)  # the phases with no joint being homed
+
+
 class Homing:
     """State machine; :meth:`step` moves one joint's target per servo tick."""
 
@@ -89,13 +92,13 @@ class Homing:
     @property
     def joint(self) -> int | None:
         """The joint (0-based) being homed, or None."""
-        if self.phase in (HomePhase.IDLE, HomePhase.DONE, HomePhase.FAILED):
+        if self.phase in _NOT_HOMING:
             return None
         return self.order[self.index]
 
     @property
     def active(self) -> bool:
-        return self.joint is not None
+        return self.phase not in _NOT_HOMING  # joint is not None (read every servo tick)
 
     def start(self) -> None:
         self.phase = HomePhase.START

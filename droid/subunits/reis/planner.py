@@ -47,6 +47,8 @@ from droid.brain.layouts import (CMD_FAILED, CMD_OK, CMD_REFUSED, FAULT_BRAKING,
                                  FAULT_WATCHDOG, JSPACE, NORMAL_MODE, STOP_TICKS, fault_names)
 from droid.kinematics import RobotModel, Unreachable
 
+_EYE4 = np.eye(4)  # copied where a fresh identity is filled in (np.eye's call costs more: issue 28 item 2)
+
 N = 6
 
 
@@ -99,7 +101,7 @@ class PlannerCore:
             if why:
                 raise Unreachable(why)
             return counts
-        T = np.eye(4)
+        T = _EYE4.copy()
         T[:3, :3] = cmd["R"]
         T[:3, 3] = [float(cmd["x"]), float(cmd["y"]), float(cmd["z"])]
         q = self.model.ik(T, self._joints_from_counts(self.int_counts))

@@ -137,7 +137,7 @@ class ServoCore:
     @property
     def at_rest(self) -> bool:
         """Starved, and the braking profile has run out: the target stood still last tick."""
-        return self._queue.starved and not self._queue.braking and not np.any(self._vel)
+        return self._queue.starved and not self._queue.braking and not self._vel.any()
 
     @property
     def home_edge_joints_deg(self) -> np.ndarray | None:
@@ -188,17 +188,32 @@ class ServoCore:
         return tuple(float(x) for x in self._pid.integral)
 
     def status(self) -> ServoStatus:
+        """The snapshot (every 4th tick): the counts as :attr:`encoder_pos`, :attr:`encoder_cmd` and
+        :attr:`following_error` give them, subtracted as Python ints (exact, as int64's are)."""
+        target, zero = self._target.tolist(), self._zero
+        if zero is not None:
+            zero = zero.tolist()
+            cmd = tuple([t - z for t, z in zip(target, zero)])
+        else:
+            cmd = tuple(target)
+        if self._pos is None:
+            pos = error = (0,) * N
+        else:
+            raw = self._pos.tolist()
+            pos = tuple(raw) if zero is None else tuple([p - z for p, z in zip(raw, zero)])
+            error = tuple([t - p for t, p in zip(target, raw)])
+        joint = self._homing.joint
         return ServoStatus(
             tick=self._tick,
             mode=self._mode,
-            homed=self.homed,
-            homing_joint=-1 if self.homing_joint is None else self.homing_joint,
-            starved=self.starved,
-            braking=self.braking,
+            homed=zero is not None,
+            homing_joint=-1 if joint is None else joint,
+            starved=self._queue.starved,
+            braking=self._queue.braking,
             fault=self._fault,
-            encoder_pos=self.encoder_pos,
-            encoder_cmd=self.encoder_cmd,
-            following_error=self.following_error,
+            encoder_pos=pos,
+            encoder_cmd=cmd,
+            following_error=error,
             dac=self._dac,
         )
 

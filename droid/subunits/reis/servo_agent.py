@@ -116,7 +116,7 @@ class ServoAgentCore:
         profile's deceleration (the ticks or the planner stopped).  Never past the move's
         target ``ext`` [counts].  None when at rest."""
         self._missed += 1
-        if self._wp is None or not np.any(self._v):
+        if self._wp is None or not self._v.any():  # ndarray.any: np.any without its wrapper
             return None
         bridge = ticked and self._missed == 1
         speed = np.abs(self._v) if bridge else np.maximum(np.abs(self._v) - self.brake_per_period, 0.0)
@@ -133,7 +133,8 @@ class ServoAgentCore:
 
     def _send(self, mode: Mode, counts, status, faults, why: str = "") -> AgentDecision:
         self.seq += 1
-        return AgentDecision(sw.ServoCommand(self.seq, int(mode), tuple(int(round(v)) for v in counts)),
+        vals = counts.tolist() if isinstance(counts, np.ndarray) else counts  # plain floats round faster
+        return AgentDecision(sw.ServoCommand(self.seq, int(mode), tuple([int(round(v)) for v in vals])),
                              status, faults, why)
 
     def step(self, cmd, report: sw.ServoReport | None, report_fresh: bool, ticked: bool = True) -> AgentDecision:
@@ -229,17 +230,17 @@ class ServoAgentCore:
             if self._wp is not None:  # at rest where the braking ended: hold there
                 return self._send(Mode.NORMAL, self._wp, status, faults)
         target = np.asarray(cmd["encoder_cmd_int"], np.int64)
-        if report.starved and np.any(np.abs(target - np.asarray(report.encoder_pos)) > self.resume_window):
+        if report.starved and (np.abs(target - np.asarray(report.encoder_pos)) > self.resume_window).any():
             self.forget_motion()
             return AgentDecision(None, status, faults, "waiting for the planner to re-anchor")
-        if np.any(np.abs(target - np.asarray(report.encoder_cmd)) > self.max_step):
+        if (np.abs(target - np.asarray(report.encoder_cmd)) > self.max_step).any():
             faults |= FAULT_BRAKING  # tells the planner to re-anchor where the arm is
             self.forget_motion()
             return AgentDecision(None, status, faults, "way-point too far from the servo's target")
         if self._plan is not None and self._wp_tick is not None and planner_tick > self._wp_tick:
             self._v = (target - self._plan) / (planner_tick - self._wp_tick)
         send = target.astype(float)
-        if np.any(self._ahead):
+        if self._ahead.any():
             # the ticks came back after the arm braked ahead of the planner's way-points:
             # a joint the planner still drives the same way waits for them to pass it
             # (it does not back up); a joint the planner turned is released
@@ -248,7 +249,7 @@ class ServoAgentCore:
             self._ahead[~wait] = 0.0
         self._wp, self._plan = send, target.astype(float)
         self._wp_tick, self._missed = planner_tick, 0
-        counts = tuple(int(round(v)) for v in send)
+        counts = tuple([round(v) for v in send.tolist()])  # half to even, as round(np.float64)
         return self._send(Mode.NORMAL, counts, status, faults)
 
 

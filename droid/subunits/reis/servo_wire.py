@@ -73,19 +73,30 @@ def _clip32(v) -> int:
 
 def pack_status(s, amps_on: bool = True) -> bytes:
     """``s``: a droid.subunits.reis.servo.ServoStatus; ``amps_on`` from the VME AMP_STATUS register."""
-    lo, hi = -(2**31), 2**31 - 1  # _clip32, inlined over the 18 counts (every 4th servo tick)
-    counts = [min(hi, max(lo, int(v))) for v in (*s.encoder_pos, *s.encoder_cmd, *s.following_error)]
+    lo, hi = -(2**31), 2**31 - 1  # _clip32 over the 18 counts (every 4th servo tick), when one is out
+    counts = list(map(int, (*s.encoder_pos, *s.encoder_cmd, *s.following_error)))
+    if min(counts) < lo or max(counts) > hi:
+        counts = [min(hi, max(lo, v)) for v in counts]
     return _STATUS.pack(STATUS_MAGIC, s.tick, int(s.mode), int(s.homed), int(s.homing_joint),
                         int(s.starved), int(s.braking), int(s.fault), int(bool(amps_on)),
-                        *counts, *[int(v) for v in s.dac])
+                        *counts, *map(int, s.dac))
+
+
+_last_status: list = [b"", None]  # the last message unpacked and its (frozen) report
 
 
 def unpack_status(b: bytes) -> ServoReport:
+    """A status message -> its :class:`ServoReport`.  The servo's watchdog and agent each unpack
+    the same message: the last one's report (frozen, immutable) is handed out again."""
+    if b == _last_status[0]:
+        return _last_status[1]
     if len(b) != _STATUS.size:
         raise BadServoMessage(f"servo status of {len(b)} bytes, expected {_STATUS.size}")
     v = _STATUS.unpack(b)
     if v[0] != STATUS_MAGIC:
         raise BadServoMessage(f"servo status magic {v[0]!r}")
-    return ServoReport(tick=v[1], mode=v[2], homed=bool(v[3]), homing_joint=v[4], starved=bool(v[5]),
-                       braking=bool(v[6]), fault=v[7], amps_on=bool(v[8]), encoder_pos=tuple(v[9:15]),
-                       encoder_cmd=tuple(v[15:21]), following_error=tuple(v[21:27]), dac=tuple(v[27:33]))
+    rep = ServoReport(tick=v[1], mode=v[2], homed=bool(v[3]), homing_joint=v[4], starved=bool(v[5]),
+                      braking=bool(v[6]), fault=v[7], amps_on=bool(v[8]), encoder_pos=v[9:15],
+                      encoder_cmd=v[15:21], following_error=v[21:27], dac=v[27:33])
+    _last_status[0], _last_status[1] = bytes(b), rep
+    return rep

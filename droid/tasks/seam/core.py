@@ -66,6 +66,8 @@ from droid.kinematics import RobotModel, Unreachable
 from droid.kinematics.transforms import inv_homo, rotx, roty
 from droid.tasks.seam.delay import DELAY_OFF, INVALID_READING, Reading, TransportDelay
 
+from numpy._core.multiarray import c_einsum  # what np.einsum(optimize=False) calls
+
 #: Largest index of the seam patch (the listing's MAX_QUEUE).  The patch
 #: between the camera and the tool holds CAMERA_TO_TCP / (speed / 30 Hz)
 #: frames: 750 at 4 mm/s with the 100 mm sensor lead; 2048 covers 1.5 mm/s.
@@ -308,23 +310,72 @@ class SeamPatch:
     below the camera back to the tool tip): the list of tuples the listing's walk reads
     (``len``, ``patch[i]``), and the same values as one float64 array ``array`` (n x 3), kept
     beside it as points arrive and leave, so thesis mode's search over the whole patch does not
-    convert the list every cycle (issue 28 item 2; the same values, the same bits)."""
+    convert the list every cycle (issue 28 item 2; the same values, the same bits).
 
-    __slots__ = ("points", "array")
+    The array is a view into a buffer with room in front of the newest point, so a push writes
+    one row instead of copying the patch; beside it each segment j (``array[j+1]`` ->
+    ``array[j]``, its vector ``array[j] - array[j+1]`` [mm]) keeps the numbers the search
+    divides by, computed once when the segment arrives (:meth:`segments`)."""
+
+    __slots__ = ("points", "_buf", "_seg", "_den", "_ok", "_head", "_n")
+
+    ROOM_ROWS = 1024  # the fewest free rows in front of the newest point after a reallocation
 
     def __init__(self, points=()) -> None:
         self.points = [tuple(p) for p in points]
-        self.array = np.array(self.points, float).reshape(-1, 3)
+        self._place(np.array(self.points, float).reshape(-1, 3))
+
+    def _place(self, arr: np.ndarray) -> None:
+        """Copy ``arr`` (n x 3, newest first) into fresh buffers with room in front; the
+        segments' numbers are computed for the whole patch at once."""
+        n = len(arr)
+        head = max(n, self.ROOM_ROWS)
+        self._buf = np.empty((head + n, 3))
+        self._buf[head:] = arr
+        self._seg = np.empty((head + n, 3))
+        self._den = np.empty(head + n)
+        self._ok = np.empty(head + n, bool)
+        self._head, self._n = head, n
+        if n > 1:
+            self._segments_from(head, n - 1)
+
+    def _segments_from(self, i: int, m: int) -> None:
+        """Segments ``i .. i+m-1`` of the buffers: vector, squared length's guard and divisor
+        (np.einsum's per-row sums are the same bits for one row as for many)."""
+        buf, seg = self._buf, self._seg[i:i + m]
+        np.subtract(buf[i:i + m], buf[i + 1:i + m + 1], out=seg)
+        l2 = c_einsum("ij,ij->i", seg, seg)
+        ok = l2 > 1e-18
+        self._ok[i:i + m] = ok
+        self._den[i:i + m] = np.where(ok, l2, 1.0)
+
+    @property
+    def array(self) -> np.ndarray:
+        """The positions [mm] (n x 3, index 0 newest): a view, which later pushes and cuts leave as it is."""
+        h = self._head
+        return self._buf[h:h + self._n]
+
+    def segments(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per segment j (from ``array[j+1]`` to ``array[j]``): the vector [mm] (n-1 x 3), the
+        divisor (its squared length [mm^2], 1.0 where that is <= 1e-18) and whether it is > 1e-18."""
+        h, m = self._head, self._n - 1
+        return self._seg[h:h + m], self._den[h:h + m], self._ok[h:h + m]
 
     def push_front(self, point: tuple) -> None:
         """The newest position becomes index 0."""
         self.points.insert(0, point)
-        self.array = np.concatenate((np.array((point,), float), self.array))
+        if self._head == 0:
+            self._place(self.array.copy())
+        h = self._head = self._head - 1
+        self._buf[h] = point
+        self._n += 1
+        if self._n > 1:
+            self._segments_from(h, 1)
 
     def keep(self, n: int) -> None:
         """Drop everything from index ``n`` on (the oldest)."""
         del self.points[n:]
-        self.array = self.array[:n]
+        self._n = len(self.points)
 
     def __len__(self) -> int:
         return len(self.points)
@@ -486,20 +537,20 @@ class SeamTracker:
             out[:3, 3] = tool + (d * min(1.0, vel_mm / dist) if dist > 1e-9 else 0.0)
             return out
         P = seam.array  # index 0 newest
-        a, b = P[1:], P[:-1]  # segment j: from the older a[j] = seam[j+1] to the newer b[j] = seam[j]
-        ab = b - a
-        L2 = np.einsum("ij,ij->i", ab, ab)
-        u = np.einsum("ij,ij->i", tool - a, ab) / np.where(L2 > 1e-18, L2, 1.0)
-        u = np.clip(np.where(L2 > 1e-18, u, 0.0), 0.0, 1.0)
+        a = P[1:]  # segment j: from the older a[j] = seam[j+1] to the newer seam[j]
+        ab, den, ok = seam.segments()  # ab = seam[j] - a[j], |ab|^2 (or 1.0) and |ab|^2 > 1e-18
+        u = c_einsum("ij,ij->i", tool - a, ab) / den  # np.einsum (optimize=False) without its wrapper
+        u = np.clip(np.where(ok, u, 0.0), 0.0, 1.0)
         foot = a + u[:, None] * ab
-        d2 = np.einsum("ij,ij->i", foot - tool, foot - tool)
-        j = int(np.argmin(d2))
+        off = foot - tool
+        d2 = c_einsum("ij,ij->i", off, off)
+        j = nearest = int(np.argmin(d2))
         pos = foot[j]
         left = float(vel_mm)
         target = None
         while True:
             seg = P[j] - pos
-            ls = float(np.linalg.norm(seg))
+            ls = math.sqrt(float(seg.dot(seg)))  # np.linalg.norm(seg), without its overhead
             if ls >= left and ls > 1e-12:
                 target = pos + seg * (left / ls)
                 break
@@ -510,7 +561,7 @@ class SeamTracker:
                 break
             j -= 1
         out[:3, 3] = target
-        idx = int(np.argmin(d2)) + 1
+        idx = nearest + 1
         s.tcp_idx = min(max(idx, 1), self.p.max_queue)
         if not s.initial_done and s.tcp_idx - 1 < s.pushes - 1:
             s.initial_done = True  # the tool has passed the point where the sensor started

@@ -60,6 +60,9 @@ from droid.brain.sensor_line import seam_transform
 from droid.tasks.seam.core import MODE_PLUS, STOP_FAULT, CycleOutput, SeamParams, SeamTracker, TrackingStop
 from droid.tasks.seam.delay import INVALID_READING, Reading
 
+_EYE4 = np.eye(4)  # copied where a fresh identity is filled in (np.eye's call costs more: issue 28 item 2)
+_EYE3 = np.eye(3)
+
 #: The 10 Hz log of §6.1 [Hz].
 LOG_HZ = 10.0
 #: A lead reading that reaches the Brain's Status at tick m left the camera about a tick
@@ -99,27 +102,28 @@ def arm_faults(arms) -> str | None:
 
 def _rot_log(R: np.ndarray) -> np.ndarray:
     """Rotation vector of a rotation matrix [rad]."""
-    c = max(-1.0, min(1.0, (float(np.trace(R)) - 1.0) / 2.0))
+    c = max(-1.0, min(1.0, (float(R.trace()) - 1.0) / 2.0))  # what np.trace(R) calls
     a = math.acos(c)
-    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R.tolist()  # plain floats: the same differences
+    w = np.array([r21 - r12, r02 - r20, r10 - r01])
     if a < 1e-9:
         return w / 2.0
     return w * (a / (2.0 * math.sin(a)))
 
 
 def _rot_exp(v: np.ndarray) -> np.ndarray:
-    a = float(np.linalg.norm(v))
+    a = math.sqrt(float(v.dot(v)))  # np.linalg.norm(v), without its overhead
     if a < 1e-12:
-        return np.eye(3)
-    k = v / a
-    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + math.sin(a) * K + (1.0 - math.cos(a)) * (K @ K)
+        return _EYE3.copy()
+    k0, k1, k2 = (v / a).tolist()
+    K = np.array([[0.0, -k2, k1], [k2, 0.0, -k0], [-k1, k0, 0.0]])
+    return _EYE3 + math.sin(a) * K + (1.0 - math.cos(a)) * (K @ K)
 
 
 def interpolate_pose(T0: np.ndarray, T1: np.ndarray, u: float) -> np.ndarray:
     """The pose a fraction ``u`` (0..1) of the way from ``T0`` to ``T1`` (translation linear,
     rotation along the geodesic)."""
-    out = np.eye(4)
+    out = _EYE4.copy()
     out[:3, 3] = T0[:3, 3] + u * (T1[:3, 3] - T0[:3, 3])
     out[:3, :3] = T0[:3, :3] @ _rot_exp(u * _rot_log(T0[:3, :3].T @ T1[:3, :3]))
     return out
