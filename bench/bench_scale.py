@@ -167,7 +167,9 @@ def show(g: dict, seconds: float) -> None:
           f"ticks our subscriber missed {lat.get('missed', '?')}")
     if lat:
         print(f"  heartbeat lateness  p50 {lat['p50']:7.0f} us  p99 {lat['p99']:7.0f} us  max {lat['max']:7.0f} us")
-    if fl:
+    if not fl:
+        print("  floor: cyclictest unavailable (scripts/rt-tests.sh installs Debian's rt-tests)")
+    else:
         print(f"  floor (cyclictest)  p50 {fl['p50']:7.0f} us  p99 {fl['p99']:7.0f} us  max {fl['max']:7.0f} us")
     if lat and fl:
         print(f"  heartbeat / floor   p99 {lat['p99'] / max(fl['p99'], 1.0):.1f}x  max {lat['max'] / max(fl['max'], 1.0):.1f}x")

@@ -102,6 +102,11 @@ def remote_specs(cell: Cell) -> list[Spec]:
     return specs
 
 
+#: What each subunit past the first adds to a droid-remote serving several ([brain] remotes =
+#: "one") [% of one core, idle, 60 Hz]: 4 subunits took 4.5-5.2 % where one took 2.4-3.4 %
+#: (docs/benchmarks.md "Scale", 2026-11-28).
+SHARED_REMOTE_CPU_PCT_PER_SUBUNIT = 0.7
+
 #: Share of this host's CPUs a cell may ask for before droid-cell up warns: above it the
 #: heartbeat's exchanges start to miss (docs/benchmarks.md "Scale", bench/bench_scale.py).
 HOST_CPU_BUDGET = 0.7
@@ -151,6 +156,8 @@ def demand(cell: Cell, specs: list[Spec]) -> Demand:
         p = program(s.prog)
         cpu += p.cpu_pct
         rss += p.rss_mb
+        if s.prog == "droid-remote":
+            cpu += SHARED_REMOTE_CPU_PCT_PER_SUBUNIT * (len(s.args) - 1)
         if s.prog == "droid-sim":
             for opts in cell.world.get("devices", {}).values():
                 try:
