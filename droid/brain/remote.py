@@ -163,20 +163,6 @@ def _remote_program(argv):
     return args, cell, subs
 
 
-class _Served:
-    """One subunit a droid-remote serves: its Brain records, its station and its agent link."""
-
-    def __init__(self, ctx, cell, sub, names: NameClient, curve: CurveHost) -> None:
-        self.status = open_brain(cell, sub, "status")
-        self.command = open_brain(cell, sub, "command") if "command" in brain_layouts(sub) else None
-        self.station = RemoteStation(self.status, self.command, StatusTranslator.for_subunit(sub),
-                                     cell.stale_ticks, cell.heartbeat_hz)
-        self.link = _AgentLink(ctx, names, curve, sub)
-
-    def close(self) -> None:
-        close_all(self.link, self.status, self.command)
-
-
 @run
 def main(argv=None) -> int:
     args, cell, subs = _remote_program(argv)
@@ -203,6 +189,20 @@ def main(argv=None) -> int:
     finally:
         close_all(names, ticks, *served, curve, ctx.term, presence)
     return 0
+
+
+class _Served:
+    """One subunit a droid-remote serves: its Brain records, its station and its agent link."""
+
+    def __init__(self, ctx, cell, sub, names: NameClient, curve: CurveHost) -> None:
+        self.status = open_brain(cell, sub, "status")
+        self.command = open_brain(cell, sub, "command") if "command" in brain_layouts(sub) else None
+        self.station = RemoteStation(self.status, self.command, StatusTranslator.for_subunit(sub),
+                                     cell.stale_ticks, cell.heartbeat_hz)
+        self.link = _AgentLink(ctx, names, curve, sub)
+
+    def close(self) -> None:
+        close_all(self.link, self.status, self.command)
 
 
 class _AgentLink:
