@@ -213,25 +213,32 @@ class Presence:
 
 
 def subunit_program(prog: str, description: str, argv=None, *, arm: bool = False, options=None,
-                    example: str = "arm1"):
+                    example: str = "arm1", several: bool = False):
     """Common start of a program serving one subunit: parse ``[--cell FILE] SUBUNIT``,
     load the cell, check the subunit (an arm if ``arm``), install the stop handler.
-    ``options(ap)`` adds the program's own options to the parser.
+    ``options(ap)`` adds the program's own options to the parser.  ``several``: ``SUBUNIT...``,
+    each named once, and ``sub`` is their list.
 
     Returns ``(args, cell, sub)``; bad input raises BadInput (exit 2)."""
     from droid.cli import BadInput
 
     ap = parser(prog, description)
-    ap.add_argument("subunit", help=f"arm subunit, e.g. {example}" if arm else f"subunit name, e.g. {example}")
+    ap.add_argument("subunit", nargs="+" if several else None,
+                    help=f"arm subunit, e.g. {example}" if arm else f"subunit name, e.g. {example}")
     if options is not None:
         options(ap)
     args = ap.parse_args(argv)
     cell = open_cell(args)
-    sub = cell.subunit(args.subunit)
-    if arm and not sub.is_arm:
-        raise BadInput(f"{sub.name} is a {sub.cls} subunit, not an arm")
+    names = args.subunit if several else [args.subunit]
+    subs = [cell.subunit(n) for n in names]
+    twice = [n for i, n in enumerate(names) if n in names[:i]]
+    if twice:
+        raise BadInput(f"subunit {twice[0]!r} named twice")
+    for sub in subs if arm else ():
+        if not sub.is_arm:
+            raise BadInput(f"{sub.name} is a {sub.cls} subunit, not an arm")
     Stop.install()
-    return args, cell, sub
+    return args, cell, subs if several else subs[0]
 
 
 def close_all(*resources) -> None:

@@ -38,7 +38,7 @@ from droid.brain.heartbeat import TickSubscriber
 from droid.brain.layouts import ARM_COMMAND_LAYOUT, FAULT_HEARTBEAT, FAULT_LINK, LayoutError, check_header
 from droid.brain.link import HeartbeatWatch, RemoteAction, RemoteLinkCore
 from droid.brain.names import NameClient
-from droid.brain.program import Presence, Stop, close_all, notify_ready, open_cell, parser, presence_key
+from droid.brain.program import Presence, Stop, close_all, notify_ready, presence_key, subunit_program
 from droid.brain.rt import try_sched_fifo
 from droid.brain.sensor_link import LINK_SERIAL, link_kind, serve_serial
 from droid.cli import BadInput, run
@@ -145,27 +145,14 @@ class RemoteStation:
         return True
 
 
-def _remote_program(argv):
-    """``droid-remote [--cell FILE] NAME...``: the cell and its subunits (each named once; more
-    than one only when every one is agent-linked -- a serial-linked sensor has its own)."""
-    ap = parser(PROG, "Keep subunits' Brain databases in step with their agents, once per heartbeat.")
-    ap.add_argument("subunit", nargs="+", help="subunit name(s), e.g. arm1 (several: one process for all)")
-    args = ap.parse_args(argv)
-    cell = open_cell(args)
-    subs = [cell.subunit(n) for n in args.subunit]
-    twice = sorted({n for n in args.subunit if args.subunit.count(n) > 1})
-    if twice:
-        raise BadInput(f"subunit {twice[0]!r} named twice")
+@run
+def main(argv=None) -> int:
+    args, cell, subs = subunit_program(
+        PROG, "Keep subunits' Brain databases in step with their agents, once per heartbeat.", argv,
+        example="arm1 (several: one process serves them all)", several=True)
     serial = [s.name for s in subs if link_kind(cell, s) == LINK_SERIAL]
     if serial and len(subs) > 1:
         raise BadInput(f"{serial[0]} is serial-linked: its remote reads its port alone (name it by itself)")
-    Stop.install()
-    return args, cell, subs
-
-
-@run
-def main(argv=None) -> int:
-    args, cell, subs = _remote_program(argv)
     try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     if link_kind(cell, subs[0]) == LINK_SERIAL:
         return serve_serial(cell, subs[0], args.ready_fd, PROG)

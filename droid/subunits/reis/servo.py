@@ -155,8 +155,11 @@ class ServoCore:
         return None if self._zero is None else tuple(int(x) for x in self._zero)
 
     def _frame(self, counts: np.ndarray) -> tuple[int, ...]:
-        rel = counts - self._zero if self._zero is not None else counts
-        return tuple(rel.tolist())  # Python ints
+        """``counts`` relative to home once homed, as Python ints (subtracted as ints: exact, as
+        int64's are, and cheaper than an array operation at six values; every 4th servo tick)."""
+        if self._zero is None:
+            return tuple(counts.tolist())
+        return tuple([c - z for c, z in zip(counts.tolist(), self._zero.tolist())])
 
     @property
     def encoder_pos(self) -> tuple[int, ...]:
@@ -175,7 +178,7 @@ class ServoCore:
         """target - position [counts]."""
         if self._pos is None:
             return (0,) * N
-        return tuple((self._target - self._pos).tolist())
+        return tuple([t - p for t, p in zip(self._target.tolist(), self._pos.tolist())])
 
     @property
     def dac(self) -> tuple[int, ...]:
@@ -188,32 +191,18 @@ class ServoCore:
         return tuple(float(x) for x in self._pid.integral)
 
     def status(self) -> ServoStatus:
-        """The snapshot (every 4th tick): the counts as :attr:`encoder_pos`, :attr:`encoder_cmd` and
-        :attr:`following_error` give them, subtracted as Python ints (exact, as int64's are)."""
-        target, zero = self._target.tolist(), self._zero
-        if zero is not None:
-            zero = zero.tolist()
-            cmd = tuple([t - z for t, z in zip(target, zero)])
-        else:
-            cmd = tuple(target)
-        if self._pos is None:
-            pos = error = (0,) * N
-        else:
-            raw = self._pos.tolist()
-            pos = tuple(raw) if zero is None else tuple([p - z for p, z in zip(raw, zero)])
-            error = tuple([t - p for t, p in zip(target, raw)])
-        joint = self._homing.joint
+        """The snapshot (every 4th tick) through the properties above."""
         return ServoStatus(
             tick=self._tick,
             mode=self._mode,
-            homed=zero is not None,
-            homing_joint=-1 if joint is None else joint,
+            homed=self.homed,
+            homing_joint=-1 if self.homing_joint is None else self.homing_joint,
             starved=self._queue.starved,
             braking=self._queue.braking,
             fault=self._fault,
-            encoder_pos=pos,
-            encoder_cmd=cmd,
-            following_error=error,
+            encoder_pos=self.encoder_pos,
+            encoder_cmd=self.encoder_cmd,
+            following_error=self.following_error,
             dac=self._dac,
         )
 
