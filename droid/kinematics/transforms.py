@@ -18,7 +18,10 @@ import math
 
 import numpy as np
 
-from numpy._core.multiarray import c_einsum  # what np.einsum(optimize=False) calls
+try:  # what np.einsum(optimize=False) calls, without its Python wrapper (a private name of numpy 2)
+    from numpy._core.multiarray import c_einsum
+except ImportError:  # numpy 1.x (pyproject allows >= 1.24): the public call, the same sums
+    c_einsum = np.einsum
 
 DEG_PER_RAD = 180.0 / math.pi
 RAD_PER_DEG = math.pi / 180.0

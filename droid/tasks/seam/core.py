@@ -63,10 +63,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from droid.kinematics import RobotModel, Unreachable
-from droid.kinematics.transforms import inv_homo, rotx, roty
+from droid.kinematics.transforms import c_einsum, inv_homo, rotx, roty
 from droid.tasks.seam.delay import DELAY_OFF, INVALID_READING, Reading, TransportDelay
-
-from numpy._core.multiarray import c_einsum  # what np.einsum(optimize=False) calls
 
 #: Largest index of the seam patch (the listing's MAX_QUEUE).  The patch
 #: between the camera and the tool holds CAMERA_TO_TCP / (speed / 30 Hz)
