@@ -21,9 +21,8 @@ from __future__ import annotations
 import numpy as np
 
 from droid.cli import RuntimeFailure
+from droid.kinematics.transforms import record_pose
 from droid.sim.lockstep import Scheduler
-
-_EYE4 = np.eye(4)  # copied where a fresh identity is filled in (np.eye's call costs more: issue 28 item 2)
 
 HOME_TIMEOUT_S = 60.0
 MOVE_S = 4.0  # the move from home to the start pose
@@ -58,11 +57,7 @@ class FullArm:
         self.arm.command_cart(T_global_wcp, ticks)
 
     def status_pose(self) -> np.ndarray:
-        st = self.arm.status
-        T = _EYE4.copy()
-        T[:3, :3] = st["R"]
-        T[:3, 3] = (float(st["x"]), float(st["y"]), float(st["z"]))
-        return T
+        return record_pose(self.arm.status)
 
     def status_joints(self) -> np.ndarray:
         return self.model.gearing.counts_to_joints(np.asarray(self.arm.status["encoder_pos"], float))

@@ -37,10 +37,9 @@ from __future__ import annotations
 import numpy as np
 
 from droid.cli import RuntimeFailure
+from droid.kinematics.transforms import record_pose
 from droid.sim.gmf1.lockstep import Gmf1Lockstep
 from droid.sim.lockstep import Scheduler
-
-_EYE4 = np.eye(4)  # copied where a fresh identity is filled in (np.eye's call costs more: issue 28 item 2)
 
 #: The Fanuc twin's world rate in a trial [Hz]: the serial bytes carry their own times (9600
 #: baud), the arm integrates at its servo rate inside each step; 240 Hz keeps a trial cheap.
@@ -100,11 +99,7 @@ class Gmf1Holder:
 
     def status_pose(self) -> np.ndarray:
         """The GMF1 Status's wrist-centre pose (4x4, mm, global): what the tracker reads."""
-        s = self.g.ctrl_status.read()
-        T = _EYE4.copy()
-        T[:3, :3] = s["R"]
-        T[:3, 3] = (float(s["x"]), float(s["y"]), float(s["z"]))
-        return T
+        return record_pose(self.g.ctrl_status.read())
 
     @property
     def name(self) -> str:

@@ -23,6 +23,8 @@ try:  # what np.einsum(optimize=False) calls, without its Python wrapper (a priv
 except ImportError:  # numpy 1.x (pyproject allows >= 1.24): the public call, the same sums
     c_einsum = np.einsum
 
+EYE4 = np.eye(4)  # copied where a fresh identity is filled in (np.eye's call costs more: issue 28 item 2)
+
 DEG_PER_RAD = 180.0 / math.pi
 RAD_PER_DEG = math.pi / 180.0
 
@@ -152,3 +154,12 @@ def is_rigid(T, tol: float = 1e-9) -> bool:
     if not np.allclose(t[3], (0, 0, 0, 1), atol=tol, rtol=0):
         return False
     return bool(np.allclose(r @ r.T, np.eye(3), atol=tol, rtol=0) and np.linalg.det(r) > 0)
+
+
+def record_pose(rec) -> np.ndarray:
+    """A DROID record's wrist-centre pose (its ``R``, ``x``, ``y``, ``z`` fields: thesis Table 3.1,
+    Status and Command alike) as a 4x4 homogeneous transform [mm]."""
+    T = EYE4.copy()
+    T[:3, :3] = rec["R"]
+    T[:3, 3] = (float(rec["x"]), float(rec["y"]), float(rec["z"]))
+    return T

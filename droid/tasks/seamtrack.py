@@ -56,6 +56,7 @@ from droid.tasks.seam.core import (DEAD_ZONE_CYCLES, LOST_CYCLES, MAX_CYCLES, MA
 from droid.tasks.seam.cycle import SENSOR_LAG_TICKS, TrackingCycle  # noqa: F401 (SENSOR_LAG_TICKS: docs)
 from droid.tasks.seam.station import ArmStatus, SeamtrackStation
 from droid.tasks.seam.delay import INVALID_READING, Reading
+from droid.kinematics.transforms import record_pose
 from droid.brain.cell_layout import POSITION_IDS, check_bases, layout_for_cell, layout_path_for
 from droid.tasks.shell import TickLoop, check_output_dirs, ready_then_run, run_on_ticks, say_outcome
 
@@ -137,10 +138,7 @@ def reading_of(rec, period_ns: int | None = None) -> Reading:
 
 def pose_of(rec) -> np.ndarray:
     """A Status record's wrist-centre pose as a 4x4 [mm] (global frame, Table 3.1)."""
-    T = np.eye(4)
-    T[:3, :3] = rec["R"]
-    T[:3, 3] = (float(rec["x"]), float(rec["y"]), float(rec["z"]))
-    return T
+    return record_pose(rec)
 
 
 def move_to_start(arm: BrainArm, T: np.ndarray, what: str, quiet: bool) -> None:

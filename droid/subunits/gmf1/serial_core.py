@@ -78,10 +78,8 @@ import numpy as np
 from droid.brain.layouts import (CARTSPACE, CMD_FAILED, CMD_OK, CMD_REFUSED, HOME_MODE, JSPACE, NORMAL_MODE,
                                  OFF, STOP_TICKS)
 from droid.kinematics import RobotModel, Unreachable
-from droid.kinematics.transforms import T_to_pose, inv_homo
+from droid.kinematics.transforms import T_to_pose, inv_homo, record_pose
 from droid.subunits.gmf1 import karel_wire as kw
-
-_EYE4 = np.eye(4)  # copied where a fresh identity is filled in (np.eye's call costs more: issue 28 item 2)
 
 # core states
 CLOSED = "closed"  # no port
@@ -139,10 +137,7 @@ def is_stop(cmd: CommandSnapshot) -> bool:
 
 def snapshot_command(rec) -> CommandSnapshot:
     """A :class:`CommandSnapshot` of a CTRL_COMMAND record."""
-    T = _EYE4.copy()
-    T[:3, :3] = rec["R"]
-    T[0, 3], T[1, 3], T[2, 3] = float(rec["x"]), float(rec["y"]), float(rec["z"])
-    return CommandSnapshot(int(rec["cmd_id"]), int(rec["cmd_mode"]), int(rec["coord"]), T,
+    return CommandSnapshot(int(rec["cmd_id"]), int(rec["cmd_mode"]), int(rec["coord"]), record_pose(rec),
                            int(rec["cart_time_count"]), int(rec["joint_time_count"]),
                            np.array(rec["encoder_cmd_ext"], np.int64), bool(int(rec["link_alive"])))
 

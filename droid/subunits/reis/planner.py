@@ -42,12 +42,10 @@ from droid.brain.rt import try_sched_fifo
 from droid.brain.program import close_all, Presence, Stop, notify_ready, presence_key, subunit_program
 from droid.cli import run
 from droid.kinematics import load_robot
-from droid.kinematics.transforms import pose_to_T
+from droid.kinematics.transforms import pose_to_T, record_pose
 from droid.brain.layouts import (CMD_FAILED, CMD_OK, CMD_REFUSED, FAULT_BRAKING, FAULT_FORCE, FAULT_SERVO,
                                  FAULT_WATCHDOG, JSPACE, NORMAL_MODE, STOP_TICKS, fault_names)
 from droid.kinematics import RobotModel, Unreachable
-
-_EYE4 = np.eye(4)  # copied where a fresh identity is filled in (np.eye's call costs more: issue 28 item 2)
 
 N = 6
 
@@ -101,10 +99,7 @@ class PlannerCore:
             if why:
                 raise Unreachable(why)
             return counts
-        T = _EYE4.copy()
-        T[:3, :3] = cmd["R"]
-        T[:3, 3] = [float(cmd["x"]), float(cmd["y"]), float(cmd["z"])]
-        q = self.model.ik(T, self._joints_from_counts(self.int_counts))
+        q = self.model.ik(record_pose(cmd), self._joints_from_counts(self.int_counts))
         return np.rint(self.model.gearing.joints_to_counts(q))
 
     def step(self, cmd, status) -> PlanOutput:

@@ -57,10 +57,10 @@ import numpy as np
 
 from droid.brain.layouts import FAULTS_CANNOT_MOVE, fault_names
 from droid.brain.sensor_line import seam_transform
+from droid.kinematics.transforms import EYE4
 from droid.tasks.seam.core import MODE_PLUS, STOP_FAULT, CycleOutput, SeamParams, SeamTracker, TrackingStop
 from droid.tasks.seam.delay import INVALID_READING, Reading
 
-_EYE4 = np.eye(4)  # copied where a fresh identity is filled in (np.eye's call costs more: issue 28 item 2)
 _EYE3 = np.eye(3)
 
 #: The 10 Hz log of §6.1 [Hz].
@@ -123,7 +123,7 @@ def _rot_exp(v: np.ndarray) -> np.ndarray:
 def interpolate_pose(T0: np.ndarray, T1: np.ndarray, u: float) -> np.ndarray:
     """The pose a fraction ``u`` (0..1) of the way from ``T0`` to ``T1`` (translation linear,
     rotation along the geodesic)."""
-    out = _EYE4.copy()
+    out = EYE4.copy()
     out[:3, 3] = T0[:3, 3] + u * (T1[:3, 3] - T0[:3, 3])
     out[:3, :3] = T0[:3, :3] @ _rot_exp(u * _rot_log(T0[:3, :3].T @ T1[:3, :3]))
     return out
