@@ -20,6 +20,7 @@ twin in droid-sim), is brought up, left idle for ``--seconds`` and brought down.
   memory (Pss, Rss summed; largest Rss).
 
     .venv/bin/python bench/bench_scale.py [--n 8,16,32,64] [--seconds 60] [--rate-hz 60] [--remotes one]
+        [--share droid-agent,droid-joystick]
 
 Run it alone on the machine (no other cell, no test run).  Record the printed block, with
 the date and the load average it prints, in docs/benchmarks.md.
@@ -66,15 +67,22 @@ buttons = 8
 """
 
 
-def make_cell(tmp: Path, source: Path, n: int, rate_hz: float, remotes: str = "each") -> Path:
-    """A renamed copy of ``source`` (bench_footprint's) with ``n`` extra joysticks appended, and
-    ``[brain] remotes`` set (``one``: one droid-remote serves every agent-linked subunit)."""
+def make_cell(tmp: Path, source: Path, n: int, rate_hz: float, remotes: str = "each",
+              share: tuple[str, ...] = ()) -> Path:
+    """A renamed copy of ``source`` (bench_footprint's) with ``n`` extra joysticks appended,
+    ``[brain] remotes`` set (``one``: one droid-remote serves every agent-linked subunit) and
+    ``[cell] share`` (e.g. droid-agent, droid-joystick: one process a host for their subunits)."""
     path = footprint_cell(tmp, source)
     text = path.read_text()
     if remotes != "each":
         if "\n[brain]\n" not in text:
             raise SystemExit(f"bench_scale: {source} has no [brain] table to set remotes in")
         text = text.replace("\n[brain]\n", f'\n[brain]\nremotes = "{remotes}"\n', 1)
+    if share:
+        if "\n[cell]\n" not in text and not text.startswith("[cell]\n"):
+            raise SystemExit(f"bench_scale: {source} has no [cell] table to set share in")
+        listed = ", ".join(f'"{p}"' for p in share)
+        text = text.replace("[cell]\n", f"[cell]\nshare = [{listed}]\n", 1)
     path.write_text(text + "".join(joystick_block(k, rate_hz) for k in range(n)))  # new tables
     return path
 
@@ -92,7 +100,7 @@ def host_idle_pct(seconds_window):
 
 
 def one(n: int, args, tmp: Path) -> dict:
-    cell = make_cell(tmp, args.cell, n, args.rate_hz, args.remotes)
+    cell = make_cell(tmp, args.cell, n, args.rate_hz, args.remotes, args.share)
     got: dict = {"n": n}
     t0 = time.monotonic()
     up = droid(cell, "droid-cell", "up", "--timeout", "240", timeout=600)
@@ -191,7 +199,11 @@ def main() -> int:
                     help="the extra joysticks' rate [Hz]")
     ap.add_argument("--remotes", choices=("each", "one"), default="each",
                     help="[brain] remotes: one droid-remote a subunit (each) or one for all (one)")
+    ap.add_argument("--share", default="",
+                    help="[cell] share: programs run once a host for all its subunits, comma-separated "
+                         "(e.g. droid-agent,droid-joystick)")
     args = ap.parse_args()
+    args.share = tuple(p.strip() for p in args.share.split(",") if p.strip())
     try:
         ns = [int(x) for x in args.n.split(",") if x.strip()]
     except ValueError:
@@ -200,7 +212,7 @@ def main() -> int:
         ap.error("--n needs at least one count >= 0")
     print(f"bench_scale: {time.strftime('%Y-%m-%d %H:%M:%S UTC', time.gmtime())}, {os.cpu_count()} CPUs, "
           f"load average {' '.join(open('/proc/loadavg').read().split()[:3])}, cell {args.cell.name}, "
-          f"remotes {args.remotes}")
+          f"remotes {args.remotes}, share {','.join(args.share) or 'none'}")
     with tempfile.TemporaryDirectory(prefix="droid-scale-") as d:
         for n in ns:
             g = one(n, args, Path(d))

@@ -161,6 +161,10 @@ class Cell:
     # droid-remote process serves every agent-linked subunit (issue 28 item 4: a subunit's
     # remote costs its wake-ups, not its work; serial-linked sensors keep their own)
     remotes: str = REMOTES_EACH
+    # [cell] share: programs of which one process per host serves every subunit of that host
+    # that names it (e.g. droid-agent, droid-joystick; issue 28 item 4) -- each declared
+    # ``several`` in its device package (droid.brain.registry.Program)
+    share: tuple[str, ...] = ()
 
     def bind_endpoint(self, endpoint: str) -> str:
         """Where the owner of ``endpoint`` binds: itself, or its [interpose] inner endpoint."""
@@ -276,7 +280,7 @@ def parse_cell(raw: dict[str, Any], p: Path) -> Cell:
     except NumberError as exc:
         raise BadInput(f"{p}: {exc}") from None
     top = _Reader(p, "top level", raw)
-    name, hb_hz, stale, fifo, run_dir, layout = _cell_table(p, top)
+    name, hb_hz, stale, fifo, run_dir, layout, share = _cell_table(p, top)
     run = run_dir
 
     b = _Reader(p, "brain", top.get("brain", dict, {}))
@@ -310,11 +314,11 @@ def parse_cell(raw: dict[str, Any], p: Path) -> Cell:
                 sched_fifo=fifo, run_dir=Path(run_dir), brain_host=brain_host,
                 heartbeat=heartbeat, names=names, world=world, subunits=subunits,
                 curve=curve, raw=raw, interpose=interpose,
-                layout=_layout_path(p, layout), remotes=remotes)
+                layout=_layout_path(p, layout), remotes=remotes, share=share)
 
 
 def _cell_table(p: Path, top: "_Reader") -> tuple:
-    """``[cell]``: name, heartbeat rate [Hz], stale_ticks, sched_fifo, run_dir and layout."""
+    """``[cell]``: name, heartbeat rate [Hz], stale_ticks, sched_fifo, run_dir, layout and share."""
     c = _Reader(p, "cell", top.get("cell", dict))
     name = c.get("name", str)
     try:
@@ -330,8 +334,22 @@ def _cell_table(p: Path, top: "_Reader") -> tuple:
     run_root = os.environ.get(ENV_RUN_ROOT, DEFAULT_RUN_ROOT)
     run_dir = c.get("run_dir", str, f"{run_root}/{name}")
     layout = c.get("layout", str, None)
+    share = tuple(c.get("share", list, [], check=_shareable))
     c.done()
-    return name, hb_hz, stale, fifo, run_dir, layout
+    return name, hb_hz, stale, fifo, run_dir, layout, share
+
+
+def _shareable(progs: list) -> str | None:
+    """``[cell] share``: programs that serve several subunits from one process (issue 28 item 4)."""
+    reg = _registry.registry()
+    ok = sorted(p.name for p in reg.programs.values() if p.several and p.role == "cell")
+    for prog in progs:
+        if not isinstance(prog, str) or prog not in reg.programs or not reg.programs[prog].several \
+                or reg.programs[prog].role != "cell":
+            return f"{prog!r} cannot serve several subunits from one process (those that can: {', '.join(ok)})"
+    if len(set(progs)) != len(progs):
+        return "names a program twice"
+    return None
 
 
 def _subunit(p: Path, sname: str, table, brain_host: str, run: str, name: str) -> Subunit:

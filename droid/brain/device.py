@@ -35,7 +35,8 @@ PACKAGE = DevicePackage(
                 role="brain", description="the world: every twin of the cell",
                 cpu_pct=13.0, rss_mb=100),  # its 1 kHz loop; each twin adds its Twin.cpu_pct
         # the generic subunit server (any class: copies the command in, replies with the status)
-        Program("droid-agent", "droid.subunits.agent", sched="fifo", priority=51, cpu_pct=3.0, rss_mb=42),
+        Program("droid-agent", "droid.subunits.agent", sched="fifo", priority=51, cpu_pct=3.0, rss_mb=42,
+                several=True),
         # tools and tasks (run by hand)
         Program("droid-cell", "droid.brain.launcher", role="tool"),
         Program("droid-cheader", "droid.brain.cheader", role="tool"),

@@ -42,7 +42,7 @@ from dataclasses import asdict, dataclass, field
 from droid.brain.cellfile import REMOTES_ONE, Cell, load_cell
 from droid.brain.databases import create_databases
 from droid.brain.layouts import PROC_STATE_NAMES, PROC_STATUS_LAYOUT
-from droid.brain.program import presence_key, use_cell
+from droid.brain.program import presence_key, shared_key, use_cell
 from droid.brain.rt import normal_scheduler
 from droid.brain.sensor_link import LINK_AGENT, link_kind
 from droid.brain.shmdb import (Database, NoDatabase, cell_objects, db_name, pid_alive,
@@ -80,10 +80,22 @@ def cell_programs(cell: Cell, hosts: set[str] | None = None) -> tuple[list[Spec]
         specs.extend(remote_specs(cell))
     if cell.world.get("enabled", True) and want(cell.world.get("host", cell.brain_host)):
         specs.append(Spec(presence_key("droid-sim"), "droid-sim", [], cell.world["host"]))
+    shared: dict[tuple[str, str], Spec] = {}  # [cell] share: (program, host) -> its one process
     for sub in cell.subunits.values():
         if want(sub.host):
             for prog in sub.programs:
+                if prog in cell.share:
+                    spec = shared.get((prog, sub.host))
+                    if spec is not None:
+                        spec.args.append(sub.name)
+                        continue
+                    spec = shared[prog, sub.host] = Spec("", prog, [], sub.host)
+                    specs.append(spec)
+                    spec.args.append(sub.name)
+                    continue
                 specs.append(Spec(presence_key(prog, sub.name), prog, [sub.name], sub.host))
+    for spec in shared.values():  # one subunit: its own key, as if not shared
+        spec.key = shared_key(spec.prog, [cell.subunit(n) for n in spec.args])
     first = [s for s in specs if program(s.prog).start == 0]
     rest = [s for s in specs if program(s.prog).start != 0]
     return first, rest
@@ -102,10 +114,10 @@ def remote_specs(cell: Cell) -> list[Spec]:
     return specs
 
 
-#: What each subunit past the first adds to a droid-remote serving several ([brain] remotes =
-#: "one") [% of one core, idle, 60 Hz]: 4 subunits took 4.5-5.2 % where one took 2.4-3.4 %
-#: (docs/benchmarks.md "Scale", 2026-11-28).
-SHARED_REMOTE_CPU_PCT_PER_SUBUNIT = 0.7
+#: What each subunit past the first adds to a process serving several ([brain] remotes = "one",
+#: [cell] share) [% of one core, idle, 60 Hz]: 4 subunits in one droid-remote took 4.5-5.2 %
+#: where one took 2.4-3.4 % (docs/benchmarks.md "Scale", 2026-11-28).
+SHARED_CPU_PCT_PER_SUBUNIT = 0.7
 
 #: Share of this host's CPUs a cell may ask for before droid-cell up warns: above it the
 #: heartbeat's exchanges start to miss (docs/benchmarks.md "Scale", bench/bench_scale.py).
@@ -156,8 +168,8 @@ def demand(cell: Cell, specs: list[Spec]) -> Demand:
         p = program(s.prog)
         cpu += p.cpu_pct
         rss += p.rss_mb
-        if s.prog == "droid-remote":
-            cpu += SHARED_REMOTE_CPU_PCT_PER_SUBUNIT * (len(s.args) - 1)
+        if len(s.args) > 1:  # a process serving several subunits
+            cpu += SHARED_CPU_PCT_PER_SUBUNIT * (len(s.args) - 1)
         if s.prog == "droid-sim":
             for opts in cell.world.get("devices", {}).values():
                 try:

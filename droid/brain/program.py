@@ -241,6 +241,26 @@ def subunit_program(prog: str, description: str, argv=None, *, arm: bool = False
     return args, cell, subs if several else subs[0]
 
 
+def check_one_host(subs) -> None:
+    """A process serving several subunits runs on their one host (BadInput names the odd one)."""
+    for s in subs[1:]:
+        if s.host != subs[0].host:
+            from droid.cli import BadInput
+
+            raise BadInput(f"{s.name} is on host {s.host!r} and {subs[0].name} on {subs[0].host!r}: "
+                           "one process serves the subunits of one host")
+
+
+def shared_key(prog: str, subs) -> str:
+    """The presence key of ``prog`` serving ``subs``: ``agent-joy`` for one subunit, ``agents-HOST``
+    for the process that serves several of a host (``[cell] share``; the plural names no program,
+    so it is never a one-subunit key)."""
+    if len(subs) == 1:
+        return presence_key(prog, subs[0].name)
+    host = "".join(c if c.isascii() and (c.isalnum() or c in "-_") else "_" for c in subs[0].host)
+    return f"{presence_key(prog)}s-{host}"
+
+
 def close_all(*resources) -> None:
     """Close what a shell opened, in this order, at its exit (the ``finally`` of ``main``).
 

@@ -101,6 +101,9 @@ class Program:
     # cell asks for more than the host can carry).  A program left at 0 counts as free.
     cpu_pct: float = 0.0
     rss_mb: float = 0.0
+    # it serves several subunits from one process (``PROG NAME...``), so a cell's ``[cell]
+    # share`` may start one per host for all of them (issue 28 item 4)
+    several: bool = False
 
 
 @dataclass(frozen=True)

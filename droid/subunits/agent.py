@@ -18,7 +18,11 @@ subunit's tick-driven programs see it: the motion controller brakes and waits
 for a new command.
 
 ``droid-reis-agent`` and ``droid-gmf1-agent`` are this program under the
-names of the thesis; sensors use it as ``droid-agent``.
+names of the thesis; sensors use it as ``droid-agent``.  Named several subunits
+of one host (``droid-agent joy xjoy0 ...``; a cell's ``[cell] share``, issue 28
+item 4) one process serves them all: each keeps its ROUTER, relay, name,
+records and link rule, in one loop -- a subunit costs its sockets, not a
+process's wake-ups.
 """
 from __future__ import annotations
 
@@ -35,7 +39,7 @@ from droid.brain.classes import ARM6R
 from droid.brain.layouts import ARM_COMMAND_LAYOUT, FAULT_LINK, Layout, LayoutError, check_header
 from droid.brain.link import AgentLinkCore
 from droid.brain.names import NameClient
-from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
+from droid.brain.program import Presence, Stop, check_one_host, close_all, notify_ready, shared_key, subunit_program
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import run
 
@@ -145,82 +149,124 @@ class AgentStation:
 
 
 def agent_main(prog: str, argv=None) -> int:
-    ap = parser(prog, "Serve a subunit to its Brain-side remote: commands in, status out, ticks relayed.")
-    ap.add_argument("subunit", help="subunit name, e.g. arm1")
-    args = ap.parse_args(argv)
-    cell = open_cell(args)
-    sub = cell.subunit(args.subunit)
-    Stop.install()
+    """The agent of one subunit -- or, named several (``[cell] share``, issue 28 item 4), of each
+    of them from one process: each subunit keeps its own ROUTER, relay, name, station and
+    records; one loop, one liveness timer and one name-service client serve them all."""
+    args, cell, subs = subunit_program(
+        prog, "Serve subunits to their Brain-side remotes: commands in, status out, ticks relayed.", argv,
+        example="arm1 (several: one process serves them all)", several=True)
+    check_one_host(subs)
     try_sched_fifo(wanted=cell.sched_fifo, prog=prog)
-    layouts = local_layouts(sub)
-    status = open_local(cell, sub, "ctrl_status")
-    ctrl_cmd = open_local(cell, sub, "ctrl_command") if "ctrl_command" in layouts else None
     ctx = zmq.Context()
-    curve = CurveHost(ctx, cell, sub.host)
-    presence = Presence(cell.name, presence_key(prog, sub.name), f"{prog} {sub.name}")
-    router = ctx.socket(zmq.ROUTER)
-    router.setsockopt(zmq.LINGER, 0)
-    router.setsockopt(zmq.MAXMSGSIZE, 65536)
-    relay = ctx.socket(zmq.PUB)
-    relay.setsockopt(zmq.LINGER, 0)
-    names = None
-    station = AgentStation(status, ctrl_cmd, cell.period_ns, cell.stale_ticks,
-                           CommandCopier.for_subunit(ctrl_cmd, sub) if ctrl_cmd is not None else None)
-    link = station.link
+    curve = CurveHost(ctx, cell, subs[0].host)
+    presence = Presence(cell.name, shared_key(prog, subs), f"{prog} {' '.join(s.name for s in subs)}")
     timer = PeriodicTimer(cell.period_ns)  # checks Brain-link liveness between commands
-    bad_frames = 0
+    names = None
+    served: list[_AgentServed] = []
     try:
         cell.run_dir.mkdir(parents=True, exist_ok=True)
-        curve.bind(cell, (router, sub.agent), (relay, sub.relay))
+        for sub in subs:
+            served.append(_AgentServed(ctx, cell, sub, curve))
         names = NameClient(ctx, cell.names, curve=curve, server_host=cell.brain_host)
-        names.register(sub.name, sub.agent)
+        for a in served:
+            names.register(a.sub.name, a.sub.agent)
         presence.ready()
         notify_ready(args.ready_fd)
-        poller = zmq.Poller()
-        poller.register(router, zmq.POLLIN)
-        poller.register(timer.fd, zmq.POLLIN)
-        while not Stop.requested:
-            events = dict(poller.poll(500))
-            now = time.monotonic_ns()
-            if router in events:
-                while True:
-                    try:
-                        frames = router.recv_multipart(zmq.NOBLOCK)
-                    except zmq.Again:
-                        break
-                    if len(frames) < 2:
-                        bad_frames += 1
-                        continue
-                    ident, body = frames[0], frames[1:]
-                    try:
-                        tick, payload = wire.unpack_link(body, wire.KIND_CMD)
-                        reply = station.on_command(payload, tick, now)
-                    except (wire.BadFrame, LayoutError):
-                        bad_frames += 1
-                        continue
-                    router.send_multipart([ident] + wire.pack_link(wire.KIND_STA, tick, reply))
-                    relay.send(wire.pack_tick(wire.Tick(tick, now, cell.period_ns)))
-            if timer.fd in events:
-                timer.consume()
-                names.keepalive()
-                local = station.on_timer(now)
-                if local is not None:
-                    relay.send(wire.pack_tick(wire.Tick(local, now, cell.period_ns)))
-            presence.beat(link.last_tick, link.commands, timer.overruns, bad_frames=bad_frames)
+        _serve(served, timer, names, presence, cell.period_ns)
     finally:
-        if names is not None:
-            names.close()
-        router.close(0)
-        relay.close(0)
-        curve.close()
-        ctx.term()
-        timer.close()
-        status.close()
-        if ctrl_cmd is not None:
-            ctrl_cmd.update(link_alive=0)
-            ctrl_cmd.close()
-        presence.close()
+        close_all(names, *served, curve, ctx.term, timer, presence)
     return 0
+
+
+class _AgentServed:
+    """One subunit a droid-agent serves: its local records, station, ROUTER and relay."""
+
+    def __init__(self, ctx, cell, sub, curve: CurveHost) -> None:
+        self.sub = sub
+        self.period_ns = cell.period_ns
+        self.status = self.ctrl_cmd = self.router = self.relay = None
+        try:
+            self.status = open_local(cell, sub, "ctrl_status")
+            if "ctrl_command" in local_layouts(sub):
+                self.ctrl_cmd = open_local(cell, sub, "ctrl_command")
+            self.station = AgentStation(self.status, self.ctrl_cmd, cell.period_ns, cell.stale_ticks,
+                                        CommandCopier.for_subunit(self.ctrl_cmd, sub)
+                                        if self.ctrl_cmd is not None else None)
+            self.router = ctx.socket(zmq.ROUTER)
+            self.router.setsockopt(zmq.LINGER, 0)
+            self.router.setsockopt(zmq.MAXMSGSIZE, 65536)
+            self.relay = ctx.socket(zmq.PUB)
+            self.relay.setsockopt(zmq.LINGER, 0)
+            curve.bind(cell, (self.router, sub.agent), (self.relay, sub.relay))
+        except BaseException:
+            self.close()
+            raise
+        self.bad_frames = 0
+
+    def drain(self, now: int) -> None:
+        """Every command waiting on the ROUTER: copied in, answered, the tick relayed."""
+        router, station = self.router, self.station
+        while True:
+            try:
+                frames = router.recv_multipart(zmq.NOBLOCK)
+            except zmq.Again:
+                break
+            if len(frames) < 2:
+                self.bad_frames += 1
+                continue
+            ident, body = frames[0], frames[1:]
+            try:
+                tick, payload = wire.unpack_link(body, wire.KIND_CMD)
+                reply = station.on_command(payload, tick, now)
+            except (wire.BadFrame, LayoutError):
+                self.bad_frames += 1
+                continue
+            router.send_multipart([ident] + wire.pack_link(wire.KIND_STA, tick, reply))
+            self.relay.send(wire.pack_tick(wire.Tick(tick, now, self.period_ns)))
+
+    def on_timer(self, now: int) -> None:
+        local = self.station.on_timer(now)
+        if local is not None:
+            self.relay.send(wire.pack_tick(wire.Tick(local, now, self.period_ns)))
+
+    def close(self) -> None:
+        for sock in (self.router, self.relay):
+            if sock is not None:
+                sock.close(0)
+        if self.ctrl_cmd is not None:
+            try:
+                self.ctrl_cmd.update(link_alive=0)
+            finally:
+                self.ctrl_cmd.close()
+        if self.status is not None:
+            self.status.close()
+
+
+def _serve(served: list[_AgentServed], timer: PeriodicTimer, names: NameClient, presence: Presence,
+           period_ns: int) -> None:
+    """droid-agent's loop, until SIGTERM: commands from the remotes on every ROUTER; once a
+    period, the name-service keepalive and each subunit's link-liveness rule."""
+    poller = zmq.Poller()
+    by_socket = {}
+    for a in served:
+        poller.register(a.router, zmq.POLLIN)
+        by_socket[a.router] = a
+    poller.register(timer.fd, zmq.POLLIN)
+    links = [a.station.link for a in served]
+    while not Stop.requested:
+        events = dict(poller.poll(500))
+        now = time.monotonic_ns()
+        for sock in events:
+            a = by_socket.get(sock)
+            if a is not None:
+                a.drain(now)
+        if timer.fd in events:
+            timer.consume()
+            names.keepalive()
+            for a in served:
+                a.on_timer(now)
+        presence.beat(max(link.last_tick for link in links), sum(link.commands for link in links),
+                      timer.overruns, bad_frames=sum(a.bad_frames for a in served))
 
 
 def _set_fault(db, bit: int, on: bool) -> None:

@@ -1,4 +1,4 @@
-"""droid-joystick SUBUNIT: read a joystick device into the subunit's Status (thesis §3.4).
+"""droid-joystick SUBUNIT...: read a joystick device into the subunit's Status (thesis §3.4).
 
 The joystick is a subunit of class ``joystick`` like any other (thesis §7:
 "sensors such as the profiling sensor and the joystick controller could be
@@ -22,6 +22,10 @@ Cell file::
     device = "js://{run}/joy.js"      # or js:///dev/input/js0, evdev:///dev/input/event3
     rate_hz = 100.0
     programs = ["droid-joystick", "droid-agent"]
+
+Named several subunits (a cell's ``[cell] share = ["droid-joystick"]``, issue 28 item 4), one
+process reads every joystick of its host, each at its own ``rate_hz`` on a loop at the highest
+of them, each with its own device, record and reopen rule.
 """
 from __future__ import annotations
 
@@ -30,7 +34,7 @@ import time
 
 from droid.brain.databases import open_local
 from droid.brain.registry import open_url, program
-from droid.brain.program import Presence, Stop, close_all, notify_ready, presence_key, subunit_program
+from droid.brain.program import Presence, Stop, check_one_host, close_all, notify_ready, shared_key, subunit_program
 from droid.brain.rt import PeriodicTimer
 from droid.cli import file_number, run
 from droid.numbers import Range
@@ -53,24 +57,38 @@ def joystick_options(sub) -> tuple[str, float]:
 
 @run
 def main(argv=None) -> int:
-    args, cell, sub = subunit_program(PROG, "Read a joystick device into its subunit's Status.", argv)
-    url, rate = joystick_options(sub)
-    dev = open_url(url, "joystick")  # the driver droid.subunits.joystick.device declares for its scheme
-    status = open_local(cell, sub, "ctrl_status")
-    presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
+    args, cell, subs = subunit_program(PROG, "Read joystick devices into their subunits' Status.", argv,
+                                       example="joy (several: one process reads them all)",
+                                       several=True)
+    check_one_host(subs)
+    opts = [joystick_options(sub) for sub in subs]
+    rate = max(r for _, r in opts)  # the loop's; each joystick is read at its own rate_hz
+    presence = Presence(cell.name, shared_key(PROG, subs), f"{PROG} {' '.join(s.name for s in subs)}")
     timer = PeriodicTimer(int(round(1e9 / rate)))
-    station = JoystickStation(dev, rate, PROG)
+    devs, records, stations = [], [], []
     try:
-        status.update(**station.start(time.monotonic_ns()))
+        for sub, (url, r) in zip(subs, opts):
+            devs.append(open_url(url, "joystick"))  # the driver droid.subunits.joystick.device declares
+            records.append(open_local(cell, sub, "ctrl_status"))
+            stations.append(JoystickStation(devs[-1], r, f"{PROG} {sub.name}" if len(subs) > 1 else PROG))
+        now = time.monotonic_ns()
+        for status, station in zip(records, stations):
+            status.update(**station.start(now))
+        periods = [int(round(1e9 / r)) for _, r in opts]  # [ns]
+        due = [now] * len(periods)  # [ns, monotonic]: each joystick's next cycle
         presence.ready()
         notify_ready(args.ready_fd)
         while not Stop.requested:
             if not timer.wait(0.5):
                 continue
-            status.update(**station.cycle(time.monotonic_ns()))
-            presence.beat(0, station.cycles, timer.overruns, timer.lateness_max_ns)
+            now = time.monotonic_ns()
+            for k, (status, station) in enumerate(zip(records, stations)):
+                if now >= due[k] - periods[k] // 4:  # this joystick's period is up (a quarter's slack)
+                    status.update(**station.cycle(now))
+                    due[k] = max(due[k] + periods[k], now + periods[k] // 2)
+            presence.beat(0, max(st.cycles for st in stations), timer.overruns, timer.lateness_max_ns)
     finally:
-        close_all(dev, timer, status, presence)
+        close_all(*devs, timer, *records, presence)
     return 0
 
 
