@@ -29,14 +29,16 @@ PACKAGE = DevicePackage(
         Program("droid-names", "droid.brain.names", start=0, role="brain", cpu_pct=0.5, rss_mb=40),
         Program("droid-heartbeat", "droid.brain.heartbeat", rate_hz=HEARTBEAT_HZ, sched="fifo", priority=50,
                 role="brain", cpu_pct=2.0, rss_mb=45),
+        # several ([brain] remotes = "one"): a further subunit 0.4-0.6 % (docs/benchmarks.md "Scale")
         Program("droid-remote", "droid.brain.remote", sched="fifo", priority=50, role="brain",
-                cpu_pct=3.5, rss_mb=47),
+                cpu_pct=3.5, rss_mb=47, several=True, cpu_pct_each=0.6),
         Program("droid-sim", "droid.sim.world", rate_hz=1000.0, sched="fifo", priority=52, start=0,
                 role="brain", description="the world: every twin of the cell",
                 cpu_pct=13.0, rss_mb=100),  # its 1 kHz loop; each twin adds its Twin.cpu_pct
         # the generic subunit server (any class: copies the command in, replies with the status)
+        # ([cell] share: a further subunit 0.45 %, docs/benchmarks.md "Scale")
         Program("droid-agent", "droid.subunits.agent", sched="fifo", priority=51, cpu_pct=3.0, rss_mb=42,
-                several=True),
+                several=True, cpu_pct_each=0.5),
         # tools and tasks (run by hand)
         Program("droid-cell", "droid.brain.launcher", role="tool"),
         Program("droid-cheader", "droid.brain.cheader", role="tool"),

@@ -114,11 +114,6 @@ def remote_specs(cell: Cell) -> list[Spec]:
     return specs
 
 
-#: What each subunit past the first adds to a process serving several ([brain] remotes = "one",
-#: [cell] share) [% of one core, idle, 60 Hz]: 4 subunits in one droid-remote took 4.5-5.2 %
-#: where one took 2.4-3.4 % (docs/benchmarks.md "Scale", 2026-11-28).
-SHARED_CPU_PCT_PER_SUBUNIT = 0.7
-
 #: Share of this host's CPUs a cell may ask for before droid-cell up warns: above it the
 #: heartbeat's exchanges start to miss (docs/benchmarks.md "Scale", bench/bench_scale.py).
 HOST_CPU_BUDGET = 0.7
@@ -168,8 +163,8 @@ def demand(cell: Cell, specs: list[Spec]) -> Demand:
         p = program(s.prog)
         cpu += p.cpu_pct
         rss += p.rss_mb
-        if len(s.args) > 1:  # a process serving several subunits
-            cpu += SHARED_CPU_PCT_PER_SUBUNIT * (len(s.args) - 1)
+        if len(s.args) > 1:  # a process serving several subunits: each further one's share
+            cpu += p.cpu_pct_each * (len(s.args) - 1)
         if s.prog == "droid-sim":
             for opts in cell.world.get("devices", {}).values():
                 try:

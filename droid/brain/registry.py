@@ -102,8 +102,10 @@ class Program:
     cpu_pct: float = 0.0
     rss_mb: float = 0.0
     # it serves several subunits from one process (``PROG NAME...``), so a cell's ``[cell]
-    # share`` may start one per host for all of them (issue 28 item 4)
+    # share`` may start one per host for all of them (issue 28 item 4); ``cpu_pct_each``: what
+    # each subunit past the first adds to that process [% of one core, idle], measured likewise
     several: bool = False
+    cpu_pct_each: float = 0.0
 
 
 @dataclass(frozen=True)

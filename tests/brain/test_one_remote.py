@@ -53,7 +53,7 @@ def test_one_remote_serves_the_agent_linked_subunits_and_serial_sensors_keep_the
 def test_the_host_warning_counts_one_remote_at_its_measured_cost(tmp_path, cell_name):
     """droid-cell up's demand (issue 28 item 4): the shared remote declares its own cost plus a
     share per further subunit, so the same cell asks for less with it, but not for nothing."""
-    from droid.brain.launcher import SHARED_CPU_PCT_PER_SUBUNIT, demand
+    from droid.brain.launcher import demand
     from droid.brain.registry import program
 
     def asked(path):
@@ -63,7 +63,9 @@ def test_the_host_warning_counts_one_remote_at_its_measured_cost(tmp_path, cell_
 
     each = asked(make_cell_file(tmp_path, cell_name))
     one = asked(one_remote_cell(tmp_path, cell_name))
-    saved = 3 * (program("droid-remote").cpu_pct - SHARED_CPU_PCT_PER_SUBUNIT)  # 4 remotes -> 1
+    p = program("droid-remote")
+    assert 0 < p.cpu_pct_each < p.cpu_pct
+    saved = 3 * (p.cpu_pct - p.cpu_pct_each)  # 4 remotes -> 1
     assert one == pytest.approx(each - saved)
 
 

@@ -77,7 +77,7 @@ def test_share_starts_one_process_a_host_for_its_subunits(tmp_path, cell_name):
 
 
 def test_the_host_warning_counts_a_shared_process_at_its_measured_cost(tmp_path, cell_name):
-    from droid.brain.launcher import SHARED_CPU_PCT_PER_SUBUNIT, demand
+    from droid.brain.launcher import demand
     from droid.brain.registry import program
 
     def asked(path):
@@ -87,7 +87,9 @@ def test_the_host_warning_counts_a_shared_process_at_its_measured_cost(tmp_path,
 
     each = asked(shared_cell(tmp_path, cell_name, share=None))
     one = asked(shared_cell(tmp_path, cell_name))
-    saved = sum(2 * (program(p).cpu_pct - SHARED_CPU_PCT_PER_SUBUNIT) for p in ("droid-agent", "droid-joystick"))
+    progs = [program(p) for p in ("droid-agent", "droid-joystick")]
+    assert all(0 < p.cpu_pct_each < p.cpu_pct for p in progs)
+    saved = sum(2 * (p.cpu_pct - p.cpu_pct_each) for p in progs)  # 3 subunits: 2 processes saved
     assert one == pytest.approx(each - saved)
 
 

@@ -30,7 +30,8 @@ PACKAGE = DevicePackage(
     description="a Linux joystick device read into its subunit's Status (docs/joystick.md)",
     classes=(JOYSTICK,),
     programs=(Program("droid-joystick", "droid.subunits.joystick.prog", rate_hz=100.0, cpu_pct=2.0,
-                      rss_mb=37, several=True),),
+                      rss_mb=37, several=True,
+                      cpu_pct_each=0.1),),  # [cell] share: 33 joysticks took 4.6 % (docs/benchmarks.md "Scale")
     drivers=(Driver("joystick", tuple(DRIVER_CLASSES), "droid.subunits.joystick.driver:open_joystick",
                     "js:///dev/input/jsN or evdev:///dev/input/eventN[?min=LO&max=HI]"),),
     twins=(Twin("joystick", "droid.sim.joystick.device:make_joystick", serves=("joystick",), cpu_pct=0.2),),
