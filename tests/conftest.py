@@ -248,7 +248,7 @@ def pytest_runtest_makereport(item, call):
         report.sections.append(("cell logs", "\n".join(parts)))
 
 
-HOMED_ARMS = ("arm1", "gmf1")  # the built-in sim cell's arms, homed in this order
+HOMED_ARMS = ("arm1", "gmf1")  # the built-in sim cell's arms, homed at once
 
 #: Markers that place a test among those on the session's shared homed cell
 #: (:func:`pytest_collection_modifyitems`): first, while both arms still stand where homing left
@@ -284,7 +284,7 @@ def shared_sim_cell(tmp_path_factory):
     of real time a cell, which is what the sharing saves.  Tests use it through
     :func:`homed_sim_cell`, which checks it is still whole before each test; the tests that use
     it run last, in one block (:func:`pytest_collection_modifyitems`)."""
-    from tests.brain.cellutil import brought_down, droid, home_both, make_cell_file
+    from tests.brain.cellutil import brought_down, droid, home_at_once, make_cell_file
 
     name = new_cell_name()
     path = make_cell_file(tmp_path_factory.mktemp("shared"), name)
@@ -295,7 +295,7 @@ def shared_sim_cell(tmp_path_factory):
             out = droid("droid.brain.launcher", "up", "--cell", str(path), timeout=120)
             _restore_env(LEAK_TAG_ENV, old)
             assert out.returncode == 0, out.stdout + out.stderr
-            home_both(path, HOMED_ARMS)
+            home_at_once(path, HOMED_ARMS)
             yield path
     finally:
         _restore_env(LEAK_TAG_ENV, old)

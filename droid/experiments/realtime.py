@@ -8,7 +8,7 @@ cell of processes (thesis §3.4: small programs chained from a shell):
    (``droid/cells/sim.toml``) with a unique name, a private run directory, the
    trial's seed, and the world's workpiece, its mount on the Fanuc twin and the
    wrist's tool and sensor poses taken from the seam-tracking layout;
-2. ``droid-cell up``, ``droid-home arm1``, ``droid-home gmf1``;
+2. ``droid-cell up``, ``droid-home arm1 & droid-home gmf1; wait`` (both arms at once);
 3. ``droid-seamtrack SPEED --start POSITION --length ... --log trial.csv`` with
    the trial's gains and transport delay;
 4. ``droid-cell down`` -- always, also on failure or Ctrl-C.
@@ -83,6 +83,27 @@ def _check(out: subprocess.CompletedProcess, what: str) -> None:
         raise RuntimeFailure(f"--realtime: {what} failed (exit {out.returncode}): {last}")
 
 
+def _home_at_once(arms, cell_args: list[str]) -> None:
+    """droid-home every arm at the same time, as ``droid-home arm1 & droid-home gmf1; wait`` in a
+    cell's script (thesis §3.4): each arm homes on its own subunit; each must succeed."""
+    procs = {arm: subprocess.Popen([sys.executable, "-m", "droid.tasks.home", arm, *cell_args],
+                                   stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for arm in arms}
+    try:
+        deadline = time.monotonic() + HOME_TIMEOUT_S
+        for arm, proc in procs.items():
+            try:
+                _, err = proc.communicate(timeout=max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                raise RuntimeFailure(f"--realtime: droid-home {arm} did not finish within "
+                                     f"{HOME_TIMEOUT_S:g} s") from None
+            _check(subprocess.CompletedProcess(proc.args, proc.returncode, "", err), f"droid-home {arm}")
+    finally:
+        for proc in procs.values():
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+
+
 def run_trial_realtime(cfg: TrialConfig, out_dir) -> TrialResult:
     """Run ``cfg`` on a cell of processes (see the module docstring).  ``out_dir``: where the
     caller keeps the trial's files (the cell's logs go away with its temporary run dir)."""
@@ -98,9 +119,7 @@ def run_trial_realtime(cfg: TrialConfig, out_dir) -> TrialResult:
         up = _run(["droid.brain.launcher", "up", *c], UP_TIMEOUT_S, "droid-cell up")
         try:
             _check(up, "droid-cell up")
-            for arm in ("arm1", "gmf1"):
-                _check(_run(["droid.tasks.home", arm, *c], HOME_TIMEOUT_S, f"droid-home {arm}"),
-                       f"droid-home {arm}")
+            _home_at_once(("arm1", "gmf1"), c)
             args = ["droid.tasks.seamtrack", f"{cfg.speed_mm_s:g}", "--start", cfg.position,
                     "--length", f"{length:g}", "--yaw-gain", f"{cfg.yaw_gain:g}",
                     "--pitch-gain", f"{cfg.pitch_gain:g}", "--delay", str(cfg.delay_cycles),

@@ -15,7 +15,7 @@ import pytest
 
 from droid.brain.cellfile import load_cell
 from droid.brain.cell_layout import layout_for_cell
-from tests.brain.cellutil import ROOT, cell_up, droid, make_cell_file, reaped
+from tests.brain.cellutil import ROOT, cell_up, droid, home_at_once, make_cell_file, reaped
 from tests.tasks.test_seamtrack_cell import assert_agrees_with_lockstep, assert_standing, read_log, snoop
 
 pytestmark = pytest.mark.integration
@@ -31,9 +31,7 @@ AGREE_MEAN_MM = 1.0
 
 def test_home_both_arms_and_track_the_step_seam_in_plus_mode(tmp_path, cell_name):
     with cell_up(make_cell_file(tmp_path, cell_name, source=ABB_WELD), cell_name) as cell:
-        for arm in ("abb", "gmf1"):
-            out = droid("droid.tasks.home", arm, "--cell", str(cell), timeout=120)
-            assert out.returncode == 0, out.stderr
+        home_at_once(cell, ("abb", "gmf1"))  # droid-home abb & droid-home gmf1; wait
         log = tmp_path / "abb.csv"
         out = droid("droid.tasks.seamtrack", "16", "--mode", "plus", "--start", "i", "--length", "400",
                     "--log", str(log), "--cell", str(cell), timeout=240)
@@ -100,9 +98,7 @@ def test_egm_silence_stops_the_tracker_and_the_arm(tmp_path, cell_name):
         assert select.select([proxy.stderr], [], [], 30)[0], "droid-fault proxy said nothing"
         assert "proxy on abb.egm" in proxy.stderr.readline()
         with cell_up(path, cell_name) as cell:
-            for arm in ("abb", "gmf1"):
-                out = droid("droid.tasks.home", arm, "--cell", str(cell), timeout=120)
-                assert out.returncode == 0, out.stderr
+            home_at_once(cell, ("abb", "gmf1"))  # droid-home abb & droid-home gmf1; wait
             proc = subprocess.Popen([sys.executable, "-m", "droid.tasks.seamtrack", "16", "--mode", "plus",
                                      "--start", "i", "--cell", str(cell)], cwd=ROOT, stdout=subprocess.PIPE,
                                     stderr=subprocess.PIPE, text=True)

@@ -203,10 +203,3 @@ def home_at_once(cell, arms, timeout: float = 180) -> None:
             if proc.poll() is None:
                 proc.kill()
                 proc.wait()
-
-
-def home_both(cell, arms=("arm1", "gmf1")) -> None:
-    """droid-home each arm of the built-in sim cell in turn (each must succeed)."""
-    for arm in arms:
-        out = droid("droid.tasks.home", arm, "--cell", str(cell), timeout=120)
-        assert out.returncode == 0, out.stderr
