@@ -14,7 +14,8 @@ EGMActJoint, EGMStreamStart, then EGMRunJoint in a loop), as far as the sensor s
   (``vmax_deg_s``) and with accelerations of at most ``vmax / accel_time_s``; a datagram that is not a CORRECTION with six finite joints
   is counted and ignored;
 * the arm: the robot file's ``[dynamics]`` and ``[axis_servo]`` through the Fanuc twin's plant
-  (:class:`droid.sim.gmf1.dynamics.ArmDynamics`: Pinocchio rigid body, PI joint loops,
+  (:class:`droid.sim.gmf1.dynamics.ArmDynamics`: the rigid body -- Pinocchio, or the compiled
+  kernel's in droid-sim's world --, PI joint loops,
   amplifier limits, reducer compliance); ``dynamics = false`` puts an ideal arm on the reference;
 * the sensor side silent for ``comm_timeout_s`` while guided: EGMRunJoint ends (``mciState``
   STOPPED), the reference path stops where it is and the joint loops bring the arm to rest on it
