@@ -15,6 +15,10 @@
  *  - sin() is libm's, the function CPython's math.sin calls;
  *  - Python's round() (half to even) is nearbyint() in the default rounding mode.
  * No Python objects are created in the hot paths but the results.
+ *
+ * Also (rb_*, at the end): a serial arm's rigid-body dynamics for droid-sim's world, in place of
+ * Pinocchio there (droid.sim.reis.dynamics.RigidBody(backend="kernel")).  Those are tested
+ * against Pinocchio to a tolerance, not bit for bit, and need no BLAS.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>

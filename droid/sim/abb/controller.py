@@ -57,7 +57,7 @@ from droid.numbers import finite_numbers
 from droid.kinematics import RobotModel, load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.sim.device import Device, cell_arm_subunit, number_options
-from droid.sim.reis.dynamics import world_backend
+from droid.sim.gmf1.dynamics import world_backend
 from droid.sim.truth import TRUTH_PERIOD_S, TruthDoor, door_name
 from droid.subunits.abb import egm_schema as es
 from droid.subunits.abb.config import bind_udp, egm_config

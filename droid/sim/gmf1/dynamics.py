@@ -49,6 +49,7 @@ import math
 import numpy as np
 
 from droid.kinematics import RobotModel
+from droid.sim.reis.dynamics import world_backend  # noqa: F401 - the arm twins' devices choose with it
 
 #: The mass matrix and gravity are re-evaluated this often [s].
 MODEL_PERIOD_S = 0.01
