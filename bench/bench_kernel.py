@@ -52,7 +52,6 @@ def record_states(path: str) -> None:
     from droid.sim.reis.plant import ReisPlant, ReisPlantParams
     from droid.subunits.reis.servo import ServoCore
     from droid.subunits.reis.servo_params import Mode
-    import pinocchio as pin
 
     ls = ReisLockstep(ReisPlant(ReisPlantParams(), seed=1, kernel="python"), ServoCore(None, kernel="python"))
     p, rec = ls.plant, {k: [] for k in ("pg", "gm", "state", "tl", "dacs", "amps")}
@@ -64,7 +63,7 @@ def record_states(path: str) -> None:
         rec["pg"].append(pg)
         rec["gm"].append(gm)
         rec["state"].append(np.concatenate((p._theta, p._omega, p._q, p._qd)))
-        rec["tl"].append(pin.nonLinearEffects(p._pin_model, p._pin_data, p._q, p._qd).copy())
+        rec["tl"].append(p.body.bias(p._q, p._qd))  # Pinocchio's nonLinearEffects, copied
         rec["dacs"].append(np.frombuffer(bytes(p.regs[0x10:0x1C]), "<i2").astype(np.int64))
         rec["amps"].append(p._amps_on)
     np.savez(path, consts=p._consts, offset=p._enc_offset, **{k: np.array(v) for k, v in rec.items()})

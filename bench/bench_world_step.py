@@ -7,7 +7,9 @@ gone at exit), with arm1's servo and watchdog in the same process on the world's
 an RDT client streaming from the F/T twin (droid-ft's part) and readers on the Brain's ends of
 the sensors' serial lines (droid-remote's part: a pty nobody reads fills up and its writes slow
 down).  With ``--home`` it homes arm1 first (HOME at 60 Hz: ~28 s of world time); the servo
-holds the arm the same way homed or not.  It measures the thread CPU time of ``World.advance``
+holds the arm the same way homed or not.  It reports the process's resident size at the end
+(VmRSS) and whether Pinocchio was imported (droid-sim's world should not: the compiled rigid-body
+dynamics, droid.sim.reis.dynamics).  It measures the thread CPU time of ``World.advance``
 (1 ms steps; the real-time loop's own wake-ups are not in it) over two phases:
 
 * idle: the servo holding arm1 at rest, amplifiers on, the holder at rest (``--idle-s``);
@@ -74,6 +76,15 @@ def _digest(world) -> str:
     h.update(np.asarray(ft.reading).tobytes())
     h.update(repr((ft.sent, ft.rng.bit_generator.state)).encode())
     return h.hexdigest()[:16]
+
+
+def _vm_rss_kb() -> int:
+    """This process's resident size [kB] (/proc/self/status VmRSS)."""
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1])
+    return -1  # pragma: no cover - not Linux
 
 
 def worker(idle_s: float, moves: int, home: bool = False) -> dict:
@@ -167,6 +178,8 @@ def worker(idle_s: float, moves: int, home: bool = False) -> dict:
         out["amps_on"] = bool(world.devices["arm1"].plant.amps_on)
         out["digests"].append(_digest(world))
         out["rest_steps"] = getattr(world.devices["arm1"].plant, "rest_steps", None)
+        out["vm_rss_kb"] = _vm_rss_kb()
+        out["pinocchio"] = "pinocchio" in sys.modules
         return out
     finally:
         if rdt is not None:
@@ -218,6 +231,7 @@ def main(argv=None) -> int:
            "moves": args.moves}
     for n, rs in runs.items():
         out[n] = {"homed": all(r["homed"] for r in rs), "rest_steps": rs[-1]["rest_steps"],
+                  "vm_rss_kb": max(r["vm_rss_kb"] for r in rs), "pinocchio": any(r["pinocchio"] for r in rs),
                   "servo_fault": rs[-1]["fault"], "amps_on": rs[-1]["amps_on"],
                   "digests": rs[0]["digests"], "digests_repeat": all(r["digests"] == rs[0]["digests"] for r in rs)}
         for phase in ("idle_us", "moving_us"):
@@ -234,7 +248,8 @@ def main(argv=None) -> int:
         print(f"{n:>5}: idle {v['idle_us']['min']:6.1f} min {v['idle_us']['median']:6.1f} median us/step, "
               f"moving {v['moving_us']['min']:6.1f} min {v['moving_us']['median']:6.1f} median us/step "
               f"(CPU of World.advance, {args.rounds} rounds; homed: {v['homed']}, servo fault {v['servo_fault']}, "
-              f"amps on {v['amps_on']}, advances at rest {v['rest_steps']}; digests {v['digests']})")
+              f"amps on {v['amps_on']}, advances at rest {v['rest_steps']}; digests {v['digests']}; "
+              f"VmRSS {v['vm_rss_kb'] / 1024:.1f} MB, pinocchio imported: {v['pinocchio']})")
     if "bit_identical" in out:
         print(f"digests after homing, idle and moving equal: {out['bit_identical']}")
     print(f"load average {out['load_average']}")

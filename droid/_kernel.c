@@ -15,6 +15,10 @@
  *  - sin() is libm's, the function CPython's math.sin calls;
  *  - Python's round() (half to even) is nearbyint() in the default rounding mode.
  * No Python objects are created in the hot paths but the results.
+ *
+ * Also (rb_*, at the end): a serial arm's rigid-body dynamics for droid-sim's world, in place of
+ * Pinocchio there (droid.sim.reis.dynamics.RigidBody(backend="kernel")).  Those are tested
+ * against Pinocchio to a tolerance, not bit for bit, and need no BLAS.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -658,6 +662,453 @@ static PyObject *exact_checks(PyObject *self, PyObject *const *args, Py_ssize_t 
     return PyLong_FromLong(code);
 }
 
+/* -- rigid-body dynamics of a serial chain of revolute joints (droid.sim.reis.dynamics) ---------- */
+/* Featherstone's recursive Newton-Euler (RNEA) and composite-rigid-body (CRBA) algorithms for an
+ * open chain of n revolute joints, each turning about the z axis of its own frame, joint i the
+ * child of joint i-1 (joint 0 the child of the base), as Pinocchio models the arm (JointModelRZ;
+ * droid.sim.reis.dynamics.build_model): droid-sim's world uses these instead of importing
+ * Pinocchio (its ~48 MB).  Not bit-identical to Pinocchio (other operation order), tested against
+ * it (tests/sim/test_rigid_body_kernel.py).
+ *
+ * The model, one float64 buffer of 25 n + 3 values [SI: m, kg, kg m^2, m/s^2]: per joint, its
+ * placement in its parent's frame at q = 0 (rotation 3x3 row-major, translation 3), then its
+ * link's mass, centre of mass (3, joint frame) and inertia about the centre of mass (3x3, joint
+ * frame); after the joints, the gravity vector in the base frame (Pinocchio's model.gravity, e.g.
+ * (0, 0, -9.81)).  Spatial vectors are Pinocchio's: motion (v, w), force (f, n), in joint frames. */
+#define RB_MAXJ 16
+#define RB_PER_JOINT 25
+
+typedef struct {
+    int n;
+    const double *m;  /* the model buffer */
+    double R[RB_MAXJ][9];  /* joint i's frame in its parent's at q: placement rotation * Rz(q_i) */
+    double p[RB_MAXJ][3];
+} RbChain;
+
+/* the model buffer (checked: 25 n + 3 float64, 1 <= n <= RB_MAXJ) -> n, or -1 with ValueError */
+static int rb_joints(Py_ssize_t bytes)
+{
+    Py_ssize_t vals = bytes / 8;
+    if (bytes % 8 == 0 && vals > 3 && (vals - 3) % RB_PER_JOINT == 0 && (vals - 3) / RB_PER_JOINT <= RB_MAXJ)
+        return (int)((vals - 3) / RB_PER_JOINT);
+    PyErr_Format(PyExc_ValueError, "model: %zd bytes, need 8 * (25 n + 3) for n joints, 1 <= n <= %d "
+                 "(per joint: placement rotation 9, translation 3, mass 1, com 3, inertia 9; then gravity 3)",
+                 bytes, RB_MAXJ);
+    return -1;
+}
+
+/* the joints' frames at q: R_i = Rp_i Rz(q_i), p_i = pp_i */
+static void rb_frames(RbChain *c, const double *q)
+{
+    for (int i = 0; i < c->n; i++) {
+        const double *J = c->m + RB_PER_JOINT * i;
+        double cq = cos(q[i]), sq = sin(q[i]);
+        for (int r = 0; r < 3; r++) {
+            double a = J[3 * r], b = J[3 * r + 1];
+            c->R[i][3 * r] = a * cq + b * sq;
+            c->R[i][3 * r + 1] = b * cq - a * sq;
+            c->R[i][3 * r + 2] = J[3 * r + 2];
+        }
+        c->p[i][0] = J[9];
+        c->p[i][1] = J[10];
+        c->p[i][2] = J[11];
+    }
+}
+
+static inline void cross3(const double *a, const double *b, double *o)
+{
+    double x = a[1] * b[2] - a[2] * b[1], y = a[2] * b[0] - a[0] * b[2], z = a[0] * b[1] - a[1] * b[0];
+    o[0] = x;
+    o[1] = y;
+    o[2] = z;
+}
+
+static inline void mulT3(const double *R, const double *x, double *o)  /* o = R^T x */
+{
+    double a = R[0] * x[0] + R[3] * x[1] + R[6] * x[2];
+    double b = R[1] * x[0] + R[4] * x[1] + R[7] * x[2];
+    double c = R[2] * x[0] + R[5] * x[1] + R[8] * x[2];
+    o[0] = a;
+    o[1] = b;
+    o[2] = c;
+}
+
+static inline void mul3(const double *R, const double *x, double *o)  /* o = R x */
+{
+    double a = R[0] * x[0] + R[1] * x[1] + R[2] * x[2];
+    double b = R[3] * x[0] + R[4] * x[1] + R[5] * x[2];
+    double c = R[6] * x[0] + R[7] * x[1] + R[8] * x[2];
+    o[0] = a;
+    o[1] = b;
+    o[2] = c;
+}
+
+/* motion (v, w) in the parent's frame -> in the child's (frame R, p): w' = R^T w, v' = R^T (v - p x w) */
+static void rb_motion_inv(const double *R, const double *p, const double *m, double *o)
+{
+    double t[3];
+    cross3(p, m + 3, t);
+    t[0] = m[0] - t[0];
+    t[1] = m[1] - t[1];
+    t[2] = m[2] - t[2];
+    mulT3(R, m + 3, o + 3);
+    mulT3(R, t, o);
+}
+
+/* force (f, n) in the child's frame (R, p) -> in the parent's: f' = R f, n' = R n + p x f' */
+static void rb_force_act(const double *R, const double *p, const double *f, double *o)
+{
+    double t[3];
+    mul3(R, f, o);
+    mul3(R, f + 3, o + 3);
+    cross3(p, o, t);
+    o[3] += t[0];
+    o[4] += t[1];
+    o[5] += t[2];
+}
+
+/* the link's spatial inertia times a motion, at the joint frame's origin: h = m (v + w x c),
+   n = I_c w + c x h */
+static void rb_inertia_mul(const double *J, const double *mv, double *o)
+{
+    double mass = J[12];
+    const double *c = J + 13, *I = J + 16;
+    double t[3];
+    cross3(mv + 3, c, t);
+    o[0] = mass * (mv[0] + t[0]);
+    o[1] = mass * (mv[1] + t[1]);
+    o[2] = mass * (mv[2] + t[2]);
+    mul3(I, mv + 3, o + 3);
+    cross3(c, o, t);
+    o[3] += t[0];
+    o[4] += t[1];
+    o[5] += t[2];
+}
+
+/* RNEA: tau = M(q) qdd + C(q, qd) qd + g(q) [N m]; qd, qdd NULL: zero; gravity: 0 leaves it out */
+static void rb_rnea(RbChain *c, const double *qd, const double *qdd, int gravity, double *tau)
+{
+    int n = c->n;
+    double v[RB_MAXJ][6], a[RB_MAXJ][6], f[RB_MAXJ][6];
+    const double *g = c->m + RB_PER_JOINT * n;
+    double v0[6] = {0, 0, 0, 0, 0, 0}, a0[6] = {0, 0, 0, 0, 0, 0};
+    if (gravity) {  /* the base accelerates up at g: a_0 = -gravity */
+        a0[0] = -g[0];
+        a0[1] = -g[1];
+        a0[2] = -g[2];
+    }
+    for (int i = 0; i < n; i++) {
+        const double *vp = i ? v[i - 1] : v0, *ap = i ? a[i - 1] : a0;
+        double w = qd ? qd[i] : 0.0;
+        rb_motion_inv(c->R[i], c->p[i], vp, v[i]);
+        rb_motion_inv(c->R[i], c->p[i], ap, a[i]);
+        /* + S qdd + v x (S qd), S = (0, 0, 0, 0, 0, 1): (v x e_z w, w x e_z w) */
+        a[i][0] += v[i][1] * w;
+        a[i][1] -= v[i][0] * w;
+        a[i][3] += v[i][4] * w;
+        a[i][4] -= v[i][3] * w;
+        a[i][5] += qdd ? qdd[i] : 0.0;
+        v[i][5] += w;
+        /* f = I a + v x* (I v); v x* h = (w x h_f, w x h_n + v x h_f) */
+        const double *J = c->m + RB_PER_JOINT * i;
+        double h[6], t[3], s[3];
+        rb_inertia_mul(J, a[i], f[i]);
+        rb_inertia_mul(J, v[i], h);
+        cross3(v[i] + 3, h, t);
+        f[i][0] += t[0];
+        f[i][1] += t[1];
+        f[i][2] += t[2];
+        cross3(v[i] + 3, h + 3, t);
+        cross3(v[i], h, s);
+        f[i][3] += t[0] + s[0];
+        f[i][4] += t[1] + s[1];
+        f[i][5] += t[2] + s[2];
+    }
+    for (int i = n - 1; i >= 0; i--) {
+        tau[i] = f[i][5];
+        if (i > 0) {
+            double o[6];
+            rb_force_act(c->R[i], c->p[i], f[i], o);
+            for (int k = 0; k < 6; k++)
+                f[i - 1][k] += o[k];
+        }
+    }
+}
+
+/* CRBA: the joint-space mass matrix M(q) [kg m^2], full and symmetric, row-major n x n */
+static void rb_crba(RbChain *c, double *M)
+{
+    int n = c->n;
+    double Ic[RB_MAXJ][6][6];
+    for (int i = 0; i < n; i++) {  /* each link's spatial inertia at its joint frame (columns: I e_k) */
+        const double *J = c->m + RB_PER_JOINT * i;
+        for (int k = 0; k < 6; k++) {
+            double e[6] = {0, 0, 0, 0, 0, 0}, col[6];
+            e[k] = 1.0;
+            rb_inertia_mul(J, e, col);
+            for (int r = 0; r < 6; r++)
+                Ic[i][r][k] = col[r];
+        }
+    }
+    for (int i = n - 1; i > 0; i--) {  /* composite: Ic_parent += X* Ic X*^T */
+        double T[6][6];  /* T = X* Ic: each column a force moved to the parent */
+        for (int k = 0; k < 6; k++) {
+            double col[6], o[6];
+            for (int r = 0; r < 6; r++)
+                col[r] = Ic[i][r][k];
+            rb_force_act(c->R[i], c->p[i], col, o);
+            for (int r = 0; r < 6; r++)
+                T[r][k] = o[r];
+        }
+        for (int r = 0; r < 6; r++) {  /* (X* T^T)^T = T X*^T: X* of each row of T */
+            double o[6];
+            rb_force_act(c->R[i], c->p[i], T[r], o);
+            for (int k = 0; k < 6; k++)
+                Ic[i - 1][r][k] += o[k];
+        }
+    }
+    for (int i = 0; i < n; i++) {
+        double F[6];
+        for (int r = 0; r < 6; r++)
+            F[r] = Ic[i][r][5];  /* Ic S */
+        M[i * n + i] = F[5];
+        for (int j = i; j > 0; j--) {
+            double o[6];
+            rb_force_act(c->R[j], c->p[j], F, o);
+            memcpy(F, o, sizeof F);
+            M[(j - 1) * n + i] = M[i * n + j - 1] = F[5];
+        }
+    }
+}
+
+/* Cholesky factor L (lower, row-major) of the n x n M in place; -1 with ValueError if M is not
+   positive definite */
+static int rb_cholesky(double *M, int n)
+{
+    for (int j = 0; j < n; j++) {
+        double d = M[j * n + j];
+        for (int k = 0; k < j; k++)
+            d -= M[j * n + k] * M[j * n + k];
+        if (!(d > 0.0)) {
+            PyErr_SetString(PyExc_ValueError, "the mass matrix is not positive definite (a bad model?)");
+            return -1;
+        }
+        d = sqrt(d);
+        M[j * n + j] = d;
+        for (int i = j + 1; i < n; i++) {
+            double s = M[i * n + j];
+            for (int k = 0; k < j; k++)
+                s -= M[i * n + k] * M[j * n + k];
+            M[i * n + j] = s / d;
+        }
+    }
+    return 0;
+}
+
+/* x = (L L^T)^-1 b in place */
+static void rb_chol_solve(const double *L, int n, double *x)
+{
+    for (int i = 0; i < n; i++) {
+        double s = x[i];
+        for (int k = 0; k < i; k++)
+            s -= L[i * n + k] * x[k];
+        x[i] = s / L[i * n + i];
+    }
+    for (int i = n - 1; i >= 0; i--) {
+        double s = x[i];
+        for (int k = i + 1; k < n; k++)
+            s -= L[k * n + i] * x[k];
+        x[i] = s / L[i * n + i];
+    }
+}
+
+/* the world placement of each joint's frame (rotation 3x3, origin 3) [m] */
+static void rb_world(RbChain *c, double oR[][9], double op[][3])
+{
+    for (int i = 0; i < c->n; i++) {
+        if (i == 0) {
+            memcpy(oR[0], c->R[0], sizeof oR[0]);
+            memcpy(op[0], c->p[0], sizeof op[0]);
+            continue;
+        }
+        for (int r = 0; r < 3; r++)
+            for (int k = 0; k < 3; k++)
+                oR[i][3 * r + k] = oR[i - 1][3 * r] * c->R[i][k] + oR[i - 1][3 * r + 1] * c->R[i][3 + k] +
+                                   oR[i - 1][3 * r + 2] * c->R[i][6 + k];
+        mul3(oR[i - 1], c->p[i], op[i]);
+        for (int k = 0; k < 3; k++)
+            op[i][k] += op[i - 1][k];
+    }
+}
+
+/* the arguments every rb_ function starts with: (model, q); returns n or -1 */
+static int rb_begin(RbChain *c, Bufs *bs, PyObject *model, PyObject *q_obj, const double **q, const char *name,
+                    Py_ssize_t nargs, Py_ssize_t want)
+{
+    if (nargs != want) {
+        PyErr_Format(PyExc_TypeError, "%s takes %zd arguments (%zd given)", name, want, nargs);
+        return -1;
+    }
+    c->m = get(bs, model, -8, 0, "model");
+    if (c->m == NULL)
+        return -1;
+    c->n = rb_joints(bs->b[bs->n - 1].len);
+    if (c->n < 0)
+        return -1;
+    *q = get(bs, q_obj, c->n * 8, 0, "q");
+    if (*q == NULL)
+        return -1;
+    rb_frames(c, *q);
+    return c->n;
+}
+
+/* rb_rnea(model, q, qd, qdd, gravity, tau): tau = M qdd + C qd + g [N m]; qd, qdd None: zero
+   (qdd None: Pinocchio's nonLinearEffects; both: its computeGeneralizedGravity) */
+static PyObject *py_rb_rnea(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    RbChain c;
+    Bufs bs = {.n = 0};
+    const double *q, *qd = NULL, *qdd = NULL;
+    double *tau = NULL;
+    int n = rb_begin(&c, &bs, nargs > 0 ? args[0] : NULL, nargs > 1 ? args[1] : NULL, &q, "rb_rnea", nargs, 6);
+    int ok = n > 0;
+    if (ok && args[2] != Py_None)
+        ok = (qd = get(&bs, args[2], n * 8, 0, "qd")) != NULL;
+    if (ok && args[3] != Py_None)
+        ok = (qdd = get(&bs, args[3], n * 8, 0, "qdd")) != NULL;
+    int gravity = ok ? PyObject_IsTrue(args[4]) : 0;
+    if (gravity < 0)
+        ok = 0;
+    if (ok)
+        ok = (tau = get(&bs, args[5], n * 8, 1, "tau")) != NULL;
+    if (ok)
+        rb_rnea(&c, qd, qdd, gravity, tau);
+    release(&bs);
+    if (!ok)
+        return NULL;
+    Py_RETURN_NONE;
+}
+
+/* rb_crba(model, q, M): the mass matrix [kg m^2] into M (n x n, full) */
+static PyObject *py_rb_crba(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    RbChain c;
+    Bufs bs = {.n = 0};
+    const double *q;
+    double *M = NULL;
+    int n = rb_begin(&c, &bs, nargs > 0 ? args[0] : NULL, nargs > 1 ? args[1] : NULL, &q, "rb_crba", nargs, 3);
+    if (n > 0 && (M = get(&bs, args[2], (Py_ssize_t)n * n * 8, 1, "M")) != NULL)
+        rb_crba(&c, M);
+    release(&bs);
+    if (M == NULL)
+        return NULL;
+    Py_RETURN_NONE;
+}
+
+/* rb_minv(model, q, Minv): M(q)^-1 [1/(kg m^2)] into Minv (n x n, full), by Cholesky */
+static PyObject *py_rb_minv(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    RbChain c;
+    Bufs bs = {.n = 0};
+    const double *q;
+    double *out = NULL, M[RB_MAXJ * RB_MAXJ];
+    int n = rb_begin(&c, &bs, nargs > 0 ? args[0] : NULL, nargs > 1 ? args[1] : NULL, &q, "rb_minv", nargs, 3);
+    int ok = n > 0 && (out = get(&bs, args[2], (Py_ssize_t)n * n * 8, 1, "Minv")) != NULL;
+    if (ok) {
+        rb_crba(&c, M);
+        ok = rb_cholesky(M, n) == 0;
+    }
+    if (ok) {
+        for (int k = 0; k < n; k++) {
+            double x[RB_MAXJ];
+            for (int i = 0; i < n; i++)
+                x[i] = i == k ? 1.0 : 0.0;
+            rb_chol_solve(M, n, x);
+            for (int i = 0; i < n; i++)
+                out[i * n + k] = x[i];
+        }
+        for (int i = 0; i < n; i++)  /* exactly symmetric: the upper triangle mirrored */
+            for (int k = 0; k < i; k++)
+                out[i * n + k] = out[k * n + i];
+    }
+    release(&bs);
+    if (!ok)
+        return NULL;
+    Py_RETURN_NONE;
+}
+
+/* rb_aba(model, q, qd, tau, qdd): forward dynamics qdd = M^-1 (tau - C qd - g) [rad/s^2] */
+static PyObject *py_rb_aba(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    RbChain c;
+    Bufs bs = {.n = 0};
+    const double *q, *qd = NULL, *tau = NULL;
+    double *qdd = NULL, M[RB_MAXJ * RB_MAXJ];
+    int n = rb_begin(&c, &bs, nargs > 0 ? args[0] : NULL, nargs > 1 ? args[1] : NULL, &q, "rb_aba", nargs, 5);
+    int ok = n > 0 && (qd = get(&bs, args[2], n * 8, 0, "qd")) != NULL &&
+             (tau = get(&bs, args[3], n * 8, 0, "tau")) != NULL && (qdd = get(&bs, args[4], n * 8, 1, "qdd")) != NULL;
+    if (ok) {
+        double nle[RB_MAXJ];
+        rb_rnea(&c, qd, NULL, 1, nle);
+        rb_crba(&c, M);
+        ok = rb_cholesky(M, n) == 0;
+        if (ok) {
+            double x[RB_MAXJ];
+            for (int i = 0; i < n; i++)
+                x[i] = tau[i] - nle[i];
+            rb_chol_solve(M, n, x);
+            memcpy(qdd, x, n * sizeof(double));
+        }
+    }
+    release(&bs);
+    if (!ok)
+        return NULL;
+    Py_RETURN_NONE;
+}
+
+/* rb_jacobian(model, q, J, oM): the last joint's placement in the base frame (4x4 [m]) into oM and,
+   if J is not None, its 6 x n Jacobian in Pinocchio's LOCAL_WORLD_ALIGNED convention (rows v, w:
+   the velocity of the last joint frame's origin and the angular velocity, base axes [m/rad, 1]) */
+static PyObject *py_rb_jacobian(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    RbChain c;
+    Bufs bs = {.n = 0};
+    const double *q;
+    double *J = NULL, *oM = NULL;
+    int n = rb_begin(&c, &bs, nargs > 0 ? args[0] : NULL, nargs > 1 ? args[1] : NULL, &q, "rb_jacobian", nargs, 4);
+    int ok = n > 0 && (args[2] == Py_None || (J = get(&bs, args[2], (Py_ssize_t)6 * n * 8, 1, "J")) != NULL) &&
+             (oM = get(&bs, args[3], 16 * 8, 1, "oM")) != NULL;
+    if (ok) {
+        double oR[RB_MAXJ][9], op[RB_MAXJ][3];
+        rb_world(&c, oR, op);
+        const double *Re = oR[n - 1], *pe = op[n - 1];
+        for (int r = 0; r < 3; r++) {
+            oM[4 * r] = Re[3 * r];
+            oM[4 * r + 1] = Re[3 * r + 1];
+            oM[4 * r + 2] = Re[3 * r + 2];
+            oM[4 * r + 3] = pe[r];
+        }
+        oM[12] = oM[13] = oM[14] = 0.0;
+        oM[15] = 1.0;
+        for (int k = 0; J != NULL && k < n; k++) {  /* column k: (z_k x (p_e - p_k), z_k) */
+            double z[3] = {oR[k][2], oR[k][5], oR[k][8]}, d[3], v[3];
+            d[0] = pe[0] - op[k][0];
+            d[1] = pe[1] - op[k][1];
+            d[2] = pe[2] - op[k][2];
+            cross3(z, d, v);
+            for (int r = 0; r < 3; r++) {
+                J[r * n + k] = v[r];
+                J[(r + 3) * n + k] = z[r];
+            }
+        }
+    }
+    release(&bs);
+    if (!ok)
+        return NULL;
+    Py_RETURN_NONE;
+}
+
+
 static PyMethodDef methods[] = {
     {"set_gemv", set_gemv, METH_VARARGS, "set_gemv(address, int64): the cblas_dgemv to call (numpy's)"},
     {"exact_step", (PyCFunction)(void (*)(void))exact_step, METH_FASTCALL,
@@ -676,11 +1127,19 @@ static PyMethodDef methods[] = {
      "servo_tail(target, previous, lo, hi, pos, fe_max, vel, gains, state, first) -> dacs or None: ServoCore.step"},
     {"write_dacs", (PyCFunction)(void (*)(void))write_dacs, METH_FASTCALL,
      "write_dacs(regs, values) -> written or None: VmeBus.write_dacs for six ints"},
+    {"rb_rnea", (PyCFunction)(void (*)(void))py_rb_rnea, METH_FASTCALL,
+     "rb_rnea(model, q, qd, qdd, gravity, tau): tau = M(q) qdd + C(q, qd) qd + g(q) [N m] (None: zero)"},
+    {"rb_crba", (PyCFunction)(void (*)(void))py_rb_crba, METH_FASTCALL, "rb_crba(model, q, M): M(q) [kg m^2]"},
+    {"rb_minv", (PyCFunction)(void (*)(void))py_rb_minv, METH_FASTCALL, "rb_minv(model, q, Minv): M(q)^-1"},
+    {"rb_aba", (PyCFunction)(void (*)(void))py_rb_aba, METH_FASTCALL,
+     "rb_aba(model, q, qd, tau, qdd): qdd = M(q)^-1 (tau - C(q, qd) qd - g(q)) [rad/s^2]"},
+    {"rb_jacobian", (PyCFunction)(void (*)(void))py_rb_jacobian, METH_FASTCALL,
+     "rb_jacobian(model, q, J, oM): the last joint's placement (4x4 [m]) and 6 x n LOCAL_WORLD_ALIGNED Jacobian"},
     {NULL, NULL, 0, NULL},
 };
 
 static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "droid._kernel",
-                                    "The compiled 500 Hz pair: the plant's exact step and the servo's PID.", -1,
+                                    "The compiled 500 Hz pair: the plant's exact step and the servo's PID; a serial arm's rigid-body dynamics.", -1,
                                     methods};
 
 PyMODINIT_FUNC PyInit__kernel(void)
@@ -696,7 +1155,9 @@ PyMODINIT_FUNC PyInit__kernel(void)
         PyModule_AddIntConstant(m, "DAC_MIN", DAC_MIN) < 0 || PyModule_AddIntConstant(m, "DAC_MAX", DAC_MAX) < 0 ||
         PyModule_AddIntConstant(m, "AMP_STATUS_POWERED", AMP_STATUS_POWERED) < 0 ||
         PyModule_AddIntConstant(m, "AMP_STATUS_WATCHDOG_FAULT", AMP_STATUS_WATCHDOG_FAULT) < 0 ||
-        PyModule_AddIntConstant(m, "C_LEN", C_LEN) < 0) {
+        PyModule_AddIntConstant(m, "C_LEN", C_LEN) < 0 ||
+        PyModule_AddIntConstant(m, "RB_PER_JOINT", RB_PER_JOINT) < 0 ||
+        PyModule_AddIntConstant(m, "RB_MAXJ", RB_MAXJ) < 0) {
         Py_DECREF(m);
         return NULL;
     }

@@ -21,6 +21,11 @@ two matrix-vector products of the plant's step through the very ``cblas_dgemv`` 
 calls (its bundled OpenBLAS, found here and checked against ``@`` on :data:`CHECK_SHAPES` before
 use).  tests/reis/test_kernel.py compares the two per step on random inputs, bit for bit;
 docs/benchmarks.md "Issue 28 item 1" has the trial logs compared and the speed.
+
+The extension also holds a serial arm's rigid-body dynamics (``rb_*``): droid-sim's world uses
+them in place of Pinocchio when this module chooses the compiled kernel
+(:func:`droid.sim.reis.dynamics.world_backend`).  They agree with Pinocchio to rounding, not bit
+for bit, so lockstep trials keep Pinocchio whatever ``DROID_KERNEL`` says.
 """
 from __future__ import annotations
 

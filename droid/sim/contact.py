@@ -405,9 +405,6 @@ class ToolContact:
 
     def tool_state(self, body, q_rad, qd_rad_s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(tool point [mm], its velocity [mm/s], both global; J_t (3x6) [m/rad], base frame)."""
-        import pinocchio as pin
-
-        model, data = body.model, body.data
         if self._link6 is None:
             L = body.link6
             T = np.eye(4)
@@ -415,11 +412,8 @@ class ToolContact:
             tool = self.T_wcp_tool.copy()
             tool[:3, 3] *= 1e-3
             self._link6 = T @ tool  # joint 6's frame -> the tool point [m]
-        pin.computeJointJacobians(model, data, q_rad)
-        J6 = pin.getJointJacobian(model, data, 6, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
-        M = data.oMi[6]
-        o6 = M.translation
-        p_base = M.rotation @ self._link6[:3, 3] + o6  # [m]
+        J6, R6, o6 = body.joint6_jacobian_world(q_rad)  # LOCAL_WORLD_ALIGNED; joint 6's frame [m]
+        p_base = R6 @ self._link6[:3, 3] + o6  # [m]
         J_t = J6[:3] - _skew(p_base - o6) @ J6[3:]
         v_base = J_t @ qd_rad_s
         Rg = self.T_global_base[:3, :3]

@@ -14,7 +14,8 @@ EGMActJoint, EGMStreamStart, then EGMRunJoint in a loop), as far as the sensor s
   (``vmax_deg_s``) and with accelerations of at most ``vmax / accel_time_s``; a datagram that is not a CORRECTION with six finite joints
   is counted and ignored;
 * the arm: the robot file's ``[dynamics]`` and ``[axis_servo]`` through the Fanuc twin's plant
-  (:class:`droid.sim.gmf1.dynamics.ArmDynamics`: Pinocchio rigid body, PI joint loops,
+  (:class:`droid.sim.gmf1.dynamics.ArmDynamics`: the rigid body -- Pinocchio, or the compiled
+  kernel's in droid-sim's world --, PI joint loops,
   amplifier limits, reducer compliance); ``dynamics = false`` puts an ideal arm on the reference;
 * the sensor side silent for ``comm_timeout_s`` while guided: EGMRunJoint ends (``mciState``
   STOPPED), the reference path stops where it is and the joint loops bring the arm to rest on it
@@ -56,6 +57,7 @@ from droid.numbers import finite_numbers
 from droid.kinematics import RobotModel, load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.sim.device import Device, cell_arm_subunit, number_options
+from droid.sim.gmf1.dynamics import world_backend
 from droid.sim.truth import TRUTH_PERIOD_S, TruthDoor, door_name
 from droid.subunits.abb import egm_schema as es
 from droid.subunits.abb.config import bind_udp, egm_config
@@ -93,7 +95,8 @@ class EgmController:
     """The controller; see the module docstring.  ``receive(data, t_s)``, ``advance(t_s)`` ->
     the EgmRobot datagrams due by then; read :attr:`q_deg` (the links) and :attr:`q_motor_deg`."""
 
-    def __init__(self, model: RobotModel, params: EgmTwinParams | None = None, q0_deg=None) -> None:
+    def __init__(self, model: RobotModel, params: EgmTwinParams | None = None, q0_deg=None,
+                 rigid_body: str = "pinocchio") -> None:
         self.model = model
         self.p = params or EgmTwinParams()
         q0 = np.zeros(6) if q0_deg is None else np.asarray(q0_deg, float).copy()
@@ -103,7 +106,7 @@ class EgmController:
         if self.p.dynamics:
             from droid.sim.gmf1.dynamics import ArmDynamics
 
-            self.arm = ArmDynamics(model, q0)
+            self.arm = ArmDynamics(model, q0, rigid_body)
         self._q_ideal = q0.copy()
         self.qmin = np.asarray(model.joint_min_deg, float)
         self.qmax = np.asarray(model.joint_max_deg, float)
@@ -339,7 +342,7 @@ def twin_params(options: dict, where: str, model: RobotModel) -> EgmTwinParams:
         raise BadInput(f"{where} {exc}") from None
 
 
-def egm_twin(cell, name: str, options: dict) -> tuple[str, object, EgmController]:
+def egm_twin(cell, name: str, options: dict, rigid_body: str = "pinocchio") -> tuple[str, object, EgmController]:
     """The controller of a ``[world.devices.NAME]`` table of type ``abb_egm`` (the options
     without ``type``): ``(where, subunit, controller)``, before any socket -- the device below
     puts it behind UDP, ``droid.sim.abb.lockstep`` on a lockstep scheduler.  BadInput (one line)
@@ -353,7 +356,7 @@ def egm_twin(cell, name: str, options: dict) -> tuple[str, object, EgmController
     why = model.limit_violation(np.array(q0, float))
     if why:
         raise BadInput(f"{where} start_deg outside the joint limits: {why}")
-    return where, sub, EgmController(model, params, q0)
+    return where, sub, EgmController(model, params, q0, rigid_body)
 
 
 def make_abb_egm(world, name: str, options: dict) -> AbbEgmDevice:
@@ -369,7 +372,7 @@ def make_abb_egm(world, name: str, options: dict) -> AbbEgmDevice:
     if not loopback:  # the cell's own loopback address ({loopback}) or 127.0.0.1
         raise BadInput(f"{where} the simulated controller talks to a loopback address (127.0.0.0/8) only; "
                        f"subunit {sub.name}'s egm host is {cfg.host!r}")
-    _, _, controller = egm_twin(cell, name, options)
+    _, _, controller = egm_twin(cell, name, options, world_backend())  # the world: no Pinocchio import
     sock = open_socket(0, where, host)  # any free port: the controller's source port is EGM's to choose
     try:  # `droid-sim truth SUBUNIT --json` and the benches read the true joints and flange here
         door = TruthDoor.create(door_name(cell.name, sub.name))

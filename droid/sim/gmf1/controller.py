@@ -125,12 +125,14 @@ class Motion:
 class KarelController:
     """The controller + KAREL serial server; see the module docstring.
 
-    ``model`` is the robot in its BASE frame; ``q0_deg`` the joint angles at power-up.
+    ``model`` is the robot in its BASE frame; ``q0_deg`` the joint angles at power-up;
+    ``rigid_body`` the arm twin's rigid-body backend (:class:`droid.sim.gmf1.dynamics.ArmDynamics`).
     Drive it with :meth:`receive` (host bytes), :meth:`advance` (time) and
     :meth:`transmit` (bytes for the host); read :attr:`q_deg`.
     """
 
-    def __init__(self, model: RobotModel, params: KarelParams | None = None, q0_deg=None) -> None:
+    def __init__(self, model: RobotModel, params: KarelParams | None = None, q0_deg=None,
+                 rigid_body: str = "pinocchio") -> None:
         self.model = model
         self.p = params or KarelParams()
         self.q_cmd_deg = np.zeros(6) if q0_deg is None else np.asarray(q0_deg, float).copy()
@@ -140,7 +142,7 @@ class KarelController:
         if self.p.dynamics:
             from droid.sim.gmf1.dynamics import ArmDynamics
 
-            self.arm = ArmDynamics(model, self.q_cmd_deg)
+            self.arm = ArmDynamics(model, self.q_cmd_deg, rigid_body)
         self._done_pending: tuple[int, float] | None = None  # (motion id, path end [s]): DONE after in-position
         self.q_deg = self.q_cmd_deg.copy()  # the links (the truth)
         self.q_motor_deg = self.q_cmd_deg.copy()  # what the encoder cards count [joint deg]

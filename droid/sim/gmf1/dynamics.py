@@ -11,8 +11,9 @@ sourced there).
 The model (a justified simplification of the Reis's plant twin,
 :mod:`droid.sim.reis.plant`):
 
-* **Rigid-body dynamics with Pinocchio** (:class:`droid.sim.reis.dynamics.RigidBody`,
-  the same builder from the D-H table and ``[dynamics]``): the joint-space
+* **Rigid-body dynamics** (:class:`droid.sim.reis.dynamics.RigidBody`, the same builder from
+  the D-H table and ``[dynamics]``; Pinocchio in lockstep trials, the compiled kernel in
+  droid-sim's world): the joint-space
   mass matrix ``M(q)`` plus the reflected rotor inertias ``J_r N^2``, and the
   gravity torques ``g(q)`` less the joint-2 balancer.  Coupling between the
   joints is kept (``qdd = (M + J_r N^2)^-1 (tau - g - friction)``); Coriolis
@@ -48,6 +49,7 @@ import math
 import numpy as np
 
 from droid.kinematics import RobotModel
+from droid.sim.reis.dynamics import world_backend  # noqa: F401 - the arm twins' devices choose with it
 
 #: The mass matrix and gravity are re-evaluated this often [s].
 MODEL_PERIOD_S = 0.01
@@ -67,16 +69,18 @@ class ArmDynamics:
     trajectory gives at the interval's end -- the caller advances in steps of
     the world's rate, KAREL's interpolation is far slower).  Read
     :attr:`q_deg` (the links: the truth) and :attr:`q_motor_deg` (the motor
-    side, what the encoder cards count, in joint degrees).
+    side, what the encoder cards count, in joint degrees).  ``rigid_body``: the
+    :class:`droid.sim.reis.dynamics.RigidBody` backend, ``"pinocchio"`` (the default: lockstep
+    trials) or ``"kernel"`` (droid-sim's world: no Pinocchio import).
     """
 
-    def __init__(self, model: RobotModel, q0_deg) -> None:
-        from droid.sim.reis.dynamics import RigidBody  # Pinocchio: the world only
+    def __init__(self, model: RobotModel, q0_deg, rigid_body: str = "pinocchio") -> None:
+        from droid.sim.reis.dynamics import RigidBody  # a simulator's module (kinematics imports none)
 
         dyn, sv = model.dynamics, model.axis_servo
         if dyn is None or sv is None:
             raise ValueError(f"robot {model.name}: the arm twin needs [dynamics] and [axis_servo] tables")
-        self.body = RigidBody(model.dh, dyn)
+        self.body = RigidBody(model.dh, dyn, backend=rigid_body)
         self.N = np.asarray(model.gearing.reduction, float)
         self.J_rotor = np.asarray(dyn.rotor_inertia_kgm2, float) * self.N ** 2
         self.tau_max = np.asarray(dyn.torque_constant_nm_per_a * dyn.amp_current_limit_a, float) * self.N

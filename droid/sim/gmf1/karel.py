@@ -43,6 +43,7 @@ from droid.kinematics import Unreachable, load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.sim.gmf1.cards import Quad04Twin, SharedCard
 from droid.sim.gmf1.controller import KarelController, KarelParams
+from droid.sim.reis.dynamics import world_backend
 from droid.sim.serial_cable import PtyEnd, TcpEnd
 from droid.sim.device import Device, arm_subunit, number_options
 from droid.subunits.gmf1.config import gmf1_config
@@ -183,7 +184,7 @@ def make_karel(world, name: str, options: dict) -> KarelDevice:
         for url in cfg.encoders:
             cards.append(SharedCard(url[len("shm://"):]))
         twin = Quad04Twin([c.buf for c in cards], np.random.default_rng(seed))
-        controller = KarelController(model, params, q0)
+        controller = KarelController(model, params, q0, rigid_body=world_backend())
         twin.update(model.gearing.joints_to_counts(controller.q_motor_deg))
         if cfg.serial.startswith("socket://"):
             try:

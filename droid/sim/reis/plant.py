@@ -17,7 +17,7 @@ position seen at the joint, ``A`` = the gearing with its 1 % coupling,
 
     motors:  J_m dw/dt = tau_amp - A^T tau_s - b w - tau_c sign(w)       (stiction: stays at rest)
     drives:  tau_s = K (p - q) + D (dp/dt - dq/dt)                       (harmonic-drive compliance)
-    links:   q'' = ABA(q, q', tau_s + tau_bal(q))                        (Pinocchio: M(q), C, g)
+    links:   q'' = ABA(q, q', tau_s + tau_bal(q))                        (RigidBody: M(q), C, g)
     tau_amp = clip(dac/2048 * 5 V * k_a * k_t, +- i_max k_t)            (0 when the amps are off)
               limited to [-1 - w/w0, 1 - w/w0] i_max k_t                 (back-EMF: no torque at w0)
     tau_bal = -balancer_moment_nm * sin(q2)                              (link-2 pneumatic balancer)
@@ -50,6 +50,11 @@ Register traffic per :meth:`ReisPlant.advance`: DACs and watchdog registers are
 read at the start, encoders, limit switches and AMP_STATUS written at the end
 (layout: :mod:`droid.subunits.reis.vme_map`).  Everything is seeded and
 deterministic.
+
+``M(q)``, ``C qd + g`` and the forward dynamics come from
+:class:`droid.sim.reis.dynamics.RigidBody`: Pinocchio's by default (lockstep trials), the
+compiled kernel's in droid-sim's world (``rigid_body="kernel"``, so that the real-time
+simulator does not import Pinocchio); this module imports neither itself.
 """
 from __future__ import annotations
 
@@ -59,7 +64,6 @@ import struct
 from dataclasses import dataclass
 
 import numpy as np
-import pinocchio as pin
 
 from droid import kernel as _kernel_switch
 from droid.kinematics import load_robot
@@ -205,7 +209,10 @@ class ReisPlant:
     ``regs`` may be supplied (e.g. an mmap of a POSIX shared-memory object,
     :mod:`droid.sim.reis.vme_shm`); by default it is a private bytearray.
     ``encoder_power_up_counts`` and ``initial_joint_deg`` override the seeded
-    power-up values (tests).
+    power-up values (tests).  ``rigid_body``: the links' rigid-body dynamics
+    (:class:`droid.sim.reis.dynamics.RigidBody`'s backend): ``"pinocchio"`` (the
+    default; lockstep trials, whose published results it reproduces bit for bit) or
+    ``"kernel"`` (the compiled RNEA/CRBA, no Pinocchio import: droid-sim's world).
     """
 
     def __init__(
@@ -217,6 +224,7 @@ class ReisPlant:
         encoder_power_up_counts=None,
         initial_joint_deg=None,
         kernel: str | None = None,
+        rigid_body: str = "pinocchio",
     ):
         p = self.params = params if params is not None else ReisPlantParams()
         #: the compiled kernel (droid._kernel) or None for the Python reference: DROID_KERNEL
@@ -227,7 +235,7 @@ class ReisPlant:
             raise ValueError(f"kernel {kernel!r}: 'c', 'python' or None (DROID_KERNEL)")
         self._rng = np.random.default_rng(seed)
         self._attach_registers(regs)
-        self._drive_constants(p)
+        self._drive_constants(p, rigid_body)
         self._limit_constants(p)
         self._F0, self._G0 = self._system_matrices(np.zeros((6, 6)))  # the M(q)-free blocks
         self._initial_state(p, initial_joint_deg)
@@ -246,7 +254,7 @@ class ReisPlant:
             raise ValueError(f"register buffer has {self._view.nbytes} bytes, need {vm.MAP_SIZE}")
         self._view[: vm.MAP_SIZE] = bytes(vm.MAP_SIZE)
 
-    def _drive_constants(self, p: ReisPlantParams) -> None:
+    def _drive_constants(self, p: ReisPlantParams, rigid_body: str = "pinocchio") -> None:
         """The drive train from the robot file: gearing and coupling (motor -> link), the links'
         rigid body (with the DH errors), the harmonic drives' stiffness and damping, the motors'
         torque limits and friction."""
@@ -257,8 +265,7 @@ class ReisPlant:
         self._minv = np.linalg.inv(m)  # deg per count
         self._counts_per_rad = robot.gearing.encoder_counts_per_rev / (2.0 * math.pi)  # (6,)
         self.true_dh = p.dh_error.apply(robot.dh)
-        self.body = RigidBody(self.true_dh, dyn)
-        self._pin_model, self._pin_data = self.body.model, self.body.data
+        self.body = RigidBody(self.true_dh, dyn, backend=rigid_body)
         a = math.radians(1.0) * self._counts_per_rad * self._minv  # p_rad = A @ theta_rad
         self._A = a
         self._AT = a.T.copy()
@@ -554,7 +561,7 @@ class ReisPlant:
         hjd = h_over_j * damp
         dw_c = tau_c * h_over_j
         neg_dw_c = -dw_c
-        model, data, aba = self._pin_model, self._pin_data, pin.aba
+        aba = self.body.aba
         st = np.concatenate((self._theta, self._omega, self._q, self._qd))
         theta, omega, q, qd = st[0:6], st[6:12], st[12:18], st[18:24]
         stops = bool(self._jammed.any()) or self._near_stop(n * h, self._q.tolist())
@@ -574,7 +581,7 @@ class ReisPlant:
                 ts[1] -= bal * sin(q[1])
             if ext is not None:  # the environment's force on the tool, J^T F (held over the advance)
                 ts += ext
-            qd += h * aba(model, data, q, qd, ts)
+            qd += h * aba(q, qd, ts)
             if stops:
                 omega[:], qd[:] = self._apply_stops(q, omega, qd)
             theta += h * omega
@@ -641,7 +648,7 @@ class ReisPlant:
         pg, g_m, g_wd = self._discretise(dt, ql)
         omega, q, qd = self._omega, self._q, self._qd
         om = omega.tolist()
-        tau_link = pin.nonLinearEffects(self._pin_model, self._pin_data, q, qd)  # C qd + g (Pinocchio's buffer)
+        tau_link = self.body.nle(q, qd)  # C qd + g (Pinocchio's buffer, or a new array)
         nl = -tau_link[1]
         if self._bal:
             nl -= self._bal * math.sin(ql[1])
@@ -711,7 +718,7 @@ class ReisPlant:
         got = None if relin else self._disc.get(dt)  # _discretise's own look-up, without its call
         pg, g_m, _ = got if got is not None else self._discretise(dt, self._q.tolist() if relin else None, relin)
         q, qd = self._q, self._qd
-        tau_link = pin.nonLinearEffects(self._pin_model, self._pin_data, q, qd)  # C qd + g (Pinocchio's buffer)
+        tau_link = self.body.nle(q, qd)  # C qd + g (Pinocchio's buffer, or a new array)
         if ext is not None:
             ext = np.ascontiguousarray(ext, float)
         x = np.empty(24)
@@ -725,14 +732,14 @@ class ReisPlant:
         stops = self._jammed.any() or self._near_stop(n * h, self._q.tolist())
         tau_max, w0, b, bal, j_rotor = self._tau_max, self._w0, self._b, self._bal, self._J_rotor_ref
         amps, sin, mass = self._amps_on, math.sin, self.body.mass
-        model, data, nle = self._pin_model, self._pin_data, pin.nonLinearEffects
+        nle = self.body.nle
         for _ in range(n):
             q = A @ theta
             qd = A @ omega
             fade = tau_max * (omega / w0) if amps else 0.0
             tau_m = np.minimum(np.maximum(drive, -tau_max - fade), tau_max - fade)
             # C qd + g in Pinocchio's buffer, read at once by the subtraction (body.bias copies it)
-            tau = AinvT @ (tau_m - b * omega) - nle(model, data, q, qd)
+            tau = AinvT @ (tau_m - b * omega) - nle(q, qd)
             tau[1] += -bal * sin(q[1])  # the balancer (_balancer)
             if ext is not None:
                 tau = tau + ext

@@ -43,7 +43,7 @@ import numpy as np
 from droid.cli import BadInput
 from droid.kinematics import RobotFileError, load_robot
 from droid.kinematics.transforms import pose_to_T
-from droid.sim.reis.dynamics import DhError
+from droid.sim.reis.dynamics import DhError, world_backend
 from droid.sim.reis.plant import ReisPlant, ReisPlantParams
 from droid.sim.truth import TRUTH_PERIOD_S, TruthDoor, door_name
 from droid.sim.reis.vme_shm import SharedVmeMap
@@ -218,7 +218,7 @@ def make_reis(world, name: str, options: dict) -> ReisDevice:
     shared = SharedVmeMap.create(url[len("shm://"):], replace=True)
     door = None
     try:
-        plant = ReisPlant(params, seed, regs=shared.buf)
+        plant = ReisPlant(params, seed, regs=shared.buf, rigid_body=world_backend())  # no Pinocchio import
         plant.contact = contact
         door = TruthDoor.create(door_name(cell.name, sub.name))
     except BaseException:
