@@ -296,8 +296,8 @@ def test_the_shells_and_lockstep_call_the_same_stations():
     lockstep = inspect.getsource(cell) + inspect.getsource(arm_chain)  # the Reis's stations + the Brain side
     for module, station in shells.items():
         main = inspect.getsource(module)[inspect.getsource(module).index("def main"):]
-        if module is agent:
-            main = inspect.getsource(agent.agent_main)
+        if module is agent:  # its shell: the program and the subunit it serves (one or several)
+            main = inspect.getsource(agent.agent_main) + inspect.getsource(agent._AgentServed)
         assert station in main, module.__name__
         assert station in lockstep, station
     for copy in ("MY_FAULTS", "COMMAND_MAP", "copy_fields", '"encoder_cmd", "busy"', "3e9", "STATUS_EVERY_TICKS",
