@@ -134,9 +134,11 @@ def cyclictest(seconds: float) -> dict | None:
 
 
 # -- the cell ------------------------------------------------------------------
-def make_cell(tmp: Path, fifo: bool) -> Path:
+def make_cell(tmp: Path, fifo: bool, source: Path | None = None) -> Path:
+    """A renamed copy of ``source`` (default: the built-in simulated cell) with its run dir in
+    ``tmp`` and ``sched_fifo`` as asked."""
     name = f"load{uuid.uuid4().hex[:6]}"
-    text = renamed_cell(builtin_cell_path().read_text(), name, f"{tmp}/run")
+    text = renamed_cell((source or builtin_cell_path()).read_text(), name, f"{tmp}/run")
     text = re.sub(r"(?m)^sched_fifo = \w+", f"sched_fifo = {'true' if fifo else 'false'}", text, count=1)
     p = tmp / f"{name}.toml"
     p.write_text(text)
@@ -224,20 +226,22 @@ def main() -> int:
     ap.add_argument("--seamtrack", action="store_true", help="a seam-tracking trial per round")
     ap.add_argument("--floor-seconds", type=duration_s(), default=20.0, help="cyclictest run [s]")
     ap.add_argument("--seed", type=seed_int, default=1, help="random seed")
+    ap.add_argument("--cell", type=Path, default=None,
+                    help="cell file to copy (default: the built-in simulated cell; it needs arm1 and gmf1)")
     args = ap.parse_args()
     rng = random.Random(args.seed)
     fifo = not args.no_fifo
     print(f"bench_under_load: {time.strftime('%Y-%m-%d %H:%M:%S %Z')}  {platform.node()}  "
           f"{os.cpu_count()} cpu  python {platform.python_version()}  load avg {os.getloadavg()[0]:.1f}")
     print(f"  load: {args.busy} busy, {args.memory_mb} MiB memory, io={'yes' if args.io else 'no'};  "
-          f"cell sched_fifo={fifo}")
+          f"cell sched_fifo={fifo}, {args.cell or 'the built-in cell'}")
     results = {"home": [0, 0], "move": [0, 0], "seam": [0, 0]}
     failures: list[str] = []
     arrival: list[float] = []
     seam_rms: list[float] = []
     with tempfile.TemporaryDirectory(prefix="droid-load-") as tmpd:
         tmp = Path(tmpd)
-        cell = make_cell(tmp, fifo)
+        cell = make_cell(tmp, fifo, args.cell)
         with Load(args.busy, args.memory_mb, args.io, tmpd):
             floor: dict = {}
             ft = threading.Thread(target=lambda: floor.update(cyclictest(args.floor_seconds) or {}))
