@@ -153,36 +153,24 @@ class RigidBody:
     :meth:`joint6_jacobian_world`, :attr:`link6`.  ``model``/``data`` are Pinocchio's (None with
     the kernel)."""
 
-    def __init__(self, dh: DhTable, dynamics, base_T_mm=None, backend: str = "pinocchio") -> None:
+    def __new__(cls, dh: DhTable, dynamics, base_T_mm=None, backend: str = "pinocchio"):
         if backend not in BACKENDS:
             raise ValueError(f"rigid-body backend {backend!r}: known are {', '.join(BACKENDS)}")
-        self.dh = dh
-        self.backend = backend
-        n = 6
-        if backend == "kernel":
-            from droid import kernel
+        if cls is RigidBody and backend == "kernel":
+            cls = KernelRigidBody
+        return super().__new__(cls)
 
-            self._k = kernel.load_compiled()
-            if not hasattr(self._k, "rb_rnea"):
-                raise kernel.KernelUnavailable("droid._kernel was built without the rigid-body functions (rebuild it)")
-            self._buf = pack_model(dh, dynamics, base_T_mm)
-            self.model = self.data = None
-            self.link6 = _link_rt(dh, 5)  # link 6's D-H transform: joint 6's frame -> the wrist centre [m]
-            T = np.eye(4)
-            T[:3, :3], T[:3, 3] = self.link6
-            self._link6_T = T
-            for name in ("minv", "mass", "bias", "nle", "gravity", "aba", "wcp_mm", "joint6_jacobian_world"):
-                setattr(self, name, getattr(self, "_k_" + name))
-            return
+    def __init__(self, dh: DhTable, dynamics, base_T_mm=None, backend: str = "pinocchio") -> None:
         import pinocchio
 
-        self._k, self._pin = None, pinocchio
+        self.dh = dh
+        self.backend = "pinocchio"
+        self._pin = pinocchio
         self.model = build_model(dh, dynamics, base_T_mm)
         self.data = self.model.createData()
         self.link6 = _link_transform(dh, 5)  # link 6's D-H transform: joint 6's frame -> the wrist centre [m]
-        self._upper = np.triu(np.ones((n, n), bool))  # Pinocchio fills the upper triangle of M and Minv
+        self._upper = np.triu(np.ones((6, 6), bool))  # Pinocchio fills the upper triangle of M and Minv
 
-    # -- Pinocchio ---------------------------------------------------------------------------
     def minv(self, q_rad: np.ndarray) -> np.ndarray:
         """``M(q)^-1`` [1/(kg m^2)], full."""
         pin = self._pin
@@ -238,42 +226,62 @@ class RigidBody:
         M = data.oMi[6]
         return J6, M.rotation, M.translation
 
-    # -- the compiled kernel (bound over the methods above by __init__) ------------------------
-    def _k_minv(self, q_rad):
+
+class KernelRigidBody(RigidBody):
+    """:class:`RigidBody` on the compiled kernel (``RigidBody(..., backend="kernel")`` makes one):
+    droid._kernel's RNEA and CRBA on the model packed once (:func:`pack_model`), never importing
+    Pinocchio; ``model`` and ``data`` are None.  Every method returns a new array."""
+
+    def __init__(self, dh: DhTable, dynamics, base_T_mm=None, backend: str = "kernel") -> None:
+        from droid import kernel
+
+        self._k = kernel.load_compiled()
+        if not hasattr(self._k, "rb_rnea"):
+            raise kernel.KernelUnavailable("droid._kernel was built without the rigid-body functions (rebuild it)")
+        self.dh = dh
+        self.backend = "kernel"
+        self._buf = pack_model(dh, dynamics, base_T_mm)
+        self.model = self.data = None
+        self.link6 = _link_rt(dh, 5)  # link 6's D-H transform: joint 6's frame -> the wrist centre [m]
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = self.link6
+        self._link6_T = T
+
+    def minv(self, q_rad):
         out = np.empty((6, 6))
         self._k.rb_minv(self._buf, _f64(q_rad), out)
         return out
 
-    def _k_mass(self, q_rad):
+    def mass(self, q_rad):
         out = np.empty((6, 6))
         self._k.rb_crba(self._buf, _f64(q_rad), out)
         return out
 
-    def _k_nle(self, q_rad, qd_rad_s):
+    def nle(self, q_rad, qd_rad_s):
         out = np.empty(6)
         self._k.rb_rnea(self._buf, _f64(q_rad), _f64(qd_rad_s), None, True, out)
         return out
 
-    _k_bias = _k_nle
+    bias = nle  # already a new array
 
-    def _k_gravity(self, q_rad):
+    def gravity(self, q_rad):
         out = np.empty(6)
         self._k.rb_rnea(self._buf, _f64(q_rad), None, None, True, out)
         return out
 
-    def _k_aba(self, q_rad, qd_rad_s, tau_nm):
+    def aba(self, q_rad, qd_rad_s, tau_nm):
         out = np.empty(6)
         self._k.rb_aba(self._buf, _f64(q_rad), _f64(qd_rad_s), _f64(tau_nm), out)
         return out
 
-    def _k_wcp_mm(self, q_deg):
+    def wcp_mm(self, q_deg):
         oM = np.empty((4, 4))
         self._k.rb_jacobian(self._buf, np.radians(np.asarray(q_deg, float)), None, oM)
         T = oM @ self._link6_T
         T[:3, 3] *= 1000.0
         return T
 
-    def _k_joint6_jacobian_world(self, q_rad):
+    def joint6_jacobian_world(self, q_rad):
         J, oM = np.empty((6, 6)), np.empty((4, 4))
         self._k.rb_jacobian(self._buf, _f64(q_rad), J, oM)
         return J, oM[:3, :3], oM[:3, 3]
