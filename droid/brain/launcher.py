@@ -84,16 +84,14 @@ def cell_programs(cell: Cell, hosts: set[str] | None = None) -> tuple[list[Spec]
     for sub in cell.subunits.values():
         if want(sub.host):
             for prog in sub.programs:
-                if prog in cell.share:
-                    spec = shared.get((prog, sub.host))
-                    if spec is not None:
-                        spec.args.append(sub.name)
-                        continue
+                if prog not in cell.share:
+                    specs.append(Spec(presence_key(prog, sub.name), prog, [sub.name], sub.host))
+                    continue
+                spec = shared.get((prog, sub.host))
+                if spec is None:  # the host's one process, where its first subunit puts it
                     spec = shared[prog, sub.host] = Spec("", prog, [], sub.host)
                     specs.append(spec)
-                    spec.args.append(sub.name)
-                    continue
-                specs.append(Spec(presence_key(prog, sub.name), prog, [sub.name], sub.host))
+                spec.args.append(sub.name)
     for spec in shared.values():  # one subunit: its own key, as if not shared
         spec.key = shared_key(spec.prog, [cell.subunit(n) for n in spec.args])
     first = [s for s in specs if program(s.prog).start == 0]

@@ -173,6 +173,11 @@ class Presence:
         self._last = 0
         self.rate = RateWatch(display)
 
+    def due(self) -> bool:
+        """Whether :meth:`beat` would write now: a loop serving many subunits asks before it sums
+        their figures, instead of summing on every wake-up for a beat that returns at once."""
+        return time.monotonic_ns() - self._last >= self.UPDATE_NS
+
     def beat(self, last_tick: int = 0, cycles: int = 0, overruns: int = 0,
              lateness_max_ns: int = 0, *, bad_frames: int = 0, force: bool = False) -> None:
         """Refresh the record: last heartbeat tick, loop cycles, overruns (missed deadlines
@@ -213,11 +218,12 @@ class Presence:
 
 
 def subunit_program(prog: str, description: str, argv=None, *, arm: bool = False, options=None,
-                    example: str = "arm1", several: bool = False):
+                    example: str = "arm1", several: bool = False, one_host: bool = False):
     """Common start of a program serving one subunit: parse ``[--cell FILE] SUBUNIT``,
     load the cell, check the subunit (an arm if ``arm``), install the stop handler.
     ``options(ap)`` adds the program's own options to the parser.  ``several``: ``SUBUNIT...``,
-    each named once, and ``sub`` is their list.
+    each named once, and ``sub`` is their list; ``one_host``: all of them on one host (a process
+    serving a host's subunits, ``[cell] share``).
 
     Returns ``(args, cell, sub)``; bad input raises BadInput (exit 2)."""
     from droid.cli import BadInput
@@ -237,18 +243,12 @@ def subunit_program(prog: str, description: str, argv=None, *, arm: bool = False
     for sub in subs if arm else ():
         if not sub.is_arm:
             raise BadInput(f"{sub.name} is a {sub.cls} subunit, not an arm")
+    for sub in subs[1:] if one_host else ():
+        if sub.host != subs[0].host:
+            raise BadInput(f"{sub.name} is on host {sub.host!r} and {subs[0].name} on {subs[0].host!r}: "
+                           "one process serves the subunits of one host")
     Stop.install()
     return args, cell, subs if several else subs[0]
-
-
-def check_one_host(subs) -> None:
-    """A process serving several subunits runs on their one host (BadInput names the odd one)."""
-    for s in subs[1:]:
-        if s.host != subs[0].host:
-            from droid.cli import BadInput
-
-            raise BadInput(f"{s.name} is on host {s.host!r} and {subs[0].name} on {subs[0].host!r}: "
-                           "one process serves the subunits of one host")
 
 
 def shared_key(prog: str, subs) -> str:
@@ -259,6 +259,11 @@ def shared_key(prog: str, subs) -> str:
         return presence_key(prog, subs[0].name)
     host = "".join(c if c.isascii() and (c.isalnum() or c in "-_") else "_" for c in subs[0].host)
     return f"{presence_key(prog)}s-{host}"
+
+
+def serving_presence(cell, prog: str, subs) -> "Presence":
+    """The presence record of ``prog`` serving ``subs`` (:func:`shared_key`), shown as ``PROG NAME...``."""
+    return Presence(cell.name, shared_key(prog, subs), f"{prog} {' '.join(s.name for s in subs)}")
 
 
 def close_all(*resources) -> None:

@@ -270,8 +270,9 @@ def _serve(served: list[_Served], ticks: TickSubscriber, presence: Presence) -> 
         for s in served:
             if s.link.dealer is not None and s.link.dealer in events:
                 s.link.drain(s.station)
-        presence.beat(last_tick, sum(s.station.core.replies for s in served), ticks.monitor.missed,
-                      bad_frames=sum(s.link.bad_frames for s in served) + ticks.bad_frames)
+        if presence.due():
+            presence.beat(last_tick, sum(s.station.core.replies for s in served), ticks.monitor.missed,
+                          bad_frames=sum(s.link.bad_frames for s in served) + ticks.bad_frames)
 
 
 def _cmd_id(payload: bytes, layout=ARM_COMMAND_LAYOUT) -> int | None:

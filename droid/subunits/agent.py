@@ -39,7 +39,7 @@ from droid.brain.classes import ARM6R
 from droid.brain.layouts import ARM_COMMAND_LAYOUT, FAULT_LINK, Layout, LayoutError, check_header
 from droid.brain.link import AgentLinkCore
 from droid.brain.names import NameClient
-from droid.brain.program import Presence, Stop, check_one_host, close_all, notify_ready, shared_key, subunit_program
+from droid.brain.program import Presence, Stop, close_all, notify_ready, serving_presence, subunit_program
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import run
 
@@ -154,12 +154,11 @@ def agent_main(prog: str, argv=None) -> int:
     records; one loop, one liveness timer and one name-service client serve them all."""
     args, cell, subs = subunit_program(
         prog, "Serve subunits to their Brain-side remotes: commands in, status out, ticks relayed.", argv,
-        example="arm1 (several: one process serves them all)", several=True)
-    check_one_host(subs)
+        example="arm1 (several: one process serves them all)", several=True, one_host=True)
     try_sched_fifo(wanted=cell.sched_fifo, prog=prog)
     ctx = zmq.Context()
     curve = CurveHost(ctx, cell, subs[0].host)
-    presence = Presence(cell.name, shared_key(prog, subs), f"{prog} {' '.join(s.name for s in subs)}")
+    presence = serving_presence(cell, prog, subs)
     timer = PeriodicTimer(cell.period_ns)  # checks Brain-link liveness between commands
     names = None
     served: list[_AgentServed] = []
@@ -265,8 +264,9 @@ def _serve(served: list[_AgentServed], timer: PeriodicTimer, names: NameClient, 
             names.keepalive()
             for a in served:
                 a.on_timer(now)
-        presence.beat(max(link.last_tick for link in links), sum(link.commands for link in links),
-                      timer.overruns, bad_frames=sum(a.bad_frames for a in served))
+        if presence.due():
+            presence.beat(max(link.last_tick for link in links), sum(link.commands for link in links),
+                          timer.overruns, bad_frames=sum(a.bad_frames for a in served))
 
 
 def _set_fault(db, bit: int, on: bool) -> None:

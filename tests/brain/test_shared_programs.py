@@ -9,6 +9,8 @@ from __future__ import annotations
 import json
 import os
 import signal
+import sys
+from pathlib import Path
 
 import pytest
 
@@ -21,22 +23,14 @@ SHARE = '["droid-agent", "droid-joystick"]'
 
 
 def extra_joystick(k: int, rate_hz: float, x: float) -> str:
-    """Subunit ``xjoyK`` on the Brain's host and its twin, whose hand holds axis 0 at ``x``."""
-    return f"""
-[subunits.xjoy{k}]
-class = "joystick"
-host = "brain"
-device = "js://{{run}}/xjoy{k}.js"
-rate_hz = {rate_hz}
-programs = ["droid-joystick", "droid-agent"]
+    """Subunit ``xjoyK`` on the Brain's host and its twin, as bench/bench_scale.py adds them, the
+    twin's hand holding axis 0 at ``x`` (its table is the block's last: the key joins it)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
+    from bench_scale import joystick_block
 
-[world.devices.xjoy_stick{k}]
-type = "joystick"
-device = "{{run}}/xjoy{k}.js"
-axes = 2
-buttons = 8
-script = [[0.0, [{x}, 0.0], [0, 0, 0, 0, 0, 0, 0, 0]]]
-"""
+    block = joystick_block(k, rate_hz)
+    assert block.rstrip().rsplit("\n[", 1)[1].startswith(f"world.devices.xjoy_stick{k}]")
+    return block + f"script = [[0.0, [{x}, 0.0], [0, 0, 0, 0, 0, 0, 0, 0]]]\n"
 
 
 def shared_cell(tmp_path, name, share=SHARE, extra=2):

@@ -34,7 +34,7 @@ import time
 
 from droid.brain.databases import open_local
 from droid.brain.registry import open_url, program
-from droid.brain.program import Presence, Stop, check_one_host, close_all, notify_ready, shared_key, subunit_program
+from droid.brain.program import Stop, close_all, notify_ready, serving_presence, subunit_program
 from droid.brain.rt import PeriodicTimer
 from droid.cli import file_number, run
 from droid.numbers import Range
@@ -59,11 +59,10 @@ def joystick_options(sub) -> tuple[str, float]:
 def main(argv=None) -> int:
     args, cell, subs = subunit_program(PROG, "Read joystick devices into their subunits' Status.", argv,
                                        example="joy (several: one process reads them all)",
-                                       several=True)
-    check_one_host(subs)
+                                       several=True, one_host=True)
     opts = [joystick_options(sub) for sub in subs]
     rate = max(r for _, r in opts)  # the loop's; each joystick is read at its own rate_hz
-    presence = Presence(cell.name, shared_key(PROG, subs), f"{PROG} {' '.join(s.name for s in subs)}")
+    presence = serving_presence(cell, PROG, subs)
     timer = PeriodicTimer(int(round(1e9 / rate)))
     devs, records, stations = [], [], []
     try:
@@ -86,7 +85,8 @@ def main(argv=None) -> int:
                 if now >= due[k] - periods[k] // 4:  # this joystick's period is up (a quarter's slack)
                     status.update(**station.cycle(now))
                     due[k] = max(due[k] + periods[k], now + periods[k] // 2)
-            presence.beat(0, max(st.cycles for st in stations), timer.overruns, timer.lateness_max_ns)
+            if presence.due():
+                presence.beat(0, max(st.cycles for st in stations), timer.overruns, timer.lateness_max_ns)
     finally:
         close_all(*devs, timer, *records, presence)
     return 0
