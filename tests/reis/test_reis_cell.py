@@ -69,7 +69,12 @@ droid-snoop arm1 --json --count 1
 
 
 def test_nothing_moves_before_homing(cell):
-    before = snoop(cell)
+    # the arm first comes to rest after power-up (its drives settle for a moment after the cell is
+    # up: 7 counts on joint 5 seen once); "nothing moves" is then measured from rest
+    def at_rest():
+        a, b = snoop(cell), snoop(cell)
+        return np.allclose(a["encoder_pos"], b["encoder_pos"], atol=1) and b
+    before = wait_for(at_rest, timeout=20, what="arm1 at rest after power-up")
     out = droid("droid.tasks.move", "arm1", "joint", "0", "0", "0", "0", "0", "0", "1", "--cell", str(cell))
     assert out.returncode == 1 and "not homed" in out.stderr
     after = snoop(cell)
