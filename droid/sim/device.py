@@ -11,9 +11,18 @@ from droid.cli import BadInput
 
 
 class Device:
-    """A simulated device: ``advance(dt_s)`` one world step [s]; ``close()`` at exit."""
+    """A simulated device: ``advance(dt_s)`` one world step [s]; ``close()`` at exit.
+
+    ``step_s`` [s]: the longest world time the device may be advanced by in one call, so the
+    real-time world (droid-sim) calls it only every ``step_s`` of world time, with the whole
+    time owed, instead of at every 1 ms step (docs/architecture.md "The world's rates").  0:
+    every world step (an arm twin, whose register map the servo reads at 500 Hz).  A device
+    with a rate of its own (a camera's frames, an RDT stream, a serial line's bytes) keeps
+    that rate on world time whatever ``dt_s`` it is given; the lockstep runners step their
+    twins themselves and never read this."""
 
     name = "device"
+    step_s = 0.0
 
     def advance(self, dt_s: float) -> None:  # pragma: no cover - interface
         raise NotImplementedError

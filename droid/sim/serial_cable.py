@@ -539,6 +539,7 @@ class PacedPtyOutput:
 
 class SerialCable(Device):
     """Two pty ends joined by a paced line (see the module docstring)."""
+    step_s = 0.004  # ~8 bytes a step at 19200 baud, within the UART FIFO it carries per step
 
     def __init__(self, name: str, end_a: str, end_b: str, baud: int = DEFAULT_BAUD, duplex: bool = False,
                  fifo_bytes: int = UART_FIFO_BYTES) -> None:

@@ -53,24 +53,37 @@ class World:
         self.cell = cell
         self.seed = seed
         self.devices: dict[str, Device] = {}
+        self._owed_s: dict[str, float | None] = {}  # world time each device is owed [s] (Device.step_s)
         self.t_s = 0.0
-
-    def add(self, name: str, dev: Device) -> None:
-        self.devices[name] = dev
 
     #: a device step longer than this is reported (it stalls every device of the world) [s]
     SLOW_STEP_S = 0.02
 
+    def add(self, name: str, dev: Device) -> None:
+        self.devices[name] = dev
+        self._owed_s[name] = None  # never advanced: the world's first step advances it (power-up)
+
     def advance(self, dt_s: float) -> None:
+        """One world step of ``dt_s`` [s]: each device is advanced when the world time it is owed
+        reaches its ``step_s`` (every step for 0), by all of that time -- so a camera, a serial
+        line or an F/T stream costs the world its own rate, not the arms' 1 kHz.  Every device
+        is advanced on the world's first step (the power-up: its registers, ports and sockets)."""
         clock = time.perf_counter
         t1 = clock()
+        owed = self._owed_s
         for name, dev in self.devices.items():
+            before = owed[name]
+            due = dt_s if before is None else before + dt_s
+            if before is not None and due < dev.step_s - 1e-9:
+                owed[name] = due
+                continue
+            owed[name] = 0.0
             t0 = t1  # one clock reading a device: each one's end is the next one's start
-            dev.advance(dt_s)
+            dev.advance(due)
             t1 = clock()
             took = t1 - t0
             if took > self.SLOW_STEP_S:
-                print(f"{PROG}: device {name} took {took * 1e3:.0f} ms for one {dt_s * 1e3:g} ms step "
+                print(f"{PROG}: device {name} took {took * 1e3:.0f} ms for one {due * 1e3:g} ms step "
                       f"at world time {self.t_s:.3f} s", file=sys.stderr, flush=True)
         self.t_s += dt_s
 

@@ -300,6 +300,9 @@ class NetFtTwinDevice(Device):
                  tool_com_mm, host: str = "127.0.0.1", port: int = 0, http_port: int = 0, log=None) -> None:
         self.name = name
         self.twin = twin
+        # advanced once per RDT record at most (250 Hz: 4 ms), never less often than every 4 ms
+        # (requests answered, the contact's wrench sampled): its records keep the RDT rate
+        self.step_s = min(0.004, 1.0 / twin.rate_hz) if twin.rate_hz > 0 else 0.0
         self.arm = arm
         self.T_wcp_sensor = np.asarray(T_wcp_sensor, float)
         self.T_sensor_tool = np.asarray(T_sensor_tool, float)

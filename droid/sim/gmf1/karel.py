@@ -56,6 +56,7 @@ PARAM_OPTIONS = ("cycle_hz", "speed_mm_s", "joint_speed_fraction", "ramp_s", "re
 
 class KarelDevice(Device):
     """Controller core + transport + card twin, stepped by the world."""
+    step_s = 0.002  # the controller's motion on absolute time, its 9600-baud bytes (~2 a step), the cards
 
     def __init__(self, name: str, controller: KarelController, twin: Quad04Twin, transport,
                  model_global, cards: list | None = None) -> None:

@@ -94,6 +94,7 @@ class JoystickTwin:
 
 class JoystickDevice(Device):
     """The twin on a pty published at ``path`` (a reader opens it as js://PATH)."""
+    step_s = 0.01  # its script's events and resyncs: a stick is read at 100 Hz
 
     def __init__(self, name: str, path: str, twin: JoystickTwin) -> None:
         self.name = name

@@ -90,6 +90,7 @@ def pose_key(T: np.ndarray) -> tuple:
 
 class MvsCameraDevice(Device):
     """The MVS camera + DSP board twin on the welding robot (see the module docstring)."""
+    step_s = 0.004  # its frames (60 Hz) keep their rate on world time; the frame is taken at the step's end
 
     def __init__(self, name: str, mount: Mount, twin: MvsDspTwin, rate_hz: float = FRAME_RATE_HZ) -> None:
         self.name = name
@@ -191,6 +192,7 @@ class IdealSensorCore(ToolSensorCore):
 
 class ToolSensorDevice(Device):
     """The tool-tip sensor in the world: core + mount + a paced serial output."""
+    step_s = 0.004  # its lines (60 Hz) and their bytes (19200 baud: ~8 a step) keep their rates
 
     def __init__(self, name: str, mount: Mount, core: ToolSensorCore, output, rate_hz: float = FRAME_RATE_HZ,
                  clock_ns=time.monotonic_ns) -> None:

@@ -1,0 +1,44 @@
+"""droid-sim's world steps each device at its own rate (Device.step_s, issue 40 item 2): a device
+with a rate of its own is advanced only every step_s of world time, by all the time it is owed,
+and every device on the world's first step."""
+from __future__ import annotations
+
+import pytest
+
+from droid.sim.device import Device
+from droid.sim.world import World
+
+
+class Counting(Device):
+    def __init__(self, name: str, step_s: float) -> None:
+        self.name, self.step_s, self.calls = name, step_s, []
+
+    def advance(self, dt_s: float) -> None:
+        self.calls.append(dt_s)
+
+
+@pytest.mark.parametrize("step_s, steps", [(0.0, 10), (0.002, 9), (0.004, 13), (0.01, 37)])
+def test_a_device_is_advanced_every_step_s_with_all_the_time_it_is_owed(step_s, steps):
+    world = World(cell=None)
+    dev = Counting("d", step_s)
+    world.add("d", dev)
+    for _ in range(steps):
+        world.advance(0.001)
+    per_call = max(1, round(step_s / 0.001))
+    assert dev.calls[0] == 0.001  # the first step: power-up
+    assert all(dt == pytest.approx(per_call * 0.001, abs=1e-12) for dt in dev.calls[1:])
+    assert len(dev.calls) == 1 + (steps - 1) // per_call
+    owed = (steps - 1) % per_call * 0.001
+    assert sum(dev.calls) + owed == pytest.approx(steps * 0.001, abs=1e-12)  # no world time lost
+    assert world.t_s == pytest.approx(steps * 0.001)
+
+
+def test_the_built_in_twins_declare_their_rates():
+    from droid.sim.gmf1.karel import KarelDevice
+    from droid.sim.mvs.devices import MvsCameraDevice, ToolSensorDevice
+    from droid.sim.reis.world import ReisDevice
+    from droid.sim.serial_cable import SerialCable
+
+    assert ReisDevice.step_s == 0.0  # the servo reads the register map at 500 Hz: every 1 ms step
+    assert KarelDevice.step_s == 0.002
+    assert MvsCameraDevice.step_s == ToolSensorDevice.step_s == SerialCable.step_s == 0.004
