@@ -100,6 +100,10 @@ def locked_kib() -> int:
     return 0
 
 
+#: the pytest process's own nice level, as it started (scripts/test.sh may run it niced)
+PYTEST_NICE = os.getpriority(os.PRIO_PROCESS, 0)
+
+
 def scheduler_leak() -> str | None:
     """What a test left of a real-time program in the pytest process itself (None: nothing).
 
@@ -112,6 +116,8 @@ def scheduler_leak() -> str | None:
     if os.sched_getscheduler(0) != os.SCHED_OTHER:
         leaks.append(f"scheduling policy {os.sched_getscheduler(0)} (SCHED_FIFO=1), "
                      f"priority {os.sched_getparam(0).sched_priority}")
+    if os.getpriority(os.PRIO_PROCESS, 0) < PYTEST_NICE:  # a "nice" program's level (droid.brain.rt.NICE_LEVEL)
+        leaks.append(f"nice {os.getpriority(os.PRIO_PROCESS, 0)}")
     kib = locked_kib()
     if kib:
         leaks.append(f"{kib} KiB of locked memory")

@@ -67,7 +67,7 @@ BUILTIN_PACKAGES: dict[str, str] = {
     "abb": "droid.subunits.abb.device:PACKAGE",
 }
 
-SCHED_CLASSES = ("fifo", "other")
+SCHED_CLASSES = ("fifo", "nice", "other")
 #: SCHED_FIFO priorities a program may declare: below the databases' priority ceiling
 #: (droid.brain.rt.CEILING_PRIORITY = 61), which must outrank every program.
 FIFO_PRIORITY_RANGE = (1, 60)
@@ -81,8 +81,11 @@ class Program:
 
     ``rate_hz``: its loop rate [Hz] (None: tick-driven or on request) -- the one place a
     rate like the servo's 500 Hz or the heartbeat's 60 Hz is written.  ``sched``:
-    ``"fifo"`` (SCHED_FIFO at ``priority`` in a cell with ``sched_fifo = true``) or
-    ``"other"``.  ``start``: the launcher's start group (0 before 1).  ``role``:
+    ``"fifo"`` (SCHED_FIFO at ``priority`` in a cell with ``sched_fifo = true``), ``"nice"``
+    (the normal scheduler at nice :data:`droid.brain.rt.NICE_LEVEL` in such a cell: a program
+    whose deadline is a heartbeat tick or longer and which feeds no servo, so it weighs
+    ~10x a normal-priority process without drawing on the kernel's real-time budget;
+    docs/architecture.md "Real time") or ``"other"``.  ``start``: the launcher's start group (0 before 1).  ``role``:
     ``"cell"`` (a subunit's ``programs`` may name it), ``"brain"`` (the launcher starts
     it for the Brain or the world) or ``"tool"`` (run by hand; never started by a cell).
     """

@@ -230,18 +230,40 @@ def normal_scheduler() -> None:
             os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     except (OSError, AttributeError):
         pass
+    try:
+        if os.getpriority(os.PRIO_PROCESS, 0) == NICE_LEVEL:  # a "nice" program's level, not the user's
+            os.setpriority(os.PRIO_PROCESS, 0, 0)
+    except OSError:
+        pass
     _libc.munlockall()
+
+
+#: The nice level of a program declared ``sched = "nice"`` (droid.brain.registry.Program): the
+#: normal scheduler's weight of nice -10 is 9.3x that of nice 0, so a busy normal process beside
+#: it delays its wake-ups by a scheduler slice (a few ms), never by the kernel's RT throttling.
+NICE_LEVEL = -10
 
 
 def try_sched_fifo(priority: int | None = None, *, wanted: bool = True, prog: str = "droid") -> bool:
     """Switch this process to SCHED_FIFO if wanted and permitted, at ``priority``
     (default: ``prog``'s entry in :data:`FIFO_PRIORITIES`), and lock its memory
-    (:func:`lock_memory`)."""
+    (:func:`lock_memory`).  A program the registry declares ``sched = "nice"`` (and no
+    ``priority`` given) stays on the normal scheduler at :data:`NICE_LEVEL` instead, its
+    memory locked likewise; returns False for it (it is not real-time)."""
     if not wanted:
         return False
     if priority is None:
-        from droid.brain.registry import fifo_priorities
+        from droid.brain.registry import fifo_priorities, registry
 
+        declared = registry().programs.get(prog)
+        if declared is not None and declared.sched == "nice":
+            lock_memory(prog)
+            try:
+                os.setpriority(os.PRIO_PROCESS, 0, NICE_LEVEL)
+            except (PermissionError, OSError) as exc:
+                print(f"{prog}: nice {NICE_LEVEL} not available ({exc}); running at normal priority",
+                      file=sys.stderr)
+            return False
         priority = fifo_priorities().get(prog, DEFAULT_FIFO_PRIORITY)
     # Lock first, on the normal scheduler: the old full mlockall paged in every mapping
     # (hundreds of MB) and, done at FIFO priority, kept the cell's running real-time

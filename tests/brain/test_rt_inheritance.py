@@ -24,12 +24,28 @@ needs_root = pytest.mark.skipif(os.geteuid() != 0, reason="SCHED_FIFO needs root
 def test_the_leak_check_sees_fifo_and_locked_memory_and_normal_scheduler_clears_both():
     assert scheduler_leak() is None
     try:
-        assert try_sched_fifo(wanted=True, prog="droid-mvs")
+        assert try_sched_fifo(wanted=True, prog="droid-planner")
         leak = scheduler_leak()
-        assert leak is not None and "priority 48" in leak and "locked memory" in leak
+        assert leak is not None and "priority 51" in leak and "locked memory" in leak
     finally:
         normal_scheduler()
     assert scheduler_leak() is None
+
+
+@needs_root
+def test_a_nice_program_stays_on_the_normal_scheduler_at_its_nice_level_and_the_leak_check_sees_it():
+    from droid.brain.rt import NICE_LEVEL
+
+    assert scheduler_leak() is None
+    try:
+        assert not try_sched_fifo(wanted=True, prog="droid-mvs")  # sched = "nice": not real-time
+        assert os.sched_getscheduler(0) == os.SCHED_OTHER
+        assert os.getpriority(os.PRIO_PROCESS, 0) == NICE_LEVEL
+        leak = scheduler_leak()
+        assert leak is not None and f"nice {NICE_LEVEL}" in leak and "locked memory" in leak
+    finally:
+        normal_scheduler()
+    assert scheduler_leak() is None and os.getpriority(os.PRIO_PROCESS, 0) == 0
 
 
 @needs_root

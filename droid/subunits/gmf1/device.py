@@ -17,10 +17,11 @@ PACKAGE = DevicePackage(
     description="GM Fanuc S400 over its KAREL serial server and CIO-QUAD04 encoder cards (thesis §4.2)",
     serves=("arm6r",),
     programs=(
-        Program("droid-gmf1-agent", "droid.subunits.gmf1.agent", sched="fifo", priority=51, cpu_pct=3.5, rss_mb=42),
+        Program("droid-gmf1-agent", "droid.subunits.gmf1.agent", sched="nice", cpu_pct=3.5, rss_mb=42),  # the KAREL
+        # controller interpolates on its own: ticks late by a few ms reach it at <= 6 Hz anyway
         Program("droid-gmf1-serial", "droid.subunits.gmf1.serial_prog", cpu_pct=2.5, rss_mb=44),
-        Program("droid-gmf1-encoder", "droid.subunits.gmf1.encoder_prog", rate_hz=ENCODER_HZ, sched="fifo",
-                priority=45, cpu_pct=2.5, rss_mb=46),
+        Program("droid-gmf1-encoder", "droid.subunits.gmf1.encoder_prog", rate_hz=ENCODER_HZ, sched="nice",
+                cpu_pct=2.5, rss_mb=46),
     ),
     drivers=(Driver("encoder_card", ("shm", "mem"), "droid.subunits.gmf1.quad04:open_card",
                     "shm://NAME or mem:///PATH?offset=0xADDR"),),

@@ -15,7 +15,7 @@ PACKAGE = DevicePackage(
     description="MVS line-laser seam sensor: DSP frames -> x, y, roll on a serial line (thesis §5.4)",
     serves=("line_laser", "arm6r"),  # arm6r: its fixed_arm twin stands in for an arm
     programs=(
-        Program("droid-mvs", "droid.subunits.mvs.sensor", rate_hz=FRAME_RATE_HZ, sched="fifo", priority=48,
+        Program("droid-mvs", "droid.subunits.mvs.sensor", rate_hz=FRAME_RATE_HZ, sched="nice",  # lines carry their capture time
                 cpu_pct=2.0, rss_mb=41),
         Program("droid-mvs-board", "droid.sim.mvs.dsp", role="tool",
                 description="a stand-alone DSP board twin for the sensor alone"),
