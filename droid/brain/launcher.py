@@ -115,24 +115,55 @@ def remote_specs(cell: Cell) -> list[Spec]:
 #: Share of this host's CPUs a cell may ask for before droid-cell up warns: above it the
 #: heartbeat's exchanges start to miss (docs/benchmarks.md "Scale", bench/bench_scale.py).
 HOST_CPU_BUDGET = 0.7
+#: The real-time budget: the share of one core per CPU [%] that the SCHED_FIFO programs of a
+#: cell may declare before droid-cell up refuses it (without --force).  The kernel stops every
+#: SCHED_FIFO task of a CPU for the rest of the second once they used sched_rt_runtime_us of
+#: it (950 ms: "RT throttling", ~50 ms of silence that makes the servo brake); half a core
+#: leaves the margin for a slower host of the same kind and for bursts (docs/architecture.md
+#: "Real time", docs/benchmarks.md "Real-time budget").
+RT_BUDGET_PCT_PER_CPU = 50.0
 
 
 @dataclass
 class Demand:
-    """What the programs ``droid-cell up`` starts here ask of this host (issue 28 item 4):
-    the sums of their declared ``cpu_pct`` (droid-sim with its twins') and ``rss_mb``."""
+    """What the programs ``droid-cell up`` starts here ask of this host (issue 28 item 4,
+    issue 40 item 1): the sums of their declared ``cpu_pct`` (droid-sim with its twins') and
+    ``rss_mb``, and the part of it at SCHED_FIFO (``fifo``: program -> share of one core)."""
 
     programs: int
     cpu_pct: float  # share of one core [%]
     rss_mb: float
     cpus: int  # CPUs this process may run on
     mem_available_mb: float | None
+    fifo: dict[str, float] = field(default_factory=dict)  # SCHED_FIFO program -> share [%] (summed per name)
+
+    @property
+    def fifo_pct(self) -> float:
+        """The SCHED_FIFO programs' declared share of one core [%], all of them."""
+        return sum(self.fifo.values())
+
+    @property
+    def fifo_pct_per_cpu(self) -> float:
+        """:attr:`fifo_pct` spread over this host's CPUs [% of one core per CPU]."""
+        return self.fifo_pct / max(self.cpus, 1)
+
+    def over_rt_budget(self) -> str | None:
+        """One line naming the largest real-time programs when the SCHED_FIFO share per CPU is
+        over :data:`RT_BUDGET_PCT_PER_CPU`; None within it."""
+        if self.fifo_pct_per_cpu <= RT_BUDGET_PCT_PER_CPU:
+            return None
+        top = sorted(self.fifo.items(), key=lambda kv: -kv[1])
+        named = ", ".join(f"{n} {v:.0f} %" for n, v in top[:4]) + (", ..." if len(top) > 4 else "")
+        cpus = f"{self.cpus} CPU{'s' if self.cpus != 1 else ''}"
+        return (f"its SCHED_FIFO programs declare {self.fifo_pct:.0f} % of one core on {cpus}: "
+                f"{self.fifo_pct_per_cpu:.0f} % a CPU, over the real-time budget of "
+                f"{RT_BUDGET_PCT_PER_CPU:.0f} % a CPU ({named})")
 
     def warnings(self) -> list[str]:
         out = []
         budget = HOST_CPU_BUDGET * 100.0 * self.cpus
         if self.cpu_pct > budget:
-            out.append(f"its {self.programs} programs need about {self.cpu_pct:.0f} % of one core when idle "
+            out.append(f"its {self.programs} programs need about {self.cpu_pct:.0f} % of one core "
                        f"(their declared costs), over {HOST_CPU_BUDGET:.0%} of this host's {self.cpus} "
                        f"CPU{'s' if self.cpus != 1 else ''}: expect missed heartbeat exchanges and programs "
                        f"LAGGING in droid-cell status; split the cell over hosts (docs/benchmarks.md \"Scale\")")
@@ -155,25 +186,30 @@ def _mem_available_mb() -> float | None:
 
 def demand(cell: Cell, specs: list[Spec]) -> Demand:
     """The host's share of ``specs``: each program's declared cost, droid-sim's with the
-    twins of ``[world.devices]`` (droid.brain.registry.Program.cpu_pct, Twin.cpu_pct)."""
+    twins of ``[world.devices]`` (droid.brain.registry.Program.cpu_pct, Twin.cpu_pct); the
+    SCHED_FIFO part where the cell asks for it (``[cell] sched_fifo``)."""
     cpu = rss = 0.0
+    fifo: dict[str, float] = {}
     for s in specs:
         p = program(s.prog)
-        cpu += p.cpu_pct
+        share = p.cpu_pct
         rss += p.rss_mb
         if len(s.args) > 1:  # a process serving several subunits: each further one's share
-            cpu += p.cpu_pct_each * (len(s.args) - 1)
+            share += p.cpu_pct_each * (len(s.args) - 1)
         if s.prog == "droid-sim":
             for opts in cell.world.get("devices", {}).values():
                 try:
-                    cpu += twin(opts["type"]).cpu_pct
+                    share += twin(opts["type"]).cpu_pct
                 except (KeyError, TypeError):
                     pass  # validate_cell names an unknown twin before this runs
+        cpu += share
+        if cell.sched_fifo and p.sched == "fifo":
+            fifo[s.prog] = fifo.get(s.prog, 0.0) + share
     try:
         cpus = len(os.sched_getaffinity(0))
     except (AttributeError, OSError):
         cpus = os.cpu_count() or 1
-    return Demand(len(specs), cpu, rss, cpus, _mem_available_mb())
+    return Demand(len(specs), cpu, rss, cpus, _mem_available_mb(), fifo)
 
 
 def state_path(cell: Cell, hosts: set[str] | None = None) -> str:
@@ -259,7 +295,15 @@ def _write_state(cell: Cell, specs: list[Spec], hosts) -> None:
     os.replace(path + ".tmp", path)
 
 
-def up(cell: Cell, hosts: set[str] | None, timeout_s: float) -> list[Spec]:
+def up(cell: Cell, hosts: set[str] | None, timeout_s: float, force: bool = False) -> list[Spec]:
+    """Start the programs of ``hosts`` (None: all) and wait until each is ready.  A cell whose
+    SCHED_FIFO programs declare more than the real-time budget of this host is refused
+    (BadInput) before anything is made, unless ``force``."""
+    first, rest = cell_programs(cell, hosts)
+    need = demand(cell, first + rest)
+    over = need.over_rt_budget()
+    if over and not force:
+        raise BadInput(f"cell {cell.name}: {over}; not started (droid-cell up --force starts it anyway)")
     state = read_state(cell)
     if state is not None:
         running = [p for p in state.get("programs", []) if pid_alive(p.get("pid", 0))]
@@ -274,8 +318,9 @@ def up(cell: Cell, hosts: set[str] | None, timeout_s: float) -> list[Spec]:
     dbs = create_databases(cell, hosts)
     for db in dbs:
         db.close()
-    first, rest = cell_programs(cell, hosts)
-    for line in demand(cell, first + rest).warnings():  # before any program starts
+    if over:
+        print(f"{PROG}: warning: cell {cell.name}: {over} (--force)", file=sys.stderr, flush=True)
+    for line in need.warnings():  # before any program starts
         print(f"{PROG}: warning: cell {cell.name}: {line}", file=sys.stderr, flush=True)
     specs: list[Spec] = []
     try:
@@ -420,7 +465,29 @@ STATUS_KEYS = {  # droid-cell status --json: one object a line with these keys
     "bad_frames": "malformed messages received and dropped",
     "missed_pct": "share of its periods missed in the last 2 s window [%] (null without a record)",
     "lagging": "it cannot keep its rate: missed_pct >= 5 % (its log says so too)",
+    "lateness_max_ms": "its loop's worst wake-up lateness so far [ms] (null without a record)",
+    "sched": "fifo | nice | other: the scheduler it runs on now (nice: SCHED_OTHER below nice 0)",
+    "cpu_pct": "its measured share of one core since it started [%] (utime + stime over its age)",
 }
+
+
+def measured_cpu(pid: int) -> tuple[str | None, float | None]:
+    """(sched, cpu_pct) of a running process from /proc: ``fifo`` / ``nice`` / ``other`` and its
+    share of one core since it started [%]; (None, None) if it is gone."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        with open("/proc/uptime") as f:
+            uptime_s = float(f.read().split()[0])
+    except (OSError, ValueError, IndexError):
+        return None, None
+    hz = os.sysconf("SC_CLK_TCK")
+    # fields after the comm: [0] state ... [11] utime [12] stime [16] nice [19] starttime [38] policy
+    nice, policy = int(fields[16]), int(fields[38])
+    sched = "fifo" if policy in (os.SCHED_FIFO, os.SCHED_RR) else ("nice" if nice < 0 else "other")
+    age_s = uptime_s - int(fields[19]) / hz
+    cpu = (int(fields[11]) + int(fields[12])) / hz / age_s * 100.0 if age_s > 0 else 0.0
+    return sched, round(cpu, 1)
 
 
 def restart(cell: Cell, name: str, timeout_s: float) -> Spec:
@@ -468,7 +535,7 @@ def status(cell: Cell) -> list[dict]:
         row = {"name": " ".join([p["prog"], *p["args"]]), "key": p["key"], "host": p["host"],
                "pid": p["pid"], "alive": pid_alive(p["pid"]), "state": "dead", "live": False,
                "last_tick": None, "age_s": None, "cycles": None, "overruns": None, "bad_frames": None,
-               "missed_pct": None, "lagging": False}
+               "missed_pct": None, "lagging": False, "lateness_max_ms": None, "sched": None, "cpu_pct": None}
         try:
             db = Database(db_name(cell.name, "proc", p["key"]), PROC_STATUS_LAYOUT, timeout_s=0.2)
         except (NoDatabase, BadInput):
@@ -484,10 +551,13 @@ def status(cell: Cell) -> list[dict]:
                 row["bad_frames"] = int(rec["bad_frames"])
                 row["missed_pct"] = round(float(rec["missed_pct"]), 1)
                 row["lagging"] = bool(rec["lagging"])
+                row["lateness_max_ms"] = round(int(rec["lateness_max_ns"]) / 1e6, 2)
             finally:
                 db.close()
         if not row["alive"]:
             row["state"] = "dead"
+        else:
+            row["sched"], row["cpu_pct"] = measured_cpu(p["pid"])
         row["live"] = bool(row["alive"] and row["state"] == "ready" and row["age_s"] is not None
                            and row["age_s"] < LIVE_AGE_S)
         rows.append(row)
@@ -505,6 +575,9 @@ def main(argv=None) -> int:
                       help="start only this host's programs (repeatable; default: all hosts)")
     p_up.add_argument("--timeout", type=timeout_s, default=READY_TIMEOUT_S, metavar="S",
                       help=f"readiness timeout [s] (default {READY_TIMEOUT_S:g})")
+    p_up.add_argument("--force", action="store_true",
+                      help=f"start a cell whose SCHED_FIFO programs declare more than "
+                           f"{RT_BUDGET_PCT_PER_CPU:.0f} %% of one core per CPU (the real-time budget)")
     p_up.add_argument("--replay", metavar="FILE", default=None,
                       help="a replay cell: the Brain's databases only, for droid-replay FILE (docs/observe.md)")
     sp.add_parser("init", help="only create the databases (to start programs by hand)")
@@ -539,7 +612,7 @@ def main(argv=None) -> int:
             if unknown:
                 raise BadInput(f"unknown host(s) {', '.join(sorted(unknown))} "
                                f"(cell hosts: {', '.join(cell.hosts())})")
-        specs = up(cell, hosts, args.timeout)
+        specs = up(cell, hosts, args.timeout, force=args.force)
         print(f"cell {cell.name} up: {len(specs)} programs ready (run dir {cell.run_dir})")
         return 0
     if args.cmd == "restart":
@@ -562,7 +635,8 @@ def main(argv=None) -> int:
                     live = "LAGGING"  # alive and beating, but missing its periods
                 tick = "-" if r["last_tick"] is None else r["last_tick"]
                 lag = f"  missed {r['missed_pct']:.1f} % of its periods" if r["lagging"] else ""
-                print(f"{r['name']:<28} pid {r['pid']:>7}  {r['state']:<9} {live:<8} tick {tick}{lag}")
+                cpu = "" if r["cpu_pct"] is None else f"  cpu {r['cpu_pct']:4.1f} % {r['sched']}"
+                print(f"{r['name']:<28} pid {r['pid']:>7}  {r['state']:<9} {live:<8} tick {str(tick):<7}{cpu}{lag}")
         return 0 if all(r["live"] for r in rows) else 1
     n, hard, removed = down(cell, args.timeout)
     msg = f"cell {cell.name} down: {n} programs stopped"

@@ -8,12 +8,17 @@ the Brain's databases and the kinematics, never a device.
 :class:`BrainArm` opens an arm's Status and Command records, validates targets
 against the robot model *before* anything is written (so a bad target never
 moves the robot), writes commands with a fresh ``cmd_id`` and ``sent = 1``,
-and waits on ``busy`` / ``cmd_id`` / ``homed``.
+and waits on ``busy`` / ``cmd_id`` / ``homed``.  :meth:`BrainArm.move` is a task's
+positioning move -- command, wait, arrival -- that rides through a protective stop
+(droid.tasks.resume: re-issued toward the same target from where the arm came to rest, at
+most three times).
 """
 from __future__ import annotations
 
 import math
+import sys
 import time
+from typing import Callable
 
 import numpy as np
 
@@ -21,9 +26,10 @@ from droid.brain.cellfile import Cell
 from droid.brain import arm_command
 from droid.brain.databases import open_brain
 from droid.brain.layouts import CMD_OK, CMD_REFUSED, FAULT_WATCHDOG, FAULTS_CANNOT_MOVE, NORMAL_MODE, fault_names
-from droid.cli import MAX_MOVE_S, BadInput, RuntimeFailure
+from droid.cli import EXIT_INTERRUPTED, MAX_MOVE_S, BadInput, DroidError, RuntimeFailure
 from droid.kinematics import Unreachable, load_robot
 from droid.kinematics.transforms import pose_to_T
+from droid.tasks import resume as rs
 
 POLL_S = 1.0 / 120  # twice per heartbeat tick
 #: How long a waiting task tolerates a stale subunit before it gives up [s].  The
@@ -40,6 +46,22 @@ ARRIVAL_WAIT_S = 1.0
 #: A cartesian target's ZYZ angles A B C [deg] lie within one turn either way (issue 16): an angle
 #: beyond names the same orientation and is refused as a mistake (1e308 deg has no precision left).
 MAX_CART_ANGLE_DEG = 360.0
+
+
+class Interrupted(DroidError):
+    """A signal (SIGINT/SIGTERM, through the task's ``interrupted`` test) ended a move: the
+    move was stopped where the arm stood (:meth:`BrainArm.give_up`).  Exit 130."""
+
+    exit_code = EXIT_INTERRUPTED
+
+
+def leg_timeout_s(seconds: float) -> float:
+    """droid-move's default wait for one move of ``seconds`` [s]: 2 x its time + 10 s."""
+    return 2.0 * seconds + 10.0
+
+
+def say_stderr(line: str) -> None:
+    print(line, file=sys.stderr, flush=True)
 
 
 class BrainArm:
@@ -222,10 +244,22 @@ class BrainArm:
 
     def wait_done(self, cmd_id: int, timeout_s: float):
         """Wait until command ``cmd_id`` finished; raises if it was refused or failed."""
-        rec = self.wait(lambda r: int(r["cmd_id"]) == cmd_id and int(r["busy"]) == 0,
-                        timeout_s, f"{self.sub.name} to finish command {cmd_id}")
-        self.live_cmd = None  # finished (or refused/failed): nothing left to cancel
+        rec = self.wait_finished(cmd_id, timeout_s)
         self.check_result(rec, cmd_id)
+        return rec
+
+    def wait_finished(self, cmd_id: int, timeout_s: float, interrupted: Callable[[], bool] | None = None):
+        """Wait until command ``cmd_id`` finished, done or not; its last Status record (the
+        caller judges it: :meth:`check_result`).  ``interrupted()`` true meanwhile: the
+        command is stopped where the arm stands (:meth:`give_up`) and :class:`Interrupted`
+        raised."""
+        stop = interrupted or (lambda: False)
+        rec = self.wait(lambda r: stop() or (int(r["cmd_id"]) == cmd_id and int(r["busy"]) == 0),
+                        timeout_s, f"{self.sub.name} to finish command {cmd_id}")
+        if stop():
+            self.give_up()
+            raise Interrupted(f"interrupted during {self.sub.name}'s move: stopped where it stood")
+        self.live_cmd = None  # finished (or refused/failed): nothing left to cancel
         return rec
 
     def wait_arrived(self, target_counts, timeout_s: float = ARRIVAL_WAIT_S, tol_deg: float = ARRIVAL_TOL_DEG):
@@ -278,3 +312,110 @@ class BrainArm:
         if result == CMD_REFUSED:
             raise BadInput(f"{self.sub.name} refused command {cmd_id}{why}")
         raise RuntimeFailure(f"{self.sub.name} failed command {cmd_id}{why}")
+
+    # -- a positioning move that rides through a protective stop (droid.tasks.resume) -------
+    def move(self, mode: str, target, seconds: float, *, resume: bool = True, arrive: bool = True,
+             timeout: Callable[[float], float] = leg_timeout_s, interrupted: Callable[[], bool] | None = None,
+             say: Callable[[str], None] = say_stderr) -> int:
+        """Move to ``target`` in ``seconds`` [s] and wait; returns how many resumes it took.
+
+        ``mode`` "joint": ``target`` is six encoder counts [counts from home]; "cart": the wrist
+        centre x y z [mm], A B C [ZYZ deg] in the global frame.  Waits until the arm is idle,
+        checks the target from where it stands (BadInput: nothing moved), writes the command,
+        waits until it is delivered and finished, and with ``arrive`` until the arm is within
+        ARRIVAL_TOL_DEG of the target (:meth:`wait_arrived`).  ``timeout(s)`` bounds each of
+        these waits of a move of ``s`` seconds (default 2 s + 10 s).
+
+        A move a protective stop cancelled (droid.tasks.resume: it failed having seen only
+        FAULT_BRAKING) is re-issued toward the same target from where the arm came to rest --
+        once it is at rest with the braking fault clear, within REST_TIMEOUT_S -- at the
+        original move's average joint speed, after the same target checks from there; one
+        stderr line each (``say``), at most MAX_RESUMES times.  ``resume`` False
+        (``--no-resume``): it fails as any failed move does.  A hard fault after the stop,
+        no rest in time, or a fourth stop: RuntimeFailure naming it.  ``interrupted()`` true
+        (the task's signal flag) or any exception: a command still live is stopped where the
+        arm stands (:meth:`give_up`)."""
+        try:
+            if interrupted is not None and interrupted():
+                raise Interrupted(f"interrupted before {self.sub.name}'s move")
+            ticks = self.ticks_for(seconds)
+            q_now = self.joints_deg(self.wait_idle(timeout(seconds)))
+            cmd_id, counts, q_goal = self.write_move(mode, target, seconds, ticks, q_now)
+            job = rs.Resumer(self.sub.name, q_now, q_goal, ticks / self.hb_hz, enabled=resume)
+            leg_s = job.seconds
+            while True:
+                self.wait_delivered(cmd_id, timeout(leg_s))
+                rec = self.wait_finished(cmd_id, timeout(leg_s), interrupted)
+                seen = self.faults_seen
+                why = job.refusal(int(rec["cmd_result"]), seen)
+                if why == "":  # no protective stop (or --no-resume): done, or failed as ever
+                    self.check_result(rec, cmd_id)
+                    if arrive:
+                        self.wait_arrived(counts)
+                    return job.resumes
+                if why is not None:  # the resumes are used up
+                    try:
+                        self.check_result(rec, cmd_id)
+                    except RuntimeFailure as exc:
+                        raise RuntimeFailure(f"{exc}: {why}") from None
+                    raise RuntimeFailure(f"{self.sub.name} failed command {cmd_id}: {why}")
+                cmd_id, counts, leg_s = self._resume(job, mode, target, seen, timeout, interrupted, say)
+        except BaseException:
+            self.give_up()  # a command of ours still live: stopped where the arm stands
+            raise
+
+    def write_move(self, mode: str, target, seconds: float, ticks: int, q_from_deg):
+        """Check ``target`` for a move of ``seconds`` [s] from ``q_from_deg`` and write it in
+        ``ticks``; (cmd_id, target [counts], target [joint deg])."""
+        if mode == "joint":
+            counts = self.check_joint_target(target, seconds, q_from_deg)
+            return self.command_joint(counts, ticks), counts, self.model.gearing.counts_to_joints(
+                np.asarray(counts, float))
+        if mode != "cart":
+            raise BadInput(f"a move is joint or cart, not {mode!r}")
+        T, q_goal = self.check_cart_target(target, seconds, q_from_deg)
+        return self.command_cart(T, ticks), self.model.gearing.joints_to_counts(q_goal), q_goal
+
+    def _resume(self, job: "rs.Resumer", mode: str, target, seen: int, timeout, interrupted, say):
+        """After a protective stop: wait until the arm rests with the braking fault clear, then
+        re-issue the move from there (its line said first); (cmd_id, target [counts], its
+        duration [s])."""
+        rec = self._wait_rest(job, interrupted)
+        q_now = self.joints_deg(rec)
+        try:
+            if mode == "joint":
+                q_goal = self.model.gearing.counts_to_joints(np.asarray(target, float))
+            else:
+                _, q_goal = self.check_cart_target(target, math.inf, q_now)  # the pick from here
+            seconds = job.seconds_from(q_now, q_goal, self.model.vmax_deg_s, MAX_MOVE_S)
+            ticks = rs.resumed_ticks(seconds, self.hb_hz)
+            check = self.check_joint_target if mode == "joint" else self.check_cart_target
+            check(target, ticks / self.hb_hz, q_now)  # the same checks as the first move, from here
+            say(job.next_line(q_now, seen))
+            cmd_id, counts, _ = self.write_move(mode, target, ticks / self.hb_hz, ticks, q_now)
+        except BadInput as exc:
+            raise RuntimeFailure(f"{self.sub.name}: cannot resume after a protective stop: {exc}") from None
+        return cmd_id, counts, ticks / self.hb_hz
+
+    def _wait_rest(self, job: "rs.Resumer", interrupted):
+        """The Status record that shows the arm at rest, the braking fault clear, after a
+        protective stop (droid.tasks.resume.RestWatch); RuntimeFailure naming a hard fault, an
+        arm not homed, or no rest within REST_TIMEOUT_S; Interrupted on ``interrupted()``."""
+        watch = rs.RestWatch()
+        stop = interrupted or (lambda: False)
+
+        def rested(r) -> bool:
+            if stop():
+                return True
+            hard = watch.hard(int(r["fault"]))
+            if hard or not int(r["homed"]):
+                at = round(100.0 * job.fraction(self.joints_deg(r)))
+                raise RuntimeFailure(f"{self.sub.name}: protective stop at {at} % of the move, then "
+                                     f"{f'fault {hard}' if hard else 'not homed'}: not resumed")
+            return watch.at_rest(int(r["tick"]), r["encoder_pos"], int(r["fault"]))
+
+        rec = self.wait(rested, rs.REST_TIMEOUT_S, f"{self.sub.name} to come to rest with its braking fault "
+                                                   f"clear after a protective stop (not resumed)")
+        if stop():
+            raise Interrupted(f"interrupted after a protective stop of {self.sub.name}: not resumed")
+        return rec

@@ -2,6 +2,7 @@
 presence record's ``missed_pct``/``lagging`` and ``droid-cell status``'s row."""
 from __future__ import annotations
 
+import os
 import io
 import json
 import re
@@ -145,10 +146,49 @@ def test_droid_cell_up_says_it_before_any_program_starts(tmp_path, cell_name, mo
         raise launcher.RuntimeFailure("stopped by the test before any program started")
 
     monkeypatch.setattr(launcher, "_start", no_start)
-    assert launcher.main(["up", "--cell", str(path)]) == 1
+    assert launcher.main(["up", "--force", "--cell", str(path)]) == 1  # over the RT budget too: --force
     err = capsys.readouterr().err
     assert f"droid-cell: warning: cell {cell_name}: its 70 programs need about" in err
+    assert f"droid-cell: warning: cell {cell_name}: its SCHED_FIFO programs declare" in err
     assert "stopped by the test" in err and len(started) == 1
+
+
+# -- the real-time budget (issue 40 item 1) ---------------------------------------------------
+def test_the_default_cell_fits_the_real_time_budget_of_two_cpus_not_of_one(tmp_path, cell_name, monkeypatch):
+    path = make_cell_file(tmp_path, cell_name)
+    monkeypatch.setattr(launcher.os, "sched_getaffinity", lambda pid: {0, 1})
+    d = _demand(path)
+    assert set(d.fifo) >= {"droid-sim", "droid-servo", "droid-heartbeat", "droid-remote"}
+    assert not set(d.fifo) & {"droid-mvs", "droid-gmf1-encoder", "droid-gmf1-agent", "droid-names"}  # nice, other
+    assert 0 < d.fifo_pct < d.cpu_pct and d.fifo_pct_per_cpu == d.fifo_pct / 2
+    assert d.fifo_pct_per_cpu <= launcher.RT_BUDGET_PCT_PER_CPU and d.over_rt_budget() is None
+    monkeypatch.setattr(launcher.os, "sched_getaffinity", lambda pid: {0})  # taskset -c 0
+    line = _demand(path).over_rt_budget()
+    assert line is not None and "on 1 CPU:" in line and "droid-sim" in line and "\n" not in line
+
+
+def test_a_cell_without_sched_fifo_asks_nothing_of_the_real_time_budget(tmp_path, cell_name, monkeypatch):
+    path = _cell_with_joysticks(tmp_path, cell_name, 16)
+    path.write_text(path.read_text().replace("sched_fifo = true", "sched_fifo = false", 1))
+    monkeypatch.setattr(launcher.os, "sched_getaffinity", lambda pid: {0})
+    d = _demand(path)
+    assert d.fifo == {} and d.over_rt_budget() is None and d.cpu_pct > 100.0
+
+
+def test_droid_cell_up_refuses_a_cell_over_the_real_time_budget_before_anything_is_made(
+        tmp_path, cell_name, monkeypatch, capsys):
+    from droid.brain.shmdb import cell_objects
+
+    path = _cell_with_joysticks(tmp_path, cell_name, 16)  # 16 more agents and remotes at FIFO
+    monkeypatch.setattr(launcher.os, "sched_getaffinity", lambda pid: {0, 1})
+    started = []
+    monkeypatch.setattr(launcher, "_start", lambda cell, group, log_dir: started.append(group))
+    assert launcher.main(["up", "--cell", str(path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    assert err.startswith(f"droid-cell: cell {cell_name}: its SCHED_FIFO programs declare ")
+    assert "over the real-time budget of 50 % a CPU (droid-" in err and "--force" in err
+    assert started == [] and cell_objects(cell_name) == []  # no program, no database
 
 
 def test_every_builtin_program_and_twin_declares_its_cost():
@@ -163,3 +203,10 @@ def test_every_builtin_program_and_twin_declares_its_cost():
                 assert p.cpu_pct > 0 and p.rss_mb > 0, p.name
         for t in pkg.twins:
             assert t.cpu_pct > 0, t.type
+
+
+def test_status_measures_a_programs_share_and_scheduler_from_proc():
+    sched, cpu = launcher.measured_cpu(os.getpid())
+    assert sched == ("nice" if os.getpriority(os.PRIO_PROCESS, 0) < 0 else "other") and 0.0 <= cpu <= 200.0
+    assert launcher.measured_cpu(2 ** 22 + 12345) == (None, None)  # no such process
+    assert {"sched", "cpu_pct", "lateness_max_ms"} <= set(launcher.STATUS_KEYS)

@@ -24,6 +24,7 @@ class FakeArm:
         return self.records.pop(0) if len(self.records) > 1 else self.records[0]
 
     wait = BrainArm.wait
+    wait_finished = BrainArm.wait_finished
     check_result = BrainArm.check_result
 
 
