@@ -3,13 +3,21 @@
 # run one dynamic seam-tracking trial end to end (thesis chapters 5-6), print its
 # summary and the path of its figure, bring the cell down again.
 # Creates .venv on first use.  Output: out/demo/ (CSV log and PNG figure).
+# scripts/demo.sh --force: start the cell even over this host's real-time budget (droid-cell up
+# --force; e.g. pinned to one CPU with taskset -c 0).
 set -euo pipefail
+up_flags=()
+case "${1:-}" in
+    "") ;;
+    --force) up_flags=(--force) ;;
+    *) echo "usage: scripts/demo.sh [--force]" >&2; exit 2 ;;
+esac
 cd "$(dirname "$0")/.."
 scripts/venv.sh
 export PATH="$PWD/.venv/bin:$PATH"
 out=out/demo
 mkdir -p "$out"
-droid-cell up
+droid-cell up "${up_flags[@]}"
 trap 'droid-cell down' EXIT
 droid-cell status
 droid-home arm1     # the Reis: its 500 Hz servo searches the limit switches (thesis §4.1.5.3)
