@@ -11,7 +11,8 @@ samples every program ``droid-cell status --json`` lists over four windows:
 
 Per program: its share of one core over the window (utime + stime from ``/proc/PID/stat``) [%],
 the scheduler it runs on (fifo / nice / other) and, at the end, its loop's worst wake-up lateness
-so far (``lateness_max_ms`` of droid-cell status) [ms].  Per window: the sum over the programs,
+so far (``lateness_max_ms`` of droid-cell status) [ms], with the machine's floor (cyclictest,
+bench/floor.py) measured before and after the cell in the same run.  Per window: the sum over the programs,
 the SCHED_FIFO part of it and that part per CPU of this process's affinity -- the figure the
 kernel's RT throttling and droid-cell up's real-time budget (RT_BUDGET_PCT_PER_CPU) are about --
 beside the programs' declared shares (droid.brain.launcher.demand).  The load average is printed
@@ -34,6 +35,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from bench.bench_footprint import cpu_snapshot, cpu_ticks, make_cell, programs, TICKS_PER_S  # noqa: E402
+from bench.floor import cyclictest_floor  # noqa: E402
 from bench.live_cell import droid_program as droid  # noqa: E402
 from droid.brain.cellfile import builtin_cell_path, load_cell  # noqa: E402
 from droid.brain.launcher import RT_BUDGET_PCT_PER_CPU, cell_programs, demand, measured_cpu  # noqa: E402
@@ -104,6 +106,7 @@ def main() -> int:
     cpus = len(os.sched_getaffinity(0))
     print(f"bench_rt_budget: {time.strftime('%Y-%m-%d %H:%M:%S %Z')}, {os.cpu_count()} CPUs, "
           f"affinity {sorted(os.sched_getaffinity(0))}")
+    print(f"before: {cyclictest_floor(3.0, 1000)}", flush=True)
     sums = []
     with tempfile.TemporaryDirectory(prefix="droid-rt.") as tmp:
         cell = make_cell(Path(tmp), args.cell)
@@ -146,6 +149,7 @@ def main() -> int:
                              "pressing (20 N, 10 mm/s)"))
         finally:
             droid(cell, "droid-cell", "down")
+    print(f"after: {cyclictest_floor(3.0, 1000)}")
     if args.json:
         print(json.dumps(sums))
     return 0
