@@ -20,16 +20,27 @@ waits for ``busy == 0``, writes the command, and waits until the robot reports
 it finished and is within 0.05 joint degrees of the target (``--no-wait``: until
 the agent has it).  Exit 1 if the arm is not homed, stale, does not finish in
 time, or halted short of its target; a move given up on (timeout, stale,
-Ctrl-C) is stopped (a stop command is written over it) so it is never carried
-out later.  SECONDS is at most 3600 (one hour).
+Ctrl-C, SIGTERM: exit 130) is stopped (a stop command is written over it) so it
+is never carried out later.  SECONDS is at most 3600 (one hour).
+
+A move a protective stop cancelled -- the servo ran out of commands and braked
+(FAULT_BRAKING, e.g. after a host stall) and nothing else faulted -- is re-issued
+toward the same target from where the arm came to rest, at most 3 times
+(droid.tasks.resume, BrainArm.move), each with a line on stderr such as
+``arm1: protective stop at 41 % of the move (braking); resuming from the arm's
+position (1 of 3)`` (the share of the move's joint-space distance covered), and
+``arm1: arrived after 1 resume`` at the end; ``--no-resume`` fails it instead
+(exit 1, as any failed move).  ``--timeout`` bounds each wait of each move.
 """
 from __future__ import annotations
 
+import signal
 import sys
 
 from droid.brain.program import open_cell, parser
 from droid.cli import MAX_MOVE_S, RuntimeFailure, finite_float, run, timeout_s
 from droid.tasks.arm import MAX_CART_ANGLE_DEG, BrainArm
+from droid.tasks.resume import MAX_RESUMES, arrived_line
 
 PROG = "droid-move"
 
@@ -45,7 +56,11 @@ def main(argv=None) -> int:
                          f"{MAX_CART_ANGLE_DEG:g}), then SECONDS, the move time; range (0, {MAX_MOVE_S:g}] s")
     ap.add_argument("--no-wait", action="store_true", help="return once the command is delivered")
     ap.add_argument("--timeout", type=timeout_s, default=None, metavar="S",
-                    help="give up waiting after S seconds (default: 2 x move time + 10 s)")
+                    help="give up waiting after S seconds (default: 2 x move time + 10 s; each resumed move "
+                         "its own)")
+    ap.add_argument("--no-resume", action="store_true",
+                    help=f"fail a move a protective stop (braking) cancelled instead of resuming it from "
+                         f"where the arm stopped (at most {MAX_RESUMES} times)")
     args = ap.parse_args(argv)
     if len(args.values) != 7:
         ap.error(f"{args.mode} needs 6 target values and SECONDS, got {len(args.values)} numbers")
@@ -53,9 +68,9 @@ def main(argv=None) -> int:
     if not 0 < seconds <= MAX_MOVE_S:
         ap.error(f"SECONDS must be > 0 and <= {MAX_MOVE_S:g} s (one hour), got {seconds:g}")
     cell = open_cell(args)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)  # as Ctrl-C: the move is stopped (exit 130)
     with BrainArm(cell, args.robot) as arm:
-        ticks = arm.ticks_for(seconds)
-        timeout = args.timeout or 2 * seconds + 10.0
+        ticks = arm.ticks_for(seconds)  # refused before the cell is touched
         check = arm.check_joint_target if args.mode == "joint" else arm.check_cart_target
         check(target, seconds, None)  # limits and reachability: needs no cell
         arm.connect()
@@ -65,19 +80,16 @@ def main(argv=None) -> int:
             raise RuntimeFailure(f"{args.robot} is not homed: run 'droid-home {args.robot}' first "
                                  f"(droid-jog moves it before homing)")
         check(target, seconds, arm.joints_deg(rec))  # speed from here, before waiting
-        rec = arm.wait_idle(timeout)
-        q_now = arm.joints_deg(rec)
-        if args.mode == "joint":
-            counts = arm.check_joint_target(target, seconds, q_now)
-            cmd_id = arm.command_joint(counts, ticks)
-        else:
-            T, q_goal = arm.check_cart_target(target, seconds, q_now)
-            counts = arm.model.gearing.joints_to_counts(q_goal)
-            cmd_id = arm.command_cart(T, ticks)
-        arm.wait_delivered(cmd_id, timeout)
-        if not args.no_wait:
-            arm.wait_done(cmd_id, timeout)
-            arm.wait_arrived(counts)  # "done" short of the target is a failure (exit 1)
+        if args.no_wait:
+            timeout = args.timeout or 2 * seconds + 10.0
+            q_now = arm.joints_deg(arm.wait_idle(timeout))
+            cmd_id, _, _ = arm.write_move(args.mode, target, seconds, ticks, q_now)
+            arm.wait_delivered(cmd_id, timeout)
+            return 0
+        resumes = arm.move(args.mode, target, seconds, resume=not args.no_resume,
+                           timeout=lambda s: args.timeout or 2 * s + 10.0)
+        if resumes:  # "done" short of the target is a failure (exit 1): move() checks arrival
+            print(arrived_line(args.robot, resumes), file=sys.stderr)
     return 0
 
 

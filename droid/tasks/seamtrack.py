@@ -10,6 +10,11 @@ around it, on the Brain's databases only (a task never touches a device, §3.4):
    collection, §6.1 -- the tool-tip sensor (tool);
 2. with ``--start POSITION``: move the holder and then the tool robot to the
    start poses of that layout position (§6.1.2; droid/cells/seamtrack_layout.toml);
+   a start move a protective stop cancelled (braking alone) is resumed from where the
+   arm stopped, at most 3 times, a line on stderr each (BrainArm.move,
+   droid.tasks.resume; ``--no-resume``: exit 1 instead), and the summary line ends with
+   ``; start moves: 1 resume after a protective stop`` when there was any; SIGINT/SIGTERM
+   during a start move stops it where the arm stands (exit 130);
 3. every tick hand both robots' Status poses to the tracking cycle
    (droid.tasks.seam.cycle.TrackingCycle, the same code the lockstep trial
    runs); every ``heartbeat_hz / 30`` ticks (30 Hz) read the lead sensor's
@@ -25,7 +30,8 @@ around it, on the Brain's databases only (a task never touches a device, §3.4):
    (servo, watchdog, device: ``fault``, naming the arm and its faults, e.g.
    ``stopped: fault at 312.0 mm (arm1 faults: servo, braking)``; the rule is
    droid.tasks.seam.cycle's, shared with the lockstep trial), on a stale
-   subunit, or on SIGINT/SIGTERM; then print which, and a summary line (the
+   subunit, or on SIGINT/SIGTERM -- the tracking itself is never resumed: braking alone
+   does not stop it, and the faults that do are named; then print which, and a summary line (the
    ``--log`` and ``--figure`` are written whatever the stop).  An arm that
    shows such a fault before tracking starts is refused before anything
    moves (BrainArm.check_fresh: ``arm1 cannot move: fault watchdog ...``).
@@ -50,6 +56,7 @@ from droid.brain.program import Stop, open_cell, parser  # noqa: F401 (Stop: tes
 from droid.cli import (EXIT_OK, EXIT_RUNTIME, BadInput, RuntimeFailure, bounded_float,
                        bounded_int, run)
 from droid.tasks.arm import BrainArm
+from droid.tasks.resume import MAX_RESUMES, summary_note
 from droid.tasks.seam import report
 from droid.tasks.seam.core import (DEAD_ZONE_CYCLES, LOST_CYCLES, MAX_CYCLES, MAX_GAIN, MAX_RUN_LENGTH_MM,
                                    MAX_SPEED_MM_S, MODE_THESIS, MODES, STOP_END, SeamParams)
@@ -114,6 +121,9 @@ def build_parser():
     ap.add_argument("--log", metavar="FILE", default=None, help="write the 10 Hz CSV log here")
     ap.add_argument("--figure", metavar="FILE", default=None,
                     help="draw the run's figure (PNG, thesis Figs 6.5-6.35) here at the end")
+    ap.add_argument("--no-resume", action="store_true",
+                    help="with --start: fail a start move a protective stop (braking) cancelled instead of "
+                         f"resuming it from where the arm stopped (at most {MAX_RESUMES} times)")
     ap.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     ap.add_argument("--record", metavar="FILE", default=None,
                     help="record the cell by tick into this MCAP file (droid-record's layout, docs/observe.md)")
@@ -141,8 +151,11 @@ def pose_of(rec) -> np.ndarray:
     return record_pose(rec)
 
 
-def move_to_start(arm: BrainArm, T: np.ndarray, what: str, quiet: bool) -> None:
-    """Move ``arm`` to the wrist-centre pose ``T`` (global, mm) as droid-move would, and wait."""
+def move_to_start(arm: BrainArm, T: np.ndarray, what: str, quiet: bool, resume: bool = True) -> int:
+    """Move ``arm`` to the wrist-centre pose ``T`` (global, mm) as droid-move would, and wait;
+    the number of resumes after a protective stop it took (BrainArm.move; ``resume`` False:
+    ``--no-resume``).  Interrupted (SIGINT/SIGTERM, Stop): the move is stopped where the arm
+    stands and droid.tasks.arm.Interrupted raised."""
     rec = arm.read()
     arm.check_fresh(rec)
     if not int(rec["homed"]):
@@ -150,23 +163,23 @@ def move_to_start(arm: BrainArm, T: np.ndarray, what: str, quiet: bool) -> None:
     q_now = arm.joints_deg(rec)
     from droid.kinematics.transforms import T_to_pose
 
-    _, q = arm.check_cart_target(T_to_pose(T), 1e9, q_now)
+    pose = T_to_pose(T)
+    _, q = arm.check_cart_target(pose, 1e9, q_now)
     seconds = max(START_MOVE_MIN_S, START_MOVE_MARGIN * float(np.max(np.abs(q - q_now) / arm.model.vmax_deg_s)))
     if not quiet:
         print(f"{PROG}: moving {arm.sub.name} to the {what} ({seconds:.1f} s)", file=sys.stderr)
-    arm.wait_idle(seconds + 30.0)
-    cmd_id = arm.command_cart(T, arm.ticks_for(seconds))
-    arm.wait_delivered(cmd_id, 10.0)
-    arm.wait_done(cmd_id, 3 * seconds + 30.0)
+    resumes = arm.move("cart", pose, seconds, resume=resume, arrive=False, timeout=lambda s: 3 * s + 30.0,
+                       interrupted=lambda: Stop.requested)
     # "done" is the planner's; let the servo settle before tracking starts from here
     prev = None
     deadline = time.monotonic() + SETTLE_TIMEOUT_S
     while time.monotonic() < deadline:
         pos = np.asarray(arm.read()["encoder_pos"], np.int64)
         if prev is not None and np.max(np.abs(pos - prev)) <= SETTLED_COUNTS:
-            return
+            break
         prev = pos
         time.sleep(SETTLE_POLL_S)
+    return resumes
 
 
 class Tracker:
@@ -210,6 +223,7 @@ class Tracker:
         self.t0 = None
         self.dbs = []
         self.recorder = None  # droid.observe.record.LiveRecorder with --record
+        self.resumes = 0  # the start moves' resumes after a protective stop (BrainArm.move)
 
     # -- set-up ------------------------------------------------------------
     def connect(self) -> None:
@@ -239,8 +253,10 @@ class Tracker:
 
     def go_to_start(self, position: str) -> None:
         T_reis, T_hold = self.layout.start_poses(position, self.args.wrist)
-        move_to_start(self.hold, T_hold, f"holding pose of position ({position})", self.args.quiet)
-        move_to_start(self.reis, T_reis, f"start of position ({position})", self.args.quiet)
+        resume = not self.args.no_resume
+        self.resumes += move_to_start(self.hold, T_hold, f"holding pose of position ({position})",
+                                      self.args.quiet, resume)
+        self.resumes += move_to_start(self.reis, T_reis, f"start of position ({position})", self.args.quiet, resume)
 
     # -- one tick: the station (droid.tasks.seam.station) between records and commands ----
     def arm_status(self, arm: BrainArm, rec) -> ArmStatus:
@@ -344,7 +360,7 @@ def main(argv=None) -> int:
     if args.figure:
         title = f"droid-seamtrack {args.speed:g} mm/s" + (f", position ({args.start})" if args.start else "")
         report.figure(args.figure, tr.rows, title, panels="errors")
-    say_outcome(PROG, why, report.summary_line(summary), args.log, args.figure)
+    say_outcome(PROG, why, report.summary_line(summary) + summary_note(tr.resumes), args.log, args.figure)
     return code
 
 

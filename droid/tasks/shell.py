@@ -21,7 +21,7 @@ from droid.brain.heartbeat import TickSubscriber
 from droid.brain.program import Stop
 from droid.brain.rt import try_sched_fifo
 from droid.cli import EXIT_INTERRUPTED, EXIT_RUNTIME, BadInput
-from droid.tasks.arm import STALE_GRACE_S
+from droid.tasks.arm import STALE_GRACE_S, Interrupted
 
 HEARTBEAT_LOST_S = STALE_GRACE_S  # no tick for this long [s]: the Brain's heartbeat is gone
 #: The longest wait for a tick [s]: Stop and a lost heartbeat are seen this soon.
@@ -38,11 +38,15 @@ def check_output_dirs(*paths) -> None:
 def ready_then_run(job, start: str | None, before: str, run) -> tuple[int, str]:
     """A run's start: ``job.check_ready()`` (refuses a faulted arm before anything moves), Stop
     installed, ``job.go_to_start(start)`` when a start is given, then ``run()``'s (exit code,
-    reason) -- or (130, "interrupted before ``before``") when a signal came during the move."""
+    reason) -- or (130, "interrupted before ``before``") when a signal came during the move
+    (BrainArm.move stopped it where the arm stood: droid.tasks.arm.Interrupted)."""
     job.check_ready()
     Stop.install()
     if start:
-        job.go_to_start(start)
+        try:
+            job.go_to_start(start)
+        except Interrupted:
+            pass
     if Stop.requested:
         return EXIT_INTERRUPTED, f"interrupted before {before}"
     return run()

@@ -362,3 +362,62 @@ def test_a_timeout_during_a_resumed_move_stops_it_too(clock):
         arm.move("joint", GOAL, 2.0, say=lambda _: None, timeout=lambda s: 0.3 if s < 2.0 else 10.0)
     fake.step()
     assert len(fake.commands) == 3 and fake.commands[-1][2] == L.STOP_TICKS and arm.stopped_cmd == fake.commands[-1][0]
+
+
+# -- the programs ----------------------------------------------------------------------------
+def test_the_start_move_of_seamtrack_and_contact_resumes_and_counts(clock, monkeypatch, capsys):
+    from droid.tasks import seamtrack
+
+    monkeypatch.setattr(seamtrack, "time", SimpleNamespace(monotonic=clock.monotonic, sleep=clock.sleep))
+    monkeypatch.setattr(seamtrack.Stop, "requested", False)
+    arm, fake = brain_arm(clock, stops=[(40, 0, 5)], start=np.array([10000, -5000, 8000, 2000, 3000, 1000]))
+    q_goal = arm.joints_deg() + np.array([20.0, 10.0, -10.0, 5.0, -5.0, 10.0])
+    assert seamtrack.move_to_start(arm, arm.model.fk(q_goal), "start of position (i)", quiet=True) == 1
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and LINE.match(err[0]), err
+    assert np.max(np.abs(arm.joints_deg() - q_goal)) <= arm_mod.ARRIVAL_TOL_DEG
+    arm2, fake2 = brain_arm(clock, stops=[(40, 0, 5)])
+    with pytest.raises(RuntimeFailure, match=r"^arm1 failed command 1 \(faults"):
+        seamtrack.move_to_start(arm2, arm2.model.fk(q_goal), "start", quiet=True, resume=False)
+
+
+def test_a_signal_during_a_start_move_stops_it_and_the_run_says_interrupted(clock, monkeypatch):
+    from droid.tasks import shell
+
+    arm, fake = brain_arm(clock)
+    monkeypatch.setattr(shell.Stop, "install", classmethod(lambda cls: None))
+    monkeypatch.setattr(shell.Stop, "requested", False)
+    step = fake.step
+
+    def signal_mid_move():  # SIGINT arrives half a second into the move (Stop's handler)
+        step()
+        if fake.tick > 30:
+            shell.Stop.requested = True
+    fake.step = signal_mid_move
+    job = SimpleNamespace(check_ready=lambda: None, go_to_start=lambda position: arm.move(
+        "joint", GOAL, 2.0, interrupted=lambda: shell.Stop.requested))
+    assert shell.ready_then_run(job, "i", "tracking", lambda: (0, "ran")) == (130, "interrupted before tracking")
+    fake.step()
+    assert fake.commands[-1][2] == L.STOP_TICKS and arm.stopped_cmd == fake.commands[-1][0]  # stopped there
+    assert np.any(np.abs(fake.pos - GOAL) > 10000)
+
+
+def test_no_resume_is_an_option_of_the_four_programs(capsys):
+    from droid.tasks import move, seamtrack
+    from droid.tasks.contact import prog
+
+    assert seamtrack.build_parser().parse_args(["16", "--no-resume"]).no_resume
+    assert not seamtrack.build_parser().parse_args(["16"]).no_resume
+    assert prog.build_parser().parse_args(["arm1", "--no-resume"]).no_resume
+    with pytest.raises(SystemExit):
+        move.main(["--help"])
+    assert "--no-resume" in capsys.readouterr().out
+
+
+def test_the_contact_stop_on_an_arm_fault_names_the_fault():
+    from droid.tasks.contact.core import STOP_ARM_FAULT, ArmStatus, ContactStation, FtStatus, Gains
+    from droid.kinematics.transforms import trans
+
+    st = ContactStation(Gains(), HZ, trans(0.0, 0.0, 250.0), force_n=20.0, speed_mm_s=10.0, length_mm=500.0)
+    out = st.on_tick(0, ArmStatus(0, np.eye(4), L.FAULT_SERVO, False), FtStatus(np.zeros(3), True, False))
+    assert out.stop == STOP_ARM_FAULT and st.detail == "fault bits 0x4: servo"

@@ -42,6 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
+from droid.brain.layouts import fault_names
 from droid.cli import BadInput, read_toml
 from droid.kinematics.transforms import inv_homo
 from droid.numbers import NumberError, check_numbers
@@ -198,7 +199,7 @@ class ContactStation:
         self.next_tick = tick + self.gains.cycle_ticks
         g = self.gains
         if arm.fault:
-            return self._stop(STOP_ARM_FAULT, f"fault bits {arm.fault:#x}")
+            return self._stop(STOP_ARM_FAULT, f"fault bits {arm.fault:#x}: {', '.join(fault_names(arm.fault))}")
         if arm.stale:
             if self.stale_since is None:
                 self.stale_since = tick

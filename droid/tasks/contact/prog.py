@@ -11,7 +11,11 @@ only (a task never touches a device, §3.4), what droid-seamtrack does around it
 2. with ``--start POSITION``: move the holder to its holding pose of that layout position
    (droid/cells/seamtrack_layout.toml, as droid-seamtrack) and then ARM so that its
    touching point stands ``--clearance`` mm above the step workpiece's lower plate,
-   ``--lateral`` mm beside the seam, the tool axis along the surface normal;
+   ``--lateral`` mm beside the seam, the tool axis along the surface normal; a start
+   move a protective stop cancelled (braking alone) is resumed from where the arm
+   stopped, at most 3 times (as droid-seamtrack's: BrainArm.move; ``--no-resume``: exit 1
+   instead), and the summary line ends with ``; start moves: N resume(s) after a
+   protective stop`` when there was any;
 3. tare: bias the sensor through its Brain Command (the device subtracts its present
    reading -- the tool's weight in this orientation, its offset -- from what follows), then
    average the F/T Status's ``force_tool_N`` over ``TARE_S`` at rest, off the surface, and
@@ -29,7 +33,8 @@ only (a task never touches a device, §3.4), what droid-seamtrack does around it
    one-cycle step and stands; at any other stop a stop command (STOP_TICKS) is written over
    the step in progress, so the arm stands where it is -- on over-force (checked every tick), contact loss, no contact within the
    approach, a stale or invalid F/T Status, an arm fault it cannot move with, a stale arm
-   Status, a lost heartbeat, or SIGINT/SIGTERM.  Then print which, and the summary line
+   Status, a lost heartbeat, or SIGINT/SIGTERM -- the approach and the pressing are never
+   resumed; an arm fault names its bits (``arm fault (fault bits 0x4: servo)``).  Then print which, and the summary line
    ``normal force RMS error X N, max Y N ...`` (droid.tasks.contact.report); the ``--log``
    CSV and ``--figure`` PNG are written whatever the stop.
 
@@ -56,6 +61,7 @@ from droid.cli import EXIT_OK, EXIT_RUNTIME, BadInput, RuntimeFailure, bounded_f
 from droid.kinematics.transforms import inv_homo, trans
 from droid.tasks.arm import BrainArm
 from droid.tasks.ft_sensor import BrainFt
+from droid.tasks.resume import MAX_RESUMES, summary_note
 from droid.tasks.contact import report
 from droid.tasks.contact.core import STOP_END, ArmStatus, ContactStation, FtStatus, load_gains
 from droid.brain.cell_layout import POSITION_IDS, T_W_SEAM, layout_for_cell
@@ -106,6 +112,9 @@ def build_parser():
                     help="with --start: the touching point's height above the plate [mm] (default 5)")
     ap.add_argument("--log", metavar="FILE", default=None, help="write the per-cycle CSV log here")
     ap.add_argument("--figure", metavar="FILE", default=None, help="draw the run's figure (PNG) here")
+    ap.add_argument("--no-resume", action="store_true",
+                    help="with --start: fail a start move a protective stop (braking) cancelled instead of "
+                         f"resuming it from where the arm stopped (at most {MAX_RESUMES} times)")
     ap.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     return ap
 
@@ -144,6 +153,7 @@ class ContactRun:
         self.ft_db = None
         self.ft_cmd = BrainFt(cell, args.ft)
         self.guarded = self.ft_sub.options.get("guard_arm") == args.arm
+        self.resumes = 0  # the start moves' resumes after a protective stop (BrainArm.move)
 
     # -- set-up ----------------------------------------------------------------------------
     def connect(self) -> None:
@@ -189,8 +199,10 @@ class ContactRun:
 
     def go_to_start(self, position: str) -> None:
         T_arm, T_hold = self.start_pose(position)
-        move_to_start(self.holder, T_hold, f"holding pose of position ({position})", self.args.quiet)
-        move_to_start(self.arm, T_arm, f"start over position ({position})", self.args.quiet)
+        resume = not self.args.no_resume
+        self.resumes += move_to_start(self.holder, T_hold, f"holding pose of position ({position})",
+                                      self.args.quiet, resume)
+        self.resumes += move_to_start(self.arm, T_arm, f"start over position ({position})", self.args.quiet, resume)
 
     def bias_sensor(self) -> None:
         """Bias the sensor through its Command, and wait until its agent took it (the module
@@ -303,8 +315,8 @@ def main(argv=None) -> int:
     if args.figure:
         report.figure(args.figure, job.rows, f"{PROG} {args.arm}: {args.force:g} N at {args.speed:g} mm/s"
                       + (f", position ({args.start})" if args.start else ""), args.force)
-    say_outcome(PROG, why, s.line(args.force, args.speed, args.length, st.done or why.split(" (")[0], st.detail),
-                args.log, args.figure)
+    say_outcome(PROG, why, s.line(args.force, args.speed, args.length, st.done or why.split(" (")[0], st.detail)
+                + summary_note(job.resumes), args.log, args.figure)
     return code
 
 
