@@ -31,6 +31,11 @@ try:
 except OSError as e:
     print("refused (%s)" % e.strerror)' 2>/dev/null || echo unknown)
 echo "scripts/test.sh: $(nproc) CPUs, load average $(cut -d' ' -f1-3 /proc/loadavg), SCHED_FIFO $fifo"
+# a live test lost to a stall reports each CPU's real-time time (tests/conftest.py stall_summary):
+# the scheduler's debug file is in debugfs (as root; best effort)
+if [ "$(id -u)" -eq 0 ] && [ ! -e /sys/kernel/debug/sched/debug ]; then
+    mount -t debugfs none /sys/kernel/debug 2>/dev/null || true
+fi
 echo "== tests that start cells (-m integration), one after another =="
 set +e
 .venv/bin/python -m pytest -q --basetemp "$work/live" -m integration "$@"

@@ -8,8 +8,11 @@ name from :func:`cell_name`, unique per test.
 from __future__ import annotations
 
 import os
+import re
+import subprocess
 import time
 import uuid
+from pathlib import Path
 
 import pytest
 from hypothesis import settings
@@ -250,8 +253,56 @@ def pytest_runtest_makereport(item, call):
         if lines:
             parts.append(f"--- {log} (last {min(len(lines), LOG_TAIL_LINES)} "
                          f"of {len(lines)} lines)\n" + "\n".join(lines[-LOG_TAIL_LINES:]))
+    stalls = stall_summary(item)
+    if stalls:
+        report.sections.append(("stalls", stalls))
     if parts:
         report.sections.append(("cell logs", "\n".join(parts)))
+
+
+#: What a program's log says when the host stalled it (droid-sim's slow steps and slipped clock,
+#: a loop's rate watch, the servo's brake, the watchdog's latch): issue 40 item 5
+STALL_LINE = re.compile(r"took \d+ ms for one|stalled \d+ ms|slipped \d+ ms|LAGGING|missed [\d.]+ % of its"
+                        r"|ran out of commands|braking|watchdog timers expired|catching up")
+
+
+def kernel_rt_throttling() -> str:
+    """Whether the kernel's RT throttling struck: its log line (only the first of a boot is
+    printed) and, where debugfs is mounted, each CPU's real-time time used this period."""
+    out = []
+    try:
+        dmesg = subprocess.run(["dmesg"], capture_output=True, text=True, timeout=5).stdout
+        hits = [ln for ln in dmesg.splitlines() if "RT throttling" in ln]
+        out.append(f"kernel log: {hits[-1].strip()}" if hits else "kernel log: no RT throttling this boot")
+    except (OSError, subprocess.SubprocessError):
+        out.append("kernel log: unreadable")
+    try:
+        text = Path("/sys/kernel/debug/sched/debug").read_text()
+        used = re.findall(r"\.rt_time\s*:\s*([\d.]+)", text)
+        throttled = re.findall(r"\.rt_throttled\s*:\s*(\d+)", text)
+        out.append(f"rt_time this period per CPU [ms]: {', '.join(used)}; throttled now: {', '.join(throttled)}")
+    except OSError:
+        pass
+    return "\n".join(out)
+
+
+def stall_summary(item) -> str:
+    """The stall lines of every program log of the failed test's cell, each with its program,
+    and the kernel's RT throttling: a live test lost to a host stall says so in its report."""
+    found = []
+    for log in sorted(p for d in log_dirs(item) for p in d.glob("**/logs/*.log")):
+        try:
+            lines = log.read_text(errors="replace").splitlines()
+        except OSError:
+            continue
+        found += [f"{log.stem}: {ln.strip()}" for ln in lines if STALL_LINE.search(ln)][-STALL_LINES_EACH:]
+    if not found and not log_dirs(item):
+        return ""
+    head = f"{len(found)} stall line(s) in the cell's logs" if found else "no stall line in the cell's logs"
+    return "\n".join([head, *found, kernel_rt_throttling()])
+
+
+STALL_LINES_EACH = 10  # the last stall lines kept per program log
 
 
 HOMED_ARMS = ("arm1", "gmf1")  # the built-in sim cell's arms, homed at once

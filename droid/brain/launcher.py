@@ -625,19 +625,7 @@ def main(argv=None) -> int:
         print(f"cell {cell.name}: databases created")
         return 0
     if args.cmd == "status":
-        rows = status(cell)
-        for r in rows:
-            if args.json:
-                print(json.dumps(r))
-            else:
-                live = "live" if r["live"] else ("STALLED" if r["alive"] else "DEAD")
-                if r["live"] and r["lagging"]:
-                    live = "LAGGING"  # alive and beating, but missing its periods
-                tick = "-" if r["last_tick"] is None else r["last_tick"]
-                lag = f"  missed {r['missed_pct']:.1f} % of its periods" if r["lagging"] else ""
-                cpu = "" if r["cpu_pct"] is None else f"  cpu {r['cpu_pct']:4.1f} % {r['sched']}"
-                print(f"{r['name']:<28} pid {r['pid']:>7}  {r['state']:<9} {live:<8} tick {str(tick):<7}{cpu}{lag}")
-        return 0 if all(r["live"] for r in rows) else 1
+        return print_status(status(cell), args.json)
     n, hard, removed = down(cell, args.timeout)
     msg = f"cell {cell.name} down: {n} programs stopped"
     if hard:
@@ -647,6 +635,22 @@ def main(argv=None) -> int:
     if left:
         raise RuntimeFailure(f"could not remove {', '.join(left)}")
     return 0
+
+
+def print_status(rows: list[dict], as_json: bool) -> int:
+    """``droid-cell status [--json]``'s output; 0 when every program is live, else 1."""
+    for r in rows:
+        if as_json:
+            print(json.dumps(r))
+            continue
+        live = "live" if r["live"] else ("STALLED" if r["alive"] else "DEAD")
+        if r["live"] and r["lagging"]:
+            live = "LAGGING"  # alive and beating, but missing its periods
+        tick = "-" if r["last_tick"] is None else r["last_tick"]
+        lag = f"  missed {r['missed_pct']:.1f} % of its periods" if r["lagging"] else ""
+        cpu = "" if r["cpu_pct"] is None else f"  cpu {r['cpu_pct']:4.1f} % {r['sched']}"
+        print(f"{r['name']:<28} pid {r['pid']:>7}  {r['state']:<9} {live:<8} tick {str(tick):<7}{cpu}{lag}")
+    return 0 if all(r["live"] for r in rows) else 1
 
 
 def argparse_default():
