@@ -79,18 +79,23 @@ def cpu_snapshot(pids: dict[str, int]) -> dict[str, int]:
     return got
 
 
-def sample(pids: dict[str, int], seconds: float) -> dict[str, dict[str, float]]:
-    """Memory at the end and CPU [% of one core] over ``seconds`` of every program still alive."""
+def cpu_window(pids: dict[str, int], seconds: float) -> dict[str, float]:
+    """name -> CPU [% of one core] over the next ``seconds`` of every program alive throughout."""
     t0 = time.monotonic()
     c0 = cpu_snapshot(pids)
     time.sleep(seconds)
     dt = time.monotonic() - t0
+    c1 = cpu_snapshot(pids)
+    return {name: (c1[name] - c0[name]) / TICKS_PER_S / dt * 100.0 for name in c0 if name in c1}
+
+
+def sample(pids: dict[str, int], seconds: float) -> dict[str, dict[str, float]]:
+    """Memory at the end and CPU [% of one core] over ``seconds`` of every program still alive."""
     rows = {}
-    for name, pid in pids.items():
+    for name, cpu in cpu_window(pids, seconds).items():
         try:
-            cpu = (cpu_ticks(pid) - c0[name]) / TICKS_PER_S / dt * 100.0
-            rows[name] = {"cpu_pct": cpu, **memory_mb(pid)}
-        except (OSError, KeyError):
+            rows[name] = {"cpu_pct": cpu, **memory_mb(pids[name])}
+        except OSError:
             continue
     return rows
 

@@ -34,7 +34,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench.bench_footprint import cpu_snapshot, cpu_ticks, make_cell, programs, TICKS_PER_S  # noqa: E402
+from bench.bench_footprint import cpu_window, make_cell, programs  # noqa: E402
 from bench.floor import cyclictest_floor  # noqa: E402
 from bench.live_cell import droid_program as droid  # noqa: E402
 from droid.brain.cellfile import builtin_cell_path, load_cell  # noqa: E402
@@ -44,18 +44,8 @@ from droid.cli import ArgumentParser, bounded_float  # noqa: E402
 
 def window(pids: dict[str, int], seconds: float) -> dict[str, dict]:
     """CPU [% of one core] over ``seconds`` and the scheduler of every program still alive."""
-    t0 = time.monotonic()
-    c0 = cpu_snapshot(pids)
-    time.sleep(seconds)
-    dt = time.monotonic() - t0
-    rows = {}
-    for name, pid in pids.items():
-        try:
-            rows[name] = {"cpu_pct": (cpu_ticks(pid) - c0[name]) / TICKS_PER_S / dt * 100.0,
-                          "sched": measured_cpu(pid)[0] or "?"}
-        except (OSError, KeyError):
-            continue
-    return rows
+    return {name: {"cpu_pct": cpu, "sched": measured_cpu(pids[name])[0] or "?"}
+            for name, cpu in cpu_window(pids, seconds).items()}
 
 
 def lateness(cell: Path) -> dict[str, float | None]:

@@ -235,6 +235,15 @@ def host_pair():
 LOG_TAIL_LINES = 25
 
 
+def cell_log_lines(item):
+    """(path, lines) of every program log of a test's cell (:func:`log_dirs`), in name order."""
+    for log in sorted(p for d in log_dirs(item) for p in d.glob("**/logs/*.log")):
+        try:
+            yield log, log.read_text(errors="replace").splitlines()
+        except OSError:
+            continue
+
+
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_makereport(item, call):
     """A live-cell test that fails shows the tail of every program's log of its cell
@@ -245,11 +254,7 @@ def pytest_runtest_makereport(item, call):
     if report.passed or report.skipped:
         return
     parts = []
-    for log in sorted(p for d in log_dirs(item) for p in d.glob("**/logs/*.log")):
-        try:
-            lines = log.read_text(errors="replace").splitlines()
-        except OSError:
-            continue
+    for log, lines in cell_log_lines(item):
         if lines:
             parts.append(f"--- {log} (last {min(len(lines), LOG_TAIL_LINES)} "
                          f"of {len(lines)} lines)\n" + "\n".join(lines[-LOG_TAIL_LINES:]))
@@ -290,11 +295,7 @@ def stall_summary(item) -> str:
     """The stall lines of every program log of the failed test's cell, each with its program,
     and the kernel's RT throttling: a live test lost to a host stall says so in its report."""
     found = []
-    for log in sorted(p for d in log_dirs(item) for p in d.glob("**/logs/*.log")):
-        try:
-            lines = log.read_text(errors="replace").splitlines()
-        except OSError:
-            continue
+    for log, lines in cell_log_lines(item):
         found += [f"{log.stem}: {ln.strip()}" for ln in lines if STALL_LINE.search(ln)][-STALL_LINES_EACH:]
     if not found and not log_dirs(item):
         return ""
