@@ -16,12 +16,20 @@
  *  - Python's round() (half to even) is nearbyint() in the default rounding mode.
  * No Python objects are created in the hot paths but the results.
  *
+ * Also (rigid_steps, after rb_*): the plant's rigid-drive substeps (ReisPlant._steps_rigid,
+ * droid-sim's world and the rigid lockstep cells) with the same rules, their 6x6 products through
+ * the same dgemv, the solve through numpy's own LAPACK dgesv (set_gesv; droid/kernel.py finds and
+ * checks it), the einsum's sums in numpy's order and numpy's maximum/minimum; an advance the
+ * kernel cannot promise bit for bit (near a hard stop, a value not finite, a floating-point
+ * exception numpy would act on) is handed back to the Python reference.
+ *
  * Also (rb_*, at the end): a serial arm's rigid-body dynamics for droid-sim's world, in place of
  * Pinocchio there (droid.sim.reis.dynamics.RigidBody(backend="kernel")).  Those are tested
  * against Pinocchio to a tolerance, not bit for bit, and need no BLAS.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include <fenv.h>
 #include <math.h>
 #include <stdint.h>
 #include <string.h>
@@ -78,7 +86,7 @@ static PyObject *py_matvec(PyObject *self, PyObject *const *args, Py_ssize_t nar
 
 /* -- buffers --------------------------------------------------------------------------------- */
 typedef struct {
-    Py_buffer b[12];
+    Py_buffer b[16];
     int n;
 } Bufs;
 
@@ -1109,6 +1117,325 @@ static PyObject *py_rb_jacobian(PyObject *self, PyObject *const *args, Py_ssize_
 }
 
 
+/* -- the plant's rigid-drive substeps (ReisPlant._steps_rigid; droid/sim/reis/plant.py) ----------- */
+/* numpy's LAPACK dgesv, the routine numpy.linalg.solve's gufunc (_umath_linalg.solve1) calls: its
+ * bundled OpenBLAS (scipy_dgesv_64_), found and checked bit for bit against np.linalg.solve by
+ * droid/kernel.py.  Fortran interface, 64-bit or 32-bit ints. */
+typedef void (*dgesv64_t)(const int64_t *, const int64_t *, double *, const int64_t *, int64_t *, double *,
+                          const int64_t *, int64_t *);
+typedef void (*dgesv32_t)(const int32_t *, const int32_t *, double *, const int32_t *, int32_t *, double *,
+                          const int32_t *, int32_t *);
+static void *gesv_fn = NULL;
+static int gesv_int64 = 1;
+
+static PyObject *set_gesv(PyObject *self, PyObject *args)
+{
+    unsigned long long addr;
+    int int64;
+    if (!PyArg_ParseTuple(args, "Kp", &addr, &int64))
+        return NULL;
+    gesv_fn = (void *)(uintptr_t)addr;
+    gesv_int64 = int64;
+    Py_RETURN_NONE;
+}
+
+/* x = a^-1 b for a C-contiguous n x n a as numpy's solve1 computes it: a copied in Fortran order
+ * (numpy's linearize_matrix), b copied, dgesv with one right-hand side (lda = ldb = n).  Returns
+ * LAPACK's info: 0 solved, > 0 singular (numpy then returns NaNs and flags 'invalid'). */
+static long gesv(const double *a, int n, const double *b, double *x)
+{
+    double f[RB_MAXJ * RB_MAXJ];
+    for (int r = 0; r < n; r++)
+        for (int c = 0; c < n; c++)
+            f[c * n + r] = a[r * n + c];
+    memcpy(x, b, n * sizeof(double));
+    if (gesv_int64) {
+        int64_t nn = n, one = 1, info = 0, ipiv[RB_MAXJ];
+        ((dgesv64_t)gesv_fn)(&nn, &one, f, &nn, ipiv, x, &nn, &info);
+        return (long)info;
+    }
+    int32_t nn = n, one = 1, info = 0, ipiv[RB_MAXJ];
+    ((dgesv32_t)gesv_fn)(&nn, &one, f, &nn, ipiv, x, &nn, &info);
+    return (long)info;
+}
+
+/* solve(a, b, x) -> info: x = a^-1 b through the dgesv set (for droid/kernel.py's bit check) */
+static PyObject *py_solve(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 3) {
+        PyErr_SetString(PyExc_TypeError, "solve takes 3 arguments");
+        return NULL;
+    }
+    if (gesv_fn == NULL) {
+        PyErr_SetString(PyExc_RuntimeError, "droid._kernel: no LAPACK dgesv set");
+        return NULL;
+    }
+    Bufs bs = {.n = 0};
+    const double *b = get(&bs, args[1], -8, 0, "b");
+    Py_ssize_t n = b ? bs.b[0].len / 8 : 0;
+    const double *a = b ? get(&bs, args[0], n * n * 8, 0, "a") : NULL;
+    double *x = a ? get(&bs, args[2], n * 8, 1, "x") : NULL;
+    if (x != NULL && n > RB_MAXJ) {
+        PyErr_Format(PyExc_ValueError, "solve: n = %zd > %d", n, RB_MAXJ);
+        x = NULL;
+    }
+    long info = x ? gesv(a, (int)n, b, x) : 0;
+    release(&bs);
+    return x ? PyLong_FromLong(info) : NULL;
+}
+
+/* numpy's maximum and minimum for float64 (NaN propagates, the first argument's first).  Where
+ * both are zeros of opposite signs numpy's answer depends on its SIMD path (its scalar loop
+ * returns the first, its vector loops the second): *amb is set and the caller lets the Python
+ * reference take the advance. */
+static inline double np_maximum(double a, double b, int *amb)
+{
+    if (isnan(a))
+        return a;
+    if (isnan(b))
+        return b;
+    if (a == b) {
+        if (signbit(a) != signbit(b))
+            *amb = 1;
+        return a;
+    }
+    return a > b ? a : b;
+}
+
+static inline double np_minimum(double a, double b, int *amb)
+{
+    if (isnan(a))
+        return a;
+    if (isnan(b))
+        return b;
+    if (a == b) {
+        if (signbit(a) != signbit(b))
+            *amb = 1;
+        return a;
+    }
+    return a < b ? a : b;
+}
+
+/* out (len doubles) = obj's buffer (a 1-D or 2-D float64 C-contiguous array, Python's answer) */
+static int copy_answer(PyObject *obj, double *out, Py_ssize_t len, const char *what)
+{
+    if (obj == NULL)
+        return -1;
+    Py_buffer b;
+    int r = PyObject_GetBuffer(obj, &b, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT);
+    Py_DECREF(obj);
+    if (r < 0)
+        return -1;
+    if (b.len != len * 8 || b.itemsize != 8 || b.format == NULL || strcmp(b.format, "d") != 0) {
+        PyErr_Format(PyExc_ValueError, "%s: the body's answer is not %zd float64", what, len);
+        PyBuffer_Release(&b);
+        return -1;
+    }
+    memcpy(out, b.buf, len * 8);
+    PyBuffer_Release(&b);
+    return 0;
+}
+
+/* the rigid-drive constants, one float64 vector (ReisPlant._rigid_consts) */
+enum { R_A = 0, R_AINVT = 36, R_AINV = 72, R_JROT = 108, R_B = 144, R_W0 = 150, R_LEN = 156 };
+#define FP_BAD (FE_INVALID | FE_DIVBYZERO | FE_OVERFLOW | FE_UNDERFLOW)
+
+/* rigid_steps(regs, consts, rigid, model, mass, nle, qbuf, qdbuf, theta, omega, q, ext, n, h,
+ *             amps_on, wd_fault, offset, stop_mid, stop_lim, x) -> encoders, or None
+ *
+ * ReisPlant._integrate's rigid branch (compliance=False): the DAC registers -> motor torques (the
+ * list comprehension's clamps; 0 and the brake's friction when the amplifiers are off), then
+ * _steps_rigid's n semi-implicit Euler substeps of h [s] -- q = A theta, back-EMF, the joint
+ * torques A^-T (tau_m - b w) - (C qd + g) + balancer (+ ext), M(q) + the rotors, qdd by numpy's
+ * dgesv, the motor-side inertia (the einsum's sums in its order), Coulomb friction with stiction
+ * -- and _write_outputs.  The same operations in the same order, every '@' through numpy's
+ * dgemv.  The body: ``model`` (droid.sim.reis.dynamics.KernelRigidBody's buffer: rb_rnea and
+ * rb_crba here, as its nle and mass call them) or, with model None, the callables nle(q, qd) and
+ * mass(q) (Pinocchio's RigidBody), called with qbuf and qdbuf (float64 arrays of six) filled.
+ * Writes the new state into x (24 float64: theta, omega, q, qd) and the registers and returns
+ * the six encoder values written; or returns None having written nothing, for the Python
+ * reference to take the advance: near a hard stop (|q - stop_mid| >= stop_lim, _near_stop's
+ * test; _apply_stops), a state or torque not finite, a floating-point 'invalid', 'divide' or
+ * 'overflow' (where numpy would warn), a singular M(q), a maximum/minimum of two opposite zeros.
+ * (Jammed motors: the caller keeps those advances in Python.) */
+static PyObject *rigid_steps(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 20) {
+        PyErr_SetString(PyExc_TypeError, "rigid_steps takes 20 arguments");
+        return NULL;
+    }
+    if (gemv_fn == NULL || gesv_fn == NULL) {
+        PyErr_SetString(PyExc_RuntimeError, "droid._kernel: no BLAS dgemv or LAPACK dgesv set (droid.kernel sets them)");
+        return NULL;
+    }
+    Bufs bs = {.n = 0};
+    RbChain c;
+    long enc[N];
+    PyObject *mass_fn = args[4], *nle_fn = args[5];
+    long n = PyLong_AsLong(args[12]);
+    double h = PyFloat_AsDouble(args[13]);
+    if (PyErr_Occurred())
+        return NULL;
+    unsigned char *regs = get(&bs, args[0], -MAP_MIN_SIZE, 1, "regs");
+    const double *k = regs ? get(&bs, args[1], C_LEN * 8, 0, "consts") : NULL;
+    const double *rc = k ? get(&bs, args[2], R_LEN * 8, 0, "rigid") : NULL;
+    int ok = rc != NULL;
+    double *qbuf = NULL, *qdbuf = NULL;
+    c.m = NULL;
+    if (ok && args[3] != Py_None) {
+        ok = (c.m = get(&bs, args[3], (RB_PER_JOINT * N + 3) * 8, 0, "model")) != NULL;
+        c.n = N;
+    } else if (ok) {
+        ok = PyCallable_Check(mass_fn) && PyCallable_Check(nle_fn);
+        if (!ok)
+            PyErr_SetString(PyExc_TypeError, "rigid_steps: without a model, mass and nle must be callables");
+        ok = ok && (qbuf = get(&bs, args[6], N * 8, 1, "qbuf")) != NULL &&
+             (qdbuf = get(&bs, args[7], N * 8, 1, "qdbuf")) != NULL;
+    }
+    const double *theta0 = ok ? get(&bs, args[8], N * 8, 0, "theta") : NULL;
+    const double *omega0 = theta0 ? get(&bs, args[9], N * 8, 0, "omega") : NULL;
+    const double *qnow = omega0 ? get(&bs, args[10], N * 8, 0, "q") : NULL;
+    const double *ext = NULL;
+    ok = qnow != NULL;
+    if (ok && args[11] != Py_None)
+        ok = (ext = get(&bs, args[11], N * 8, 0, "ext")) != NULL;
+    int amps_on = ok ? PyObject_IsTrue(args[14]) : -1;
+    int wd_fault = amps_on >= 0 ? PyObject_IsTrue(args[15]) : -1;
+    const int64_t *offset = wd_fault >= 0 ? get(&bs, args[16], N * 8, 0, "offset") : NULL;
+    const double *mid = offset ? get(&bs, args[17], N * 8, 0, "stop_mid") : NULL;
+    const double *lim = mid ? get(&bs, args[18], N * 8, 0, "stop_lim") : NULL;
+    double *x = lim ? get(&bs, args[19], 24 * 8, 1, "x") : NULL;
+    if (x == NULL) {
+        release(&bs);
+        return NULL;
+    }
+    if (n < 1) {
+        release(&bs);
+        PyErr_SetString(PyExc_ValueError, "rigid_steps: n must be >= 1");
+        return NULL;
+    }
+    const double *A = rc + R_A, *AinvT = rc + R_AINVT, *Ainv = rc + R_AINV, *jrot = rc + R_JROT;
+    const double *b = rc + R_B, *w0 = rc + R_W0, *tmax = k + C_TAU_MAX, bal = k[C_BAL];
+    double th[N], om[N], drive[N], tau_c[N];
+    int amb = 0, finite = 1;
+    for (int j = 0; j < N; j++) {  /* _near_stop: could a hard stop engage within the advance? */
+        if (fabs(qnow[j] - mid[j]) >= lim[j]) {
+            release(&bs);
+            Py_RETURN_NONE;
+        }
+        th[j] = theta0[j];
+        om[j] = omega0[j];
+        finite &= isfinite(th[j]) && isfinite(om[j]) && (ext == NULL || isfinite(ext[j]));
+        /* _integrate's drive: min(tm, max(-tm, float(min(hi, max(lo, d))) * k)) as Python's min/max */
+        if (amps_on) {
+            double d = rd_i16(regs + DAC_OFFSET + 2 * j), v, tm = tmax[j];
+            d = d > DAC_MIN ? d : DAC_MIN;
+            v = (d < DAC_MAX ? d : DAC_MAX) * k[C_TAU_PER_DAC + j];
+            v = v > -tm ? v : -tm;
+            drive[j] = v < tm ? v : tm;
+            tau_c[j] = k[C_TAU_C + j];
+        } else {
+            drive[j] = 0.0;
+            tau_c[j] = k[C_TAU_C + j] + k[C_TAU_BRAKE + j];
+        }
+    }
+    if (!finite) {
+        release(&bs);
+        Py_RETURN_NONE;
+    }
+    fexcept_t saved;
+    fegetexceptflag(&saved, FE_ALL_EXCEPT);
+    feclearexcept(FP_BAD);
+    int bad = 0;
+    long info = 0;
+    double q[N], qd[N], u[N], t[N], nl[N], tau[N], M[N * N], mt[N * N], qdd[N], y[N];
+    for (long s = 0; s < n && !bad && !amb; s++) {
+        matvec(A, N, N, th, q);  /* q = A @ theta, qd = A @ omega */
+        matvec(A, N, N, om, qd);
+        for (int j = 0; j < N; j++) {
+            /* fade = tau_max * (omega / w0) if amps else 0.0;
+               tau_m = np.minimum(np.maximum(drive, -tau_max - fade), tau_max - fade) */
+            double fade = amps_on ? tmax[j] * (om[j] / w0[j]) : 0.0;
+            double tm = np_minimum(np_maximum(drive[j], -tmax[j] - fade, &amb), tmax[j] - fade, &amb);
+            u[j] = tm - b[j] * om[j];
+        }
+        matvec(AinvT, N, N, u, t);  /* AinvT @ (tau_m - b * omega) */
+        if (c.m != NULL) {  /* KernelRigidBody.nle: rb_rnea with gravity, qdd None */
+            rb_frames(&c, q);
+            rb_rnea(&c, qd, NULL, 1, nl);
+        } else {
+            bad |= fetestexcept(FP_BAD) != 0;  /* numpy clears the flags in the callback's ufuncs */
+            memcpy(qbuf, q, sizeof q);
+            memcpy(qdbuf, qd, sizeof qd);
+            if (copy_answer(PyObject_CallFunctionObjArgs(nle_fn, args[6], args[7], NULL), nl, N, "nle") < 0)
+                goto error;
+            feclearexcept(FP_BAD);
+        }
+        for (int j = 0; j < N; j++)
+            tau[j] = t[j] - nl[j];
+        tau[1] += -bal * sin(q[1]);  /* the balancer */
+        if (ext != NULL)
+            for (int j = 0; j < N; j++)
+                tau[j] = tau[j] + ext[j];
+        if (c.m != NULL) {  /* KernelRigidBody.mass: rb_crba */
+            rb_crba(&c, M);
+        } else {
+            bad |= fetestexcept(FP_BAD) != 0;
+            memcpy(qbuf, q, sizeof q);
+            if (copy_answer(PyObject_CallFunctionObjArgs(mass_fn, args[6], NULL), M, N * N, "mass") < 0)
+                goto error;
+            feclearexcept(FP_BAD);
+        }
+        for (int i = 0; i < N * N; i++)
+            mt[i] = M[i] + jrot[i];
+        info = gesv(mt, N, tau, qdd);  /* _solve(m_tot, tau) */
+        if (info != 0) {
+            bad = 1;
+            break;
+        }
+        matvec(Ainv, N, N, qdd, y);  /* w = omega + h * (Ainv @ qdd) */
+        for (int i = 0; i < N; i++) {
+            /* j_eff = np.einsum("ji,jk,ki->i", A, m_tot, A): numpy's loop, j outer, k inner,
+               (A[j,i] * m[j,k]) * A[k,i] added to the output from 0 */
+            double acc = 0.0;
+            for (int j = 0; j < N; j++)
+                for (int kk = 0; kk < N; kk++)
+                    acc = (A[j * N + i] * mt[j * N + kk]) * A[kk * N + i] + acc;
+            double w = om[i] + h * y[i];
+            double fr = h * tau_c[i] / acc;  /* (h * tau_c) / j_eff */
+            /* np.where(w > fr, w - fr, np.where(w < -fr, w + fr, 0.0)) */
+            om[i] = w > fr ? w - fr : (w < -fr ? w + fr : 0.0);
+        }
+        for (int j = 0; j < N; j++)
+            th[j] = th[j] + h * om[j];
+    }
+    if (!bad && !amb) {
+        matvec(A, N, N, th, x + 12);  /* self._q = A @ theta, self._qd = A @ omega */
+        matvec(A, N, N, om, x + 18);
+        bad = fetestexcept(FP_BAD) != 0;
+        for (int j = 0; j < N; j++) {
+            x[j] = th[j];
+            x[6 + j] = om[j];
+        }
+        for (int i = 0; i < 24; i++)
+            bad |= !isfinite(x[i]);
+    }
+    fesetexceptflag(&saved, FE_ALL_EXCEPT);
+    if (bad || amb) {
+        release(&bs);
+        Py_RETURN_NONE;
+    }
+    if (write_outputs(regs, k, x, x + 12, offset, amps_on, wd_fault, enc) < 0)
+        goto error;
+    release(&bs);
+    return enc_tuple(enc);
+error:
+    fesetexceptflag(&saved, FE_ALL_EXCEPT);
+    release(&bs);
+    return NULL;
+}
+
+
 static PyMethodDef methods[] = {
     {"set_gemv", set_gemv, METH_VARARGS, "set_gemv(address, int64): the cblas_dgemv to call (numpy's)"},
     {"exact_step", (PyCFunction)(void (*)(void))exact_step, METH_FASTCALL,
@@ -1133,13 +1460,18 @@ static PyMethodDef methods[] = {
     {"rb_minv", (PyCFunction)(void (*)(void))py_rb_minv, METH_FASTCALL, "rb_minv(model, q, Minv): M(q)^-1"},
     {"rb_aba", (PyCFunction)(void (*)(void))py_rb_aba, METH_FASTCALL,
      "rb_aba(model, q, qd, tau, qdd): qdd = M(q)^-1 (tau - C(q, qd) qd - g(q)) [rad/s^2]"},
+    {"set_gesv", set_gesv, METH_VARARGS, "set_gesv(address, int64): the LAPACK dgesv to call (numpy's)"},
+    {"solve", (PyCFunction)(void (*)(void))py_solve, METH_FASTCALL, "solve(a, b, x) -> info: x = a^-1 b by the dgesv set"},
+    {"rigid_steps", (PyCFunction)(void (*)(void))rigid_steps, METH_FASTCALL,
+     "rigid_steps(regs, consts, rigid, model, mass, nle, qbuf, qdbuf, theta, omega, q, ext, n, h, amps_on, "
+     "wd_fault, offset, stop_mid, stop_lim, x) -> encoders or None: the plant's rigid-drive substeps"},
     {"rb_jacobian", (PyCFunction)(void (*)(void))py_rb_jacobian, METH_FASTCALL,
      "rb_jacobian(model, q, J, oM): the last joint's placement (4x4 [m]) and 6 x n LOCAL_WORLD_ALIGNED Jacobian"},
     {NULL, NULL, 0, NULL},
 };
 
 static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "droid._kernel",
-                                    "The compiled 500 Hz pair: the plant's exact step and the servo's PID; a serial arm's rigid-body dynamics.", -1,
+                                    "The compiled 500 Hz pair: the plant's exact step and the servo's PID; the plant's rigid-drive substeps; a serial arm's rigid-body dynamics.", -1,
                                     methods};
 
 PyMODINIT_FUNC PyInit__kernel(void)
@@ -1157,7 +1489,8 @@ PyMODINIT_FUNC PyInit__kernel(void)
         PyModule_AddIntConstant(m, "AMP_STATUS_WATCHDOG_FAULT", AMP_STATUS_WATCHDOG_FAULT) < 0 ||
         PyModule_AddIntConstant(m, "C_LEN", C_LEN) < 0 ||
         PyModule_AddIntConstant(m, "RB_PER_JOINT", RB_PER_JOINT) < 0 ||
-        PyModule_AddIntConstant(m, "RB_MAXJ", RB_MAXJ) < 0) {
+        PyModule_AddIntConstant(m, "RB_MAXJ", RB_MAXJ) < 0 ||
+        PyModule_AddIntConstant(m, "R_LEN", R_LEN) < 0) {
         Py_DECREF(m);
         return NULL;
     }

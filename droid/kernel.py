@@ -22,6 +22,13 @@ calls (its bundled OpenBLAS, found here and checked against ``@`` on :data:`CHEC
 use).  tests/reis/test_kernel.py compares the two per step on random inputs, bit for bit;
 docs/benchmarks.md "Issue 28 item 1" has the trial logs compared and the speed.
 
+The plant's rigid-drive substeps (``rigid_steps``: droid-sim's world, rigid lockstep cells) also
+solve ``M(q) qdd = tau`` as ``np.linalg.solve`` does: through numpy's own LAPACK ``dgesv`` (its
+bundled OpenBLAS, found here beside ``cblas_dgemv`` and checked against ``np.linalg.solve`` on
+:data:`SOLVE_CHECKS` seeded systems).  Where it is not found or does not answer bit for bit,
+:data:`GESV_UNAVAILABLE` says why and only those substeps stay in Python (:func:`rigid_ready`);
+the rest of the kernel is used as before, ``DROID_KERNEL=c`` included.
+
 The extension also holds a serial arm's rigid-body dynamics (``rb_*``): droid-sim's world uses
 them in place of Pinocchio when this module chooses the compiled kernel
 (:func:`droid.sim.reis.dynamics.world_backend`).  They agree with Pinocchio to rounding, not bit
@@ -43,6 +50,10 @@ CHECK_SHAPES = ((24, 36), (24, 6))
 #: cblas_dgemv's names in numpy's BLAS builds, with their integer width: (symbol, 64-bit ints)
 _GEMV_SYMBOLS = (("scipy_cblas_dgemv64_", True), ("cblas_dgemv64_", True), ("scipy_cblas_dgemv", False),
                  ("cblas_dgemv", False))
+#: LAPACK dgesv's names (Fortran interface) in numpy's builds, with their integer width
+_GESV_SYMBOLS = (("scipy_dgesv_64_", True), ("dgesv_64_", True), ("scipy_dgesv_", False), ("dgesv_", False))
+#: systems the solve check compares with ``np.linalg.solve`` before the rigid substeps use it
+SOLVE_CHECKS = 60
 
 
 class KernelUnavailable(ImportError):
@@ -79,6 +90,51 @@ def _find_gemv() -> tuple[int, bool, str]:
                             f"({', '.join(map(os.path.basename, _blas_libraries())) or 'none'})")
 
 
+def _find_gesv() -> tuple[int, bool, str]:
+    """(address, 64-bit ints, where) of numpy's LAPACK dgesv (the one ``np.linalg.solve`` calls)."""
+    np.linalg.solve(np.eye(2), np.ones(2))  # numpy's LAPACK is loaded by now in any case
+    for path in _blas_libraries():
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:  # pragma: no cover
+            continue
+        for name, int64 in _GESV_SYMBOLS:
+            fn = getattr(lib, name, None)
+            if fn is not None:
+                return ctypes.cast(fn, ctypes.c_void_p).value, int64, f"{os.path.basename(path)}:{name}"
+    raise KernelUnavailable("numpy's LAPACK (dgesv) not found among the loaded libraries "
+                            f"({', '.join(map(os.path.basename, _blas_libraries())) or 'none'})")
+
+
+def _check_gesv(k) -> None:
+    """The kernel's solve against ``np.linalg.solve``, bit for bit, on seeded systems: general
+    ones (a transposed copy would show) and symmetric positive definite ones spanning the plant's
+    mass matrices' conditioning (1 .. 1e8)."""
+    rng = np.random.default_rng(40)
+    for i in range(SOLVE_CHECKS):
+        n = 6 if i % 3 else int(rng.integers(1, 9))
+        g = rng.standard_normal((n, n)) * 10.0 ** rng.uniform(-3, 3, (n, n))
+        a = g if i % 2 else g @ g.T + np.diag(10.0 ** rng.uniform(-2, 6, n))
+        b = rng.standard_normal(n) * 10.0 ** rng.uniform(-3, 3, n)
+        x = np.empty(n)
+        if k.solve(np.ascontiguousarray(a), b, x) != 0 or x.tobytes() != np.linalg.solve(a, b).tobytes():
+            raise KernelUnavailable(f"the kernel's {n}x{n} solve differs from np.linalg.solve (another LAPACK?)")
+
+
+def _setup_gesv(k) -> tuple[str, str]:
+    """(where, "") with numpy's dgesv set in ``k`` and checked, or ("", why not)."""
+    if not hasattr(k, "set_gesv"):
+        return "", "droid._kernel was built before rigid_steps (rebuild it)"
+    try:
+        addr, int64, where = _find_gesv()
+        k.set_gesv(addr, int64)
+        _check_gesv(k)
+    except KernelUnavailable as exc:
+        k.set_gesv(0, True)  # unset: rigid_steps refuses to run
+        return "", str(exc)
+    return where, ""
+
+
 def _check(k) -> None:
     """The kernel's products against numpy's ``@``, bit for bit, on seeded inputs spanning
     twelve decades (what the plant's matrices hold: 1e-9 .. 1e3)."""
@@ -101,6 +157,8 @@ def _load():
     addr, int64, where = _find_gemv()
     _kernel.set_gemv(addr, int64)
     _check(_kernel)
+    global GESV, GESV_UNAVAILABLE
+    GESV, GESV_UNAVAILABLE = _setup_gesv(_kernel)
     return _kernel, where
 
 
@@ -119,6 +177,9 @@ def _choose():
     return "c", k, where, ""
 
 
+#: where numpy's dgesv was found for the rigid substeps, or ""; GESV_UNAVAILABLE: why not ("" if it was,
+#: or if the compiled kernel was not loaded)
+GESV, GESV_UNAVAILABLE = "", ""
 #: "python" or "c": the implementation in use in this process; UNAVAILABLE: why ``auto`` chose
 #: the reference ("" when it did not, or was not asked to)
 NAME, _K, GEMV, UNAVAILABLE = _choose()
@@ -131,8 +192,15 @@ def compiled():
 
 def describe() -> str:
     """One line: which kernel runs (for logs and benches)."""
-    return (f"kernel {NAME}" + (f" ({_K.__file__}, BLAS {GEMV})" if _K is not None else "")
+    return (f"kernel {NAME}" + (f" ({_K.__file__}, BLAS {GEMV}" + (f", LAPACK {GESV})" if GESV else
+                                 f"; the rigid substeps in Python: {GESV_UNAVAILABLE})") if _K is not None else "")
             + (f" (the compiled one is not usable: {UNAVAILABLE})" if UNAVAILABLE else ""))
+
+
+def rigid_ready(k) -> bool:
+    """Whether the compiled module ``k`` can take the plant's rigid-drive substeps (``rigid_steps``
+    built and numpy's dgesv set and checked: :data:`GESV`)."""
+    return k is not None and hasattr(k, "rigid_steps") and bool(GESV)
 
 
 def load_compiled():

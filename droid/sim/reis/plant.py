@@ -39,7 +39,11 @@ encoders count the motors (motor side, as on the real arm); the limit switches
 and the mechanical stops see the links.  With ``compliance=False`` the drives
 are rigid (q = p) and ``(M(q) + A^-T J_m A^-1) q'' = A^-T tau_motor - C - g +
 tau_bal`` is integrated instead: the servo-logic tests use it so that encoder
-counts and joint angles agree exactly.  When the amplifiers are off a holding
+counts and joint angles agree exactly (droid-sim's world runs it too, the cell's
+default): where the compiled kernel is in use (droid.kernel) its substeps run there, one call
+an advance (``rigid_steps``, :meth:`ReisPlant._steps_rigid_compiled`), bit for bit those of
+:meth:`ReisPlant._steps_rigid`, which stays the reference and takes the advances near a hard
+stop or with a jammed motor.  When the amplifiers are off a holding
 brake adds ``brake_torque_nm`` of friction.
 
 The world is not the model (issue 13): ``home_error_deg`` moves the true
@@ -67,7 +71,7 @@ import numpy as np
 
 from droid import kernel as _kernel_switch
 from droid.kinematics import load_robot
-from droid.sim.reis.dynamics import DhError, RigidBody
+from droid.sim.reis.dynamics import DhError, KernelRigidBody, RigidBody
 from droid.subunits.reis import vme_map as vm
 
 Six = tuple[float, float, float, float, float, float]
@@ -237,6 +241,7 @@ class ReisPlant:
         self._attach_registers(regs)
         self._drive_constants(p, rigid_body)
         self._limit_constants(p)
+        self._rigid_constants(p)
         self._F0, self._G0 = self._system_matrices(np.zeros((6, 6)))  # the M(q)-free blocks
         self._initial_state(p, initial_joint_deg)
         self.time_s = 0.0
@@ -317,6 +322,21 @@ class ReisPlant:
         self._consts = np.concatenate([np.broadcast_to(np.asarray(v, float), 6) for v in (
             self._tau_per_dac, self._tau_max, self._tau_max_w0, self._tau_c, self._tau_brake, self._counts_per_rad,
             self._sw, self._side)] + [np.array([self._bal], float)])
+
+    def _rigid_constants(self, p: ReisPlantParams) -> None:
+        """The compiled rigid-drive substeps (droid/_kernel.c ``rigid_steps``; rigid drives only):
+        whether they run here, their constants (A, A^-T, A^-1, the rotors at the joints, viscous
+        friction, no-load speeds: one float64 vector) and the body they ask for M(q) and C qd + g."""
+        k = self._k
+        self._k_rigid = k if not p.compliance and _kernel_switch.rigid_ready(k) else None
+        self._rigid_consts = np.concatenate([np.ascontiguousarray(v, float).ravel() for v in (
+            self._A, self._AinvT, self._Ainv, self._J_rotor_ref, self._b, self._w0)])
+        assert k is None or not hasattr(k, "R_LEN") or self._rigid_consts.size == k.R_LEN
+        body = self.body
+        # the kernel's own RNEA and CRBA on the body's packed model, or the body's methods (Pinocchio)
+        self._rigid_body = ((body._buf, None, None) if type(body) is KernelRigidBody else
+                            (None, body.mass, body.nle))
+        self._qbuf, self._qdbuf = np.empty(6), np.empty(6)  # q and qd for the body's methods
 
     def _initial_state(self, p: ReisPlantParams, initial_joint_deg) -> None:
         """The power-up pose (seeded spread about ``initial_joint_deg``), at rest against gravity;
@@ -500,6 +520,9 @@ class ReisPlant:
         p = self.params
         lo, hi = vm.DAC_MIN, vm.DAC_MAX
         h = p.substep_s
+        if self._k_rigid is not None and not self._any_jammed and self._steps_rigid_compiled(n, h, ext):
+            self.time_s += n * h
+            return
         if self._k is not None and self._exact and not self._any_jammed:  # the compiled kernel's guards
             lim = self._stop_lim_arr.get(n * h)
             if lim is None:
@@ -726,7 +749,36 @@ class ReisPlant:
                                                tau_link, ext, self._amps_on, self._wd_fault, self._enc_offset, x)
         self._theta, self._omega, self._q, self._qd = x[0:6], x[6:12], x[12:18], x[18:24]
 
+    def _steps_rigid_compiled(self, n: int, h: float, ext=None) -> bool:
+        """The rigid branch of :meth:`_integrate` -- the DACs -> torques, :meth:`_steps_rigid`, the
+        outputs -- in one call of the compiled kernel (droid/_kernel.c ``rigid_steps``: the same
+        operations in the same order, numpy's dgemv for every ``@`` and its dgesv for
+        :func:`_solve`; the same bits).  False, with nothing changed, where the kernel leaves the
+        advance to the Python reference: near a hard stop (:meth:`_apply_stops`), a state or
+        torque not finite, a floating-point exception numpy would warn of, a singular M(q)."""
+        dt = n * h
+        lim = self._stop_lim_arr.get(dt)
+        if lim is None:
+            self._near_stop(dt, self._q.tolist())  # fills _stop_lim
+            lim = self._stop_lim_arr[dt] = np.array(self._stop_lim[dt])
+        if ext is not None:
+            ext = np.ascontiguousarray(ext, float)
+        model, mass, nle = self._rigid_body
+        x = np.empty(24)
+        enc = self._k_rigid.rigid_steps(self._view, self._consts, self._rigid_consts, model, mass, nle, self._qbuf,
+                                        self._qdbuf, self._theta, self._omega, self._q, ext, n, h, self._amps_on,
+                                        self._wd_fault, self._enc_offset, self._stop_mid, lim, x)
+        if enc is None:
+            return False
+        self._theta, self._omega, self._q, self._qd = x[0:6], x[6:12], x[12:18], x[18:24]
+        self._enc_written = enc
+        self._q_list = (None, None)
+        return True
+
     def _steps_rigid(self, n: int, h: float, drive, tau_c, ext=None) -> None:
+        """Semi-implicit Euler of the rigid arm, ``(M(q) + A^-T J_m A^-1) q'' = A^-T tau_motor - C - g
+        + tau_bal`` on the motor angles, at every ``h``: the reference of the compiled
+        :meth:`_steps_rigid_compiled` (droid-sim's world, rigid lockstep cells)."""
         A, AinvT, Ainv = self._A, self._AinvT, self._Ainv
         theta, omega = self._theta, self._omega
         stops = self._jammed.any() or self._near_stop(n * h, self._q.tolist())
