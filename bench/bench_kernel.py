@@ -15,7 +15,9 @@ Three measurements, each printed as a table (``--json``: one object):
    the imports) and 20 000 steps.  Speed: CPU us per step.
 2. **cell** (always): two Reis cells in one process, the reference and ``kernel="c"`` (plant and
    servo PID), run alternately in 0.5 s chunks through homing and ``--moves`` pairs of 2 s moves:
-   CPU us per plant advance and per servo cycle, and whether the two stay bit-identical.
+   CPU us per plant advance and per servo cycle, and whether the two stay bit-identical.  With
+   ``--rigid`` also on rigid drives with the compiled rigid body (droid-sim's world's plant: the
+   compiled ``rigid_steps`` against ``_steps_rigid``; 2 ms advances, 4 substeps each).
 3. **trial** (``--trials N``): bench/bench_seamtrack.py's trial (``--position``, ``--speed``, ideal
    sensor, seed 1) run N times per kernel in subprocesses with ``DROID_KERNEL`` python and c
    alternately: CPU seconds, x real time per CPU second, and whether the RMS figures agree.
@@ -318,14 +320,15 @@ def candidates(numba_python: str | None) -> list[dict]:
 
 
 # -- two cells side by side ----------------------------------------------------------------------
-def cells(moves: int) -> dict:
+def cells(moves: int, rigid: bool = False) -> dict:
     from droid.sim.reis.lockstep import ReisLockstep, drive_side_by_side, plants_same_bits
     from droid.sim.reis.plant import ReisPlant, ReisPlantParams
     from droid.subunits.reis.servo import ServoCore
 
     cs, acc = {}, {}
+    params, kw = (ReisPlantParams(compliance=False), {"rigid_body": "kernel"}) if rigid else (ReisPlantParams(), {})
     for k in ("python", "c"):
-        ls = cs[k] = ReisLockstep(ReisPlant(ReisPlantParams(), seed=1, kernel=k), ServoCore(None, kernel=k))
+        ls = cs[k] = ReisLockstep(ReisPlant(params, seed=1, kernel=k, **kw), ServoCore(None, kernel=k))
         a = acc[k] = {"plant": [0.0, 0], "servo": [0.0, 0]}
         for part, owner, attr in (("plant", ls.plant, "advance"), ("servo", ls.servo_station, "cycle")):
             fn = getattr(owner, attr)
@@ -378,6 +381,8 @@ def main(argv=None) -> int:
     parser.add_argument("--numba-python", help="an interpreter with numba (the numba candidate; else skipped)")
     parser.add_argument("--moves", type=bounded_int(0, 100, "moves"), default=2,
                         help="pairs of out-and-back moves in the cell comparison")
+    parser.add_argument("--rigid", action="store_true",
+                        help="also the cell comparison on rigid drives with the compiled rigid body (droid-sim's plant)")
     parser.add_argument("--trials", type=bounded_int(0, 20, "trials"), default=0,
                         help="trial runs per kernel (alternating)")
     parser.add_argument("--position", default="i", choices=sorted(load_layout().positions),
@@ -397,6 +402,8 @@ def main(argv=None) -> int:
     if args.candidates:
         res["candidates"] = candidates(args.numba_python)
     res["cells"] = cells(args.moves)
+    if args.rigid:
+        res["cells_rigid"] = cells(args.moves, rigid=True)
     if args.trials:
         res["trials"] = trials(args.trials, args.position, args.speed)
     res["load_end"] = round(os.getloadavg()[0], 2)
@@ -408,9 +415,11 @@ def main(argv=None) -> int:
         print(f"{r['candidate']:>20}: start-up {r['startup_ms']:7.1f} ms, RSS {r['rss_mb']:6.1f} MB, locked "
               f"{r['locked_mb']:6.1f} MB, {r['us_per_step']:6.2f} us/step, first step max |diff| "
               f"{r['max_abs_diff_first_step']:.3g}")
-    c = res["cells"]
-    print(f"cells ({c['sim_s']} s simulated, bit-identical: {c['bit_identical']}): plant {c['python_plant_us']} -> "
-          f"{c['c_plant_us']} us/advance, servo cycle {c['python_servo_us']} -> {c['c_servo_us']} us")
+    for name in ("cells", "cells_rigid"):
+        c = res.get(name)
+        if c is not None:
+            print(f"{name} ({c['sim_s']} s simulated, bit-identical: {c['bit_identical']}): plant {c['python_plant_us']} "
+                  f"-> {c['c_plant_us']} us/advance, servo cycle {c['python_servo_us']} -> {c['c_servo_us']} us")
     for t in res.get("trials", []):
         print(f"trial {args.position}/{args.speed:g} {t['kernel']:>6}: {t['cpu_s']:.3f} CPU s, trial "
               f"{t['trial_x_per_cpu_s']}x, all {t['all_x_per_cpu_s']}x per CPU s, RMS {t['rms_lateral_mm']} / "

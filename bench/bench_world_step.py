@@ -17,6 +17,9 @@ dynamics, droid.sim.reis.dynamics).  It measures the thread CPU time of ``World.
   move it) with all six joints at 2-6 deg/s, 2 s out and 2 s back (``--moves`` pairs); the
   holder at rest.
 
+With ``--plant`` the thread CPU of arm1's ``ReisPlant.advance`` alone is measured too, per phase
+(a clock read around each call: ~1 us more a step in the World.advance figures, in both versions).
+
 With ``--base DIR`` (an old checkout's top directory, e.g. ``git archive COMMIT | tar -x -C DIR``)
 each version runs in a subprocess of its own (this file, ``PYTHONPATH`` = the checkout),
 alternating ``--rounds`` times so both see the same load, and the figures are min and median
@@ -27,7 +30,7 @@ changes results.
 
 Timing is measured here, never in tests (docs/benchmarks.md).  Usage::
 
-    PYTHONPATH=. python bench/bench_world_step.py [--base DIR] [--rounds 3] [--idle-s 5] [--moves 1] [--home] [--json]
+    PYTHONPATH=. python bench/bench_world_step.py [--base DIR] [--rounds 3] [--idle-s 5] [--moves 1] [--home] [--plant] [--json]
 """
 from __future__ import annotations
 
@@ -87,7 +90,7 @@ def _vm_rss_kb() -> int:
     return -1  # pragma: no cover - not Linux
 
 
-def worker(idle_s: float, moves: int, home: bool = False) -> dict:
+def worker(idle_s: float, moves: int, home: bool = False, plant: bool = False) -> dict:
     """Build, home, measure (one version: the droid package on PYTHONPATH)."""
     import socket
 
@@ -123,6 +126,17 @@ def worker(idle_s: float, moves: int, home: bool = False) -> dict:
                 for path in (world.devices["mvs_cable"].b.path, world.devices["tool_sensor"].output.end.path)]
         clock = time.thread_time
         k = 0
+        plant_cpu = [0.0, 0]  # --plant: arm1's ReisPlant.advance alone (CPU, calls) in the timed phases
+        if plant:
+            arm_plant = world.devices["arm1"].plant
+            advance = arm_plant.advance
+
+            def timed_advance(dt_s, _advance=advance, _acc=plant_cpu):
+                t0 = clock()
+                _advance(dt_s)
+                _acc[0] += clock() - t0
+                _acc[1] += 1
+            arm_plant.advance = timed_advance
 
         def run(steps: int, command, timed: bool = False) -> float:
             nonlocal k
@@ -164,7 +178,10 @@ def worker(idle_s: float, moves: int, home: bool = False) -> dict:
         hold = (Mode.JOG, (0,) * 6)
         run(1000, lambda i: hold)  # settle
         n_idle = int(round(idle_s / DT_S))
+        plant_cpu[:] = [0.0, 0]
         out["idle_us"] = 1e6 * run(n_idle, lambda i: hold, timed=True) / n_idle
+        out["plant_idle_us"] = 1e6 * plant_cpu[0] / plant_cpu[1] if plant_cpu[1] else None
+        plant_cpu[:] = [0.0, 0]
         out["digests"].append(_digest(world))
         per_cmd = np.asarray(servo.params.joint_to_counts) @ np.asarray(JOG_DEG_PER_S) * COMMAND_EVERY * DT_S
         cpu, n_move = 0.0, 0
@@ -174,6 +191,7 @@ def worker(idle_s: float, moves: int, home: bool = False) -> dict:
                 cpu += run(2000, lambda i: jog, timed=True)
                 n_move += 2000
         out["moving_us"] = 1e6 * cpu / n_move if n_move else None
+        out["plant_moving_us"] = 1e6 * plant_cpu[0] / plant_cpu[1] if plant_cpu[1] else None
         out["fault"] = int(servo.fault)
         out["amps_on"] = bool(world.devices["arm1"].plant.amps_on)
         out["digests"].append(_digest(world))
@@ -192,10 +210,10 @@ def worker(idle_s: float, moves: int, home: bool = False) -> dict:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-def run_worker(tree: Path, idle_s: float, moves: int, home: bool) -> dict:
+def run_worker(tree: Path, idle_s: float, moves: int, home: bool, plant: bool = False) -> dict:
     env = dict(os.environ, PYTHONPATH=str(tree))
     r = subprocess.run([sys.executable, str(HERE), "--worker", "--idle-s", str(idle_s), "--moves", str(moves)]
-                       + (["--home"] if home else []),
+                       + (["--home"] if home else []) + (["--plant"] if plant else []),
                        env=env, cwd=str(tree), capture_output=True, text=True, timeout=1800)
     if r.returncode != 0:
         raise SystemExit(f"worker for {tree} failed:\n{r.stderr[-3000:]}")
@@ -211,11 +229,12 @@ def main(argv=None) -> int:
     ap.add_argument("--idle-s", type=bounded_float(0.1, 600.0, "s"), default=5.0, help="world seconds idle")
     ap.add_argument("--moves", type=bounded_int(1, 100, "moves"), default=1, help="pairs of out-and-back moves")
     ap.add_argument("--home", action="store_true", help="home arm1 first (~28 s of world time)")
+    ap.add_argument("--plant", action="store_true", help="also time arm1's ReisPlant.advance alone")
     ap.add_argument("--worker", action="store_true", help=argparse_hidden())
     ap.add_argument("--json", action="store_true", help="one JSON object")
     args = ap.parse_args(argv)
     if args.worker:
-        print(json.dumps(worker(args.idle_s, args.moves, args.home)))
+        print(json.dumps(worker(args.idle_s, args.moves, args.home, args.plant)))
         return 0
     trees = {"this": HERE.parent.parent}
     if args.base:
@@ -226,7 +245,7 @@ def main(argv=None) -> int:
     runs: dict[str, list[dict]] = {n: [] for n in trees}
     for _ in range(args.rounds):
         for n, tree in trees.items():
-            runs[n].append(run_worker(tree, args.idle_s, args.moves, args.home))
+            runs[n].append(run_worker(tree, args.idle_s, args.moves, args.home, args.plant))
     out = {"load_average": [round(x, 2) for x in os.getloadavg()], "rounds": args.rounds, "idle_s": args.idle_s,
            "moves": args.moves}
     for n, rs in runs.items():
@@ -234,7 +253,7 @@ def main(argv=None) -> int:
                   "vm_rss_kb": max(r["vm_rss_kb"] for r in rs), "pinocchio": any(r["pinocchio"] for r in rs),
                   "servo_fault": rs[-1]["fault"], "amps_on": rs[-1]["amps_on"],
                   "digests": rs[0]["digests"], "digests_repeat": all(r["digests"] == rs[0]["digests"] for r in rs)}
-        for phase in ("idle_us", "moving_us"):
+        for phase in ("idle_us", "moving_us") + (("plant_idle_us", "plant_moving_us") if args.plant else ()):
             v = [r[phase] for r in rs]
             out[n][phase] = {"min": round(min(v), 1), "median": round(statistics.median(v), 1),
                              "all": [round(x, 1) for x in v]}
@@ -250,6 +269,10 @@ def main(argv=None) -> int:
               f"(CPU of World.advance, {args.rounds} rounds; homed: {v['homed']}, servo fault {v['servo_fault']}, "
               f"amps on {v['amps_on']}, advances at rest {v['rest_steps']}; digests {v['digests']}; "
               f"VmRSS {v['vm_rss_kb'] / 1024:.1f} MB, pinocchio imported: {v['pinocchio']})")
+        if args.plant:
+            print(f"{'':>5}  arm1's ReisPlant.advance alone: idle {v['plant_idle_us']['min']:6.1f} min "
+                  f"{v['plant_idle_us']['median']:6.1f} median, moving {v['plant_moving_us']['min']:6.1f} min "
+                  f"{v['plant_moving_us']['median']:6.1f} median us/step")
     if "bit_identical" in out:
         print(f"digests after homing, idle and moving equal: {out['bit_identical']}")
     print(f"load average {out['load_average']}")
