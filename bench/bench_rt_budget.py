@@ -12,7 +12,8 @@ samples every program ``droid-cell status --json`` lists over four windows:
 Per program: its share of one core over the window (utime + stime from ``/proc/PID/stat``) [%],
 the scheduler it runs on (fifo / nice / other) and, at the end, its loop's worst wake-up lateness
 so far (``lateness_max_ms`` of droid-cell status) [ms], with the machine's floor (cyclictest,
-bench/floor.py) measured before and after the cell in the same run.  Per window: the sum over the programs,
+bench/floor.py) measured before and after the cell in the same run; at the end, droid-sim's own
+count of its wake-ups over the cell's life (its log: step time p50/p99/max, wake-ups 20 ms late).  Per window: the sum over the programs,
 the SCHED_FIFO part of it and that part per CPU of this process's affinity -- the figure the
 kernel's RT throttling and droid-cell up's real-time budget (RT_BUDGET_PCT_PER_CPU) are about --
 beside the programs' declared shares (droid.brain.launcher.demand).  The load average is printed
@@ -139,6 +140,9 @@ def main() -> int:
                              "pressing (20 N, 10 mm/s)"))
         finally:
             droid(cell, "droid-cell", "down")
+            for log in sorted(Path(tmp).glob("**/logs/*sim*.log")):  # droid-sim's wake-ups, its whole life
+                lines = [ln for ln in log.read_text(errors="replace").splitlines() if "wake-ups:" in ln]
+                print(f"{log.name}: {lines[-1] if lines else 'no step-time summary'}")
     print(f"after: {cyclictest_floor(3.0, 1000)}")
     if args.json:
         print(json.dumps(sums))

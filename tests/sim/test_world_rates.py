@@ -42,3 +42,16 @@ def test_the_built_in_twins_declare_their_rates():
     assert ReisDevice.step_s == 0.0  # the servo reads the register map at 500 Hz: every 1 ms step
     assert KarelDevice.step_s == 0.002
     assert MvsCameraDevice.step_s == ToolSensorDevice.step_s == SerialCable.step_s == 0.004
+
+
+def test_the_worlds_step_times_give_quantiles_max_and_late_wake_ups():
+    from droid.sim.world import StepTimes
+
+    st = StepTimes()
+    assert st.summary() == "0 wake-ups: steps p50 0 us, p99 0 us, max 0 us; 0 woke >= 20 ms late"
+    for k in range(1000):
+        st.add(35_000 if k < 990 else 2_000_000, 25_000_000 if k == 999 else 100_000)
+    assert st.quantile_us(0.5) == 40.0 and st.quantile_us(0.99) == 40.0 and st.quantile_us(0.995) == 2010.0
+    assert st.summary() == "1000 wake-ups: steps p50 40 us, p99 40 us, max 2000 us; 1 woke >= 20 ms late"
+    st.add(10**12, 0)  # beyond the last bin: counted there, the max exact
+    assert st.hist[-1] == 1 and st.max_ns == 10**12
