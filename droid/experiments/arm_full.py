@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from droid.cli import RuntimeFailure
+from droid.experiments import phases
 from droid.kinematics.transforms import record_pose
 from droid.sim.lockstep import Scheduler
 
@@ -47,11 +48,13 @@ class FullArm:
         then move to the start pose; raises RuntimeFailure if either does not finish."""
         if not self.arm.home(HOME_TIMEOUT_S):
             raise RuntimeFailure(f"full arm model {self.name}: homing did not finish")
+        phases.mark("homed", self.sched)
         counts = np.rint(self.model.gearing.joints_to_counts(self.q_start)).astype(np.int32)
         cmd = self.arm.command_joint(counts, self.arm.ticks_for(MOVE_S))
         if not self.arm.move_done(cmd, MOVE_S + 5.0):
             raise RuntimeFailure(f"full arm model {self.name}: the move to the start pose did not finish")
         self.sched.run_for(SETTLE_S)
+        phases.mark("approached", self.sched)
 
     def command_cart(self, T_global_wcp, ticks: int) -> None:
         self.arm.command_cart(T_global_wcp, ticks)

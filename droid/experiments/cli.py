@@ -52,6 +52,7 @@ from dataclasses import replace
 from typing import Sequence
 
 from droid.cli import ArgumentParser, BadInput, bounded_float, bounded_int, run
+from droid.experiments import phases
 from droid.experiments.jobs import NO_MATPLOTLIB, Job, Outcome, is_contact, json_safe, run_and_store, run_job, store
 from droid.experiments.matrix import EXP4_RUNS, POSITION_LABELS, TABLES, experiments, resolve, valid_forms, with_seed
 from droid.experiments.plan import FIELDS, TRIAL_CONTACT, Plan, PlanTrial, load_plan
@@ -336,8 +337,10 @@ def cmd_run_plan(args) -> int:
             results = write_contact_results(out_dir, plan, lambda t: read_record(out_dir, t), errors)
         else:
             results = write_results(out_dir, plan, errors)
-    return _report(outcomes, t0, workers, dask, f"{plan.name}: {len(outcomes)} trial(s) run, {skipped} resumed",
+    code = _report(outcomes, t0, workers, dask, f"{plan.name}: {len(outcomes)} trial(s) run, {skipped} resumed",
                    f"results: {results}")
+    phases.mark("done")
+    return code
 
 
 def _report(outcomes: list[Outcome], t0: float, workers: int, dask: str | None, head: str, tail: str) -> int:
@@ -422,8 +425,10 @@ def cmd_run(args) -> int:
     t0 = time.perf_counter()
     outcomes = run_jobs(jobs, workers, dask)
     files = write_tables(args.out, outcomes, figures)
-    return _report(outcomes, t0, workers, dask, f"{len(outcomes)} trial(s)",
+    code = _report(outcomes, t0, workers, dask, f"{len(outcomes)} trial(s)",
                    f"tables: {', '.join(f for f in files if f.endswith('summary.md')) or 'none'}")
+    phases.mark("done")
+    return code
 
 
 def _trial_cell(args, picked: list) -> str:
@@ -443,6 +448,7 @@ def _trial_cell(args, picked: list) -> str:
 
 @run
 def main(argv: Sequence[str] | None = None) -> int:
+    phases.mark("main")  # DROID_PHASES=1: the phase report (droid.experiments.phases)
     args = build_parser().parse_args(argv)
     if args.command == "list":
         return cmd_list(args.ids, args.plan)

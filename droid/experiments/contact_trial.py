@@ -28,6 +28,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from droid.experiments import phases
 from droid.experiments.geometry import trial_geometry
 from droid.kinematics.transforms import inv_homo, trans
 from droid.sim.contact import ToolContact
@@ -88,13 +89,16 @@ def run_contact_trial(cfg: ContactTrialConfig) -> ContactResult:
     q_start = geo.reis.ik(T_start, np.zeros(6))
     sched = Scheduler(HEARTBEAT_HZ)
     arm = LockstepArm(sched, geo.layout.tool_robot, base=(0, 0, 0, 0, 0, 0), seed=cfg.seed)
+    phases.mark("built", sched)
     if not arm.home(60.0):
         raise RuntimeError("homing did not finish")
+    phases.mark("homed", sched)
     counts = np.rint(geo.reis.gearing.joints_to_counts(q_start)).astype(np.int32)
     cmd = arm.command_joint(counts, arm.ticks_for(4.0))
     if not arm.move_done(cmd, 9.0):
         raise RuntimeError("the move to the start did not finish")
     sched.run_for(1.0)
+    phases.mark("approached", sched)
     contact = ToolContact(wp, geo.T_global_W, geo.reis.base, T_wcp_tool)
     arm.attach_contact(contact)
     T_wcp_sensor = trans(*FT_POSE_MM)
@@ -130,7 +134,9 @@ def run_contact_trial(cfg: ContactTrialConfig) -> ContactResult:
                          float(v_W[0])))
 
     sched.on_tick(task, "contact.task", order=ORDER_TASK)
+    phases.mark("ready", sched)
     arm.run_until(lambda: station.done is not None, cfg.max_s)
+    phases.mark("tracked", sched)
     stop = station.done or "timeout"
     su = summarize(rows, cfg, stop, station.detail)
     return ContactResult(rows, stop, station.detail, summary_line(su), su.rms_n, su.max_n, su, sched.t_ns / 1e9)

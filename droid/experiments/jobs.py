@@ -18,6 +18,7 @@ import time
 from dataclasses import dataclass, replace
 
 from droid.cli import BadInput
+from droid.experiments import phases
 from droid.experiments.matrix import Experiment
 from droid.experiments.plan import TRIAL_CONTACT, PlanTrial
 from droid.tasks.seam import report
@@ -80,6 +81,7 @@ def run_job(job: Job) -> Outcome:
 
     A trial that cannot start (BadInput: e.g. a start the arm cannot reach)
     is an Outcome with an error."""
+    phases.mark("trial", trial=job.exp.id)
     if is_contact(job.exp):
         return run_contact_job(job)
     cfg = job.exp.config
@@ -103,6 +105,7 @@ def run_job(job: Job) -> Outcome:
                                stop_detail=result.stop_detail, stop_s_mm=result.stop_s_mm,
                                camera_to_tcp_mm=result.camera_to_tcp_mm, commanded_mm_s=cfg.speed_mm_s)
     png, why = render_figure(result.rows, cfg, summary, result) if job.figures else (None, "")
+    phases.mark("figure")
     return Outcome(job.exp, summary, sim_s=result.sim_s, wall_s=result.wall_s, rows=tuple(result.rows),
                    png=png, figure_error=why)
 
@@ -134,6 +137,7 @@ def run_contact_job(job: Job) -> Outcome:
         title = (f"{t.table} {t.id}: {p['force_n']:g} N at {p['speed_mm_s']:g} mm/s, seed {p['seed']}, "
                  f"stop: {su.stop}")
         png, why = _render(lambda path: figure(path, result.rows, su, title))
+    phases.mark("figure")
     return Outcome(t, su, sim_s=result.sim_s, wall_s=wall, rows=tuple(result.rows), png=png, figure_error=why)
 
 

@@ -58,6 +58,7 @@ import numpy as np
 
 from droid.cli import BadInput
 from droid.kinematics.transforms import inv_homo
+from droid.experiments import phases
 from droid.experiments.arm_fast import FastArmParams
 from droid.experiments.geometry import TrialGeometry, trial_geometry
 from droid.experiments.trial_cell import resolve_trial_cell
@@ -295,7 +296,9 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None,
     recorder = _recorder(record, cfg.trial_id, geo) if record is not None else None
     trial = _LockstepTrial(sched, geo, arm, holder, cyc, (lead, tool_sensor), recorder,
                            latency_cycles=cfg.latency_cycles, holder_mm_s=cfg.holder_mm_s)
+    phases.mark("ready", sched)
     trial.run(limit)
+    phases.mark("tracked", sched)
     result = trial.finish()
     result.config = cfg
     result.wall_s = time.perf_counter() - wall0

@@ -35,6 +35,7 @@ from droid.brain.cellfile import BUNDLED_CELLS, Cell, builtin_cell_path, find_fi
 from droid.brain.device import HEARTBEAT_HZ
 from droid.brain.wire import LIVENESS_TICKS
 from droid.cli import BadInput
+from droid.experiments import phases
 from droid.brain.cell_layout import Layout, check_bases, check_robots, layout_for_cell
 
 
@@ -96,11 +97,14 @@ class TrialCell:
 
             arm = FastArm(geo.reis, geo.q_reis_start_deg, fast_params)
             arm.name = tool_robot  # the subunit the tracker's fault rule names
+            for phase in ("built", "homed", "approached"):  # no homing, no approach: it starts at the start
+                phases.mark(phase, sched)
         else:
             from droid.experiments.arm_full import FullArm
 
             welder = self.build(sched, tool_robot, seed)
             arm = FullArm(sched, geo.reis, geo.q_reis_start_deg, welder.arm)
+            phases.mark("built", sched)
             arm.prepare()
         if holder_robot not in self.builders:
             return arm, None
