@@ -124,13 +124,42 @@ def _seam_length_mm(workpiece: str) -> float:
     return load_workpiece(workpiece).length_mm
 
 
+class _NoBar:
+    """The progress bar off: what tqdm's bar does when disabled (``update`` and the context do
+    nothing), without importing tqdm (~10 ms of a process's start-up, issue 44)."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        return False
+
+    def update(self, n: int = 1) -> None:
+        pass
+
+
+def _terminal(f) -> bool:
+    try:
+        return bool(f.isatty())
+    except (AttributeError, ValueError):  # no isatty, or closed
+        return False
+
+
 def _progress(total: int):
+    """The progress bar on stderr: tqdm's, shown only on a terminal (its ``disable=None`` rule)."""
+    if not _terminal(sys.stderr):
+        return _NoBar()
     from tqdm import tqdm
 
     return tqdm(total=total, file=sys.stderr, unit="trial", desc=PROG, dynamic_ncols=True, disable=None)
 
 
 def _emit(line: str) -> None:
+    """A summary line on stdout, around the bar when one may be shown (tqdm.write); the same bytes."""
+    if "tqdm" not in sys.modules:  # no bar was made: nothing to clear and redraw
+        sys.stdout.write(line)
+        sys.stdout.write("\n")
+        return
     from tqdm import tqdm
 
     tqdm.write(line, file=sys.stdout)

@@ -33,13 +33,13 @@ import numpy as np
 from droid.brain.shmdb import MemoryDatabase
 from droid.cli import BadInput
 from droid.kinematics.transforms import pose_to_T
-from droid.sim.abb.controller import EgmController, egm_twin
 from droid.sim.arm_chain import ArmChain
 from droid.sim.lockstep import ORDER_WORLD, Scheduler
 from droid.sim.lockstep_build import LockstepSubunit, builds
-from droid.subunits.abb.egm_core import EgmCore
-from droid.subunits.abb.egm_layout import EGM_STATUS_LAYOUT
-from droid.subunits.abb.egm_prog import EgmStation
+
+# The controller twin and droid-egm's core and station (with the EGM protobuf schema) are
+# imported by LockstepAbbArm when it is built: choosing a lockstep builder imports every arm
+# package's builder module (droid.sim.lockstep_cell.class_builders), a Reis trial too (issue 44).
 
 TWIN_TYPE = "abb_egm"
 #: The world's step rate when the cell's [world] names none [Hz] (droid-sim's default)
@@ -67,6 +67,11 @@ class LockstepAbbArm(ArmChain):
     ``egm``/``planner``/``link`` false stops that program (fault-injection tests)."""
 
     def __init__(self, sched: Scheduler, cell, subunit: str = "abb") -> None:
+        from droid.sim.abb.controller import EgmController, egm_twin
+        from droid.subunits.abb.egm_core import EgmCore
+        from droid.subunits.abb.egm_layout import EGM_STATUS_LAYOUT
+        from droid.subunits.abb.egm_prog import EgmStation
+
         sub = cell.subunit(subunit)
         if sched.heartbeat_hz != cell.heartbeat_hz:
             raise BadInput(f"{cell.path}: heartbeat_hz {cell.heartbeat_hz:g} differs from the lockstep "
