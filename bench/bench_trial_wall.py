@@ -112,7 +112,7 @@ def run_one(tree: Path, args: list[str], out: str) -> dict:
     with tempfile.TemporaryFile() as so, tempfile.TemporaryFile() as se:
         t0 = time.monotonic()
         p = subprocess.Popen([sys.executable, "-c", LAUNCH, "run", *args, "--jobs", "1", "--out", out],
-                             cwd=str(TREE), env=env, stdout=so, stderr=se)
+                             cwd=str(tree), env=env, stdout=so, stderr=se)
         _, status, ru = os.wait4(p.pid, 0)
         t1 = time.monotonic()
         p.returncode = os.waitstatus_to_exitcode(status)
@@ -173,22 +173,26 @@ def imports_bench(trees: dict, n: int) -> dict:
     out = {}
     for name, tree in trees.items():
         env = dict(os.environ, PYTHONPATH=str(tree))
-        cum, walls = [], []
+        cum, walls, cpus = [], [], []
         for _ in range(n):
             t0 = time.monotonic()
             r = subprocess.run([sys.executable, "-X", "importtime", "-c", "import droid.experiments.cli"],
-                               cwd=str(TREE), env=env, capture_output=True, text=True, check=True)
+                               cwd=str(tree), env=env, capture_output=True, text=True, check=True)
             walls.append(time.monotonic() - t0)
             line = [ln for ln in r.stderr.splitlines() if ln.rstrip().endswith("| droid.experiments.cli")][-1]
             cum.append(int(line.split("|")[1]) / 1e6)
+            r = subprocess.run([sys.executable, "-c", "import time, droid.experiments.cli; print(time.process_time())"],
+                               cwd=str(tree), env=env, capture_output=True, text=True, check=True)
+            cpus.append(float(r.stdout))  # the process's CPU: the interpreter's start-up and the import
         rec = {"cli_import_s": {"min": min(cum), "median": statistics.median(cum)},
-               "cli_process_wall_s": {"min": min(walls), "median": statistics.median(walls)}, "load": _load()}
+               "cli_process_wall_s": {"min": min(walls), "median": statistics.median(walls)},
+               "cli_process_cpu_s": {"min": min(cpus), "median": statistics.median(cpus)}, "load": _load()}
         for label, extra in (("run_no_figures", ["--no-figures"]), ("run_figures", [])):
             tmp = tempfile.mkdtemp(prefix="bench-imports-")
             try:
                 r = subprocess.run([sys.executable, "-X", "importtime", "-c", LAUNCH, "run", "1.12", "--seed", "1",
                                     "--length", "10", "--jobs", "1", "--out", tmp, *extra],
-                                   cwd=str(TREE), env=env, capture_output=True, text=True, check=True)
+                                   cwd=str(tree), env=env, capture_output=True, text=True, check=True)
             finally:
                 shutil.rmtree(tmp, ignore_errors=True)
             top, total, mods = [], 0, 0
@@ -233,12 +237,17 @@ def main(argv=None) -> int:
             raise SystemExit(f"--base: {base}/droid/experiments/cli.py not found")
         trees = {"base": base, "this": TREE}
     print(f"# bench_trial_wall  {machine()}  load average {_load()}")
+    for tree in trees.values():  # byte-compiled first (a fresh checkout's first run would compile it)
+        subprocess.run([sys.executable, "-m", "compileall", "-q", str(tree / "droid")], check=True,
+                       stdout=subprocess.DEVNULL)
     if args.imports:
         res = imports_bench(trees, args.imports)
         for name, rec in res.items():
             print(f"\n## {name}: import droid.experiments.cli: {rec['cli_import_s']['min']:.3f} s min, "
                   f"{rec['cli_import_s']['median']:.3f} s median (-X importtime, {args.imports} runs); the process "
-                  f"(python -X importtime -c ...): {rec['cli_process_wall_s']['min']:.3f} s min wall; load {rec['load']}")
+                  f"(python -X importtime -c ...): {rec['cli_process_wall_s']['min']:.3f} s min wall; without "
+                  f"-X importtime, its CPU at the end of the import: {rec['cli_process_cpu_s']['min']:.3f} s min, "
+                  f"{rec['cli_process_cpu_s']['median']:.3f} s median; load {rec['load']}")
             for label in ("run_no_figures", "run_figures"):
                 r = rec[label]
                 print(f"   run 1.12 ({label}): {r['modules']} modules, {r['import_s']:.3f} s of imports (top level, "
