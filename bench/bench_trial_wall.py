@@ -46,7 +46,6 @@ Timing is measured here, never in tests (docs/benchmarks.md).  Usage::
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import platform
@@ -61,6 +60,9 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve()
 TREE = HERE.parent.parent
+sys.path.insert(0, str(TREE))
+
+from droid.cli import ArgumentParser, bounded_int  # noqa: E402
 LAUNCH = ("import sys; sys.argv[0] = 'droid-experiment'; from droid.experiments.cli import main; "
           "sys.exit(main())")
 
@@ -226,12 +228,13 @@ def machine() -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="bench_trial_wall", description=__doc__.split("\n")[0])
+    ap = ArgumentParser(prog="bench_trial_wall", description=__doc__.split("\n")[0])
     ap.add_argument("--only", help=f"comma-separated trial names (of {', '.join(TRIALS)})")
-    ap.add_argument("--repeat", type=int, default=1, help="runs of each trial (and tree)")
+    ap.add_argument("--repeat", type=bounded_int(1, 100), default=1, help="runs of each trial (and tree)")
     ap.add_argument("--no-figures", action="store_true", help="pass --no-figures")
     ap.add_argument("--base", help="an old checkout's top directory, run beside this tree, alternating")
-    ap.add_argument("--imports", type=int, default=0, metavar="N", help="time the imports instead (N runs)")
+    ap.add_argument("--imports", type=bounded_int(0, 100), default=0, metavar="N",
+                    help="time the imports instead (N runs)")
     ap.add_argument("--json", action="store_true", help="also print one JSON object at the end")
     args = ap.parse_args(argv)
     trees = {"this": TREE}
