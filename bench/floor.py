@@ -1,4 +1,4 @@
-"""The machine's latency floor, measured beside a benchmark's figures (DESIGN §9).
+"""The machine's latency floor, measured beside a benchmark's figures (docs/design.md §9).
 
 ``cyclictest`` (Debian package rt-tests) runs a SCHED_FIFO thread that sleeps
 to absolute deadlines and records how late it woke: on a shared host its

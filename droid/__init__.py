@@ -4,8 +4,9 @@ Re-creation of the system described in the thesis (../shared/seed/droid-thesis.t
 a Brain holding a Status/Command database per subunit in POSIX shared memory,
 a 60 Hz heartbeat over ZeroMQ, subunit agents, device drivers and task programs.
 
-Import direction (DESIGN §7): kinematics <- brain <- subunits; tasks use brain and
-kinematics only; sim may use everything and nothing outside sim imports it.
+Import direction (docs/design.md §7): kinematics <- brain <- subunits; tasks use brain,
+kinematics and observe; observe reads brain; sim uses subunits, brain and kinematics;
+experiments sits on top; nothing outside sim and experiments imports sim.
 """
 
 import os as _os

@@ -1,4 +1,4 @@
-"""Command-line conventions shared by every DROID program (DESIGN §6).
+"""Command-line conventions shared by every DROID program (docs/design.md §6).
 
 Exit codes:
   0  success
@@ -70,7 +70,7 @@ def open_input(path, what: str = "", error: type[DroidError] = BadInput, *, miss
 def read_toml(path, what: str) -> dict:
     """A TOML file (cell, layout, plan, workpiece, calibration, ...) as a dict; :class:`BadInput`
     ``<what> <path>: <why>`` when it is missing, a directory, unreadable, not UTF-8 or not TOML.
-    (droid.kinematics reads robot files itself: it imports nothing else of droid, DESIGN §7.)"""
+    (droid.kinematics reads robot files itself: it imports nothing else of droid, docs/design.md §7.)"""
     import tomllib
 
     with open_input(path, what) as f:

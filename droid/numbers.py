@@ -1,5 +1,5 @@
 """A number read from a file, checked once: finite, of the right kind, inside a stated range with
-its unit (issue 16, "Bad input"; DESIGN §6).
+its unit (issue 16, "Bad input"; docs/design.md §6).
 
 TOML has ``nan``, ``inf`` and ``-inf`` literals and takes ``1e308``, so a cell, layout,
 workpiece, robot or plan file can hand a loader any of them.  Every numeric key a loader
@@ -10,7 +10,7 @@ parses with (``droid.cli.bounded_float`` / ``bounded_int`` carry one as ``.range
 rule and its description are written once.
 
 This module imports nothing of droid: ``droid.kinematics`` (which imports nothing else of
-droid, DESIGN §7) checks robot files with it too.
+droid, docs/design.md §7) checks robot files with it too.
 """
 from __future__ import annotations
 

@@ -20,7 +20,7 @@ from hypothesis import settings
 SHM_DIR = "/dev/shm"
 
 # Hypothesis fails an example that takes over 200 ms ("DeadlineExceeded", then "Flaky" when the
-# rerun is quick): a verdict on timing, which no test here may give (DESIGN §8).  Beside the live
+# rerun is quick): a verdict on timing, which no test here may give (docs/design.md §8).  Beside the live
 # half on two cores an example of test_servo_params.py took 274 ms once and failed the suite.
 settings.register_profile("droid", deadline=None)
 settings.load_profile("droid")

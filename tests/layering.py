@@ -1,4 +1,4 @@
-"""The import-layering check the tests share (DESIGN §7): which ``droid`` modules a source file imports."""
+"""The import-layering check the tests share (docs/design.md §7): which ``droid`` modules a source file imports."""
 from __future__ import annotations
 
 import ast

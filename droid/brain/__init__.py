@@ -1,1 +1,1 @@
-"""droid.brain — see DESIGN §7."""
+"""droid.brain — see docs/design.md §7."""

@@ -1,4 +1,4 @@
-"""Cell files (DESIGN §5): one TOML file describes a cell.
+"""Cell files (docs/design.md §5): one TOML file describes a cell.
 
 A cell is one Brain plus subunits.  The file names the subunits, their class
 (``arm6r``, ``line_laser``), robot model, base pose in the global frame, the

@@ -1,4 +1,4 @@
-"""Authenticated, encrypted links between hosts: ZeroMQ CURVE (DESIGN §4; thesis §7.1).
+"""Authenticated, encrypted links between hosts: ZeroMQ CURVE (docs/design.md §4; thesis §7.1).
 
 The thesis's cell trusted its own network; its §7.1 looks ahead to reaching
 the Brain remotely.  A link that leaves a host can be protected with CURVE

@@ -1,4 +1,4 @@
-"""The Brain's device package (DESIGN §11): the Brain's programs, the tools, the generic
+"""The Brain's device package (docs/design.md §11): the Brain's programs, the tools, the generic
 subunit agent, the serial-port driver, the serial-cable twin and the two classes the Brain
 itself defines -- ``arm6r`` (thesis Tables 3.1-3.2, 4.2-4.3) and ``line_laser`` (Table 3.3),
 interfaces that several device packages serve (the Reis and GMF1 program sets both serve

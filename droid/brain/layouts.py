@@ -113,7 +113,7 @@ def _dtype(fields: list[tuple[str, str, tuple | None]], itemsize: int) -> np.dty
     return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": itemsize})
 
 
-#: The public name of the dtype builder, for a device package's own layouts (DESIGN §11):
+#: The public name of the dtype builder, for a device package's own layouts (docs/design.md §11):
 #: ``record_dtype(HEADER_FIELDS + [...], itemsize)``; its kind number must be new.
 record_dtype = _dtype
 

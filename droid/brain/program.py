@@ -3,7 +3,7 @@
 * ``--cell FILE`` (default ``$DROID_CELL``, else the built-in simulated cell);
 * ``--ready-fd N`` (set by ``droid-cell up``): the program writes one byte to
   fd N once it is ready to serve, then closes it — the launcher waits for that
-  handshake instead of sleeping (DESIGN §9);
+  handshake instead of sleeping (docs/design.md §9);
 * a :class:`Presence` record ``/droid.<cell>.proc.<key>`` that the program keeps
   fresh (state, pid, last tick, cycles, overruns), read by ``droid-cell status``;
 * SIGTERM/SIGINT set :data:`Stop.requested`; loops check it and exit cleanly.

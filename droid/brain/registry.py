@@ -1,4 +1,4 @@
-"""The device registry: every device class, program, driver and twin, declared once (DESIGN §11).
+"""The device registry: every device class, program, driver and twin, declared once (docs/design.md §11).
 
 A *device package* (one sub-package of ``droid.subunits`` with its twin beside
 it in ``droid.sim``) declares in ONE module of its own -- ``device.py`` --

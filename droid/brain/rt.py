@@ -1,4 +1,4 @@
-"""Periodic loops on absolute deadlines (DESIGN §9).
+"""Periodic loops on absolute deadlines (docs/design.md §9).
 
 Never ``sleep(period)``: it drifts.  :class:`PeriodicTimer` arms a Linux
 timerfd on CLOCK_MONOTONIC with absolute expirations, so wake-ups stay on the
@@ -134,7 +134,7 @@ class PeriodicTimer:
 #: The servo's 500 Hz loop outranks everything; the watchdog must kick while the servo
 #: lives; the world (the hardware) outranks the programs that drive it except the
 #: servo side; the per-tick programs sit at the heartbeat's level; the sensor and
-#: the encoder program below (DESIGN §9; docs/architecture.md "Real time").
+#: the encoder program below (docs/design.md §9; docs/architecture.md "Real time").
 def __getattr__(name: str):
     if name == "FIFO_PRIORITIES":
         from droid.brain.registry import fifo_priorities

@@ -1,6 +1,6 @@
 """The cell's one serial port: open by URL, read everything waiting, write, notice when it vanishes.
 
-DESIGN §9: "Read with ``read(in_waiting)`` and split lines; ``readline`` makes
+docs/design.md §9: "Read with ``read(in_waiting)`` and split lines; ``readline`` makes
 one syscall a byte."  :class:`PortLink` wraps a pyserial object (or anything
 with ``in_waiting``, ``read``, ``write``, ``reset_input_buffer``, ``close``)
 and never raises: an I/O error closes the port and is kept in ``last_error``;

@@ -2,7 +2,7 @@
 
 Thesis §3.3: "a memory area is created and made globally accessible ... Exclusive
 access to this is granted to the program which has ownership of the semaphore".
-DESIGN §3 and §9 add what a Python cell on Linux needs:
+docs/design.md §3 and §9 add what a Python cell on Linux needs:
 
 * names carry the cell: ``/droid.<cell>.<subunit>.<area>`` (see :func:`db_name`),
   objects are created with mode 0600;
@@ -141,7 +141,7 @@ class Database:
     """One record of ``layout`` in shared memory, guarded by a named semaphore.
 
     ``create=True`` makes a fresh object (replacing a stale one of the same
-    name left by a crashed cell: DESIGN §9 "recreate at cell start");
+    name left by a crashed cell: docs/design.md §9 "recreate at cell start");
     otherwise the object must exist and match the layout.
     """
 

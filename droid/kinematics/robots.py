@@ -97,7 +97,7 @@ def _load_bundled(path: str) -> RobotModel:
 
 def _load_path(path: Path) -> RobotModel:
     # Deliberately its own TOML reading (as droid-mvs's calibration loader): droid.kinematics
-    # imports nothing else of droid (DESIGN §7), so it raises its own RobotFileError.
+    # imports nothing else of droid (docs/design.md §7), so it raises its own RobotFileError.
     try:
         with open(path, "rb") as f:
             data = tomllib.load(f)

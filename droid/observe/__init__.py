@@ -1,7 +1,7 @@
 """Record, replay and watch a cell (thesis §3.4 "to a Graphical User Interface or through a
 TCP/IP network port to be visualized on a remote station or a web page"; §7.3).
 
-Observers read the Brain's databases only, like a task (DESIGN §7: they import
+Observers read the Brain's databases only, like a task (docs/design.md §7: they import
 ``brain`` and ``kinematics``, never ``sim``), and never write a Command:
 
 * :mod:`droid.observe.mcapfile` -- the MCAP layout of a DROID recording (writer + checked reader);

@@ -23,7 +23,7 @@ Lengths are in metres, as Foxglove expects (everything else in DROID is mm).  Th
 URDFs are assets: the app's URDF layer fetches ``package://droid/<robot>.urdf``
 (``<robot>``: each arm's robot file, e.g. ``reis_v15``) over the same connection.
 
-Read-only (DESIGN §10 "Observers never command"): it reads the Brain's databases
+Read-only (docs/design.md §10 "Observers never command"): it reads the Brain's databases
 like a task; the server advertises no capability (no client publish, services,
 parameters or playback control), and whatever a client sends beside subscriptions
 and asset requests is dropped and counted (printed at exit).  It binds 127.0.0.1

@@ -1,4 +1,4 @@
-"""droid-record: the cell's black box (thesis §3.4, §7.3; DESIGN STYLE "rosbag2 / MCAP").
+"""droid-record: the cell's black box (thesis §3.4, §7.3; docs/design.md §10 "Recordings are the cell's black box").
 
 ``droid-record --out FILE.mcap [--cell FILE] [--seconds S] [SUBUNIT ...]``
 records, by heartbeat tick, every Brain Status and Command database of the

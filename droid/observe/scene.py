@@ -120,7 +120,7 @@ def scene_meta(cell, layout_path=None) -> dict:
     ``sensor_pose``, ``workpiece_mount``), and the workpiece's name (``workpiece``).
 
     The workpiece's shape (``workpiece_mesh``, :mod:`droid.sim.workpiece_mesh`) is not here: an
-    observer cannot read the simulator's workpiece model (DESIGN §7).  A recording whose maker may
+    observer cannot read the simulator's workpiece model (docs/design.md §7).  A recording whose maker may
     (a lockstep trial) carries it in its scene metadata."""
     from droid.brain.cell_layout import layout_for_cell
 

@@ -1,1 +1,1 @@
-"""droid.sim — see DESIGN §7."""
+"""droid.sim — see docs/design.md §7."""

@@ -1,4 +1,4 @@
-"""The base of every simulated device in droid-sim (DESIGN §1: the hardware twins).
+"""The base of every simulated device in droid-sim (docs/design.md §1: the hardware twins).
 
 A twin imports this module, never the droid-sim program (:mod:`droid.sim.world`), so
 the world's shell and its devices do not import each other.

@@ -1,4 +1,4 @@
-"""Lockstep: every core and the world stepped in one process on virtual time (DESIGN §2).
+"""Lockstep: every core and the world stepped in one process on virtual time (docs/design.md §2).
 
 The same cores that run as separate real-time processes run here as tasks of a
 :class:`Scheduler`, each at its own rate, on a virtual clock in integer

@@ -1,4 +1,4 @@
-"""The lockstep slot of a device package: one builder a package, one subunit a call (DESIGN §2, §11).
+"""The lockstep slot of a device package: one builder a package, one subunit a call (docs/design.md §2, §11).
 
 A device package's ``DevicePackage.lockstep`` names ``"module:function"``, a **builder**::
 

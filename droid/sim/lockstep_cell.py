@@ -1,4 +1,4 @@
-"""A whole cell file in lockstep: every subunit of every class on one scheduler (DESIGN §2, §11).
+"""A whole cell file in lockstep: every subunit of every class on one scheduler (docs/design.md §2, §11).
 
 :func:`build_lockstep_cell` reads the same cell file ``droid-cell up`` reads and puts every
 subunit on one :class:`~droid.sim.lockstep.Scheduler` at the cell's heartbeat (thesis §3.2),

@@ -4,7 +4,7 @@ The MVS PC writes its "x,y,roll" lines over a serial cable straight to the
 Brain (thesis §2.5, §5.4); the tool-tip measuring sensor (§6.1) reports the
 same way; the Fanuc's KAREL program talks to the GMF1 PC over RS-232 at 9600
 baud (§4.2.4).  A pty or a socket carries bytes as fast as they are written
-(DESIGN §9: "a pty or loop:// does not enforce baud"), so the world paces them
+(docs/design.md §9: "a pty or loop:// does not enforce baud"), so the world paces them
 itself, 10 bits a byte (8N1).  Every simulated serial line is built from the
 pieces here:
 

@@ -17,7 +17,7 @@ tack side, upper surface.  So 3-D seams, rolled and climbing surfaces, a varying
 (the step comes down to nothing) and tacks are drawn from the same data the sensors see.
 
 It lives in ``sim`` (the model's package); the observers, which may not import ``sim``
-(DESIGN §7), get it as data: a lockstep trial puts it in its recording's scene metadata.
+(docs/design.md §7), get it as data: a lockstep trial puts it in its recording's scene metadata.
 """
 from __future__ import annotations
 

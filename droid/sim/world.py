@@ -1,4 +1,4 @@
-"""droid-sim: the world behind the drivers — the hardware twins of the cell (DESIGN §1).
+"""droid-sim: the world behind the drivers — the hardware twins of the cell (docs/design.md §1).
 
 It hosts the simulated devices the cell file asks for and steps them on
 absolute deadlines at ``[world] rate_hz``.  DROID programs never import this

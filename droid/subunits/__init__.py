@@ -1,1 +1,1 @@
-"""droid.subunits — see DESIGN §7."""
+"""droid.subunits — see docs/design.md §7."""

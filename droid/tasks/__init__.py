@@ -1,1 +1,1 @@
-"""droid.tasks — see DESIGN §7."""
+"""droid.tasks — see docs/design.md §7."""

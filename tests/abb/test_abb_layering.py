@@ -1,4 +1,4 @@
-"""DESIGN §7 for the ABB package: the subunit side never imports the world; the twin imports only
+"""docs/design.md §7 for the ABB package: the subunit side never imports the world; the twin imports only
 subunits, brain, kinematics and the world's own Device base."""
 from __future__ import annotations
 

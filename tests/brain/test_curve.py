@@ -1,4 +1,4 @@
-"""CURVE on tcp:// links (DESIGN §4; thesis §7.1): droid-keys, the [curve] table, and real
+"""CURVE on tcp:// links (docs/design.md §4; thesis §7.1): droid-keys, the [curve] table, and real
 sockets on 127.0.0.1 where only the cell's keys get through.
 
 A client with the wrong key is judged by what ZeroMQ reports, not by a wait: its

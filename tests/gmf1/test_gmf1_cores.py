@@ -273,7 +273,7 @@ def test_a_garbled_line_is_a_visible_fault_even_when_good_lines_follow():
 
 
 def test_gmf1_programs_do_not_import_the_world():
-    """DESIGN §7: nothing outside droid/sim imports droid.sim (the programs reach the twin by URL)."""
+    """docs/design.md §7: nothing outside droid/sim imports droid.sim (the programs reach the twin by URL)."""
     import pathlib
 
     import droid.subunits.gmf1 as pkg

@@ -1,4 +1,4 @@
-"""Hostile command lines (issue 8; DESIGN §6): every bad invocation exits 2 with exactly one
+"""Hostile command lines (issue 8; docs/design.md §6): every bad invocation exits 2 with exactly one
 line on stderr naming the reason, never a traceback, and the robot does not move.
 
 The session's shared simulated cell, both arms homed (tests/conftest.py).  Each

@@ -1,4 +1,4 @@
-"""Every program of a subunit, started on a cell that is not up (DESIGN §6, "Bad input").
+"""Every program of a subunit, started on a cell that is not up (docs/design.md §6, "Bad input").
 
 Each must end at once with exit 1 and one line on stderr that says what it could not find,
 and leave nothing of the cell in /dev/shm (the ``no_leaks`` fixture checks; session 17 found

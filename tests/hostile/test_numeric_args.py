@@ -1,4 +1,4 @@
-"""Every numeric argument of every program (issue 16, "Bad input"; DESIGN §6).
+"""Every numeric argument of every program (issue 16, "Bad input"; docs/design.md §6).
 
 The parsers are not listed by hand: droid.cliranges runs every program of
 droid.programs.PROGRAMS (= pyproject.toml's console scripts) with ``parse_args`` intercepted,

@@ -1,4 +1,4 @@
-"""Every number of every shipped file (issue 16, "Bad input"; DESIGN §6).
+"""Every number of every shipped file (issue 16, "Bad input"; docs/design.md §6).
 
 TOML has ``nan``, ``inf`` and ``-inf`` literals and takes ``1e308``: numbers in cell files,
 robot files, seam-tracking layouts, workpieces and experiment plans are real input.  The

@@ -1,4 +1,4 @@
-"""droid-kin: the command-line contract (DESIGN §6) — output forms, stdin mode, exit codes."""
+"""droid-kin: the command-line contract (docs/design.md §6) — output forms, stdin mode, exit codes."""
 from __future__ import annotations
 
 import io

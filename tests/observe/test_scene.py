@@ -57,7 +57,7 @@ def test_seam_map_from_valid_lead_readings():
 
 
 def test_observers_import_only_brain_kinematics_and_cli():
-    """DESIGN §7: observers read the Brain's databases like a task; never a device, a task or the
+    """docs/design.md §7: observers read the Brain's databases like a task; never a device, a task or the
     simulator (the seam layout is cell geometry: droid.brain.cell_layout)."""
     from tests.layering import DROID, droid_imports, within
 

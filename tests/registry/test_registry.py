@@ -1,4 +1,4 @@
-"""The device registry (issue 25 items 1 and 5; DESIGN §11; droid.brain.registry).
+"""The device registry (issue 25 items 1 and 5; docs/design.md §11; droid.brain.registry).
 
 A tiny package outside the repository, ``labsensor``, is written into tmp_path with a
 ``labsensor-0.1.dist-info/entry_points.txt`` (importlib.metadata finds dist-info on

@@ -121,7 +121,7 @@ def test_speed_limit_applies_per_command_period():
 
 
 def test_servo_side_never_imports_the_simulator():
-    """DESIGN §7: nothing outside droid/sim and droid/experiments (the layer above both runners)
+    """docs/design.md §7: nothing outside droid/sim and droid/experiments (the layer above both runners)
     imports droid.sim."""
     from tests.layering import droid_imports, within
 
@@ -133,7 +133,7 @@ def test_servo_side_never_imports_the_simulator():
 
 
 def test_encoder_jump_threshold_scales_with_a_stalled_loop():
-    """DESIGN §9: a host stall of several servo periods is ridden through, a glitch is not."""
+    """docs/design.md §9: a host stall of several servo periods is ridden through, a glitch is not."""
     from droid.subunits.reis.servo import ServoCore
     from droid.subunits.reis.servo_params import Fault, ServoParams
 

@@ -172,7 +172,7 @@ def _local_still(path):
 
 @pytest.mark.shared_cell_first
 def test_realtime_trial_agrees_with_lockstep(homed_sim_cell):
-    """DESIGN §2: the same short trial in both modes agrees within a stated tolerance:
+    """docs/design.md §2: the same short trial in both modes agrees within a stated tolerance:
     after homing (the shared cell's, from the world's seeded power-up pose) and the same joint
     move, the encoder positions agree within 5 counts per joint and the wrist centres within
     0.1 mm."""

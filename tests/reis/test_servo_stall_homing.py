@@ -6,7 +6,7 @@ here in lockstep: the servo misses ticks while the plant goes on (as the world d
 time does, during a host stall); the amplifiers hold the last DAC value, which at the start of
 a homing search is the joint's acceleration torque, so the joint keeps accelerating and runs
 ahead of the target quadratically in the stall's length.  A short stall rides through
-(``periods`` > 1, DESIGN §9); a long one ends in FOLLOWING_ERROR -- the servo's designed
+(``periods`` > 1, docs/design.md §9); a long one ends in FOLLOWING_ERROR -- the servo's designed
 reaction to a joint that is not where it was commanded (max_following_error_counts), not a
 fault of the homing.  docs/safety.md and docs/benchmarks.md have the live figures."""
 from __future__ import annotations

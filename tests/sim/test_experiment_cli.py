@@ -17,7 +17,7 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 PROG = [sys.executable, "-m", "droid.experiments.cli"]
 
 
-def run_cli(*args, timeout=900):  # a hang guard only (DESIGN §8: timing never decides)
+def run_cli(*args, timeout=900):  # a hang guard only (docs/design.md §8: timing never decides)
     return subprocess.run(PROG + list(args), capture_output=True, text=True, timeout=timeout)
 
 

@@ -39,7 +39,7 @@ def test_removed_task_stops():
     assert len(n) == before
 
 
-@settings(deadline=None)  # DESIGN §8: timing never decides a verdict (a loaded host took 398 ms)
+@settings(deadline=None)  # docs/design.md §8: timing never decides a verdict (a loaded host took 398 ms)
 @given(st.floats(1.0, 3000.0), st.floats(0.01, 2.0))
 def test_task_count_matches_rate(rate, seconds):
     s = Scheduler(60.0)

@@ -134,7 +134,7 @@ TASK_MAY_IMPORT = ("droid.brain", "droid.kinematics", "droid.cli", "droid.number
 
 
 def test_tasks_import_only_brain_kinematics_cli_and_tasks():
-    """DESIGN §7: a task sees the Brain's databases, never a device or the simulator."""
+    """docs/design.md §7: a task sees the Brain's databases, never a device or the simulator."""
     from tests.layering import droid_imports, within
 
     for path in TASKS.rglob("*.py"):

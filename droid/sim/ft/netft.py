@@ -1,4 +1,4 @@
-"""The force/torque sensor's twin: an ATI Net F/T on a robot's wrist (thesis §7.3; DESIGN §11).
+"""The force/torque sensor's twin: an ATI Net F/T on a robot's wrist (thesis §7.3; docs/design.md §11).
 
 Device type ``netft`` (``[world.devices.NAME]``)::
 

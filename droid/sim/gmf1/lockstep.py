@@ -1,4 +1,4 @@
-"""Lockstep GMF1: the Fanuc twin and the GMF1 programs' cores in one process on virtual time (DESIGN §2).
+"""Lockstep GMF1: the Fanuc twin and the GMF1 programs' cores in one process on virtual time (docs/design.md §2).
 
 Stepped by :class:`droid.sim.lockstep.Scheduler`:
 

@@ -263,7 +263,7 @@ def build_camera(opts: DeviceOptions, dsp_url: str) -> MvsCameraDevice:
 def publish_workpiece_mesh(world, workpiece: Workpiece) -> None:
     """Write the workpiece's surfaces (:func:`droid.sim.workpiece_mesh.workpiece_mesh`, plain data
     in the workpiece frame W) to ``{run}/workpiece_mesh.json``, where droid-web reads it for a live
-    cell (an observer may not import the simulator, DESIGN §7; a file of data it may read).  Only
+    cell (an observer may not import the simulator, docs/design.md §7; a file of data it may read).  Only
     when the run directory exists (a running cell); written whole (rename), never half."""
     import json
     import os

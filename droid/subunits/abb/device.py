@@ -1,4 +1,4 @@
-"""An ABB arm on Externally Guided Motion as a device package (issue 26, thesis §7.3; DESIGN §11).
+"""An ABB arm on Externally Guided Motion as a device package (issue 26, thesis §7.3; docs/design.md §11).
 
 Serves class ``arm6r`` like the Reis and the GMF1: an ABB subunit runs the Reis package's
 ``droid-reis-agent`` and ``droid-planner`` and this package's ``droid-egm`` in the servo

@@ -1,4 +1,4 @@
-"""The six-axis force/torque sensor (ATI Net F/T over RDT) as a device package (thesis §7.3; DESIGN §11).
+"""The six-axis force/torque sensor (ATI Net F/T over RDT) as a device package (thesis §7.3; docs/design.md §11).
 
 Defines class ``ft6`` (its layout ``ft6_status`` in :mod:`droid.brain.layouts`), its program
 ``droid-ft`` (served by the generic ``droid-agent``; its read rate is its URL's ``rate_hz``),

@@ -1,4 +1,4 @@
-"""ATI Net F/T over Ethernet: RDT on UDP and the calibration page on HTTP (thesis §7.3; DESIGN §11).
+"""ATI Net F/T over Ethernet: RDT on UDP and the calibration page on HTTP (thesis §7.3; docs/design.md §11).
 
 URL (the ``device`` key of an ``ft6`` subunit)::
 

@@ -1,4 +1,4 @@
-"""The GM Fanuc S400 (GMF1) motion controller as a device package (thesis §4.2; DESIGN §11).
+"""The GM Fanuc S400 (GMF1) motion controller as a device package (thesis §4.2; docs/design.md §11).
 
 Serves class ``arm6r`` like the Reis: the Brain sees one kind of arm.  Its programs,
 the encoder-card driver (the KAREL line uses the Brain's ``serial`` driver), the

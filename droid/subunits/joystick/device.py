@@ -1,4 +1,4 @@
-"""The analog joystick as a device package (thesis §2.6 Figure 2.10, §3.4; DESIGN §11).
+"""The analog joystick as a device package (thesis §2.6 Figure 2.10, §3.4; docs/design.md §11).
 
 Defines class ``joystick`` (its layout ``joystick_status``), its program
 ``droid-joystick`` (the generic ``droid-agent`` serves it), its drivers ``js://`` and

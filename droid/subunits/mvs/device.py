@@ -1,4 +1,4 @@
-"""The MVS line-laser seam sensor as a device package (thesis §2.5, §5.3-5.4; DESIGN §11).
+"""The MVS line-laser seam sensor as a device package (thesis §2.5, §5.3-5.4; docs/design.md §11).
 
 Serves class ``line_laser`` (Table 3.3, defined by the Brain).  Its program, the DSP
 board driver (its serial line uses the Brain's ``serial`` driver), its twins -- the

@@ -1,4 +1,4 @@
-"""The Reis motion controller as a device package (thesis §4.1; DESIGN §11).
+"""The Reis motion controller as a device package (thesis §4.1; docs/design.md §11).
 
 Serves class ``arm6r`` (defined by the Brain: the Reis and the GMF1 are both 6R arms
 to it).  Its programs, in the thesis's start order on a real arm1 (watchdog, servo,

@@ -261,7 +261,7 @@ class ServoCore:
         """One servo tick: six raw 16-bit counters [counts] and six switch states
         -> six DAC values [DAC counts, -2048..2047].  ``periods`` > 1 after the host
         stalled the loop (timer overrun): the encoders may then legitimately have
-        moved ``periods`` times farther (DESIGN §9: ride through a stall).
+        moved ``periods`` times farther (docs/design.md §9: ride through a stall).
 
         The hot loop of the servo program and of every lockstep trial (issue 13 item 6):
         per-joint work is done in plain Python ints/floats and the few numpy calls on the

@@ -2,7 +2,7 @@
 
 Shared by the real-time shells and the lockstep arm (:class:`droid.sim.reis.cell.LockstepArm`),
 so both modes run exactly the same code between the messages, the VME cards,
-the records and the cores (DESIGN §10 "one cycle, two runners"); the shells
+the records and the cores (docs/design.md §10 "one cycle, two runners"); the shells
 only open the sockets, the driver and the databases, and keep time:
 
 * :class:`ServoStation` -- droid-servo, 500 Hz: command messages in (§4.1.5.2); encoders

@@ -29,7 +29,7 @@ checked at every tick, between cycles too),
 ``ft stale`` (the F/T Status stale or not valid), ``arm fault`` (the arm's fault bits),
 ``arm stale`` (the arm's Status stale for the stale grace).
 
-:class:`ContactStation` is the task as a station (DESIGN §11, like
+:class:`ContactStation` is the task as a station (docs/design.md §11, like
 droid.tasks.seam.station.SeamtrackStation): a tick's records in, the tick's command out,
 so a real-time shell can run it as the lockstep trial does (droid.experiments.contact_trial).
 """

@@ -1,5 +1,5 @@
 """The seam tracker as one station: a tick's Status records in, the tick's Commands out
-(issue 25 item 3; thesis §5.5, Figure 5.9; DESIGN §11 "A task is a station too").
+(issue 25 item 3; thesis §5.5, Figure 5.9; docs/design.md §11 "A task is a station too").
 
 ``droid-seamtrack`` (the real-time shell, droid/tasks/seamtrack.py) and the lockstep
 trial (droid/experiments/trial.py) both call :meth:`SeamtrackStation.on_tick` once a
