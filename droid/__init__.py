@@ -1,6 +1,7 @@
 """DROID — a Distributed Robot of Intelligent Devices, in Python.
 
-Re-creation of the system described in the thesis (../shared/seed/droid-thesis.txt):
+Re-creation of the system described in the thesis *A Distributed Robot of Intelligent
+Devices (DROID)* (University of Waterloo):
 a Brain holding a Status/Command database per subunit in POSIX shared memory,
 a 60 Hz heartbeat over ZeroMQ, subunit agents, device drivers and task programs.
 

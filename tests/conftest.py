@@ -1,6 +1,6 @@
 """Shared fixtures.
 
-Every test is checked for leaks (STYLE.md, python-can's autouse fixture): a
+Every test is checked for leaks (as python-can's autouse fixture does): a
 test that leaves a ``droid.*`` shared-memory object or semaphore in /dev/shm,
 or a child process running, fails.  Tests that create such objects use a cell
 name from :func:`cell_name`, unique per test.

@@ -1,4 +1,4 @@
-"""ZeroMQ wire formats: one module of constants and (un)packers (STYLE: zguide).
+"""ZeroMQ wire formats: one module of constants and (un)packers (after the ZeroMQ guide's patterns).
 
 Heartbeat tick (PUB/SUB, one 40-byte frame, also used by agents to relay the
 tick to their local programs)::

@@ -5,7 +5,7 @@ cart_to_joint() listing of §4.1.7): joint 1 from atan2 of the wrist-centre
 point (WCP), joints 2 and 3 from the law of cosines in the arm plane, joints
 4-6 as Z-Y-Z Euler angles of ``R_03^T R`` (eq. 4.5-4.9).  This module is that
 solution written for the parameter set of Brandstötter et al. (2014), as in
-opw_kinematics (STYLE.md), so any arm of the class is a data file:
+opw_kinematics (the ROS-Industrial library), so any arm of the class is a data file:
 
     a1, a2, b, c1, c2, c3, c4  [mm]      geometry (zero pose: arm straight up)
     signs[6] (+1/-1), offsets_deg[6]     q_opw = sign * q - offset
