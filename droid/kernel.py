@@ -74,36 +74,32 @@ def _blas_libraries() -> list[str]:
     return paths
 
 
-def _find_gemv() -> tuple[int, bool, str]:
-    """(address, 64-bit ints, where) of the cblas_dgemv numpy's ``@`` calls."""
-    np.dot(np.ones((2, 2)), np.ones(2))  # numpy's BLAS is loaded by now in any case
+def _find_symbol(symbols, what: str) -> tuple[int, bool, str]:
+    """(address, 64-bit ints, where) of the first of ``symbols`` ((name, int64) pairs) in the
+    BLAS/LAPACK libraries numpy has loaded; KernelUnavailable naming ``what`` otherwise."""
     for path in _blas_libraries():
         try:
             lib = ctypes.CDLL(path)  # already loaded: the same handle, the same code
         except OSError:  # pragma: no cover
             continue
-        for name, int64 in _GEMV_SYMBOLS:
+        for name, int64 in symbols:
             fn = getattr(lib, name, None)
             if fn is not None:
                 return ctypes.cast(fn, ctypes.c_void_p).value, int64, f"{os.path.basename(path)}:{name}"
-    raise KernelUnavailable("numpy's BLAS (cblas_dgemv) not found among the loaded libraries "
+    raise KernelUnavailable(f"numpy's {what} not found among the loaded libraries "
                             f"({', '.join(map(os.path.basename, _blas_libraries())) or 'none'})")
+
+
+def _find_gemv() -> tuple[int, bool, str]:
+    """(address, 64-bit ints, where) of the cblas_dgemv numpy's ``@`` calls."""
+    np.dot(np.ones((2, 2)), np.ones(2))  # numpy's BLAS is loaded by now in any case
+    return _find_symbol(_GEMV_SYMBOLS, "BLAS (cblas_dgemv)")
 
 
 def _find_gesv() -> tuple[int, bool, str]:
     """(address, 64-bit ints, where) of numpy's LAPACK dgesv (the one ``np.linalg.solve`` calls)."""
     np.linalg.solve(np.eye(2), np.ones(2))  # numpy's LAPACK is loaded by now in any case
-    for path in _blas_libraries():
-        try:
-            lib = ctypes.CDLL(path)
-        except OSError:  # pragma: no cover
-            continue
-        for name, int64 in _GESV_SYMBOLS:
-            fn = getattr(lib, name, None)
-            if fn is not None:
-                return ctypes.cast(fn, ctypes.c_void_p).value, int64, f"{os.path.basename(path)}:{name}"
-    raise KernelUnavailable("numpy's LAPACK (dgesv) not found among the loaded libraries "
-                            f"({', '.join(map(os.path.basename, _blas_libraries())) or 'none'})")
+    return _find_symbol(_GESV_SYMBOLS, "LAPACK (dgesv)")
 
 
 def _check_gesv(k) -> None:
