@@ -14,11 +14,13 @@ carries the current number, so every client sees the gap
 from __future__ import annotations
 
 import sys
+import time
 
 import zmq
 
 from droid.brain import wire
 from droid.brain.curve import CurveHost
+from droid.brain.layouts import LATENESS_NO_RECORD as NO_RECORD
 from droid.brain.names import NameClient
 from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
 from droid.brain.rt import PeriodicTimer, now_ns, try_sched_fifo
@@ -70,7 +72,13 @@ class TickSubscriber:
     """SUB socket on a heartbeat (or an agent's relay) endpoint.
 
     ``curve``/``server_host``: the CURVE keys of this program's host and the
-    host that publishes (used for ``tcp://`` endpoints of a cell with keys)."""
+    host that publishes (used for ``tcp://`` endpoints of a cell with keys).
+
+    ``lateness_max_ns``: the worst delay from a tick's stamp (``t_ns``, the publisher's
+    CLOCK_MONOTONIC when it sent it) to this program reading it [ns] -- the tick follower's
+    own lateness record, as :class:`droid.brain.rt.PeriodicTimer` keeps one for a timed loop.
+    Kept only where publisher and reader share one clock, an ``ipc://`` endpoint (one
+    machine); elsewhere it stays ``NO_RECORD``."""
 
     def __init__(self, ctx: zmq.Context, endpoint: str, curve: CurveHost | None = None,
                  server_host: str = "") -> None:
@@ -83,6 +91,8 @@ class TickSubscriber:
         self.sock.connect(endpoint)
         self.monitor = TickMonitor()
         self.bad_frames = 0
+        self.same_clock = endpoint.startswith("ipc://")
+        self.lateness_max_ns = 0 if self.same_clock else NO_RECORD
 
     def recv_latest(self) -> wire.Tick | None:
         """Drain the socket; returns the newest valid tick (None if nothing valid)."""
@@ -100,6 +110,10 @@ class TickSubscriber:
             self.monitor.feed(t)
             if newest is None or t.tick > newest.tick:
                 newest = t
+            if self.same_clock:
+                late = time.monotonic_ns() - t.t_ns
+                if late > self.lateness_max_ns:
+                    self.lateness_max_ns = late
 
     def wait(self, timeout_s: float) -> wire.Tick | None:
         """Block up to ``timeout_s`` for the next tick."""

@@ -41,7 +41,7 @@ from dataclasses import asdict, dataclass, field
 
 from droid.brain.cellfile import REMOTES_ONE, Cell, load_cell
 from droid.brain.databases import create_databases
-from droid.brain.layouts import PROC_STATE_NAMES, PROC_STATUS_LAYOUT
+from droid.brain.layouts import LATENESS_NO_RECORD, PROC_STATE_NAMES, PROC_STATUS_LAYOUT
 from droid.brain.program import presence_key, shared_key, use_cell
 from droid.brain.rt import normal_scheduler
 from droid.brain.sensor_link import LINK_AGENT, link_kind
@@ -551,7 +551,8 @@ def status(cell: Cell) -> list[dict]:
                 row["bad_frames"] = int(rec["bad_frames"])
                 row["missed_pct"] = round(float(rec["missed_pct"]), 1)
                 row["lagging"] = bool(rec["lagging"])
-                row["lateness_max_ms"] = round(int(rec["lateness_max_ns"]) / 1e6, 2)
+                late_ns = int(rec["lateness_max_ns"])
+                row["lateness_max_ms"] = None if late_ns == LATENESS_NO_RECORD else round(late_ns / 1e6, 2)
             finally:
                 db.close()
         if not row["alive"]:

@@ -258,7 +258,7 @@ PROC_STATUS = _dtype(
         ("updated_ns", "<i8", None),  # CLOCK_MONOTONIC of last update [ns]
         ("cycles", "<u8", None),  # loop cycles run
         ("overruns", "<u8", None),  # missed deadlines (tick-driven programs: missed ticks)
-        ("lateness_max_ns", "<i8", None),  # worst wake-up lateness [ns]
+        ("lateness_max_ns", "<i8", None),  # worst wake-up lateness [ns]; LATENESS_NO_RECORD: none kept
         ("bad_frames", "<u8", None),  # malformed messages received and dropped (version 2)
         ("missed_pct", "<f4", None),  # share of its periods missed in the last window [%] (version 3)
         ("lagging", "<u4", None),  # 1 while it cannot keep its rate (missed_pct >= LAG_PCT; version 3)
@@ -356,6 +356,10 @@ ARM_COMMAND_LAYOUT = Layout("arm_command", KIND_ARM_COMMAND, 1, ARM_COMMAND, "dr
 SENSOR_STATUS_LAYOUT = Layout("sensor_status", KIND_SENSOR_STATUS, 2, SENSOR_STATUS, "droid_sensor_status")
 CTRL_STATUS_LAYOUT = Layout("ctrl_status", KIND_CTRL_STATUS, 1, CTRL_STATUS, "droid_ctrl_status")
 CTRL_COMMAND_LAYOUT = Layout("ctrl_command", KIND_CTRL_COMMAND, 1, CTRL_COMMAND, "droid_ctrl_command")
+#: ``lateness_max_ns`` of a program that keeps no lateness record (it neither runs on its own
+#: timer nor reads ticks stamped on its own machine's clock)
+LATENESS_NO_RECORD = -1
+
 PROC_STATUS_LAYOUT = Layout("proc_status", KIND_PROC_STATUS, 3, PROC_STATUS, "droid_proc_status")
 JOYSTICK_STATUS_LAYOUT = Layout("joystick_status", KIND_JOYSTICK_STATUS, 1, JOYSTICK_STATUS,
                                 "droid_joystick_status")

@@ -16,7 +16,8 @@ import sys
 import time
 
 from droid.brain.cellfile import Cell, load_cell
-from droid.brain.layouts import PROC_FAILED, PROC_READY, PROC_STARTING, PROC_STATUS_LAYOUT, PROC_STOPPING
+from droid.brain.layouts import (LATENESS_NO_RECORD, PROC_FAILED, PROC_READY, PROC_STARTING, PROC_STATUS_LAYOUT,
+                                 PROC_STOPPING)
 from droid.brain.shmdb import Database, db_name, unlink_database
 from droid.cli import ArgumentParser, bounded_int
 
@@ -169,7 +170,7 @@ class Presence:
         self.name = db_name(cell, "proc", key)
         self.db = Database(self.name, PROC_STATUS_LAYOUT, create=True)
         self.db.update(name=display.encode()[:31], pid=os.getpid(), state=PROC_STARTING,
-                       updated_ns=time.monotonic_ns())
+                       updated_ns=time.monotonic_ns(), lateness_max_ns=LATENESS_NO_RECORD)
         self._last = 0
         self.rate = RateWatch(display)
 
@@ -179,9 +180,9 @@ class Presence:
         return time.monotonic_ns() - self._last >= self.UPDATE_NS
 
     def beat(self, last_tick: int = 0, cycles: int = 0, overruns: int = 0,
-             lateness_max_ns: int = 0, *, bad_frames: int = 0, force: bool = False) -> None:
+             lateness_max_ns: int = LATENESS_NO_RECORD, *, bad_frames: int = 0, force: bool = False) -> None:
         """Refresh the record: last heartbeat tick, loop cycles, overruns (missed deadlines
-        or ticks), worst lateness [ns], malformed messages dropped so far; and whether the
+        or ticks), worst lateness [ns] (``LATENESS_NO_RECORD`` when the loop keeps none), malformed messages dropped so far; and whether the
         program keeps its rate (:class:`RateWatch`: ``missed_pct``, ``lagging``)."""
         now = time.monotonic_ns()
         if not force and now - self._last < self.UPDATE_NS:

@@ -272,7 +272,7 @@ def _serve(served: list[_Served], ticks: TickSubscriber, presence: Presence) -> 
                 s.link.drain(s.station)
         if presence.due():
             presence.beat(last_tick, sum(s.station.core.replies for s in served), ticks.monitor.missed,
-                          bad_frames=sum(s.link.bad_frames for s in served) + ticks.bad_frames)
+                          ticks.lateness_max_ns, bad_frames=sum(s.link.bad_frames for s in served) + ticks.bad_frames)
 
 
 def _cmd_id(payload: bytes, layout=ARM_COMMAND_LAYOUT) -> int | None:

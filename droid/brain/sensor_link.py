@@ -213,7 +213,8 @@ def serve_serial(cell: Cell, sub: Subunit, ready_fd: int | None, prog: str) -> i
                     last_tick = t.tick
                     data, ok = port.poll()
                     status.update(**core.on_tick(t.tick, data, time.monotonic_ns(), ok))
-            presence.beat(last_tick, core.client.lines, ticks.monitor.missed, bad_frames=ticks.bad_frames)
+            presence.beat(last_tick, core.client.lines, ticks.monitor.missed, ticks.lateness_max_ns,
+                          bad_frames=ticks.bad_frames)
     finally:
         port.close()
         ticks.close()

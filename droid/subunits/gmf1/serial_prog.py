@@ -86,7 +86,7 @@ def main(argv=None) -> int:
             if link.opens != opens:
                 opens = link.opens
                 print(f"{PROG}: serial {url} open", file=sys.stderr)
-            presence.beat(t.tick, cycles, ticks.monitor.missed, 0, bad_frames=ticks.bad_frames)
+            presence.beat(t.tick, cycles, ticks.monitor.missed, ticks.lateness_max_ns, bad_frames=ticks.bad_frames)
         print(f"{PROG}: sent {core.sent}, completed {core.completed}, dropped {core.dropped}, refused "
               f"{core.refused}, failed {core.failed}, garbled {core.garbled}, timeouts {core.timeouts}, "
               f"busy rejects {core.busy_rejects}, port opens {link.opens}", file=sys.stderr)

@@ -277,13 +277,13 @@ def main(argv=None) -> int:
         while not Stop.requested:
             t = ticks.wait(0.5)
             if t is None:
-                presence.beat(last, core.refused, ticks.monitor.missed, bad_frames=ticks.bad_frames)
+                presence.beat(last, core.refused, ticks.monitor.missed, ticks.lateness_max_ns, bad_frames=ticks.bad_frames)
                 continue
             last = t.tick
             out = station.cycle(t.tick)
             if out.note:
                 print(f"{PROG} {sub.name}: {out.note}", file=sys.stderr, flush=True)
-            presence.beat(last, core.refused, ticks.monitor.missed, bad_frames=ticks.bad_frames)
+            presence.beat(last, core.refused, ticks.monitor.missed, ticks.lateness_max_ns, bad_frames=ticks.bad_frames)
     finally:
         close_all(ticks, ctx.term, ctrl_command, ctrl_status, presence)
     return 0
