@@ -38,7 +38,7 @@ if [ "$(id -u)" -eq 0 ] && [ ! -e /sys/kernel/debug/sched/debug ]; then
 fi
 echo "== tests that start cells (-m integration), one after another =="
 set +e
-.venv/bin/python -m pytest -q --basetemp "$work/live" -m integration "$@"
+.venv/bin/python -m pytest -q --durations=15 --basetemp "$work/live" -m integration "$@"
 live_rc=$?
 wait "$other_pid"
 other_rc=$?
