@@ -37,16 +37,24 @@ def main(argv=None) -> int:
     cell = open_cell(args)
     with BrainArm(cell, args.robot) as arm:
         arm.connect()
-        arm.check_fresh()
-        arm.wait_idle(args.timeout)
-        cmd_id = arm.command_home()
-        arm.wait_delivered(cmd_id, args.timeout)
-        rec = arm.wait(lambda r: int(r["cmd_id"]) == cmd_id and int(r["busy"]) == 0
-                       and (int(r["homed"]) or int(r["cmd_result"]) != CMD_OK),
-                       args.timeout, f"{args.robot} to report HOMED")
-        arm.check_result(rec, cmd_id)
-        arm.set_normal()
+        home(arm, args.timeout)
     return 0
+
+
+def home(arm: BrainArm, timeout: float = DEFAULT_TIMEOUT_S):
+    """Home the connected ``arm``: wait until idle, command HOME, wait until it reports HOMED, set
+    the command mode NORMAL; its last Status record.  RuntimeFailure (stale, fault, timeout) or
+    BadInput (refused) with the reason.  droid-home's body; droid-ros2's /<arm>/home service."""
+    arm.check_fresh()
+    arm.wait_idle(timeout)
+    cmd_id = arm.command_home()
+    arm.wait_delivered(cmd_id, timeout)
+    rec = arm.wait(lambda r: int(r["cmd_id"]) == cmd_id and int(r["busy"]) == 0
+                   and (int(r["homed"]) or int(r["cmd_result"]) != CMD_OK),
+                   timeout, f"{arm.sub.name} to report HOMED")
+    arm.check_result(rec, cmd_id)
+    arm.set_normal()
+    return rec
 
 
 if __name__ == "__main__":
