@@ -398,14 +398,20 @@ class ArmCommands:
             seq = self.seq
 
             def body():
+                from droid.tasks.arm import Interrupted
+
                 try:
-                    home(self.arm)
+                    home(self.arm, interrupted=self.stop_evt.is_set)
+                except Interrupted as exc:
+                    self.report("home", "stopped", str(exc), home=seq)
+                    return
                 except DroidError as exc:
                     self.say(f"{self.name}: home failed: {exc}")
                     self.report("home", "failed", str(exc), home=seq)
                     return
                 self.report("home", "done", home=seq)
 
+            self.stop_evt.clear()
             self.report("home", "started")
             self.worker = threading.Thread(target=body, daemon=True)
             self.worker.start()
@@ -417,16 +423,16 @@ class ArmCommands:
 
         with self.lock:
             self.seq += 1
-            if self.busy():
-                self.stop_evt.set()  # the move in progress writes a stop over itself (BrainArm.give_up)
-                self.worker.join(2.0)
-            else:
-                try:
-                    arm_command.stop(self.arm.command)
-                except DroidError as exc:
-                    response.success, response.message = False, str(exc)
-                    self.report("stop", "failed", str(exc))
-                    return response
+            running = self.busy()
+            self.stop_evt.set()  # a trajectory or homing in progress gives up (BrainArm.give_up: a stop of its own)
+            try:
+                arm_command.stop(self.arm.command)  # at once, whatever the worker is waiting on (one lock: databases.write_command)
+            except DroidError as exc:
+                response.success, response.message = False, str(exc)
+                self.report("stop", "failed", str(exc))
+                return response
+            if running:
+                self.worker.join(1.0)
             self.report("stop", "done")
         response.success, response.message = True, f"{self.name} stopped where it stood"
         return response
@@ -593,22 +599,26 @@ def main(argv=None) -> int:
     from rclpy.signals import SignalHandlerOptions
 
     rclpy.init(domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
-    node = None
+    node = ex = spin = None
     try:
         node = Ros2Node(cell, args.allow_commands, say)
         from rclpy.executors import MultiThreadedExecutor
 
         ex = MultiThreadedExecutor(num_threads=2)
         ex.add_node(node.node)
-        spin = threading.Thread(target=ex.spin, daemon=True)
+        spin = threading.Thread(target=ex.spin, name="ros2-spin", daemon=True)
         spin.start()
         say(f"cell {cell.name} on ROS 2 domain {domain} ({vals['ROS_AUTOMATIC_DISCOVERY_RANGE']}, "
             f"{vals['RMW_IMPLEMENTATION']}): {len(node.topics())} topics and services; commands "
             f"{'ALLOWED' if args.allow_commands else 'off'}")
         node.run(stop, args.seconds)
         say(f"stopped; {node.published} messages published, {node.own_clock_ticks} ticks on its own clock")
-        ex.shutdown(timeout_sec=1.0)
     finally:
+        # in this order: no rclpy thread may outlive the context (else the C++ runtime aborts at exit)
+        if ex is not None:
+            ex.shutdown(timeout_sec=2.0)
+        if spin is not None:
+            spin.join(2.0)
         if node is not None:
             node.close()
         rclpy.try_shutdown()
