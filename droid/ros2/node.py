@@ -36,7 +36,8 @@ With ``--allow-commands`` only (else no such topic or service exists):
   (``refused`` with the reason, ``started``, ``done``, ``failed``, ``stopped``).
 
 Loopback only unless ``--subnet`` (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST); the domain id is
-``--domain``, else ``$ROS_DOMAIN_ID``, else 0 (:func:`domain_of`).
+``--domain``, else the cell file's ``[ros2] domain_id``, else ``$ROS_DOMAIN_ID``, else 0
+(:func:`domain_of`).
 
 Exit: 0 on SIGINT/SIGTERM or after ``--seconds``; 1 cell not up; 2 bad arguments, the extra
 not installed (one line naming ``pip install 'droid[ros2]'``).
@@ -60,12 +61,17 @@ MARKER_PERIOD_S = 0.5  # /cell_markers twice a second
 M_PER_MM = 1e-3
 WORLD = "world"
 TICK_WAIT_PERIODS = 1.5  # no heartbeat tick within this many periods: publish on our own clock
+#: the scene (link bodies, seam map, laser line: droid.observe.scene.SceneBuilder) every 4th tick, 15 Hz
+#: at 60 Hz -- as droid-foxglove's 30 Hz, the seam map keeps a point a mm; the rest is every tick
+SCENE_EVERY_TICKS = 4
 
 
-def domain_of(args, environ=os.environ) -> int:
-    """``--domain``, else ``$ROS_DOMAIN_ID``, else 0."""
+def domain_of(args, cell=None, environ=os.environ) -> int:
+    """``--domain``, else the cell file's ``[ros2] domain_id``, else ``$ROS_DOMAIN_ID``, else 0."""
     if args.domain is not None:
         return args.domain
+    if cell is not None and getattr(cell, "ros2_domain", None) is not None:
+        return int(cell.ros2_domain)
     v = environ.get("ROS_DOMAIN_ID", "").strip()
     if v:
         try:
@@ -156,10 +162,14 @@ class Feed:
         o.x, o.y, o.z, o.w = quat_xyzw(T[:3, :3])
         return m
 
-    def tick(self, st: dict[str, dict]) -> tuple[list[tuple[str, object]], dict]:
-        """``([(topic, message)], geometry)`` of one snapshot (``geometry``: :meth:`SceneBuilder.step`)."""
+    def tick(self, st: dict[str, dict], scene: bool = True) -> tuple[list[tuple[str, object]], dict | None]:
+        """``([(topic, message)], geometry)`` of one snapshot; ``geometry`` (:meth:`SceneBuilder.step`:
+        bodies, seam map, laser line; None without ``scene``) is what the markers draw."""
+        from droid.observe.scene import status_T
+
         out: list[tuple[str, object]] = []
-        geo = self.scene.step(st)
+        geo = self.scene.step(st) if scene else None
+        wcp: dict[str, np.ndarray] = {}
         for arm, gearing in self.arms.items():
             d = st.get(arm)
             if d is None:
@@ -171,13 +181,12 @@ class Feed:
             q = gearing.counts_to_joints(np.asarray(d["encoder_pos"], float))
             js.position = [math.radians(float(v)) for v in q]
             out.append((f"/{arm}/joint_states", js))
-            T = geo["frames"].get(f"{arm}/wcp")
-            if T is not None:
-                out.append((f"/{arm}/tool_pose", self._pose_msg(T, stamp, WORLD)))
-        tool = geo["frames"].get("tool")
-        if tool is not None:
+            wcp[arm] = T = status_T(d)
+            out.append((f"/{arm}/tool_pose", self._pose_msg(T, stamp, WORLD)))
+        if self.tool_robot in wcp and self.scene.T_wcp_tool is not None:
             d = st.get(self.tool_robot) or {}
-            out.append(("/tcp_pose", self._pose_msg(tool, self.stamp(d.get("updated_ns")), WORLD)))
+            out.append(("/tcp_pose", self._pose_msg(wcp[self.tool_robot] @ self.scene.T_wcp_tool,
+                                                    self.stamp(d.get("updated_ns")), WORLD)))
         for ft in self.fts:
             d = st.get(ft)
             if d is None or d.get("stale") or not d.get("valid"):
@@ -197,8 +206,6 @@ class Feed:
             if self._last_reading.get(s) == key:
                 continue
             self._last_reading[s] = key
-            from droid.observe.scene import status_T
-
             m = self._pose_msg(status_T(d), self.stamp(d.get("updated_ns")), "sensor" if s == self.lead else s)
             m.pose.position.z = float(d.get("z", 0.0)) * M_PER_MM
             out.append((f"/{s}/reading", m))
@@ -447,6 +454,33 @@ class ArmCommands:
 # ------------------------------------------------------------------ the program
 
 
+class StatusReader:
+    """The Status record of every subunit of the cell, read-only (what the publishers need; the Command
+    records are opened only by :class:`ArmCommands`)."""
+
+    def __init__(self, cell) -> None:
+        from droid.brain.databases import brain_layouts, open_brain
+
+        self.dbs = []
+        try:
+            for sub in cell.subunits.values():
+                if "status" in brain_layouts(sub):
+                    self.dbs.append((sub.name, open_brain(cell, sub, "status")))
+        except BaseException:
+            self.close()
+            raise
+
+    def read(self) -> dict[str, dict]:
+        from droid.observe.schemas import record_to_dict
+
+        return {name: record_to_dict(db.read()) for name, db in self.dbs}
+
+    def close(self) -> None:
+        for _, db in self.dbs:
+            db.close()
+        self.dbs = []
+
+
 class Ros2Node:
     """The node: publishers (+ commands), paced by the heartbeat (:meth:`run`)."""
 
@@ -460,14 +494,13 @@ class Ros2Node:
         from visualization_msgs.msg import MarkerArray
 
         from droid.observe.mcapfile import cell_meta
-        from droid.observe.sampler import CellSampler
         from droid.observe.scene import scene_meta
 
         self.cell = cell
         self.say = say
         self.meta = cell_meta(cell, "live", scene_meta(cell))
         self.urdfs = arm_urdfs(cell)
-        self.sampler = CellSampler(cell).connect()  # RuntimeFailure (exit 1) if the cell is not up
+        self.sampler = StatusReader(cell)  # RuntimeFailure (exit 1) if the cell is not up
         self.feed = Feed(cell, self.meta)
         self.node = rclpy.create_node("droid", namespace="/", context=None)
         qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -497,6 +530,8 @@ class Ros2Node:
         self.own_clock_ticks = 0
         self._diag_t = self._marker_t = -math.inf
         self._health: dict = {}
+        self._n = 0
+        self._geo: dict | None = None
 
     def topics(self) -> list[str]:
         t = list(self.pubs) + ["/diagnostics", "/cell_markers"] + [f"/{a}/robot_description" for a in self.desc_pubs]
@@ -505,15 +540,16 @@ class Ros2Node:
         return t
 
     def once(self, heard_tick: bool) -> None:
-        from droid.observe import schemas
         from droid.observe.sampler import health
 
         try:
-            st = {s: schemas.record_to_dict(r) for s, a, _, r in self.sampler.read() if a == "status"}
+            st = self.sampler.read()
         except DroidError as exc:  # a database held too long: skip this tick
             self.say(f"read: {exc}")
             return
-        msgs, geo = self.feed.tick(st)
+        self._n += 1
+        msgs, geo = self.feed.tick(st, scene=self._geo is None or self._n % SCENE_EVERY_TICKS == 0)
+        self._geo = geo or self._geo
         for topic, m in msgs:
             self.pubs[topic].publish(m)
         self.published += len(msgs)
@@ -532,7 +568,7 @@ class Ros2Node:
             self.published += 1
         if now - self._marker_t >= MARKER_PERIOD_S:
             self._marker_t = now
-            self.marker_pub.publish(self.feed.markers(geo))
+            self.marker_pub.publish(self.feed.markers(self._geo))
             self.published += 1
 
     def run(self, stop: threading.Event, seconds: float | None) -> None:
@@ -547,8 +583,17 @@ class Ros2Node:
         t_end = None if seconds is None else time.monotonic() + seconds
         try:
             heard = True
+            nxt = time.monotonic()
             while not stop.is_set() and (t_end is None or time.monotonic() < t_end):
-                t = ticks.wait(TICK_WAIT_PERIODS * period if heard else period)
+                if heard:
+                    t = ticks.wait(TICK_WAIT_PERIODS * period)
+                    nxt = time.monotonic()  # no tick: our own clock starts from here
+                else:  # our own clock: absolute deadlines a period apart, as the heartbeat keeps them
+                    nxt += period
+                    now = time.monotonic()
+                    if nxt < now - 1.0:
+                        nxt = now
+                    t = ticks.wait(max(0.0, nxt - now))
                 heard = t is not None
                 if not heard:
                     self.own_clock_ticks += 1
@@ -572,21 +617,21 @@ def main(argv=None) -> int:
                       "and robot descriptions from the Brain's databases; with --allow-commands trajectories "
                       "and home/stop services through droid-move's checks.")
     ap.add_argument("--domain", type=bounded_int(0, env.DOMAIN_MAX, "domain id"), default=None, metavar="N",
-                    help=f"ROS 2 domain id in [0, {env.DOMAIN_MAX}] (default: $ROS_DOMAIN_ID, else 0)")
+                    help=f"ROS 2 domain id in [0, {env.DOMAIN_MAX}] (default: the cell file's [ros2] domain_id, "
+                         f"else $ROS_DOMAIN_ID, else 0)")
     ap.add_argument("--subnet", action="store_true",
                     help="discover peers on the subnet (default: loopback only, ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST)")
     ap.add_argument("--allow-commands", action="store_true",
                     help="offer /<arm>/joint_trajectory and the /<arm>/home, /<arm>/stop services (default: none exist)")
     ap.add_argument("--seconds", type=duration_s(), default=None, metavar="S", help="stop after S seconds")
     args = ap.parse_args(argv)
-    domain = domain_of(args)
-    env.check_domain(domain)
     if not env.installed():
         raise BadInput(f"the ROS 2 Python packages are not installed: {env.EXTRA_HINT}")
+    cell = open_cell(args)
+    domain = env.check_domain(domain_of(args, cell))
     env.ensure_library_path()
     vals = env.ros_environment(domain, args.subnet)
     rclpy = env.import_rclpy()
-    cell = open_cell(args)
 
     def say(line: str) -> None:
         print(f"{PROG}: {line}", file=sys.stderr, flush=True)

@@ -130,6 +130,24 @@ def test_bad_ros_domain_id_in_the_environment(monkeypatch, capsys):
     assert len(err) == 1 and "ROS_DOMAIN_ID" in err[0]
 
 
+def test_domain_from_the_flag_then_the_cell_file_then_the_environment(tmp_path):
+    from types import SimpleNamespace
+
+    from droid.brain.cellfile import builtin_cell_path, load_cell
+    from droid.ros2.node import domain_of
+
+    p = tmp_path / "c.toml"
+    p.write_text(builtin_cell_path().read_text() + "\n[ros2]\ndomain_id = 42\n")
+    cell, plain = load_cell(p), load_cell(builtin_cell_path())
+    assert domain_of(SimpleNamespace(domain=7), cell, {"ROS_DOMAIN_ID": "9"}) == 7
+    assert domain_of(SimpleNamespace(domain=None), cell, {"ROS_DOMAIN_ID": "9"}) == 42
+    assert domain_of(SimpleNamespace(domain=None), plain, {"ROS_DOMAIN_ID": "9"}) == 9
+    assert domain_of(SimpleNamespace(domain=None), plain, {}) == 0
+    p.write_text(builtin_cell_path().read_text() + "\n[ros2]\ndomain_id = 300\n")
+    with pytest.raises(Exception, match="domain id"):
+        load_cell(p)
+
+
 def test_environment_is_loopback_unless_subnet():
     from droid.ros2.env import ros_environment
 
