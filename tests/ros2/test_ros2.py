@@ -368,3 +368,53 @@ def test_a_good_trajectory_becomes_droid_moves_command_and_stop_ends_it(db_cell,
     assert int(cmd["joint_time_count"]) == arm_command.ticks_for(1.0, cell.heartbeat_hz)
     assert stop["success"] is True, stop
     assert int(after["cmd_id"]) > int(cmd["cmd_id"])  # a stop was written over the move
+
+
+# ------------------------------------------------------------------ the bag export and the live topics
+
+
+@needs_rclpy
+def test_live_messages_are_the_bags_message_definitions(db_cell):
+    """Every message droid-ros2 publishes, serialized by rclpy (CDR, the wheels' Kilted definitions),
+    decodes with the ROS 2 bag export's type store (rosbags, Jazzy), and what rosbags serializes of it
+    decodes in rclpy to an equal message; the topics both write (joint states, tool poses, laser
+    readings) hold the same values."""
+    from rclpy.serialization import deserialize_message, serialize_message
+
+    from droid.observe.bag import BagConverter, typestore
+    from droid.observe.mcapfile import cell_meta
+    from droid.observe.scene import scene_meta
+    from droid.ros2.node import Feed, StatusReader
+
+    cell, _ = db_cell
+    write_statuses(cell)
+    reader = StatusReader(cell)
+    try:
+        st = reader.read()
+    finally:
+        reader.close()
+    meta = cell_meta(cell, "live", scene_meta(cell))
+    feed = Feed(cell, meta)
+    msgs, geo = feed.tick(st)
+    msgs += [("/diagnostics", feed.diagnostics(st, {"programs": []})), ("/cell_markers", feed.markers(geo))]
+    ts = typestore()
+    live = {}
+    for topic, m in msgs:
+        typ = type(m).__module__.split(".")[0] + "/msg/" + type(m).__name__
+        raw = bytes(serialize_message(m))
+        assert raw[:4] == b"\x00\x01\x00\x00", topic  # plain CDR, little endian: what a bag stores
+        msgdef = ts.get_msgdef(typ)
+        back, pos = msgdef.deserialize_cdr_le(raw[4:], 0, msgdef.cls, ts)
+        assert len(raw) - 4 - pos < 16, topic  # rclpy's buffer may end in alignment padding
+        wire = deserialize_message(raw, type(m))  # as a subscriber gets it (float32 fields rounded)
+        assert deserialize_message(bytes(ts.serialize_cdr(back, typ)), type(m)) == wire, topic
+        live[topic] = back
+    assert {"/arm1/joint_states", "/arm1/tool_pose", "/ft/wrench", "/mvs/reading", "/cell_markers"} <= set(live)
+    bag = {topic: m for topic, _, m in BagConverter(meta, ts).step(1_000_000_000, st)}
+    for topic in ("/arm1/joint_states", "/gmf1/joint_states"):
+        assert list(bag[topic].name) == list(live[topic].name)
+        assert np.allclose(bag[topic].position, live[topic].position, rtol=0, atol=1e-12)
+    for topic in ("/arm1/tool_pose", "/mvs/reading"):
+        a, b = bag[topic].pose, live[topic].pose
+        assert bag[topic].header.frame_id == live[topic].header.frame_id, topic
+        assert np.allclose([a.position.x, a.position.y, a.position.z], [b.position.x, b.position.y, b.position.z]), topic
