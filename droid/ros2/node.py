@@ -62,7 +62,9 @@ M_PER_MM = 1e-3
 WORLD = "world"
 TICK_WAIT_PERIODS = 1.5  # no heartbeat tick within this many periods: publish on our own clock
 #: the scene (link bodies, seam map, laser line: droid.observe.scene.SceneBuilder) every 4th tick, 15 Hz
-#: at 60 Hz -- as droid-foxglove's 30 Hz, the seam map keeps a point a mm; the rest is every tick
+#: at 60 Hz -- as droid-foxglove's 30 Hz, the seam map keeps a point a mm -- while someone watches the
+#: markers or the lead sensor reads (the seam map grows); the rest every tick, each topic only while
+#: someone subscribes to it
 SCENE_EVERY_TICKS = 4
 
 
@@ -162,11 +164,13 @@ class Feed:
         o.x, o.y, o.z, o.w = quat_xyzw(T[:3, :3])
         return m
 
-    def tick(self, st: dict[str, dict], scene: bool = True) -> tuple[list[tuple[str, object]], dict | None]:
+    def tick(self, st: dict[str, dict], scene: bool = True, wanted=None) -> tuple[list[tuple[str, object]], dict | None]:
         """``([(topic, message)], geometry)`` of one snapshot; ``geometry`` (:meth:`SceneBuilder.step`:
-        bodies, seam map, laser line; None without ``scene``) is what the markers draw."""
+        bodies, seam map, laser line; None without ``scene``) is what the markers draw.  ``wanted(topic)``
+        false: that topic's message is not built (no one subscribes to it)."""
         from droid.observe.scene import status_T
 
+        want = wanted or (lambda topic: True)
         out: list[tuple[str, object]] = []
         geo = self.scene.step(st) if scene else None
         wcp: dict[str, np.ndarray] = {}
@@ -175,21 +179,23 @@ class Feed:
             if d is None:
                 continue
             stamp = self.stamp(d.get("updated_ns"))
-            js = self.M["JointState"]()
-            js.header.stamp = stamp
-            js.name = self.names
-            q = gearing.counts_to_joints(np.asarray(d["encoder_pos"], float))
-            js.position = [math.radians(float(v)) for v in q]
-            out.append((f"/{arm}/joint_states", js))
+            if want(f"/{arm}/joint_states"):
+                js = self.M["JointState"]()
+                js.header.stamp = stamp
+                js.name = self.names
+                q = gearing.counts_to_joints(np.asarray(d["encoder_pos"], float))
+                js.position = [math.radians(float(v)) for v in q]
+                out.append((f"/{arm}/joint_states", js))
             wcp[arm] = T = status_T(d)
-            out.append((f"/{arm}/tool_pose", self._pose_msg(T, stamp, WORLD)))
-        if self.tool_robot in wcp and self.scene.T_wcp_tool is not None:
+            if want(f"/{arm}/tool_pose"):
+                out.append((f"/{arm}/tool_pose", self._pose_msg(T, stamp, WORLD)))
+        if self.tool_robot in wcp and self.scene.T_wcp_tool is not None and want("/tcp_pose"):
             d = st.get(self.tool_robot) or {}
             out.append(("/tcp_pose", self._pose_msg(wcp[self.tool_robot] @ self.scene.T_wcp_tool,
                                                     self.stamp(d.get("updated_ns")), WORLD)))
         for ft in self.fts:
             d = st.get(ft)
-            if d is None or d.get("stale") or not d.get("valid"):
+            if d is None or d.get("stale") or not d.get("valid") or not want(f"/{ft}/wrench"):
                 continue
             w = self.M["WrenchStamped"]()
             w.header.stamp = self.stamp(d.get("updated_ns"))
@@ -206,9 +212,9 @@ class Feed:
             if self._last_reading.get(s) == key:
                 continue
             self._last_reading[s] = key
-            m = self._pose_msg(status_T(d), self.stamp(d.get("updated_ns")), "sensor" if s == self.lead else s)
-            m.pose.position.z = float(d.get("z", 0.0)) * M_PER_MM
-            out.append((f"/{s}/reading", m))
+            if want(f"/{s}/reading"):
+                out.append((f"/{s}/reading", self._pose_msg(status_T(d), self.stamp(d.get("updated_ns")),
+                                                            "sensor" if s == self.lead else s)))
         return out, geo
 
     # -- diagnostics ---------------------------------------------------------------
@@ -533,6 +539,10 @@ class Ros2Node:
         self._n = 0
         self._geo: dict | None = None
 
+    def _listened(self, topic: str) -> bool:
+        """Whether anyone subscribes to ``topic`` (a message no one takes is not built)."""
+        return self.pubs[topic].get_subscription_count() > 0
+
     def topics(self) -> list[str]:
         t = list(self.pubs) + ["/diagnostics", "/cell_markers"] + [f"/{a}/robot_description" for a in self.desc_pubs]
         for c in self.commands.values():
@@ -548,13 +558,17 @@ class Ros2Node:
             self.say(f"read: {exc}")
             return
         self._n += 1
-        msgs, geo = self.feed.tick(st, scene=self._geo is None or self._n % SCENE_EVERY_TICKS == 0)
+        lead = st.get(self.feed.lead) or {}
+        seam = bool(lead) and not lead.get("stale") and not lead.get("homed")  # the seam map grows
+        scene = self._geo is None or (self._n % SCENE_EVERY_TICKS == 0 and
+                                      (seam or self.marker_pub.get_subscription_count() > 0))
+        msgs, geo = self.feed.tick(st, scene=scene, wanted=self._listened)
         self._geo = geo or self._geo
         for topic, m in msgs:
             self.pubs[topic].publish(m)
         self.published += len(msgs)
         now = time.monotonic()
-        if now - self._diag_t >= DIAG_PERIOD_S:
+        if now - self._diag_t >= DIAG_PERIOD_S and self.diag_pub.get_subscription_count() > 0:
             self._diag_t = now
             self._health = health(self.cell)
             arr = self.feed.diagnostics(st, self._health)
@@ -566,7 +580,7 @@ class Ros2Node:
                                                    values=[KeyValue(key="own_clock_ticks", value=str(self.own_clock_ticks))]))
             self.diag_pub.publish(arr)
             self.published += 1
-        if now - self._marker_t >= MARKER_PERIOD_S:
+        if now - self._marker_t >= MARKER_PERIOD_S and self.marker_pub.get_subscription_count() > 0:
             self._marker_t = now
             self.marker_pub.publish(self.feed.markers(self._geo))
             self.published += 1

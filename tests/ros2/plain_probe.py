@@ -14,6 +14,12 @@ with ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST.  Prints one JSON object on stdout.
         messages until one is not "started" (or TIMEOUT_S)
     plain_probe.py trigger SERVICE TIMEOUT_S
         calls a std_srvs/Trigger service
+    plain_probe.py stream OUT.json SECONDS TOPIC ...
+        every sensor_msgs/JointState of each TOPIC for SECONDS after the first arrives: its arrival
+        (CLOCK_REALTIME ns), header stamp (ns) and positions (latency and delivery of bench/bench_ros2.py)
+    plain_probe.py floor-pub TOPIC SECONDS RATE_HZ
+        publishes sensor_msgs/JointState stamped at publishing, on absolute deadlines: the
+        middleware's own floor for the same measure
 """
 from __future__ import annotations
 
@@ -131,6 +137,54 @@ def trigger(service: str, timeout_s: float) -> dict:
     return {"success": r.success, "message": r.message} if r is not None else {"error": "no answer"}
 
 
+def stream(out: str, seconds: float, topics: list[str]) -> dict:
+    from sensor_msgs.msg import JointState
+
+    node = rclpy.create_node("plain_probe_stream")
+    got: dict = {t: [] for t in topics}
+
+    def cb(m, topic):
+        now = time.time_ns()
+        got[topic].append([now, m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec, list(m.position)])
+
+    subs = [node.create_subscription(JointState, t, lambda m, t=t: cb(m, t), 100) for t in topics]
+    spin_until(node, lambda: all(got.values()), 60.0)
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    with open(out, "w") as f:
+        json.dump(got, f)
+    del subs
+    node.destroy_node()
+    return {t: len(v) for t, v in got.items()}
+
+
+def floor_pub(topic: str, seconds: float, rate: float) -> dict:
+    from sensor_msgs.msg import JointState
+
+    node = rclpy.create_node("plain_probe_floor")
+    pub = node.create_publisher(JointState, topic, 100)
+    spin_until(node, lambda: pub.get_subscription_count() > 0, 60.0)
+    period, n = 1.0 / rate, 0
+    nxt = time.monotonic()
+    end = nxt + seconds
+    while time.monotonic() < end:
+        nxt += period
+        try:
+            time.sleep(max(0.0, nxt - time.monotonic()))
+        except KeyboardInterrupt:  # the bench stops it with SIGINT
+            break
+        m = JointState()
+        t = time.time_ns()
+        m.header.stamp.sec, m.header.stamp.nanosec = t // 1_000_000_000, t % 1_000_000_000
+        m.name = [f"joint_{i}" for i in range(1, 7)]
+        m.position = [0.0] * 6
+        pub.publish(m)
+        n += 1
+    node.destroy_node()
+    return {"published": n}
+
+
 def main() -> int:
     cmd, *rest = sys.argv[1:]
     rclpy.init()
@@ -143,6 +197,10 @@ def main() -> int:
             res = trajectory(rest[0], float(rest[1]), rest[2])
         elif cmd == "trigger":
             res = trigger(rest[0], float(rest[1]))
+        elif cmd == "stream":
+            res = stream(rest[0], float(rest[1]), rest[2:])
+        elif cmd == "floor-pub":
+            res = floor_pub(rest[0], float(rest[1]), float(rest[2]))
         else:
             raise SystemExit(f"unknown command {cmd}")
     finally:
