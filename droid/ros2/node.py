@@ -1,6 +1,8 @@
 """droid-ros2: the cell as a ROS 2 node, an observer and (with --allow-commands) a task (issue 42; docs/ros2.md).
 
 ``droid-ros2 [--cell FILE] [--domain N] [--subnet] [--allow-commands] [--seconds S]``
+``droid-ros2 --setup DIR [--cell FILE]``: the arms' URDFs into DIR and the shell lines that give a
+ROS 2 machine the cell's /tf (:func:`setup_lines`); needs no ROS.
 
 On every heartbeat tick it reads the Brain's Status databases (read-only, like droid-web and
 droid-foxglove; docs/design.md §10 "Observers never command") and publishes with rclpy:
@@ -101,6 +103,28 @@ def arm_urdfs(cell) -> dict[str, str]:
         _, mounts = cell_mounts(raw, s.name, f"cell {cell.path}")
         out[s.name] = robot_urdf(load_robot(s.robot), tool=mounts.get("tool"), sensor=mounts.get("sensor"))
     return out
+
+
+def setup_lines(cell) -> list[str]:
+    """Shell lines for a ROS 2 machine that put the cell's arms into /tf (tf2_msgs has no wheel, so
+    droid-ros2 publishes no /tf): per arm a static_transform_publisher of ``world`` -> ``<arm>/base_link``
+    (the cell file's base) and a robot_state_publisher in the arm's namespace on its joint states,
+    with the URDF ``droid-kin urdf`` writes (``<arm>.urdf``, written next to the lines)."""
+    from droid.kinematics.transforms import pose_to_T
+
+    lines = [f"# the cell {cell.name}: run on the ROS 2 machine (same ROS_DOMAIN_ID; see docs/ros2.md)"]
+    for s in cell.subunits.values():
+        if not s.is_arm or not s.robot:
+            continue
+        T = pose_to_T(*s.base)
+        qx, qy, qz, qw = quat_xyzw(T[:3, :3])
+        x, y, z = (float(T[i, 3]) * M_PER_MM for i in range(3))
+        lines += [f"# {s.name} ({s.robot}): its URDF in {s.name}.urdf (droid-kin urdf --cell FILE --subunit {s.name})",
+                  f"ros2 run tf2_ros static_transform_publisher --x {x:.6g} --y {y:.6g} --z {z:.6g} --qx {qx:.9g} "
+                  f"--qy {qy:.9g} --qz {qz:.9g} --qw {qw:.9g} --frame-id {WORLD} --child-frame-id {s.name}/base_link &",
+                  f"ros2 run robot_state_publisher robot_state_publisher --ros-args -r __ns:=/{s.name} "
+                  f"-p frame_prefix:={s.name}/ -p robot_description:=\"$(cat {s.name}.urdf)\" &"]
+    return lines
 
 
 # ------------------------------------------------------------------ Status -> ROS messages
@@ -638,7 +662,23 @@ def main(argv=None) -> int:
     ap.add_argument("--allow-commands", action="store_true",
                     help="offer /<arm>/joint_trajectory and the /<arm>/home, /<arm>/stop services (default: none exist)")
     ap.add_argument("--seconds", type=duration_s(), default=None, metavar="S", help="stop after S seconds")
+    ap.add_argument("--setup", metavar="DIR", default=None,
+                    help="write each arm's URDF into DIR and print the shell lines that give a ROS 2 machine the "
+                         "cell's /tf (static_transform_publisher, robot_state_publisher); needs no ROS here")
     args = ap.parse_args(argv)
+    if args.setup is not None:
+        cell = open_cell(args)
+        from pathlib import Path
+
+        out = Path(args.setup)
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+            for arm, text in arm_urdfs(cell).items():
+                (out / f"{arm}.urdf").write_text(text)
+        except OSError as exc:
+            raise BadInput(f"--setup {args.setup}: {exc.strerror or exc}") from None
+        print("\n".join(setup_lines(cell)))
+        return 0
     if not env.installed():
         raise BadInput(f"the ROS 2 Python packages are not installed: {env.EXTRA_HINT}")
     cell = open_cell(args)

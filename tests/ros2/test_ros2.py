@@ -418,3 +418,22 @@ def test_live_messages_are_the_bags_message_definitions(db_cell):
         a, b = bag[topic].pose, live[topic].pose
         assert bag[topic].header.frame_id == live[topic].header.frame_id, topic
         assert np.allclose([a.position.x, a.position.y, a.position.z], [b.position.x, b.position.y, b.position.z]), topic
+
+
+def test_setup_writes_the_urdfs_and_the_tf_lines(tmp_path, capsys):
+    """--setup needs no ROS: the arms' URDFs as droid-kin urdf writes them and, per arm, a
+    static_transform_publisher of world -> <arm>/base_link (the cell's base) and a robot_state_publisher."""
+    from droid.brain.cellfile import builtin_cell_path
+    from droid.ros2 import node
+
+    path = builtin_cell_path()
+    out = tmp_path / "setup"
+    assert node.main(["--setup", str(out), "--cell", str(path)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    for arm in ("arm1", "gmf1"):
+        assert (out / f"{arm}.urdf").read_text() == kin_urdf(path, arm)
+        assert any(f"--child-frame-id {arm}/base_link" in ln for ln in lines)
+        assert any(f"__ns:=/{arm} -p frame_prefix:={arm}/" in ln for ln in lines)
+    gmf = next(ln for ln in lines if "gmf1/base_link" in ln).split()
+    assert gmf[gmf.index("--x") + 1] == "2"  # the cell's base of gmf1: 2000 mm along x, turned 180 deg
+    assert abs(abs(float(gmf[gmf.index("--qz") + 1])) - 1.0) < 1e-9
