@@ -19,8 +19,9 @@ moved to the wall clock).  It prints
   ``cyclictest``'s wake-up latency (bench/floor.py) when it is installed.
 
 Loopback only (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST); the domain is ``--domain`` (default a
-random one in 110..199).  Prints figures only; the verdict is the reader's (targets: p99 beside the
-floor, >= 59 of 60 messages a second per arm, <= 5 % of one core; docs/ros2.md).
+random one in 20..101, below the ids whose ports fall in Linux's ephemeral range).  Prints figures
+only; the verdict is the reader's (targets: p99 beside the floor, >= 59 of 60 messages a second per
+arm, <= 5 % of one core; docs/ros2.md).
 """
 from __future__ import annotations
 
@@ -75,7 +76,7 @@ def main() -> int:
 
     cell = load_cell(args.cell)
     arms = [s.name for s in cell.subunits.values() if s.is_arm]
-    domain = args.domain or random.randint(110, 199)
+    domain = args.domain or random.randint(20, 101)
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     print(f"bench_ros2: {when_and_load()}; cell {cell.name}, arms {', '.join(arms)}, domain {domain}")
     node = subprocess.Popen([sys.executable, "-m", "droid.ros2.node", "--cell", args.cell], cwd=ROOT, env=env,

@@ -36,7 +36,9 @@ def ros_env(domain: int) -> dict:
 
 @pytest.fixture
 def domain() -> int:
-    return random.randint(110, 199)  # not 0: never another ROS 2 system's default domain
+    # not 0 (never another ROS 2 system's default), and <= 101: on Linux, Fast DDS's ports for higher ids
+    # fall in the ephemeral port range (ROS 2's "The ROS_DOMAIN_ID" guide), where a port may be taken
+    return random.randint(20, 101)
 
 
 def write_statuses(cell, homed: int = 1) -> None:
