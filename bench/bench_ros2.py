@@ -69,7 +69,7 @@ def main() -> int:
     ap = ArgumentParser(description="droid-ros2 on a live cell: JointState latency, delivery and CPU.")
     ap.add_argument("--cell", required=True, metavar="FILE", help="the cell file of a cell that is up")
     ap.add_argument("--seconds", type=duration_s(3600.0), default=60.0, metavar="S")
-    ap.add_argument("--domain", type=bounded_int(1, 232, "domain id"), default=None, metavar="N")
+    ap.add_argument("--domain", type=bounded_int(1, 232), default=None, metavar="N")
     args = ap.parse_args()
     from bench.floor import cyclictest_floor, when_and_load
     from droid.brain.cellfile import load_cell

@@ -666,7 +666,7 @@ def main(argv=None) -> int:
     ap = parser(PROG, "The cell as a ROS 2 node: joint states, poses, wrenches, readings, diagnostics, markers "
                       "and robot descriptions from the Brain's databases; with --allow-commands trajectories "
                       "and home/stop services through droid-move's checks.")
-    ap.add_argument("--domain", type=bounded_int(0, env.DOMAIN_MAX, "domain id"), default=None, metavar="N",
+    ap.add_argument("--domain", type=bounded_int(0, env.DOMAIN_MAX), default=None, metavar="N",
                     help=f"ROS 2 domain id in [0, {env.DOMAIN_MAX}] (default: the cell file's [ros2] domain_id, "
                          f"else $ROS_DOMAIN_ID, else 0)")
     ap.add_argument("--subnet", action="store_true",
@@ -709,6 +709,7 @@ def main(argv=None) -> int:
         signal.signal(sig, lambda *_: stop.set())
     from rclpy.signals import SignalHandlerOptions
 
+    StatusReader(cell).close()  # the cell is up (else exit 1) before anything of ROS 2 starts
     rclpy.init(domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
     node = ex = spin = None
     try:

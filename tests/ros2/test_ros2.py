@@ -123,6 +123,17 @@ def test_bad_arguments_exit_2(argv):
     assert "Traceback" not in out.stderr
 
 
+@needs_rclpy
+def test_cell_not_up_exit_1_one_line(tmp_path, cell_name):
+    from tests.brain.cellutil import make_cell_file
+
+    path = make_cell_file(tmp_path, cell_name)  # no database created
+    out = subprocess.run([sys.executable, "-m", "droid.ros2.node", "--cell", str(path), "--domain", "21"],
+                         capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert out.returncode == 1, out.stderr
+    assert len(out.stderr.strip().splitlines()) == 1, out.stderr
+
+
 def test_bad_ros_domain_id_in_the_environment(monkeypatch, capsys):
     from droid.ros2 import node
 
