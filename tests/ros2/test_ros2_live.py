@@ -7,6 +7,8 @@ engineer's.  No timing verdicts beyond droid-move's own waits (docs/design.md §
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 import time
 
 import numpy as np
@@ -14,7 +16,8 @@ import pytest
 
 from droid.kinematics import load_robot
 from tests.brain.cellutil import droid, reaped
-from tests.ros2.test_ros2 import DISCOVERY_S, JOINTS, domain, needs_rclpy, probe, start_node, stop_node  # noqa: F401
+from tests.ros2.test_ros2 import (DISCOVERY_S, JOINTS, PROBE, domain, needs_rclpy, probe, ros_env,  # noqa: F401
+                                  start_node, stop_node)
 
 pytestmark = [pytest.mark.integration, needs_rclpy]
 #: droid-move's arrival rule: every joint within 0.05 joint deg of the target (the encoders); the
@@ -53,23 +56,29 @@ def test_joint_states_equal_snoop_and_a_trajectory_arrives(homed_sim_cell, domai
         q2 = q0 + [12.0, -8.0, 8.0, 0.0, 15.0, 0.0]
         spec = {"joint_names": JOINTS, "points": [[np.radians(q1).tolist(), 3.0], [np.radians(q2).tolist(), 5.0]]}
         stream = tmp_path / "stream.json"
-        import subprocess
-        import sys
-
-        from tests.ros2.test_ros2 import PROBE, ros_env
-
-        watcher = subprocess.Popen([sys.executable, str(PROBE), "stream", str(stream), "12", "/arm1/joint_states"],
+        watcher = subprocess.Popen([sys.executable, str(PROBE), "stream", str(stream), "40", "/arm1/joint_states"],
                                    env=ros_env(domain), cwd="/", stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         with reaped(watcher):
             time.sleep(3.0)  # the watcher discovers the node first
             t0 = time.monotonic()
-            res = probe(domain, "trajectory", "arm1", str(DISCOVERY_S + 40), json.dumps(spec))
+            mover = subprocess.Popen([sys.executable, str(PROBE), "trajectory", "arm1", str(DISCOVERY_S + 40),
+                                      json.dumps(spec)], env=ros_env(domain), cwd="/", stdout=subprocess.PIPE,
+                                     stderr=subprocess.PIPE, text=True)
+            samples = []
+            with reaped(mover):
+                while mover.poll() is None:  # droid-snoop while the arm moves (each a process: a few a second)
+                    samples.append(snoop(path, "arm1"))
+                m_out, m_err = mover.communicate(timeout=60)
             elapsed = time.monotonic() - t0
-            samples = [snoop(path, "arm1") for _ in range(3)]
-            watcher.communicate(timeout=60)
+            assert mover.returncode == 0, m_err
+            res = json.loads(m_out.strip().splitlines()[-1])
+            watcher.communicate(timeout=90)
         done = [s for s in res["status"] if s["command"] == "trajectory"]
         assert done and done[-1]["state"] == "done", res
-        print(f"trajectory of 5 s: done after {elapsed:.2f} s (droid-move's timeout: 2 x 5 s + 10 s)")
+        print(f"trajectory of 5 s: done after {elapsed:.2f} s with discovery (droid-move's timeout: 2 x 5 s + 10 s); "
+              f"{len(samples)} droid-snoop samples while it ran")
+        moving = [s for s in samples if s["encoder_pos"] != s1["encoder_pos"]]
+        assert moving, "no droid-snoop sample saw the arm move"
         # 3. the world's truth: the arm is at the last point within the tolerance
         t = truth(path, "arm1")
         assert np.max(np.abs(np.asarray(t["q_deg"]) - q2)) <= TRUTH_TOL_DEG, (t, q2.tolist())
@@ -77,7 +86,7 @@ def test_joint_states_equal_snoop_and_a_trajectory_arrives(homed_sim_cell, domai
         assert rows, "the watcher got no JointState"
         pos = np.asarray([r[2] for r in rows])
         step = float(np.max(np.abs(np.diff(pos, axis=0)))) if len(pos) > 1 else 0.0
-        for s in samples:
+        for s in moving:
             q = np.radians(gearing.counts_to_joints(np.asarray(s["encoder_pos"], float)))
             assert float(np.min(np.max(np.abs(pos - q), axis=1))) <= step + 1e-9, "snoop and JointState differ by more than a tick"
 
