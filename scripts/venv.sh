@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Create (once) the project's virtual environment in .venv and install DROID into it
-# with its test and plot extras.  Used by scripts/demo.sh and scripts/test.sh.
+# with its test, plot, cluster and ros2 extras.  Used by scripts/demo.sh and scripts/test.sh.
 #
 # DROID builds one C extension at install, droid._kernel (the compiled 500 Hz servo PID and
 # plant step, issue 28; setup.py): pip needs a C compiler and Python's headers.  When they are
@@ -30,6 +30,9 @@ fi
 stamp=.venv/.droid-installed
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ setup.py -nt "$stamp" ] || [ droid/_kernel.c -nt "$stamp" ]; then
     .venv/bin/python -m pip install --quiet --upgrade pip
-    .venv/bin/python -m pip install --quiet -e ".[test,plots,cluster]"
+    # ros2: droid-ros2's ROS 2 wheels (issue 42; ~230 MB, about a minute from an empty pip cache here), so
+    # its tests run in CI.  Their ros_wheels_bootstrapper.pth re-executes every Python of the venv once at
+    # start with the wheels' library path set (about 40 ms a start; docs/ros2.md)
+    .venv/bin/python -m pip install --quiet -e ".[test,plots,cluster,ros2]"
     touch "$stamp"
 fi

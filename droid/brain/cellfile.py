@@ -165,6 +165,8 @@ class Cell:
     # that names it (e.g. droid-agent, droid-joystick; issue 28 item 4) -- each declared
     # ``several`` in its device package (droid.brain.registry.Program)
     share: tuple[str, ...] = ()
+    # [ros2] domain_id: droid-ros2's ROS 2 domain id when --domain is not given (None: $ROS_DOMAIN_ID, else 0)
+    ros2_domain: int | None = None
 
     def bind_endpoint(self, endpoint: str) -> str:
         """Where the owner of ``endpoint`` binds: itself, or its [interpose] inner endpoint."""
@@ -295,6 +297,11 @@ def parse_cell(raw: dict[str, Any], p: Path) -> Cell:
     world = {"enabled": w.get("enabled", bool, True), "host": w.get("host", str, brain_host)}
     world.update(_expand(w.done(allow_extra=True), run, name))
 
+    r2 = _Reader(p, "ros2", top.get("ros2", dict, {}))  # droid-ros2 (docs/ros2.md)
+    ros2_domain = r2.get("domain_id", int, None,
+                         check=lambda v: None if 0 <= v <= 232 else "must be a ROS 2 domain id in [0, 232]")
+    r2.done()
+
     curve_table = top.get("curve", dict, None)
     interpose = _interpose_table(top.get("interpose", dict, {}), p, run, name)
 
@@ -314,7 +321,7 @@ def parse_cell(raw: dict[str, Any], p: Path) -> Cell:
                 sched_fifo=fifo, run_dir=Path(run_dir), brain_host=brain_host,
                 heartbeat=heartbeat, names=names, world=world, subunits=subunits,
                 curve=curve, raw=raw, interpose=interpose,
-                layout=_layout_path(p, layout), remotes=remotes, share=share)
+                layout=_layout_path(p, layout), remotes=remotes, share=share, ros2_domain=ros2_domain)
 
 
 def _cell_table(p: Path, top: "_Reader") -> tuple:

@@ -59,6 +59,8 @@ PACKAGE = DevicePackage(
         Program("droid-web", "droid.observe.web", role="tool"),
         Program("droid-foxglove", "droid.observe.foxglove", role="tool",
                 description="needs the optional extra droid[foxglove]"),
+        Program("droid-ros2", "droid.ros2.node", role="tool",
+                description="needs the optional extra droid[ros2]"),
     ),
     drivers=(
         Driver("serial", SERIAL_SCHEMES, "droid.brain.serial_port:serial_opener",

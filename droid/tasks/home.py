@@ -21,7 +21,7 @@ import sys
 from droid.brain.program import open_cell, parser
 from droid.brain.layouts import CMD_OK
 from droid.cli import run, timeout_s
-from droid.tasks.arm import BrainArm
+from droid.tasks.arm import BrainArm, Interrupted
 
 PROG = "droid-home"
 DEFAULT_TIMEOUT_S = 180.0
@@ -37,16 +37,29 @@ def main(argv=None) -> int:
     cell = open_cell(args)
     with BrainArm(cell, args.robot) as arm:
         arm.connect()
-        arm.check_fresh()
-        arm.wait_idle(args.timeout)
-        cmd_id = arm.command_home()
-        arm.wait_delivered(cmd_id, args.timeout)
-        rec = arm.wait(lambda r: int(r["cmd_id"]) == cmd_id and int(r["busy"]) == 0
-                       and (int(r["homed"]) or int(r["cmd_result"]) != CMD_OK),
-                       args.timeout, f"{args.robot} to report HOMED")
-        arm.check_result(rec, cmd_id)
-        arm.set_normal()
+        home(arm, args.timeout)
     return 0
+
+
+def home(arm: BrainArm, timeout: float = DEFAULT_TIMEOUT_S, interrupted=None):
+    """Home the connected ``arm``: wait until idle, command HOME, wait until it reports HOMED, set
+    the command mode NORMAL; its last Status record.  RuntimeFailure (stale, fault, timeout) or
+    BadInput (refused) with the reason; ``interrupted()`` true while waiting: the homing is stopped
+    (:meth:`BrainArm.give_up`) and Interrupted raised.  droid-home's body; droid-ros2's /<arm>/home."""
+    stop = interrupted or (lambda: False)
+    arm.check_fresh()
+    arm.wait_idle(timeout)
+    cmd_id = arm.command_home()
+    arm.wait_delivered(cmd_id, timeout)
+    rec = arm.wait(lambda r: stop() or (int(r["cmd_id"]) == cmd_id and int(r["busy"]) == 0
+                                        and (int(r["homed"]) or int(r["cmd_result"]) != CMD_OK)),
+                   timeout, f"{arm.sub.name} to report HOMED")
+    if stop():
+        arm.give_up()
+        raise Interrupted(f"interrupted while {arm.sub.name} homed: stopped where it stood")
+    arm.check_result(rec, cmd_id)
+    arm.set_normal()
+    return rec
 
 
 if __name__ == "__main__":

@@ -74,11 +74,7 @@ def main(argv=None) -> int:
         check = arm.check_joint_target if args.mode == "joint" else arm.check_cart_target
         check(target, seconds, None)  # limits and reachability: needs no cell
         arm.connect()
-        rec = arm.read()
-        arm.check_fresh(rec)
-        if not int(rec["homed"]):
-            raise RuntimeFailure(f"{args.robot} is not homed: run 'droid-home {args.robot}' first "
-                                 f"(droid-jog moves it before homing)")
+        rec = check_ready(arm)
         check(target, seconds, arm.joints_deg(rec))  # speed from here, before waiting
         if args.no_wait:
             timeout = args.timeout or 2 * seconds + 10.0
@@ -91,6 +87,17 @@ def main(argv=None) -> int:
         if resumes:  # "done" short of the target is a failure (exit 1): move() checks arrival
             print(arrived_line(args.robot, resumes), file=sys.stderr)
     return 0
+
+
+def check_ready(arm: BrainArm):
+    """The connected ``arm``'s Status record if it may take a move: fresh, able to move and homed;
+    else RuntimeFailure with the reason (droid-move's rule, and droid-ros2's for a trajectory)."""
+    rec = arm.read()
+    arm.check_fresh(rec)
+    if not int(rec["homed"]):
+        raise RuntimeFailure(f"{arm.sub.name} is not homed: run 'droid-home {arm.sub.name}' first "
+                             f"(droid-jog moves it before homing)")
+    return rec
 
 
 if __name__ == "__main__":
