@@ -532,3 +532,22 @@ def test_home_then_a_trajectory_carried_out_to_done(db_cell, domain):
         assert c["encoder_pos"] == np.rint(gearing.joints_to_counts(q)).astype(int).tolist()
         assert c["joint_time_count"] == arm_command.ticks_for(t - t_prev, cell.heartbeat_hz)
         t_prev = t
+
+
+def test_droid_ros2_reads_the_brain_and_commands_through_the_tasks_only():
+    """docs/design.md §7 and §12: droid-ros2 reads the Brain's databases as the observers do and commands
+    only through the tasks' code (BrainArm): never a device, an agent or the simulator.  Only the
+    command path (ArmCommands, through droid.tasks) opens a Command record."""
+    import ast
+
+    from tests.layering import DROID, droid_imports, within
+
+    may = ("droid.brain", "droid.kinematics", "droid.cli", "droid.observe", "droid.tasks", "droid.ros2")
+    for path in (DROID / "ros2").rglob("*.py"):
+        for n in droid_imports(path):
+            assert within(n, may), (path, n)
+    for path in (DROID / "ros2").rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Call) and getattr(node.func, "id", getattr(node.func, "attr", "")) == "open_brain":
+                area = node.args[2] if len(node.args) > 2 else None
+                assert isinstance(area, ast.Constant) and area.value == "status", (path, node.lineno)
