@@ -109,6 +109,12 @@ def arm_urdfs(cell) -> dict[str, str]:
     return out
 
 
+def num(v: float) -> str:
+    """A number for a command line: 9 significant digits, rounding noise (below 1e-12) and -0 as 0."""
+    v = 0.0 if abs(v) < 1e-12 else float(v)
+    return f"{v:.9g}"
+
+
 def setup_lines(cell) -> list[str]:
     """Shell lines for a ROS 2 machine that put the cell's arms into /tf (tf2_msgs has no wheel, so
     droid-ros2 publishes no /tf): per arm a static_transform_publisher of ``world`` -> ``<arm>/base_link``
@@ -121,11 +127,11 @@ def setup_lines(cell) -> list[str]:
         if not s.is_arm or not s.robot:
             continue
         T = pose_to_T(*s.base)
-        qx, qy, qz, qw = quat_xyzw(T[:3, :3])
-        x, y, z = (float(T[i, 3]) * M_PER_MM for i in range(3))
+        qx, qy, qz, qw = (num(v) for v in quat_xyzw(T[:3, :3]))
+        x, y, z = (num(float(T[i, 3]) * M_PER_MM) for i in range(3))
         lines += [f"# {s.name} ({s.robot}): its URDF in {s.name}.urdf (droid-kin urdf --cell FILE --subunit {s.name})",
-                  f"ros2 run tf2_ros static_transform_publisher --x {x:.6g} --y {y:.6g} --z {z:.6g} --qx {qx:.9g} "
-                  f"--qy {qy:.9g} --qz {qz:.9g} --qw {qw:.9g} --frame-id {WORLD} --child-frame-id {s.name}/base_link &",
+                  f"ros2 run tf2_ros static_transform_publisher --x {x} --y {y} --z {z} --qx {qx} "
+                  f"--qy {qy} --qz {qz} --qw {qw} --frame-id {WORLD} --child-frame-id {s.name}/base_link &",
                   f"ros2 run robot_state_publisher robot_state_publisher --ros-args -r __ns:=/{s.name} "
                   f"-p frame_prefix:={s.name}/ -p robot_description:=\"$(cat {s.name}.urdf)\" &"]
     return lines

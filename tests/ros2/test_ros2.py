@@ -450,3 +450,104 @@ def test_setup_writes_the_urdfs_and_the_tf_lines(tmp_path, capsys):
     gmf = next(ln for ln in lines if "gmf1/base_link" in ln).split()
     assert gmf[gmf.index("--x") + 1] == "2"  # the cell's base of gmf1: 2000 mm along x, turned 180 deg
     assert abs(abs(float(gmf[gmf.index("--qz") + 1])) - 1.0) < 1e-9
+
+
+class FakeAgent:
+    """Stands in for arm1's agent and controller, in a thread of the test (no program of the cell):
+    each command it takes (``sent`` cleared), a move lands at once at its target, a home sets
+    HOMED; the Status says the command finished.  Keeps the commands it took."""
+
+    def __init__(self, cell) -> None:
+        self.cell = cell
+        self.taken: list[dict] = []
+        self.done = threading.Event()
+        self.th = threading.Thread(target=self.run)
+
+    def run(self) -> None:
+        from droid.brain.layouts import CMD_OK, HOME_MODE, STOP_TICKS
+
+        st = open_brain(self.cell, self.cell.subunit("arm1"), "status")
+        cmd = open_brain(self.cell, self.cell.subunit("arm1"), "command")
+        tick = 100
+        try:
+            while not self.done.wait(0.01):
+                tick += 1
+                c = cmd.read()
+                fields = {"tick": tick, "updated_ns": time.monotonic_ns()}
+                if int(c["sent"]):
+                    cid = int(c["cmd_id"])
+                    self.taken.append({"cmd_id": cid, "cmd_mode": int(c["cmd_mode"]),
+                                       "encoder_pos": np.asarray(c["encoder_pos"]).tolist(),
+                                       "joint_time_count": int(c["joint_time_count"])})
+                    cmd.update(sent=0)
+                    if int(c["cmd_mode"]) == int(HOME_MODE):
+                        fields.update(homed=1)
+                    elif int(c["joint_time_count"]) != STOP_TICKS:
+                        fields.update(encoder_pos=np.asarray(c["encoder_pos"]))
+                    fields.update(cmd_id=cid, busy=0, cmd_result=CMD_OK)
+                st.update(**fields)
+        finally:
+            st.close()
+            cmd.close()
+
+    def __enter__(self) -> "FakeAgent":
+        self.th.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.done.set()
+        self.th.join()
+
+
+@needs_rclpy
+def test_home_then_a_trajectory_carried_out_to_done(db_cell, domain):
+    """With an agent that answers (a thread of the test): /arm1/home runs droid-home's routine to
+    "done", then a three-point trajectory becomes three joint moves, in order, each with its
+    segment's ticks, and the status topic says "done"."""
+    from droid.brain import arm_command
+    from droid.brain.layouts import HOME_MODE
+
+    cell, path = db_cell
+    write_statuses(cell, homed=0)
+    gearing = load_robot("reis_v15").gearing
+    q_now = gearing.counts_to_joints(np.asarray(COUNTS, float))
+    pts = [(q_now + [2.0, 0, 0, 0, 0, 0], 1.0), (q_now + [4.0, -2.0, 0, 0, 0, 0], 2.0), (q_now + [4.0, -2.0, 3.0, 0, 0, 0], 3.5)]
+    spec = {"joint_names": JOINTS, "points": [[np.radians(q).tolist(), t] for q, t in pts]}
+    with FakeAgent(cell) as agent, reaped(start_node(path, domain, "--allow-commands")) as proc:
+        home = probe(domain, "trigger", "/arm1/home", str(DISCOVERY_S))
+        assert home["success"] is True, home
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and not any(c["cmd_mode"] == int(HOME_MODE) for c in agent.taken):
+            time.sleep(0.05)
+        time.sleep(1.0)  # droid-home's wait for HOMED, then NORMAL
+        res = probe(domain, "trajectory", "arm1", str(DISCOVERY_S + 30), json.dumps(spec))
+        code, err = stop_node(proc)
+    assert code == 0, err
+    st = [s for s in res["status"] if s["command"] == "trajectory"]
+    assert [s["state"] for s in st] == ["started", "done"], res
+    moves = [c for c in agent.taken if c["cmd_mode"] != int(HOME_MODE)]
+    assert len(moves) == 3, agent.taken
+    t_prev = 0.0
+    for c, (q, t) in zip(moves, pts):
+        assert c["encoder_pos"] == np.rint(gearing.joints_to_counts(q)).astype(int).tolist()
+        assert c["joint_time_count"] == arm_command.ticks_for(t - t_prev, cell.heartbeat_hz)
+        t_prev = t
+
+
+def test_droid_ros2_reads_the_brain_and_commands_through_the_tasks_only():
+    """docs/design.md §7 and §12: droid-ros2 reads the Brain's databases as the observers do and commands
+    only through the tasks' code (BrainArm): never a device, an agent or the simulator.  Only the
+    command path (ArmCommands, through droid.tasks) opens a Command record."""
+    import ast
+
+    from tests.layering import DROID, droid_imports, within
+
+    may = ("droid.brain", "droid.kinematics", "droid.cli", "droid.observe", "droid.tasks", "droid.ros2")
+    for path in (DROID / "ros2").rglob("*.py"):
+        for n in droid_imports(path):
+            assert within(n, may), (path, n)
+    for path in (DROID / "ros2").rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Call) and getattr(node.func, "id", getattr(node.func, "attr", "")) == "open_brain":
+                area = node.args[2] if len(node.args) > 2 else None
+                assert isinstance(area, ast.Constant) and area.value == "status", (path, node.lineno)
