@@ -673,8 +673,7 @@ def main(argv=None) -> int:
                       "and robot descriptions from the Brain's databases; with --allow-commands trajectories "
                       "and home/stop services through droid-move's checks.")
     ap.add_argument("--domain", type=bounded_int(0, env.DOMAIN_MAX), default=None, metavar="N",
-                    help=f"ROS 2 domain id in [0, {env.DOMAIN_MAX}] (default: the cell file's [ros2] domain_id, "
-                         f"else $ROS_DOMAIN_ID, else 0)")
+                    help="ROS 2 domain id (default: the cell file's [ros2] domain_id, else $ROS_DOMAIN_ID, else 0)")
     ap.add_argument("--subnet", action="store_true",
                     help="discover peers on the subnet (default: loopback only, ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST)")
     ap.add_argument("--allow-commands", action="store_true",

@@ -53,6 +53,7 @@ DIMENSIONLESS = {
     ("droid-mvs-board", "--spurious"): "a fraction",
     ("droid-mvs-board", "--drop"): "a probability",
     ("droid-mvs-board", "--seed"): "a seed",
+    ("droid-ros2", "--domain"): "a ROS 2 domain id",
     ("droid-seamtrack", "--yaw-gain"): "a proportional gain",
     ("droid-seamtrack", "--pitch-gain"): "a proportional gain",
     ("droid-sim", "--seed"): "a seed",
