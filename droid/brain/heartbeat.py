@@ -78,7 +78,13 @@ class TickSubscriber:
     CLOCK_MONOTONIC when it sent it) to this program reading it [ns] -- the tick follower's
     own lateness record, as :class:`droid.brain.rt.PeriodicTimer` keeps one for a timed loop.
     Kept only where publisher and reader share one clock, an ``ipc://`` endpoint (one
-    machine); elsewhere it stays ``NO_RECORD``."""
+    machine); elsewhere it stays ``NO_RECORD``.  ``late_ticks`` counts the ticks read
+    ``LATE_SAY_NS`` late or more; ``say`` (a program's log line writer, optional) hears of
+    each new worst of them and of the rest at most every ``SAY_EVERY_NS``, with the
+    CLOCK_MONOTONIC time, so that a stall can be matched with other programs' logs."""
+
+    LATE_SAY_NS = 20_000_000  # issue 40: "late by 20 ms or more"
+    SAY_EVERY_NS = 10_000_000_000
 
     def __init__(self, ctx: zmq.Context, endpoint: str, curve: CurveHost | None = None,
                  server_host: str = "") -> None:
@@ -93,6 +99,9 @@ class TickSubscriber:
         self.bad_frames = 0
         self.same_clock = endpoint.startswith("ipc://")
         self.lateness_max_ns = 0 if self.same_clock else NO_RECORD
+        self.late_ticks = 0
+        self.say = None
+        self._said_ns = 0
 
     def recv_latest(self) -> wire.Tick | None:
         """Drain the socket; returns the newest valid tick (None if nothing valid)."""
@@ -111,9 +120,20 @@ class TickSubscriber:
             if newest is None or t.tick > newest.tick:
                 newest = t
             if self.same_clock:
-                late = time.monotonic_ns() - t.t_ns
-                if late > self.lateness_max_ns:
-                    self.lateness_max_ns = late
+                self._lateness(t, time.monotonic_ns())
+
+    def _lateness(self, t: wire.Tick, now: int) -> None:
+        late = now - t.t_ns
+        worst = late > self.lateness_max_ns
+        if worst:
+            self.lateness_max_ns = late
+        if late < self.LATE_SAY_NS:
+            return
+        self.late_ticks += 1
+        if self.say is not None and (worst or now - self._said_ns >= self.SAY_EVERY_NS):
+            self._said_ns = now
+            self.say(f"read heartbeat tick {t.tick} {late / 1e6:.1f} ms after it was sent (at {now / 1e9:.3f} s "
+                     f"CLOCK_MONOTONIC; {self.late_ticks} tick(s) {self.LATE_SAY_NS // 1_000_000} ms late or more so far)")
 
     def wait(self, timeout_s: float) -> wire.Tick | None:
         """Block up to ``timeout_s`` for the next tick."""

@@ -174,6 +174,10 @@ class Presence:
         self._last = 0
         self.rate = RateWatch(display)
 
+    def say(self, text: str) -> None:
+        """One line in the program's log, under its name (as RateWatch says LAGGING)."""
+        print(f"{self.display}: {text}", file=sys.stderr, flush=True)
+
     def due(self) -> bool:
         """Whether :meth:`beat` would write now: a loop serving many subunits asks before it sums
         their figures, instead of summing on every wake-up for a beat that returns at once."""

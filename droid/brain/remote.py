@@ -163,6 +163,7 @@ def main(argv=None) -> int:
                         f"{PROG} {subs[0].name}" if one else PROG)
     names = NameClient(ctx, cell.names, curve=curve, server_host=cell.brain_host)
     ticks = TickSubscriber(ctx, cell.heartbeat, curve, cell.brain_host)
+    ticks.say = presence.say
     served: list[_Served] = []
     try:
         for sub in subs:

@@ -193,6 +193,7 @@ def serve_serial(cell: Cell, sub: Subunit, ready_fd: int | None, prog: str) -> i
     curve = CurveHost(ctx, cell, cell.brain_host)
     ticks = TickSubscriber(ctx, cell.heartbeat, curve, cell.brain_host)
     presence = Presence(cell.name, presence_key(prog, sub.name), f"{prog} {sub.name}")
+    ticks.say = presence.say
     core = SensorStatusCore(cell.stale_ticks)
     port = SerialPortReader(opts.url, opts.baud, min_backoff_ticks=cell.stale_ticks)
     try:

@@ -42,6 +42,29 @@ def test_an_ipc_follower_records_how_late_a_stale_tick_was_read(tmp_path):
         worst = sub.lateness_max_ns
         pub.send(wire.pack_tick(wire.Tick(2, time.monotonic_ns(), 16_666_667)))
         assert sub.wait(2.0).tick == 2 and sub.lateness_max_ns == worst  # the worst is kept
+        assert sub.late_ticks == 1
+    finally:
+        sub.close()
+        pub.close(0)
+        ctx.term()
+
+
+def test_a_tick_read_20_ms_late_is_said_with_the_time_and_the_count_a_new_worst_at_once(tmp_path):
+    ctx = zmq.Context()
+    pub, sub = _pub_sub(ctx, f"ipc://{tmp_path}/hb")
+    said = []
+    sub.say = said.append
+    try:
+        for tick, ago_ms in ((1, 5), (2, 30), (3, 25), (4, 60)):
+            pub.send(wire.pack_tick(wire.Tick(tick, time.monotonic_ns() - ago_ms * 1_000_000, 16_666_667)))
+            assert sub.wait(2.0).tick == tick
+        assert sub.late_ticks == 3
+        # tick 1 was on time; 2 a new worst (said); 3 late but no worse, within SAY_EVERY_NS (not
+        # said); 4 a new worst (said)
+        assert [ln.split(" ms after")[0].rsplit(" ", 1)[0] for ln in said] == [
+            "read heartbeat tick 2", "read heartbeat tick 4"], said
+        assert "CLOCK_MONOTONIC; 3 tick(s) 20 ms late or more so far)" in said[-1]
+        assert float(said[-1].split(" ms after")[0].rsplit(" ", 1)[1]) >= 60.0
     finally:
         sub.close()
         pub.close(0)

@@ -70,6 +70,7 @@ def main(argv=None) -> int:
         presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
         ctx = zmq.Context()
         ticks = TickSubscriber(ctx, sub.relay, CurveHost(ctx, cell, sub.host), sub.host)
+        ticks.say = presence.say
         link.open()  # a missing port is a fault, not a start-up failure
         presence.ready()
         notify_ready(args.ready_fd)

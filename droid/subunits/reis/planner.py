@@ -268,6 +268,7 @@ def main(argv=None) -> int:
     ctx = zmq.Context()
     ticks = TickSubscriber(ctx, sub.relay, CurveHost(ctx, cell, sub.host), sub.host)
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
+    ticks.say = presence.say
     core = PlannerCore(model)
     station = PlannerStation(core, ctrl_command, ctrl_status)
     try:
