@@ -78,7 +78,8 @@ class TickSubscriber:
     CLOCK_MONOTONIC when it sent it) to this program reading it [ns] -- the tick follower's
     own lateness record, as :class:`droid.brain.rt.PeriodicTimer` keeps one for a timed loop.
     Kept only where publisher and reader share one clock, an ``ipc://`` endpoint (one
-    machine); elsewhere it stays ``NO_RECORD``.  ``late_ticks`` counts the ticks read
+    machine), from the first read on (what queued before it waited for the program's start-up,
+    not its loop); elsewhere it stays ``NO_RECORD``.  ``late_ticks`` counts the ticks read
     ``LATE_SAY_NS`` late or more; ``say`` (a program's log line writer, optional) hears of
     each new worst of them and of the rest at most every ``SAY_EVERY_NS``, with the
     CLOCK_MONOTONIC time, so that a stall can be matched with other programs' logs."""
@@ -102,10 +103,13 @@ class TickSubscriber:
         self.late_ticks = 0
         self.say = None
         self._said_ns = 0
+        self._armed_ns = None  # the first read: ticks stamped before it waited for start-up, not the loop
 
     def recv_latest(self) -> wire.Tick | None:
         """Drain the socket; returns the newest valid tick (None if nothing valid)."""
         newest = None
+        if self._armed_ns is None:
+            self._armed_ns = time.monotonic_ns()
         while True:
             try:
                 frame = self.sock.recv(zmq.NOBLOCK)
@@ -119,7 +123,7 @@ class TickSubscriber:
             self.monitor.feed(t)
             if newest is None or t.tick > newest.tick:
                 newest = t
-            if self.same_clock:
+            if self.same_clock and t.t_ns >= self._armed_ns:
                 self._lateness(t, time.monotonic_ns())
 
     def _lateness(self, t: wire.Tick, now: int) -> None:

@@ -32,6 +32,7 @@ def _pub_sub(ctx, endpoint):
 def test_an_ipc_follower_records_how_late_a_stale_tick_was_read(tmp_path):
     ctx = zmq.Context()
     pub, sub = _pub_sub(ctx, f"ipc://{tmp_path}/hb")
+    time.sleep(0.1)  # back-dated stamps below still fall after the first read
     try:
         assert sub.same_clock and 0 <= sub.lateness_max_ns < 5_000_000_000
         stamped = time.monotonic_ns() - 40_000_000  # a tick stamped 40 ms ago: read >= 40 ms late
@@ -52,6 +53,7 @@ def test_an_ipc_follower_records_how_late_a_stale_tick_was_read(tmp_path):
 def test_a_tick_read_20_ms_late_is_said_with_the_time_and_the_count_a_new_worst_at_once(tmp_path):
     ctx = zmq.Context()
     pub, sub = _pub_sub(ctx, f"ipc://{tmp_path}/hb")
+    time.sleep(0.1)  # back-dated stamps below still fall after the first read
     said = []
     sub.say = said.append
     try:
@@ -107,3 +109,24 @@ def test_status_says_null_for_a_program_without_a_record_and_the_figure_for_one_
         for p in (without, with_one):
             p.db.close()
             unlink_database(p.name)
+
+
+def test_ticks_queued_before_the_first_read_are_start_up_not_lateness(tmp_path):
+    ctx = zmq.Context()
+    pub = ctx.socket(zmq.PUB)
+    pub.setsockopt(zmq.LINGER, 0)
+    pub.bind(f"ipc://{tmp_path}/hb")
+    sub = TickSubscriber(ctx, f"ipc://{tmp_path}/hb")
+    try:
+        time.sleep(0.2)  # connected; the program is still starting: no read yet
+        pub.send(wire.pack_tick(wire.Tick(1, time.monotonic_ns(), 16_666_667)))
+        time.sleep(0.1)  # tick 1 waits 100 ms in the queue
+        assert sub.wait(2.0).tick == 1
+        assert sub.lateness_max_ns == 0 and sub.late_ticks == 0
+        pub.send(wire.pack_tick(wire.Tick(2, time.monotonic_ns(), 16_666_667)))  # after the first read
+        time.sleep(0.05)  # the loop's own 50 ms
+        assert sub.wait(2.0).tick == 2 and sub.lateness_max_ns >= 50_000_000 and sub.late_ticks == 1
+    finally:
+        sub.close()
+        pub.close(0)
+        ctx.term()
