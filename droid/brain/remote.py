@@ -64,13 +64,15 @@ class StatusTranslator:
     """Agent reply (the subunit side's status record) -> Brain Status fields (the class's copy_fields).
 
     ``kind`` is the subunit's :class:`~droid.brain.classes.SubunitClass`; ``fk`` (arms) maps
-    encoder counts to the WCP pose, added to the fields once the arm is homed (§4.1.8)."""
+    encoder counts to the WCP pose, added to the fields once the arm is homed (§4.1.8); it must
+    be a pure function of the counts: the last pose is reused while the counts stay the same."""
 
     def __init__(self, name: str, kind, fk=None) -> None:
         self.name = name
         self.reply_layout = kind.local["ctrl_status"]
         self.fields = kind.copy_fields
         self.fk = fk
+        self._fk_last: tuple[bytes, np.ndarray] | None = None  # (encoder_pos bytes, its pose)
 
     @classmethod
     def for_subunit(cls, sub: Subunit) -> "StatusTranslator":
@@ -81,7 +83,13 @@ class StatusTranslator:
         rec = np.frombuffer(payload, dtype=self.reply_layout.dtype, count=1)[0]
         out = {f: rec[f] for f in self.fields}
         if self.fk is not None and int(rec["homed"]):
-            T = self.fk(rec["encoder_pos"])
+            pos = rec["encoder_pos"]
+            key, last = pos.tobytes(), self._fk_last
+            if last is not None and last[0] == key:  # the same counts: the same pose (fk is a pure
+                T = last[1]  # function of them); an arm at rest (a holder) skips the FK
+            else:
+                T = self.fk(pos)
+                self._fk_last = (key, T)
             out.update(x=T[0, 3], y=T[1, 3], z=T[2, 3], R=T[:3, :3])
         return out
 

@@ -326,3 +326,28 @@ def test_servo_status_snapshot_is_what_its_properties_say():
         got = core.status()
         assert got == want
         assert all(type(v) is int for v in got.encoder_pos + got.encoder_cmd + got.following_error)
+
+
+def test_servo_status_message_is_the_packed_snapshot():
+    """ServoCore.status_message (droid-servo's and every lockstep trial's status message, issue 44)
+    gives the very bytes of pack_status(status()), unhomed or homed, huge counts clipped alike,
+    with and without the amplifiers, and after real ticks (homing included)."""
+    from droid.kinematics import load_robot
+
+    core = ServoCore(ServoParams.from_robot(load_robot("reis_v15")))
+    rng = np.random.default_rng(44)
+    for i in range(300):
+        if i:
+            core._pos = None if i % 7 == 0 else rng.integers(-10**10 if i % 5 == 0 else -10**9, 10**9, 6)
+            core._target = rng.integers(-10**9, 10**10 if i % 11 == 0 else 10**9, 6)
+            core._zero = None if i % 3 == 0 else rng.integers(-10**9, 10**9, 6)
+        for amps in (True, False):
+            assert core.status_message(amps) == sw.pack_status(core.status(), amps)
+    core = ServoCore(ServoParams.from_robot(load_robot("reis_v15")))
+    raw = [1000, 2000, 3000, 4000, 5000, 6000]
+    for i in range(200):
+        if i == 3:
+            core.command(Mode.HOME)
+        raw = [(r + int(d)) % 65536 for r, d in zip(raw, rng.integers(-40, 40, 6))]
+        core.step(raw, [i % 2 == 0] * 6)
+        assert core.status_message(True) == sw.pack_status(core.status(), True)
