@@ -79,9 +79,35 @@ class StatusTranslator:
         return cls(sub.name, sub.kind, ArmPose(sub) if sub.kind.kinematic else None)
 
     def __call__(self, payload: bytes) -> dict:
-        check_header(payload, self.reply_layout, f"reply from {self.name}")
-        rec = np.frombuffer(payload, dtype=self.reply_layout.dtype, count=1)[0]
+        rec = self.record(payload)
         out = {f: rec[f] for f in self.fields}
+        out.update(self.pose_fields(rec))
+        return out
+
+    def record(self, payload: bytes):
+        """The reply's record (its header checked: LayoutError for a foreign one)."""
+        check_header(payload, self.reply_layout, f"reply from {self.name}")
+        return np.frombuffer(payload, dtype=self.reply_layout.dtype, count=1)[0]
+
+    def byte_runs(self, layout) -> list[tuple[int, int]] | None:
+        """The copied fields as merged byte ranges (start, stop) of the reply, when ``layout`` (the
+        Brain's Status) holds every one at the reply's offset with the reply's dtype -- copying
+        those bytes then is the fields' assignment; None when it does not (arm6r's records do)."""
+        src, dst = self.reply_layout.dtype.fields, layout.dtype.fields
+        runs: list[tuple[int, int]] = []
+        for f in sorted(self.fields, key=lambda f: src[f][1]):
+            if f not in dst or dst[f][:2] != src[f][:2]:
+                return None
+            a, b = src[f][1], src[f][1] + src[f][0].itemsize
+            if runs and runs[-1][1] == a:
+                runs[-1] = (runs[-1][0], b)
+            else:
+                runs.append((a, b))
+        return runs
+
+    def pose_fields(self, rec) -> dict:
+        """The WCP pose's fields (x, y, z, R) of the record once the arm is homed, else none."""
+        out: dict = {}
         if self.fk is not None and int(rec["homed"]):
             pos = rec["encoder_pos"]
             key, last = pos.tobytes(), self._fk_last
@@ -118,6 +144,8 @@ class RemoteStation:
         self.core = RemoteLinkCore(stale_ticks)
         self.watch = HeartbeatWatch.for_rate(heartbeat_hz, stale_ticks)
         self.sent_cmd_id: int | None = None
+        runs = getattr(translate, "byte_runs", None)
+        self._runs = runs(status.layout) if runs is not None else None
 
     def on_poll(self, now_ns: int) -> bool:
         """A wake-up at ``now_ns`` (a tick or not): True once when the heartbeat fell silent."""
@@ -144,10 +172,31 @@ class RemoteStation:
     def on_reply(self, tick: int, payload: bytes, now_ns: int) -> bool:
         """The agent's reply for ``tick``; True if it answered the pending command and was
         written.  Raises LayoutError for a record of a foreign layout."""
+        if self._runs is not None:
+            return self._reply_bytes(tick, payload, now_ns)
         fields = self.translate(payload)
         if not self.core.on_reply(tick):
             return False
         self.status.update(tick=tick, updated_ns=now_ns, stale=0, **fields)
+        if self.command is not None:
+            _ack_sent(self.command, self.sent_cmd_id)
+        return True
+
+    def _reply_bytes(self, tick: int, payload: bytes, now_ns: int) -> bool:
+        """:meth:`on_reply` where the copied fields are byte ranges of both records (the 60 Hz
+        reply of every arm, issue 44): the same record, one lock and one seq bump as ``update``."""
+        translate = self.translate
+        pose = translate.pose_fields(translate.record(payload))
+        if not self.core.on_reply(tick):
+            return False
+        with self.status.locked() as v:
+            mv = memoryview(v).cast("B")
+            for a, b in self._runs:
+                mv[a:b] = payload[a:b]
+            v["tick"], v["updated_ns"], v["stale"] = tick, now_ns, 0
+            for k, val in pose.items():
+                v[k] = val
+            self.status.mark_written()
         if self.command is not None:
             _ack_sent(self.command, self.sent_cmd_id)
         return True
