@@ -35,7 +35,8 @@ from droid.brain.cellfile import Subunit
 from droid.brain.curve import CurveHost
 from droid.brain.databases import brain_layouts, open_brain
 from droid.brain.heartbeat import TickSubscriber
-from droid.brain.layouts import ARM_COMMAND_LAYOUT, FAULT_HEARTBEAT, FAULT_LINK, LayoutError, check_header
+from droid.brain.layouts import (ARM_COMMAND_LAYOUT, FAULT_HEARTBEAT, FAULT_LINK, LayoutError, byte_runs,
+                                 check_header)
 from droid.brain.link import HeartbeatWatch, RemoteAction, RemoteLinkCore
 from droid.brain.names import NameClient
 from droid.brain.program import Presence, Stop, close_all, notify_ready, presence_key, subunit_program
@@ -89,21 +90,13 @@ class StatusTranslator:
         check_header(payload, self.reply_layout, f"reply from {self.name}")
         return np.frombuffer(payload, dtype=self.reply_layout.dtype, count=1)[0]
 
-    def byte_runs(self, layout) -> list[tuple[int, int]] | None:
-        """The copied fields as merged byte ranges (start, stop) of the reply, when ``layout`` (the
-        Brain's Status) holds every one at the reply's offset with the reply's dtype -- copying
-        those bytes then is the fields' assignment; None when it does not (arm6r's records do)."""
-        src, dst = self.reply_layout.dtype.fields, layout.dtype.fields
-        runs: list[tuple[int, int]] = []
-        for f in sorted(self.fields, key=lambda f: src[f][1]):
-            if f not in dst or dst[f][:2] != src[f][:2]:
-                return None
-            a, b = src[f][1], src[f][1] + src[f][0].itemsize
-            if runs and runs[-1][1] == a:
-                runs[-1] = (runs[-1][0], b)
-            else:
-                runs.append((a, b))
-        return runs
+    def byte_runs(self, layout) -> tuple | None:
+        """The copied fields as byte ranges (reply offset, Status offset, bytes) into a record of
+        ``layout`` (the Brain's Status), when each has the reply's type there -- copying those
+        bytes then is the fields' assignment (droid.brain.layouts.byte_runs); else None."""
+        if not all(f in layout.dtype.fields for f in self.fields):
+            return None
+        return byte_runs(self.reply_layout.dtype, layout.dtype, {f: f for f in self.fields})
 
     def pose_fields(self, rec) -> dict:
         """The WCP pose's fields (x, y, z, R) of the record once the arm is homed, else none."""
@@ -190,9 +183,9 @@ class RemoteStation:
         if not self.core.on_reply(tick):
             return False
         with self.status.locked() as v:
-            mv = memoryview(v).cast("B")
-            for a, b in self._runs:
-                mv[a:b] = payload[a:b]
+            mv, src = memoryview(v).cast("B"), memoryview(payload)
+            for s0, d0, n in self._runs:
+                mv[d0:d0 + n] = src[s0:s0 + n]
             v["tick"], v["updated_ns"], v["stale"] = tick, now_ns, 0
             for k, val in pose.items():
                 v[k] = val
