@@ -1436,6 +1436,71 @@ error:
 }
 
 
+/* -- the seam tracker's nearest patch segment (droid.tasks.seam.core.nearest_segment) ----------- */
+
+/* a 3-term sum as numpy's c_einsum("ij,ij->i") adds one row's products: its SIMD loop's order,
+ * ``order`` 0: (p0 + p2) + p1 (AVX-512's 8 lanes), 1: (p0 + p1) + p2 (AVX2's 4); then into the
+ * zeroed output (+ 0.0).  droid.experiments.seam_kernel finds which one numpy uses, bit for bit. */
+static inline double sum3(double p0, double p1, double p2, int order)
+{
+    double s = order == 0 ? (p0 + p2) + p1 : (p0 + p1) + p2;
+    return s + 0.0;
+}
+
+/* seam_nearest(tool, a, ab, den, ok, order, foot) -> j: the patch segment nearest the tool point,
+ * as nearest_segment computes it in numpy -- u = (tool - a) . ab / den, 0 where not ok, clipped to
+ * [0, 1]; foot = a + u ab; j = argmin |foot - tool|^2 (the first; a NaN first) -- with foot[j] into
+ * ``foot`` (3 doubles).  tool: 3 doubles; a, ab: m x 3; den: m doubles; ok: m bools (m >= 1). */
+static PyObject *seam_nearest(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 7) {
+        PyErr_SetString(PyExc_TypeError, "seam_nearest takes 7 arguments");
+        return NULL;
+    }
+    int order = (int)PyLong_AsLong(args[5]);
+    if (order == -1 && PyErr_Occurred())
+        return NULL;
+    Bufs bs = {.n = 0};
+    const double *tool = get(&bs, args[0], 24, 0, "tool");
+    const double *ab = tool ? get(&bs, args[2], -24, 0, "ab") : NULL;
+    Py_ssize_t m = ab ? bs.b[1].len / 24 : 0;
+    if (ab != NULL && bs.b[1].len != m * 24) {
+        PyErr_SetString(PyExc_ValueError, "seam_nearest: ab is not m x 3 doubles");
+        ab = NULL;
+    }
+    const double *a = ab ? get(&bs, args[1], m * 24, 0, "a") : NULL;
+    const double *den = a ? get(&bs, args[3], m * 8, 0, "den") : NULL;
+    const unsigned char *ok = den ? get(&bs, args[4], m, 0, "ok") : NULL;
+    double *foot = ok ? get(&bs, args[6], 24, 1, "foot") : NULL;
+    if (foot == NULL) {
+        release(&bs);
+        return NULL;
+    }
+    const double t0 = tool[0], t1 = tool[1], t2 = tool[2];
+    Py_ssize_t best = 0;
+    double bd = 0.0;
+    for (Py_ssize_t i = 0; i < m; i++) {
+        const double *ai = a + 3 * i, *bi = ab + 3 * i;
+        double u = sum3((t0 - ai[0]) * bi[0], (t1 - ai[1]) * bi[1], (t2 - ai[2]) * bi[2], order) / den[i];
+        if (!ok[i])
+            u = 0.0;
+        u = u < 0.0 ? 0.0 : (u > 1.0 ? 1.0 : u); /* np.clip (NaN stays) */
+        double f0 = ai[0] + u * bi[0], f1 = ai[1] + u * bi[1], f2 = ai[2] + u * bi[2];
+        double o0 = f0 - t0, o1 = f1 - t1, o2 = f2 - t2;
+        double d = sum3(o0 * o0, o1 * o1, o2 * o2, order);
+        if (i == 0 || d < bd || d != d) {
+            best = i;
+            bd = d;
+            foot[0] = f0, foot[1] = f1, foot[2] = f2;
+            if (d != d)
+                break; /* np.argmin: the first NaN */
+        }
+    }
+    release(&bs);
+    return PyLong_FromSsize_t(best);
+}
+
+
 static PyMethodDef methods[] = {
     {"set_gemv", set_gemv, METH_VARARGS, "set_gemv(address, int64): the cblas_dgemv to call (numpy's)"},
     {"exact_step", (PyCFunction)(void (*)(void))exact_step, METH_FASTCALL,
@@ -1467,6 +1532,8 @@ static PyMethodDef methods[] = {
      "wd_fault, offset, stop_mid, stop_lim, x) -> encoders or None: the plant's rigid-drive substeps"},
     {"rb_jacobian", (PyCFunction)(void (*)(void))py_rb_jacobian, METH_FASTCALL,
      "rb_jacobian(model, q, J, oM): the last joint's placement (4x4 [m]) and 6 x n LOCAL_WORLD_ALIGNED Jacobian"},
+    {"seam_nearest", (PyCFunction)(void (*)(void))seam_nearest, METH_FASTCALL,
+     "seam_nearest(tool, a, ab, den, ok, order, foot) -> j: droid.tasks.seam.core.nearest_segment"},
     {NULL, NULL, 0, NULL},
 };
 

@@ -426,3 +426,19 @@ def check_header(buf, layout: Layout, what: str) -> None:
 
 class LayoutError(BadInput):
     """A record's magic, kind, version or size does not match this program's layout."""
+
+
+def byte_runs(src_dtype, dst_dtype, field_map: dict[str, str]) -> tuple | None:
+    """The copy ``dst[field_map[f]] = src[f]`` as byte ranges (source offset, destination offset,
+    bytes), neighbours merged -- or None unless each pair has the very same type (then a field's
+    assignment is a copy of its bytes, the same bits; issue 28 item 2: the agent's command copy; issue 44: the remote's reply)."""
+    runs: list[list[int]] = []
+    for s, d in sorted(field_map.items(), key=lambda sd: src_dtype.fields[sd[0]][1]):
+        (st, so), (dt, do) = src_dtype.fields[s][:2], dst_dtype.fields[d][:2]
+        if st != dt:
+            return None
+        if runs and runs[-1][0] + runs[-1][2] == so and runs[-1][1] + runs[-1][2] == do:
+            runs[-1][2] += st.itemsize
+        else:
+            runs.append([so, do, st.itemsize])
+    return tuple(tuple(r) for r in runs)

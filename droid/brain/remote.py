@@ -35,7 +35,8 @@ from droid.brain.cellfile import Subunit
 from droid.brain.curve import CurveHost
 from droid.brain.databases import brain_layouts, open_brain
 from droid.brain.heartbeat import TickSubscriber
-from droid.brain.layouts import ARM_COMMAND_LAYOUT, FAULT_HEARTBEAT, FAULT_LINK, LayoutError, check_header
+from droid.brain.layouts import (ARM_COMMAND_LAYOUT, FAULT_HEARTBEAT, FAULT_LINK, LayoutError, byte_runs,
+                                 check_header)
 from droid.brain.link import HeartbeatWatch, RemoteAction, RemoteLinkCore
 from droid.brain.names import NameClient
 from droid.brain.program import Presence, Stop, close_all, notify_ready, presence_key, subunit_program
@@ -64,24 +65,50 @@ class StatusTranslator:
     """Agent reply (the subunit side's status record) -> Brain Status fields (the class's copy_fields).
 
     ``kind`` is the subunit's :class:`~droid.brain.classes.SubunitClass`; ``fk`` (arms) maps
-    encoder counts to the WCP pose, added to the fields once the arm is homed (§4.1.8)."""
+    encoder counts to the WCP pose, added to the fields once the arm is homed (§4.1.8); it must
+    be a pure function of the counts: the last pose is reused while the counts stay the same."""
 
     def __init__(self, name: str, kind, fk=None) -> None:
         self.name = name
         self.reply_layout = kind.local["ctrl_status"]
         self.fields = kind.copy_fields
         self.fk = fk
+        self._fk_last: tuple[bytes, np.ndarray] | None = None  # (encoder_pos bytes, its pose)
 
     @classmethod
     def for_subunit(cls, sub: Subunit) -> "StatusTranslator":
         return cls(sub.name, sub.kind, ArmPose(sub) if sub.kind.kinematic else None)
 
     def __call__(self, payload: bytes) -> dict:
-        check_header(payload, self.reply_layout, f"reply from {self.name}")
-        rec = np.frombuffer(payload, dtype=self.reply_layout.dtype, count=1)[0]
+        rec = self.record(payload)
         out = {f: rec[f] for f in self.fields}
+        out.update(self.pose_fields(rec))
+        return out
+
+    def record(self, payload: bytes):
+        """The reply's record (its header checked: LayoutError for a foreign one)."""
+        check_header(payload, self.reply_layout, f"reply from {self.name}")
+        return np.frombuffer(payload, dtype=self.reply_layout.dtype, count=1)[0]
+
+    def byte_runs(self, layout) -> tuple | None:
+        """The copied fields as byte ranges (reply offset, Status offset, bytes) into a record of
+        ``layout`` (the Brain's Status), when each has the reply's type there -- copying those
+        bytes then is the fields' assignment (droid.brain.layouts.byte_runs); else None."""
+        if not all(f in layout.dtype.fields for f in self.fields):
+            return None
+        return byte_runs(self.reply_layout.dtype, layout.dtype, {f: f for f in self.fields})
+
+    def pose_fields(self, rec) -> dict:
+        """The WCP pose's fields (x, y, z, R) of the record once the arm is homed, else none."""
+        out: dict = {}
         if self.fk is not None and int(rec["homed"]):
-            T = self.fk(rec["encoder_pos"])
+            pos = rec["encoder_pos"]
+            key, last = pos.tobytes(), self._fk_last
+            if last is not None and last[0] == key:  # the same counts: the same pose (fk is a pure
+                T = last[1]  # function of them); an arm at rest (a holder) skips the FK
+            else:
+                T = self.fk(pos)
+                self._fk_last = (key, T)
             out.update(x=T[0, 3], y=T[1, 3], z=T[2, 3], R=T[:3, :3])
         return out
 
@@ -110,6 +137,8 @@ class RemoteStation:
         self.core = RemoteLinkCore(stale_ticks)
         self.watch = HeartbeatWatch.for_rate(heartbeat_hz, stale_ticks)
         self.sent_cmd_id: int | None = None
+        runs = getattr(translate, "byte_runs", None)
+        self._runs = runs(status.layout) if runs is not None else None
 
     def on_poll(self, now_ns: int) -> bool:
         """A wake-up at ``now_ns`` (a tick or not): True once when the heartbeat fell silent."""
@@ -136,10 +165,31 @@ class RemoteStation:
     def on_reply(self, tick: int, payload: bytes, now_ns: int) -> bool:
         """The agent's reply for ``tick``; True if it answered the pending command and was
         written.  Raises LayoutError for a record of a foreign layout."""
+        if self._runs is not None:
+            return self._reply_bytes(tick, payload, now_ns)
         fields = self.translate(payload)
         if not self.core.on_reply(tick):
             return False
         self.status.update(tick=tick, updated_ns=now_ns, stale=0, **fields)
+        if self.command is not None:
+            _ack_sent(self.command, self.sent_cmd_id)
+        return True
+
+    def _reply_bytes(self, tick: int, payload: bytes, now_ns: int) -> bool:
+        """:meth:`on_reply` where the copied fields are byte ranges of both records (the 60 Hz
+        reply of every arm, issue 44): the same record, one lock and one seq bump as ``update``."""
+        translate = self.translate
+        pose = translate.pose_fields(translate.record(payload))
+        if not self.core.on_reply(tick):
+            return False
+        with self.status.locked() as v:
+            mv, src = memoryview(v).cast("B"), memoryview(payload)
+            for s0, d0, n in self._runs:
+                mv[d0:d0 + n] = src[s0:s0 + n]
+            v["tick"], v["updated_ns"], v["stale"] = tick, now_ns, 0
+            for k, val in pose.items():
+                v[k] = val
+            self.status.mark_written()
         if self.command is not None:
             _ack_sent(self.command, self.sent_cmd_id)
         return True

@@ -58,14 +58,15 @@ import numpy as np
 
 from droid.cli import BadInput
 from droid.kinematics.transforms import inv_homo
-from droid.experiments import phases
+from droid.experiments import phases, seam_kernel
 from droid.experiments.arm_fast import FastArmParams
 from droid.experiments.geometry import TrialGeometry, trial_geometry
 from droid.experiments.trial_cell import resolve_trial_cell
 from droid.experiments.sensors import DEFAULT_NOISE, SENSOR_MODELS, LeadSensor, ToolTipSensor, tool_reading
 from droid.sim.lockstep import ORDER_DEVICE, ORDER_TASK, ORDER_WORLD, Scheduler
 from droid.sim.mvs.camera import CameraNoise
-from droid.tasks.seam.core import DEAD_ZONE_CYCLES, LOST_CYCLES, MODE_THESIS, MODES, SeamParams, speed_problem
+from droid.tasks.seam.core import (DEAD_ZONE_CYCLES, LOST_CYCLES, MODE_LISTING, MODE_THESIS, MODES, SeamParams,
+                                   speed_problem)
 from droid.tasks.seam.cycle import TrackingCycle
 from droid.tasks.seam.station import ArmStatus, SeamtrackStation
 from droid.tasks.seam.delay import INVALID_READING, Reading
@@ -480,10 +481,13 @@ class _LockstepTrial:
 def _tracking_cycle(params: SeamParams, geo: TrialGeometry, trial_id: str) -> TrackingCycle:
     """The tracking cycle of ``params`` (BadInput naming the trial when they do not fit)."""
     try:
-        return TrackingCycle(params, geo.wrist.T_wcp_tool, geo.wrist.T_wcp_sensor, geo.reis,
-                             heartbeat_hz=HEARTBEAT_HZ)
+        cyc = TrackingCycle(params, geo.wrist.T_wcp_tool, geo.wrist.T_wcp_sensor, geo.reis,
+                            heartbeat_hz=HEARTBEAT_HZ)
     except ValueError as exc:
         raise BadInput(f"trial {trial_id}: {exc}") from None
+    if params.mode != MODE_LISTING:  # the patch search of interpolate_thesis, compiled (the same bits)
+        seam_kernel.use_on(cyc.core)
+    return cyc
 
 
 def _row(t_s: float, lead: Reading, tool, out, L: float, s_of) -> tuple:

@@ -36,7 +36,7 @@ from droid.brain import wire
 from droid.brain.curve import CurveHost
 from droid.brain.databases import local_layouts, open_local
 from droid.brain.classes import ARM6R
-from droid.brain.layouts import ARM_COMMAND_LAYOUT, FAULT_LINK, Layout, LayoutError, check_header
+from droid.brain.layouts import ARM_COMMAND_LAYOUT, FAULT_LINK, Layout, LayoutError, byte_runs, check_header
 from droid.brain.link import AgentLinkCore
 from droid.brain.names import NameClient
 from droid.brain.program import Presence, Stop, close_all, notify_ready, serving_presence, subunit_program
@@ -58,7 +58,7 @@ class CommandCopier:
         self.layout = layout
         self.field_map = dict(COMMAND_MAP if field_map is None else field_map)
         dst_layout = getattr(ctrl_command, "layout", None)
-        self._runs = None if dst_layout is None else _byte_runs(layout.dtype, dst_layout.dtype, self.field_map)
+        self._runs = None if dst_layout is None else byte_runs(layout.dtype, dst_layout.dtype, self.field_map)
         self._dst: tuple | None = None  # (the record view, its bytes as a writable memoryview)
 
     @classmethod
@@ -81,22 +81,6 @@ class CommandCopier:
             v["brain_tick"] = tick
             v["link_alive"] = 1
             self.db.mark_written()
-
-
-def _byte_runs(src_dtype, dst_dtype, field_map: dict[str, str]) -> tuple | None:
-    """The copy ``dst[field_map[f]] = src[f]`` as byte ranges (source offset, destination offset,
-    bytes), neighbours merged -- or None unless each pair has the very same type (then a field's
-    assignment is a copy of its bytes, the same bits; issue 28 item 2)."""
-    runs: list[list[int]] = []
-    for s, d in sorted(field_map.items(), key=lambda sd: src_dtype.fields[sd[0]][1]):
-        (st, so), (dt, do) = src_dtype.fields[s][:2], dst_dtype.fields[d][:2]
-        if st != dt:
-            return None
-        if runs and runs[-1][0] + runs[-1][2] == so and runs[-1][1] + runs[-1][2] == do:
-            runs[-1][2] += st.itemsize
-        else:
-            runs.append([so, do, st.itemsize])
-    return tuple(tuple(r) for r in runs)
 
 
 class AgentStation:

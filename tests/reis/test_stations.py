@@ -326,3 +326,61 @@ def test_servo_status_snapshot_is_what_its_properties_say():
         got = core.status()
         assert got == want
         assert all(type(v) is int for v in got.encoder_pos + got.encoder_cmd + got.following_error)
+
+
+def test_servo_status_message_is_the_packed_snapshot():
+    """ServoCore.status_message (droid-servo's and every lockstep trial's status message, issue 44)
+    gives the very bytes of pack_status(status()), unhomed or homed, huge counts clipped alike,
+    with and without the amplifiers, and after real ticks (homing included)."""
+    from droid.kinematics import load_robot
+
+    core = ServoCore(ServoParams.from_robot(load_robot("reis_v15")))
+    rng = np.random.default_rng(44)
+    for i in range(300):
+        if i:
+            core._pos = None if i % 7 == 0 else rng.integers(-10**10 if i % 5 == 0 else -10**9, 10**9, 6)
+            core._target = rng.integers(-10**9, 10**10 if i % 11 == 0 else 10**9, 6)
+            core._zero = None if i % 3 == 0 else rng.integers(-10**9, 10**9, 6)
+        for amps in (True, False):
+            assert core.status_message(amps) == sw.pack_status(core.status(), amps)
+    core = ServoCore(ServoParams.from_robot(load_robot("reis_v15")))
+    raw = [1000, 2000, 3000, 4000, 5000, 6000]
+    for i in range(200):
+        if i == 3:
+            core.command(Mode.HOME)
+        raw = [(r + int(d)) % 65536 for r, d in zip(raw, rng.integers(-40, 40, 6))]
+        core.step(raw, [i % 2 == 0] * 6)
+        assert core.status_message(True) == sw.pack_status(core.status(), True)
+
+
+def test_remote_reply_as_byte_ranges_writes_the_record_the_field_update_writes():
+    """The arm's reply copies its fields as byte ranges (issue 44) where both records hold them at
+    the same offsets and dtypes: the Brain Status afterwards is byte for byte what the field-wise
+    ``update`` leaves, homed or not, pose and seq included, over random replies."""
+    from droid.kinematics import load_robot
+
+    model = load_robot("reis_v15")
+    fk = lambda counts: model.fk(model.gearing.counts_to_joints(np.asarray(counts, float)))  # noqa: E731
+    rng = np.random.default_rng(44)
+    stations = []
+    for bytewise in (True, False):
+        status, cmd = MemoryDatabase("status", L.ARM_STATUS_LAYOUT), MemoryDatabase("command", L.ARM_COMMAND_LAYOUT)
+        st = RemoteStation(status, cmd, StatusTranslator("arm1", ARM6R, fk), 3)
+        if not bytewise:
+            st._runs = None
+        stations.append((st, status, cmd))
+    assert stations[0][0]._runs and len(stations[0][0]._runs) == 2  # encoder_pos .. homed, fault .. cmd_result
+    ctrl = MemoryDatabase("ctrl_status", L.CTRL_STATUS_LAYOUT)
+    for tick in range(1, 80):
+        ctrl.update(homed=L.HOMED if tick % 9 else 0, busy=int(rng.integers(0, 5)), cmd_id=int(rng.integers(0, 2**32)),
+                    fault=int(rng.integers(0, 2**32)), cmd_result=int(rng.integers(-3, 3)),
+                    encoder_pos=rng.integers(-10**6, 10**6, 6) if tick % 3 else [5] * 6,
+                    encoder_cmd=rng.integers(-2**31, 2**31, 6), cmd_mode=int(rng.integers(0, 4)), coord=tick % 2)
+        for st, status, cmd in stations:
+            if tick % 5 == 0:
+                arm_command.home(cmd)
+            st.on_tick(tick)
+            st.command_payload()
+            assert st.on_reply(tick, ctrl.raw_bytes(), 1000 * tick)
+        assert stations[0][1].raw_bytes() == stations[1][1].raw_bytes(), tick
+        assert stations[0][2].raw_bytes() == stations[1][2].raw_bytes(), tick

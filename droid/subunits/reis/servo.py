@@ -37,6 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from droid.subunits.reis import servo_wire as sw
 from droid.subunits.reis.command_queue import CommandQueue
 from droid.subunits.reis.homing import HomePhase, Homing, zero_from_edges
 from droid.subunits.reis.pid import Pid
@@ -205,6 +206,28 @@ class ServoCore:
             following_error=self.following_error,
             dac=self._dac,
         )
+
+    def status_message(self, amps_on: bool) -> bytes:
+        """``servo_wire.pack_status(self.status(), amps_on)``, the same bytes, without the
+        snapshot and its properties (every 4th servo tick of droid-servo and of every lockstep
+        trial, issue 44): the 18 counts in plain ints, framed as :meth:`_frame` frames them."""
+        pos, zero = self._pos, self._zero
+        t = self._target.tolist()
+        if pos is None:
+            p = fe = [0] * N
+        else:
+            p = pos.tolist()
+            fe = [a - b for a, b in zip(t, p)]
+        if zero is not None:
+            zl = zero.tolist()
+            t = [a - b for a, b in zip(t, zl)]
+            if pos is not None:
+                p = [a - b for a, b in zip(p, zl)]
+        joint = self._homing.joint
+        q = self._queue
+        return sw.pack_status_values(self._tick, int(self._mode), int(zero is not None),
+                                     -1 if joint is None else int(joint), int(q.starved), int(q.braking),
+                                     int(self._fault), int(bool(amps_on)), p + t + fe, self._dac)
 
     # -- commands (60 Hz, the servo planner) ---------------------------------------
     def command(self, mode: Mode | int, encoder_cmd_counts=(0, 0, 0, 0, 0, 0)) -> bool:

@@ -88,6 +88,7 @@ class ServoAgentCore:
         # not re-anchored yet after the servo braked) and is not sent.
         self.max_step = (np.asarray(p.max_speed_counts_per_tick, float) * p.servo_rate_hz / p.command_rate_hz
                          * 2.0 + resume_window_counts)
+        self._max_step_list = self.max_step.tolist()  # _follow_planner's plain-float copy
         self.seq = 0
         self.jog_id: int | None = None  # last JOG cmd_id applied
         self.home_id: int | None = None
@@ -230,10 +231,12 @@ class ServoAgentCore:
             if self._wp is not None:  # at rest where the braking ended: hold there
                 return self._send(Mode.NORMAL, self._wp, status, faults)
         target = np.asarray(cmd["encoder_cmd_int"], np.int64)
-        if report.starved and (np.abs(target - np.asarray(report.encoder_pos)) > self.resume_window).any():
+        tl = target.tolist()  # the checks in plain ints (exact, as int64's; cheaper at six values)
+        rw = self.resume_window
+        if report.starved and any(abs(t - p) > rw for t, p in zip(tl, report.encoder_pos)):
             self.forget_motion()
             return AgentDecision(None, status, faults, "waiting for the planner to re-anchor")
-        if (np.abs(target - np.asarray(report.encoder_cmd)) > self.max_step).any():
+        if any(abs(t - c) > m for t, c, m in zip(tl, report.encoder_cmd, self._max_step_list)):
             faults |= FAULT_BRAKING  # tells the planner to re-anchor where the arm is
             self.forget_motion()
             return AgentDecision(None, status, faults, "way-point too far from the servo's target")

@@ -82,6 +82,17 @@ def pack_status(s, amps_on: bool = True) -> bytes:
                         *counts, *map(int, s.dac))
 
 
+def pack_status_values(tick: int, mode: int, homed: int, homing_joint: int, starved: int, braking: int,
+                       fault: int, amps_on: int, counts: list, dac) -> bytes:
+    """:func:`pack_status` of plain ints (droid.subunits.reis.servo.ServoCore.status_message):
+    ``counts`` the 18 of encoder_pos, encoder_cmd and following_error, clipped here as there."""
+    lo, hi = -(2**31), 2**31 - 1
+    if min(counts) < lo or max(counts) > hi:
+        counts = [min(hi, max(lo, v)) for v in counts]
+    return _STATUS.pack(STATUS_MAGIC, tick, mode, homed, homing_joint, starved, braking, fault, amps_on,
+                        *counts, *map(int, dac))
+
+
 _last_status: list = [b"", None]  # the last message unpacked and its (frozen) report
 
 

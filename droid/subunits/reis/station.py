@@ -57,11 +57,12 @@ class ServoStation:
         """Read encoders and switches, step the core, write the DACs (§4.1.5.1).  Returns the
         status message to publish (every ``STATUS_EVERY_TICKS`` servo ticks), else None.
         ``periods`` > 1 after a stalled host (timer overrun).  Driver errors propagate."""
-        self.raw = self.bus.read_encoders_raw()
-        self.dacs = self.core.step(self.raw, self.bus.read_limit_switches(), periods)
-        self.bus.write_dacs(self.dacs)
-        if self.core.tick % sw.STATUS_EVERY_TICKS == 0:
-            return sw.pack_status(self.core.status(), self.bus.amps_powered)
+        bus, core = self.bus, self.core
+        self.raw = bus.read_encoders_raw()
+        self.dacs = core.step(self.raw, bus.read_limit_switches(), periods)
+        bus.write_dacs(self.dacs)
+        if core.tick % sw.STATUS_EVERY_TICKS == 0:
+            return core.status_message(bus.amps_powered)  # = sw.pack_status(core.status(), ...)
         return None
 
 

@@ -131,6 +131,20 @@ MODE_PLUS = "plus"
 MODES = (MODE_THESIS, MODE_LISTING, MODE_PLUS)
 
 
+def nearest_segment(tool, a, ab, den, ok) -> tuple[int, np.ndarray]:
+    """The patch segment nearest the tool point ``tool`` (3,) [mm]: segment j runs from ``a[j]``
+    along ``ab[j]`` (m x 3), ``den[j]`` its squared length (1.0 where ``ok[j]`` is False: too
+    short).  The tool point's projection u onto each (0 on a short one), clipped to the segment,
+    gives its foot; returns (j, foot j) of the least squared distance (the first of equals)."""
+    u = c_einsum("ij,ij->i", tool - a, ab) / den  # np.einsum (optimize=False) without its wrapper
+    u = np.clip(np.where(ok, u, 0.0), 0.0, 1.0)
+    foot = a + u[:, None] * ab
+    off = foot - tool
+    d2 = c_einsum("ij,ij->i", off, off)
+    j = int(np.argmin(d2))
+    return j, foot[j]
+
+
 @dataclass(frozen=True)
 class SeamParams:
     """Parameters of one seam-tracking run (units in the names)."""
@@ -503,6 +517,10 @@ class SeamTracker:
         s.seam_pos.keep(min(s.tcp_idx, self.p.max_queue + 1) + 1)
         return yaw, pitch
 
+    #: the patch's segment nearest the tool point (:func:`nearest_segment`); an experiment may
+    #: put a compiled one of the same bits here (droid.experiments.seam_kernel)
+    nearest = staticmethod(nearest_segment)
+
     def interpolate(self, vel_mm: float) -> np.ndarray:
         """§5.2/Figure 5.4: the target tool pose w.r.t. the GMF1 wrist, ``vel_mm`` further along the patch.
 
@@ -537,13 +555,8 @@ class SeamTracker:
         P = seam.array  # index 0 newest
         a = P[1:]  # segment j: from the older a[j] = seam[j+1] to the newer seam[j]
         ab, den, ok = seam.segments()  # ab = seam[j] - a[j], |ab|^2 (or 1.0) and |ab|^2 > 1e-18
-        u = c_einsum("ij,ij->i", tool - a, ab) / den  # np.einsum (optimize=False) without its wrapper
-        u = np.clip(np.where(ok, u, 0.0), 0.0, 1.0)
-        foot = a + u[:, None] * ab
-        off = foot - tool
-        d2 = c_einsum("ij,ij->i", off, off)
-        j = nearest = int(np.argmin(d2))
-        pos = foot[j]
+        j, pos = self.nearest(tool, a, ab, den, ok)
+        nearest = j
         left = float(vel_mm)
         target = None
         while True:
