@@ -103,3 +103,62 @@ def test_bad_joint_vectors_are_one_line(argv, words, capsys):
     assert main(["check", "--cell", str(SIM), *argv]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and all(w in err for w in words), err
+
+
+def _near_cell(tmp_path, x_mm: float = 1300.0):
+    text = SIM.read_text().replace("base = [2000.0, 0.0, 0.0, 180.0, 0.0, 0.0]", f"base = [{x_mm}, 0.0, 0.0, 180.0, 0.0, 0.0]")
+    p = tmp_path / "near.toml"
+    p.write_text(text)
+    return load_cell(p)
+
+
+def test_a_move_that_would_collide_is_refused_with_one_line(tmp_path):
+    from droid.guard.refuse import check_move
+
+    scene = guard_scene(_near_cell(tmp_path))
+    still = {"gmf1": np.zeros(6)}
+    # the Reis reaching forward through the Fanuc standing 1300 mm away
+    line = check_move(scene, "arm1", np.array([0.0, 40.0, -30.0, 0, 0, 0]), np.array([0.0, -60.0, 40.0, 0, 0, 0]),
+                      2.0, still, limit_mm=25.0)
+    assert line is not None and line.startswith("would collide: arm1 ")
+    assert " with gmf1 " in line and "% of the move (clearance " in line and line.endswith("mm < 25 mm)")
+    pct = int(line.split(" at ")[1].split(" %")[0])
+    assert 0 < pct <= 100
+    # the same move turned away from the Fanuc (joint 1 at 180 deg is behind the Reis) passes
+    assert check_move(scene, "arm1", np.array([150.0, 40.0, -30.0, 0, 0, 0]), np.array([150.0, -60.0, 40.0, 0, 0, 0]),
+                      2.0, still, limit_mm=25.0) is None
+
+
+def test_a_move_is_checked_against_the_other_arms_move(tmp_path):
+    from droid.guard.refuse import check_move
+
+    scene = guard_scene(_near_cell(tmp_path, 2000.0))
+    q_from, q_to = np.array([0.0, 40.0, -30.0, 0, 0, 0]), np.array([0.0, -60.0, 40.0, 0, 0, 0])
+    assert check_move(scene, "arm1", q_from, q_to, 2.0, {"gmf1": np.zeros(6)}, limit_mm=25.0) is None
+    # the Fanuc is on its way toward the Reis: along its move they meet
+    moving = {"gmf1": (np.array([0.0, -70.0, 50.0, 0, 0, 0]), 2.0)}
+    line = check_move(scene, "arm1", q_from, q_to, 2.0, {"gmf1": np.zeros(6)}, moving, limit_mm=25.0)
+    assert line is not None and "gmf1" in line, line
+
+
+def test_droid_moves_check_refuses_with_exit_2_and_passes_a_clear_move(tmp_path, monkeypatch):
+    from droid.tasks import guarded
+
+    cell = _near_cell(tmp_path)
+    monkeypatch.setattr(guarded, "_other_arm", lambda cell, name: (np.zeros(6), None))
+    with pytest.raises(BadInput) as e:
+        guarded.refuse_colliding_move(cell, "arm1", [0.0, 40.0, -30.0, 0, 0, 0], [0.0, -60.0, 40.0, 0, 0, 0], 2.0)
+    assert str(e.value).startswith("would collide: arm1 ") and "(clearance " in str(e.value)
+    assert str(e.value).endswith("< 35 mm)")  # C + Z of the default [guard] ssm terms
+    guarded.refuse_colliding_move(cell, "arm1", [150.0, 40.0, -30.0, 0, 0, 0], [150.0, -60.0, 40.0, 0, 0, 0], 2.0)
+    del cell.raw["guard"]  # no [guard] table: not checked
+    guarded.refuse_colliding_move(cell, "arm1", [0.0, 40.0, -30.0, 0, 0, 0], [0.0, -60.0, 40.0, 0, 0, 0], 2.0)
+
+
+def test_the_guard_imports_only_brain_kinematics_and_itself():
+    """docs/design.md §7: droid.guard sits beside the Brain; never a device, a task or the simulator."""
+    from tests.layering import DROID, droid_imports, within
+
+    for path in (DROID / "guard").rglob("*.py"):
+        for n in droid_imports(path):
+            assert within(n, ("droid.brain", "droid.kinematics", "droid.cli", "droid.numbers", "droid.guard")), (path, n)
