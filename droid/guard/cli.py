@@ -3,6 +3,7 @@
 Usage::
 
     droid-guard check [--cell FILE] [--json] ARM=Q1,Q2,Q3,Q4,Q5,Q6 ...
+    droid-guard run [--cell FILE] [--seconds S]
 
 ``check`` prints the least distance [mm] between the cell's bodies (every pair of bodies of
 two different arms and every arm body against every fixture, less the ``[guard] allow``
@@ -14,6 +15,11 @@ pairs) for one joint vector [deg] of every arm, and the closest pair::
 "pairs": N}``).  A distance <= 0 is a collision (``... in collision``).  Every arm of the cell
 must be given.  Bad input (an unknown arm, a joint vector that is not six finite numbers, an
 ``allow`` pair naming an unknown arm or body) is one line on stderr, exit 2.
+
+``run`` is the live guard (:mod:`droid.guard.live`): on a cell that is up, every heartbeat
+period it reads every arm's Brain Status, runs the guard's cycle and sets FAULT_COLLISION in
+every arm's own Status on a protective stop; its own Status is a JSON file in the run
+directory (``guard_status.json``).  Started by hand, not by ``droid-cell up`` (docs/guard.md).
 """
 from __future__ import annotations
 
@@ -36,6 +42,9 @@ def _parser() -> ArgumentParser:
     ck.add_argument("--cell", default=None, help="cell file (default: $DROID_CELL or the built-in sim cell)")
     ck.add_argument("--json", action="store_true", help="one JSON record")
     ck.add_argument("joints", nargs="*", metavar="ARM=Q1,...,Q6", help="an arm's joint vector [deg]")
+    rn = sub.add_parser("run", help="the live guard on a cell that is up (docs/guard.md)")
+    rn.add_argument("--cell", default=None, help="cell file (default: $DROID_CELL or the built-in sim cell)")
+    rn.add_argument("--seconds", type=float, default=None, help="stop after S seconds (default: until SIGINT/SIGTERM)")
     return ap
 
 
@@ -65,6 +74,10 @@ def parse_joints(items: Sequence[str], arms: Sequence[str]) -> dict[str, np.ndar
 def main(argv: Sequence[str] | None = None) -> int:
     """droid-guard entry point (see module docstring)."""
     args = _parser().parse_args(argv)
+    if args.cmd == "run":
+        from droid.guard.live import run_live
+
+        return run_live(args.cell, args.seconds)
     scene = guard_scene(load_cell(args.cell))
     q = parse_joints(args.joints, list(scene.arms))
     c = scene.closest(q)
