@@ -10,12 +10,12 @@ Target (issue 41): <= 50 us.
 """
 from __future__ import annotations
 
-import argparse
 import time
 from pathlib import Path
 
 import numpy as np
 
+from droid.cli import ArgumentParser, bounded_int
 from droid.brain.cellfile import load_cell
 from droid.guard.bodies import FIXTURE, Body
 from droid.guard.cell import GuardScene, guard_scene
@@ -37,8 +37,8 @@ def _all_pairs(s):
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--n", type=int, default=5000, help="timed passes")
+    ap = ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n", type=bounded_int(1, 1_000_000), default=5000, help="timed passes")
     ap.add_argument("--batch", action="store_true", help="also time a batch of --n configurations in one call")
     args = ap.parse_args()
     cell = load_cell(CELL)

@@ -12,12 +12,12 @@ stopped it -- its trips, the least distance and its pair.
 """
 from __future__ import annotations
 
-import argparse
 import time
 
 import numpy as np
 
 from droid.brain.cellfile import BUNDLED_CELLS, load_cell
+from droid.cli import ArgumentParser
 from droid.experiments import trial as T
 from droid.guard.station import guard_core
 
@@ -25,7 +25,7 @@ POSITIONS = ("i", "ii", "iii", "iv", "v", "vi", "vii")
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--arm", default="fast", choices=("fast", "full"))
     args = ap.parse_args()
     core = guard_core(load_cell(BUNDLED_CELLS / "sim.toml"))

@@ -9,17 +9,17 @@ count kept, the least and median true separation [mm].  Target: 200/200 kept.
 """
 from __future__ import annotations
 
-import argparse
 import time
 
 import numpy as np
 
+from droid.cli import ArgumentParser, bounded_int
 from droid.experiments.guard_trial import COURSES, SPEED, GuardTrials
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--n", type=int, default=100, help="seeds a kind of course")
+    ap = ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n", type=bounded_int(1, 1_000_000), default=100, help="seeds a kind of course")
     args = ap.parse_args()
     t0 = time.perf_counter()
     trials = GuardTrials()

@@ -244,3 +244,20 @@ def home_overlaps(scene: GuardScene, homes_deg: dict[str, np.ndarray]) -> Closes
     c = scene.closest(homes_deg)
     return c if c.in_collision else None
 
+
+def check_guard_homes(cell) -> None:
+    """``droid-cell up``'s check of a cell with a ``[guard]`` table (docs/guard.md): the table is
+    valid (one line otherwise) and no two bodies overlap with every arm at its home pose (the
+    robot file's ``home_switch_deg``, where homing leaves it) outside the allowed pairs --
+    :class:`BadInput`, one line naming the pair, before anything starts."""
+    if "guard" not in cell.raw:
+        return
+    scene = guard_scene(cell)
+    if not scene.pairs:
+        return
+    homes = {n: np.asarray(load_robot(cell.subunits[n].robot).home_switch_deg, float) for n in scene.arms}
+    c = home_overlaps(scene, homes)
+    if c is not None:
+        raise BadInput(f"{cell.path}: [guard] {c.a.label()} and {c.b.label()} overlap at the arms' home poses "
+                       f"({c.distance_mm:.1f} mm): move a base or a fixture, or allow the pair")
+

@@ -29,10 +29,11 @@ from typing import Sequence
 import numpy as np
 
 from droid.brain.cellfile import load_cell
-from droid.cli import ArgumentParser, BadInput, parse_finite, run
+from droid.cli import ArgumentParser, BadInput, bounded_float, parse_finite, run
 from droid.guard.cell import guard_scene
 
 PROG = "droid-guard"
+MAX_RUN_S = 86400.0 * 365  # --seconds: at most a year
 
 
 def _parser() -> ArgumentParser:
@@ -44,7 +45,8 @@ def _parser() -> ArgumentParser:
     ck.add_argument("joints", nargs="*", metavar="ARM=Q1,...,Q6", help="an arm's joint vector [deg]")
     rn = sub.add_parser("run", help="the live guard on a cell that is up (docs/guard.md)")
     rn.add_argument("--cell", default=None, help="cell file (default: $DROID_CELL or the built-in sim cell)")
-    rn.add_argument("--seconds", type=float, default=None, help="stop after S seconds (default: until SIGINT/SIGTERM)")
+    rn.add_argument("--seconds", type=bounded_float(0.0, MAX_RUN_S, "s", lo_open=True), default=None, metavar="S",
+                    help="stop after S seconds (default: until SIGINT/SIGTERM)")
     return ap
 
 

@@ -162,3 +162,22 @@ def test_the_guard_imports_only_brain_kinematics_and_itself():
     for path in (DROID / "guard").rglob("*.py"):
         for n in droid_imports(path):
             assert within(n, ("droid.brain", "droid.kinematics", "droid.cli", "droid.numbers", "droid.guard")), (path, n)
+
+
+def test_bodies_overlapping_at_home_are_refused_at_cell_up_in_one_line(tmp_path, monkeypatch):
+    from droid.brain import launcher
+    from droid.guard.cell import check_guard_homes
+
+    check_guard_homes(load_cell(SIM))  # the shipped cell: clear at home
+    cell = _near_cell(tmp_path, 700.0)  # the Fanuc's base 700 mm from the Reis's: their homes overlap
+    with pytest.raises(BadInput) as e:
+        check_guard_homes(cell)
+    msg = str(e.value)
+    assert "overlap at the arms' home poses" in msg and "arm1 " in msg and "gmf1 " in msg and "\n" not in msg
+
+    def never(*a, **k):
+        raise AssertionError("droid-cell up went on past the guard's check")
+
+    monkeypatch.setattr(launcher, "up", never)
+    monkeypatch.setattr(launcher, "validate_cell", lambda cell: None)
+    assert launcher.main(["up", "--cell", str(cell.path)]) == 2
