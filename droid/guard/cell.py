@@ -116,19 +116,37 @@ class GuardScene:
         if len(i):
             d = dist.segment_segment(p0[:, i], p1[:, i], p0[:, j], p1[:, j])
             out.append(d - self.radius[i] - self.radius[j])
+        # every segment against a box -- the capsules' axes and both boxes' edges of a box pair,
+        # each in its box's frame -- in one call (numpy's cost is per call, not per element)
         i, k = self._cb
+        kb, mb = self._bb
+        segs_a, segs_b, halves = [], [], []
         if len(i):
             c, R = bc[:, k].reshape(-1, 3), bR[:, k].reshape(-1, 3, 3)
-            a = dist.to_box_frame(p0[:, i].reshape(-1, 1, 3), c, R)[:, 0]
-            b = dist.to_box_frame(p1[:, i].reshape(-1, 1, 3), c, R)[:, 0]
-            d = dist.segment_box(a, b, np.broadcast_to(self.half[k], (B, len(k), 3)).reshape(-1, 3)).reshape(B, -1)
-            out.append(np.where(d > 0.0, d - self.radius[i], -self.radius[i]))
-        k, m = self._bb
-        if len(k):
-            h = lambda ix: np.broadcast_to(self.half[ix], (B, len(ix), 3)).reshape(-1, 3)  # noqa: E731
-            d = dist.box_box(bc[:, k].reshape(-1, 3), bR[:, k].reshape(-1, 3, 3), h(k),
-                             bc[:, m].reshape(-1, 3), bR[:, m].reshape(-1, 3, 3), h(m))
-            out.append(d.reshape(B, -1))
+            segs_a.append(dist.to_box_frame(p0[:, i].reshape(-1, 1, 3), c, R)[:, 0])
+            segs_b.append(dist.to_box_frame(p1[:, i].reshape(-1, 1, 3), c, R)[:, 0])
+            halves.append(np.broadcast_to(self.half[k], (B, len(k), 3)).reshape(-1, 3))
+        for src, dst in ((kb, mb), (mb, kb)):
+            if not len(src):
+                continue
+            hs = np.broadcast_to(self.half[src], (B, len(src), 3)).reshape(-1, 3)
+            hd = np.broadcast_to(self.half[dst], (B, len(dst), 3)).reshape(-1, 3)
+            e = dist.to_box_frame(dist.box_edges(bc[:, src].reshape(-1, 3), bR[:, src].reshape(-1, 3, 3), hs),
+                                  bc[:, dst].reshape(-1, 3), bR[:, dst].reshape(-1, 3, 3))
+            segs_a.append(e[:, :, 0].reshape(-1, 3))
+            segs_b.append(e[:, :, 1].reshape(-1, 3))
+            halves.append(np.repeat(hd, 12, axis=0))
+        if segs_a:
+            d = dist.segment_box(np.concatenate(segs_a), np.concatenate(segs_b), np.concatenate(halves))
+            n_cb = B * len(i)
+            if len(i):
+                d_cb = d[:n_cb].reshape(B, -1)
+                out.append(np.where(d_cb > 0.0, d_cb - self.radius[i], -self.radius[i]))
+            if len(kb):
+                n = B * len(kb) * 12
+                ab = d[n_cb:n_cb + n].reshape(B, len(kb), 12).min(axis=2)
+                ba = d[n_cb + n:n_cb + 2 * n].reshape(B, len(kb), 12).min(axis=2)
+                out.append(np.minimum(ab, ba))
         return np.concatenate(out, axis=1) if out else np.full((B, 0), np.inf)
 
     def closest(self, q_deg: dict[str, np.ndarray]) -> Closest:

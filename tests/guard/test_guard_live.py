@@ -1,7 +1,8 @@
 """droid-guard run and droid-move's refusal on the live sim cell (issue 41; integration).
 
-Written in the round that built the guard but NOT run there (a live cell was being measured on
-the machine; docs/guard.md).  On the session's shared homed cell: ``droid-guard run`` writes its
+Written in the round that built the guard; run there once by mistake (a plain ``pytest
+tests/guard``): the live guard's part passed, the target search (then joints 2 and 3 only)
+found no colliding target and failed; the search is wider now and has not been run since.  On the session's shared homed cell: ``droid-guard run`` writes its
 Status file (clear, a positive least distance, a pair), and a joint move of arm1 that the guard's
 bodies say would collide with the Fanuc where it stands is refused by droid-move -- exit 2, one
 line ``would collide: ...`` -- and arm1 does not move.
@@ -46,9 +47,15 @@ def test_the_live_guard_reports_and_droid_move_refuses_a_colliding_move(homed_si
     q1 = reis.gearing.counts_to_joints(np.asarray(snoop(homed_sim_cell, "arm1")["encoder_pos"], float))
     q2 = fanuc.gearing.counts_to_joints(np.asarray(snoop(homed_sim_cell, "gmf1")["encoder_pos"], float))
     goal = None
-    for j2 in (-60.0, -70.0, -80.0):  # arm1 reaching forward toward the Fanuc
+    # arm1 reaching forward toward the Fanuc and its workpiece: the first target within the joint
+    # limits that the guard's bodies say would collide (a 1 deg grid over joints 1-3 and 5)
+    grid = [(j1, j2, j3, j5) for j2 in range(-90, -29, 10) for j3 in range(0, 151, 15)
+            for j1 in (0, -10, 10, -20, 20) for j5 in (0, 45, -45, 90, -90)]
+    for j1, j2, j3, j5 in grid:
         g = q1.copy()
-        g[1], g[2] = j2, 40.0
+        g[0], g[1], g[2], g[4] = j1, j2, j3, j5
+        if reis.limit_violation(g):
+            continue
         if check_move(scene, "arm1", q1, g, 10.0, {"gmf1": q2}, limit_mm=35.0):
             goal = g
             break
