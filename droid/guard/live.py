@@ -7,8 +7,8 @@ as JSON in ``{run}/guard_status.json`` on every change of state and once a secon
 (SIGINT, SIGTERM, ``--seconds``) it clears the bits it set.
 
 Not yet: a Status database of its own, the planners' stale rule on it ("a dead guard stops the
-cell"), a place in ``droid-cell up``; tests/guard/test_guard_live.py (integration) was written
-but not run in the round that wrote this (docs/guard.md).
+cell"), a place in ``droid-cell up``; tests/guard/test_guard_live.py (integration) ran once
+(docs/guard.md, "Not done").
 """
 from __future__ import annotations
 
