@@ -65,10 +65,11 @@ class TrialResult:
 
 
 def trial_cell():
-    """reis_pair.toml with arm2 at GAP_MM and a ``[guard]`` table (default SSM terms)."""
+    """reis_pair.toml with arm2 at GAP_MM and an empty ``[guard]`` table: the two arms' links only
+    (not the cell file's floor), default SSM terms."""
     cell = load_cell(PAIR)
     cell.subunits["arm2"].base = [GAP_MM, *cell.subunits["arm2"].base[1:]]
-    cell.raw.setdefault("guard", {})
+    cell.raw["guard"] = {}
     return cell
 
 
