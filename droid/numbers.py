@@ -175,6 +175,7 @@ NAMED: dict[str, Range | tuple] = {
     "plate_mm": Range(0.0, 1e3, "mm", lo_open=True),
     "max_closing_speed_mm_s": Range(0.0, 1e6, "mm/s", lo_open=True),
     "sensor_pose": POSE, "sensor_tool_pose": POSE, "ft_pose": POSE,
+    "pose": POSE,  # the collision guard's boxes ([guard] workpiece, fixtures: docs/guard.md)
     "signs": SIGN, "direction": SIGN, "search_dir": SIGN,
     "reduction": Range(0.0, 1e5, "(gear ratio)", lo_open=True),
     "encoder_counts_per_rev": Range(0.0, 1e9, "counts/rev", lo_open=True),

@@ -303,6 +303,7 @@ def parse_cell(raw: dict[str, Any], p: Path) -> Cell:
     r2.done()
 
     curve_table = top.get("curve", dict, None)
+    top.get("guard", dict, None)  # the collision guard's table: read by droid.guard.cell (docs/guard.md)
     interpose = _interpose_table(top.get("interpose", dict, {}), p, run, name)
 
     subs_raw = top.get("subunits", dict)

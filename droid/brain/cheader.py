@@ -60,7 +60,8 @@ def generate() -> str:
     ]
     for name in ("JSPACE", "CARTSPACE", "OFF", "JOG_MODE", "HOME_MODE", "NORMAL_MODE", "HOMED",
                  "FLAG_RECOVERED", "FAULT_LINK", "FAULT_WATCHDOG", "FAULT_SERVO", "FAULT_LIMIT",
-                 "FAULT_BRAKING", "FAULT_DEVICE", "FAULT_HEARTBEAT", "FAULT_FORCE", "CMD_OK", "CMD_REFUSED", "CMD_FAILED"):
+                 "FAULT_BRAKING", "FAULT_DEVICE", "FAULT_HEARTBEAT", "FAULT_FORCE", "FAULT_COLLISION",
+                 "CMD_OK", "CMD_REFUSED", "CMD_FAILED"):
         out.append(f"#define DROID_{name} {getattr(L, name)}")
     out.append("")
     for lay in layouts().values():  # the Brain's and every registered package's (droid.brain.registry)

@@ -44,6 +44,8 @@ PACKAGE = DevicePackage(
         Program("droid-cheader", "droid.brain.cheader", role="tool"),
         Program("droid-keys", "droid.brain.keys", role="tool"),
         Program("droid-kin", "droid.kinematics.cli", role="tool"),
+        # the collision guard between the arms (issue 41; docs/guard.md): `droid-guard check` today
+        Program("droid-guard", "droid.guard.cli", role="tool"),
         Program("droid-snoop", "droid.tasks.snoop", role="tool"),
         Program("droid-move", "droid.tasks.move", role="tool"),
         Program("droid-home", "droid.tasks.home", role="tool"),

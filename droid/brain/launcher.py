@@ -600,6 +600,9 @@ def main(argv=None) -> int:
     if args.cmd in ("init", "restart") or (args.cmd == "up" and args.replay is None):
         # every class, program and twin registered, before a database or a process is made
         validate_cell(cell)
+        from droid.guard.cell import check_guard_homes  # the collision guard's bodies (docs/guard.md)
+
+        check_guard_homes(cell)
     if args.cmd == "up" and args.replay is not None:
         if args.host:
             raise BadInput("--replay brings up the Brain's databases only: no --host")

@@ -168,6 +168,7 @@ FAULT_BRAKING = 16  # the servo ran out of commands and braked
 FAULT_DEVICE = 32  # device driver error (serial port, encoder card)
 FAULT_HEARTBEAT = 64  # Brain side: no heartbeat tick for stale_ticks periods (the Status is not being refreshed)
 FAULT_FORCE = 128  # an arm: the force/torque sensor on it read more than its guard's limit (droid-ft)
+FAULT_COLLISION = 256  # an arm: the collision guard's protective stop (droid.guard, docs/guard.md)
 FAULT_NAMES = {
     FAULT_LINK: "link",
     FAULT_WATCHDOG: "watchdog",
@@ -177,6 +178,7 @@ FAULT_NAMES = {
     FAULT_DEVICE: "device",
     FAULT_HEARTBEAT: "heartbeat",
     FAULT_FORCE: "force",
+    FAULT_COLLISION: "collision",
 }
 #: The fault bits after which an arm cannot carry out a command: its servo stopped
 #: (a latched servo fault, or the servo program silent), its amplifiers latched off by

@@ -138,6 +138,22 @@ def opw_chain_frames(model) -> tuple[list[np.ndarray], list[np.ndarray], np.ndar
     return frames, axes, tip
 
 
+def default_link_radii_mm(model) -> tuple[float, float]:
+    """The nominal capsule radii [mm] of links 1-3 and of links 4-6: fractions of the reach."""
+    p = model.opw
+    reach = p.c2 + math.hypot(p.a2, p.c3)
+    return LINK_RADIUS_FRACTION * reach, WRIST_RADIUS_FRACTION * reach
+
+
+def link_capsule_radii_mm(model) -> list[float]:
+    """Radius [mm] of each of the six link capsules of the URDF (the file's ``[geometry]
+    link_radius_mm`` where given, else :func:`default_link_radii_mm`).  The collision guard
+    (:mod:`droid.guard.bodies`) sizes its bodies with this, so its capsules are the URDF's."""
+    r_arm, r_wrist = default_link_radii_mm(model)
+    given = model.geometry.link_radius_mm
+    return [float(given[i]) if given is not None else (r_arm if i < 3 else r_wrist) for i in range(6)]
+
+
 def _check_dynamics(model) -> None:
     dyn = model.dynamics
     if dyn is None:
@@ -273,9 +289,7 @@ def robot_urdf(model, *, tool=None, sensor=None) -> str:
     p = model.opw
     frames, axes, tip = opw_chain_frames(model)
     pos = [g[:3, 3].copy() for g in frames]  # joint origins at q = 0 [mm], robot frame
-    reach = p.c2 + math.hypot(p.a2, p.c3)
-    r_arm = LINK_RADIUS_FRACTION * reach * _MM
-    r_wrist = WRIST_RADIUS_FRACTION * reach * _MM
+    r_arm, r_wrist = (r * _MM for r in default_link_radii_mm(model))
 
     L = _header_xml(model)
     # base_link: a disc under joint 1
@@ -354,9 +368,7 @@ def _arm_xml(model, pos, axes, flange_pos, r_arm: float, r_wrist: float) -> list
             inertia = (inertia + inertia.T) / 2.0
             L += _inertial_xml(float(dyn.link_mass_kg[i]), com, inertia, "    ")
         end = pos[i + 1] if i < 5 else flange_pos
-        radius = r_arm if i < 3 else r_wrist
-        if model.geometry.link_radius_mm is not None:
-            radius = model.geometry.link_radius_mm[i] * _MM
+        radius = link_capsule_radii_mm(model)[i] * _MM
         L += _link_geometry(model, i + 1, _capsule(np.zeros(3), (end - pos[i]) * _MM, radius), "    ")
         L.append("  </link>")
     return L

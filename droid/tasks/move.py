@@ -23,6 +23,12 @@ time, or halted short of its target; a move given up on (timeout, stale,
 Ctrl-C, SIGTERM: exit 130) is stopped (a stop command is written over it) so it
 is never carried out later.  SECONDS is at most 3600 (one hour).
 
+Where the cell declares a collision guard (``[guard]``, docs/guard.md), the move's joint path
+is sampled against the other arms (where they stand, or along their joint moves) before it is
+written; one that would come closer than the guard's clearance is refused, exit 2, with one
+line such as ``would collide: arm1 link 4 with gmf1 link 3 at 42 % of the move (clearance 12 mm
+< 25 mm)``: the arm never moves.
+
 A move a protective stop cancelled -- the servo ran out of commands and braked
 (FAULT_BRAKING, e.g. after a host stall) and nothing else faulted -- is re-issued
 toward the same target from where the arm came to rest, at most 3 times
@@ -37,9 +43,12 @@ from __future__ import annotations
 import signal
 import sys
 
+import numpy as np
+
 from droid.brain.program import open_cell, parser
 from droid.cli import MAX_MOVE_S, RuntimeFailure, finite_float, run, timeout_s
 from droid.tasks.arm import MAX_CART_ANGLE_DEG, BrainArm
+from droid.tasks.guarded import refuse_colliding_move
 from droid.tasks.resume import MAX_RESUMES, arrived_line
 
 PROG = "droid-move"
@@ -75,7 +84,12 @@ def main(argv=None) -> int:
         check(target, seconds, None)  # limits and reachability: needs no cell
         arm.connect()
         rec = check_ready(arm)
-        check(target, seconds, arm.joints_deg(rec))  # speed from here, before waiting
+        checked = check(target, seconds, arm.joints_deg(rec))  # speed from here, before waiting
+        # the collision guard's bodies (a cell with a [guard] table): a move that would collide is
+        # refused here, exit 2, before anything is written (docs/guard.md)
+        q_goal = (arm.model.gearing.counts_to_joints(np.asarray(checked, float)) if args.mode == "joint"
+                  else checked[1])
+        refuse_colliding_move(cell, args.robot, arm.joints_deg(rec), q_goal, seconds)
         if args.no_wait:
             timeout = args.timeout or 2 * seconds + 10.0
             q_now = arm.joints_deg(arm.wait_idle(timeout))

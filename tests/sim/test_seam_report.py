@@ -130,7 +130,8 @@ def test_write_table_csv_and_markdown(tmp_path):
 TASKS = Path(__file__).resolve().parents[2] / "droid" / "tasks"
 # droid.observe: droid-seamtrack --record (observers read the Brain's databases only, like a task)
 # droid.numbers: the range check of numbers read from files, a leaf like droid.cli
-TASK_MAY_IMPORT = ("droid.brain", "droid.kinematics", "droid.cli", "droid.numbers", "droid.tasks", "droid.observe")
+TASK_MAY_IMPORT = ("droid.brain", "droid.kinematics", "droid.cli", "droid.numbers", "droid.tasks", "droid.observe",
+                   "droid.guard")  # the collision guard's bodies: droid-move refuses a colliding move
 
 
 def test_tasks_import_only_brain_kinematics_cli_and_tasks():

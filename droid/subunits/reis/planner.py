@@ -25,7 +25,8 @@ controller's Command and Status records and
   (``link_alive = 0``) or the servo ran out of commands and braked
   (FAULT_BRAKING): the arm stays stopped until a new command;
 * the same on FAULT_FORCE (the force/torque sensor's guard on this arm, set by droid-ft
-  on its host: thesis §7.3), and while it is set a new NORMAL command is refused.
+  on its host: thesis §7.3), and while it is set a new NORMAL command is refused; and the
+  same on FAULT_COLLISION (the collision guard's protective stop: docs/guard.md).
 """
 from __future__ import annotations
 
@@ -43,8 +44,8 @@ from droid.brain.program import close_all, Presence, Stop, notify_ready, presenc
 from droid.cli import run
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T, record_pose
-from droid.brain.layouts import (CMD_FAILED, CMD_OK, CMD_REFUSED, FAULT_BRAKING, FAULT_FORCE, FAULT_SERVO,
-                                 FAULT_WATCHDOG, JSPACE, NORMAL_MODE, STOP_TICKS, fault_names)
+from droid.brain.layouts import (CMD_FAILED, CMD_OK, CMD_REFUSED, FAULT_BRAKING, FAULT_COLLISION, FAULT_FORCE,
+                                 FAULT_SERVO, FAULT_WATCHDOG, JSPACE, NORMAL_MODE, STOP_TICKS, fault_names)
 from droid.kinematics import RobotModel, Unreachable
 
 N = 6
@@ -69,8 +70,14 @@ def stop_cause(cmd, status) -> str:
     its cause): the Brain link, the servo or watchdog faults, or the servo's braking."""
     if not int(cmd["link_alive"]):
         return "Brain link lost"
-    faults = fault_names(int(status["fault"]) & (FAULT_SERVO | FAULT_WATCHDOG | FAULT_BRAKING | FAULT_FORCE))
+    faults = fault_names(int(status["fault"]) & (FAULT_SERVO | FAULT_WATCHDOG | FAULT_BRAKING | FAULT_FORCE
+                                                  | FAULT_COLLISION))
     return "faults: " + ", ".join(faults)
+
+
+#: the collision guard's protective stop ramps the move's speed to zero over this many heartbeat
+#: ticks (250 ms at 60 Hz; docs/guard.md: the stop time in S_p includes it)
+COLLISION_BRAKE_TICKS = 15
 
 
 @dataclass
@@ -84,6 +91,7 @@ class PlannerCore:
     plan_id: int = 0
     active_id: int = 0
     refused: int = 0
+    brake_step: np.ndarray | None = None  # a protective stop's ramp: the move's step when it began [counts/tick]
 
     def _joints_from_counts(self, counts) -> np.ndarray:
         return self.model.gearing.counts_to_joints(np.asarray(counts, float))
@@ -130,6 +138,7 @@ class PlannerCore:
         self.int_counts = pos.copy()
         self.ext_counts = pos.copy()
         self.time_count = 0
+        self.brake_step = None
         out.encoder_cmd_int = np.rint(pos).astype(np.int32)
         # encoder_cmd_ext is left as the agent copied it: in JOG mode it is the Brain's
         # RELATIVE jog [counts] (§3.4) that the servo agent (droid-egm) adds once; writing the
@@ -143,20 +152,26 @@ class PlannerCore:
         its way-point; a hard stop re-anchors at the measured position), refuse or fail a new
         command that cannot move; True when no new command may start this tick."""
         dead = int(status["fault"]) & (FAULT_SERVO | FAULT_WATCHDOG)  # nothing can move
-        force = int(status["fault"]) & FAULT_FORCE  # the F/T guard on this arm tripped (droid-ft)
+        # the F/T guard on this arm tripped (droid-ft), or the collision guard's protective stop
+        collision = int(status["fault"]) & FAULT_COLLISION
+        force = int(status["fault"]) & (FAULT_FORCE | FAULT_COLLISION)
         hard = not int(cmd["link_alive"]) or int(status["fault"]) & FAULT_BRAKING or dead
-        if force and not hard and self.time_count > 0:
-            # over-force: the move ends at its current way-point and the arm holds there, as on
-            # a stop command (the servo agent keeps sending that way-point): the arm stands at
-            # once.  Re-anchoring at the measured position, as on a lost stream, would move a
-            # pressing arm back by its following error and its drives' deflection.
-            self.ext_counts = self.int_counts.copy()
-            self.time_count = 0
+        if force and not hard and self.time_count > 0 and self.brake_step is None:
+            if collision:
+                self._brake()
+            else:
+                # over-force: the move ends at its current way-point and the arm holds there, as
+                # on a stop command (the servo agent keeps sending that way-point): the arm stands
+                # at once.  Re-anchoring at the measured position, as on a lost stream, would move
+                # a pressing arm back by its following error and its drives' deflection.
+                self.ext_counts = self.int_counts.copy()
+                self.time_count = 0
             out.cmd_result = CMD_FAILED
             out.cmd_id = self.active_id
             out.note = f"cancelled command {self.active_id}: {stop_cause(cmd, status)}"
         if hard and (self.time_count > 0 or np.any(np.abs(self.int_counts - pos) > 0)):
-            cancelled = self.time_count > 0
+            cancelled = self.time_count > 0 and self.brake_step is None
+            self.brake_step = None
             self.int_counts = pos.copy()
             self.ext_counts = pos.copy()
             self.time_count = 0
@@ -196,6 +211,7 @@ class PlannerCore:
             self.active_id = new_id
             out.cmd_result = CMD_OK
             return
+        self.brake_step = None
         try:
             target = self._resolve(cmd)
         except Unreachable as exc:
@@ -208,9 +224,25 @@ class PlannerCore:
             self.active_id = new_id
             out.cmd_result = CMD_OK
 
+    def _brake(self) -> None:
+        """The collision guard's protective stop (docs/guard.md): the move goes on along its path
+        with its speed ramping down to zero over :data:`COLLISION_BRAKE_TICKS` ticks (steps of
+        n/(n+1), ..., 1/(n+1) of the move's step: n/2 steps' travel), not held at once -- a full-speed
+        arm held at its way-point overruns the servo's following-error limit."""
+        n = COLLISION_BRAKE_TICKS
+        self.brake_step = (self.ext_counts - self.int_counts) / self.time_count
+        self.ext_counts = self.int_counts + self.brake_step * (n / 2.0)
+        self.time_count = n
+
     def _next_waypoint(self, out: PlanOutput) -> None:
         """plan_joint_cmd(): the next interpolated way-point (thesis §4.1.7 listing)."""
-        if self.time_count > 1:
+        if self.brake_step is not None:  # a protective stop's ramp (_brake)
+            if self.time_count > 1:
+                self.int_counts = self.int_counts + self.brake_step * (self.time_count / (COLLISION_BRAKE_TICKS + 1))
+            else:
+                self.int_counts = self.ext_counts.copy()
+                self.brake_step = None
+        elif self.time_count > 1:
             step = (self.ext_counts - self.int_counts) / self.time_count
             self.int_counts = self.int_counts + step
         else:
