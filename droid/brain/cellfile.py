@@ -18,6 +18,7 @@ import hashlib
 
 import math
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -71,6 +72,10 @@ def find_file(spec: str, folder: Path, suffix: str = "") -> Path | None:
     return None
 
 
+#: a TOML table header line (``[a.b]`` or ``[[a]]`` at the line's start), not an array's continuation
+_TABLE_HEADER = re.compile(r"^\[\[?[A-Za-z0-9_.\"' -]+\]\]?\s*(#.*)?$")
+
+
 def without_table(text: str, header: str) -> str:
     """A cell file's text without one table (``header``, e.g. ``[world.devices.touch]``: its
     header line up to the next table's header), for programs that derive a cell from the
@@ -81,7 +86,7 @@ def without_table(text: str, header: str) -> str:
         start = next(i for i, ln in enumerate(lines) if ln.strip() == header)
     except StopIteration:
         raise ValueError(f"no table {header} in the cell text") from None
-    end = next((i for i in range(start + 1, len(lines)) if lines[i].lstrip().startswith("[")), len(lines))
+    end = next((i for i in range(start + 1, len(lines)) if _TABLE_HEADER.match(lines[i])), len(lines))
     while end > start + 1 and lines[end - 1].lstrip().startswith("#"):  # the next table's own comments
         end -= 1
     return "".join(lines[:start] + lines[end:])

@@ -60,6 +60,8 @@ def trial_cell_text(cfg: TrialConfig, name: str, run_dir: Path, base_text: str |
     text = base_text if base_text is not None else builtin_cell_path().read_text()
     if "[world.devices.touch]" in text:  # no contact in a seam-tracking trial: as in lockstep, and the
         text = without_table(text, "[world.devices.touch]")  # trial's workpiece may have no [contact]
+    if "[guard]" in text:  # the guard's workpiece box is the built-in cell's (step_input); the trial's
+        text = without_table(text, "[guard]")  # workpiece and poses are its own, as in lockstep
     text = _replace(text, "name", f'"{name}"\nrun_dir = "{run_dir}"', 1)
     text = _replace(text, "seed", str(int(cfg.seed)), 1)
     text = _replace(text, "workpiece", f'"{geo.workpiece.name}"', 2)

@@ -24,3 +24,15 @@ def test_the_touch_device_leaves_and_every_other_table_stays(tmp_path):
 def test_a_missing_table_is_an_error():
     with pytest.raises(ValueError, match=r"no table \[world.devices.nothere\]"):
         without_table("[cell]\nname = \"x\"\n", "[world.devices.nothere]")
+
+
+def test_an_array_continued_on_lines_that_open_with_a_bracket_is_part_of_its_table():
+    """The built-in cell's ``[guard] allow`` runs over lines that start with ``[`` once indented:
+    they are the table's, not the next table's header."""
+    text = ('[cell]\nname = "x"\n\n[guard]\nallow = [["a.tool", "b.workpiece"],\n'
+            '         ["a.link_1", "fixture.floor"]]\nworkpiece = { arm = "b" }\n\n'
+            '# the next table\n[world]\nseed = 1\n')
+    out = without_table(text, "[guard]")
+    assert out == '[cell]\nname = "x"\n\n# the next table\n[world]\nseed = 1\n'
+    built_in = without_table(builtin_cell_path().read_text(), "[guard]")
+    assert "fixture.floor" not in built_in and "[guard]" not in built_in
