@@ -35,6 +35,17 @@ MAX_RMS_MM = 0.12
 SPEED_MM_S = 16.0
 
 
+def judged(returncode: int, out: str) -> tuple[bool, str]:
+    """Whether a tracking run passed (exit 0, lateral RMS <= MAX_RMS_MM at SPEED_MM_S) and its
+    summary, or its last line when it printed none."""
+    m = SUMMARY.search(out)
+    ok = (returncode == 0 and m is not None and float(m["rms"]) <= MAX_RMS_MM
+          and abs(float(m["speed"]) - SPEED_MM_S) < 0.05)
+    what = (f"lateral RMS {m['rms']} mm max {m['max']} mm at {m['speed']} mm/s" if m else
+            (out.strip().splitlines() or ["(no output)"])[-1])
+    return ok, what
+
+
 def busy(tmp: str, pin: list[str]) -> list[subprocess.Popen]:
     """The two CPU-bound processes: a lockstep experiment loop and a pure-Python loop."""
     exp = ROOT / ".venv" / "bin" / "droid-experiment"
@@ -64,11 +75,7 @@ def one(k: int, loaded: bool, pin: list[str], keep: Path, tmp: str) -> bool:
     finally:
         stop(extra)
     out = run.stdout + run.stderr
-    m = SUMMARY.search(out)
-    ok = (run.returncode == 0 and m is not None and float(m["rms"]) <= MAX_RMS_MM
-          and abs(float(m["speed"]) - SPEED_MM_S) < 0.05)
-    what = (f"lateral RMS {m['rms']} mm max {m['max']} mm at {m['speed']} mm/s" if m else
-            (out.strip().splitlines() or ["(no output)"])[-1])
+    ok, what = judged(run.returncode, out)
     print(f"{'loaded' if loaded else 'quiet '} run {k + 1}: exit {run.returncode} in {wall:.0f} s: "
           f"{'ok' if ok else 'FAILED'}: {what}", flush=True)
     if not ok:

@@ -30,7 +30,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench.bench_demo_soak import MAX_RMS_MM, SPEED_MM_S, SUMMARY, busy, stop  # noqa: E402
+from bench.bench_demo_soak import MAX_RMS_MM, SPEED_MM_S, busy, judged, stop  # noqa: E402
 from bench.bench_footprint import make_cell  # noqa: E402
 from bench.floor import cyclictest_floor  # noqa: E402
 from bench.live_cell import droid_program as droid, up_and_homed  # noqa: E402
@@ -51,12 +51,7 @@ def track(cell: Path, k: int, length_mm: float) -> bool:
     t0 = time.monotonic()
     run = droid(cell, "droid-seamtrack", "16", "--mode", "plus", "--start", "i", "--length", f"{length_mm:g}",
                 timeout=600)
-    out = run.stdout + run.stderr
-    m = SUMMARY.search(out)
-    ok = (run.returncode == 0 and m is not None and float(m["rms"]) <= MAX_RMS_MM
-          and abs(float(m["speed"]) - SPEED_MM_S) < 0.05)
-    what = (f"lateral RMS {m['rms']} mm max {m['max']} mm at {m['speed']} mm/s" if m else
-            (out.strip().splitlines() or ["(no output)"])[-1])
+    ok, what = judged(run.returncode, run.stdout + run.stderr)
     print(f"run {k + 1}: exit {run.returncode} in {time.monotonic() - t0:.0f} s: {'ok' if ok else 'FAILED'}: "
           f"{what}", flush=True)
     return ok
