@@ -416,22 +416,32 @@ class ArmCommands:
             self.worker = threading.Thread(target=self._run_legs, args=(self.seq, legs), daemon=True)
             self.worker.start()
 
-    def _run_legs(self, seq: int, legs) -> None:
+    def _carry_out(self, what: str, seq: int, work, failed_as: str) -> None:
+        """Run a started command's ``work`` (a worker thread's body) and report how it ended on the
+        status topic: ``stopped`` (/stop), ``failed`` (said in the log as ``failed_as failed``) or
+        ``done`` with whatever ``work`` returns."""
         from droid.tasks.arm import Interrupted
 
-        t0 = time.monotonic()
         try:
+            extra = work() or {}
+        except Interrupted as exc:
+            self.report(what, "stopped", str(exc), **{what: seq})
+            return
+        except DroidError as exc:
+            self.say(f"{self.name}: {failed_as} failed: {exc}")
+            self.report(what, "failed", str(exc), **{what: seq})
+            return
+        self.report(what, "done", **{what: seq}, **extra)
+
+    def _run_legs(self, seq: int, legs) -> None:
+        def legs_moved() -> dict:
+            t0 = time.monotonic()
             for i, leg in enumerate(legs):
                 self.arm.move("joint", leg.counts, leg.seconds, arrive=(i == len(legs) - 1),
                               interrupted=self.stop_evt.is_set, say=lambda line: self.say(f"{self.name}: {line}"))
-        except Interrupted as exc:
-            self.report("trajectory", "stopped", str(exc), trajectory=seq)
-            return
-        except DroidError as exc:
-            self.say(f"{self.name}: trajectory {seq} failed: {exc}")
-            self.report("trajectory", "failed", str(exc), trajectory=seq)
-            return
-        self.report("trajectory", "done", trajectory=seq, seconds=round(time.monotonic() - t0, 3))
+            return {"seconds": round(time.monotonic() - t0, 3)}
+
+        self._carry_out("trajectory", seq, legs_moved, f"trajectory {seq}")
 
     def on_home(self, request, response):
         from droid.tasks.home import home
@@ -444,23 +454,12 @@ class ArmCommands:
                 return response
             seq = self.seq
 
-            def body():
-                from droid.tasks.arm import Interrupted
-
-                try:
-                    home(self.arm, interrupted=self.stop_evt.is_set)
-                except Interrupted as exc:
-                    self.report("home", "stopped", str(exc), home=seq)
-                    return
-                except DroidError as exc:
-                    self.say(f"{self.name}: home failed: {exc}")
-                    self.report("home", "failed", str(exc), home=seq)
-                    return
-                self.report("home", "done", home=seq)
+            def homed() -> None:
+                home(self.arm, interrupted=self.stop_evt.is_set)
 
             self.stop_evt.clear()
             self.report("home", "started")
-            self.worker = threading.Thread(target=body, daemon=True)
+            self.worker = threading.Thread(target=self._carry_out, args=("home", seq, homed, "home"), daemon=True)
             self.worker.start()
         response.success, response.message = True, f"homing {self.name}: the result on /{self.name}/command_status"
         return response
