@@ -27,7 +27,9 @@ Where the cell declares a collision guard (``[guard]``, docs/guard.md), the move
 is sampled against the other arms (where they stand, or along their joint moves) before it is
 written; one that would come closer than the guard's clearance is refused, exit 2, with one
 line such as ``would collide: arm1 link 4 with gmf1 link 3 at 42 % of the move (clearance 12 mm
-< 25 mm)``: the arm never moves.
+< 25 mm)``: the arm never moves.  ``--wait-clear S`` coordinates instead: a move that would
+collide only with another arm's running move holds until that move has cleared the region (at
+most S seconds; ``arm1: holding until gmf1's move clears the region (...)`` on stderr), then goes.
 
 A move a protective stop cancelled -- the servo ran out of commands and braked
 (FAULT_BRAKING, e.g. after a host stall) and nothing else faulted -- is re-issued
@@ -70,6 +72,10 @@ def main(argv=None) -> int:
     ap.add_argument("--no-resume", action="store_true",
                     help=f"fail a move a protective stop (braking) cancelled instead of resuming it from "
                          f"where the arm stopped (at most {MAX_RESUMES} times)")
+    ap.add_argument("--wait-clear", type=timeout_s, default=0.0, metavar="S",
+                    help="where the cell has a collision guard: a move that would collide with another arm's "
+                         "running move holds until that move clears the region, for at most S seconds, "
+                         "instead of being refused at once")
     args = ap.parse_args(argv)
     if len(args.values) != 7:
         ap.error(f"{args.mode} needs 6 target values and SECONDS, got {len(args.values)} numbers")
@@ -89,7 +95,9 @@ def main(argv=None) -> int:
         # refused here, exit 2, before anything is written (docs/guard.md)
         q_goal = (arm.model.gearing.counts_to_joints(np.asarray(checked, float)) if args.mode == "joint"
                   else checked[1])
-        refuse_colliding_move(cell, args.robot, arm.joints_deg(rec), q_goal, seconds)
+        held = refuse_colliding_move(cell, args.robot, arm.joints_deg(rec), q_goal, seconds, args.wait_clear)
+        if held:
+            print(f"{args.robot}: the region cleared after {held:.1f} s; moving", file=sys.stderr)
         if args.no_wait:
             timeout = args.timeout or 2 * seconds + 10.0
             q_now = arm.joints_deg(arm.wait_idle(timeout))

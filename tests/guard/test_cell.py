@@ -145,7 +145,7 @@ def test_droid_moves_check_refuses_with_exit_2_and_passes_a_clear_move(tmp_path,
     from droid.tasks import guarded
 
     cell = _near_cell(tmp_path)
-    monkeypatch.setattr(guarded, "_other_arm", lambda cell, name: (np.zeros(6), None))
+    monkeypatch.setattr(guarded, "_other_arm", lambda cell, name, gearing: (np.zeros(6), None, False))
     with pytest.raises(BadInput) as e:
         guarded.refuse_colliding_move(cell, "arm1", [0.0, 40.0, -30.0, 0, 0, 0], [0.0, -60.0, 40.0, 0, 0, 0], 2.0)
     assert str(e.value).startswith("would collide: arm1 ") and "(clearance " in str(e.value)
@@ -153,6 +153,59 @@ def test_droid_moves_check_refuses_with_exit_2_and_passes_a_clear_move(tmp_path,
     guarded.refuse_colliding_move(cell, "arm1", [150.0, 40.0, -30.0, 0, 0, 0], [150.0, -60.0, 40.0, 0, 0, 0], 2.0)
     del cell.raw["guard"]  # no [guard] table: not checked
     guarded.refuse_colliding_move(cell, "arm1", [0.0, 40.0, -30.0, 0, 0, 0], [0.0, -60.0, 40.0, 0, 0, 0], 2.0)
+
+
+def test_a_move_held_for_a_busy_arm_goes_once_its_move_has_cleared_the_region(tmp_path, monkeypatch):
+    """Item 4, coordination: the Fanuc is on its way toward the Reis (as in the test above) for the
+    first checks, then stands at home: with a wait the Reis's move holds (one line on stderr),
+    then passes; without a wait it is refused at once."""
+    import io
+
+    from droid.tasks import guarded
+
+    cell = _near_cell(tmp_path, 2000.0)
+    q_from, q_to = [0.0, 40.0, -30.0, 0, 0, 0], [0.0, -60.0, 40.0, 0, 0, 0]
+    toward = np.array([0.0, -70.0, 50.0, 0, 0, 0])
+    calls = []
+
+    def fanuc(cell, name, gearing):
+        calls.append(name)
+        if len(calls) <= 3:  # on its move toward the Reis
+            return np.zeros(6), (toward, 2.0), True
+        return np.zeros(6), None, False  # its move is over (it went back home)
+
+    monkeypatch.setattr(guarded, "_other_arm", fanuc)
+    with pytest.raises(BadInput) as e:
+        guarded.refuse_colliding_move(cell, "arm1", q_from, q_to, 2.0)
+    assert str(e.value).startswith("would collide: arm1 ") and "gmf1" in str(e.value)
+    calls.clear()
+    err = io.StringIO()
+    held = guarded.refuse_colliding_move(cell, "arm1", q_from, q_to, 2.0, wait_s=5.0, err=err)
+    assert len(calls) == 4 and held > 0.0
+    lines = err.getvalue().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("arm1: holding until gmf1's move clears the region (would collide: ")
+
+
+def test_a_held_move_is_refused_when_the_region_does_not_clear_or_nothing_moves(tmp_path, monkeypatch):
+    import io
+
+    from droid.tasks import guarded
+
+    cell = _near_cell(tmp_path, 2000.0)
+    q_from, q_to = [0.0, 40.0, -30.0, 0, 0, 0], [0.0, -60.0, 40.0, 0, 0, 0]
+    toward = np.array([0.0, -70.0, 50.0, 0, 0, 0])
+    # the Fanuc stays on its way for ever: the wait ends after S seconds with the refusal
+    monkeypatch.setattr(guarded, "_other_arm", lambda cell, name, gearing: (np.zeros(6), (toward, 2.0), True))
+    with pytest.raises(BadInput) as e:
+        guarded.refuse_colliding_move(cell, "arm1", q_from, q_to, 2.0, wait_s=0.2, err=io.StringIO())
+    assert str(e.value).startswith("would collide: arm1 ") and "; the region did not clear in 0." in str(e.value)
+    # an arm at rest in the way: refused at once, waiting would not clear it
+    near = _near_cell(tmp_path)
+    monkeypatch.setattr(guarded, "_other_arm", lambda cell, name, gearing: (np.zeros(6), None, False))
+    err = io.StringIO()
+    with pytest.raises(BadInput) as e:
+        guarded.refuse_colliding_move(near, "arm1", q_from, q_to, 2.0, wait_s=30.0, err=err)
+    assert "did not clear" not in str(e.value) and err.getvalue() == ""
 
 
 def test_the_guard_imports_only_brain_kinematics_and_itself():
