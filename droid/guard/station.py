@@ -134,8 +134,9 @@ class GuardStation:
 def guard_status_dict(rec) -> dict:
     """A ``guard_status`` record as droid-snoop, droid-record and droid-web show it."""
     n = int(rec["n_arms"])
-    arms = [bytes(rec["arms"][i]).decode(errors="replace") for i in range(n)]
-    name = lambda f: bytes(rec[f]).decode(errors="replace")  # noqa: E731
+    text = lambda v: bytes(v).rstrip(b"\0").decode(errors="replace")  # noqa: E731
+    arms = [text(rec["arms"][i]) for i in range(n)]
+    name = lambda f: text(rec[f])  # noqa: E731
     return {"tick": int(rec["tick"]), "state": GUARD_STATE_NAMES.get(int(rec["state"]), str(int(rec["state"]))),
             "distance_mm": float(rec["distance_mm"]), "ahead_mm": float(rec["ahead_mm"]),
             "pair": [f"{name('a_arm')}.{name('a_body')}", f"{name('b_arm')}.{name('b_body')}"],
@@ -157,7 +158,7 @@ def attach_lockstep(sched, cell, subunits: dict, scene=None, status_db=None, gat
     LockstepSubunit whose ``parts`` has ``model`` and ``ctrl_status``), ticking after the arms.
     ``gates``: the arms' planners keep the guard's stale rule and override (as droid-planner does
     in a cell that declares a guard): each arm's ``parts.planner`` (a PlannerStation) or
-    ``parts.guard_gate`` holder gets a :class:`~droid.guard.gate.GuardGate`."""
+    the GMF1's ``parts.serial`` (a SerialStation) gets a :class:`~droid.guard.gate.GuardGate`."""
     core = guard_core(cell, scene)
     stale = guard_stale_ticks(cell) or DEFAULT_STALE_TICKS
     arms = {}
@@ -165,11 +166,9 @@ def attach_lockstep(sched, cell, subunits: dict, scene=None, status_db=None, gat
         parts = subunits[name].parts
         arms[name] = (parts.model.gearing, subunits[name].status, parts.ctrl_status, subunits[name].command)
         if gates:
-            planner = getattr(parts, "planner", None)
-            if planner is not None and hasattr(planner, "gate"):
-                planner.gate = GuardGate(stale)
-            elif hasattr(parts, "guard_gate"):
-                parts.guard_gate = GuardGate(stale)
+            for station in (getattr(parts, "planner", None), getattr(parts, "serial", None)):
+                if station is not None and hasattr(station, "gate"):  # the Reis/ABB planner, the GMF1's serial
+                    station.gate = GuardGate(stale)
     station = GuardStation(core, arms, status_db, stale)
     sched.on_tick(station.on_tick, "droid-guard", order=ORDER_GUARD)
     return station
