@@ -64,6 +64,7 @@ class GuardScene:
         self.radius = np.array([b.radius_mm for b in self.caps])
         self.half = np.array([b.half_mm for b in self.boxes]).reshape(-1, 3)
         self.pairs: list[tuple[Body, Body]] = []
+        self._compiled = False  # not chosen yet (droid.guard.kernel, on first use)
         idx = {"cc": ([], []), "cb": ([], []), "bb": ([], [])}
         for kind_a, list_a, kind_b, list_b, key in (("c", self.caps, "c", self.caps, "cc"),
                                                      ("c", self.caps, "b", self.boxes, "cb"),
@@ -106,9 +107,30 @@ class GuardScene:
             bc[:, k], bR[:, k] = T[..., :3, 3], T[..., :3, :3]
         return p0, p1, bc, bR
 
+    @property
+    def compiled(self):
+        """The compiled pass (droid._guard.Scene) this scene uses, or None (droid.guard.kernel)."""
+        if self._compiled is False:
+            from droid.guard.kernel import compiled_for
+
+            self._compiled = compiled_for(self)
+        return self._compiled
+
     def distances(self, q_deg: dict[str, np.ndarray]) -> np.ndarray:
         """Distances (B, n_pairs) [mm] of every checked pair, in :attr:`pairs` order, for joint vectors
-        (B, 6) or (6,) [deg] of every arm (a box pair that overlaps reports <= 0, docs/guard.md)."""
+        (B, 6) or (6,) [deg] of every arm (a box pair that overlaps reports <= 0, docs/guard.md):
+        the compiled pass where droid.guard.kernel chooses it, else :meth:`distances_reference`."""
+        k = self.compiled
+        if k is None:
+            return self.distances_reference(q_deg)
+        rows = np.broadcast_arrays(*[np.asarray(q_deg[n], float).reshape(-1, 6) for n in self.arms])
+        q = np.ascontiguousarray(np.stack(rows, axis=1))  # (B, n_arms, 6)
+        out = np.empty((q.shape[0], len(self.pairs)))
+        k.distances(q, out)
+        return out
+
+    def distances_reference(self, q_deg: dict[str, np.ndarray]) -> np.ndarray:
+        """:meth:`distances` in numpy: the specification of the compiled pass (droid/guard/_guard.c)."""
         p0, p1, bc, bR = self._poses(q_deg)
         B = p0.shape[0]
         out = []
