@@ -207,13 +207,22 @@ def guard_table(cell) -> dict:
     return table
 
 
-def _held(cell, table: dict) -> tuple[str | None, dict | None]:
+def _held(cell, table: dict) -> list[tuple[str, dict]]:
     """``[guard] workpiece``: a box (``pose``: its centre in the workpiece frame W, ``size_mm``) on the
-    wrist of ``arm`` at ``mount`` (T_wcp_W; default: the world devices' ``workpiece_mount`` on that arm)."""
+    wrist of ``arm`` at ``mount`` (T_wcp_W; default: the world devices' ``workpiece_mount`` on that arm),
+    or a list of such boxes (a workpiece of several straight parts: step_input's two legs), each a
+    body ``ARM.workpiece``.  Returns [(arm, held body spec)]."""
     wp = table.get("workpiece")
     if wp is None:
-        return None, None
-    where = f"{cell.path}: [guard] workpiece"
+        return []
+    if isinstance(wp, list):
+        if not wp:
+            raise BadInput(f"{cell.path}: [guard] workpiece: an empty list (give a box, or no workpiece)")
+        return [_held_box(cell, w, f"{cell.path}: [guard] workpiece[{n}]") for n, w in enumerate(wp)]
+    return [_held_box(cell, wp, f"{cell.path}: [guard] workpiece")]
+
+
+def _held_box(cell, wp, where: str) -> tuple[str, dict]:
     arm = wp.get("arm") if isinstance(wp, dict) else None
     if arm not in cell.subunits or not cell.subunits[arm].is_arm:
         raise BadInput(f"{where}: arm: {arm!r} is not an arm of the cell (arms: {', '.join(_arms(cell))})")
@@ -237,12 +246,13 @@ def _arms(cell) -> list[str]:
 def guard_scene(cell) -> GuardScene:
     """The :class:`GuardScene` of a parsed cell (:class:`~droid.brain.cellfile.Cell`)."""
     table = guard_table(cell)
-    held_arm, held = _held(cell, table)
+    held = _held(cell, table)
     arms, bodies = {}, []
     for name in _arms(cell):
         chain, model, mounts = _arm_chain(cell, name)
         arms[name] = chain
-        bodies += arm_bodies(name, model, mounts, held if name == held_arm else None)
+        bodies += arm_bodies(name, model, mounts, None)
+        bodies += [Body(name, h["name"], "box", T=h["T"], half_mm=h["half_mm"]) for a, h in held if a == name]
     fixtures = table.get("fixtures", [])
     if not isinstance(fixtures, list):
         raise BadInput(f"{cell.path}: [guard] fixtures: expected a list of tables")

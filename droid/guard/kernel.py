@@ -38,7 +38,7 @@ class GuardKernelUnavailable(ImportError):
 
 
 try:
-    from droid import _guard  # noqa: F401
+    import droid._guard as _guard  # noqa: F401
     UNAVAILABLE = ""
 except ImportError as exc:  # not built (a checkout without pip install)
     _guard = None
@@ -82,7 +82,7 @@ def why_not(scene, compiled) -> str:
     """'' when the compiled pass agrees with the reference on :data:`CHECKS` seeded configurations."""
     q = random_configs(scene, CHECKS, seed=41)
     want = scene.distances_reference(q)
-    got = np.empty_like(want)
+    got = np.empty(want.shape)
     compiled.distances(np.ascontiguousarray(np.stack([q[n] for n in scene.arms], axis=1)), got)
     worst = float(np.max(np.abs(got - want))) if want.size else 0.0
     return "" if worst <= AGREE_MM else f"the compiled pass differs from the reference by {worst:.3g} mm"

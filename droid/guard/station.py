@@ -118,7 +118,7 @@ class GuardStation:
             r["cycle_us"], r["cycle_max_us"] = cycle_us, self.cycle_max_us
             r["state"], r["trips"] = STATE_CODES[v.state], self.core.trips
             r["a_arm"], r["a_body"], r["b_arm"], r["b_body"] = _name(a_arm), _name(a_body), _name(b_arm), _name(b_body)
-            r["kernel"] = int(getattr(self.core.scene, "compiled", False))
+            r["kernel"] = int(self.core.scene.compiled is not None)
             for i, name in enumerate(self.arms):
                 r["override"][i] = v.override.get(name, 1.0)
             self.status_db.mark_written()
