@@ -136,3 +136,11 @@ def test_the_station_writes_its_tick_and_overrides_into_the_commands_and_its_sta
     s.enabled = False  # "guard off" (a trial's reposition): the tick still stamped, override 1
     s.on_tick(42)
     assert all(int(cmd.read()["guard_tick"]) == 42 for *_, cmd in arms.values())
+
+
+def test_the_fault_campaign_pauses_and_kills_droid_guard_in_a_cell_with_a_guard():
+    from droid.faults.campaign import GUARD_TARGETS, plan
+
+    assert plan(200, 1, guard=False) == plan(200, 1)  # the draws of a cell without a guard are as they were
+    targets = {(f.kind, f.target) for f in plan(400, 3, guard=True)}
+    assert ("pause", GUARD_TARGETS[0]) in targets and ("kill", GUARD_TARGETS[0]) in targets
