@@ -81,7 +81,7 @@ def parse_joints(items: Sequence[str], arms: Sequence[str]) -> dict[str, np.ndar
 def main(argv: Sequence[str] | None = None) -> int:
     """droid-guard entry point (see module docstring)."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    if not argv or argv[0] not in ("check", "run", "-h", "--help"):
+    if not argv or argv[0] not in ("check", "run", "-h", "--help", "--version"):
         argv.insert(0, "run")  # as droid-cell up starts it: droid-guard --cell FILE --ready-fd N
     args = _parser().parse_args(argv)
     if args.cmd == "run":

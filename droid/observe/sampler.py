@@ -25,6 +25,7 @@ class CellSampler:
     def __init__(self, cell, subunits: list[str] | None = None) -> None:
         self.cell = cell
         names = subunits or list(cell.subunits)
+        self.whole = not subunits  # the whole cell: the guard's Status too
         self.subs = [cell.subunit(n) for n in names]  # BadInput on an unknown name
         self.dbs: list[tuple[str, str, Layout, Database]] = []
 
@@ -33,7 +34,7 @@ class CellSampler:
             for sub in self.subs:
                 for area, lay in brain_layouts(sub).items():
                     self.dbs.append((sub.name, area, lay, open_brain(self.cell, sub, area)))
-            if "guard" in self.cell.raw and GUARD not in self.cell.subunits:
+            if self.whole and "guard" in self.cell.raw and GUARD not in self.cell.subunits:
                 # the collision guard's own Status (droid-guard; docs/guard.md), as "guard" / "status"
                 try:
                     db = Database(db_name(self.cell.name, GUARD, "status"), GUARD_STATUS_LAYOUT)
