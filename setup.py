@@ -7,6 +7,8 @@ operation as the Python reference does it, so the kernel gives the same bits (dr
 """
 from setuptools import Extension, setup
 
-setup(ext_modules=[Extension("droid._kernel", ["droid/_kernel.c"], libraries=["m"],
-                             extra_compile_args=["-O2", "-fno-fast-math", "-ffp-contract=off",
-                                                 "-fno-strict-aliasing"])])
+FLAGS = ["-O2", "-fno-fast-math", "-ffp-contract=off", "-fno-strict-aliasing"]
+
+# droid._guard: the collision guard's distance pass (issue 41; droid/guard/kernel.py), a file of its own
+setup(ext_modules=[Extension("droid._kernel", ["droid/_kernel.c"], libraries=["m"], extra_compile_args=FLAGS),
+                   Extension("droid._guard", ["droid/guard/_guard.c"], libraries=["m"], extra_compile_args=FLAGS)])

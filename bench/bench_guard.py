@@ -6,7 +6,12 @@ configuration (random joint vectors within the limits, drawn before timing), so 
 answer it from a cache.  Prints min / median / p99 of one pass [us] and the pairs checked.
 Target (issue 41): <= 50 us.
 
-    nice -n 10 .venv/bin/python bench/bench_guard.py [--n 5000] [--batch]
+Two figures each: the pass the guard runs (``scene.closest``: the compiled pass of droid._guard
+where droid.guard.kernel chooses it, with the Python around it -- the dict of joint vectors, the
+argmin), and the compiled call alone (``Scene.distances`` on a preallocated buffer), and for
+comparison the numpy reference (``--reference``).
+
+    nice -n 10 .venv/bin/python bench/bench_guard.py [--n 5000] [--batch] [--reference]
 """
 from __future__ import annotations
 
@@ -40,6 +45,7 @@ def main() -> None:
     ap = ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=bounded_int(1, 1_000_000), default=5000, help="timed passes")
     ap.add_argument("--batch", action="store_true", help="also time a batch of --n configurations in one call")
+    ap.add_argument("--reference", action="store_true", help="also time the numpy reference pass")
     args = ap.parse_args()
     cell = load_cell(CELL)
     scene = bench_scene()
@@ -49,19 +55,30 @@ def main() -> None:
         m = load_robot(cell.subunits[name].robot)
         qs[name] = rng.uniform(m.joint_min_deg, m.joint_max_deg, size=(args.n, 6))
     kinds = [f"{a.kind[0]}{b.kind[0]}" for a, b in scene.pairs]
-    for _ in range(200):  # warm up
-        scene.closest({k: v[0] for k, v in qs.items()})
-    t = np.empty(args.n)
-    for i in range(args.n):
-        q = {k: v[i] for k, v in qs.items()}
-        t0 = time.perf_counter_ns()
-        scene.closest(q)
-        t[i] = time.perf_counter_ns() - t0
-    t /= 1000.0
     print(f"bodies {len(scene.bodies)}, pairs {scene.n_pairs} (capsule-capsule {kinds.count('cc')}, "
-          f"capsule-box {kinds.count('cb')}, box-box {kinds.count('bb')})")
-    print(f"one guard pass [us]: min {t.min():.1f}  median {np.median(t):.1f}  p99 {np.percentile(t, 99):.1f}"
-          f"  (n {args.n}; target <= 50)")
+          f"capsule-box {kinds.count('cb')}, box-box {kinds.count('bb')}); compiled: {scene.compiled is not None}")
+
+    def timed(what: str, call) -> None:
+        for i in range(200):  # warm up
+            call(i % args.n)
+        t = np.empty(args.n)
+        for i in range(args.n):
+            t0 = time.perf_counter_ns()
+            call(i)
+            t[i] = time.perf_counter_ns() - t0
+        t /= 1000.0
+        print(f"{what} [us]: min {t.min():.1f}  median {np.median(t):.1f}  p99 {np.percentile(t, 99):.1f}"
+              f"  (n {args.n}; target <= 50)")
+
+    rows = [{k: v[i] for k, v in qs.items()} for i in range(args.n)]
+    timed("one guard pass (scene.closest)", lambda i: scene.closest(rows[i]))
+    if scene.compiled is not None:
+        flat = np.ascontiguousarray(np.stack([qs[n] for n in scene.arms], axis=1))  # (n, arms, 6)
+        out = np.empty(scene.n_pairs)
+        timed("the compiled call alone (Scene.distances)", lambda i: scene.compiled.distances(flat[i], out))
+    if args.reference:
+        timed("the numpy reference (distances_reference)", lambda i: scene.distances_reference(
+            {k: v.reshape(1, 6) for k, v in rows[i].items()}))
     if args.batch:
         t0 = time.perf_counter()
         scene.distances(qs)

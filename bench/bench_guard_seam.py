@@ -27,6 +27,7 @@ POSITIONS = ("i", "ii", "iii", "iv", "v", "vi", "vii")
 def main() -> None:
     ap = ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--arm", default="fast", choices=("fast", "full"))
+    ap.add_argument("--positions", default=",".join(POSITIONS), help="comma-separated (default: all seven)")
     args = ap.parse_args()
     core = guard_core(load_cell(BUNDLED_CELLS / "sim.toml"))
     seen: dict = {}
@@ -44,7 +45,7 @@ def main() -> None:
 
     T._LockstepTrial.task = task
     try:
-        for pos in POSITIONS:
+        for pos in args.positions.split(","):
             core.reset()
             core.release()
             core.trips = 0

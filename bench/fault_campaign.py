@@ -37,7 +37,8 @@ def main() -> int:
     t0 = time.time()
     try:
         camp = Campaign(path, WORKLOADS[args.workload](), args.seed, log=lambda m: print(m, flush=True))
-        result = camp.run(plan(args.faults, args.seed))
+        # the seam-tracking cell declares a collision guard: droid-guard is paused and killed too
+        result = camp.run(plan(args.faults, args.seed, guard=args.workload == "seamtrack"))
     finally:
         if not os.environ.get("KEEP"):
             shutil.rmtree(tmp, ignore_errors=True)

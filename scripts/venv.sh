@@ -28,7 +28,7 @@ if [ ! -x .venv/bin/python ]; then
     "$PY" -m venv .venv
 fi
 stamp=.venv/.droid-installed
-if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ setup.py -nt "$stamp" ] || [ droid/_kernel.c -nt "$stamp" ]; then
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ setup.py -nt "$stamp" ] || [ droid/_kernel.c -nt "$stamp" ] || [ droid/guard/_guard.c -nt "$stamp" ]; then
     .venv/bin/python -m pip install --quiet --upgrade pip
     # ros2: droid-ros2's ROS 2 wheels (issue 42; ~230 MB, about a minute from an empty pip cache here), so
     # its tests run in CI.  Their ros_wheels_bootstrapper.pth re-executes every Python of the venv once at

@@ -33,7 +33,7 @@ SHIPPED = Path(__file__).resolve().parent.parent / "include" / "droid_layouts.h"
 def _c_field(name: str, dt: np.dtype) -> tuple[str, str]:
     base, shape = (dt.subdtype if dt.subdtype else (dt, ()))
     if base.kind == "S":
-        ctype, dims = "char", f"[{base.itemsize}]"
+        ctype, dims = "char", "".join(f"[{n}]" for n in shape) + f"[{base.itemsize}]"
     else:
         ctype = _CTYPES[(base.kind, base.itemsize)]
         dims = "".join(f"[{n}]" for n in shape)
@@ -60,7 +60,7 @@ def generate() -> str:
     ]
     for name in ("JSPACE", "CARTSPACE", "OFF", "JOG_MODE", "HOME_MODE", "NORMAL_MODE", "HOMED",
                  "FLAG_RECOVERED", "FAULT_LINK", "FAULT_WATCHDOG", "FAULT_SERVO", "FAULT_LIMIT",
-                 "FAULT_BRAKING", "FAULT_DEVICE", "FAULT_HEARTBEAT", "FAULT_FORCE", "FAULT_COLLISION",
+                 "FAULT_BRAKING", "FAULT_DEVICE", "FAULT_HEARTBEAT", "FAULT_FORCE", "FAULT_COLLISION", "FAULT_GUARD",
                  "CMD_OK", "CMD_REFUSED", "CMD_FAILED"):
         out.append(f"#define DROID_{name} {getattr(L, name)}")
     out.append("")

@@ -73,7 +73,8 @@ ARM6R = SubunitClass(
     # Brain Command (Table 3.2) -> controller Command (Table 4.3)
     command_map={"x": "x", "y": "y", "z": "z", "R": "R", "cart_time_count": "cart_time_count",
                  "joint_time_count": "joint_time_count", "encoder_pos": "encoder_cmd_ext", "coord": "coord",
-                 "cmd_mode": "cmd_mode", "sent": "sent", "cmd_id": "cmd_id"},
+                 "cmd_mode": "cmd_mode", "sent": "sent", "cmd_id": "cmd_id",
+                 "guard_tick": "guard_tick", "guard_override": "guard_override"},  # the collision guard's (issue 41)
 )
 
 LINE_LASER = SubunitClass(

@@ -11,11 +11,13 @@ Subunit side (the motion controller's own, Tables 4.2–4.3; arm6r only):
   ``/droid.<cell>.<sub>.ctrl_command``  CTRL_COMMAND
 Subunit side for sensors: ``/droid.<cell>.<sub>.ctrl_status`` SENSOR_STATUS.
 Joysticks: ``status`` and ``ctrl_status`` JOYSTICK_STATUS.
+A cell that declares a collision guard (``[guard]``): ``/droid.<cell>.guard.status`` GUARD_STATUS
+on the Brain's host (droid-guard writes it; docs/guard.md).
 """
 from __future__ import annotations
 
 from droid.brain.cellfile import Cell, Subunit
-from droid.brain.layouts import JOG_MODE, JSPACE, Layout
+from droid.brain.layouts import GUARD_STATUS_LAYOUT, JOG_MODE, JSPACE, Layout
 from droid.brain.shmdb import Database, db_name
 
 
@@ -55,6 +57,9 @@ def create_databases(cell: Cell, hosts: set[str] | None = None, *, brain_only: b
                 made.append(db)
                 if area in ("command", "ctrl_command"):
                     safe_start(db)
+        if "guard" in cell.raw and (hosts is None or cell.brain_host in hosts):
+            # the collision guard's Status (droid-guard; docs/guard.md): a Brain record of its own
+            made.append(Database(db_name(cell.name, "guard", "status"), GUARD_STATUS_LAYOUT, create=True))
     except Exception:
         for db in made:
             db.unlink()

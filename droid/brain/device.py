@@ -44,8 +44,11 @@ PACKAGE = DevicePackage(
         Program("droid-cheader", "droid.brain.cheader", role="tool"),
         Program("droid-keys", "droid.brain.keys", role="tool"),
         Program("droid-kin", "droid.kinematics.cli", role="tool"),
-        # the collision guard between the arms (issue 41; docs/guard.md): `droid-guard check` today
-        Program("droid-guard", "droid.guard.cli", role="tool"),
+        # the collision guard between the arms (issue 41; docs/guard.md): droid-cell up starts it on the
+        # Brain's host where the cell declares [guard]; SCHED_FIFO as the remotes: a guard that misses
+        # its ticks goes stale and stops every arm (droid.guard.gate)
+        Program("droid-guard", "droid.guard.cli", rate_hz=HEARTBEAT_HZ, sched="fifo", priority=50, role="brain",
+                description="the cell's collision guard, where it declares [guard]", cpu_pct=3.0, rss_mb=50),
         Program("droid-snoop", "droid.tasks.snoop", role="tool"),
         Program("droid-move", "droid.tasks.move", role="tool"),
         Program("droid-home", "droid.tasks.home", role="tool"),

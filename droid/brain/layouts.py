@@ -48,6 +48,7 @@ KIND_JOYSTICK_STATUS = 7  # an analog joystick (thesis §2.6, §3.4, Figure 2.10
 KIND_FT6_STATUS = 8  # a six-axis force/torque sensor (thesis §7.3; droid.subunits.ft)
 KIND_FT6_COMMAND = 9  # its Command (Brain): bias, the over-force guard
 KIND_FT6_CTRL_COMMAND = 10  # the same on the sensor's host, with the agent's link fields
+KIND_GUARD_STATUS = 11  # the collision guard's own Status (droid-guard; docs/guard.md)
 
 # Header flags
 FLAG_RECOVERED = 1  # the semaphore was taken over from a dead holder at least once
@@ -169,6 +170,7 @@ FAULT_DEVICE = 32  # device driver error (serial port, encoder card)
 FAULT_HEARTBEAT = 64  # Brain side: no heartbeat tick for stale_ticks periods (the Status is not being refreshed)
 FAULT_FORCE = 128  # an arm: the force/torque sensor on it read more than its guard's limit (droid-ft)
 FAULT_COLLISION = 256  # an arm: the collision guard's protective stop (droid.guard, docs/guard.md)
+FAULT_GUARD = 512  # an arm in a cell that declares a guard: its Status is stale (droid-guard silent; the planner's rule)
 FAULT_NAMES = {
     FAULT_LINK: "link",
     FAULT_WATCHDOG: "watchdog",
@@ -179,6 +181,7 @@ FAULT_NAMES = {
     FAULT_HEARTBEAT: "heartbeat",
     FAULT_FORCE: "force",
     FAULT_COLLISION: "collision",
+    FAULT_GUARD: "guard",
 }
 #: The fault bits after which an arm cannot carry out a command: its servo stopped
 #: (a latched servo fault, or the servo program silent), its amplifiers latched off by
@@ -224,8 +227,12 @@ ARM_COMMAND = _dtype(
         ("cmd_mode", "<i4", None),  # OFF / JOG_MODE / HOME_MODE / NORMAL_MODE
         ("sent", "<i4", None),  # 1 = written by a task, not yet delivered; 0 = delivered
         ("cmd_id", "<u4", None),  # addition: incremented by a task for every new command
+        # version 2 (issue 41): written by the collision guard (droid-guard) each heartbeat tick,
+        # not by tasks; relayed to the controller with the rest (ARM6R.command_map)
+        ("guard_tick", "<u8", None),  # heartbeat tick of the guard's last pass (0: never)
+        ("guard_override", "<f8", None),  # the guard's speed override for this arm, 0..1
     ],
-    176,
+    192,
 )
 
 CTRL_STATUS = _dtype(_STATUS, 224)  # Table 4.2: identical to the Brain's Table 3.1
@@ -246,8 +253,10 @@ CTRL_COMMAND = _dtype(
         ("link_alive", "<u4", None),  # addition: 0 once the Brain link missed >= 3 ticks
         ("plan_id", "<u4", None),  # addition: cmd_id the planner last accepted
         ("planner_tick", "<u8", None),  # addition: last relayed tick the planner processed
+        ("guard_tick", "<u8", None),  # version 2 (issue 41): the Brain Command's, copied in
+        ("guard_override", "<f8", None),  # version 2: the Brain Command's, copied in
     ],
-    224,
+    240,
 )
 
 PROC_STATUS = _dtype(
@@ -337,6 +346,40 @@ FT6_CTRL_COMMAND = _dtype(
     64,
 )
 
+#: droid-guard's Status (issue 41, docs/guard.md): ``/droid.<cell>.guard.status``, written by
+#: droid-guard on every heartbeat tick it runs a pass (the lockstep station keeps the same fields)
+GUARD_ARMS = 8  # arms a guard Status holds (the override per arm)
+GUARD_NAME = "S16"  # an arm's or a body's name (``arm1``, ``link_4``, ``fixture``, ``floor``)
+GUARD_CLEAR, GUARD_SLOWING, GUARD_STOPPED = 0, 1, 2  # GUARD_STATUS.state
+GUARD_STATE_NAMES = {GUARD_CLEAR: "clear", GUARD_SLOWING: "slowing", GUARD_STOPPED: "stopped"}
+GUARD_STATUS = _dtype(
+    HEADER_FIELDS
+    + [
+        ("tick", "<u8", None),  # heartbeat tick of the last pass (freshness: the planners' stale rule)
+        ("updated_ns", "<i8", None),  # CLOCK_MONOTONIC of the last pass [ns]
+        ("cycles", "<u8", None),  # passes run
+        ("distance_mm", "<f8", None),  # least distance between checked bodies now [mm] (<= 0: in collision)
+        ("ahead_mm", "<f8", None),  # least distance over the way-points ahead [mm]
+        ("closing_mm_s", "<f8", None),  # the closing speed taken [mm/s]
+        ("separation_mm", "<f8", None),  # S_p, the protective separation distance [mm]
+        ("cycle_us", "<f8", None),  # the last pass's time [us]
+        ("cycle_max_us", "<f8", None),  # the worst pass's time since start [us]
+        ("state", "<u4", None),  # GUARD_CLEAR / GUARD_SLOWING / GUARD_STOPPED
+        ("trips", "<u4", None),  # protective stops since start
+        ("n_arms", "<u4", None),  # arms guarded (the first n of ``arms`` and ``override``)
+        ("stale_ticks", "<u4", None),  # the cell's [guard] stale_ticks: older than this is stale
+        ("pairs", "<u4", None),  # pairs of bodies checked
+        ("kernel", "<u4", None),  # 1: the pass ran compiled (droid._guard), 0: the Python reference
+        ("a_arm", GUARD_NAME, None),  # the closest pair: one body's owner (an arm, or "fixture") ...
+        ("a_body", GUARD_NAME, None),  # ... and its name (link_4, tool, sensor, workpiece, a fixture's)
+        ("b_arm", GUARD_NAME, None),
+        ("b_body", GUARD_NAME, None),
+        ("arms", GUARD_NAME, (GUARD_ARMS,)),  # the arms' subunit names
+        ("override", "<f8", (GUARD_ARMS,)),  # the speed override written into each arm's Command, 0..1
+    ],
+    384,
+)
+
 
 @dataclass(frozen=True)
 class Layout:
@@ -354,10 +397,10 @@ class Layout:
 
 
 ARM_STATUS_LAYOUT = Layout("arm_status", KIND_ARM_STATUS, 1, ARM_STATUS, "droid_arm_status")
-ARM_COMMAND_LAYOUT = Layout("arm_command", KIND_ARM_COMMAND, 1, ARM_COMMAND, "droid_arm_command")
+ARM_COMMAND_LAYOUT = Layout("arm_command", KIND_ARM_COMMAND, 2, ARM_COMMAND, "droid_arm_command")
 SENSOR_STATUS_LAYOUT = Layout("sensor_status", KIND_SENSOR_STATUS, 2, SENSOR_STATUS, "droid_sensor_status")
 CTRL_STATUS_LAYOUT = Layout("ctrl_status", KIND_CTRL_STATUS, 1, CTRL_STATUS, "droid_ctrl_status")
-CTRL_COMMAND_LAYOUT = Layout("ctrl_command", KIND_CTRL_COMMAND, 1, CTRL_COMMAND, "droid_ctrl_command")
+CTRL_COMMAND_LAYOUT = Layout("ctrl_command", KIND_CTRL_COMMAND, 2, CTRL_COMMAND, "droid_ctrl_command")
 #: ``lateness_max_ns`` of a program that keeps no lateness record (it neither runs on its own
 #: timer nor reads ticks stamped on its own machine's clock)
 LATENESS_NO_RECORD = -1
@@ -369,6 +412,7 @@ FT6_STATUS_LAYOUT = Layout("ft6_status", KIND_FT6_STATUS, 1, FT6_STATUS, "droid_
 FT6_COMMAND_LAYOUT = Layout("ft6_command", KIND_FT6_COMMAND, 1, FT6_COMMAND, "droid_ft6_command")
 FT6_CTRL_COMMAND_LAYOUT = Layout("ft6_ctrl_command", KIND_FT6_CTRL_COMMAND, 1, FT6_CTRL_COMMAND,
                                  "droid_ft6_ctrl_command")
+GUARD_STATUS_LAYOUT = Layout("guard_status", KIND_GUARD_STATUS, 1, GUARD_STATUS, "droid_guard_status")
 
 LAYOUTS = {
     lay.kind: lay
@@ -383,6 +427,7 @@ LAYOUTS = {
         FT6_STATUS_LAYOUT,
         FT6_COMMAND_LAYOUT,
         FT6_CTRL_COMMAND_LAYOUT,
+        GUARD_STATUS_LAYOUT,
     )
 }
 

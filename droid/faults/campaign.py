@@ -84,8 +84,16 @@ class Fault:
         return f"{self.kind}{lvl} {self.target} for {self.duration_s:.2f} s"
 
 
-def plan(n: int, seed: int) -> list[Fault]:
-    """N faults, drawn from the seed alone (pure)."""
+#: a cell that declares a collision guard (issue 41): droid-guard paused or killed too -- its
+#: record goes stale, every planner ends its move and refuses NORMAL ones (FAULT_GUARD) until it
+#: is back (a kill: droid-cell restart droid-guard); the seam-tracking workload's cell has one
+GUARD_TARGETS = ("droid-guard",)
+
+
+def plan(n: int, seed: int, guard: bool = False) -> list[Fault]:
+    """N faults, drawn from the seed alone (pure); ``guard``: the cell runs droid-guard, which is
+    paused and killed too (the draws of a cell without one are as they were)."""
+    pausable, killable = (PAUSABLE + GUARD_TARGETS, KILLABLE + GUARD_TARGETS) if guard else (PAUSABLE, KILLABLE)
     rng = random.Random(seed)
     kinds = ["drop", "delay", "duplicate", "cut", "pause", "kill", "semkill"]
     weights = [2, 2, 1, 2, 3, 3, 1]
@@ -101,9 +109,9 @@ def plan(n: int, seed: int) -> list[Fault]:
         elif kind == "cut":
             out.append(Fault(kind, "arm1", 0.0, after, dur))
         elif kind == "pause":
-            out.append(Fault(kind, rng.choice(PAUSABLE), 0.0, after, dur))
+            out.append(Fault(kind, rng.choice(pausable), 0.0, after, dur))
         elif kind == "kill":
-            out.append(Fault(kind, rng.choice(KILLABLE), 0.0, after, 0.0))
+            out.append(Fault(kind, rng.choice(killable), 0.0, after, 0.0))
         else:
             out.append(Fault(kind, rng.choice(["arm1.ctrl_command", "arm1.ctrl_status", "arm1.command",
                                                "arm1.status"]), 0.0, after, 0.0))

@@ -32,7 +32,7 @@ from droid.kinematics.cli import cell_mounts
 from droid.kinematics.robots import RobotFileError
 from droid.kinematics.transforms import pose_to_T
 
-GUARD_KEYS = {"allow", "workpiece", "fixtures", "ssm"}
+GUARD_KEYS = {"allow", "workpiece", "fixtures", "ssm", "stale_ticks"}
 
 
 @dataclass
@@ -64,6 +64,7 @@ class GuardScene:
         self.radius = np.array([b.radius_mm for b in self.caps])
         self.half = np.array([b.half_mm for b in self.boxes]).reshape(-1, 3)
         self.pairs: list[tuple[Body, Body]] = []
+        self._compiled = False  # not chosen yet (droid.guard.kernel, on first use)
         idx = {"cc": ([], []), "cb": ([], []), "bb": ([], [])}
         for kind_a, list_a, kind_b, list_b, key in (("c", self.caps, "c", self.caps, "cc"),
                                                      ("c", self.caps, "b", self.boxes, "cb"),
@@ -106,9 +107,30 @@ class GuardScene:
             bc[:, k], bR[:, k] = T[..., :3, 3], T[..., :3, :3]
         return p0, p1, bc, bR
 
+    @property
+    def compiled(self):
+        """The compiled pass (droid._guard.Scene) this scene uses, or None (droid.guard.kernel)."""
+        if self._compiled is False:
+            from droid.guard.kernel import compiled_for
+
+            self._compiled = compiled_for(self)
+        return self._compiled
+
     def distances(self, q_deg: dict[str, np.ndarray]) -> np.ndarray:
         """Distances (B, n_pairs) [mm] of every checked pair, in :attr:`pairs` order, for joint vectors
-        (B, 6) or (6,) [deg] of every arm (a box pair that overlaps reports <= 0, docs/guard.md)."""
+        (B, 6) or (6,) [deg] of every arm (a box pair that overlaps reports <= 0, docs/guard.md):
+        the compiled pass where droid.guard.kernel chooses it, else :meth:`distances_reference`."""
+        k = self.compiled
+        if k is None:
+            return self.distances_reference(q_deg)
+        rows = np.broadcast_arrays(*[np.asarray(q_deg[n], float).reshape(-1, 6) for n in self.arms])
+        q = np.ascontiguousarray(np.stack(rows, axis=1))  # (B, n_arms, 6)
+        out = np.empty((q.shape[0], len(self.pairs)))
+        k.distances(q, out)
+        return out
+
+    def distances_reference(self, q_deg: dict[str, np.ndarray]) -> np.ndarray:
+        """:meth:`distances` in numpy: the specification of the compiled pass (droid/guard/_guard.c)."""
         p0, p1, bc, bR = self._poses(q_deg)
         B = p0.shape[0]
         out = []
@@ -185,13 +207,22 @@ def guard_table(cell) -> dict:
     return table
 
 
-def _held(cell, table: dict) -> tuple[str | None, dict | None]:
+def _held(cell, table: dict) -> list[tuple[str, dict]]:
     """``[guard] workpiece``: a box (``pose``: its centre in the workpiece frame W, ``size_mm``) on the
-    wrist of ``arm`` at ``mount`` (T_wcp_W; default: the world devices' ``workpiece_mount`` on that arm)."""
+    wrist of ``arm`` at ``mount`` (T_wcp_W; default: the world devices' ``workpiece_mount`` on that arm),
+    or a list of such boxes (a workpiece of several straight parts: step_input's two legs), each a
+    body ``ARM.workpiece``.  Returns [(arm, held body spec)]."""
     wp = table.get("workpiece")
     if wp is None:
-        return None, None
-    where = f"{cell.path}: [guard] workpiece"
+        return []
+    if isinstance(wp, list):
+        if not wp:
+            raise BadInput(f"{cell.path}: [guard] workpiece: an empty list (give a box, or no workpiece)")
+        return [_held_box(cell, w, f"{cell.path}: [guard] workpiece[{n}]") for n, w in enumerate(wp)]
+    return [_held_box(cell, wp, f"{cell.path}: [guard] workpiece")]
+
+
+def _held_box(cell, wp, where: str) -> tuple[str, dict]:
     arm = wp.get("arm") if isinstance(wp, dict) else None
     if arm not in cell.subunits or not cell.subunits[arm].is_arm:
         raise BadInput(f"{where}: arm: {arm!r} is not an arm of the cell (arms: {', '.join(_arms(cell))})")
@@ -215,12 +246,13 @@ def _arms(cell) -> list[str]:
 def guard_scene(cell) -> GuardScene:
     """The :class:`GuardScene` of a parsed cell (:class:`~droid.brain.cellfile.Cell`)."""
     table = guard_table(cell)
-    held_arm, held = _held(cell, table)
+    held = _held(cell, table)
     arms, bodies = {}, []
     for name in _arms(cell):
         chain, model, mounts = _arm_chain(cell, name)
         arms[name] = chain
-        bodies += arm_bodies(name, model, mounts, held if name == held_arm else None)
+        bodies += arm_bodies(name, model, mounts, None)
+        bodies += [Body(name, h["name"], "box", T=h["T"], half_mm=h["half_mm"]) for a, h in held if a == name]
     fixtures = table.get("fixtures", [])
     if not isinstance(fixtures, list):
         raise BadInput(f"{cell.path}: [guard] fixtures: expected a list of tables")

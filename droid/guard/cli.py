@@ -3,7 +3,7 @@
 Usage::
 
     droid-guard check [--cell FILE] [--json] ARM=Q1,Q2,Q3,Q4,Q5,Q6 ...
-    droid-guard run [--cell FILE] [--seconds S]
+    droid-guard [run] [--cell FILE] [--seconds S]
 
 ``check`` prints the least distance [mm] between the cell's bodies (every pair of bodies of
 two different arms and every arm body against every fixture, less the ``[guard] allow``
@@ -17,19 +17,23 @@ must be given.  Bad input (an unknown arm, a joint vector that is not six finite
 ``allow`` pair naming an unknown arm or body) is one line on stderr, exit 2.
 
 ``run`` is the live guard (:mod:`droid.guard.live`): on a cell that is up, every heartbeat
-period it reads every arm's Brain Status, runs the guard's cycle and sets FAULT_COLLISION in
-every arm's own Status on a protective stop; its own Status is a JSON file in the run
-directory (``guard_status.json``).  Started by hand, not by ``droid-cell up`` (docs/guard.md).
+tick it reads every arm's Brain Status, runs the guard's cycle, sets FAULT_COLLISION in every
+arm's own Status on a protective stop, writes its tick and each arm's speed override into the
+arm's Brain Command and its own Status into ``/droid.<cell>.guard.status`` (``droid-snoop
+guard``).  ``droid-cell up`` starts it (``droid-guard --cell FILE``: no sub-command is ``run``)
+where the cell declares a ``[guard]`` table (docs/guard.md).
 """
 from __future__ import annotations
 
+import argparse
 import json
+import sys
 from typing import Sequence
 
 import numpy as np
 
 from droid.brain.cellfile import load_cell
-from droid.cli import ArgumentParser, BadInput, bounded_float, parse_finite, run
+from droid.cli import ArgumentParser, BadInput, bounded_float, bounded_int, parse_finite, run
 from droid.guard.cell import guard_scene
 
 PROG = "droid-guard"
@@ -45,6 +49,7 @@ def _parser() -> ArgumentParser:
     ck.add_argument("joints", nargs="*", metavar="ARM=Q1,...,Q6", help="an arm's joint vector [deg]")
     rn = sub.add_parser("run", help="the live guard on a cell that is up (docs/guard.md)")
     rn.add_argument("--cell", default=None, help="cell file (default: $DROID_CELL or the built-in sim cell)")
+    rn.add_argument("--ready-fd", type=bounded_int(0, 1 << 20), default=None, help=argparse.SUPPRESS)
     rn.add_argument("--seconds", type=bounded_float(0.0, MAX_RUN_S, "s", lo_open=True), default=None, metavar="S",
                     help="stop after S seconds (default: until SIGINT/SIGTERM)")
     return ap
@@ -75,11 +80,14 @@ def parse_joints(items: Sequence[str], arms: Sequence[str]) -> dict[str, np.ndar
 @run
 def main(argv: Sequence[str] | None = None) -> int:
     """droid-guard entry point (see module docstring)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] not in ("check", "run", "-h", "--help", "--version"):
+        argv.insert(0, "run")  # as droid-cell up starts it: droid-guard --cell FILE --ready-fd N
     args = _parser().parse_args(argv)
     if args.cmd == "run":
         from droid.guard.live import run_live
 
-        return run_live(args.cell, args.seconds)
+        return run_live(args.cell, args.seconds, args.ready_fd)
     scene = guard_scene(load_cell(args.cell))
     q = parse_joints(args.joints, list(scene.arms))
     c = scene.closest(q)

@@ -12,7 +12,8 @@ tick and planned to the next way-point and the horizon), as if both came straigh
 other -- never less than the measured fall of the least distance.  S_p and the override follow
 from :class:`~droid.guard.ssm.SsmParams`.  The protective stop trips when the distance now is at or
 below S_p, or the way-points ahead come within C + Z (the stated limit and the uncertainty);
-it latches until :meth:`release`.
+it latches until :meth:`release`, or until every arm has stood :data:`RELEASE_S` with the
+separation above S_p (a stop at rest below S_p stays latched until an arm is jogged away).
 """
 from __future__ import annotations
 
@@ -39,12 +40,23 @@ class GuardVerdict:
     stop: bool = False  # the protective stop is (or stays) on
 
 
+#: the protective stop's latch ends after every arm stood this long clear of S_p [s] (GuardCore)
+RELEASE_S = 1.0
+#: "at rest": the closing speed taken at most this [mm/s] (an encoder count's dither is far less)
+REST_MM_S = 5.0
+
+
 class GuardCore:
     """The guard's state between ticks: the last distance and joints, the latch."""
 
-    def __init__(self, scene: GuardScene, params: SsmParams, period_s: float, horizon_ticks: int = 3) -> None:
+    def __init__(self, scene: GuardScene, params: SsmParams, period_s: float, horizon_ticks: int = 3,
+                 release_s: float | None = RELEASE_S) -> None:
         self.scene, self.params, self.period_s = scene, params, float(period_s)
         self.horizon = int(horizon_ticks)
+        # the latch ends by itself once every arm has stood this long with the separation above
+        # S_p (None: only release() ends it); a stop below S_p at rest stays until an arm is jogged away
+        self.release_ticks = None if release_s is None else max(1, int(round(release_s / self.period_s)))
+        self.calm = 0  # ticks in a row at rest and clear of S_p
         self.last_q: dict[str, np.ndarray] | None = None
         self.last_d: float | None = None
         self.last_pts: dict[str, np.ndarray] = {}
@@ -97,6 +109,9 @@ class GuardCore:
         if trip and not self.latched:
             self.trips += 1
         self.latched = self.latched or trip
+        self.calm = self.calm + 1 if (self.latched and not trip and v <= REST_MM_S) else 0
+        if self.release_ticks is not None and self.calm >= self.release_ticks:
+            self.latched, self.calm = False, 0
         o = 0.0 if self.latched else p.override(now, v)
         state = STOPPED if self.latched else (CLEAR if o >= 1.0 else SLOWING)
         self.last_q = {n: np.asarray(q_meas[n], float).copy() for n in self.scene.arms}

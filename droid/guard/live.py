@@ -1,77 +1,107 @@
-"""``droid-guard run``: the collision guard on a live cell (issue 41; docs/guard.md).
+"""droid-guard (``droid-guard run``): the collision guard on a live cell (issue 41; docs/guard.md).
 
-Every heartbeat period (``PeriodicTimer``): the :class:`~droid.guard.station.GuardStation`
-over every arm's Brain Status (``encoder_pos``, ``encoder_cmd``) and its own Status
-(``ctrl_status``, where FAULT_COLLISION goes, as droid-ft writes FAULT_FORCE); its own Status
-as JSON in ``{run}/guard_status.json`` on every change of state and once a second.  On exit
-(SIGINT, SIGTERM, ``--seconds``) it clears the bits it set.
+A Brain program: ``droid-cell up`` starts it on the Brain's host where the cell declares a
+``[guard]`` table.  On every heartbeat tick (the heartbeat's PUB endpoint, as droid-remote) the
+:class:`~droid.guard.station.GuardStation` reads every arm's Brain Status (``encoder_pos``,
+``encoder_cmd``), runs one pass and
 
-Not yet: a Status database of its own, the planners' stale rule on it ("a dead guard stops the
-cell"), a place in ``droid-cell up``; tests/guard/test_guard_live.py (integration) ran once
-(docs/guard.md, "Not done").
+* sets FAULT_COLLISION in every arm's own Status (``ctrl_status``, as droid-ft writes
+  FAULT_FORCE) on a protective stop;
+* writes ``guard_tick`` and ``guard_override`` into every arm's Brain Command (the planners'
+  stale rule and override: droid.guard.gate);
+* writes its own Status, ``/droid.<cell>.guard.status`` (layout ``guard_status``:
+  droid-snoop guard, droid-record).
+
+On exit (SIGINT, SIGTERM, ``--seconds``) it clears the FAULT_COLLISION bits it set; the planners
+then see its record go stale and stop (FAULT_GUARD) -- a dead guard stops the cell.
 """
 from __future__ import annotations
 
-import json
 import sys
 import time
 
+import zmq
+
 from droid.brain.cellfile import load_cell
+from droid.brain.curve import CurveHost
 from droid.brain.databases import open_brain, open_local
-from droid.brain.program import Stop, use_cell
-from droid.brain.rt import PeriodicTimer
+from droid.brain.heartbeat import TickSubscriber
+from droid.brain.layouts import GUARD_STATUS_LAYOUT
+from droid.brain.program import Presence, Stop, close_all, notify_ready, presence_key, use_cell
+from droid.brain.rt import try_sched_fifo
+from droid.brain.shmdb import Database, NoDatabase, db_name
 from droid.cli import BadInput
+from droid.guard.gate import DEFAULT_STALE_TICKS, guard_stale_ticks
 from droid.guard.station import GuardStation, guard_core
 from droid.kinematics import load_robot
 
-STATUS_FILE = "guard_status.json"
-STATUS_EVERY_S = 1.0
+PROG = "droid-guard"
 
 
-def _write_status(cell, station: GuardStation) -> None:
-    st = dict(station.status)
-    st["pair"] = list(st.get("pair", ("", "")))
-    path = cell.run_dir / STATUS_FILE
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(st, default=float) + "\n")
-    tmp.replace(path)
+def status_name(cell) -> str:
+    """The guard's Status record: ``/droid.<cell>.guard.status``."""
+    return db_name(cell.name, "guard", "status")
 
 
-def run_live(cell_path, seconds: float | None) -> int:
+def open_status(cell, create_missing: bool = False) -> Database:
+    """The guard's Status record (``droid-cell up`` makes it where the cell declares a guard)."""
+    try:
+        return Database(status_name(cell), GUARD_STATUS_LAYOUT)
+    except NoDatabase:
+        if not create_missing:
+            raise
+        return Database(status_name(cell), GUARD_STATUS_LAYOUT, create=True)
+
+
+def run_live(cell_path, seconds: float | None, ready_fd: int | None = None) -> int:
     """The live loop (see the module docstring); 0 on a clean stop."""
     if seconds is not None and not seconds > 0:
         raise BadInput("run: --seconds must be > 0")
     cell = load_cell(cell_path)
     use_cell(cell)
+    if "guard" not in cell.raw:
+        raise BadInput(f"{cell.path}: no [guard] table: this cell declares no collision guard (docs/guard.md)")
     core = guard_core(cell)
+    stale = guard_stale_ticks(cell) or DEFAULT_STALE_TICKS
+    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     arms, dbs = {}, []
-    for name in core.scene.arms:
-        sub = cell.subunit(name)
-        brain, local = open_brain(cell, sub, "status"), open_local(cell, sub, "ctrl_status")
-        dbs += [brain, local]
-        arms[name] = (load_robot(sub.robot).gearing, brain, local)
-    station = GuardStation(core, arms)
-    Stop.install()
-    timer = PeriodicTimer(cell.period_ns)
-    end = None if seconds is None else time.monotonic() + seconds
-    last_state, last_write, tick = None, 0.0, 0
+    ctx = zmq.Context()
+    presence = ticks = curve = None
     try:
-        while not Stop.requested and (end is None or time.monotonic() < end):
-            if not timer.wait(0.5):
-                continue
-            tick += 1
-            station.on_tick(tick)
-            now = time.monotonic()
-            if station.status["state"] != last_state or now - last_write >= STATUS_EVERY_S:
-                if station.status["state"] != last_state:
-                    print(f"droid-guard: {station.status['state']}: {station.status['distance_mm']:.1f} mm "
-                          f"({' with '.join(station.status['pair'])})", file=sys.stderr, flush=True)
-                last_state, last_write = station.status["state"], now
-                _write_status(cell, station)
+        for name in core.scene.arms:
+            sub = cell.subunit(name)
+            brain, local = open_brain(cell, sub, "status"), open_local(cell, sub, "ctrl_status")
+            command = open_brain(cell, sub, "command")
+            dbs += [brain, local, command]
+            arms[name] = (load_robot(sub.robot).gearing, brain, local, command)
+        status_db = open_status(cell, create_missing=True)
+        dbs.append(status_db)
+        station = GuardStation(core, arms, status_db, stale)
+        Stop.install()
+        curve = CurveHost(ctx, cell, cell.brain_host)
+        ticks = TickSubscriber(ctx, cell.heartbeat, curve, cell.brain_host)
+        presence = Presence(cell.name, presence_key(PROG), PROG)
+        ticks.say = presence.say
+        presence.ready()
+        notify_ready(ready_fd)
+        end = None if seconds is None else time.monotonic() + seconds
+        last_state, last = None, 0
+        try:
+            while not Stop.requested and (end is None or time.monotonic() < end):
+                t = ticks.wait(0.5)
+                if t is not None:
+                    last = t.tick
+                    station.on_tick(t.tick)
+                    state = station.status["state"]
+                    if state != last_state:
+                        print(f"{PROG}: {state}: {station.status['distance_mm']:.1f} mm "
+                              f"({' with '.join(station.status['pair'])})", file=sys.stderr, flush=True)
+                        last_state = state
+                presence.beat(last, station.cycles, ticks.monitor.missed, ticks.lateness_max_ns,
+                              bad_frames=ticks.bad_frames)
+        finally:
+            if station.faulted:
+                station.release()
     finally:
-        if station.faulted:
-            station.release()
-        timer.close()
-        for db in dbs:
-            db.close()
+        close_all(ticks, curve, ctx.term, *dbs, presence)
     return 0

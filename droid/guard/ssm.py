@@ -23,8 +23,10 @@ way-points their planners will send, :mod:`droid.guard.core`):
 * Z = Z_a + Z_b: the bodies' uncertainty [mm] (the capsules' fit to the links, the joints'
   measurement).
 
-So ``S_p = v (T_r + T_s / 2) + C + Z``.  The speed override ramps linearly from 1 at
-``S_p + slow_mm`` down to 0 at S_p; at or below S_p the guard stops both arms (FAULT_COLLISION).
+So ``S_p = v (T_r + T_s / 2) + C + Z``.  The speed override ramps linearly from 1 at ``S_p + band``
+down to 0 at S_p, the band being the distance the pair closes in ``slow_s`` at its closing speed,
+at most ``slow_mm`` (so two arms that work near each other without closing, a welder beside its
+holder, are not slowed); at or below S_p the guard stops both arms (FAULT_COLLISION).
 """
 from __future__ import annotations
 
@@ -45,7 +47,8 @@ class SsmParams:
     stop_time_s: float = 0.3  # T_s: the planner's 15-tick (0.25 s) protective-stop ramp and margin (docs/guard.md)
     clearance_mm: float = 25.0  # C: the stated limit
     uncertainty_mm: float = 10.0  # Z: both arms' bodies together
-    slow_mm: float = 200.0  # the override's ramp above S_p
+    slow_mm: float = 200.0  # the override's ramp above S_p, at most [mm]
+    slow_s: float = 0.5  # ... the distance closed in this time at the closing speed [s]
 
     def separation_mm(self, closing_mm_s: float) -> float:
         """S_p [mm] for a closing speed [mm/s] (a separating pair, v < 0, counts as 0)."""
@@ -53,11 +56,13 @@ class SsmParams:
         return v * (self.reaction_s + 0.5 * self.stop_time_s) + self.clearance_mm + self.uncertainty_mm
 
     def override(self, distance_mm: float, closing_mm_s: float) -> float:
-        """The speed override in [0, 1]: 1 beyond S_p + slow_mm, 0 at S_p, linear between."""
+        """The speed override in [0, 1]: 1 beyond S_p + band, 0 at S_p, linear between (band: the
+        distance closed in ``slow_s`` at the closing speed, at most ``slow_mm``)."""
         sp = self.separation_mm(closing_mm_s)
-        if self.slow_mm <= 0.0:
+        band = min(self.slow_mm, max(0.0, float(closing_mm_s)) * self.slow_s)
+        if band <= 0.0:
             return 1.0 if distance_mm > sp else 0.0
-        return min(1.0, max(0.0, (float(distance_mm) - sp) / self.slow_mm))
+        return min(1.0, max(0.0, (float(distance_mm) - sp) / band))
 
     def state(self, distance_mm: float, closing_mm_s: float) -> str:
         """clear / slowing / stopped for a distance [mm] and closing speed [mm/s]."""
@@ -66,7 +71,7 @@ class SsmParams:
 
 
 _KEYS = {"reaction_s": (0.0, 5.0), "stop_time_s": (0.0, 10.0), "clearance_mm": (0.0, 1000.0),
-         "uncertainty_mm": (0.0, 1000.0), "slow_mm": (0.0, 5000.0)}
+         "uncertainty_mm": (0.0, 1000.0), "slow_mm": (0.0, 5000.0), "slow_s": (0.0, 10.0)}
 
 
 def ssm_params(table, where: str) -> SsmParams:

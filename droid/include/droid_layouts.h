@@ -30,6 +30,7 @@
 #define DROID_FAULT_HEARTBEAT 64
 #define DROID_FAULT_FORCE 128
 #define DROID_FAULT_COLLISION 256
+#define DROID_FAULT_GUARD 512
 #define DROID_CMD_OK 0
 #define DROID_CMD_REFUSED 2
 #define DROID_CMD_FAILED 1
@@ -92,8 +93,8 @@ _Static_assert(offsetof(droid_arm_status_t, cmd_result) == 220, "droid_arm_statu
 _Static_assert(sizeof(droid_arm_status_t) == 224, "droid_arm_status size");
 
 #define DROID_ARM_COMMAND_KIND 2
-#define DROID_ARM_COMMAND_VERSION 1
-#define DROID_ARM_COMMAND_SIZE 176
+#define DROID_ARM_COMMAND_VERSION 2
+#define DROID_ARM_COMMAND_SIZE 192
 #pragma pack(push, 1)
 typedef struct droid_arm_command {
     uint32_t magic;
@@ -115,6 +116,8 @@ typedef struct droid_arm_command {
     int32_t cmd_mode;
     int32_t sent;
     uint32_t cmd_id;
+    uint64_t guard_tick;
+    double guard_override;
 } droid_arm_command_t;
 #pragma pack(pop)
 _Static_assert(offsetof(droid_arm_command_t, magic) == 0, "droid_arm_command.magic offset");
@@ -136,7 +139,9 @@ _Static_assert(offsetof(droid_arm_command_t, coord) == 160, "droid_arm_command.c
 _Static_assert(offsetof(droid_arm_command_t, cmd_mode) == 164, "droid_arm_command.cmd_mode offset");
 _Static_assert(offsetof(droid_arm_command_t, sent) == 168, "droid_arm_command.sent offset");
 _Static_assert(offsetof(droid_arm_command_t, cmd_id) == 172, "droid_arm_command.cmd_id offset");
-_Static_assert(sizeof(droid_arm_command_t) == 176, "droid_arm_command size");
+_Static_assert(offsetof(droid_arm_command_t, guard_tick) == 176, "droid_arm_command.guard_tick offset");
+_Static_assert(offsetof(droid_arm_command_t, guard_override) == 184, "droid_arm_command.guard_override offset");
+_Static_assert(sizeof(droid_arm_command_t) == 192, "droid_arm_command size");
 
 #define DROID_SENSOR_STATUS_KIND 3
 #define DROID_SENSOR_STATUS_VERSION 2
@@ -261,8 +266,8 @@ _Static_assert(offsetof(droid_ctrl_status_t, cmd_result) == 220, "droid_ctrl_sta
 _Static_assert(sizeof(droid_ctrl_status_t) == 224, "droid_ctrl_status size");
 
 #define DROID_CTRL_COMMAND_KIND 5
-#define DROID_CTRL_COMMAND_VERSION 1
-#define DROID_CTRL_COMMAND_SIZE 224
+#define DROID_CTRL_COMMAND_VERSION 2
+#define DROID_CTRL_COMMAND_SIZE 240
 #pragma pack(push, 1)
 typedef struct droid_ctrl_command {
     uint32_t magic;
@@ -289,6 +294,8 @@ typedef struct droid_ctrl_command {
     uint32_t link_alive;
     uint32_t plan_id;
     uint64_t planner_tick;
+    uint64_t guard_tick;
+    double guard_override;
 } droid_ctrl_command_t;
 #pragma pack(pop)
 _Static_assert(offsetof(droid_ctrl_command_t, magic) == 0, "droid_ctrl_command.magic offset");
@@ -315,7 +322,9 @@ _Static_assert(offsetof(droid_ctrl_command_t, brain_tick) == 200, "droid_ctrl_co
 _Static_assert(offsetof(droid_ctrl_command_t, link_alive) == 208, "droid_ctrl_command.link_alive offset");
 _Static_assert(offsetof(droid_ctrl_command_t, plan_id) == 212, "droid_ctrl_command.plan_id offset");
 _Static_assert(offsetof(droid_ctrl_command_t, planner_tick) == 216, "droid_ctrl_command.planner_tick offset");
-_Static_assert(sizeof(droid_ctrl_command_t) == 224, "droid_ctrl_command size");
+_Static_assert(offsetof(droid_ctrl_command_t, guard_tick) == 224, "droid_ctrl_command.guard_tick offset");
+_Static_assert(offsetof(droid_ctrl_command_t, guard_override) == 232, "droid_ctrl_command.guard_override offset");
+_Static_assert(sizeof(droid_ctrl_command_t) == 240, "droid_ctrl_command size");
 
 #define DROID_PROC_STATUS_KIND 6
 #define DROID_PROC_STATUS_VERSION 3
@@ -545,5 +554,72 @@ _Static_assert(offsetof(droid_ft6_ctrl_command_t, cmd_id) == 48, "droid_ft6_ctrl
 _Static_assert(offsetof(droid_ft6_ctrl_command_t, link_alive) == 52, "droid_ft6_ctrl_command.link_alive offset");
 _Static_assert(offsetof(droid_ft6_ctrl_command_t, brain_tick) == 56, "droid_ft6_ctrl_command.brain_tick offset");
 _Static_assert(sizeof(droid_ft6_ctrl_command_t) == 64, "droid_ft6_ctrl_command size");
+
+#define DROID_GUARD_STATUS_KIND 11
+#define DROID_GUARD_STATUS_VERSION 1
+#define DROID_GUARD_STATUS_SIZE 384
+#pragma pack(push, 1)
+typedef struct droid_guard_status {
+    uint32_t magic;
+    uint16_t version;
+    uint16_t kind;
+    uint32_t size;
+    int32_t writer_pid;
+    int32_t holder_pid;
+    uint32_t flags;
+    uint64_t seq;
+    uint64_t tick;
+    int64_t updated_ns;
+    uint64_t cycles;
+    double distance_mm;
+    double ahead_mm;
+    double closing_mm_s;
+    double separation_mm;
+    double cycle_us;
+    double cycle_max_us;
+    uint32_t state;
+    uint32_t trips;
+    uint32_t n_arms;
+    uint32_t stale_ticks;
+    uint32_t pairs;
+    uint32_t kernel;
+    char a_arm[16];
+    char a_body[16];
+    char b_arm[16];
+    char b_body[16];
+    char arms[8][16];
+    double override[8];
+} droid_guard_status_t;
+#pragma pack(pop)
+_Static_assert(offsetof(droid_guard_status_t, magic) == 0, "droid_guard_status.magic offset");
+_Static_assert(offsetof(droid_guard_status_t, version) == 4, "droid_guard_status.version offset");
+_Static_assert(offsetof(droid_guard_status_t, kind) == 6, "droid_guard_status.kind offset");
+_Static_assert(offsetof(droid_guard_status_t, size) == 8, "droid_guard_status.size offset");
+_Static_assert(offsetof(droid_guard_status_t, writer_pid) == 12, "droid_guard_status.writer_pid offset");
+_Static_assert(offsetof(droid_guard_status_t, holder_pid) == 16, "droid_guard_status.holder_pid offset");
+_Static_assert(offsetof(droid_guard_status_t, flags) == 20, "droid_guard_status.flags offset");
+_Static_assert(offsetof(droid_guard_status_t, seq) == 24, "droid_guard_status.seq offset");
+_Static_assert(offsetof(droid_guard_status_t, tick) == 32, "droid_guard_status.tick offset");
+_Static_assert(offsetof(droid_guard_status_t, updated_ns) == 40, "droid_guard_status.updated_ns offset");
+_Static_assert(offsetof(droid_guard_status_t, cycles) == 48, "droid_guard_status.cycles offset");
+_Static_assert(offsetof(droid_guard_status_t, distance_mm) == 56, "droid_guard_status.distance_mm offset");
+_Static_assert(offsetof(droid_guard_status_t, ahead_mm) == 64, "droid_guard_status.ahead_mm offset");
+_Static_assert(offsetof(droid_guard_status_t, closing_mm_s) == 72, "droid_guard_status.closing_mm_s offset");
+_Static_assert(offsetof(droid_guard_status_t, separation_mm) == 80, "droid_guard_status.separation_mm offset");
+_Static_assert(offsetof(droid_guard_status_t, cycle_us) == 88, "droid_guard_status.cycle_us offset");
+_Static_assert(offsetof(droid_guard_status_t, cycle_max_us) == 96, "droid_guard_status.cycle_max_us offset");
+_Static_assert(offsetof(droid_guard_status_t, state) == 104, "droid_guard_status.state offset");
+_Static_assert(offsetof(droid_guard_status_t, trips) == 108, "droid_guard_status.trips offset");
+_Static_assert(offsetof(droid_guard_status_t, n_arms) == 112, "droid_guard_status.n_arms offset");
+_Static_assert(offsetof(droid_guard_status_t, stale_ticks) == 116, "droid_guard_status.stale_ticks offset");
+_Static_assert(offsetof(droid_guard_status_t, pairs) == 120, "droid_guard_status.pairs offset");
+_Static_assert(offsetof(droid_guard_status_t, kernel) == 124, "droid_guard_status.kernel offset");
+_Static_assert(offsetof(droid_guard_status_t, a_arm) == 128, "droid_guard_status.a_arm offset");
+_Static_assert(offsetof(droid_guard_status_t, a_body) == 144, "droid_guard_status.a_body offset");
+_Static_assert(offsetof(droid_guard_status_t, b_arm) == 160, "droid_guard_status.b_arm offset");
+_Static_assert(offsetof(droid_guard_status_t, b_body) == 176, "droid_guard_status.b_body offset");
+_Static_assert(offsetof(droid_guard_status_t, arms) == 192, "droid_guard_status.arms offset");
+_Static_assert(offsetof(droid_guard_status_t, override) == 320, "droid_guard_status.override offset");
+_Static_assert(sizeof(droid_guard_status_t) == 384, "droid_guard_status size");
 
 #endif /* DROID_LAYOUTS_H */

@@ -38,15 +38,28 @@ from droid.brain.program import Presence, Stop, open_cell, parser
 from droid.cli import BadInput, RuntimeFailure, bounded_float, bounded_int, run
 from droid.observe import schemas
 from droid.observe.mcapfile import Recording, db_topic, read_recording, recover
+from droid.observe.sampler import GUARD
+from droid.brain.layouts import GUARD_STATUS_LAYOUT
+from droid.brain.shmdb import Database, db_name
 
 PROG = "droid-replay"
 REPLAY_KEY = "replay"  # cell.json of a replay cell: {"replay": FILE, "programs": []}
 SKIP_CSV = {name for name, _, _ in HEADER_FIELDS} - {"seq"}
 
 
+def _is_guard(cell, sub_name: str, area: str) -> bool:
+    """The collision guard's Status (recorded as "guard" / "status" where the cell declares one)."""
+    return sub_name == GUARD and area == "status" and GUARD not in cell.subunits and "guard" in cell.raw
+
+
 def check_layouts(cell, rec: Recording) -> None:
     """BadInput unless every recorded database exists in ``cell`` with the same layout and version."""
     for (sub_name, area), (lay_name, ver) in sorted(rec.layouts().items()):
+        if _is_guard(cell, sub_name, area):
+            if (lay_name, ver) != (GUARD_STATUS_LAYOUT.name, GUARD_STATUS_LAYOUT.version):
+                raise BadInput(f"{rec.path}: guard status: the recording has {lay_name} version {ver}, cell "
+                               f"{cell.name} has {GUARD_STATUS_LAYOUT.name} version {GUARD_STATUS_LAYOUT.version}")
+            continue
         if sub_name not in cell.subunits:
             raise BadInput(f"{rec.path}: recorded subunit {sub_name} is not in cell {cell.name} "
                            f"(cell subunits: {', '.join(cell.subunits)})")
@@ -124,6 +137,10 @@ def play(cell, rec: Recording, ticks: range, rate: float, on_tick=None) -> int:
     dbs = {}
     try:
         for (sub_name, area) in rec.layouts():
+            if _is_guard(cell, sub_name, area):
+                dbs[db_topic(sub_name, area)] = (Database(db_name(cell.name, GUARD, "status"), GUARD_STATUS_LAYOUT),
+                                                 GUARD_STATUS_LAYOUT)
+                continue
             dbs[db_topic(sub_name, area)] = (open_brain(cell, cell.subunits[sub_name], area),
                                              brain_layouts(cell.subunits[sub_name])[area])
         if not len(ticks):

@@ -3,16 +3,20 @@
 :class:`CellSampler` opens every Brain database of the chosen subunits --
 whatever areas :func:`droid.brain.databases.brain_layouts` gives each, so a
 new subunit class or area is recorded without a change here -- and reads
-them all on :meth:`read`.  :func:`health` gives the ``droid-cell status --json``
+them all on :meth:`read` -- and the collision guard's Status where the cell declares one.  :func:`health` gives the ``droid-cell status --json``
 rows plus the heartbeat's worst lateness [ns].  Nothing here writes.
 """
 from __future__ import annotations
 
 from droid.brain.databases import brain_layouts, open_brain
-from droid.brain.layouts import PROC_STATUS_LAYOUT, Layout
+from droid.brain.layouts import GUARD_STATUS_LAYOUT, PROC_STATUS_LAYOUT, Layout
 from droid.brain.program import presence_key
 from droid.brain.shmdb import Database, NoDatabase, db_name
 from droid.cli import BadInput, DroidError
+
+
+#: the collision guard's record in a recording: subunit "guard", area "status" (topic /guard/status)
+GUARD = "guard"
 
 
 class CellSampler:
@@ -21,6 +25,7 @@ class CellSampler:
     def __init__(self, cell, subunits: list[str] | None = None) -> None:
         self.cell = cell
         names = subunits or list(cell.subunits)
+        self.whole = not subunits  # the whole cell: the guard's Status too
         self.subs = [cell.subunit(n) for n in names]  # BadInput on an unknown name
         self.dbs: list[tuple[str, str, Layout, Database]] = []
 
@@ -29,6 +34,14 @@ class CellSampler:
             for sub in self.subs:
                 for area, lay in brain_layouts(sub).items():
                     self.dbs.append((sub.name, area, lay, open_brain(self.cell, sub, area)))
+            if self.whole and "guard" in self.cell.raw and GUARD not in self.cell.subunits:
+                # the collision guard's own Status (droid-guard; docs/guard.md), as "guard" / "status"
+                try:
+                    db = Database(db_name(self.cell.name, GUARD, "status"), GUARD_STATUS_LAYOUT)
+                except NoDatabase:
+                    pass  # a cell brought up without it (droid-cell init, a replay cell)
+                else:
+                    self.dbs.append((GUARD, "status", GUARD_STATUS_LAYOUT, db))
         except BaseException:
             self.close()
             raise

@@ -58,8 +58,10 @@ def record_to_dict(rec: np.ndarray) -> dict:
     for name, v in zip(rec.dtype.names, vals):
         if isinstance(v, np.ndarray):
             v = v.tolist()
-        elif isinstance(v, bytes):
+        if isinstance(v, bytes):
             v = v.decode(errors="replace").rstrip("\x00")
+        elif isinstance(v, (list, tuple)) and v and isinstance(v[0], bytes):  # names (guard_status.arms)
+            v = [b.decode(errors="replace").rstrip("\x00") for b in v]
         out[name] = v
     return out
 
@@ -70,6 +72,8 @@ def dict_to_record(d: dict, layout: Layout, rec: np.ndarray) -> None:
         if name in HEADER_KEEP or name not in d:
             continue
         v = d[name]
+        if isinstance(v, list) and v and isinstance(v[0], str):
+            v = [x.encode() for x in v]
         rec[name] = v.encode() if isinstance(v, str) else v
 
 

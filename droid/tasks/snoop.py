@@ -9,6 +9,10 @@ joystick ``axes``, ``buttons`` and ``valid``.  Which fields: the subunit's
 class (``snoop_fields`` in :mod:`droid.brain.classes`).
 Reads the Brain's database only (a task never touches a device, §3.4).
 
+``droid-snoop guard`` (a cell that declares a collision guard and has no subunit of that name):
+the guard's own Status (``/droid.<cell>.guard.status``, docs/guard.md) -- the least distance,
+the closest pair, the state, the override per arm, the cycle time and how old it is.
+
 Exit: 0 after ``--count`` samples or on SIGINT; 1 if the cell is not up.
 """
 from __future__ import annotations
@@ -68,6 +72,8 @@ def main(argv=None) -> int:
     ap.add_argument("--json", action="store_true", help="one JSON object a line")
     args = ap.parse_args(argv)
     cell = open_cell(args)
+    if args.subunit == GUARD and GUARD not in cell.subunits and "guard" in cell.raw:
+        return _snoop_guard(cell, args)
     sub = cell.subunit(args.subunit)
     db = open_brain(cell, sub, "status")
     signal.signal(signal.SIGTERM, signal.default_int_handler)
@@ -78,6 +84,36 @@ def main(argv=None) -> int:
             timer.wait()
             d = status_dict(sub, db.read())
             print(json.dumps(d) if args.json else status_text(d), flush=True)
+            n += 1
+    finally:
+        timer.close()
+        db.close()
+    return 0
+
+
+GUARD = "guard"
+
+
+def guard_text(d: dict) -> str:
+    """One line of the guard's Status: state, least distance and pair, overrides, cycle time."""
+    over = " ".join(f"{a} {v:.2f}" for a, v in d["override"].items())
+    return (f"guard tick {d['tick']}  {d['state']}  {d['distance_mm']:.1f} mm: {d['pair'][0]} with {d['pair'][1]}  "
+            f"S_p {d['separation_mm']:.1f} mm  override [{over}]  cycle {d['cycle_us']:.0f} us  trips {d['trips']}")
+
+
+def _snoop_guard(cell, args) -> int:
+    from droid.guard.live import open_status
+    from droid.guard.station import guard_status_dict
+
+    db = open_status(cell)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    timer = PeriodicTimer(int(round(1e9 / args.rate)), start_ns=time.monotonic_ns())
+    n = 0
+    try:
+        while args.count is None or n < args.count:
+            timer.wait()
+            d = guard_status_dict(db.read())
+            print(json.dumps(d) if args.json else guard_text(d), flush=True)
             n += 1
     finally:
         timer.close()

@@ -265,3 +265,34 @@ def test_requests_on_the_line_follow_the_grammar(homed):
     reqs = [kw.parse_request(ln) for ln in lines]
     assert [r.verb for r in reqs] == [kw.MOVE] and reqs[0].cmd_id == cmd_id
     assert reqs[0].duration_s == pytest.approx(0.5)
+
+
+def test_the_protective_stop_halts_a_move_in_flight_and_refuses_the_next(homed):
+    """Issue 41: FAULT_COLLISION in the Status (the collision guard) -> HALT: the Fanuc ends its move
+    along its path, short of the target, CMD_FAILED; a NORMAL command while it is set is refused."""
+    from droid.brain.layouts import FAULT_COLLISION
+    from droid.guard.gate import set_fault_bit
+
+    g = homed
+    start = g.controller.q_deg.copy()
+    cmd_id = g.command_cart(pose_to_T(*TARGET), g.ticks_for(3.0))
+    assert g.run_until(lambda: g.controller.moving_at(g.t_s) and g.t_s > 1.0 + g.controller.motion.t0, 10)
+    mid = g.controller.q_deg.copy()
+    set_fault_bit(g.ctrl_status, FAULT_COLLISION, True)
+    assert g.run_until(lambda: not g.controller.moving_at(g.t_s), 3.0)
+    g.run_ticks(30)
+    s = g.status()
+    assert int(s["cmd_id"]) == cmd_id and int(s["cmd_result"]) == CMD_FAILED and int(s["busy"]) == 0
+    assert g.serial_core.halts == 1 and g.controller.halts == 1
+    end = g.controller.q_deg
+    assert np.max(np.abs(end - mid)) > 0 and np.max(np.abs(end - start)) > 0  # on from where it was halted
+    assert not np.allclose(T_to_pose(g.true_pose_global())[:3], TARGET[:3], atol=5.0)  # short of the target
+    second = g.command_cart(pose_to_T(*TARGET), g.ticks_for(3.0))
+    g.run_ticks(20)
+    s = g.status()
+    assert int(s["cmd_id"]) == second and int(s["cmd_result"]) == CMD_REFUSED
+    assert not g.controller.moving_at(g.t_s)
+    set_fault_bit(g.ctrl_status, FAULT_COLLISION, False)  # released: moves again
+    third = g.command_cart(pose_to_T(*TARGET), g.ticks_for(2.0))
+    assert g.run_until(lambda: g.done(third), 20)
+    assert int(g.status()["cmd_result"]) == CMD_OK

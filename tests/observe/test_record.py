@@ -50,7 +50,8 @@ def test_every_database_by_tick_roundtrips(db_cell, tmp_path):
     # every Brain database of every subunit has a channel, read generically from the cell
     assert set(rec.layouts()) == {("arm1", "status"), ("arm1", "command"), ("gmf1", "status"),
                                   ("gmf1", "command"), ("mvs", "status"), ("tool", "status"),
-                                  ("joy", "status"), ("ft", "status"), ("ft", "command")}
+                                  ("joy", "status"), ("ft", "status"), ("ft", "command"),
+                                  ("guard", "status")}  # the collision guard's Status (issue 41)
     f = rec.frames[7]
     a = f["/arm1/status"][0]
     assert a["_tick"] == 107 and a["x"] == pytest.approx(300.7) and a["encoder_pos"] == [7, -7, 14, 0, 0, 7]

@@ -121,6 +121,34 @@ class Motion:
             return self.q1
         return self.q0 + self.dq * self.fraction(t_s)
 
+    def rate(self, t_s: float) -> float:
+        """ds/dt at ``t_s`` [1/s]."""
+        tau, T, ta = t_s - self.t0, self.duration, self.ta
+        if tau <= 0 or tau >= T:
+            return 0.0
+        if tau < ta:
+            return self.acc * tau
+        if tau <= T - ta:
+            return self.vp
+        return self.acc * (T - tau)
+
+
+class Halting(Motion):
+    """A motion halted at ``t_s`` (KAREL ``HALT``, issue 41): on along its path, decelerating at the
+    motion's own ramp, to rest (the path's progress s(t) = s0 + v0 tau - acc tau^2 / 2)."""
+
+    def __init__(self, m: Motion, t_s: float) -> None:  # noqa: super().__init__ not wanted: another profile
+        self.q0, self.dq, self.motion_id = m.q0, m.dq, m.motion_id
+        self.s0, self.v0 = m.fraction(t_s), m.rate(t_s)
+        self.acc = m.acc if m.acc > 0 else 1.0 / max(m.ta, 1e-3) ** 2
+        self.t0 = t_s
+        self.duration = self.v0 / self.acc
+        self.q1 = self.q0 + self.dq * min(1.0, self.s0 + 0.5 * self.v0 * self.duration)
+
+    def fraction(self, t_s: float) -> float:
+        tau = min(max(t_s - self.t0, 0.0), self.duration)
+        return min(1.0, self.s0 + self.v0 * tau - 0.5 * self.acc * tau * tau)
+
 
 class KarelController:
     """The controller + KAREL serial server; see the module docstring.
@@ -164,6 +192,7 @@ class KarelController:
         self.busy_rejects = 0
         self.errors = 0
         self.completed = 0
+        self.halts = 0
 
     # -- the host side ------------------------------------------------------------
     def receive(self, data: bytes, t_s: float) -> None:
@@ -246,6 +275,8 @@ class KarelController:
 
     def _line(self, line: bytes, t_line: float) -> None:
         self.lines += 1
+        if line.split(None, 1)[:1] == [kw.HALT.encode()]:  # taken at once (a condition handler's HOLD)
+            return self._halt(line, t_line)
         if t_line < self._interp_free_s:
             # the interpreter is still in the previous cycle: the front end only reads the id
             self.busy_rejects += 1
@@ -293,6 +324,31 @@ class KarelController:
             self._queue_reply(t_reply + duration, kw.Reply(kw.DONE, req.cmd_id))
         else:
             self._done_pending = (req.cmd_id, t_reply + duration)
+
+    def _halt(self, line: bytes, t_line: float) -> None:
+        """``HALT id``: the motion in progress ends along its path at its deceleration; ``ACK id s``
+        (s: until it stands), its ``DONE`` when it stands (issue 41)."""
+        t_reply = t_line + self.p.reply_delay_s
+        try:
+            req = kw.parse_request(line)
+        except kw.WireError as exc:
+            self.errors += 1
+            self._queue_reply(t_reply, kw.Reply(kw.ERR, exc.cmd_id, code=exc.code))
+            return
+        m = self.motion
+        if m is None or t_line >= m.t_end:
+            self._queue_reply(t_reply, kw.Reply(kw.ACK, req.cmd_id, seconds=0.0))
+            return
+        self.halts += 1
+        h = Halting(m, t_line)
+        self.motion = h
+        done = kw.format_reply(kw.Reply(kw.DONE, m.motion_id))
+        self._replies = [(t, raw) for t, raw in self._replies if raw != done]  # its DONE comes earlier now
+        if self.arm is None:
+            self._queue_reply(h.t_end, kw.Reply(kw.DONE, m.motion_id))
+        elif self._done_pending is not None:
+            self._done_pending = (self._done_pending[0], h.t_end)
+        self._queue_reply(t_reply, kw.Reply(kw.ACK, req.cmd_id, seconds=h.duration))
 
     def _goal(self, req: kw.Request, q_now: np.ndarray) -> np.ndarray:
         if req.verb == kw.HOME:

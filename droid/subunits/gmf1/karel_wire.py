@@ -17,6 +17,10 @@ spaces or tabs, terminated by CR (a LF is ignored)::
     JMOVE id j1 j2 j3 j4 j5 j6 [t]   joint angles [deg] (the D-H joint variables)
     HOME  id                    go to the joint-zero home pose
     STAT  id                    report the state
+    HALT  id                    stop the motion in progress along its path at the
+                                controller's deceleration (issue 41: the collision
+                                guard's protective stop); taken at once, also
+                                inside the interpreter's cycle and while moving
 
 Replies (controller -> host), terminated by CR LF::
 
@@ -28,6 +32,9 @@ Replies (controller -> host), terminated by CR LF::
                                 (id 0 when the request's id was unreadable)
     STAT id IDLE|MOVING mid     state, and the id of the current or last motion
                                 (0: none since power-up)
+
+A HALT is answered ``ACK id seconds`` (the time until the arm stands; 0 when idle);
+the halted motion's own ``DONE mid`` follows when it stands.
 
 ``id`` is a decimal integer 1..4294967295 chosen by the host (the serial
 program uses the Brain's ``cmd_id``; STAT probes use their own counter).
@@ -66,7 +73,8 @@ MOVE = "MOVE"
 JMOVE = "JMOVE"
 HOME = "HOME"
 STAT = "STAT"
-VERBS = (MOVE, JMOVE, HOME, STAT)
+HALT = "HALT"  # issue 41: the protective stop of a move in flight
+VERBS = (MOVE, JMOVE, HOME, STAT, HALT)
 MOTION_VERBS = (MOVE, JMOVE, HOME)
 
 ACK = "ACK"
@@ -157,7 +165,7 @@ def parse_request(line: bytes) -> Request:
         raise WireError(f"{verb} needs an id")
     cmd_id = _parse_id(f[1])
     args = f[2:]
-    if verb in (HOME, STAT):
+    if verb in (HOME, STAT, HALT):
         if args:
             raise WireError(f"{verb} takes only an id", ERR_SYNTAX, cmd_id)
         return Request(verb, cmd_id)
@@ -219,6 +227,10 @@ def format_home(cmd_id: int) -> bytes:
 
 def format_stat(cmd_id: int) -> bytes:
     return f"{STAT} {_check_id(cmd_id)}".encode("ascii") + REQUEST_END
+
+
+def format_halt(cmd_id: int) -> bytes:
+    return f"{HALT} {_check_id(cmd_id)}".encode("ascii") + REQUEST_END
 
 
 # -- replies ---------------------------------------------------------------------------

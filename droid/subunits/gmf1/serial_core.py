@@ -41,6 +41,12 @@ Stop (a NORMAL command with STOP_TICKS, written by a task that gave up): the
 pending command is dropped and nothing new is sent; a move already sent runs to
 its end (the KAREL server has no abort).
 
+Protective stop (issue 41): while the Status has FAULT_COLLISION (the collision guard's stop) or
+FAULT_GUARD (the guard of a cell that declares one is silent: droid.guard.gate), a NORMAL move in
+flight is halted -- ``HALT id``, sent at once, ends it along its path at the controller's
+deceleration -- and reported CMD_FAILED, and a NORMAL command waiting or arriving is refused
+(CMD_REFUSED), as the Reis planner does; a stop or a HOME is still taken.
+
 Drop policy: while a command is in flight (sent, not DONE) newer commands wait
 as one *pending* command; a newer one replaces it and the replaced one is
 counted in ``dropped`` (as are cmd_ids skipped between two ticks).  The pending
@@ -75,8 +81,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from droid.brain.layouts import (CARTSPACE, CMD_FAILED, CMD_OK, CMD_REFUSED, HOME_MODE, JSPACE, NORMAL_MODE,
-                                 OFF, STOP_TICKS)
+from droid.brain.layouts import (CARTSPACE, CMD_FAILED, CMD_OK, CMD_REFUSED, FAULT_COLLISION, FAULT_GUARD, HOME_MODE,
+                                 JSPACE, NORMAL_MODE, OFF, STOP_TICKS)
 from droid.kinematics import RobotModel, Unreachable
 from droid.kinematics.transforms import T_to_pose, inv_homo, record_pose
 from droid.subunits.gmf1 import karel_wire as kw
@@ -149,6 +155,7 @@ class StatusView:
     homed: bool
     encoder_pos: np.ndarray  # [counts wrt home]
     cmd_id: int | None = None  # the last command answered (sent, refused, stopped); None: not known
+    fault: int = 0  # the Status's FAULT_* bits (FAULT_COLLISION, FAULT_GUARD: the protective stop)
 
 
 @dataclass
@@ -173,6 +180,7 @@ class _Flight:
     deadline: int = 0
     retries: int = 0
     failed: bool = False  # declared CMD_FAILED (timeout); the controller may still finish it
+    halted: bool = False  # HALT sent (the protective stop): CMD_FAILED, whatever DONE says
 
 
 class SerialCore:
@@ -214,6 +222,8 @@ class SerialCore:
         self.unexpected = 0
         self.probes = 0
         self.late = 0  # commands reported failed that the controller finished after all
+        self.halts = 0  # moves halted by the protective stop (HALT sent)
+        self.stopping = False  # FAULT_COLLISION or FAULT_GUARD in the Status this tick
 
     # ------------------------------------------------------------------ step
     def step(self, tick: int, cmd: CommandSnapshot | None, st: StatusView, rx: bytes | None,
@@ -233,6 +243,9 @@ class SerialCore:
             self._timeouts(tick, out)
         if cmd is not None:
             self._take_command(cmd, st)
+        self.stopping = bool(st.fault & (FAULT_COLLISION | FAULT_GUARD))
+        if self.stopping and port_open and self.state != CLOSED:
+            self._halt(tick, out)
         if port_open and self.state != CLOSED:
             self._send(tick, st, out)
         self._busy(tick)
@@ -328,9 +341,28 @@ class SerialCore:
         self.flight = None
         self.completed += 1
         self.status["busy"] = 0
+        if f.halted:
+            return  # the protective stop ended it: CMD_FAILED stands
         if f.failed:
             self.late += 1  # reported failed (too late), but it did complete: say so
         self.status["cmd_result"] = CMD_OK
+
+    def _halt(self, tick: int, out: SerialOut) -> None:
+        """The protective stop: HALT the NORMAL move in flight (once), CMD_FAILED; a waiting NORMAL
+        command is refused (see the module docstring)."""
+        p = self.pending
+        if p is not None and p.cmd_mode == NORMAL_MODE:
+            self.pending = None
+            self.refused += 1
+            self.status.update(cmd_id=p.cmd_id, cmd_result=CMD_REFUSED, busy=0, cmd_mode=p.cmd_mode, coord=p.coord)
+        f = self.flight
+        if f is None or f.halted or f.verb == kw.HOME or self.state not in (WAIT_ACK, MOVING):
+            return
+        f.halted = f.failed = True
+        self.halts += 1
+        self.failed += 1
+        self.status.update(cmd_id=f.cmd.cmd_id, busy=0, cmd_result=CMD_FAILED)
+        self._write(tick, kw.format_halt(f.cmd.cmd_id), out)
 
     def _fail(self, f: _Flight) -> None:
         f.failed = True

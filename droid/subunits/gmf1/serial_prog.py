@@ -26,6 +26,7 @@ from droid.brain.program import ErrorLine, Presence, Stop, close_all, notify_rea
 from droid.cli import baud_rate, run
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T
+from droid.guard.gate import GuardGate, guard_stale_ticks
 from droid.subunits.gmf1.config import gmf1_config
 from droid.subunits.gmf1.karel_wire import MIN_BAUD
 from droid.brain.registry import open_url
@@ -66,7 +67,8 @@ def main(argv=None) -> int:
     presence = None
     try:
         ctrl_status = open_local(cell, sub, "ctrl_status")
-        station = SerialStation(core, link, ctrl_command, ctrl_status)
+        stale = guard_stale_ticks(cell)  # a cell that declares a collision guard: its stale rule (issue 41)
+        station = SerialStation(core, link, ctrl_command, ctrl_status, None if stale is None else GuardGate(stale))
         presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
         ctx = zmq.Context()
         ticks = TickSubscriber(ctx, sub.relay, CurveHost(ctx, cell, sub.host), sub.host)

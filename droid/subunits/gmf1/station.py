@@ -38,8 +38,9 @@ def _fault_bits(v, on: bool, was_on: bool) -> None:
 class SerialStation:
     """droid-gmf1-serial's cycle, once per relayed heartbeat tick."""
 
-    def __init__(self, core: SerialCore, link: PortLink, ctrl_command, ctrl_status) -> None:
+    def __init__(self, core: SerialCore, link: PortLink, ctrl_command, ctrl_status, gate=None) -> None:
         self.core = core
+        self.gate = gate  # a droid.guard.gate.GuardGate where the cell declares a guard (its stale rule)
         self.link = link
         self.ctrl_command = ctrl_command
         self.ctrl_status = ctrl_status
@@ -48,9 +49,13 @@ class SerialStation:
         self.last: SerialOut | None = None
 
     def cycle(self, tick: int) -> SerialOut:
-        cmd = snapshot_command(self.ctrl_command.read())
+        rec = self.ctrl_command.read()
         st = self.ctrl_status.read()
-        view = StatusView(bool(int(st["homed"])), np.array(st["encoder_pos"], np.int64), int(st["cmd_id"]))
+        if self.gate is not None:  # FAULT_GUARD while the collision guard is silent (the KAREL halts)
+            self.gate.apply(rec, st, tick, self.ctrl_status)
+        cmd = snapshot_command(rec)
+        view = StatusView(bool(int(st["homed"])), np.array(st["encoder_pos"], np.int64), int(st["cmd_id"]),
+                          int(st["fault"]))
         rx = self.link.read()
         out = self.core.step(tick, cmd, view, rx, self.link.is_open)
         if out.close_port:

@@ -26,10 +26,13 @@ controller's Command and Status records and
   (FAULT_BRAKING): the arm stays stopped until a new command;
 * the same on FAULT_FORCE (the force/torque sensor's guard on this arm, set by droid-ft
   on its host: thesis §7.3), and while it is set a new NORMAL command is refused; and the
-  same on FAULT_COLLISION (the collision guard's protective stop: docs/guard.md).
+  same on FAULT_COLLISION (the collision guard's protective stop: docs/guard.md) and on
+  FAULT_GUARD (a cell that declares a guard and whose guard went silent: droid.guard.gate);
+* advances its way-points by the guard's speed override (``speed``, droid.guard.gate).
 """
 from __future__ import annotations
 
+import math
 import sys
 from dataclasses import dataclass, field
 
@@ -42,10 +45,12 @@ from droid.brain.heartbeat import TickSubscriber
 from droid.brain.rt import try_sched_fifo
 from droid.brain.program import close_all, Presence, Stop, notify_ready, presence_key, subunit_program
 from droid.cli import run
+from droid.guard.gate import GuardGate, guard_stale_ticks
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T, record_pose
 from droid.brain.layouts import (CMD_FAILED, CMD_OK, CMD_REFUSED, FAULT_BRAKING, FAULT_COLLISION, FAULT_FORCE,
-                                 FAULT_SERVO, FAULT_WATCHDOG, JSPACE, NORMAL_MODE, STOP_TICKS, fault_names)
+                                 FAULT_GUARD, FAULT_SERVO, FAULT_WATCHDOG, JSPACE, NORMAL_MODE, STOP_TICKS,
+                                 fault_names)
 from droid.kinematics import RobotModel, Unreachable
 
 N = 6
@@ -71,7 +76,7 @@ def stop_cause(cmd, status) -> str:
     if not int(cmd["link_alive"]):
         return "Brain link lost"
     faults = fault_names(int(status["fault"]) & (FAULT_SERVO | FAULT_WATCHDOG | FAULT_BRAKING | FAULT_FORCE
-                                                  | FAULT_COLLISION))
+                                                  | FAULT_COLLISION | FAULT_GUARD))
     return "faults: " + ", ".join(faults)
 
 
@@ -92,6 +97,7 @@ class PlannerCore:
     active_id: int = 0
     refused: int = 0
     brake_step: np.ndarray | None = None  # a protective stop's ramp: the move's step when it began [counts/tick]
+    speed: float = 1.0  # the collision guard's override as applied (droid.guard.gate): share of a tick's step
 
     def _joints_from_counts(self, counts) -> np.ndarray:
         return self.model.gearing.counts_to_joints(np.asarray(counts, float))
@@ -153,8 +159,8 @@ class PlannerCore:
         command that cannot move; True when no new command may start this tick."""
         dead = int(status["fault"]) & (FAULT_SERVO | FAULT_WATCHDOG)  # nothing can move
         # the F/T guard on this arm tripped (droid-ft), or the collision guard's protective stop
-        collision = int(status["fault"]) & FAULT_COLLISION
-        force = int(status["fault"]) & (FAULT_FORCE | FAULT_COLLISION)
+        collision = int(status["fault"]) & (FAULT_COLLISION | FAULT_GUARD)  # FAULT_GUARD: the guard is silent
+        force = int(status["fault"]) & (FAULT_FORCE | FAULT_COLLISION | FAULT_GUARD)
         hard = not int(cmd["link_alive"]) or int(status["fault"]) & FAULT_BRAKING or dead
         if force and not hard and self.time_count > 0 and self.brake_step is None:
             if collision:
@@ -188,7 +194,8 @@ class PlannerCore:
             self.plan_id = new_id
             out.plan_id = out.cmd_id = new_id
             out.cmd_result = CMD_REFUSED
-            out.note = f"refused command {new_id}: over-force (the force/torque guard on this arm)"
+            out.note = (f"refused command {new_id}: " + ("over-force (the force/torque guard on this arm)"
+                        if force & FAULT_FORCE else stop_cause(cmd, status) + " (the collision guard)"))
         if dead and new_id != self.plan_id:
             self.plan_id = new_id
             out.plan_id = out.cmd_id = new_id
@@ -231,28 +238,34 @@ class PlannerCore:
         arm held at its way-point overruns the servo's following-error limit."""
         n = COLLISION_BRAKE_TICKS
         self.brake_step = (self.ext_counts - self.int_counts) / self.time_count
+        if self.speed < 1.0:  # the step as the guard's override has it
+            self.brake_step = self.brake_step * self.speed
         self.ext_counts = self.int_counts + self.brake_step * (n / 2.0)
         self.time_count = n
 
     def _next_waypoint(self, out: PlanOutput) -> None:
-        """plan_joint_cmd(): the next interpolated way-point (thesis §4.1.7 listing)."""
+        """plan_joint_cmd(): the next interpolated way-point (thesis §4.1.7 listing); with the guard's
+        override (``speed`` < 1) the way-point goes ``speed`` of the step and ``speed`` ticks pass."""
+        o = self.speed
+        scaled = o < 1.0 and self.brake_step is None and self.time_count > o
         if self.brake_step is not None:  # a protective stop's ramp (_brake)
             if self.time_count > 1:
                 self.int_counts = self.int_counts + self.brake_step * (self.time_count / (COLLISION_BRAKE_TICKS + 1))
             else:
                 self.int_counts = self.ext_counts.copy()
                 self.brake_step = None
+        elif scaled:
+            self.int_counts = self.int_counts + (self.ext_counts - self.int_counts) * (o / self.time_count)
         elif self.time_count > 1:
             step = (self.ext_counts - self.int_counts) / self.time_count
             self.int_counts = self.int_counts + step
         else:
             self.int_counts = self.ext_counts.copy()
         if self.time_count > 0:
-            self.time_count -= 1
+            self.time_count = self.time_count - o if scaled else max(self.time_count - 1, 0)
         out.encoder_cmd_int = np.rint(self.int_counts).astype(np.int32)
         out.encoder_cmd_ext = np.rint(self.ext_counts).astype(np.int32)
-        out.joint_time_count = self.time_count
-        out.busy = self.time_count
+        out.joint_time_count = out.busy = int(math.ceil(self.time_count))
 
 
 def apply(out: PlanOutput, ctrl_command, ctrl_status, tick: int) -> None:
@@ -276,13 +289,17 @@ class PlannerStation:
     """droid-planner's cycle, once per relayed heartbeat tick: read both records, step the
     core, write the plan (:func:`apply`).  Returns the tick's :class:`PlanOutput`."""
 
-    def __init__(self, core: PlannerCore, ctrl_command, ctrl_status) -> None:
+    def __init__(self, core: PlannerCore, ctrl_command, ctrl_status, gate=None) -> None:
         self.core = core
         self.ctrl_command = ctrl_command
         self.ctrl_status = ctrl_status
+        self.gate = gate  # a droid.guard.gate.GuardGate where the cell declares a guard
 
     def cycle(self, tick: int) -> PlanOutput:
-        out = self.core.step(self.ctrl_command.read(), self.ctrl_status.read())
+        cmd, st = self.ctrl_command.read(), self.ctrl_status.read()
+        if self.gate is not None:  # the guard's stale rule (FAULT_GUARD) and its override
+            self.core.speed = self.gate.apply(cmd, st, tick, self.ctrl_status)
+        out = self.core.step(cmd, st)
         apply(out, self.ctrl_command, self.ctrl_status, tick)
         return out
 
@@ -302,7 +319,8 @@ def main(argv=None) -> int:
     presence = Presence(cell.name, presence_key(PROG, sub.name), f"{PROG} {sub.name}")
     ticks.say = presence.say
     core = PlannerCore(model)
-    station = PlannerStation(core, ctrl_command, ctrl_status)
+    stale = guard_stale_ticks(cell)  # a cell that declares a guard: its stale rule and override
+    station = PlannerStation(core, ctrl_command, ctrl_status, None if stale is None else GuardGate(stale))
     try:
         presence.ready()
         notify_ready(args.ready_fd)

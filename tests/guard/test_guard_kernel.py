@@ -1,0 +1,81 @@
+"""The compiled distance pass (droid._guard) against its Python reference (issue 41 item 5).
+
+The reference (GuardScene.distances_reference, droid.guard.distance) is the specification: on
+random configurations of every shipped cell and of the bench's scene (two fixtures, so box-box
+pairs too) the compiled pass gives every pair's distance within 1e-9 mm, and the same least pair;
+without the extension (or with DROID_GUARD_KERNEL=python) the reference runs.
+"""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from droid.brain.cellfile import BUNDLED_CELLS, load_cell
+from droid.guard import kernel
+from droid.guard.cell import guard_scene
+
+ROOT = Path(__file__).resolve().parents[2]
+pytestmark = pytest.mark.skipif(kernel._guard is None, reason="droid._guard is not built")
+
+
+def scenes():
+    sys.path.insert(0, str(ROOT / "bench"))
+    from bench_guard import bench_scene
+
+    out = {c: guard_scene(load_cell(BUNDLED_CELLS / c)) for c in ("sim.toml", "abb_weld.toml", "reis_pair.toml")}
+    out["bench (two fixtures)"] = bench_scene()
+    return out
+
+
+@pytest.mark.parametrize("name", ["sim.toml", "abb_weld.toml", "reis_pair.toml", "bench (two fixtures)"])
+def test_the_compiled_pass_agrees_with_the_reference_on_random_configurations(name):
+    scene = scenes()[name]
+    assert scene.compiled is not None
+    kinds = {a.kind[0] + b.kind[0] for a, b in scene.pairs}
+    q = kernel.random_configs(scene, 2000, seed=7)
+    # and configurations where bodies touch and overlap: each arm near the other's base
+    ref, got = scene.distances_reference(q), scene.distances(q)
+    assert got.shape == ref.shape == (2000, scene.n_pairs)
+    assert float(np.max(np.abs(got - ref))) <= kernel.AGREE_MM
+    assert np.array_equal(ref <= 0.0, got <= 0.0)  # the same verdict, pair by pair
+    assert (ref <= 0.0).any() and (ref > 0.0).any()  # both kinds were drawn
+    if name.startswith("bench"):
+        assert kinds == {"cc", "cb", "bb"}
+    one = {n: v[17] for n, v in q.items()}
+    c = scene.closest(one)
+    k = int(np.argmin(ref[17]))
+    assert (c.a.key, c.b.key) == (scene.pairs[k][0].key, scene.pairs[k][1].key)
+
+
+def test_a_scene_without_the_extension_runs_the_reference(monkeypatch):
+    monkeypatch.setattr(kernel, "_guard", None)
+    scene = guard_scene(load_cell(BUNDLED_CELLS / "sim.toml"))
+    assert scene.compiled is None
+    q = kernel.random_configs(scene, 10, seed=1)
+    assert np.array_equal(scene.distances(q), scene.distances_reference(q))
+
+
+def test_droid_guard_kernel_chooses():
+    code = ("from droid.brain.cellfile import BUNDLED_CELLS, load_cell; from droid.guard.cell import guard_scene; "
+            "print(guard_scene(load_cell(BUNDLED_CELLS / 'sim.toml')).compiled is not None)")
+    for choice, want in (("python", "False"), ("c", "True"), ("auto", "True")):
+        out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,
+                             env=dict(os.environ, DROID_GUARD_KERNEL=choice))
+        assert out.returncode == 0 and out.stdout.strip() == want, (choice, out.stderr)
+    out = subprocess.run([sys.executable, "-c", "import droid.guard.kernel"], cwd=ROOT, capture_output=True,
+                         text=True, env=dict(os.environ, DROID_GUARD_KERNEL="fast"))
+    assert out.returncode != 0 and "DROID_GUARD_KERNEL='fast'" in out.stderr
+
+
+def test_a_malformed_scene_is_refused():
+    with pytest.raises(ValueError, match="arm_data"):
+        kernel._guard.Scene(1, np.zeros(3), np.zeros(0, np.int32), np.zeros(0), np.zeros(0, np.int32), np.zeros(0),
+                            np.zeros(3, np.int32))
+    scene = guard_scene(load_cell(BUNDLED_CELLS / "reis_pair.toml"))
+    with pytest.raises(ValueError, match="q must hold"):
+        scene.compiled.distances(np.zeros(5), np.zeros(scene.n_pairs))
