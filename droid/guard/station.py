@@ -36,6 +36,11 @@ ORDER_GUARD = 25
 STATE_CODES = {name: code for code, name in GUARD_STATE_NAMES.items()}
 
 
+#: a commanded vector this far [deg] on some joint from the measured one is not a next way-point
+#: (:meth:`GuardStation.joints`): 10 deg in one 60 Hz tick would be 600 deg/s, beyond every arm here
+WAYPOINT_MAX_DEG = 10.0
+
+
 def set_collision_fault(ctrl_status, on: bool) -> None:
     """FAULT_COLLISION in an arm's own Status (its other bits kept)."""
     set_fault_bit(ctrl_status, FAULT_COLLISION, on)
@@ -71,12 +76,18 @@ class GuardStation:
                 status_db.mark_written()
 
     def joints(self) -> tuple[dict, dict]:
-        """Measured and commanded joints [deg] of every arm from its Brain Status."""
+        """Measured and commanded joints [deg] of every arm from its Brain Status.  A commanded
+        vector farther than :data:`WAYPOINT_MAX_DEG` from the measured one on some joint is not
+        a next way-point -- it is a whole move's target, as an arm whose controller interpolates
+        its own moves reports (the GMF1's KAREL move: ``encoder_cmd`` is its end, and zeros when
+        idle) -- and the measured joints stand in for it: taken as a way-point, a 30 deg target
+        one tick ahead read as a closing speed of tens of m/s and stopped the cell."""
         meas, cmd = {}, {}
         for name, (gearing, brain_status, *_rest) in self.arms.items():
             st = brain_status.read()
             meas[name] = gearing.counts_to_joints(np.asarray(st["encoder_pos"], float))
-            cmd[name] = gearing.counts_to_joints(np.asarray(st["encoder_cmd"], float))
+            c = gearing.counts_to_joints(np.asarray(st["encoder_cmd"], float))
+            cmd[name] = c if float(np.max(np.abs(c - meas[name]))) <= WAYPOINT_MAX_DEG else meas[name]
         return meas, cmd
 
     def on_tick(self, tick: int) -> None:

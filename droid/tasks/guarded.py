@@ -8,13 +8,16 @@ target (``encoder_pos`` of the Command, JSPACE) over its ``busy`` ticks; and rai
 :func:`droid.guard.refuse.check_move`.  A cell without a ``[guard]`` table is not checked.
 
 **Coordination** (item 4): with ``wait_s > 0`` (droid-move ``--wait-clear S``) a move that would
-collide only while another arm is busy on a move of its own is not refused at once: the task
-holds, says so once on stderr (``arm1: holding until gmf1's move clears the region (would
-collide: ...)``), and checks again on every heartbeat period until the check passes -- then the
-move goes -- or ``wait_s`` seconds have passed, or every other arm is at rest and the move still
-collides: then it is refused as without waiting (exit 2, the line ends ``; the region did not
-clear in S s`` after a wait), and the arm never moved.  A move against an arm at rest is refused
-at once: nothing would clear it.
+collide while another arm is busy on a move of its own is not refused at once: the task holds
+until that arm's move has ended (its Status ``busy`` 0: one arm holds until the other's move
+ends), says so once on stderr (``arm1: holding until gmf1's move clears the region (would
+collide: ...)``), and checks again against where it came to rest -- then the move goes, or is
+refused as without waiting if it still collides (exit 2, the line ends ``; the region did not
+clear in S s``).  ``wait_s`` seconds without the other arms coming to rest: the same refusal.
+Going only once the other move has ended, not as soon as the time-aligned paths pass C + Z,
+keeps the two arms from closing at speed, where the guard's S_p (the speed terms) would slow or
+stop them.  A move against an arm at rest is refused at once: nothing would clear it.  The arm
+never moves before the check passes.
 """
 from __future__ import annotations
 
@@ -71,9 +74,12 @@ def refuse_colliding_move(cell, arm: str, q_from_deg, q_to_deg, seconds: float, 
                 moves[name] = move
             if is_busy:
                 busy.append(name)
+        waited = time.monotonic() - start
+        if said and busy and waited < wait_s:  # holding: until every other arm's move has ended
+            time.sleep(1.0 / cell.heartbeat_hz)
+            continue
         line = check_move(scene, arm, q_from_deg, q_to_deg, seconds, now, moves,
                           p.clearance_mm + p.uncertainty_mm)
-        waited = time.monotonic() - start
         if not line:
             return waited
         if not busy or waited >= wait_s:

@@ -157,8 +157,9 @@ def test_droid_moves_check_refuses_with_exit_2_and_passes_a_clear_move(tmp_path,
 
 def test_a_move_held_for_a_busy_arm_goes_once_its_move_has_cleared_the_region(tmp_path, monkeypatch):
     """Item 4, coordination: the Fanuc is on its way toward the Reis (as in the test above) for the
-    first checks, then stands at home: with a wait the Reis's move holds (one line on stderr),
-    then passes; without a wait it is refused at once."""
+    first three reads, then its move is over and it stands at home: with a wait the Reis's move
+    holds (one line on stderr) until the Fanuc is at rest, then passes; without a wait it is
+    refused at once."""
     import io
 
     from droid.tasks import guarded
