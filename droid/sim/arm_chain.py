@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from droid.arm.planner import PlannerCore, PlannerStation
 from droid.brain import arm_command
 from droid.brain.classes import ARM6R
 from droid.brain.layouts import (ARM_COMMAND_LAYOUT, ARM_STATUS_LAYOUT, CTRL_COMMAND_LAYOUT,
@@ -35,8 +36,6 @@ from droid.brain.remote import RemoteStation, StatusTranslator
 from droid.brain.shmdb import MemoryDatabase
 from droid.sim.lockstep import ORDER_HEARTBEAT, Scheduler
 from droid.subunits.agent import AgentStation
-from droid.subunits.reis.planner import PlannerCore
-from droid.subunits.reis.station import PlannerStation
 
 
 class ArmTasks:

@@ -23,7 +23,7 @@ from droid.brain.classes import ARM6R
 from droid.brain.shmdb import MemoryDatabase
 from droid.cli import RuntimeFailure
 from droid.kinematics.transforms import T_to_pose
-from droid.subunits.reis.planner import PlannerCore, apply
+from droid.arm.planner import PlannerCore, apply
 from droid.tasks import arm as arm_mod
 from droid.tasks import resume as rs
 from droid.tasks.arm import BrainArm, Interrupted
