@@ -15,7 +15,7 @@ from droid.kinematics import RobotFileError, load_robot
 from droid.sim.gmf1.controller import KarelParams, Motion
 from droid.sim.gmf1.dynamics import ArmDynamics
 from droid.sim.gmf1.lockstep import Gmf1Lockstep
-from droid.sim.reis.dynamics import RigidBody
+from droid.arm.rigid_body import RigidBody
 
 S400 = Path(load_robot("fanuc_s400").source)
 TARGET = [1060.51, -165.66, 2295.23, -170.0, 30.0, -160.0]  # global frame, reachable (test_gmf1_lockstep)
