@@ -8,7 +8,7 @@ puts exactly that on a trial's scheduler
 (:class:`droid.sim.gmf1.lockstep.Gmf1Lockstep`): the Fanuc twin -- the
 KAREL controller at 9600 baud, its interpolated path, the arm of the robot
 file's ``[dynamics]`` and ``[axis_servo]`` behind it
-(:mod:`droid.sim.gmf1.dynamics`), the encoder cards -- and the GMF1
+(:mod:`droid.arm.arm_dynamics`), the encoder cards -- and the GMF1
 programs' cores (serial, encoder, the agent's command copy).
 
 * :meth:`prepare` (before the trial's clock starts): home from the zero pose

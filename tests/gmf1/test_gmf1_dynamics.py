@@ -13,7 +13,7 @@ from tests.robot_files import assert_refused, spoiled
 
 from droid.kinematics import RobotFileError, load_robot
 from droid.sim.gmf1.controller import KarelParams, Motion
-from droid.sim.gmf1.dynamics import ArmDynamics
+from droid.arm.arm_dynamics import ArmDynamics
 from droid.sim.gmf1.lockstep import Gmf1Lockstep
 from droid.arm.rigid_body import RigidBody
 
