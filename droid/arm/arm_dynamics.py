@@ -38,6 +38,10 @@ The model (a justified simplification of the Reis's plant twin,
   torque it carries); the resonance of ``K`` against the link inertia lies far
   above the loops' bandwidth, so it is not integrated.
 
+The neutral arm's (:mod:`droid.arm`): the GMF1's KAREL twin (droid.sim.gmf1.controller) and the
+ABB's EGM controller twin (droid.sim.abb.controller) both drive their arm through it, each from
+its own robot file.
+
 Gravity acts along -z of the robot's BASE frame (the controller's model has
 no base transform; the GMF1 stands upright in every cell).  Angles here are
 radians internally; the interface is degrees like the controller's.

@@ -75,10 +75,8 @@ class Gmf1Holder:
     def prepare(self) -> None:
         """Home, then move to the holding pose and settle; RuntimeFailure if either does not finish."""
         self.g.run_ticks(2)  # the serial program opens its port, the encoder reads the cards
-        try:
-            self.g.home(HOME_TIMEOUT_S)
-        except RuntimeError:
-            raise RuntimeFailure("the GMF1 did not home") from None
+        if not self.g.home(HOME_TIMEOUT_S):
+            raise RuntimeFailure("the GMF1 did not home")
         counts = np.rint(self.model.gearing.joints_to_counts(self.q_hold)).astype(np.int32)
         cmd = self.g.command_joint(counts, self.g.ticks_for(MOVE_S))
         if not self.g.run_until(lambda: self.g.done(cmd), MOVE_TIMEOUT_S):

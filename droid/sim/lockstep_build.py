@@ -19,7 +19,7 @@ subunit runs (so the ABB's, which stands for ``droid-reis-agent`` and ``droid-pl
 The result, :class:`LockstepSubunit`, exposes the subunit's Brain databases as real time has them
 in shared memory (``status``, ``command``: :class:`~droid.brain.shmdb.MemoryDatabase` of the same
 layouts, the class's ``brain`` table), its stations (program -> scheduler task names) and, for an
-arm, what a task program drives (``arm``: :class:`droid.sim.arm_chain.ArmChain`'s interface).
+arm, what a task program drives (``arm``: :class:`droid.arm.protocol.Arm`, as ``BrainArm``).
 
 :class:`AgentLink` is the generic ``droid-agent`` / ``droid-remote`` pair on the heartbeat tick
 (thesis §3.2, §4.1.8): the Brain Command copied into the subunit's ``ctrl_command`` (if its class
@@ -31,6 +31,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
+from droid.arm.protocol import Arm
 from droid.brain.databases import safe_start
 from droid.brain.remote import RemoteStation, StatusTranslator
 from droid.brain.shmdb import MemoryDatabase
@@ -75,8 +76,9 @@ class LockstepSubunit:
 
     ``status``/``command``: the Brain's Status and Command records (``command`` None for a class
     without one); ``stations``: program -> the scheduler task names that stand for it (a tick task
-    included); ``arm``: for an arm the object a task program drives (``command_home``,
-    ``command_joint``, ``home``, ``status``, ... as ``BrainArm``); ``parts``: the package's own
+    included); ``arm``: for an arm the object a task program drives, the neutral arm's
+    :class:`droid.arm.protocol.Arm` (``home() -> bool``, ``command_joint``, ``command_cart``, ``read``,
+    ... as ``BrainArm``), None for a sensor; ``parts``: the package's own
     lockstep object (LockstepArm, Gmf1Lockstep, ...) for inspection and fault injection."""
 
     name: str
@@ -84,7 +86,7 @@ class LockstepSubunit:
     status: MemoryDatabase
     command: MemoryDatabase | None = None
     stations: dict[str, list[str]] = field(default_factory=dict)
-    arm: Any = None
+    arm: Arm | None = None
     parts: Any = None
 
     def close(self) -> None:

@@ -55,7 +55,7 @@ def test_the_arm_lags_the_path_by_v_over_kp_and_settles_on_it_under_gravity():
 def test_a_dynamic_gmf1_homes_moves_and_reports_done_only_in_position():
     g = Gmf1Lockstep(params=KarelParams(dynamics=True))
     g.run_ticks(2)
-    g.home()
+    assert g.home()
     s = g.status()
     assert int(s["homed"]) == 1 and np.all(np.abs(s["encoder_pos"]) <= 1)
     cmd_id = g.command_cart(pose_to_T(*TARGET), g.ticks_for(2.0))

@@ -2,7 +2,7 @@
 BrainArm.move).
 
 The decisions alone (pure), then BrainArm.move end to end against a small fake arm: the
-Brain's Status and Command records in memory, the real planner (droid.subunits.reis.planner:
+Brain's Status and Command records in memory, the real planner (droid.arm.planner:
 it cancels a move with CMD_FAILED when FAULT_BRAKING shows and takes no new one while it
 does), a servo that follows the planner's way-point, and scripted stops -- on a virtual
 clock, so no test waits in real time and none gives a verdict on timing.  The live test:
