@@ -21,7 +21,7 @@ without a cell file runs on the built-in cell (droid/cells/sim.toml, whatever $D
 :func:`builtin_cell`): the Reis ``arm1`` and the GMF1 ``gmf1``.
 
 The ``fast`` arm model is the Reis's (calibrated against its servo and plant,
-droid.experiments.arm_fast): a welder that is not a Reis with ``arm = "fast"`` is refused.  The
+droid.sim.reis.fast_arm): a welder that is not a Reis with ``arm = "fast"`` is refused.  The
 holder is the GMF1 with the cell's serial and encoder set-up (droid.experiments.holder).  The trial runs at the heartbeat of
 droid.brain.device.HEARTBEAT_HZ (its 30 Hz cycle is 2 ticks): a cell of another rate is refused.
 """
@@ -86,14 +86,14 @@ class TrialCell:
 
     def build_arms(self, sched, geo, arm_model: str, seed: int, fast_params):
         """The trial's welder and holder on ``sched``, ready at the start (thesis §6.1.1-6.1.2):
-        the welder, the ``tool_robot`` -- ``fast``: a FastArm (droid.experiments.arm_fast, the
+        the welder, the ``tool_robot`` -- ``fast``: a FastArm (droid.sim.reis.fast_arm, the
         Reis model at ``geo``'s start pose with ``fast_params``); ``full``: a FullArm over the arm
         its builder builds, homed and at the start pose -- then the holder, the ``holder_robot``
         -- a Gmf1Holder over the GMF1 its builder builds, at ``geo``'s holding pose; None for a
         fixed holder (no holder builder).  Each subunit is built with the trial's ``seed``."""
         tool_robot, holder_robot = self.layout.tool_robot, self.layout.holder_robot
         if arm_model == "fast":
-            from droid.experiments.arm_fast import FastArm
+            from droid.sim.reis.fast_arm import FastArm
 
             arm = FastArm(geo.reis, geo.q_reis_start_deg, fast_params)
             arm.name = tool_robot  # the subunit the tracker's fault rule names

@@ -182,7 +182,7 @@ class ReisPlantParams:
 
 def expm(m: np.ndarray) -> np.ndarray:
     """Matrix exponential (scaling and squaring, 18-term Taylor); numpy only.  Also the fast
-    arm model's per-joint transition (droid.experiments.arm_fast)."""
+    arm model's per-joint transition (droid.sim.reis.fast_arm)."""
     norm = np.max(np.sum(np.abs(m), axis=1))
     k = max(0, int(math.ceil(math.log2(norm))) + 1) if norm > 0.5 else 0
     a = m / (2.0 ** k)
