@@ -149,6 +149,10 @@ class DevicePackage:
     twins: tuple[Twin, ...] = ()
     # "module:function": build(ctx, sub) -> LockstepSubunit, one subunit in lockstep (droid.sim.lockstep_build)
     lockstep: str | None = None
+    # (name, "module:class") pairs: lighter models of its arm that a lockstep trial may drive in the
+    # built subunit's place (the Reis's "fast": its planner and one second-order loop a joint),
+    # made as ``cls(model, q_start_deg, params)``; a trial's ``arm`` names one (docs/experiments.md)
+    lockstep_models: tuple[tuple[str, str], ...] = ()
     # "module:function" (cell, subunit) -> bool: does this subunit need a world twin when
     # [world] is enabled?  None: the default rule (:func:`drives_the_world`).
     needs_twin: str | None = None
@@ -159,6 +163,10 @@ class DevicePackage:
             if p.name == name:
                 return p
         raise KeyError(f"package {self.name!r} declares no program {name!r}")
+
+    def lockstep_model(self, name: str) -> str | None:
+        """The ``"module:class"`` of its lockstep arm model ``name`` (``lockstep_models``), or None."""
+        return dict(self.lockstep_models).get(name)
 
     @property
     def served(self) -> tuple[str, ...]:

@@ -1,15 +1,18 @@
 """A lockstep trial on a cell file: ``TrialConfig.cell``, ``droid-experiment run --cell FILE``, a plan's ``cell``.
 
 The trial reads the cell's seam-tracking layout (its ``[cell] layout``, else the bundled one:
-droid.brain.cell_layout.layout_for_cell); the welder is the layout's ``tool_robot``, the holder
-its ``holder_robot``, both subunits of the cell at the cell's bases with the layout's robot
-files.  Both are chosen through the registry: the builder its device package registers in the
-``lockstep`` slot (droid.sim.lockstep_cell.choose_builder, by the programs the subunit runs), which
-must stand for no program the subunit does not run (the builder's own ``@builds``):
+droid.brain.cell_layout.layout_for_cell); the welder is the subunit its layout names by role,
+``tool_robot``, the holder ``holder_robot``, both subunits of the cell at the cell's bases with the
+layout's robot files.  Both are chosen through the registry, by what they are, never by brand:
+the builder a device package registers in the ``lockstep`` slot (droid.sim.lockstep_cell.choose_builder,
+by the programs the subunit runs), which must stand for no program the subunit does not run (the
+builder's own ``@builds``):
 
-* the welder's, one of :func:`welder_builders` -- the ABB on EGM
-  (:class:`droid.sim.abb.lockstep.LockstepAbbArm`, its ``abb_egm`` world device: its controller)
-  or the Reis (:class:`droid.sim.reis.cell.LockstepArm`);
+* the welder's: any arm builder declared with ``truth`` (:func:`welder_builders`: its arm shows the
+  world's truth about its wrist centre, so the sensors see the seam from it) -- today the Reis's
+  (:class:`droid.sim.reis.cell.LockstepArm`) and the ABB's on EGM
+  (:class:`droid.sim.abb.lockstep.LockstepAbbArm`, its ``abb_egm`` world device: its controller), or a
+  lab's own package's;
 * the holder's (``holder = "gmf1"``), :func:`holder_builder`: the GMF1's;
 * anything else: one line naming the file, the subunit and what a lockstep arm needs.
 
@@ -20,9 +23,10 @@ the trial's own world (:func:`trial_world`) instead of the cell's world-device t
 without a cell file runs on the built-in cell (droid/cells/sim.toml, whatever $DROID_CELL says;
 :func:`builtin_cell`): the Reis ``arm1`` and the GMF1 ``gmf1``.
 
-The ``fast`` arm model is the Reis's (calibrated against its servo and plant,
-droid.sim.reis.fast_arm): a welder that is not a Reis with ``arm = "fast"`` is refused.  The
-holder is the GMF1 with the cell's serial and encoder set-up (droid.experiments.holder).  The trial runs at the heartbeat of
+An arm model other than ``full`` is one the welder's device package registers
+(``DevicePackage.lockstep_models``: the Reis's ``fast``, droid.sim.reis.fast_arm, calibrated against
+its servo and plant); a welder whose package registers none is refused.  The holder is the GMF1 with
+the cell's serial and encoder set-up (droid.experiments.holder).  The trial runs at the heartbeat of
 droid.brain.device.HEARTBEAT_HZ (its 30 Hz cycle is 2 ticks): a cell of another rate is refused.
 """
 from __future__ import annotations
@@ -40,22 +44,22 @@ from droid.brain.cell_layout import Layout, check_bases, check_robots, layout_fo
 
 
 
-def welder_builders() -> dict:
-    """The lockstep builders whose arm the ``full`` model drives (an ArmChain with the world's
-    ``wcp_global``), by what the trial calls them: the Reis's (droid.sim.reis.cell) and the ABB's
-    on EGM (droid.sim.abb.lockstep).  What their subunits run is the builders' own ``@builds``."""
-    from droid.sim.abb.lockstep import build as abb
-    from droid.sim.reis.cell import build as reis
+def welder_builders(cell: Cell, sub) -> dict:
+    """The lockstep builders whose arm the ``full`` model can drive as ``sub``'s tool robot, by the
+    name of the package that registers each: of the packages serving its class, every builder
+    declared with ``truth`` (droid.sim.lockstep_build.builds: an Arm that also shows the world's
+    ``wcp_global``).  What their subunits run is the builders' own ``@builds``."""
+    from droid.sim.lockstep_cell import class_builders
 
-    return {reis: "the Reis", abb: "the ABB"}
+    return {build: name for name, build in class_builders(cell, sub) if getattr(build, "truth", False)}
 
 
-def holder_builder():
+def holder_builder(cell: Cell, sub) -> dict:
     """The lockstep builder of the ``gmf1`` holder model's subunit (droid.sim.gmf1.lockstep): the
     trial's Gmf1Holder steps the same cores (droid.experiments.holder)."""
     from droid.sim.gmf1.lockstep import build
 
-    return build
+    return {build: "gmf1"}
 
 
 @dataclass(frozen=True)
@@ -69,11 +73,15 @@ class TrialCell:
     layout: Layout
     builders: dict  # subunit name -> its lockstep builder: the welder's; the holder's (gmf1 holder only)
     world: dict
+    welder_package: str = ""  # the device package whose builder builds the welder
 
-    @property
-    def reis(self) -> bool:
-        """Whether the welder is the Reis (the ``fast`` arm model's)."""
-        return welder_builders()[self.builders[self.layout.tool_robot]] == "the Reis"
+    def arm_model(self, name: str):
+        """The class of the welder's lockstep arm model ``name`` (its package's ``lockstep_models``:
+        the Reis's ``fast``), or None when its package registers none of that name."""
+        from droid.brain.registry import registry, resolve
+
+        ref = registry().packages[self.welder_package].lockstep_model(name)
+        return resolve(ref) if ref is not None else None
 
     def build(self, sched, name: str, seed: int):
         """Subunit ``name`` (the welder or the holder) on ``sched``, built by its builder
@@ -86,16 +94,14 @@ class TrialCell:
 
     def build_arms(self, sched, geo, arm_model: str, seed: int, fast_params):
         """The trial's welder and holder on ``sched``, ready at the start (thesis §6.1.1-6.1.2):
-        the welder, the ``tool_robot`` -- ``fast``: a FastArm (droid.sim.reis.fast_arm, the
-        Reis model at ``geo``'s start pose with ``fast_params``); ``full``: a FullArm over the arm
+        the welder, the ``tool_robot`` -- ``fast``: its package's model of that name (the Reis's
+        FastArm, droid.sim.reis.fast_arm, at ``geo``'s start pose with ``fast_params``); ``full``: a FullArm over the arm
         its builder builds, homed and at the start pose -- then the holder, the ``holder_robot``
         -- a Gmf1Holder over the GMF1 its builder builds, at ``geo``'s holding pose; None for a
         fixed holder (no holder builder).  Each subunit is built with the trial's ``seed``."""
         tool_robot, holder_robot = self.layout.tool_robot, self.layout.holder_robot
-        if arm_model == "fast":
-            from droid.sim.reis.fast_arm import FastArm
-
-            arm = FastArm(geo.reis, geo.q_reis_start_deg, fast_params)
+        if arm_model != "full":  # a model its package registers (the Reis's fast: droid.sim.reis.fast_arm)
+            arm = self.arm_model(arm_model)(geo.reis, geo.q_reis_start_deg, fast_params)
             arm.name = tool_robot  # the subunit the tracker's fault rule names
             for phase in ("built", "homed", "approached"):  # no homing, no approach: it starts at the start
                 phases.mark(phase, sched)
@@ -139,24 +145,26 @@ def _subunit(cell: Cell, layout: Layout, role: str):
     return cell.subunits[name]
 
 
-def _whole_builder(cell: Cell, layout: Layout, role: str, what: str, builders: dict):
-    """The lockstep builder of the layout's ``role`` subunit: the one lockstep_cell.choose_builder
-    picks (by the programs the subunit runs), which must be one of ``builders`` (builder -> what
-    the trial calls it) and stand for no program the subunit does not run (the trial needs every
-    station of its arm); BadInput, one line naming the file, the subunit and what is missing."""
+def _whole_builder(cell: Cell, layout: Layout, role: str, what: str, fitting) -> tuple:
+    """The lockstep builder of the layout's ``role`` subunit and its package's name: the one
+    lockstep_cell.choose_builder picks (by the programs the subunit runs), which must be one of
+    ``fitting(cell, sub)`` (builder -> package name) and stand for no program the subunit does not
+    run (the trial needs every station of its arm); BadInput, one line naming the file, the
+    subunit and what is missing."""
     from droid.sim.lockstep_cell import choose_builder
 
     sub = _subunit(cell, layout, role)
     where = f"{cell.path}: [subunits.{sub.name}] (the layout's {role})"
     if not sub.is_arm:
         raise BadInput(f"{where} is a {sub.cls} subunit, not an arm: it has no lockstep {what}")
+    builders = fitting(cell, sub)
     try:
         build = choose_builder(cell, sub)
     except BadInput:
         build = None
     if build in builders and set(build.programs) <= set(sub.programs):
         getattr(build, "check", lambda c, s: None)(cell, sub)  # what the builder refuses (the ABB: no controller twin), before anything runs
-        return build
+        return build, builders[build]
     runs = ", ".join(sub.programs) or "no programs"
     needs = " or ".join(f"{' + '.join(b.programs)} ({name})" for b, name in builders.items())
     raise BadInput(f"{where} has no lockstep {what}: it runs {runs}; a lockstep {what} needs {needs}")
@@ -172,18 +180,19 @@ def resolve_trial_cell(cell: str | os.PathLike | Cell | None = None, arm_model: 
     if cell.heartbeat_hz != HEARTBEAT_HZ:
         raise BadInput(f"{cell.path}: heartbeat_hz {cell.heartbeat_hz:g}: the lockstep trial runs at "
                        f"{HEARTBEAT_HZ:g} Hz (its 30 Hz tracking cycle is 2 ticks)")
-    builders = {layout.tool_robot: _whole_builder(cell, layout, "tool_robot", "arm", welder_builders())}
+    welder, package = _whole_builder(cell, layout, "tool_robot", "arm", welder_builders)
+    builders = {layout.tool_robot: welder}
     if holder == "gmf1":
-        builders[layout.holder_robot] = _whole_builder(cell, layout, "holder_robot", "holder",
-                                                       {holder_builder(): "the GMF1"})
+        builders[layout.holder_robot] = _whole_builder(cell, layout, "holder_robot", "holder", holder_builder)[0]
     else:
         _subunit(cell, layout, "holder_robot")
     check_bases(layout, cell)
     check_robots(layout, cell)
-    tc = TrialCell(cell, layout, builders, trial_world(layout.holder_robot))
-    if arm_model == "fast" and not tc.reis:
-        raise BadInput(f"{cell.path}: [subunits.{layout.tool_robot}] is not a Reis: the fast arm model is "
-                       f"the Reis's (calibrated against its servo); use the full model (--arm full)")
+    tc = TrialCell(cell, layout, builders, trial_world(layout.holder_robot), package)
+    if arm_model != "full" and tc.arm_model(arm_model) is None:
+        raise BadInput(f"{cell.path}: [subunits.{layout.tool_robot}] has no {arm_model} arm model: package "
+                       f"{package!r} registers none (the Reis's fast model is calibrated against its servo); "
+                       f"use the full model (--arm full)")
     return tc
 
 

@@ -42,13 +42,17 @@ from droid.subunits.agent import AgentStation, CommandCopier
 AGENT = "droid-agent"
 
 
-def builds(*programs: str, check: Callable | None = None) -> Callable:
+def builds(*programs: str, check: Callable | None = None, truth: bool = False) -> Callable:
     """Declare the programs a lockstep builder gives stations for (see the module docstring);
     ``check(cell, sub)``: what the builder refuses, asked without building anything (BadInput, one
-    line) -- a task that builds later (a seam-tracking trial) refuses a bad cell before it runs."""
+    line) -- a task that builds later (a seam-tracking trial) refuses a bad cell before it runs;
+    ``truth``: the arm it builds also shows the world's truth about itself, ``wcp_global()`` (the
+    true wrist-centre pose, 4x4 mm, global frame), so a trial can carry its tool on it (the
+    layout's tool_robot: the sensors see the seam from its true pose)."""
     def mark(fn: Callable) -> Callable:
         fn.programs = tuple(programs)
         fn.check = check if check is not None else (lambda cell, sub: None)
+        fn.truth = bool(truth)
         return fn
     return mark
 

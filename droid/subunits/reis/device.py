@@ -37,4 +37,5 @@ PACKAGE = DevicePackage(
     twins=(Twin("reis_vme", "droid.sim.reis.world:make_reis", serves=("arm6r",), cpu_pct=2.0),
            Twin("contact", "droid.sim.contact_device:make_contact", cpu_pct=0.5)),  # a workpiece pushing on its tool
     lockstep="droid.sim.reis.cell:build",
+    lockstep_models=(("fast", "droid.sim.reis.fast_arm:FastArm"),),  # calibrated against its servo and plant
 )
