@@ -95,8 +95,8 @@ class TrialCell:
     def build_arms(self, sched, geo, arm_model: str, seed: int, fast_params):
         """The trial's welder and holder on ``sched``, ready at the start (thesis §6.1.1-6.1.2):
         the welder, the ``tool_robot`` -- ``fast``: its package's model of that name (the Reis's
-        FastArm, droid.sim.reis.fast_arm, at ``geo``'s start pose with ``fast_params``); ``full``: a FullArm over the arm
-        its builder builds, homed and at the start pose -- then the holder, the ``holder_robot``
+        FastArm, droid.sim.reis.fast_arm, at ``geo``'s start pose with ``fast_params``); ``full``:
+        a FullArm over the arm its builder builds, homed and at the start pose -- then the holder, the ``holder_robot``
         -- a Gmf1Holder over the GMF1 its builder builds, at ``geo``'s holding pose; None for a
         fixed holder (no holder builder).  Each subunit is built with the trial's ``seed``."""
         tool_robot, holder_robot = self.layout.tool_robot, self.layout.holder_robot
@@ -191,8 +191,7 @@ def resolve_trial_cell(cell: str | os.PathLike | Cell | None = None, arm_model: 
     tc = TrialCell(cell, layout, builders, trial_world(layout.holder_robot), package)
     if arm_model != "full" and tc.arm_model(arm_model) is None:
         raise BadInput(f"{cell.path}: [subunits.{layout.tool_robot}] has no {arm_model} arm model: package "
-                       f"{package!r} registers none (the Reis's fast model is calibrated against its servo); "
-                       f"use the full model (--arm full)")
+                       f"{package!r} registers none (its DevicePackage.lockstep_models); use the full model (--arm full)")
     return tc
 
 
