@@ -17,8 +17,9 @@ builder's own ``@builds``):
 * anything else: one line naming the file, the subunit and what a lockstep arm needs.
 
 :func:`resolve_trial_cell` reads and checks all of it once, before anything runs, into a
-:class:`TrialCell`, whose :meth:`TrialCell.build` builds each subunit with its builder
-(droid.sim.lockstep_cell.build_subunits) with the trial's seed, the cell's ``stale_ticks`` and
+:class:`TrialCell`, whose :meth:`TrialCell.build_arms` builds each subunit with its builder
+through the lockstep cell builder (droid.sim.lockstep_cell.build_lockstep_cell, LockstepCell.add:
+the welder, homed, then the holder -- the trial's start order) with the trial's seed, the cell's ``stale_ticks`` and
 the trial's own world (:func:`trial_world`) instead of the cell's world-device tables.  A trial
 without a cell file runs on the built-in cell (droid/cells/sim.toml, whatever $DROID_CELL says;
 :func:`builtin_cell`): the Reis ``arm1`` and the GMF1 ``gmf1``.
@@ -83,23 +84,20 @@ class TrialCell:
         ref = registry().packages[self.welder_package].lockstep_model(name)
         return resolve(ref) if ref is not None else None
 
-    def build(self, sched, name: str, seed: int):
-        """Subunit ``name`` (the welder or the holder) on ``sched``, built by its builder
-        (lockstep_cell.build_subunits) in the trial's world with the trial's ``seed`` and the cell's
-        ``stale_ticks``: a LockstepSubunit (the welder's ``arm``, an ArmChain; the GMF1's ``parts``,
-        a Gmf1Lockstep)."""
-        from droid.sim.lockstep_cell import build_subunits
-
-        return build_subunits(sched, self.cell, {name: self.builders[name]}, seed, world=self.world)[name]
-
     def build_arms(self, sched, geo, arm_model: str, seed: int, fast_params):
         """The trial's welder and holder on ``sched``, ready at the start (thesis §6.1.1-6.1.2):
         the welder, the ``tool_robot`` -- ``fast``: its package's model of that name (the Reis's
         FastArm, droid.sim.reis.fast_arm, at ``geo``'s start pose with ``fast_params``); ``full``:
         a FullArm over the arm its builder builds, homed and at the start pose -- then the holder, the ``holder_robot``
         -- a Gmf1Holder over the GMF1 its builder builds, at ``geo``'s holding pose; None for a
-        fixed holder (no holder builder).  Each subunit is built with the trial's ``seed``."""
+        fixed holder (no holder builder).  Both are the trial cell's subunits, started in that order on
+        ``sched`` (droid.sim.lockstep_cell.LockstepCell.add) with the trial's ``seed`` and world."""
+        from droid.sim.lockstep_cell import build_lockstep_cell
+
         tool_robot, holder_robot = self.layout.tool_robot, self.layout.holder_robot
+        # the trial's cell with nothing started yet: its start order is the welder (homed and at
+        # its start), then the holder -- the holder never ticks while the welder homes
+        cell = build_lockstep_cell(self.cell, seed, world=self.world, sched=sched, subunits={})
         if arm_model != "full":  # a model its package registers (the Reis's fast: droid.sim.reis.fast_arm)
             arm = self.arm_model(arm_model)(geo.reis, geo.q_reis_start_deg, fast_params)
             arm.name = tool_robot  # the subunit the tracker's fault rule names
@@ -108,7 +106,7 @@ class TrialCell:
         else:
             from droid.experiments.arm_full import FullArm
 
-            welder = self.build(sched, tool_robot, seed)
+            welder = cell.add(tool_robot, self.builders[tool_robot])
             arm = FullArm(sched, geo.reis, geo.q_reis_start_deg, welder.arm)
             phases.mark("built", sched)
             arm.prepare()
@@ -116,7 +114,7 @@ class TrialCell:
             return arm, None
         from droid.experiments.holder import Gmf1Holder
 
-        gmf1 = self.build(sched, holder_robot, seed)
+        gmf1 = cell.add(holder_robot, self.builders[holder_robot])
         holder = Gmf1Holder(sched, gmf1.parts, geo.q_hold_deg)
         holder.prepare()
         return arm, holder
