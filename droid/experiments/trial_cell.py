@@ -27,7 +27,7 @@ without a cell file runs on the built-in cell (droid/cells/sim.toml, whatever $D
 An arm model other than ``full`` is one the welder's device package registers
 (``DevicePackage.lockstep_models``: the Reis's ``fast``, droid.sim.reis.fast_arm, calibrated against
 its servo and plant); a welder whose package registers none is refused.  The holder is the GMF1 with
-the cell's serial and encoder set-up (droid.experiments.holder).  The trial runs at the heartbeat of
+the cell's serial and encoder set-up (droid.sim.gmf1.holder).  The trial runs at the heartbeat of
 droid.brain.device.HEARTBEAT_HZ (its 30 Hz cycle is 2 ticks): a cell of another rate is refused.
 """
 from __future__ import annotations
@@ -57,7 +57,7 @@ def welder_builders(cell: Cell, sub) -> dict:
 
 def holder_builder(cell: Cell, sub) -> dict:
     """The lockstep builder of the ``gmf1`` holder model's subunit (droid.sim.gmf1.lockstep): the
-    trial's Gmf1Holder steps the same cores (droid.experiments.holder)."""
+    trial's Gmf1Holder steps the same cores (droid.sim.gmf1.holder)."""
     from droid.sim.gmf1.lockstep import build
 
     return {build: "gmf1"}
@@ -112,7 +112,7 @@ class TrialCell:
             arm.prepare()
         if holder_robot not in self.builders:
             return arm, None
-        from droid.experiments.holder import Gmf1Holder
+        from droid.sim.gmf1.holder import Gmf1Holder
 
         gmf1 = cell.add(holder_robot, self.builders[holder_robot])
         holder = Gmf1Holder(sched, gmf1.parts, geo.q_hold_deg)
@@ -207,8 +207,8 @@ def trial_world(holder_robot: str) -> dict:
     (droid.sim.lockstep_build.BuildContext.world): no world device for the welder -- a Reis
     without world errors or contacts, the arm the ``full`` model always ran (the ABB's builder
     reads its ``abb_egm`` controller twin from the cell) -- and the holder's twin
-    (droid.experiments.holder.holder_device) of subunit ``holder_robot``, stepped at the holder's
+    (droid.sim.gmf1.holder.holder_device) of subunit ``holder_robot``, stepped at the holder's
     world rate."""
-    from droid.experiments.holder import WORLD_HZ, holder_device
+    from droid.sim.gmf1.holder import WORLD_HZ, holder_device
 
     return {"rate_hz": WORLD_HZ, "devices": {"trial_holder": holder_device(holder_robot)}}
