@@ -149,9 +149,11 @@ class DevicePackage:
     twins: tuple[Twin, ...] = ()
     # "module:function": build(ctx, sub) -> LockstepSubunit, one subunit in lockstep (droid.sim.lockstep_build)
     lockstep: str | None = None
-    # (name, "module:class") pairs: lighter models of its arm that a lockstep trial may drive in the
-    # built subunit's place (the Reis's "fast": its planner and one second-order loop a joint),
-    # made as ``cls(model, q_start_deg, params)``; a trial's ``arm`` names one (docs/experiments.md)
+    # (name, "module:class") pairs: what a lockstep seam-tracking trial may drive of its arm besides
+    # the built subunit (docs/experiments.md): a lighter model in its place, named by the trial's
+    # ``arm`` and made as ``cls(model, q_start_deg, params)`` (the Reis's "fast": its planner and one
+    # second-order loop a joint); "holder": the workpiece holder over the built subunit, made as
+    # ``cls(sched, built, q_hold_deg)``, its world ``cls.trial_world(subunit)`` (the GMF1's)
     lockstep_models: tuple[tuple[str, str], ...] = ()
     # "module:function" (cell, subunit) -> bool: does this subunit need a world twin when
     # [world] is enabled?  None: the default rule (:func:`drives_the_world`).

@@ -13,22 +13,25 @@ builder's own ``@builds``):
   (:class:`droid.sim.reis.cell.LockstepArm`) and the ABB's on EGM
   (:class:`droid.sim.abb.lockstep.LockstepAbbArm`, its ``abb_egm`` world device: its controller), or a
   lab's own package's;
-* the holder's (``holder = "gmf1"``), :func:`holder_builder`: the GMF1's;
+* the holder's (``holder = "gmf1"``: the holder robot through its own controller), any builder
+  whose package registers a ``holder`` lockstep model (:func:`holder_builders`: the GMF1's,
+  droid.sim.gmf1.holder.Gmf1Holder);
 * anything else: one line naming the file, the subunit and what a lockstep arm needs.
 
 :func:`resolve_trial_cell` reads and checks all of it once, before anything runs, into a
 :class:`TrialCell`, whose :meth:`TrialCell.build_arms` builds each subunit with its builder
 through the lockstep cell builder (droid.sim.lockstep_cell.build_lockstep_cell, LockstepCell.add:
 the welder, homed, then the holder -- the trial's start order) with the trial's seed, the cell's ``stale_ticks`` and
-the trial's own world (:func:`trial_world`) instead of the cell's world-device tables.  A trial
+the trial's own world (its holder model's ``trial_world``: the holder's twin alone) instead of the
+cell's world-device tables.  A trial
 without a cell file runs on the built-in cell (droid/cells/sim.toml, whatever $DROID_CELL says;
 :func:`builtin_cell`): the Reis ``arm1`` and the GMF1 ``gmf1``.
 
 An arm model other than ``full`` is one the welder's device package registers
 (``DevicePackage.lockstep_models``: the Reis's ``fast``, droid.sim.reis.fast_arm, calibrated against
-its servo and plant); a welder whose package registers none is refused.  The holder is the GMF1 with
-the cell's serial and encoder set-up (droid.sim.gmf1.holder).  The trial runs at the heartbeat of
-droid.brain.device.HEARTBEAT_HZ (its 30 Hz cycle is 2 ticks): a cell of another rate is refused.
+its servo and plant); a welder whose package registers none is refused.  The GMF1's holder model
+drives the GMF1 with the cell's serial and encoder set-up (droid.sim.gmf1.holder).  The trial runs
+at the heartbeat of droid.brain.device.HEARTBEAT_HZ (its 30 Hz cycle is 2 ticks): a cell of another rate is refused.
 """
 from __future__ import annotations
 
@@ -55,12 +58,23 @@ def welder_builders(cell: Cell, sub) -> dict:
     return {build: name for name, build in class_builders(cell, sub) if getattr(build, "truth", False)}
 
 
-def holder_builder(cell: Cell, sub) -> dict:
-    """The lockstep builder of the ``gmf1`` holder model's subunit (droid.sim.gmf1.lockstep): the
-    trial's Gmf1Holder steps the same cores (droid.sim.gmf1.holder)."""
-    from droid.sim.gmf1.lockstep import build
+def holder_builders(cell: Cell, sub) -> dict:
+    """The lockstep builders that can build ``sub`` as the trial's workpiece holder, by the name of
+    the package that registers each: of the packages serving its class, those that register a
+    ``holder`` lockstep model (DevicePackage.lockstep_models: the GMF1's, droid.sim.gmf1.holder)."""
+    from droid.brain.registry import registry
+    from droid.sim.lockstep_cell import class_builders
 
-    return {build: "gmf1"}
+    pkgs = registry().packages
+    return {build: name for name, build in class_builders(cell, sub) if pkgs[name].lockstep_model("holder")}
+
+
+def _model(package: str, name: str):
+    """Package ``package``'s lockstep model ``name`` (its class), or None when it registers none."""
+    from droid.brain.registry import registry, resolve
+
+    ref = registry().packages[package].lockstep_model(name)
+    return resolve(ref) if ref is not None else None
 
 
 @dataclass(frozen=True)
@@ -68,28 +82,28 @@ class TrialCell:
     """A checked cell of a trial (thesis §6.1: the Reis welds, the GMF1 holds), resolved once by
     :func:`resolve_trial_cell`: the cell, its layout (which subunit welds, ``tool_robot``; which
     holds, ``holder_robot``), the lockstep builder of each subunit the trial builds, and the
-    trial's own ``[world]`` table those builders read (:func:`trial_world`)."""
+    trial's own ``[world]`` table those builders read (the holder model's ``trial_world``; empty for a
+    fixed holder)."""
 
     cell: Cell
     layout: Layout
     builders: dict  # subunit name -> its lockstep builder: the welder's; the holder's (gmf1 holder only)
     world: dict
     welder_package: str = ""  # the device package whose builder builds the welder
+    holder_package: str | None = None  # ... and the holder (None: a fixed holder)
 
     def arm_model(self, name: str):
         """The class of the welder's lockstep arm model ``name`` (its package's ``lockstep_models``:
         the Reis's ``fast``), or None when its package registers none of that name."""
-        from droid.brain.registry import registry, resolve
-
-        ref = registry().packages[self.welder_package].lockstep_model(name)
-        return resolve(ref) if ref is not None else None
+        return _model(self.welder_package, name)
 
     def build_arms(self, sched, geo, arm_model: str, seed: int, fast_params):
         """The trial's welder and holder on ``sched``, ready at the start (thesis §6.1.1-6.1.2):
         the welder, the ``tool_robot`` -- ``fast``: its package's model of that name (the Reis's
         FastArm, droid.sim.reis.fast_arm, at ``geo``'s start pose with ``fast_params``); ``full``:
         a FullArm over the arm its builder builds, homed and at the start pose -- then the holder, the ``holder_robot``
-        -- a Gmf1Holder over the GMF1 its builder builds, at ``geo``'s holding pose; None for a
+        -- its package's holder model (the GMF1's Gmf1Holder) over the subunit its builder builds,
+        at ``geo``'s holding pose; None for a
         fixed holder (no holder builder).  Both are the trial cell's subunits, started in that order on
         ``sched`` (droid.sim.lockstep_cell.LockstepCell.add) with the trial's ``seed`` and world."""
         from droid.sim.lockstep_cell import build_lockstep_cell
@@ -112,10 +126,8 @@ class TrialCell:
             arm.prepare()
         if holder_robot not in self.builders:
             return arm, None
-        from droid.sim.gmf1.holder import Gmf1Holder
-
-        gmf1 = cell.add(holder_robot, self.builders[holder_robot])
-        holder = Gmf1Holder(sched, gmf1.parts, geo.q_hold_deg)
+        built = cell.add(holder_robot, self.builders[holder_robot])
+        holder = _model(self.holder_package, "holder")(sched, built, geo.q_hold_deg)
         holder.prepare()
         return arm, holder
 
@@ -179,14 +191,16 @@ def resolve_trial_cell(cell: str | os.PathLike | Cell | None = None, arm_model: 
         raise BadInput(f"{cell.path}: heartbeat_hz {cell.heartbeat_hz:g}: the lockstep trial runs at "
                        f"{HEARTBEAT_HZ:g} Hz (its 30 Hz tracking cycle is 2 ticks)")
     welder, package = _whole_builder(cell, layout, "tool_robot", "arm", welder_builders)
-    builders = {layout.tool_robot: welder}
-    if holder == "gmf1":
-        builders[layout.holder_robot] = _whole_builder(cell, layout, "holder_robot", "holder", holder_builder)[0]
+    builders, holder_package, world = {layout.tool_robot: welder}, None, {}
+    if holder == "gmf1":  # the holder_robot through its own controller: its package's holder model
+        builders[layout.holder_robot], holder_package = _whole_builder(cell, layout, "holder_robot", "holder",
+                                                                       holder_builders)
+        world = _model(holder_package, "holder").trial_world(layout.holder_robot)
     else:
         _subunit(cell, layout, "holder_robot")
     check_bases(layout, cell)
     check_robots(layout, cell)
-    tc = TrialCell(cell, layout, builders, trial_world(layout.holder_robot), package)
+    tc = TrialCell(cell, layout, builders, world, package, holder_package)
     if arm_model != "full" and tc.arm_model(arm_model) is None:
         raise BadInput(f"{cell.path}: [subunits.{layout.tool_robot}] has no {arm_model} arm model: package "
                        f"{package!r} registers none (its DevicePackage.lockstep_models); use the full model (--arm full)")
@@ -200,15 +214,3 @@ def builtin_cell() -> Cell:
     real-time stalls, which virtual time has none of, and a fault's order in the Status (a dead
     servo: the servo agent's fault before the watchdog's) follows it."""
     return replace(load_cell(builtin_cell_path()), stale_ticks=LIVENESS_TICKS)
-
-
-def trial_world(holder_robot: str) -> dict:
-    """The trial's own ``[world]`` table, which its subunits' builders read instead of the cell's
-    (droid.sim.lockstep_build.BuildContext.world): no world device for the welder -- a Reis
-    without world errors or contacts, the arm the ``full`` model always ran (the ABB's builder
-    reads its ``abb_egm`` controller twin from the cell) -- and the holder's twin
-    (droid.sim.gmf1.holder.holder_device) of subunit ``holder_robot``, stepped at the holder's
-    world rate."""
-    from droid.sim.gmf1.holder import WORLD_HZ, holder_device
-
-    return {"rate_hz": WORLD_HZ, "devices": {"trial_holder": holder_device(holder_robot)}}
