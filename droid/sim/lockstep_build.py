@@ -107,8 +107,8 @@ class BuildContext:
 
     ``world``: a ``[world]`` table the builders read instead of the cell's (``rate_hz`` and the
     ``devices`` tables, :attr:`world_hz` and :meth:`world_devices`): a task that brings its own
-    world.  A seam-tracking trial (droid.experiments.trial_cell.trial_world) builds its welder and
-    holder so: no ``reis_vme`` table for its Reis (no world errors, no contacts: the arm the trial
+    world.  A seam-tracking trial builds its welder and holder so (its holder model's
+    ``trial_world``, droid.sim.gmf1.holder.Gmf1Holder.trial_world): no ``reis_vme`` table for its Reis (no world errors, no contacts: the arm the trial
     always ran, on the trial's seed), its GMF1 homing from the zero pose through a dynamic KAREL
     twin at the trial's world rate.  A twin that *is* its subunit's controller (the ABB's
     ``abb_egm``) is still read from the cell by its builder."""
