@@ -1,6 +1,6 @@
 """Time per call of an arm's rigid-body dynamics: the compiled kernel against Pinocchio.
 
-:class:`droid.sim.reis.dynamics.RigidBody` with ``backend="kernel"`` (droid/_kernel.c ``rb_*``:
+:class:`droid.arm.rigid_body.RigidBody` with ``backend="kernel"`` (droid/_kernel.c ``rb_*``:
 RNEA, CRBA, a Cholesky solve; droid-sim's world) and ``backend="pinocchio"`` (lockstep trials),
 each method called through the RigidBody as the plant and the contact call it, on a pool of
 random states (joint angles over two turns, speeds to 6 rad/s, torques over six decades) cycled
@@ -51,7 +51,7 @@ def _calls(body, method: str):
 
 def time_methods(robot: str, calls: int, rounds: int) -> dict:
     from droid.kinematics import load_robot
-    from droid.sim.reis.dynamics import RigidBody
+    from droid.arm.rigid_body import RigidBody
 
     m = load_robot(robot)
     bodies = {b: RigidBody(m.dh, m.dynamics, backend=b) for b in ("kernel", "pinocchio")}
@@ -84,7 +84,7 @@ def rss():
 base = rss()
 import numpy
 from droid.kinematics import load_robot
-from droid.sim.reis.dynamics import RigidBody
+from droid.arm.rigid_body import RigidBody
 m = load_robot("{robot}")
 body = RigidBody(m.dh, m.dynamics, backend="{backend}")
 body.nle(numpy.zeros(6), numpy.zeros(6))

@@ -60,7 +60,8 @@ def bench_lockstep(moves: int) -> None:
     wall0 = time.perf_counter()
     g = Gmf1Lockstep()
     g.run_ticks(2)
-    g.home()
+    if not g.home():
+        raise SystemExit("bench_gmf1: the lockstep GMF1 did not home")
     start = T_to_pose(g.model.fk(BASE_Q))
     cid = g.command_cart(pose_to_T(*start), g.ticks_for(1.0))
     g.run_until(lambda: g.done(cid), 20)

@@ -9,7 +9,7 @@ the sensors' serial lines (droid-remote's part: a pty nobody reads fills up and 
 down).  With ``--home`` it homes arm1 first (HOME at 60 Hz: ~28 s of world time); the servo
 holds the arm the same way homed or not.  It reports the process's resident size at the end
 (VmRSS) and whether Pinocchio was imported (droid-sim's world should not: the compiled rigid-body
-dynamics, droid.sim.reis.dynamics).  It measures the thread CPU time of ``World.advance``
+dynamics, droid.arm.rigid_body).  It measures the thread CPU time of ``World.advance``
 (1 ms steps; the real-time loop's own wake-ups are not in it) over two phases:
 
 * idle: the servo holding arm1 at rest, amplifiers on, the holder at rest (``--idle-s``);

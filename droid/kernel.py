@@ -31,7 +31,7 @@ the rest of the kernel is used as before, ``DROID_KERNEL=c`` included.
 
 The extension also holds a serial arm's rigid-body dynamics (``rb_*``): droid-sim's world uses
 them in place of Pinocchio when this module chooses the compiled kernel
-(:func:`droid.sim.reis.dynamics.world_backend`).  They agree with Pinocchio to rounding, not bit
+(:func:`droid.arm.rigid_body.world_backend`).  They agree with Pinocchio to rounding, not bit
 for bit, so lockstep trials keep Pinocchio whatever ``DROID_KERNEL`` says.
 
 And the seam tracker's nearest-segment search (``seam_nearest``, issue 44): a lockstep trial puts it

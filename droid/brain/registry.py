@@ -149,6 +149,12 @@ class DevicePackage:
     twins: tuple[Twin, ...] = ()
     # "module:function": build(ctx, sub) -> LockstepSubunit, one subunit in lockstep (droid.sim.lockstep_build)
     lockstep: str | None = None
+    # (name, "module:class") pairs: what a lockstep seam-tracking trial may drive of its arm besides
+    # the built subunit (docs/experiments.md): a lighter model in its place, named by the trial's
+    # ``arm`` and made as ``cls(model, q_start_deg, params)`` (the Reis's "fast": its planner and one
+    # second-order loop a joint); "holder": the workpiece holder over the built subunit, made as
+    # ``cls(sched, built, q_hold_deg)``, its world ``cls.trial_world(subunit)`` (the GMF1's)
+    lockstep_models: tuple[tuple[str, str], ...] = ()
     # "module:function" (cell, subunit) -> bool: does this subunit need a world twin when
     # [world] is enabled?  None: the default rule (:func:`drives_the_world`).
     needs_twin: str | None = None
@@ -159,6 +165,10 @@ class DevicePackage:
             if p.name == name:
                 return p
         raise KeyError(f"package {self.name!r} declares no program {name!r}")
+
+    def lockstep_model(self, name: str) -> str | None:
+        """The ``"module:class"`` of its lockstep arm model ``name`` (``lockstep_models``), or None."""
+        return dict(self.lockstep_models).get(name)
 
     @property
     def served(self) -> tuple[str, ...]:

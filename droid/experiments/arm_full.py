@@ -33,9 +33,11 @@ SETTLE_S = 1.0
 class FullArm:
     """An arm subunit's cores on a scheduler, with the harness's arm interface.
 
-    ``arm``: the lockstep arm its package's builder built on ``sched`` (an ArmChain: the Reis's
-    :class:`~droid.sim.reis.cell.LockstepArm` or droid.sim.abb.lockstep.LockstepAbbArm; the trial
-    cell's welder, built by droid.experiments.trial_cell.TrialCell.build_arms) whose robot model is ``model``."""
+    ``arm``: the lockstep arm its package's builder built on ``sched`` -- a droid.arm.protocol.Arm that
+    also shows the world's ``wcp_global`` (a builder declared with ``truth``: the Reis's
+    :class:`~droid.sim.reis.cell.LockstepArm`, droid.sim.abb.lockstep.LockstepAbbArm, a lab's own; the
+    trial cell's welder, built by droid.experiments.trial_cell.TrialCell.build_arms) whose robot model
+    is ``model``."""
 
     def __init__(self, sched: Scheduler, model, q_start_deg, arm) -> None:
         self.sched = sched
@@ -60,10 +62,10 @@ class FullArm:
         self.arm.command_cart(T_global_wcp, ticks)
 
     def status_pose(self) -> np.ndarray:
-        return record_pose(self.arm.status)
+        return record_pose(self.arm.read())
 
     def status_joints(self) -> np.ndarray:
-        return self.model.gearing.counts_to_joints(np.asarray(self.arm.status["encoder_pos"], float))
+        return self.model.gearing.counts_to_joints(np.asarray(self.arm.read()["encoder_pos"], float))
 
     @property
     def name(self) -> str:
@@ -72,7 +74,7 @@ class FullArm:
 
     def status_fault(self) -> int:
         """The Brain Status ``fault`` bits (FAULT_*), as droid-seamtrack reads them."""
-        return int(self.arm.status["fault"])
+        return int(self.arm.read()["fault"])
 
     def true_wcp(self) -> np.ndarray:
         return self.arm.wcp_global()

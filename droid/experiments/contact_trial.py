@@ -5,7 +5,8 @@ held at a normal force (docs/contact.md).
 The workpiece sits where the seam layout's position (i) puts it (on a fixed fixture: the
 holder is not simulated here), its surfaces push on the tool point through the contact model
 of its ``[contact]`` table (droid.sim.contact); the arm is every core of the Reis subunit
-(droid.sim.reis.cell.LockstepArm, homed from a seeded power-up pose); the wrist F/T sensor
+(droid.sim.reis.cell.LockstepArm, the layout's tool robot of the built-in cell built by its lockstep
+builder, homed from a seeded power-up pose); the wrist F/T sensor
 is the Net F/T twin read by droid-ft's core (droid.sim.ft.lockstep), biased before the
 approach (the tool's weight taken out); the task is droid.tasks.contact.core.ContactStation.
 
@@ -34,7 +35,6 @@ from droid.kinematics.transforms import inv_homo, trans
 from droid.sim.contact import ToolContact
 from droid.sim.ft.lockstep import LockstepFt
 from droid.sim.lockstep import ORDER_TASK, Scheduler
-from droid.sim.reis.cell import LockstepArm
 from droid.tasks.contact.core import ArmStatus, ContactStation, FtStatus, load_gains
 from droid.brain.cell_layout import T_W_SEAM
 
@@ -88,7 +88,7 @@ def run_contact_trial(cfg: ContactTrialConfig) -> ContactResult:
     T_start = wcp_for(cfg.x_start_mm, cfg.clearance_mm)
     q_start = geo.reis.ik(T_start, np.zeros(6))
     sched = Scheduler(HEARTBEAT_HZ)
-    arm = LockstepArm(sched, geo.layout.tool_robot, base=(0, 0, 0, 0, 0, 0), seed=cfg.seed)
+    arm = _tool_robot(sched, geo.layout.tool_robot, cfg.seed)
     phases.mark("built", sched)
     if not arm.home(60.0):
         raise RuntimeError("homing did not finish")
@@ -140,6 +140,18 @@ def run_contact_trial(cfg: ContactTrialConfig) -> ContactResult:
     stop = station.done or "timeout"
     su = summarize(rows, cfg, stop, station.detail)
     return ContactResult(rows, stop, station.detail, summary_line(su), su.rms_n, su.max_n, su, sched.t_ns / 1e9)
+
+
+def _tool_robot(sched: Scheduler, name: str, seed: int):
+    """The layout's tool robot ``name`` of the built-in cell, built on ``sched`` by its package's
+    lockstep builder (droid.sim.lockstep_cell.build_lockstep_cell) with the trial's ``seed``, the
+    cell file's default ``stale_ticks`` and no world device of the cell's (the trial brings its own
+    workpiece contact): the Reis's :class:`~droid.sim.reis.cell.LockstepArm`, whose plant the
+    contact pushes on (``attach_contact``) and whose wrench the F/T twin reads."""
+    from droid.experiments.trial_cell import builtin_cell
+    from droid.sim.lockstep_cell import build_lockstep_cell
+
+    return build_lockstep_cell(builtin_cell(), seed, world={}, sched=sched, subunits={name: None}).subunits[name].parts
 
 
 @dataclass(frozen=True)

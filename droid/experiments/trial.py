@@ -7,7 +7,7 @@ what                  when             does
 ====================  ===============  ==================================================
 Reis arm              every tick       ``full`` (arm_full, the default: every Reis core + the
                                        plant twin, homed from its power-up pose first) or
-                                       ``fast`` (arm_fast: planner + analytic servo).  With
+                                       ``fast`` (sim.reis.fast_arm: planner + analytic servo).  With
                                        ``cell`` (a cell file): the cell's welder, its layout's
                                        tool_robot -- the Reis, or the ABB on EGM (droid-egm and
                                        its controller twin, sim.abb.lockstep; full only) --
@@ -59,7 +59,7 @@ import numpy as np
 from droid.cli import BadInput
 from droid.kinematics.transforms import inv_homo
 from droid.experiments import phases, seam_kernel
-from droid.experiments.arm_fast import FastArmParams
+from droid.sim.reis.fast_arm import FastArmParams
 from droid.experiments.geometry import TrialGeometry, trial_geometry
 from droid.experiments.trial_cell import resolve_trial_cell
 from droid.experiments.sensors import DEFAULT_NOISE, SENSOR_MODELS, LeadSensor, ToolTipSensor, tool_reading

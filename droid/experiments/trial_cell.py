@@ -1,29 +1,37 @@
 """A lockstep trial on a cell file: ``TrialConfig.cell``, ``droid-experiment run --cell FILE``, a plan's ``cell``.
 
 The trial reads the cell's seam-tracking layout (its ``[cell] layout``, else the bundled one:
-droid.brain.cell_layout.layout_for_cell); the welder is the layout's ``tool_robot``, the holder
-its ``holder_robot``, both subunits of the cell at the cell's bases with the layout's robot
-files.  Both are chosen through the registry: the builder its device package registers in the
-``lockstep`` slot (droid.sim.lockstep_cell.choose_builder, by the programs the subunit runs), which
-must stand for no program the subunit does not run (the builder's own ``@builds``):
+droid.brain.cell_layout.layout_for_cell); the welder is the subunit its layout names by role,
+``tool_robot``, the holder ``holder_robot``, both subunits of the cell at the cell's bases with the
+layout's robot files.  Both are chosen through the registry, by what they are, never by brand:
+the builder a device package registers in the ``lockstep`` slot (droid.sim.lockstep_cell.choose_builder,
+by the programs the subunit runs), which must stand for no program the subunit does not run (the
+builder's own ``@builds``):
 
-* the welder's, one of :func:`welder_builders` -- the ABB on EGM
-  (:class:`droid.sim.abb.lockstep.LockstepAbbArm`, its ``abb_egm`` world device: its controller)
-  or the Reis (:class:`droid.sim.reis.cell.LockstepArm`);
-* the holder's (``holder = "gmf1"``), :func:`holder_builder`: the GMF1's;
+* the welder's: any arm builder declared with ``truth`` (:func:`welder_builders`: its arm shows the
+  world's truth about its wrist centre, so the sensors see the seam from it) -- today the Reis's
+  (:class:`droid.sim.reis.cell.LockstepArm`) and the ABB's on EGM
+  (:class:`droid.sim.abb.lockstep.LockstepAbbArm`, its ``abb_egm`` world device: its controller), or a
+  lab's own package's;
+* the holder's (``holder = "gmf1"``: the holder robot through its own controller), any builder
+  whose package registers a ``holder`` lockstep model (:func:`holder_builders`: the GMF1's,
+  droid.sim.gmf1.holder.Gmf1Holder);
 * anything else: one line naming the file, the subunit and what a lockstep arm needs.
 
 :func:`resolve_trial_cell` reads and checks all of it once, before anything runs, into a
-:class:`TrialCell`, whose :meth:`TrialCell.build` builds each subunit with its builder
-(droid.sim.lockstep_cell.build_subunits) with the trial's seed, the cell's ``stale_ticks`` and
-the trial's own world (:func:`trial_world`) instead of the cell's world-device tables.  A trial
+:class:`TrialCell`, whose :meth:`TrialCell.build_arms` builds each subunit with its builder
+through the lockstep cell builder (droid.sim.lockstep_cell.build_lockstep_cell, LockstepCell.add:
+the welder, homed, then the holder -- the trial's start order) with the trial's seed, the cell's ``stale_ticks`` and
+the trial's own world (its holder model's ``trial_world``: the holder's twin alone) instead of the
+cell's world-device tables.  A trial
 without a cell file runs on the built-in cell (droid/cells/sim.toml, whatever $DROID_CELL says;
 :func:`builtin_cell`): the Reis ``arm1`` and the GMF1 ``gmf1``.
 
-The ``fast`` arm model is the Reis's (calibrated against its servo and plant,
-droid.experiments.arm_fast): a welder that is not a Reis with ``arm = "fast"`` is refused.  The
-holder is the GMF1 with the cell's serial and encoder set-up (droid.experiments.holder).  The trial runs at the heartbeat of
-droid.brain.device.HEARTBEAT_HZ (its 30 Hz cycle is 2 ticks): a cell of another rate is refused.
+An arm model other than ``full`` is one the welder's device package registers
+(``DevicePackage.lockstep_models``: the Reis's ``fast``, droid.sim.reis.fast_arm, calibrated against
+its servo and plant); a welder whose package registers none is refused.  The GMF1's holder model
+drives the GMF1 with the cell's serial and encoder set-up (droid.sim.gmf1.holder).  The trial runs
+at the heartbeat of droid.brain.device.HEARTBEAT_HZ (its 30 Hz cycle is 2 ticks): a cell of another rate is refused.
 """
 from __future__ import annotations
 
@@ -40,22 +48,33 @@ from droid.brain.cell_layout import Layout, check_bases, check_robots, layout_fo
 
 
 
-def welder_builders() -> dict:
-    """The lockstep builders whose arm the ``full`` model drives (an ArmChain with the world's
-    ``wcp_global``), by what the trial calls them: the Reis's (droid.sim.reis.cell) and the ABB's
-    on EGM (droid.sim.abb.lockstep).  What their subunits run is the builders' own ``@builds``."""
-    from droid.sim.abb.lockstep import build as abb
-    from droid.sim.reis.cell import build as reis
+def welder_builders(cell: Cell, sub) -> dict:
+    """The lockstep builders whose arm the ``full`` model can drive as ``sub``'s tool robot, by the
+    name of the package that registers each: of the packages serving its class, every builder
+    declared with ``truth`` (droid.sim.lockstep_build.builds: an Arm that also shows the world's
+    ``wcp_global``).  What their subunits run is the builders' own ``@builds``."""
+    from droid.sim.lockstep_cell import class_builders
 
-    return {reis: "the Reis", abb: "the ABB"}
+    return {build: name for name, build in class_builders(cell, sub) if getattr(build, "truth", False)}
 
 
-def holder_builder():
-    """The lockstep builder of the ``gmf1`` holder model's subunit (droid.sim.gmf1.lockstep): the
-    trial's Gmf1Holder steps the same cores (droid.experiments.holder)."""
-    from droid.sim.gmf1.lockstep import build
+def holder_builders(cell: Cell, sub) -> dict:
+    """The lockstep builders that can build ``sub`` as the trial's workpiece holder, by the name of
+    the package that registers each: of the packages serving its class, those that register a
+    ``holder`` lockstep model (DevicePackage.lockstep_models: the GMF1's, droid.sim.gmf1.holder)."""
+    from droid.brain.registry import registry
+    from droid.sim.lockstep_cell import class_builders
 
-    return build
+    pkgs = registry().packages
+    return {build: name for name, build in class_builders(cell, sub) if pkgs[name].lockstep_model("holder")}
+
+
+def _model(package: str, name: str):
+    """Package ``package``'s lockstep model ``name`` (its class), or None when it registers none."""
+    from droid.brain.registry import registry, resolve
+
+    ref = registry().packages[package].lockstep_model(name)
+    return resolve(ref) if ref is not None else None
 
 
 @dataclass(frozen=True)
@@ -63,55 +82,52 @@ class TrialCell:
     """A checked cell of a trial (thesis §6.1: the Reis welds, the GMF1 holds), resolved once by
     :func:`resolve_trial_cell`: the cell, its layout (which subunit welds, ``tool_robot``; which
     holds, ``holder_robot``), the lockstep builder of each subunit the trial builds, and the
-    trial's own ``[world]`` table those builders read (:func:`trial_world`)."""
+    trial's own ``[world]`` table those builders read (the holder model's ``trial_world``; empty for a
+    fixed holder)."""
 
     cell: Cell
     layout: Layout
     builders: dict  # subunit name -> its lockstep builder: the welder's; the holder's (gmf1 holder only)
     world: dict
+    welder_package: str = ""  # the device package whose builder builds the welder
+    holder_package: str | None = None  # ... and the holder (None: a fixed holder)
 
-    @property
-    def reis(self) -> bool:
-        """Whether the welder is the Reis (the ``fast`` arm model's)."""
-        return welder_builders()[self.builders[self.layout.tool_robot]] == "the Reis"
-
-    def build(self, sched, name: str, seed: int):
-        """Subunit ``name`` (the welder or the holder) on ``sched``, built by its builder
-        (lockstep_cell.build_subunits) in the trial's world with the trial's ``seed`` and the cell's
-        ``stale_ticks``: a LockstepSubunit (the welder's ``arm``, an ArmChain; the GMF1's ``parts``,
-        a Gmf1Lockstep)."""
-        from droid.sim.lockstep_cell import build_subunits
-
-        return build_subunits(sched, self.cell, {name: self.builders[name]}, seed, world=self.world)[name]
+    def arm_model(self, name: str):
+        """The class of the welder's lockstep arm model ``name`` (its package's ``lockstep_models``:
+        the Reis's ``fast``), or None when its package registers none of that name."""
+        return _model(self.welder_package, name)
 
     def build_arms(self, sched, geo, arm_model: str, seed: int, fast_params):
         """The trial's welder and holder on ``sched``, ready at the start (thesis §6.1.1-6.1.2):
-        the welder, the ``tool_robot`` -- ``fast``: a FastArm (droid.experiments.arm_fast, the
-        Reis model at ``geo``'s start pose with ``fast_params``); ``full``: a FullArm over the arm
-        its builder builds, homed and at the start pose -- then the holder, the ``holder_robot``
-        -- a Gmf1Holder over the GMF1 its builder builds, at ``geo``'s holding pose; None for a
-        fixed holder (no holder builder).  Each subunit is built with the trial's ``seed``."""
-        tool_robot, holder_robot = self.layout.tool_robot, self.layout.holder_robot
-        if arm_model == "fast":
-            from droid.experiments.arm_fast import FastArm
+        the welder, the ``tool_robot`` -- ``fast``: its package's model of that name (the Reis's
+        FastArm, droid.sim.reis.fast_arm, at ``geo``'s start pose with ``fast_params``); ``full``:
+        a FullArm over the arm its builder builds, homed and at the start pose -- then the holder, the ``holder_robot``
+        -- its package's holder model (the GMF1's Gmf1Holder) over the subunit its builder builds,
+        at ``geo``'s holding pose; None for a
+        fixed holder (no holder builder).  Both are the trial cell's subunits, started in that order on
+        ``sched`` (droid.sim.lockstep_cell.LockstepCell.add) with the trial's ``seed`` and world."""
+        from droid.sim.lockstep_cell import build_lockstep_cell
 
-            arm = FastArm(geo.reis, geo.q_reis_start_deg, fast_params)
+        tool_robot, holder_robot = self.layout.tool_robot, self.layout.holder_robot
+        # the trial's cell with nothing started yet: its start order is the welder (homed and at
+        # its start), then the holder -- the holder never ticks while the welder homes
+        cell = build_lockstep_cell(self.cell, seed, world=self.world, sched=sched, subunits={})
+        if arm_model != "full":  # a model its package registers (the Reis's fast: droid.sim.reis.fast_arm)
+            arm = self.arm_model(arm_model)(geo.reis, geo.q_reis_start_deg, fast_params)
             arm.name = tool_robot  # the subunit the tracker's fault rule names
             for phase in ("built", "homed", "approached"):  # no homing, no approach: it starts at the start
                 phases.mark(phase, sched)
         else:
             from droid.experiments.arm_full import FullArm
 
-            welder = self.build(sched, tool_robot, seed)
+            welder = cell.add(tool_robot, self.builders[tool_robot])
             arm = FullArm(sched, geo.reis, geo.q_reis_start_deg, welder.arm)
             phases.mark("built", sched)
             arm.prepare()
         if holder_robot not in self.builders:
             return arm, None
-        from droid.experiments.holder import Gmf1Holder
-
-        gmf1 = self.build(sched, holder_robot, seed)
-        holder = Gmf1Holder(sched, gmf1.parts, geo.q_hold_deg)
+        built = cell.add(holder_robot, self.builders[holder_robot])
+        holder = _model(self.holder_package, "holder")(sched, built, geo.q_hold_deg)
         holder.prepare()
         return arm, holder
 
@@ -139,24 +155,26 @@ def _subunit(cell: Cell, layout: Layout, role: str):
     return cell.subunits[name]
 
 
-def _whole_builder(cell: Cell, layout: Layout, role: str, what: str, builders: dict):
-    """The lockstep builder of the layout's ``role`` subunit: the one lockstep_cell.choose_builder
-    picks (by the programs the subunit runs), which must be one of ``builders`` (builder -> what
-    the trial calls it) and stand for no program the subunit does not run (the trial needs every
-    station of its arm); BadInput, one line naming the file, the subunit and what is missing."""
+def _whole_builder(cell: Cell, layout: Layout, role: str, what: str, fitting) -> tuple:
+    """The lockstep builder of the layout's ``role`` subunit and its package's name: the one
+    lockstep_cell.choose_builder picks (by the programs the subunit runs), which must be one of
+    ``fitting(cell, sub)`` (builder -> package name) and stand for no program the subunit does not
+    run (the trial needs every station of its arm); BadInput, one line naming the file, the
+    subunit and what is missing."""
     from droid.sim.lockstep_cell import choose_builder
 
     sub = _subunit(cell, layout, role)
     where = f"{cell.path}: [subunits.{sub.name}] (the layout's {role})"
     if not sub.is_arm:
         raise BadInput(f"{where} is a {sub.cls} subunit, not an arm: it has no lockstep {what}")
+    builders = fitting(cell, sub)
     try:
         build = choose_builder(cell, sub)
     except BadInput:
         build = None
     if build in builders and set(build.programs) <= set(sub.programs):
         getattr(build, "check", lambda c, s: None)(cell, sub)  # what the builder refuses (the ABB: no controller twin), before anything runs
-        return build
+        return build, builders[build]
     runs = ", ".join(sub.programs) or "no programs"
     needs = " or ".join(f"{' + '.join(b.programs)} ({name})" for b, name in builders.items())
     raise BadInput(f"{where} has no lockstep {what}: it runs {runs}; a lockstep {what} needs {needs}")
@@ -172,18 +190,20 @@ def resolve_trial_cell(cell: str | os.PathLike | Cell | None = None, arm_model: 
     if cell.heartbeat_hz != HEARTBEAT_HZ:
         raise BadInput(f"{cell.path}: heartbeat_hz {cell.heartbeat_hz:g}: the lockstep trial runs at "
                        f"{HEARTBEAT_HZ:g} Hz (its 30 Hz tracking cycle is 2 ticks)")
-    builders = {layout.tool_robot: _whole_builder(cell, layout, "tool_robot", "arm", welder_builders())}
-    if holder == "gmf1":
-        builders[layout.holder_robot] = _whole_builder(cell, layout, "holder_robot", "holder",
-                                                       {holder_builder(): "the GMF1"})
+    welder, package = _whole_builder(cell, layout, "tool_robot", "arm", welder_builders)
+    builders, holder_package, world = {layout.tool_robot: welder}, None, {}
+    if holder == "gmf1":  # the holder_robot through its own controller: its package's holder model
+        builders[layout.holder_robot], holder_package = _whole_builder(cell, layout, "holder_robot", "holder",
+                                                                       holder_builders)
+        world = _model(holder_package, "holder").trial_world(layout.holder_robot)
     else:
         _subunit(cell, layout, "holder_robot")
     check_bases(layout, cell)
     check_robots(layout, cell)
-    tc = TrialCell(cell, layout, builders, trial_world(layout.holder_robot))
-    if arm_model == "fast" and not tc.reis:
-        raise BadInput(f"{cell.path}: [subunits.{layout.tool_robot}] is not a Reis: the fast arm model is "
-                       f"the Reis's (calibrated against its servo); use the full model (--arm full)")
+    tc = TrialCell(cell, layout, builders, world, package, holder_package)
+    if arm_model != "full" and tc.arm_model(arm_model) is None:
+        raise BadInput(f"{cell.path}: [subunits.{layout.tool_robot}] has no {arm_model} arm model: package "
+                       f"{package!r} registers none (its DevicePackage.lockstep_models); use the full model (--arm full)")
     return tc
 
 
@@ -194,15 +214,3 @@ def builtin_cell() -> Cell:
     real-time stalls, which virtual time has none of, and a fault's order in the Status (a dead
     servo: the servo agent's fault before the watchdog's) follows it."""
     return replace(load_cell(builtin_cell_path()), stale_ticks=LIVENESS_TICKS)
-
-
-def trial_world(holder_robot: str) -> dict:
-    """The trial's own ``[world]`` table, which its subunits' builders read instead of the cell's
-    (droid.sim.lockstep_build.BuildContext.world): no world device for the welder -- a Reis
-    without world errors or contacts, the arm the ``full`` model always ran (the ABB's builder
-    reads its ``abb_egm`` controller twin from the cell) -- and the holder's twin
-    (droid.experiments.holder.holder_device) of subunit ``holder_robot``, stepped at the holder's
-    world rate."""
-    from droid.experiments.holder import WORLD_HZ, holder_device
-
-    return {"rate_hz": WORLD_HZ, "devices": {"trial_holder": holder_device(holder_robot)}}

@@ -5,7 +5,7 @@ kinematics and gearing the planner uses, the home switches and gains the servo
 uses, and the physical data the plant twin integrates (thesis §2.3: DC servo
 motors through 100:1 harmonic drives, servo amplifiers fed by +-5 V DACs, a
 passive pneumatic balancer on link 2).  This module only *parses and checks*
-the data; the rigid-body model is built from it in :mod:`droid.sim.reis.dynamics`
+the data; the rigid-body model is built from it in :mod:`droid.arm.rigid_body`
 (Pinocchio), never here (kinematics imports no simulator).
 
 Every value carries its provenance in the table's ``source`` sub-table: the key

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from droid.arm.planner import PlannerCore, PlannerStation
 from droid.brain import arm_command
 from droid.brain.classes import ARM6R
 from droid.brain.layouts import (ARM_COMMAND_LAYOUT, ARM_STATUS_LAYOUT, CTRL_COMMAND_LAYOUT,
@@ -35,25 +36,28 @@ from droid.brain.remote import RemoteStation, StatusTranslator
 from droid.brain.shmdb import MemoryDatabase
 from droid.sim.lockstep import ORDER_HEARTBEAT, Scheduler
 from droid.subunits.agent import AgentStation
-from droid.subunits.reis.planner import PlannerCore
-from droid.subunits.reis.station import PlannerStation
 
 
 class ArmTasks:
     """What a task program sees of a lockstep arm: its Brain records on a scheduler, driven as
-    ``BrainArm`` drives them on shared memory (droid.brain.arm_command).  Needs ``sched``,
-    ``brain_status`` and ``brain_command``; :class:`ArmChain` has them, and
-    :meth:`over` makes one for any arm's Brain records (the GMF1's)."""
+    ``BrainArm`` drives them on shared memory (droid.brain.arm_command) -- the neutral arm's
+    :class:`droid.arm.protocol.Arm`, its waits on virtual time.  Needs ``sched``, ``name``,
+    ``brain_status`` and ``brain_command``; :class:`ArmChain` has them, and :meth:`over` makes one
+    for any arm's Brain records (the GMF1's)."""
 
     @classmethod
-    def over(cls, sched: Scheduler, brain_status, brain_command) -> "ArmTasks":
-        """The task interface of an arm whose Brain records are ``brain_status``/``brain_command``."""
+    def over(cls, sched: Scheduler, brain_status, brain_command, name: str = "") -> "ArmTasks":
+        """The task interface of arm ``name`` whose Brain records are ``brain_status``/``brain_command``."""
         arm = cls()
-        arm.sched, arm.brain_status, arm.brain_command = sched, brain_status, brain_command
+        arm.sched, arm.brain_status, arm.brain_command, arm.name = sched, brain_status, brain_command, name
         return arm
 
     @property
     def status(self):
+        return self.brain_status.read()
+
+    def read(self):
+        """The newest Brain Status record (:class:`droid.arm.protocol.Arm`; as ``BrainArm.read``)."""
         return self.brain_status.read()
 
     def command_home(self) -> int:
@@ -83,19 +87,19 @@ class ArmTasks:
             self.sched.run_for(step_s)
         return bool(pred())
 
-    def home(self, max_s: float = 60.0) -> bool:
-        """droid-home: HOME, run until homed and idle (``max_s`` [s] at most), then NORMAL."""
+    def home(self, timeout_s: float = 60.0) -> bool:
+        """droid-home: HOME, run until homed and idle (``timeout_s`` [s] at most), then NORMAL."""
         cmd_id = self.command_home()
         ok = self.run_until(lambda: int(self.status["cmd_id"]) == cmd_id and int(self.status["homed"])
-                            and int(self.status["busy"]) == 0, max_s)
+                            and int(self.status["busy"]) == 0, timeout_s)
         if ok:
             self.set_normal()
         return ok
 
-    def move_done(self, cmd_id: int, max_s: float) -> bool:
-        """Run until the Status acknowledges ``cmd_id`` and is idle (``max_s`` [s] at most)."""
+    def move_done(self, cmd_id: int, timeout_s: float) -> bool:
+        """Run until the Status acknowledges ``cmd_id`` and is idle (``timeout_s`` [s] at most)."""
         return self.run_until(lambda: int(self.status["cmd_id"]) == cmd_id and int(self.status["busy"]) == 0,
-                              max_s)
+                              timeout_s)
 
 
 class ArmChain(ArmTasks):

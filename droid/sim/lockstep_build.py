@@ -19,7 +19,7 @@ subunit runs (so the ABB's, which stands for ``droid-reis-agent`` and ``droid-pl
 The result, :class:`LockstepSubunit`, exposes the subunit's Brain databases as real time has them
 in shared memory (``status``, ``command``: :class:`~droid.brain.shmdb.MemoryDatabase` of the same
 layouts, the class's ``brain`` table), its stations (program -> scheduler task names) and, for an
-arm, what a task program drives (``arm``: :class:`droid.sim.arm_chain.ArmChain`'s interface).
+arm, what a task program drives (``arm``: :class:`droid.arm.protocol.Arm`, as ``BrainArm``).
 
 :class:`AgentLink` is the generic ``droid-agent`` / ``droid-remote`` pair on the heartbeat tick
 (thesis §3.2, §4.1.8): the Brain Command copied into the subunit's ``ctrl_command`` (if its class
@@ -31,6 +31,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
+from droid.arm.protocol import Arm
 from droid.brain.databases import safe_start
 from droid.brain.remote import RemoteStation, StatusTranslator
 from droid.brain.shmdb import MemoryDatabase
@@ -41,13 +42,17 @@ from droid.subunits.agent import AgentStation, CommandCopier
 AGENT = "droid-agent"
 
 
-def builds(*programs: str, check: Callable | None = None) -> Callable:
+def builds(*programs: str, check: Callable | None = None, truth: bool = False) -> Callable:
     """Declare the programs a lockstep builder gives stations for (see the module docstring);
     ``check(cell, sub)``: what the builder refuses, asked without building anything (BadInput, one
-    line) -- a task that builds later (a seam-tracking trial) refuses a bad cell before it runs."""
+    line) -- a task that builds later (a seam-tracking trial) refuses a bad cell before it runs;
+    ``truth``: the arm it builds also shows the world's truth about itself, ``wcp_global()`` (the
+    true wrist-centre pose, 4x4 mm, global frame), so a trial can carry its tool on it (the
+    layout's tool_robot: the sensors see the seam from its true pose)."""
     def mark(fn: Callable) -> Callable:
         fn.programs = tuple(programs)
         fn.check = check if check is not None else (lambda cell, sub: None)
+        fn.truth = bool(truth)
         return fn
     return mark
 
@@ -75,8 +80,9 @@ class LockstepSubunit:
 
     ``status``/``command``: the Brain's Status and Command records (``command`` None for a class
     without one); ``stations``: program -> the scheduler task names that stand for it (a tick task
-    included); ``arm``: for an arm the object a task program drives (``command_home``,
-    ``command_joint``, ``home``, ``status``, ... as ``BrainArm``); ``parts``: the package's own
+    included); ``arm``: for an arm the object a task program drives, the neutral arm's
+    :class:`droid.arm.protocol.Arm` (``home() -> bool``, ``command_joint``, ``command_cart``, ``read``,
+    ... as ``BrainArm``), None for a sensor; ``parts``: the package's own
     lockstep object (LockstepArm, Gmf1Lockstep, ...) for inspection and fault injection."""
 
     name: str
@@ -84,7 +90,7 @@ class LockstepSubunit:
     status: MemoryDatabase
     command: MemoryDatabase | None = None
     stations: dict[str, list[str]] = field(default_factory=dict)
-    arm: Any = None
+    arm: Arm | None = None
     parts: Any = None
 
     def close(self) -> None:
@@ -101,8 +107,8 @@ class BuildContext:
 
     ``world``: a ``[world]`` table the builders read instead of the cell's (``rate_hz`` and the
     ``devices`` tables, :attr:`world_hz` and :meth:`world_devices`): a task that brings its own
-    world.  A seam-tracking trial (droid.experiments.trial_cell.trial_world) builds its welder and
-    holder so: no ``reis_vme`` table for its Reis (no world errors, no contacts: the arm the trial
+    world.  A seam-tracking trial builds its welder and holder so (its holder model's
+    ``trial_world``, droid.sim.gmf1.holder.Gmf1Holder.trial_world): no ``reis_vme`` table for its Reis (no world errors, no contacts: the arm the trial
     always ran, on the trial's seed), its GMF1 homing from the zero pose through a dynamic KAREL
     twin at the trial's world rate.  A twin that *is* its subunit's controller (the ABB's
     ``abb_egm``) is still read from the cell by its builder."""

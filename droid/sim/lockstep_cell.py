@@ -83,15 +83,31 @@ def _builder(reg, pkg, where: str) -> Callable:
 @dataclass
 class LockstepCell:
     """A built cell: ``sched``, ``subunits[name]`` (:class:`LockstepSubunit`: Brain ``status`` and
-    ``command``, ``stations``, ``arm``), ``cell``; :meth:`run_for` advances virtual time."""
+    ``command``, ``stations``, ``arm``), ``cell``; :meth:`run_for` advances virtual time, :meth:`add`
+    starts one more of the cell's subunits on the running scheduler (a declared start order)."""
 
     cell: Cell
     sched: Scheduler
     subunits: dict[str, LockstepSubunit]
+    ctx: BuildContext | None = None
 
     def run_for(self, seconds: float) -> None:
         """Advance every subunit by ``seconds`` [s] of virtual time."""
         self.sched.run_for(seconds)
+
+    def add(self, name: str, build: Callable | None = None) -> LockstepSubunit:
+        """Build subunit ``name`` of the cell now, on the running scheduler, with the context the
+        others were built with (its seed, its world, the twins and subunits built so far), by
+        ``build`` or the builder :func:`choose_builder` picks: it starts ticking from this instant,
+        as HAL's ``addf`` adds a function to a running thread.  A task that needs one subunit
+        ready before another moves (a seam-tracking trial: the welder homed and at its start
+        before the holder's first tick) builds the cell in that order."""
+        ctx = self.ctx
+        sub = self.cell.subunit(name)
+        done = len(ctx.finish)
+        _build_all(ctx, [(sub, build if build is not None else choose_builder(self.cell, sub))], done)
+        self.subunits[name] = ctx.built[name]
+        return ctx.built[name]
 
     def close(self) -> None:
         for s in self.subunits.values():
@@ -104,41 +120,43 @@ class LockstepCell:
         self.close()
 
 
-def build_lockstep_cell(cell_or_path: Cell | str | os.PathLike | None, seed: int | None = None) -> LockstepCell:
+def build_lockstep_cell(cell_or_path: Cell | str | os.PathLike | None, seed: int | None = None, *,
+                        world: dict | None = None, sched: Scheduler | None = None,
+                        subunits: dict[str, Callable | None] | None = None) -> LockstepCell:
     """Every subunit of a cell file (a path, a parsed Cell, or None: the default cell) on one
     scheduler at the cell's heartbeat; ``seed``: the world's (default its ``[world] seed``).
     The cell is checked as ``droid-cell up`` checks it (droid.brain.registry.validate_cell) and
-    every builder chosen before anything is built (BadInput, one line: nothing built)."""
+    every builder chosen before anything is built (BadInput, one line: nothing built).
+
+    A task that brings a world of its own passes ``world``, a ``[world]`` table its builders read
+    instead of the cell's (:class:`~droid.sim.lockstep_build.BuildContext`), ``sched``, its own
+    scheduler at the cell's heartbeat, and ``subunits``, the subunits it needs (name -> its
+    builder, or None for the one :func:`choose_builder` picks), built in that order; the others it
+    may start later (:meth:`LockstepCell.add`)."""
     from droid.brain.registry import validate_cell
 
     cell = cell_or_path if isinstance(cell_or_path, Cell) else load_cell(cell_or_path)
     validate_cell(cell)  # what droid-cell up refuses, lockstep refuses
-    subs = sorted(cell.subunits.values(), key=lambda s: not s.is_arm)  # arms first, stable
-    chosen = [(sub, choose_builder(cell, sub)) for sub in subs]
-    ctx = BuildContext(Scheduler(cell.heartbeat_hz), cell, int(cell.world.get("seed", 0)) if seed is None else seed)
+    if subunits is None:
+        subs = sorted(cell.subunits.values(), key=lambda s: not s.is_arm)  # arms first, stable
+        chosen = [(sub, choose_builder(cell, sub)) for sub in subs]
+    else:
+        chosen = [(cell.subunit(n), b if b is not None else choose_builder(cell, cell.subunit(n)))
+                  for n, b in subunits.items()]
+    ctx = BuildContext(Scheduler(cell.heartbeat_hz) if sched is None else sched, cell,
+                       int(cell.world.get("seed", 0)) if seed is None else seed, world=world)
     _build_all(ctx, chosen)
-    return LockstepCell(cell, ctx.sched, {n: ctx.built[n] for n in cell.subunits})
+    return LockstepCell(cell, ctx.sched, {n: ctx.built[n] for n in cell.subunits if n in ctx.built}, ctx)
 
 
-def build_subunits(sched: Scheduler, cell: Cell, chosen: dict[str, Callable], seed: int, *,
-                   world: dict | None = None) -> dict[str, LockstepSubunit]:
-    """Only the subunits of ``cell`` that ``chosen`` names (subunit name -> its builder, chosen and
-    checked by the caller: :func:`choose_builder`), in that order, on ``sched`` -- a task's own
-    scheduler at the cell's heartbeat; ``seed``: the context's; ``world``: a ``[world]`` table
-    instead of the cell's (:class:`~droid.sim.lockstep_build.BuildContext`).  What a builder
-    defers (``ctx.after``) runs once all are built."""
-    ctx = BuildContext(sched, cell, seed, world=world)
-    _build_all(ctx, [(cell.subunit(name), build) for name, build in chosen.items()])
-    return dict(ctx.built)
-
-
-def _build_all(ctx: BuildContext, chosen) -> None:
+def _build_all(ctx: BuildContext, chosen, deferred: int = 0) -> None:
     """Build each (subunit, builder) of ``chosen`` into ``ctx.built``, then run what the builders
-    deferred (``ctx.after``); on any error close what was built and raise it."""
+    deferred (``ctx.after``) from the ``deferred``-th on; on any error close what was built and
+    raise it."""
     try:
         for sub, build in chosen:
             ctx.built[sub.name] = build(ctx, sub)
-        for fn in ctx.finish:
+        for fn in ctx.finish[deferred:]:
             fn()
     except BaseException:
         for built in ctx.built.values():

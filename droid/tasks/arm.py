@@ -65,7 +65,9 @@ def say_stderr(line: str) -> None:
 
 
 class BrainArm:
-    """One arm subunit as a task program sees it."""
+    """One arm subunit as a task program sees it: the neutral arm's :class:`droid.arm.protocol.Arm`
+    on shared memory (``home`` and ``move_done`` wait on the wall clock), plus the target checks,
+    the waits that raise, and the positioning move that rides through a protective stop."""
 
     def __init__(self, cell: Cell, name: str) -> None:
         self.cell = cell
@@ -112,6 +114,11 @@ class BrainArm:
             return
         self.stopped_cmd = arm_command.stop(self.command)
         self.live_cmd = None
+
+    @property
+    def name(self) -> str:
+        """The arm's subunit name."""
+        return self.sub.name
 
     # -- reading ---------------------------------------------------------
     def read(self):
@@ -215,6 +222,33 @@ class BrainArm:
     def set_normal(self) -> None:
         """After homing the command mode becomes NORMAL (thesis §3.3); no new command."""
         arm_command.set_normal(self.command)
+
+    # -- the Arm protocol's waits: True when the arm got there, False when not in time --------
+    def home(self, timeout_s: float = 60.0) -> bool:
+        """HOME, wait until homed and idle (at most ``timeout_s`` [s]), then NORMAL; False when it
+        did not home in time, went stale or its homing ended otherwise (droid-home's checks that
+        name the reason are :func:`droid.tasks.home.home`)."""
+        cmd_id = self.command_home()
+        try:
+            rec = self.wait(lambda r: int(r["cmd_id"]) == cmd_id and int(r["busy"]) == 0
+                            and (int(r["homed"]) or int(r["cmd_result"]) != CMD_OK), timeout_s,
+                            f"{self.sub.name} to home")
+        except RuntimeFailure:
+            return False
+        self.live_cmd = None
+        if not int(rec["homed"]):
+            return False
+        self.set_normal()
+        return True
+
+    def move_done(self, cmd_id: int, timeout_s: float) -> bool:
+        """Wait until the Status acknowledges ``cmd_id`` and is idle (at most ``timeout_s`` [s]);
+        False when not in time or stale (:meth:`wait_done` raises instead and judges the result)."""
+        try:
+            self.wait_finished(cmd_id, timeout_s)
+        except RuntimeFailure:
+            return False
+        return True
 
     # -- waiting -----------------------------------------------------------
     def wait(self, pred, timeout_s: float, what: str):

@@ -20,7 +20,7 @@ runs them against the Brain's Status and Command records.
   arm's joint angles [deg] projected onto the straight line in joint space from the move's
   start to its target -- the line the planner's way-points follow (a joint command
   interpolates counts linearly; a cartesian one is resolved to a joint target first,
-  droid/subunits/reis/planner.py) -- as a fraction of the line's length, clamped to [0, 1].
+  droid/arm/planner.py) -- as a fraction of the line's length, clamped to [0, 1].
   Measured where the arm came to rest, always against the first move of the task (its
   start and its target), so a second stop says how far along the whole move it was.
 * **The resumed move's duration** (:func:`resumed_seconds`): the remaining joint-space

@@ -9,11 +9,11 @@ def test_subunit_side_imports_no_world():
     for path in (DROID / "subunits" / "abb").rglob("*.py"):
         for n in droid_imports(path):
             assert within(n, ("droid.brain", "droid.kinematics", "droid.cli", "droid.numbers",
-                              "droid.subunits")), (path, n)
+                              "droid.subunits", "droid.arm")), (path, n)
 
 
 TWIN = ("droid.brain", "droid.kinematics", "droid.cli", "droid.numbers", "droid.subunits", "droid.sim.device",
-        "droid.sim.gmf1.dynamics", "droid.sim.truth")
+        "droid.arm", "droid.sim.truth")  # droid.arm: the neutral arm (its twin's dynamics)
 #: the lockstep assembly (droid.sim.abb.lockstep) also steps the twin on the lockstep scheduler, with
 #: the Brain side every lockstep arm shares, the world's truth record's format and the registry's
 #: lockstep slot's protocol (droid.sim.lockstep_build)

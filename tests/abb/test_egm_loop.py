@@ -16,7 +16,7 @@ from droid.sim.abb.controller import EgmController, EgmTwinParams
 from droid.subunits.abb.egm_core import EgmCore
 from droid.subunits.abb.egm_layout import EGM_STATUS_LAYOUT
 from droid.subunits.abb.egm_prog import EgmStation
-from droid.subunits.reis.planner import PlannerCore, PlannerStation
+from droid.arm.planner import PlannerCore, PlannerStation
 
 MODEL = load_robot("abb_irb2400")
 START = [0.0, 10.0, 10.0, 0.0, 60.0, 0.0]

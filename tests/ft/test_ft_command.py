@@ -17,7 +17,7 @@ from droid.observe.scene import is_arm
 from droid.subunits.agent import AgentStation, CommandCopier
 from droid.subunits.ft.prog import FtCommandRule, FtCore, FtStation, ft_options
 from droid.subunits.ft import rdt
-from droid.subunits.reis.planner import PlannerCore
+from droid.arm.planner import PlannerCore
 from droid.tasks.ft_sensor import BrainFt
 from tests.ft.test_ft import CAL, ScriptedDevice, rec, settle
 from droid.sim.ft.netft import CalibrationPage

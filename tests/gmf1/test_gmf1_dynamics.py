@@ -13,9 +13,9 @@ from tests.robot_files import assert_refused, spoiled
 
 from droid.kinematics import RobotFileError, load_robot
 from droid.sim.gmf1.controller import KarelParams, Motion
-from droid.sim.gmf1.dynamics import ArmDynamics
+from droid.arm.arm_dynamics import ArmDynamics
 from droid.sim.gmf1.lockstep import Gmf1Lockstep
-from droid.sim.reis.dynamics import RigidBody
+from droid.arm.rigid_body import RigidBody
 
 S400 = Path(load_robot("fanuc_s400").source)
 TARGET = [1060.51, -165.66, 2295.23, -170.0, 30.0, -160.0]  # global frame, reachable (test_gmf1_lockstep)
@@ -55,7 +55,7 @@ def test_the_arm_lags_the_path_by_v_over_kp_and_settles_on_it_under_gravity():
 def test_a_dynamic_gmf1_homes_moves_and_reports_done_only_in_position():
     g = Gmf1Lockstep(params=KarelParams(dynamics=True))
     g.run_ticks(2)
-    g.home()
+    assert g.home()
     s = g.status()
     assert int(s["homed"]) == 1 and np.all(np.abs(s["encoder_pos"]) <= 1)
     cmd_id = g.command_cart(pose_to_T(*TARGET), g.ticks_for(2.0))

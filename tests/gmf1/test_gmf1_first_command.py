@@ -72,7 +72,8 @@ def restart_serial(g):
 def test_a_restarted_serial_program_does_not_replay_what_it_answered():
     g = Gmf1Lockstep()
     g.run_ticks(2)
-    home_id = g.home()
+    assert g.home()
+    home_id = g.home_id
     accepted = g.controller.accepted
     core = restart_serial(g)
     g.run_ticks(120)
@@ -83,7 +84,7 @@ def test_a_restarted_serial_program_does_not_replay_what_it_answered():
 def test_a_command_pending_when_the_serial_program_restarts_is_executed():
     g = Gmf1Lockstep()
     g.run_ticks(2)
-    g.home()
+    assert g.home()
     g.serial_running = False  # the program died; the agent still acknowledges
     cmd_id = g.command_cart(pose_to_T(*TARGET), g.ticks_for(1.0))
     g.run_ticks(5)

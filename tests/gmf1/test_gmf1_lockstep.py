@@ -24,7 +24,7 @@ def g():
 def homed():
     g = Gmf1Lockstep()
     g.run_ticks(2)
-    g.home()
+    assert g.home()
     return g
 
 
@@ -36,7 +36,8 @@ def test_home_zeroes_the_counters_and_sets_homed(g):
     g.run_ticks(10)
     s = g.status()
     assert int(s["homed"]) == 0 and np.any(s["encoder_pos"] != 0)  # power-up counter values
-    cmd_id = g.home()
+    assert g.home()
+    cmd_id = g.home_id
     s = g.status()
     assert int(s["homed"]) == 1 and int(s["cmd_id"]) == cmd_id and int(s["cmd_mode"]) == HOME_MODE
     assert np.all(np.abs(s["encoder_pos"]) <= 1)
@@ -238,7 +239,7 @@ def test_same_seed_same_run():
     def trial():
         g = Gmf1Lockstep(seed=5)
         g.run_ticks(2)
-        g.home()
+        assert g.home()
         cmd_id = g.command_cart(pose_to_T(*TARGET), g.ticks_for(1.0))
         g.run_until(lambda: g.done(cmd_id), 10)
         return g.t_s, g.status().tobytes(), g.controller.q_deg.tobytes()

@@ -71,7 +71,7 @@ def test_core_stops_arms_that_close_in_and_latches():
 
 def _planner_at_speed():
     from droid.kinematics import load_robot
-    from droid.subunits.reis.planner import COLLISION_BRAKE_TICKS, PlannerCore
+    from droid.arm.planner import COLLISION_BRAKE_TICKS, PlannerCore
 
     core = PlannerCore(load_robot("reis_v15"))
     core.int_counts = np.zeros(6)
@@ -84,7 +84,7 @@ def test_the_planner_ramps_a_protective_stop_down_along_the_path():
     core, n = _planner_at_speed()
     core._brake()
     steps = []
-    from droid.subunits.reis.planner import PlanOutput
+    from droid.arm.planner import PlanOutput
 
     prev = core.int_counts.copy()
     while core.time_count > 0:

@@ -195,13 +195,13 @@ def test_mass_matrix_equals_the_plants(offset_dyn_robot):
     """Pinocchio's crba of the URDF = the plant twin's link-side mass matrix at 20 poses.
 
     The plant twins build their rigid body from the robot file's [dh] and [dynamics]
-    (droid.sim.reis.dynamics.RigidBody, shared by the Reis plant and the GMF1 twin); on top
+    (droid.arm.rigid_body.RigidBody, shared by the Reis plant and the GMF1 twin); on top
     of it they add the motors' reflected rotor inertias (GMF1: ``diag(J_r N^2)``; Reis: the
     rotor inertias through the coupled gearing), which a URDF cannot carry (no armature
     element).  So this compares the link-side part, ``RigidBody.mass(q)``, and the gravity
     torques (gravity set from the file, since URDF has none).
     """
-    from droid.sim.reis.dynamics import RigidBody
+    from droid.arm.rigid_body import RigidBody
 
     models = [load_robot(n) for n in list_robots()] + [offset_dyn_robot]
     for k, m in enumerate(models):
@@ -221,7 +221,7 @@ def test_mass_matrix_equals_the_plants(offset_dyn_robot):
 
 def test_mass_check_can_fail():
     """A link mass off by 1 kg in the URDF text changes the mass matrix beyond the tolerance."""
-    from droid.sim.reis.dynamics import RigidBody
+    from droid.arm.rigid_body import RigidBody
 
     m = load_robot("reis_v15")
     text = robot_urdf(m).replace('<mass value="25"/>', '<mass value="26"/>', 1)

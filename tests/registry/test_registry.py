@@ -189,8 +189,9 @@ def test_the_registry_module_imports_no_device_package():
 
 
 def test_rates_are_declared_once():
-    from droid.experiments import arm_fast, trial
+    from droid.experiments import trial
     from droid.sim.reis import cell as reis_cell
+    from droid.sim.reis import fast_arm as arm_fast
     from droid.sim.reis.lockstep import LockstepRates
     from droid.subunits.reis import brake_log, servo_agent, servo_prog
     from droid.subunits.reis.servo_params import ServoParams

@@ -4,7 +4,7 @@ import pytest
 
 from droid.brain import layouts as L
 from droid.kinematics import load_robot
-from droid.subunits.reis.planner import PlannerCore
+from droid.arm.planner import PlannerCore
 
 MODEL = load_robot("reis_v15")
 

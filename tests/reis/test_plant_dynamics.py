@@ -11,7 +11,7 @@ import pytest
 from tests.robot_files import assert_refused, spoiled
 
 from droid.kinematics import load_robot
-from droid.sim.reis.dynamics import DhError, RigidBody
+from droid.arm.rigid_body import DhError, RigidBody
 from droid.sim.reis.plant import ReisPlant, ReisPlantParams
 from droid.subunits.reis.servo_params import ServoParams
 from droid.subunits.reis.vme import VmeBus

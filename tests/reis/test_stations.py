@@ -289,7 +289,8 @@ def test_the_shells_and_lockstep_call_the_same_stations():
     from droid.sim import arm_chain
     from droid.sim.reis import cell
     from droid.subunits import agent
-    from droid.subunits.reis import planner, servo_agent, servo_prog, watchdog_prog
+    from droid.arm import planner
+    from droid.subunits.reis import servo_agent, servo_prog, watchdog_prog
 
     shells = {servo_prog: "ServoStation(", watchdog_prog: "WatchdogStation(", servo_agent: "ServoAgentStation(",
               planner: "PlannerStation(", agent: "AgentStation(", remote: "RemoteStation("}

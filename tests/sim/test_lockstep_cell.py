@@ -318,3 +318,21 @@ def test_status_summary_is_plain_json():
     with build_lockstep_cell(PAIR) as lc:
         row = status_summary(lc.subunits["arm1"])
         assert json.loads(json.dumps(row))["subunit"] == "arm1" and "R" not in row
+
+
+def test_a_task_builds_only_what_it_needs_and_starts_the_rest_in_its_order():
+    """build_lockstep_cell(..., sched=, subunits=) builds the named subunits on a task's own
+    scheduler; LockstepCell.add starts another on the running scheduler (a declared start order:
+    the seam-tracking trial's holder starts once its welder is homed)."""
+    from droid.sim.lockstep import Scheduler
+
+    sched = Scheduler(60.0)
+    with build_lockstep_cell(ABB, 5, sched=sched, subunits={"abb": None}) as lc:
+        assert lc.sched is sched and list(lc.subunits) == ["abb"] and lc.ctx.seed == 5
+        lc.run_for(1.0)
+        gmf1 = lc.add("gmf1")
+        assert list(lc.subunits) == ["abb", "gmf1"] and gmf1.arm.name == "gmf1"
+        lc.run_for(0.5)
+        assert int(lc.subunits["abb"].status.read()["tick"]) == 90
+        encoder = sched.tasks[gmf1.stations["droid-gmf1-encoder"][0]]  # 120 Hz, from the instant it was added
+        assert encoder.start_ns == 1_000_000_000 and encoder.k == 61  # 1 s, 1 s + 1/120 s, ..., 1.5 s

@@ -29,7 +29,7 @@ import pytest
 
 from droid import kernel
 from droid.kinematics import load_robot
-from droid.sim.reis.dynamics import BACKENDS, DhError, RigidBody, pack_model
+from droid.arm.rigid_body import BACKENDS, DhError, RigidBody, pack_model
 from droid.sim.reis.plant import ReisPlant, ReisPlantParams
 from droid.subunits.reis import vme_map as vm
 

@@ -84,7 +84,7 @@ def test_a_reis_fault_mid_trial_ends_it_as_fault_at_once_and_nothing_is_commande
 def test_a_holder_fault_ends_the_trial_naming_the_gmf1(monkeypatch):
     """The GMF1's serial port vanishes mid-trial (FAULT_DEVICE in its Status, docs/gmf1.md): the
     trial ends as ``fault`` naming gmf1 -- the holder's Status goes through the same rule."""
-    from droid.experiments import holder as holder_mod
+    from droid.sim.gmf1 import holder as holder_mod
 
     made = []
 

@@ -2,7 +2,7 @@
 BrainArm.move).
 
 The decisions alone (pure), then BrainArm.move end to end against a small fake arm: the
-Brain's Status and Command records in memory, the real planner (droid.subunits.reis.planner:
+Brain's Status and Command records in memory, the real planner (droid.arm.planner:
 it cancels a move with CMD_FAILED when FAULT_BRAKING shows and takes no new one while it
 does), a servo that follows the planner's way-point, and scripted stops -- on a virtual
 clock, so no test waits in real time and none gives a verdict on timing.  The live test:
@@ -23,7 +23,7 @@ from droid.brain.classes import ARM6R
 from droid.brain.shmdb import MemoryDatabase
 from droid.cli import RuntimeFailure
 from droid.kinematics.transforms import T_to_pose
-from droid.subunits.reis.planner import PlannerCore, apply
+from droid.arm.planner import PlannerCore, apply
 from droid.tasks import arm as arm_mod
 from droid.tasks import resume as rs
 from droid.tasks.arm import BrainArm, Interrupted

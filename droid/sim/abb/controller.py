@@ -14,7 +14,7 @@ EGMActJoint, EGMStreamStart, then EGMRunJoint in a loop), as far as the sensor s
   (``vmax_deg_s``) and with accelerations of at most ``vmax / accel_time_s``; a datagram that is not a CORRECTION with six finite joints
   is counted and ignored;
 * the arm: the robot file's ``[dynamics]`` and ``[axis_servo]`` through the Fanuc twin's plant
-  (:class:`droid.sim.gmf1.dynamics.ArmDynamics`: the rigid body -- Pinocchio, or the compiled
+  (:class:`droid.arm.arm_dynamics.ArmDynamics`: the rigid body -- Pinocchio, or the compiled
   kernel's in droid-sim's world --, PI joint loops,
   amplifier limits, reducer compliance); ``dynamics = false`` puts an ideal arm on the reference;
 * the sensor side silent for ``comm_timeout_s`` while guided: EGMRunJoint ends (``mciState``
@@ -57,7 +57,7 @@ from droid.numbers import finite_numbers
 from droid.kinematics import RobotModel, load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.sim.device import Device, cell_arm_subunit, number_options
-from droid.sim.gmf1.dynamics import world_backend
+from droid.arm.rigid_body import world_backend
 from droid.sim.truth import TRUTH_PERIOD_S, TruthDoor, door_name
 from droid.subunits.abb import egm_schema as es
 from droid.subunits.abb.config import bind_udp, egm_config
@@ -104,7 +104,7 @@ class EgmController:
             raise ValueError("abb_egm: the power-up joint angles must be 6 values inside the joint limits")
         self.arm = None
         if self.p.dynamics:
-            from droid.sim.gmf1.dynamics import ArmDynamics
+            from droid.arm.arm_dynamics import ArmDynamics
 
             self.arm = ArmDynamics(model, q0, rigid_body)
         self._q_ideal = q0.copy()

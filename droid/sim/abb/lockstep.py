@@ -128,7 +128,8 @@ class LockstepAbbArm(ArmChain):
         return truth_dict(self.name, self.controller.t_s, self.controller.q_deg, self.wcp_global()[:3, 3])
 
 
-@builds("droid-egm", "droid-reis-agent", "droid-planner", check=lambda cell, sub: egm_device(cell, sub.name))
+@builds("droid-egm", "droid-reis-agent", "droid-planner", check=lambda cell, sub: egm_device(cell, sub.name),
+        truth=True)  # LockstepAbbArm.wcp_global: the controller twin's arm
 def build(ctx, sub) -> LockstepSubunit:
     """The lockstep slot of the ABB package (droid.sim.lockstep_build): :class:`LockstepAbbArm` of
     the subunit and its ``abb_egm`` world device (BadInput naming the file when there is none)."""

@@ -28,7 +28,7 @@ at a time, bytes out at a time, joint angles at a time; no I/O, no clock.
 * The arm (``KarelParams.dynamics``): False -- an ideal arm on the
   interpolated path (``q_deg`` is the trajectory); True -- the arm of the
   robot file's ``[dynamics]`` and ``[axis_servo]`` follows the path through
-  the controller's joint loops (:class:`droid.sim.gmf1.dynamics.ArmDynamics`:
+  the controller's joint loops (:class:`droid.arm.arm_dynamics.ArmDynamics`:
   gravity, inertia, friction, amplifier limits, reducer compliance), lagging
   it by v / kp and settling after DONE; ``q_deg`` is then the true link
   angles, ``q_motor_deg`` what the encoders count, ``q_cmd_deg`` the path.
@@ -154,7 +154,7 @@ class KarelController:
     """The controller + KAREL serial server; see the module docstring.
 
     ``model`` is the robot in its BASE frame; ``q0_deg`` the joint angles at power-up;
-    ``rigid_body`` the arm twin's rigid-body backend (:class:`droid.sim.gmf1.dynamics.ArmDynamics`).
+    ``rigid_body`` the arm twin's rigid-body backend (:class:`droid.arm.arm_dynamics.ArmDynamics`).
     Drive it with :meth:`receive` (host bytes), :meth:`advance` (time) and
     :meth:`transmit` (bytes for the host); read :attr:`q_deg`.
     """
@@ -168,7 +168,7 @@ class KarelController:
             raise ValueError("karel: the power-up joint angles must be 6 values inside the joint limits")
         self.arm = None
         if self.p.dynamics:
-            from droid.sim.gmf1.dynamics import ArmDynamics
+            from droid.arm.arm_dynamics import ArmDynamics
 
             self.arm = ArmDynamics(model, self.q_cmd_deg, rigid_body)
         self._done_pending: tuple[int, float] | None = None  # (motion id, path end [s]): DONE after in-position

@@ -43,7 +43,7 @@ from droid.kinematics import Unreachable, load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.sim.gmf1.cards import Quad04Twin, SharedCard
 from droid.sim.gmf1.controller import KarelController, KarelParams
-from droid.sim.reis.dynamics import world_backend
+from droid.arm.rigid_body import world_backend
 from droid.sim.serial_cable import PtyEnd, TcpEnd
 from droid.sim.device import Device, arm_subunit, number_options
 from droid.subunits.gmf1.config import gmf1_config

@@ -156,15 +156,16 @@ class Gmf1Lockstep:
                 return True
         return False
 
-    def home(self, timeout_s: float = 30.0) -> int:
-        """droid-home: command HOME and run until homed and idle; returns the cmd_id."""
-        cmd_id = self.command_home()
+    def home(self, timeout_s: float = 30.0) -> bool:
+        """droid-home: command HOME and run until homed and idle (``timeout_s`` [s] at most), then
+        NORMAL; whether it homed (as :meth:`droid.sim.arm_chain.ArmTasks.home`; the command's id is
+        :attr:`home_id`)."""
+        cmd_id = self.home_id = self.command_home()
         ok = self.run_until(lambda: self.done(cmd_id) and int(self.ctrl_status.read()["homed"]) == 1, timeout_s)
-        if not ok:
-            raise RuntimeError("lockstep gmf1 did not home")
-        with self.brain_command.locked() as c:
-            c["cmd_mode"] = NORMAL_MODE
-        return cmd_id
+        if ok:
+            with self.brain_command.locked() as c:
+                c["cmd_mode"] = NORMAL_MODE
+        return ok
 
     @property
     def t_s(self) -> float:
@@ -224,6 +225,6 @@ def build(ctx, sub) -> LockstepSubunit:
                 "droid-gmf1-serial": [ls.tasks["serial"]], "droid-gmf1-encoder": [ls.tasks["encoder"]]}
     ls.encoder_running = "droid-gmf1-encoder" in sub.programs
     ls.serial_running = "droid-gmf1-serial" in sub.programs
-    arm = ArmTasks.over(ctx.sched, ls.remote.status, ls.brain_command)
+    arm = ArmTasks.over(ctx.sched, ls.remote.status, ls.brain_command, sub.name)
     return LockstepSubunit(sub.name, sub.cls, ls.remote.status, ls.brain_command,
                            {p: t for p, t in stations.items() if p in sub.programs}, arm, ls)

@@ -140,7 +140,7 @@ class Predictor:
     """What the controller expects to see: its robot file's kinematics and drive deflection."""
 
     def __init__(self, model) -> None:
-        from droid.sim.reis.dynamics import RigidBody
+        from droid.arm.rigid_body import RigidBody
 
         self.model = model.with_base(np.eye(4))
         dyn = model.dynamics

@@ -218,7 +218,8 @@ PROGRAM_ALIVE = {"droid-watchdog": "watchdog", "droid-servo": "servo", "droid-se
                  "droid-reis-agent": "link", "droid-planner": "planner"}
 
 
-@builds("droid-watchdog", "droid-servo", "droid-servo-agent", "droid-reis-agent", "droid-planner")
+@builds("droid-watchdog", "droid-servo", "droid-servo-agent", "droid-reis-agent", "droid-planner",
+        truth=True)  # LockstepArm.wcp_global: the plant's true arm
 def build(ctx, sub):
     """The lockstep slot of the Reis package (droid.sim.lockstep_build): the subunit's arm, from
     its ``reis_vme`` world device when the cell has one (its world errors), else the controller's

@@ -56,7 +56,7 @@ read at the start, encoders, limit switches and AMP_STATUS written at the end
 deterministic.
 
 ``M(q)``, ``C qd + g`` and the forward dynamics come from
-:class:`droid.sim.reis.dynamics.RigidBody`: Pinocchio's by default (lockstep trials), the
+:class:`droid.arm.rigid_body.RigidBody`: Pinocchio's by default (lockstep trials), the
 compiled kernel's in droid-sim's world (``rigid_body="kernel"``, so that the real-time
 simulator does not import Pinocchio); this module imports neither itself.
 """
@@ -71,7 +71,7 @@ import numpy as np
 
 from droid import kernel as _kernel_switch
 from droid.kinematics import load_robot
-from droid.sim.reis.dynamics import DhError, KernelRigidBody, RigidBody
+from droid.arm.rigid_body import DhError, KernelRigidBody, RigidBody
 from droid.subunits.reis import vme_map as vm
 
 Six = tuple[float, float, float, float, float, float]
@@ -182,7 +182,7 @@ class ReisPlantParams:
 
 def expm(m: np.ndarray) -> np.ndarray:
     """Matrix exponential (scaling and squaring, 18-term Taylor); numpy only.  Also the fast
-    arm model's per-joint transition (droid.experiments.arm_fast)."""
+    arm model's per-joint transition (droid.sim.reis.fast_arm)."""
     norm = np.max(np.sum(np.abs(m), axis=1))
     k = max(0, int(math.ceil(math.log2(norm))) + 1) if norm > 0.5 else 0
     a = m / (2.0 ** k)
@@ -214,7 +214,7 @@ class ReisPlant:
     :mod:`droid.sim.reis.vme_shm`); by default it is a private bytearray.
     ``encoder_power_up_counts`` and ``initial_joint_deg`` override the seeded
     power-up values (tests).  ``rigid_body``: the links' rigid-body dynamics
-    (:class:`droid.sim.reis.dynamics.RigidBody`'s backend): ``"pinocchio"`` (the
+    (:class:`droid.arm.rigid_body.RigidBody`'s backend): ``"pinocchio"`` (the
     default; lockstep trials, whose published results it reproduces bit for bit) or
     ``"kernel"`` (the compiled RNEA/CRBA, no Pinocchio import: droid-sim's world).
     """

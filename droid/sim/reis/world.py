@@ -43,7 +43,7 @@ import numpy as np
 from droid.cli import BadInput
 from droid.kinematics import RobotFileError, load_robot
 from droid.kinematics.transforms import pose_to_T
-from droid.sim.reis.dynamics import DhError, world_backend
+from droid.arm.rigid_body import DhError, world_backend
 from droid.sim.reis.plant import ReisPlant, ReisPlantParams
 from droid.sim.truth import TRUTH_PERIOD_S, TruthDoor, door_name
 from droid.sim.reis.vme_shm import SharedVmeMap

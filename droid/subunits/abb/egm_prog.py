@@ -36,7 +36,7 @@ from droid.kinematics import load_robot
 from droid.subunits.abb.config import bind_udp, egm_bind_config
 from droid.subunits.abb.egm_core import MY_FAULTS, N as N_JOINTS, EgmCore, EgmOutput, reported_joint_count
 from droid.subunits.abb.egm_layout import EGM_STATUS_LAYOUT
-from droid.subunits.reis.servo_agent import TickPacer
+from droid.arm.pacer import TickPacer
 
 PROG = "droid-egm"
 #: datagrams read per wake-up, at most (a flood cannot starve the heartbeat cycle)

@@ -27,4 +27,5 @@ PACKAGE = DevicePackage(
                     "shm://NAME or mem:///PATH?offset=0xADDR"),),
     twins=(Twin("karel_s400", "droid.sim.gmf1.karel:make_karel", serves=("arm6r",), cpu_pct=2.5),),
     lockstep="droid.sim.gmf1.lockstep:build",
+    lockstep_models=(("holder", "droid.sim.gmf1.holder:Gmf1Holder"),),  # a trial's workpiece holder
 )

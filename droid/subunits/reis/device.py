@@ -29,7 +29,7 @@ PACKAGE = DevicePackage(
         Program("droid-servo-agent", "droid.subunits.reis.servo_agent", rate_hz=HEARTBEAT_HZ, sched="fifo",
                 priority=54, cpu_pct=4.5, rss_mb=47),
         Program("droid-reis-agent", "droid.subunits.reis.agent", sched="fifo", priority=51, cpu_pct=3.5, rss_mb=42),
-        Program("droid-planner", "droid.subunits.reis.planner", sched="fifo", priority=51, cpu_pct=2.5, rss_mb=47),
+        Program("droid-planner", "droid.arm.planner", sched="fifo", priority=51, cpu_pct=2.5, rss_mb=47),
         Program("droid-calibrate", "droid.sim.reis.calibrate", role="tool"),
     ),
     drivers=(Driver("vme", ("shm", "mem"), "droid.subunits.reis.vme:open_vme",
@@ -37,4 +37,5 @@ PACKAGE = DevicePackage(
     twins=(Twin("reis_vme", "droid.sim.reis.world:make_reis", serves=("arm6r",), cpu_pct=2.0),
            Twin("contact", "droid.sim.contact_device:make_contact", cpu_pct=0.5)),  # a workpiece pushing on its tool
     lockstep="droid.sim.reis.cell:build",
+    lockstep_models=(("fast", "droid.sim.reis.fast_arm:FastArm"),),  # calibrated against its servo and plant
 )

@@ -22,7 +22,7 @@ from __future__ import annotations
 from droid.brain.layouts import FAULT_WATCHDOG
 from droid.subunits.reis import servo_wire as sw
 from droid.subunits.reis import vme_map as vm
-from droid.subunits.reis.planner import PlannerStation
+from droid.arm.planner import PlannerStation  # droid-planner: the neutral arm's, run by the Reis
 from droid.subunits.reis.servo import ServoCore
 from droid.subunits.reis.servo_agent import ServoAgentStation
 from droid.subunits.reis.watchdog import WatchdogCore

@@ -8,7 +8,7 @@ puts exactly that on a trial's scheduler
 (:class:`droid.sim.gmf1.lockstep.Gmf1Lockstep`): the Fanuc twin -- the
 KAREL controller at 9600 baud, its interpolated path, the arm of the robot
 file's ``[dynamics]`` and ``[axis_servo]`` behind it
-(:mod:`droid.sim.gmf1.dynamics`), the encoder cards -- and the GMF1
+(:mod:`droid.arm.arm_dynamics`), the encoder cards -- and the GMF1
 programs' cores (serial, encoder, the agent's command copy).
 
 * :meth:`prepare` (before the trial's clock starts): home from the zero pose
@@ -26,7 +26,8 @@ drifts); :meth:`status_pose`: the pose the tracker reads (the encoder program's
   which places the workpiece for the sensors.
 
 The GMF1 is built by its package's lockstep builder (droid.sim.gmf1.lockstep.build, through the
-registry: droid.experiments.trial_cell.TrialCell.build_arms) from the trial's cell -- the built-in cell
+registry: droid.experiments.trial_cell.TrialCell.build_arms, the layout's holder_robot whose package
+registers this ``holder`` model) from the trial's cell -- the built-in cell
 (droid/cells/sim.toml) or ``TrialConfig.cell`` -- at the subunit its layout names holder_robot: its
 serial line, encoder cards and rates, robot file and base; the twin is the trial's own
 (:func:`holder_device`): homing from the zero pose, the arm's dynamics, the world stepped at
@@ -60,14 +61,25 @@ def holder_device(subunit: str) -> dict:
 
 
 class Gmf1Holder:
-    """The GMF1 in a trial (see the module docstring)."""
+    """The GMF1 in a trial (see the module docstring): the GMF1 package's ``holder`` lockstep model
+    (droid.subunits.gmf1.device, ``lockstep_models``), made as ``Gmf1Holder(sched, built,
+    q_hold_deg)`` over the subunit its builder built, with its trial world
+    (:meth:`trial_world`)."""
 
-    def __init__(self, sched: Scheduler, g: Gmf1Lockstep, q_hold_deg) -> None:
-        """``g``: the GMF1 the builder put on ``sched`` (the module docstring); ``q_hold_deg``:
-        the holding pose [deg]."""
+    @staticmethod
+    def trial_world(subunit: str) -> dict:
+        """The ``[world]`` table a trial builds its cell in when this model holds (the builders read
+        it, droid.sim.lockstep_build.BuildContext.world): the holder's twin (:func:`holder_device`)
+        stepped at :data:`WORLD_HZ`, and no other world device."""
+        return {"rate_hz": WORLD_HZ, "devices": {"trial_holder": holder_device(subunit)}}
+
+    def __init__(self, sched: Scheduler, built, q_hold_deg) -> None:
+        """``built``: the GMF1 subunit its builder put on ``sched`` (a LockstepSubunit: its
+        ``parts``, the :class:`Gmf1Lockstep`; the module docstring); ``q_hold_deg``: the holding
+        pose [deg]."""
         self.sched = sched
         self.q_hold = np.asarray(q_hold_deg, float)
-        self.g = g
+        self.g: Gmf1Lockstep = built.parts
         self.model = self.g.model
         self._q_seen = None
         self._T_true = None
@@ -75,10 +87,8 @@ class Gmf1Holder:
     def prepare(self) -> None:
         """Home, then move to the holding pose and settle; RuntimeFailure if either does not finish."""
         self.g.run_ticks(2)  # the serial program opens its port, the encoder reads the cards
-        try:
-            self.g.home(HOME_TIMEOUT_S)
-        except RuntimeError:
-            raise RuntimeFailure("the GMF1 did not home") from None
+        if not self.g.home(HOME_TIMEOUT_S):
+            raise RuntimeFailure("the GMF1 did not home")
         counts = np.rint(self.model.gearing.joints_to_counts(self.q_hold)).astype(np.int32)
         cmd = self.g.command_joint(counts, self.g.ticks_for(MOVE_S))
         if not self.g.run_until(lambda: self.g.done(cmd), MOVE_TIMEOUT_S):

@@ -11,7 +11,7 @@ sourced there).
 The model (a justified simplification of the Reis's plant twin,
 :mod:`droid.sim.reis.plant`):
 
-* **Rigid-body dynamics** (:class:`droid.sim.reis.dynamics.RigidBody`, the same builder from
+* **Rigid-body dynamics** (:class:`droid.arm.rigid_body.RigidBody`, the same builder from
   the D-H table and ``[dynamics]``; Pinocchio in lockstep trials, the compiled kernel in
   droid-sim's world): the joint-space
   mass matrix ``M(q)`` plus the reflected rotor inertias ``J_r N^2``, and the
@@ -38,6 +38,10 @@ The model (a justified simplification of the Reis's plant twin,
   torque it carries); the resonance of ``K`` against the link inertia lies far
   above the loops' bandwidth, so it is not integrated.
 
+The neutral arm's (:mod:`droid.arm`): the GMF1's KAREL twin (droid.sim.gmf1.controller) and the
+ABB's EGM controller twin (droid.sim.abb.controller) both drive their arm through it, each from
+its own robot file.
+
 Gravity acts along -z of the robot's BASE frame (the controller's model has
 no base transform; the GMF1 stands upright in every cell).  Angles here are
 radians internally; the interface is degrees like the controller's.
@@ -49,7 +53,7 @@ import math
 import numpy as np
 
 from droid.kinematics import RobotModel
-from droid.sim.reis.dynamics import world_backend  # noqa: F401 - the arm twins' devices choose with it
+from droid.arm.rigid_body import world_backend  # noqa: F401 - the arm twins' devices choose with it
 
 #: The mass matrix and gravity are re-evaluated this often [s].
 MODEL_PERIOD_S = 0.01
@@ -70,12 +74,12 @@ class ArmDynamics:
     the world's rate, KAREL's interpolation is far slower).  Read
     :attr:`q_deg` (the links: the truth) and :attr:`q_motor_deg` (the motor
     side, what the encoder cards count, in joint degrees).  ``rigid_body``: the
-    :class:`droid.sim.reis.dynamics.RigidBody` backend, ``"pinocchio"`` (the default: lockstep
+    :class:`droid.arm.rigid_body.RigidBody` backend, ``"pinocchio"`` (the default: lockstep
     trials) or ``"kernel"`` (droid-sim's world: no Pinocchio import).
     """
 
     def __init__(self, model: RobotModel, q0_deg, rigid_body: str = "pinocchio") -> None:
-        from droid.sim.reis.dynamics import RigidBody  # a simulator's module (kinematics imports none)
+        from droid.arm.rigid_body import RigidBody  # a simulator's module (kinematics imports none)
 
         dyn, sv = model.dynamics, model.axis_servo
         if dyn is None or sv is None:
