@@ -14,7 +14,7 @@ EGM (droid.sim.abb.lockstep.LockstepAbbArm: droid-egm and the controller twin; i
 
 The experiments' default arm model (issue 13 item 5): every repetition homes from its own
 seeded power-up pose, so experiment 4 measures repeatability.  ~5-10x slower than the
-``fast`` model (droid.experiments.arm_fast; docs/benchmarks.md).
+``fast`` model (droid.sim.reis.fast_arm; docs/benchmarks.md).
 """
 from __future__ import annotations
 

@@ -33,7 +33,7 @@ from droid.cli import BadInput
 DEFAULT_STALE_TICKS = 6
 STALE_TICKS_RANGE = (2, 600)
 #: the applied speed follows the override by at most this a tick (1/15: the protective stop's
-#: 15-tick ramp, droid.subunits.reis.planner.COLLISION_BRAKE_TICKS)
+#: 15-tick ramp, droid.arm.planner.COLLISION_BRAKE_TICKS)
 RAMP = 1.0 / 15.0
 
 

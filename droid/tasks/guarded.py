@@ -81,7 +81,7 @@ def refuse_colliding_move(cell, arm: str, q_from_deg, q_to_deg, seconds: float, 
         line = check_move(scene, arm, q_from_deg, q_to_deg, seconds, now, moves,
                           p.clearance_mm + p.uncertainty_mm)
         if not line:
-            return waited
+            return waited if said else 0.0
         if not busy or waited >= wait_s:
             raise BadInput(line + (f"; the region did not clear in {waited:.1f} s" if said else ""))
         if not said:

@@ -16,7 +16,7 @@ from droid.brain.shmdb import MemoryDatabase
 from droid.cli import BadInput
 from droid.guard.gate import DEFAULT_STALE_TICKS, GuardGate, guard_stale_ticks
 from droid.kinematics import load_robot
-from droid.subunits.reis.planner import COLLISION_BRAKE_TICKS, PlannerCore, PlannerStation
+from droid.arm.planner import COLLISION_BRAKE_TICKS, PlannerCore, PlannerStation
 
 MODEL = load_robot("reis_v15")
 TARGET = np.array([4000, -3000, 2000, 1000, -500, 800])

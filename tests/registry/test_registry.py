@@ -158,7 +158,7 @@ def test_builtin_packages_make_the_old_tables():
     assert rt.FIFO_PRIORITIES == {
         "droid-servo": 60, "droid-watchdog": 55, "droid-servo-agent": 54, "droid-egm": 54, "droid-ft": 53, "droid-sim": 52,
         "droid-planner": 51, "droid-agent": 51, "droid-reis-agent": 51,
-        "droid-heartbeat": 50, "droid-remote": 50, "droid-fault": 50, "droid-record": 10}
+        "droid-heartbeat": 50, "droid-remote": 50, "droid-fault": 50, "droid-guard": 50, "droid-record": 10}
     # off the kernel's real-time budget: a tick's deadline or longer, and no servo fed (issue 40)
     assert {p.name for p in R.registry().programs.values() if p.sched == "nice"} == {
         "droid-gmf1-agent", "droid-gmf1-encoder", "droid-mvs", "droid-seamtrack", "droid-contact"}
