@@ -76,7 +76,10 @@ def run_live(cell_path, seconds: float | None, ready_fd: int | None = None) -> i
             arms[name] = (load_robot(sub.robot).gearing, brain, local, command)
         status_db = open_status(cell, create_missing=True)
         dbs.append(status_db)
-        station = GuardStation(core, arms, status_db, stale)
+        # a planner's arm reports its next way-point in encoder_cmd; another arm (a controller
+        # that interpolates its own moves) its move's target: see GuardStation.joints
+        waypoints = {n for n in core.scene.arms if "droid-planner" in cell.subunit(n).programs}
+        station = GuardStation(core, arms, status_db, stale, waypoints)
         Stop.install()
         curve = CurveHost(ctx, cell, cell.brain_host)
         ticks = TickSubscriber(ctx, cell.heartbeat, curve, cell.brain_host)

@@ -36,11 +36,6 @@ ORDER_GUARD = 25
 STATE_CODES = {name: code for code, name in GUARD_STATE_NAMES.items()}
 
 
-#: a commanded vector this far [deg] on some joint from the measured one is not a next way-point
-#: (:meth:`GuardStation.joints`): 10 deg in one 60 Hz tick would be 600 deg/s, beyond every arm here
-WAYPOINT_MAX_DEG = 10.0
-
-
 def set_collision_fault(ctrl_status, on: bool) -> None:
     """FAULT_COLLISION in an arm's own Status (its other bits kept)."""
     set_fault_bit(ctrl_status, FAULT_COLLISION, on)
@@ -54,10 +49,13 @@ class GuardStation:
     """The guard over arms ``{name: (gearing, brain_status, ctrl_status[, brain_command])}`` (see the
     module docstring); ``status_db``: the guard's Status record, or None."""
 
-    def __init__(self, core: GuardCore, arms: dict, status_db=None, stale_ticks: int = DEFAULT_STALE_TICKS) -> None:
+    def __init__(self, core: GuardCore, arms: dict, status_db=None, stale_ticks: int = DEFAULT_STALE_TICKS,
+                 waypoints: set[str] | None = None) -> None:
         if len(arms) > GUARD_ARMS:
             raise ValueError(f"a guard Status holds {GUARD_ARMS} arms, the cell has {len(arms)}")
         self.core, self.arms = core, arms
+        #: the arms whose Status ``encoder_cmd`` is a planner's next way-point (None: every arm)
+        self.waypoints = None if waypoints is None else set(waypoints)
         self.status_db = status_db
         self.stale_ticks = int(stale_ticks)
         self.enabled = True
@@ -76,18 +74,19 @@ class GuardStation:
                 status_db.mark_written()
 
     def joints(self) -> tuple[dict, dict]:
-        """Measured and commanded joints [deg] of every arm from its Brain Status.  A commanded
-        vector farther than :data:`WAYPOINT_MAX_DEG` from the measured one on some joint is not
-        a next way-point -- it is a whole move's target, as an arm whose controller interpolates
-        its own moves reports (the GMF1's KAREL move: ``encoder_cmd`` is its end, and zeros when
-        idle) -- and the measured joints stand in for it: taken as a way-point, a 30 deg target
-        one tick ahead read as a closing speed of tens of m/s and stopped the cell."""
+        """Measured and commanded joints [deg] of every arm from its Brain Status.  Only an arm in
+        :attr:`waypoints` (a planner sends it one way-point a tick: the Reis, the ABB) has its
+        ``encoder_cmd`` taken as the next way-point; for another (the GMF1, whose KAREL
+        controller interpolates its own moves) ``encoder_cmd`` is a whole move's target, or
+        zeros when idle, and the measured joints stand in for it -- taken as a way-point, a
+        target 9-30 deg away one tick ahead read as a closing speed of tens of m/s and stopped
+        the live cell on every GMF1 move."""
         meas, cmd = {}, {}
         for name, (gearing, brain_status, *_rest) in self.arms.items():
             st = brain_status.read()
             meas[name] = gearing.counts_to_joints(np.asarray(st["encoder_pos"], float))
-            c = gearing.counts_to_joints(np.asarray(st["encoder_cmd"], float))
-            cmd[name] = c if float(np.max(np.abs(c - meas[name]))) <= WAYPOINT_MAX_DEG else meas[name]
+            cmd[name] = (gearing.counts_to_joints(np.asarray(st["encoder_cmd"], float))
+                         if self.waypoints is None or name in self.waypoints else meas[name])
         return meas, cmd
 
     def on_tick(self, tick: int) -> None:
@@ -180,6 +179,7 @@ def attach_lockstep(sched, cell, subunits: dict, scene=None, status_db=None, gat
             for station in (getattr(parts, "planner", None), getattr(parts, "serial", None)):
                 if station is not None and hasattr(station, "gate"):  # the Reis/ABB planner, the GMF1's serial
                     station.gate = GuardGate(stale)
-    station = GuardStation(core, arms, status_db, stale)
+    waypoints = {n for n in core.scene.arms if getattr(subunits[n].parts, "planner", None) is not None}
+    station = GuardStation(core, arms, status_db, stale, waypoints)
     sched.on_tick(station.on_tick, "droid-guard", order=ORDER_GUARD)
     return station

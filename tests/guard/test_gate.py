@@ -138,6 +138,37 @@ def test_the_station_writes_its_tick_and_overrides_into_the_commands_and_its_sta
     assert all(int(cmd.read()["guard_tick"]) == 42 for *_, cmd in arms.values())
 
 
+def test_a_move_target_in_encoder_cmd_is_not_taken_for_a_way_point():
+    """The GMF1 reports its KAREL move's target in ``encoder_cmd`` (zeros when idle), not a next
+    way-point: only the arms in ``waypoints`` have it read as one.  Both arms stand still; the
+    Fanuc's encoder_cmd lies 9 deg away on joints 1 and 2 (a move's end, as live): taken as a
+    way-point it reads as a closing speed of metres a second and stops the cell, as it did live."""
+    from droid.guard.station import GuardStation, guard_core
+
+    cell = load_cell(BUNDLED_CELLS / "sim.toml")
+
+    def station(waypoints):
+        core = guard_core(cell)
+        arms = {}
+        for name in core.scene.arms:
+            model = load_robot(cell.subunits[name].robot)
+            q = np.asarray(model.home_switch_deg, float)
+            brain = MemoryDatabase(f"{name}.status", L.ARM_STATUS_LAYOUT)
+            target = q + (np.array([9.0, -9.0, 0, 0, 0, 0]) if name == "gmf1" else 0.0)
+            brain.update(encoder_pos=np.rint(model.gearing.joints_to_counts(q)),
+                         encoder_cmd=np.rint(model.gearing.joints_to_counts(target)))
+            arms[name] = (model.gearing, brain, MemoryDatabase(f"{name}.ctrl_status", L.CTRL_STATUS_LAYOUT),
+                          MemoryDatabase(f"{name}.command", L.ARM_COMMAND_LAYOUT))
+        return GuardStation(core, arms, None, stale_ticks=7, waypoints=waypoints)
+
+    wrong, right = station(None), station({"arm1"})
+    for tick in (1, 2, 3):
+        wrong.on_tick(tick)
+        right.on_tick(tick)
+    assert wrong.last.closing_mm_s > 1000.0 and wrong.last.state == "stopped"
+    assert right.last.closing_mm_s == 0.0 and right.last.state == "clear" and right.core.trips == 0
+
+
 def test_the_fault_campaign_pauses_and_kills_droid_guard_in_a_cell_with_a_guard():
     from droid.faults.campaign import GUARD_TARGETS, plan
 
