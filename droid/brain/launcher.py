@@ -78,7 +78,9 @@ def cell_programs(cell: Cell, hosts: set[str] | None = None) -> tuple[list[Spec]
         specs.append(Spec(presence_key("droid-names"), "droid-names", [], cell.brain_host))
         specs.append(Spec(presence_key("droid-heartbeat"), "droid-heartbeat", [], cell.brain_host))
         specs.extend(remote_specs(cell))
-        if "guard" in cell.raw:  # the collision guard (issue 41; docs/guard.md)
+        from droid.guard.gate import guard_runs  # beside the Brain, imported where used (as check_guard_homes)
+
+        if guard_runs(cell):  # the live collision guard (issue 41; docs/guard.md)
             specs.append(Spec(presence_key("droid-guard"), "droid-guard", [], cell.brain_host))
     if cell.world.get("enabled", True) and want(cell.world.get("host", cell.brain_host)):
         specs.append(Spec(presence_key("droid-sim"), "droid-sim", [], cell.world["host"]))

@@ -32,7 +32,7 @@ from droid.kinematics.cli import cell_mounts
 from droid.kinematics.robots import RobotFileError
 from droid.kinematics.transforms import pose_to_T
 
-GUARD_KEYS = {"allow", "workpiece", "fixtures", "ssm", "stale_ticks"}
+GUARD_KEYS = {"allow", "workpiece", "fixtures", "ssm", "stale_ticks", "run"}
 
 
 @dataclass

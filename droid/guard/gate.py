@@ -37,11 +37,27 @@ STALE_TICKS_RANGE = (2, 600)
 RAMP = 1.0 / 15.0
 
 
+def guard_runs(cell) -> bool:
+    """Does the cell run the live guard -- droid-guard started by droid-cell up, and the planners'
+    stale rule and override?  Where it declares ``[guard]`` and its ``run`` is true (the default).
+    ``run = false`` keeps the guard's bodies for droid-move's refusal, droid-cell up's home check
+    and droid-guard check, with no live guard (the shipped cells: docs/guard.md "The live guard
+    on the shipped cells").  A ``run`` that is not true or false is one line (BadInput)."""
+    table = cell.raw.get("guard")
+    if not isinstance(table, dict):
+        return table is not None
+    run = table.get("run", True)
+    if not isinstance(run, bool):
+        raise BadInput(f"{cell.path}: [guard] run: must be true or false, got {run!r}")
+    return run
+
+
 def guard_stale_ticks(cell) -> int | None:
     """The cell's ``[guard] stale_ticks`` (default :data:`DEFAULT_STALE_TICKS`); None when the
-    cell declares no guard (its planners keep no gate).  A bad value is one line (BadInput)."""
+    cell runs no live guard (:func:`guard_runs`: its planners keep no gate).  A bad value is one
+    line (BadInput)."""
     table = cell.raw.get("guard")
-    if table is None:
+    if table is None or not guard_runs(cell):
         return None
     v = table.get("stale_ticks", DEFAULT_STALE_TICKS) if isinstance(table, dict) else DEFAULT_STALE_TICKS
     lo, hi = STALE_TICKS_RANGE

@@ -99,8 +99,14 @@ def test_a_guard_gone_stale_ends_the_move_along_its_path():
 
 def test_stale_ticks_from_the_cell_file(tmp_path):
     sim = load_cell(BUNDLED_CELLS / "sim.toml")
-    assert guard_stale_ticks(sim) == DEFAULT_STALE_TICKS
-    text = (BUNDLED_CELLS / "sim.toml").read_text().replace("[guard]\n", "[guard]\nstale_ticks = 1\n", 1)
+    assert guard_stale_ticks(sim) is None  # the shipped cell runs no live guard ([guard] run = false)
+    on = (BUNDLED_CELLS / "sim.toml").read_text().replace("\nrun = false\n", "\nrun = true\n", 1)
+    (tmp_path / "on.toml").write_text(on)
+    assert guard_stale_ticks(load_cell(tmp_path / "on.toml")) == DEFAULT_STALE_TICKS
+    (tmp_path / "odd.toml").write_text(on.replace("\nrun = true\n", "\nrun = 1\n", 1))
+    with pytest.raises(BadInput, match=r"\[guard\] run: must be true or false, got 1"):
+        guard_stale_ticks(load_cell(tmp_path / "odd.toml"))
+    text = on.replace("[guard]\n", "[guard]\nstale_ticks = 1\n", 1)
     bad = tmp_path / "bad.toml"
     bad.write_text(text)
     with pytest.raises(BadInput, match=r"\[guard\] stale_ticks: must be an integer in \[2, 600\]"):

@@ -1,5 +1,7 @@
-"""droid-guard on the live sim cell (issue 41; integration: they bring up nothing of their own but use
-the session's shared homed cell, which declares [guard], so droid-cell up started droid-guard).
+"""droid-guard on the live sim cell (issue 41; integration).  The shipped cells keep the live guard
+off (``[guard] run = false``: docs/guard.md), so these tests bring up one copy of the sim cell with
+``run = true`` for the module (:func:`homed_sim_cell` here: both arms homed, brought down after the
+module with the same proofs as the session's shared cell), and droid-cell up starts droid-guard.
 
 * the guard's Status database, through droid-snoop guard: fresh (its tick advancing), clear, a
   positive least distance and a pair;
@@ -34,6 +36,56 @@ from tests.tasks.test_seamtrack_cell import snoop
 pytestmark = pytest.mark.integration
 
 SNOOP, MOVE, CELL = "droid.tasks.snoop", "droid.tasks.move", "droid.brain.launcher"
+
+
+@pytest.fixture(scope="module")
+def guarded_cell(tmp_path_factory):
+    """The sim cell with the live guard on (``[guard] run = true``), up and homed for this module;
+    its programs carry a tag of their own, checked when it comes down."""
+    import uuid
+
+    from tests.brain.cellutil import brought_down, home_at_once, make_cell_file
+    from tests.conftest import HOMED_ARMS, LEAK_TAG_ENV, new_cell_name, tagged_pids
+
+    name = new_cell_name()
+    path = make_cell_file(tmp_path_factory.mktemp("guarded"), name)
+    text = path.read_text()
+    assert "\nrun = false\n" in text
+    path.write_text(text.replace("\nrun = false\n", "\nrun = true\n", 1))
+    tag, old = uuid.uuid4().hex, os.environ.get(LEAK_TAG_ENV)
+    try:
+        with brought_down(path, name):
+            os.environ[LEAK_TAG_ENV] = tag
+            out = droid(CELL, "up", "--cell", str(path), timeout=120)
+            os.environ.pop(LEAK_TAG_ENV, None) if old is None else os.environ.__setitem__(LEAK_TAG_ENV, old)
+            assert out.returncode == 0, out.stdout + out.stderr
+            home_at_once(path, HOMED_ARMS)
+            yield path
+    finally:
+        os.environ.pop(LEAK_TAG_ENV, None) if old is None else os.environ.__setitem__(LEAK_TAG_ENV, old)
+        deadline = time.monotonic() + 5.0
+        while tagged_pids(tag) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        left = tagged_pids(tag)
+        for pid in left:
+            os.kill(pid, 9)
+        assert not left, f"the guarded cell {name} left processes running: {sorted(left)}"
+
+
+@pytest.fixture
+def homed_sim_cell(guarded_cell):
+    """This module's guarded cell, both arms homed and without a fault before each test."""
+    from droid.brain.cellfile import load_cell
+    from droid.brain.databases import open_brain
+
+    cell = load_cell(guarded_cell)
+    for arm in ("arm1", "gmf1"):
+        def whole(arm=arm):
+            with open_brain(cell, cell.subunit(arm), "status") as st:
+                r = st.read()
+            return int(r["homed"]) == 1 and not int(r["fault"]) and not int(r["stale"])
+        wait_for(whole, timeout=15, what=f"{arm} homed, fresh, no fault")
+    return guarded_cell
 
 
 def guard_status(cell_file) -> dict:
