@@ -320,6 +320,37 @@ class ServoCore:
         self._dac = dac
         return self._dac
 
+    def step_registers(self, regs) -> tuple[tuple[int, ...], tuple[int, ...]] | None:
+        """:meth:`step` of one period with the encoders read from and the DACs written to the VME
+        map's bytes ``regs`` (ServoStation.cycle: ``bus.read_encoders_raw()``, ``step``,
+        ``bus.write_dacs``), in one call of the compiled kernel (droid/_kernel.c ``servo_cycle``:
+        the same operations, the same bits and the same state after it) on the tick's common path:
+        homed or not, a NORMAL or JOG stream with a way-point left in the queue, no fault, no
+        homing.  Returns (the encoder registers read, the DAC words), or None with nothing read,
+        written or changed where the tick leaves that path (or without the compiled kernel): the
+        caller then runs the Python reference."""
+        k = self._pid._k
+        if k is None or self._pos is None or self._homing.active or self._mode == Mode.OFF or self._fault != Fault.NONE:
+            return None
+        q = self._queue
+        qi = q._qi
+        if qi >= len(q._queue) or (q._starved and q._cache_full and not (q._brake_vel != 0.0).any()):
+            return None  # CommandQueue.next_target's other branches: the cache, the coast, the brake
+        jump = self.params.max_encoder_step_counts
+        if type(jump) is not int:
+            return None
+        pid = self._pid
+        lo, hi = self._limits if self._limits is not None else (None, None)
+        got = k.servo_cycle(regs, self._pos, q._queue, qi, self._target, self._vel, lo, hi, self._fe_max_arr,
+                            pid._gains, pid._state, pid._first, self._span, jump)
+        if got is None:  # an encoder jump or a following error: the reference takes the fault
+            return None
+        self._tick += 1
+        q._qi = qi + 1
+        pid._first = False
+        self._dac = got[1]
+        return got
+
     def _tail(self, target: np.ndarray, previous: np.ndarray) -> tuple[int, ...] | None:
         """The tick after the target is picked: clip it to the min/max counts once homed, the
         velocity [counts/tick], the following-error check (None when an error is over its limit)
