@@ -858,6 +858,97 @@ static PyObject *servo_cycle(PyObject *self, PyObject *const *args, Py_ssize_t n
     return out;
 }
 
+/* servo_status(tick, mode, homing_joint, starved, braking, fault, amps_on, pos, target, zero, dac)
+ *     -> bytes or None
+ * ServoCore.status_message's bytes (servo_wire.pack_status_values, ``<4s Q 7i 6i 6i 6i 6h``: b"DSS2",
+ * the tick, mode, homed (zero given), homing joint, starved, braking, fault, amplifiers, then
+ * encoder_pos, encoder_cmd, following_error -- home-relative once homed, each clipped to int32 --
+ * and the DACs) from the core's int64 arrays ``pos``, ``target`` and ``zero`` (None before homing)
+ * and its six DAC ints.  None where the reference must decide (a difference beyond int64, a DAC
+ * beyond int16, a scalar beyond its field): the caller packs it in Python (which raises there).  */
+static PyObject *servo_status(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 11) {
+        PyErr_SetString(PyExc_TypeError, "servo_status takes 11 arguments");
+        return NULL;
+    }
+    int overflow = 0;
+    unsigned long long tick = PyLong_AsUnsignedLongLong(args[0]);
+    if (tick == (unsigned long long)-1 && PyErr_Occurred()) {
+        PyErr_Clear();
+        Py_RETURN_NONE;
+    }
+    long long sc[6];
+    for (int i = 0; i < 6; i++) {
+        sc[i] = PyLong_AsLongLongAndOverflow(args[1 + i], &overflow);
+        if (overflow || sc[i] < INT32_MIN || sc[i] > INT32_MAX)
+            Py_RETURN_NONE;
+        if (sc[i] == -1 && PyErr_Occurred())
+            return NULL;
+    }
+    PyObject *dac = args[10];
+    if (!PyTuple_CheckExact(dac) || PyTuple_GET_SIZE(dac) != N)
+        Py_RETURN_NONE;
+    long long d[N];
+    for (int j = 0; j < N; j++) {
+        PyObject *o = PyTuple_GET_ITEM(dac, j);
+        if (!PyLong_CheckExact(o))
+            Py_RETURN_NONE;
+        d[j] = PyLong_AsLongLongAndOverflow(o, &overflow);
+        if (overflow || d[j] < INT16_MIN || d[j] > INT16_MAX)
+            Py_RETURN_NONE;
+    }
+    Bufs bs = {.n = 0};
+    const int64_t *pos = get(&bs, args[7], N * 8, 0, "pos");
+    const int64_t *target = pos ? get(&bs, args[8], N * 8, 0, "target") : NULL;
+    const int64_t *zero = NULL;
+    if (target && args[9] != Py_None && (zero = get(&bs, args[9], N * 8, 0, "zero")) == NULL)
+        target = NULL;
+    if (target == NULL) {
+        release(&bs);
+        return NULL;
+    }
+    long long counts[3 * N];
+    for (int j = 0; j < N; j++) {
+        long long p = pos[j], t = target[j], fe;
+        if (__builtin_sub_overflow(t, p, &fe)) {
+            release(&bs);
+            Py_RETURN_NONE;
+        }
+        if (zero != NULL && (__builtin_sub_overflow(t, (long long)zero[j], &t) ||
+                             __builtin_sub_overflow(p, (long long)zero[j], &p))) {
+            release(&bs);
+            Py_RETURN_NONE;
+        }
+        counts[j] = p;
+        counts[N + j] = t;
+        counts[2 * N + j] = fe;
+    }
+    release(&bs);
+    unsigned char b[124], *w = b;
+    memcpy(w, "DSS2", 4);
+    w += 4;
+    for (int i = 0; i < 8; i++)
+        *w++ = (unsigned char)(tick >> (8 * i));
+    long long fields[7] = {sc[0], zero != NULL, sc[1], sc[2], sc[3], sc[4], sc[5]};
+    for (int i = 0; i < 7 + 3 * N; i++) {
+        long long v = i < 7 ? fields[i] : counts[i - 7];
+        if (v < INT32_MIN)  /* pack_status_values' clip of the 18 counts */
+            v = INT32_MIN;
+        if (v > INT32_MAX)
+            v = INT32_MAX;
+        uint32_t u = (uint32_t)(int32_t)v;
+        for (int k = 0; k < 4; k++)
+            *w++ = (unsigned char)(u >> (8 * k));
+    }
+    for (int j = 0; j < N; j++) {
+        uint16_t u = (uint16_t)(int16_t)d[j];
+        *w++ = (unsigned char)(u & 0xFF);
+        *w++ = (unsigned char)(u >> 8);
+    }
+    return PyBytes_FromStringAndSize((const char *)b, (Py_ssize_t)(w - b));
+}
+
 /* exact_checks(q, lin_q, relin_rad, stop_mid, stop_lim) -> 0, 1 or 2
  * The exact step's two guards (ReisPlant._near_stop and _discretise's test), the same comparisons:
  * 2 if a link could reach a hard stop within the step (|q - mid| >= lim: the substep integrator
@@ -1756,6 +1847,9 @@ static PyMethodDef methods[] = {
     {"servo_cycle", (PyCFunction)(void (*)(void))servo_cycle, METH_FASTCALL,
      "servo_cycle(regs, pos, queue, qi, target, vel, lo, hi, fe_max, gains, state, first, span, max_step) "
      "-> (raw, dacs) or None: ServoStation.cycle's common tick"},
+    {"servo_status", (PyCFunction)(void (*)(void))servo_status, METH_FASTCALL,
+     "servo_status(tick, mode, homing_joint, starved, braking, fault, amps_on, pos, target, zero, dac) -> bytes "
+     "or None: ServoCore.status_message"},
     {"write_dacs", (PyCFunction)(void (*)(void))write_dacs, METH_FASTCALL,
      "write_dacs(regs, values) -> written or None: VmeBus.write_dacs for six ints"},
     {"rb_rnea", (PyCFunction)(void (*)(void))py_rb_rnea, METH_FASTCALL,

@@ -212,3 +212,19 @@ def test_the_one_call_exact_step_hands_back_near_a_stop_with_nothing_changed():
         assert got == want
     assert not called and np.isnan(x).all()
     assert (bytes(p.regs), [getattr(p, s).tobytes() for s in STATE]) == before
+
+
+@settings(max_examples=200, deadline=None)
+@given(pos=st.lists(st.integers(-(2**40), 2**40), min_size=6, max_size=6),
+       target=st.lists(st.integers(-(2**40), 2**40), min_size=6, max_size=6),
+       zero=st.one_of(st.none(), st.lists(st.integers(-(2**33), 2**33), min_size=6, max_size=6)),
+       dac=st.lists(st.integers(-2048, 2047), min_size=6, max_size=6), tick=st.integers(0, 2**40),
+       mode=st.sampled_from(list(Mode)), amps=st.booleans())
+def test_the_compiled_status_message_is_pack_status(pos, target, zero, dac, tick, mode, amps):
+    """The servo's status message from the kernel (ServoCore.status_message) is the bytes of
+    servo_wire.pack_status(core.status()): home-relative once homed, counts beyond int32 clipped."""
+    core = ServoCore(None, kernel="c")
+    core._pos, core._target = np.array(pos, np.int64), np.array(target, np.int64)
+    core._zero = None if zero is None else np.array(zero, np.int64)
+    core._dac, core._tick, core._mode = tuple(dac), tick, mode
+    assert core.status_message(amps) == sw.pack_status(core.status(), amps)

@@ -470,6 +470,15 @@ class ReisPlant:
             self._n_substeps[dt_s] = n
         self._read_inputs(dt_s)
         ext = None if self.contact is None else self.contact.joint_torque(self.body, self._q, self._qd, dt_s)
+        if self._exact and self._k is not None and not self._any_jammed:
+            # the exact integrator keeps no rest key (below): its compiled step in one call, as
+            # _integrate makes it once its stop limits and linearisation exist (issue 44)
+            dt = n * p.substep_s
+            lim, got = self._stop_lim_arr.get(dt), self._disc.get(dt)
+            if lim is not None and got is not None and self._advance_exact_compiled(dt, got, ext, lim) is None:
+                self.time_s += dt
+                self._rest = self._rest_out = None
+                return
         # An arm at rest whose inputs did not change: the last step computed exactly this one's
         # arguments and left the state bit for bit as it found it, so this one would too (the
         # integration is a pure function of what the key holds; the outputs are still written).

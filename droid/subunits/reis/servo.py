@@ -212,6 +212,14 @@ class ServoCore:
         snapshot and its properties (every 4th servo tick of droid-servo and of every lockstep
         trial, issue 44): the 18 counts in plain ints, framed as :meth:`_frame` frames them."""
         pos, zero = self._pos, self._zero
+        k = self._pid._k
+        if k is not None and pos is not None:  # the compiled kernel's packing (the same bytes)
+            joint, q = self._homing.joint, self._queue
+            msg = k.servo_status(self._tick, int(self._mode), -1 if joint is None else int(joint), int(q.starved),
+                                 int(q.braking), int(self._fault), int(bool(amps_on)), pos, self._target, zero,
+                                 self._dac)
+            if msg is not None:
+                return msg
         t = self._target.tolist()
         if pos is None:
             p = fe = [0] * N
