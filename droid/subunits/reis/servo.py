@@ -275,7 +275,8 @@ class ServoCore:
         self._mode = mode
         goal = self._queue.last_goal + cmd if mode == Mode.JOG else cmd + self._zero
         if self._zero is not None:
-            goal = np.clip(goal, *self._limits)
+            lo, hi = self._limits
+            goal = np.minimum(np.maximum(goal, lo), hi)  # np.clip(goal, lo, hi) for int64, without its wrapper
         if (mode == Mode.NORMAL and self.at_rest
                 and np.any(np.abs(goal - self._pos) > self.params.resume_window_counts)):
             # braked to rest, and the way-point is not where the arm stands: a stale target
