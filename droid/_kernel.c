@@ -169,38 +169,13 @@ static PyObject *enc_tuple(const long enc[N])
  * response g_m, then the encoders, switches and AMP_STATUS.  Writes the new state into x
  * (24 float64: theta, omega, q, qd) and returns the six encoder values written.
  * Units: rad, rad/s, N m; regs: the VME map's bytes.  */
-static PyObject *exact_step(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+/* exact_step's arithmetic (see there) on plain pointers: the new state into x, the encoders written
+   into enc; -1 with an exception set if a motor angle is not finite (write_outputs). */
+static int exact_core(unsigned char *regs, const double *k, const double *pg, const double *gm,
+                      const double *theta, const double *omega, const double *q, const double *qd,
+                      const double *tl, const double *ext, int amps_on, int wd_fault, const int64_t *offset,
+                      double *x, long enc[N])
 {
-    if (nargs != 14) {
-        PyErr_SetString(PyExc_TypeError, "exact_step takes 14 arguments");
-        return NULL;
-    }
-    if (gemv_fn == NULL) {
-        PyErr_SetString(PyExc_RuntimeError, "droid._kernel: no BLAS dgemv set (droid.kernel sets it)");
-        return NULL;
-    }
-    Bufs bs = {.n = 0};
-    long enc[N];
-    unsigned char *regs = get(&bs, args[0], -MAP_MIN_SIZE, 1, "regs");
-    const double *k = regs ? get(&bs, args[1], C_LEN * 8, 0, "consts") : NULL;
-    const double *pg = k ? get(&bs, args[2], 24 * 36 * 8, 0, "pg") : NULL;
-    const double *gm = pg ? get(&bs, args[3], 24 * 6 * 8, 0, "g_m") : NULL;
-    const double *theta = gm ? get(&bs, args[4], 6 * 8, 0, "theta") : NULL;
-    const double *omega = theta ? get(&bs, args[5], 6 * 8, 0, "omega") : NULL;
-    const double *q = omega ? get(&bs, args[6], 6 * 8, 0, "q") : NULL;
-    const double *qd = q ? get(&bs, args[7], 6 * 8, 0, "qd") : NULL;
-    const double *tl = qd ? get(&bs, args[8], 6 * 8, 0, "tau_link") : NULL;
-    const double *ext = NULL;
-    if (tl && args[9] != Py_None && (ext = get(&bs, args[9], 6 * 8, 0, "ext")) == NULL)
-        tl = NULL;
-    int amps_on = tl ? PyObject_IsTrue(args[10]) : -1;
-    int wd_fault = amps_on >= 0 ? PyObject_IsTrue(args[11]) : -1;
-    const int64_t *offset = wd_fault >= 0 ? get(&bs, args[12], 6 * 8, 0, "offset") : NULL;
-    double *x = offset ? get(&bs, args[13], 24 * 8, 1, "x") : NULL;
-    if (x == NULL) {
-        release(&bs);
-        return NULL;
-    }
     double z[36], tau_c[N], free_[24], kin[N], fric[N], gk[24];
     /* the drive torques (ReisPlant._integrate's fused loop) and the friction level */
     for (int j = 0; j < N; j++) {
@@ -282,7 +257,150 @@ static PyObject *exact_step(PyObject *self, PyObject *const *args, Py_ssize_t na
         }
     }
 out:
-    if (write_outputs(regs, k, x, x + 12, offset, amps_on, wd_fault, enc) < 0) {
+    return write_outputs(regs, k, x, x + 12, offset, amps_on, wd_fault, enc);
+}
+
+static PyObject *exact_advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs);
+
+static PyObject *exact_step(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs == 18)  /* the guards, nle and the step in one call (exact_advance, below) */
+        return exact_advance(self, args, nargs);
+    if (nargs != 14) {
+        PyErr_SetString(PyExc_TypeError, "exact_step takes 14 arguments (18: exact_advance's)");
+        return NULL;
+    }
+    if (gemv_fn == NULL) {
+        PyErr_SetString(PyExc_RuntimeError, "droid._kernel: no BLAS dgemv set (droid.kernel sets it)");
+        return NULL;
+    }
+    Bufs bs = {.n = 0};
+    long enc[N];
+    unsigned char *regs = get(&bs, args[0], -MAP_MIN_SIZE, 1, "regs");
+    const double *k = regs ? get(&bs, args[1], C_LEN * 8, 0, "consts") : NULL;
+    const double *pg = k ? get(&bs, args[2], 24 * 36 * 8, 0, "pg") : NULL;
+    const double *gm = pg ? get(&bs, args[3], 24 * 6 * 8, 0, "g_m") : NULL;
+    const double *theta = gm ? get(&bs, args[4], 6 * 8, 0, "theta") : NULL;
+    const double *omega = theta ? get(&bs, args[5], 6 * 8, 0, "omega") : NULL;
+    const double *q = omega ? get(&bs, args[6], 6 * 8, 0, "q") : NULL;
+    const double *qd = q ? get(&bs, args[7], 6 * 8, 0, "qd") : NULL;
+    const double *tl = qd ? get(&bs, args[8], 6 * 8, 0, "tau_link") : NULL;
+    const double *ext = NULL;
+    if (tl && args[9] != Py_None && (ext = get(&bs, args[9], 6 * 8, 0, "ext")) == NULL)
+        tl = NULL;
+    int amps_on = tl ? PyObject_IsTrue(args[10]) : -1;
+    int wd_fault = amps_on >= 0 ? PyObject_IsTrue(args[11]) : -1;
+    const int64_t *offset = wd_fault >= 0 ? get(&bs, args[12], 6 * 8, 0, "offset") : NULL;
+    double *x = offset ? get(&bs, args[13], 24 * 8, 1, "x") : NULL;
+    if (x == NULL) {
+        release(&bs);
+        return NULL;
+    }
+    if (exact_core(regs, k, pg, gm, theta, omega, q, qd, tl, ext, amps_on, wd_fault, offset, x, enc) < 0) {
+        release(&bs);
+        return NULL;
+    }
+    release(&bs);
+    return enc_tuple(enc);
+}
+
+/* exact_step(regs, consts, pg, g_m, theta, omega, q, qd, nle, ext, amps_on, wd_fault, offset, x,
+ *            lin_q, relin_rad, stop_mid, stop_lim) -> encoders, or 1 or 2   (exact_advance)
+ * ReisPlant._integrate's compiled exact branch in one call (issue 44): exact_checks' two guards
+ * first -- 2 (near a hard stop) or 1 (relinearise: lin_q None or too far) is returned with nothing
+ * called or changed, and the caller takes the Python path as before; else tau_link = nle(q, qd)
+ * (the body's C(q, qd) qd + g, Pinocchio's call, made here with the very objects q and qd) and
+ * exact_step with the discretisation pg, g_m at the current linearisation.  */
+static PyObject *exact_advance(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 18) {
+        PyErr_SetString(PyExc_TypeError, "exact_step's one-call form takes 18 arguments");
+        return NULL;
+    }
+    if (gemv_fn == NULL) {
+        PyErr_SetString(PyExc_RuntimeError, "droid._kernel: no BLAS dgemv set (droid.kernel sets it)");
+        return NULL;
+    }
+    double r = PyFloat_AsDouble(args[15]);
+    if (r == -1.0 && PyErr_Occurred())
+        return NULL;
+    Bufs bs = {.n = 0};
+    long enc[N];
+    const double *q = get(&bs, args[6], 6 * 8, 0, "q");
+    const double *lin = NULL;
+    int ok = q != NULL;
+    if (ok && args[14] != Py_None)
+        ok = (lin = get(&bs, args[14], N * 8, 0, "lin_q")) != NULL;
+    const double *mid = ok ? get(&bs, args[16], N * 8, 0, "stop_mid") : NULL;
+    const double *lim = mid ? get(&bs, args[17], N * 8, 0, "stop_lim") : NULL;
+    if (lim == NULL) {
+        release(&bs);
+        return NULL;
+    }
+    long code = 0;  /* exact_checks */
+    for (int j = 0; j < N; j++)
+        if (fabs(q[j] - mid[j]) >= lim[j]) {
+            code = 2;
+            break;
+        }
+    if (code == 0) {
+        if (lin == NULL)
+            code = 1;
+        else
+            for (int j = 0; j < N; j++)
+                if (fabs(q[j] - lin[j]) > r) {
+                    code = 1;
+                    break;
+                }
+    }
+    if (code != 0) {
+        release(&bs);
+        return PyLong_FromLong(code);
+    }
+    unsigned char *regs = get(&bs, args[0], -MAP_MIN_SIZE, 1, "regs");
+    const double *k = regs ? get(&bs, args[1], C_LEN * 8, 0, "consts") : NULL;
+    const double *pg = k ? get(&bs, args[2], 24 * 36 * 8, 0, "pg") : NULL;
+    const double *gm = pg ? get(&bs, args[3], 24 * 6 * 8, 0, "g_m") : NULL;
+    const double *theta = gm ? get(&bs, args[4], 6 * 8, 0, "theta") : NULL;
+    const double *omega = theta ? get(&bs, args[5], 6 * 8, 0, "omega") : NULL;
+    const double *qd = omega ? get(&bs, args[7], 6 * 8, 0, "qd") : NULL;
+    const double *ext = NULL;
+    ok = qd != NULL;
+    if (ok && args[9] != Py_None)
+        ok = (ext = get(&bs, args[9], 6 * 8, 0, "ext")) != NULL;
+    int amps_on = ok ? PyObject_IsTrue(args[10]) : -1;
+    int wd_fault = amps_on >= 0 ? PyObject_IsTrue(args[11]) : -1;
+    const int64_t *offset = wd_fault >= 0 ? get(&bs, args[12], 6 * 8, 0, "offset") : NULL;
+    double *x = offset ? get(&bs, args[13], 24 * 8, 1, "x") : NULL;
+    if (x == NULL) {
+        release(&bs);
+        return NULL;
+    }
+    double tl[N];
+    {
+        PyObject *res = PyObject_CallFunctionObjArgs(args[8], args[6], args[7], NULL);
+        if (res == NULL) {
+            release(&bs);
+            return NULL;
+        }
+        Py_buffer b;
+        if (PyObject_GetBuffer(res, &b, PyBUF_C_CONTIGUOUS) < 0) {
+            Py_DECREF(res);
+            release(&bs);
+            return NULL;
+        }
+        if (b.len != N * 8) {
+            PyBuffer_Release(&b);
+            Py_DECREF(res);
+            release(&bs);
+            PyErr_SetString(PyExc_ValueError, "exact_advance: nle must return six float64");
+            return NULL;
+        }
+        memcpy(tl, b.buf, sizeof tl);
+        PyBuffer_Release(&b);
+        Py_DECREF(res);
+    }
+    if (exact_core(regs, k, pg, gm, theta, omega, q, qd, tl, ext, amps_on, wd_fault, offset, x, enc) < 0) {
         release(&bs);
         return NULL;
     }
@@ -622,6 +740,213 @@ static PyObject *servo_tail(PyObject *self, PyObject *const *args, Py_ssize_t na
     PyObject *out = pid_run(g, st, N, first, e_now, 1);
     release(&bs);
     return out;
+}
+
+/* servo_cycle(regs, pos, queue, qi, target, vel, lo, hi, fe_max, gains, state, first, span, max_step)
+ *     -> (raw, dacs) or None
+ * One whole servo tick of ServoStation.cycle on its common path (issue 44): the way-point queue
+ * has a row left, no homing, no fault, one period.  The six 16-bit encoder registers read from
+ * ``regs`` (VmeBus.read_encoders_raw), extended from ``pos`` as extend_counters does, the tick's
+ * target = queue[qi] (CommandQueue.next_target's first branch), then servo_tail's clip, velocity,
+ * following-error check and PID, and the DACs clamped and stored as write_dacs does.  None, with
+ * nothing changed (no state, no register), where the tick leaves that path: an encoder jump or a
+ * following error -- the caller then runs the Python reference, which takes the fault.  Else
+ * ``pos``, ``target`` and ``vel`` (int64, six) are updated in place and the PID's state as
+ * pid_step updates it; returns the encoder registers read and the DAC words (Python ints).  */
+static PyObject *servo_cycle(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 14) {
+        PyErr_SetString(PyExc_TypeError, "servo_cycle takes 14 arguments");
+        return NULL;
+    }
+    Py_ssize_t qi = PyLong_AsSsize_t(args[3]);
+    long long span = PyLong_AsLongLong(args[12]), jump = PyLong_AsLongLong(args[13]);
+    if (PyErr_Occurred())
+        return NULL;
+    if (span <= 0 || span > (1LL << 32)) {
+        PyErr_SetString(PyExc_ValueError, "servo_cycle: span out of range");
+        return NULL;
+    }
+    Bufs bs = {.n = 0};
+    unsigned char *regs = get(&bs, args[0], -MAP_MIN_SIZE, 1, "regs");
+    int64_t *pos = regs ? get(&bs, args[1], N * 8, 1, "pos") : NULL;
+    const int64_t *queue = pos ? get(&bs, args[2], -N * 8, 0, "queue") : NULL;
+    int64_t *target = queue ? get(&bs, args[4], N * 8, 1, "target") : NULL;
+    int64_t *vel = target ? get(&bs, args[5], N * 8, 1, "vel") : NULL;
+    const int64_t *lo = NULL, *hi = NULL;
+    int ok = vel != NULL;
+    if (ok && args[6] != Py_None) {
+        lo = get(&bs, args[6], N * 8, 0, "lo");
+        hi = lo ? get(&bs, args[7], N * 8, 0, "hi") : NULL;
+        ok = hi != NULL;
+    }
+    const double *fe_max = ok ? get(&bs, args[8], N * 8, 0, "fe_max") : NULL;
+    const double *g = fe_max ? get(&bs, args[9], 5 * N * 8, 0, "gains") : NULL;
+    double *st = g ? get(&bs, args[10], 2 * N * 8, 1, "state") : NULL;
+    int first = st ? PyObject_IsTrue(args[11]) : -1;
+    if (first < 0) {
+        release(&bs);
+        return NULL;
+    }
+    Py_ssize_t rows = bs.b[2].len / (N * 8);
+    if (bs.b[2].len % (N * 8) || qi < 0 || qi >= rows) {
+        release(&bs);
+        PyErr_SetString(PyExc_ValueError, "servo_cycle: queue (n, 6) int64 with 0 <= qi < n");
+        return NULL;
+    }
+    long raw[N];
+    int64_t newpos[N], t[N], v[N];
+    double e_now[N];
+    long long half = span >> 1;
+    const int64_t *row = queue + qi * N;
+    for (int j = 0; j < N; j++) {
+        const unsigned char *p = regs + ENCODER_OFFSET + 2 * j;
+        raw[j] = (long)(p[0] | (p[1] << 8));
+        long long delta = ((long long)raw[j] - pos[j]) % span;  /* ServoCore._read_encoders */
+        if (delta < 0)
+            delta += span;
+        if (delta >= half)
+            delta -= span;
+        if (delta > jump || -delta > jump) {  /* an encoder jump: the reference takes the fault */
+            release(&bs);
+            Py_RETURN_NONE;
+        }
+        newpos[j] = pos[j] + delta;
+        int64_t tj = row[j];
+        if (lo != NULL) {  /* servo_tail from here on */
+            tj = tj > lo[j] ? tj : lo[j];
+            tj = tj < hi[j] ? tj : hi[j];
+        }
+        t[j] = tj;
+        v[j] = tj - target[j];
+        int64_t e = tj - newpos[j];
+        long double el = (long double)e, lim = (long double)fe_max[j];
+        if (el > lim || -el > lim) {  /* a following error: the reference takes the fault */
+            release(&bs);
+            Py_RETURN_NONE;
+        }
+        e_now[j] = (double)e;
+    }
+    PyObject *dacs = pid_run(g, st, N, first, e_now, 1);
+    if (dacs == NULL) {
+        release(&bs);
+        return NULL;
+    }
+    long d[N];
+    for (int j = 0; j < N; j++) {
+        int overflow = 0;
+        long long x = PyLong_AsLongLongAndOverflow(PyTuple_GET_ITEM(dacs, j), &overflow);
+        if (overflow)
+            x = overflow > 0 ? DAC_MAX : DAC_MIN;
+        d[j] = x < DAC_MIN ? DAC_MIN : (x > DAC_MAX ? DAC_MAX : (long)x);
+    }
+    for (int j = 0; j < N; j++) {
+        pos[j] = newpos[j];
+        target[j] = t[j];
+        vel[j] = v[j];
+        wr_u16(regs + DAC_OFFSET + 2 * j, (unsigned)(uint16_t)(int16_t)d[j]);
+    }
+    release(&bs);
+    PyObject *rawt = enc_tuple(raw);
+    if (rawt == NULL) {
+        Py_DECREF(dacs);
+        return NULL;
+    }
+    PyObject *out = PyTuple_Pack(2, rawt, dacs);
+    Py_DECREF(rawt);
+    Py_DECREF(dacs);
+    return out;
+}
+
+/* servo_status(tick, mode, homing_joint, starved, braking, fault, amps_on, pos, target, zero, dac)
+ *     -> bytes or None
+ * ServoCore.status_message's bytes (servo_wire.pack_status_values, ``<4s Q 7i 6i 6i 6i 6h``: b"DSS2",
+ * the tick, mode, homed (zero given), homing joint, starved, braking, fault, amplifiers, then
+ * encoder_pos, encoder_cmd, following_error -- home-relative once homed, each clipped to int32 --
+ * and the DACs) from the core's int64 arrays ``pos``, ``target`` and ``zero`` (None before homing)
+ * and its six DAC ints.  None where the reference must decide (a difference beyond int64, a DAC
+ * beyond int16, a scalar beyond its field): the caller packs it in Python (which raises there).  */
+static PyObject *servo_status(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 11) {
+        PyErr_SetString(PyExc_TypeError, "servo_status takes 11 arguments");
+        return NULL;
+    }
+    int overflow = 0;
+    unsigned long long tick = PyLong_AsUnsignedLongLong(args[0]);
+    if (tick == (unsigned long long)-1 && PyErr_Occurred()) {
+        PyErr_Clear();
+        Py_RETURN_NONE;
+    }
+    long long sc[6];
+    for (int i = 0; i < 6; i++) {
+        sc[i] = PyLong_AsLongLongAndOverflow(args[1 + i], &overflow);
+        if (overflow || sc[i] < INT32_MIN || sc[i] > INT32_MAX)
+            Py_RETURN_NONE;
+        if (sc[i] == -1 && PyErr_Occurred())
+            return NULL;
+    }
+    PyObject *dac = args[10];
+    if (!PyTuple_CheckExact(dac) || PyTuple_GET_SIZE(dac) != N)
+        Py_RETURN_NONE;
+    long long d[N];
+    for (int j = 0; j < N; j++) {
+        PyObject *o = PyTuple_GET_ITEM(dac, j);
+        if (!PyLong_CheckExact(o))
+            Py_RETURN_NONE;
+        d[j] = PyLong_AsLongLongAndOverflow(o, &overflow);
+        if (overflow || d[j] < INT16_MIN || d[j] > INT16_MAX)
+            Py_RETURN_NONE;
+    }
+    Bufs bs = {.n = 0};
+    const int64_t *pos = get(&bs, args[7], N * 8, 0, "pos");
+    const int64_t *target = pos ? get(&bs, args[8], N * 8, 0, "target") : NULL;
+    const int64_t *zero = NULL;
+    if (target && args[9] != Py_None && (zero = get(&bs, args[9], N * 8, 0, "zero")) == NULL)
+        target = NULL;
+    if (target == NULL) {
+        release(&bs);
+        return NULL;
+    }
+    long long counts[3 * N];
+    for (int j = 0; j < N; j++) {
+        long long p = pos[j], t = target[j], fe;
+        if (__builtin_sub_overflow(t, p, &fe)) {
+            release(&bs);
+            Py_RETURN_NONE;
+        }
+        if (zero != NULL && (__builtin_sub_overflow(t, (long long)zero[j], &t) ||
+                             __builtin_sub_overflow(p, (long long)zero[j], &p))) {
+            release(&bs);
+            Py_RETURN_NONE;
+        }
+        counts[j] = p;
+        counts[N + j] = t;
+        counts[2 * N + j] = fe;
+    }
+    release(&bs);
+    unsigned char b[124], *w = b;
+    memcpy(w, "DSS2", 4);
+    w += 4;
+    for (int i = 0; i < 8; i++)
+        *w++ = (unsigned char)(tick >> (8 * i));
+    long long fields[7] = {sc[0], zero != NULL, sc[1], sc[2], sc[3], sc[4], sc[5]};
+    for (int i = 0; i < 7 + 3 * N; i++) {
+        long long v = i < 7 ? fields[i] : counts[i - 7];
+        if (v < INT32_MIN)  /* pack_status_values' clip of the 18 counts */
+            v = INT32_MIN;
+        if (v > INT32_MAX)
+            v = INT32_MAX;
+        uint32_t u = (uint32_t)(int32_t)v;
+        for (int k = 0; k < 4; k++)
+            *w++ = (unsigned char)(u >> (8 * k));
+    }
+    for (int j = 0; j < N; j++) {
+        uint16_t u = (uint16_t)(int16_t)d[j];
+        *w++ = (unsigned char)(u & 0xFF);
+        *w++ = (unsigned char)(u >> 8);
+    }
+    return PyBytes_FromStringAndSize((const char *)b, (Py_ssize_t)(w - b));
 }
 
 /* exact_checks(q, lin_q, relin_rad, stop_mid, stop_lim) -> 0, 1 or 2
@@ -1505,7 +1830,9 @@ static PyMethodDef methods[] = {
     {"set_gemv", set_gemv, METH_VARARGS, "set_gemv(address, int64): the cblas_dgemv to call (numpy's)"},
     {"exact_step", (PyCFunction)(void (*)(void))exact_step, METH_FASTCALL,
      "exact_step(regs, consts, pg, g_m, theta, omega, q, qd, tau_link, ext, amps_on, wd_fault, offset, x) "
-     "-> encoders: the plant's exact zero-order-hold step (droid.sim.reis.plant)"},
+     "-> encoders: the plant's exact zero-order-hold step (droid.sim.reis.plant); with 18 arguments (regs, consts, "
+     "pg, g_m, theta, omega, q, qd, nle, ext, amps_on, wd_fault, offset, x, lin_q, relin_rad, stop_mid, stop_lim) "
+     "exact_checks' guards first (1 or 2 returned, nothing changed), then nle(q, qd) and the step"},
     {"write_outputs", (PyCFunction)(void (*)(void))py_write_outputs, METH_FASTCALL,
      "write_outputs(regs, consts, theta, q, amps_on, wd_fault, offset) -> encoders"},
     {"matvec", (PyCFunction)(void (*)(void))py_matvec, METH_FASTCALL, "matvec(a, x, y): y = a @ x by the dgemv set"},
@@ -1517,6 +1844,12 @@ static PyMethodDef methods[] = {
      "exact_checks(q, lin_q, relin_rad, stop_mid, stop_lim) -> 0, 1 (relinearise) or 2 (near a stop)"},
     {"servo_tail", (PyCFunction)(void (*)(void))servo_tail, METH_FASTCALL,
      "servo_tail(target, previous, lo, hi, pos, fe_max, vel, gains, state, first) -> dacs or None: ServoCore.step"},
+    {"servo_cycle", (PyCFunction)(void (*)(void))servo_cycle, METH_FASTCALL,
+     "servo_cycle(regs, pos, queue, qi, target, vel, lo, hi, fe_max, gains, state, first, span, max_step) "
+     "-> (raw, dacs) or None: ServoStation.cycle's common tick"},
+    {"servo_status", (PyCFunction)(void (*)(void))servo_status, METH_FASTCALL,
+     "servo_status(tick, mode, homing_joint, starved, braking, fault, amps_on, pos, target, zero, dac) -> bytes "
+     "or None: ServoCore.status_message"},
     {"write_dacs", (PyCFunction)(void (*)(void))write_dacs, METH_FASTCALL,
      "write_dacs(regs, values) -> written or None: VmeBus.write_dacs for six ints"},
     {"rb_rnea", (PyCFunction)(void (*)(void))py_rb_rnea, METH_FASTCALL,

@@ -141,6 +141,11 @@ class ArmDynamics:
                 and float(np.max(np.abs(self.qd))) < REST_VEL_RAD_S
                 and float(np.max(np.abs(q_ref_rad - (self.q + self.tau / self.K)))) < REST_POS_RAD)
 
+    def resting_on(self, q_ref_deg) -> bool:
+        """At rest on this very reference object (:meth:`advance`'s first test, by identity): an
+        advance toward it would only move the clock."""
+        return self._rest_ref is not None and q_ref_deg is self._rest_ref
+
     def advance(self, t_s: float, q_ref_deg) -> bool:
         """Servo steps up to ``t_s`` [s] toward ``q_ref_deg``; True when the arm moved."""
         if self._rest_ref is not None and (q_ref_deg is self._rest_ref or np.array_equal(q_ref_deg, self._rest_ref)):

@@ -376,6 +376,23 @@ def remove_cell_objects(cell: str) -> list[str]:
     return removed
 
 
+class _Held:
+    """``with`` the record of a :class:`MemoryDatabase`: nothing to take or release in one
+    process, so one object serves every ``locked()`` (a generator context manager cost a
+    microsecond a use, several times a lockstep tick; issue 44)."""
+
+    __slots__ = ("_view",)
+
+    def __init__(self, view: np.ndarray) -> None:
+        self._view = view
+
+    def __enter__(self) -> np.ndarray:
+        return self._view
+
+    def __exit__(self, *exc) -> bool:
+        return False
+
+
 class MemoryDatabase:
     """Same interface as :class:`Database`, in process memory (lockstep mode)."""
 
@@ -383,10 +400,10 @@ class MemoryDatabase:
         self.name = name
         self.layout = layout
         self._view = new_record(layout)
+        self._held = _Held(self._view)
 
-    @contextlib.contextmanager
-    def locked(self) -> Iterator[np.ndarray]:
-        yield self._view
+    def locked(self) -> _Held:
+        return self._held
 
     def read(self) -> np.ndarray:
         return np.ndarray((), dtype=self.layout.dtype, buffer=bytearray(self._view.tobytes()))

@@ -112,6 +112,11 @@ class PacedLine:
         return BITS_PER_BYTE / self.baud
 
     @property
+    def empty(self) -> bool:
+        """Nothing queued: :meth:`pop_due` returns no bytes and changes nothing."""
+        return not self._queue
+
+    @property
     def room(self) -> int:
         """Bytes that can be queued now."""
         return max(0, self.capacity - len(self._queue))

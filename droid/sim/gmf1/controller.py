@@ -207,6 +207,14 @@ class KarelController:
     # -- time ------------------------------------------------------------------------
     def advance(self, t_s: float) -> None:
         """Run the controller up to ``t_s`` [s]: lines that arrived, motion, replies due."""
+        arm = self.arm
+        if (arm is not None and self.motion is None and self._done_pending is None and not self._replies
+                and self.rx.empty and arm.resting_on(self.q_cmd_deg)):
+            # idle (the holder of a trial): no line, no reply, no motion, the arm at rest on its
+            # reference -- what the steps below would do, the clocks moved (issue 44)
+            arm.t_s = t_s
+            self.t_s = t_s
+            return
         data, start_bits = self.rx.pop_due(t_s)
         if data:
             self._take_bytes(data, start_bits)

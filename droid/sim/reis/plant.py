@@ -470,6 +470,15 @@ class ReisPlant:
             self._n_substeps[dt_s] = n
         self._read_inputs(dt_s)
         ext = None if self.contact is None else self.contact.joint_torque(self.body, self._q, self._qd, dt_s)
+        if self._exact and self._k is not None and not self._any_jammed:
+            # the exact integrator keeps no rest key (below): its compiled step in one call, as
+            # _integrate makes it once its stop limits and linearisation exist (issue 44)
+            dt = n * p.substep_s
+            lim, got = self._stop_lim_arr.get(dt), self._disc.get(dt)
+            if lim is not None and got is not None and self._advance_exact_compiled(dt, got, ext, lim) is None:
+                self.time_s += dt
+                self._rest = self._rest_out = None
+                return
         # An arm at rest whose inputs did not change: the last step computed exactly this one's
         # arguments and left the state bit for bit as it found it, so this one would too (the
         # integration is a pure function of what the key holds; the outputs are still written).
@@ -528,7 +537,14 @@ class ReisPlant:
             if lim is None:
                 self._near_stop(n * h, self._q.tolist())  # fills _stop_lim
                 lim = self._stop_lim_arr[n * h] = np.array(self._stop_lim[n * h])
-            code = self._k.exact_checks(self._q, self._lin_q, self._relin_rad, self._stop_mid, lim)
+            got = self._disc.get(n * h)
+            if got is not None:  # the guards, nle and the step in one call (the same as below, issue 44)
+                code = self._advance_exact_compiled(n * h, got, ext, lim)
+                if code is None:
+                    self.time_s += n * h
+                    return
+            else:
+                code = self._k.exact_checks(self._q, self._lin_q, self._relin_rad, self._stop_mid, lim)
             if code != 2:
                 self._step_exact_compiled(n * h, ext, relin=code == 1)
                 self.time_s += n * h
@@ -748,6 +764,24 @@ class ReisPlant:
         self._enc_written = self._k.exact_step(self._view, self._consts, pg, g_m, self._theta, self._omega, q, qd,
                                                tau_link, ext, self._amps_on, self._wd_fault, self._enc_offset, x)
         self._theta, self._omega, self._q, self._qd = x[0:6], x[6:12], x[12:18], x[18:24]
+
+    def _advance_exact_compiled(self, dt: float, disc: tuple, ext, lim) -> int | None:
+        """The compiled exact branch of :meth:`_integrate` in one call (droid/_kernel.c
+        ``exact_step`` with 18 arguments, its ``exact_advance``; issue 44): ``exact_checks``' guards, then, where they pass, the body's ``nle`` and
+        ``exact_step`` with ``disc`` (the current linearisation's ``_disc[dt]``) -- the calls
+        :meth:`_step_exact_compiled` makes, the same bits.  None when the step was made, else the
+        guards' code (1: relinearise, 2: near a hard stop) with nothing called or changed."""
+        if ext is not None:
+            ext = np.ascontiguousarray(ext, float)
+        x = np.empty(24)
+        enc = self._k.exact_step(self._view, self._consts, disc[0], disc[1], self._theta, self._omega, self._q,
+                                 self._qd, self.body.nle, ext, self._amps_on, self._wd_fault, self._enc_offset, x,
+                                 self._lin_q, self._relin_rad, self._stop_mid, lim)
+        if type(enc) is int:
+            return enc
+        self._enc_written = enc
+        self._theta, self._omega, self._q, self._qd = x[0:6], x[6:12], x[12:18], x[18:24]
+        return None
 
     def _steps_rigid_compiled(self, n: int, h: float, ext=None) -> bool:
         """The rigid branch of :meth:`_integrate` -- the DACs -> torques, :meth:`_steps_rigid`, the

@@ -75,6 +75,11 @@ def wants_zeroing(h: HomeView) -> bool:
     return h.cmd_mode == HOME_MODE and h.busy == 0 and h.cmd_result == CMD_OK and h.homed != HOMED
 
 
+def wants_zeroing_fields(cmd_mode: int, busy: int, cmd_result: int, homed: int) -> bool:
+    """:func:`wants_zeroing` of the four fields (without a HomeView)."""
+    return cmd_mode == HOME_MODE and busy == 0 and cmd_result == CMD_OK and homed != HOMED
+
+
 class EncoderCore:
     """One encoder cycle; see the module docstring.  ``model`` includes the subunit's base pose."""
 
@@ -100,6 +105,21 @@ class EncoderCore:
         self.extended = None
         self.zeroing = None
         self._still = None
+
+    @property
+    def repeatable(self) -> bool:
+        """The last cycle can repeat: a :meth:`step` on the same counters, with the same homing
+        fields and no zeroing wanted, takes the path of an arm at rest (:meth:`repeat`)."""
+        return self._still is not None and self.zeroing is None
+
+    def repeat(self) -> EncoderOut:
+        """:meth:`step` of the last cycle's counters and homing fields when :attr:`repeatable` and
+        no zeroing is wanted: its rest path, without the readings (EncoderStation's rest path)."""
+        self.cycle += 1
+        out = EncoderOut()
+        out.fields.update(self._still[2])
+        out.fault = self.fault
+        return out
 
     def step(self, raw, done, home: HomeView) -> EncoderOut:
         """One cycle: ``raw`` six 24-bit counters [counts], ``done`` their cards' DONE counters."""

@@ -76,6 +76,11 @@ class Quad04Card:
         return [w[0] & qm.COUNTER_MASK, w[4] & qm.COUNTER_MASK, w[8] & qm.COUNTER_MASK,
                 w[12] & qm.COUNTER_MASK], [w[3], w[7], w[11], w[15]]
 
+    def channel_bytes(self) -> bytes:
+        """The four channels' registers (COUNT, LATCH, CTRL, DONE each) as bytes: what :meth:`read`
+        reads, and more (an unchanged block reads the same)."""
+        return bytes(self._mv[qm.OFF_CHANNEL0:qm.OFF_CHANNEL0 + qm.CHANNEL_BLOCK.size])
+
     def read_latch(self, ch: int) -> int:
         """LATCH register of channel ``ch`` [counts, 24-bit]."""
         return qm.U32.unpack_from(self._mv, qm.channel_offset(ch, qm.REG_LATCH))[0] & qm.COUNTER_MASK
@@ -112,6 +117,24 @@ class Quad04Bank:
         c0, d0 = self.cards[0].read()
         c1, d1 = self.cards[1].read()
         return np.array(c0 + c1[:2], np.int64), np.array(d0 + d1[:2], np.int64)
+
+    def channel_bytes(self) -> bytes | None:
+        """Both cards' channel registers as bytes (Quad04Card.channel_bytes; :meth:`joints_from`
+        reads them as :meth:`read_joints` reads the cards), or None when a card is not a plain
+        :class:`Quad04Card` (a driver of its own reads through its own ``read``)."""
+        c0, c1 = self.cards
+        if type(c0) is not Quad04Card or type(c1) is not Quad04Card:
+            return None
+        return c0.channel_bytes() + c1.channel_bytes()
+
+    @staticmethod
+    def joints_from(regs: bytes) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`read_joints` of the registers :meth:`channel_bytes` returned."""
+        m, n = qm.COUNTER_MASK, qm.CHANNEL_BLOCK.size
+        w = qm.CHANNEL_BLOCK.unpack_from(regs, 0)
+        x = qm.CHANNEL_BLOCK.unpack_from(regs, n)
+        return (np.array([w[0] & m, w[4] & m, w[8] & m, w[12] & m, x[0] & m, x[4] & m], np.int64),
+                np.array([w[3], w[7], w[11], w[15], x[3], x[7]], np.int64))
 
     def command_joints(self, cmd: int) -> None:
         """Write ``cmd`` into the CTRL register of every joint's channel."""

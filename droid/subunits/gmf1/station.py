@@ -22,8 +22,9 @@ from __future__ import annotations
 import numpy as np
 
 from droid.brain.layouts import FAULT_DEVICE
-from droid.subunits.gmf1.encoder_core import EncoderCore, EncoderOut, HomeView
+from droid.subunits.gmf1.encoder_core import EncoderCore, EncoderOut, HomeView, wants_zeroing_fields
 from droid.subunits.gmf1.port import PortLink
+from droid.subunits.gmf1.quad04 import Quad04Bank
 from droid.subunits.gmf1.serial_core import SerialCore, SerialOut, StatusView, snapshot_command
 
 
@@ -86,14 +87,30 @@ class EncoderStation:
         self.ctrl_status = ctrl_status
         self._fault_was = False
         self.refreshes = 0
+        self._rest: tuple | None = None  # (the bank, its registers' bytes, the homing fields) of the last cycle
 
     def cycle(self, bank, now_ns: int) -> EncoderOut | None:
         """Read the cards, step the core, write Status.  Exceptions of ``bank`` propagate (the shell
-        reopens); call :meth:`fault` instead while there is no bank."""
-        raw, done = bank.read_joints()
+        reopens); call :meth:`fault` instead while there is no bank.
+
+        The rest path (issue 44): the same cards' registers, byte for byte, and the same homing
+        fields as the last cycle, whose step can repeat (EncoderCore.repeatable), with no zeroing
+        wanted: the core's :meth:`~EncoderCore.repeat` -- what its step would return -- without
+        reading the counters; the same writes."""
+        core = self.core
+        regs = bank.channel_bytes() if type(bank) is Quad04Bank else None  # one read of the cards
+        if regs is None:
+            raw, done = bank.read_joints()
         with self.ctrl_status.locked() as v:
-            home = HomeView(int(v["cmd_mode"]), int(v["busy"]), int(v["cmd_result"]), int(v["homed"]))
-            out = self.core.step(raw, done, home)
+            fields = (int(v["cmd_mode"]), int(v["busy"]), int(v["cmd_result"]), int(v["homed"]))
+            rest = self._rest
+            if (regs is not None and rest is not None and rest[0] is bank and rest[1] == regs and rest[2] == fields
+                    and core.repeatable and not wants_zeroing_fields(*fields)):
+                out = core.repeat()
+            else:
+                if regs is not None:
+                    raw, done = Quad04Bank.joints_from(regs)
+                out = core.step(raw, done, HomeView(*fields))
             for k, val in out.fields.items():
                 v[k] = val
             v["updated_ns"] = now_ns
@@ -101,6 +118,7 @@ class EncoderStation:
             self.ctrl_status.mark_written()
         self._fault_was = out.fault
         self.refreshes += 1
+        self._rest = (bank, regs, fields) if regs is not None else None
         if out.reset:
             bank.reset_joints()
         return out

@@ -24,7 +24,7 @@ from fractions import Fraction
 import numpy as np
 
 from droid.subunits.reis.servo_params import ServoParams
-from droid.subunits.reis.servo_planner import braking_profile, limit_target, linear_ramp
+from droid.subunits.reis.servo_planner import braking_profile, linear_ramp, max_reach_counts
 
 N = 6
 
@@ -41,6 +41,8 @@ class CommandQueue:
         self.brake_steps = params.queue_steps
         self.grace_ticks = params.starve_grace_ticks
         self._max_speed = np.asarray(params.max_speed_counts_per_tick, np.int64)
+        # the speed limit's reach per command period [counts] (servo_planner.limit_target's, once)
+        self._reach = max_reach_counts(self._max_speed, self.period_num, self.period_den)
         # velocity change allowed per command period for JOG: a * P^2 [counts per period]
         period = self.period_num / self.period_den
         self._jog_dv = np.floor(np.asarray(params.jog_accel_counts_per_tick2, float) * period * period)
@@ -97,7 +99,8 @@ class CommandQueue:
             prev = self._disp_before_cache
             disp = np.clip(goal - origin, prev - self._jog_dv, prev + self._jog_dv).astype(np.int64)
             goal = origin + disp
-        goal = limit_target(origin, goal, self._max_speed, self.period_num, self.period_den)
+        reach = self._reach  # limit_target(origin, goal, max_speed, num, den), its reach computed once
+        goal = np.minimum(np.maximum(goal, origin - reach), origin + reach)  # = np.clip for int64
         self._disp = goal - origin
         self._cache_origin = origin
         self._cache_goal = goal

@@ -212,6 +212,14 @@ class ServoCore:
         snapshot and its properties (every 4th servo tick of droid-servo and of every lockstep
         trial, issue 44): the 18 counts in plain ints, framed as :meth:`_frame` frames them."""
         pos, zero = self._pos, self._zero
+        k = self._pid._k
+        if k is not None and pos is not None:  # the compiled kernel's packing (the same bytes)
+            joint, q = self._homing.joint, self._queue
+            msg = k.servo_status(self._tick, int(self._mode), -1 if joint is None else int(joint), int(q.starved),
+                                 int(q.braking), int(self._fault), int(bool(amps_on)), pos, self._target, zero,
+                                 self._dac)
+            if msg is not None:
+                return msg
         t = self._target.tolist()
         if pos is None:
             p = fe = [0] * N
@@ -267,7 +275,8 @@ class ServoCore:
         self._mode = mode
         goal = self._queue.last_goal + cmd if mode == Mode.JOG else cmd + self._zero
         if self._zero is not None:
-            goal = np.clip(goal, *self._limits)
+            lo, hi = self._limits
+            goal = np.minimum(np.maximum(goal, lo), hi)  # np.clip(goal, lo, hi) for int64, without its wrapper
         if (mode == Mode.NORMAL and self.at_rest
                 and np.any(np.abs(goal - self._pos) > self.params.resume_window_counts)):
             # braked to rest, and the way-point is not where the arm stands: a stale target
@@ -319,6 +328,37 @@ class ServoCore:
             return self._dac
         self._dac = dac
         return self._dac
+
+    def step_registers(self, regs) -> tuple[tuple[int, ...], tuple[int, ...]] | None:
+        """:meth:`step` of one period with the encoders read from and the DACs written to the VME
+        map's bytes ``regs`` (ServoStation.cycle: ``bus.read_encoders_raw()``, ``step``,
+        ``bus.write_dacs``), in one call of the compiled kernel (droid/_kernel.c ``servo_cycle``:
+        the same operations, the same bits and the same state after it) on the tick's common path:
+        homed or not, a NORMAL or JOG stream with a way-point left in the queue, no fault, no
+        homing.  Returns (the encoder registers read, the DAC words), or None with nothing read,
+        written or changed where the tick leaves that path (or without the compiled kernel): the
+        caller then runs the Python reference."""
+        k = self._pid._k
+        if k is None or self._pos is None or self._homing.active or self._mode == Mode.OFF or self._fault != Fault.NONE:
+            return None
+        q = self._queue
+        qi = q._qi
+        if qi >= len(q._queue) or (q._starved and q._cache_full and not (q._brake_vel != 0.0).any()):
+            return None  # CommandQueue.next_target's other branches: the cache, the coast, the brake
+        jump = self.params.max_encoder_step_counts
+        if type(jump) is not int:
+            return None
+        pid = self._pid
+        lo, hi = self._limits if self._limits is not None else (None, None)
+        got = k.servo_cycle(regs, self._pos, q._queue, qi, self._target, self._vel, lo, hi, self._fe_max_arr,
+                            pid._gains, pid._state, pid._first, self._span, jump)
+        if got is None:  # an encoder jump or a following error: the reference takes the fault
+            return None
+        self._tick += 1
+        q._qi = qi + 1
+        pid._first = False
+        self._dac = got[1]
+        return got
 
     def _tail(self, target: np.ndarray, previous: np.ndarray) -> tuple[int, ...] | None:
         """The tick after the target is picked: clip it to the min/max counts once homed, the

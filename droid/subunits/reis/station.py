@@ -25,6 +25,7 @@ from droid.subunits.reis import vme_map as vm
 from droid.arm.planner import PlannerStation  # droid-planner: the neutral arm's, run by the Reis
 from droid.subunits.reis.servo import ServoCore
 from droid.subunits.reis.servo_agent import ServoAgentStation
+from droid.subunits.reis.vme import VmeBus
 from droid.subunits.reis.watchdog import WatchdogCore
 
 __all__ = ["ServoStation", "WatchdogStation", "ServoAgentStation", "PlannerStation"]
@@ -42,6 +43,8 @@ class ServoStation:
         self.bad_frames = 0  # malformed command messages dropped
         self.raw: tuple[int, ...] | None = None  # the last encoder registers read [counts, 16 bit]
         self.dacs: tuple[int, ...] | None = None  # the last DAC values written [DAC counts]
+        # the registers' bytes for the core's one-call tick (ServoCore.step_registers), on VmeBus only
+        self._regs = bus.registers if type(bus) is VmeBus else None
 
     def take(self, msg: bytes) -> bool:
         """One command message from the servo agent (the servo planner, §4.1.5.2); True if the
@@ -58,6 +61,13 @@ class ServoStation:
         status message to publish (every ``STATUS_EVERY_TICKS`` servo ticks), else None.
         ``periods`` > 1 after a stalled host (timer overrun).  Driver errors propagate."""
         bus, core = self.bus, self.core
+        if periods == 1 and self._regs is not None:
+            got = core.step_registers(self._regs)  # the same reads, bits and writes as below, in one call
+            if got is not None:
+                self.raw, self.dacs = got
+                if core.tick % sw.STATUS_EVERY_TICKS == 0:
+                    return core.status_message(bus.amps_powered)
+                return None
         self.raw = bus.read_encoders_raw()
         self.dacs = core.step(self.raw, bus.read_limit_switches(), periods)
         bus.write_dacs(self.dacs)

@@ -65,6 +65,12 @@ class VmeBus:
         """A bus over an in-process buffer (bytearray, mmap, numpy array, ...)."""
         return cls(buf, url="buffer:")
 
+    @property
+    def registers(self) -> memoryview:
+        """The register map's bytes (a writable byte view): for the servo's one-call tick
+        (droid.subunits.reis.servo.ServoCore.step_registers)."""
+        return self._view
+
     # -- raw registers ---------------------------------------------------
     def _check(self, offset: int) -> None:
         if offset % vm.REGISTER_BYTES or not 0 <= offset <= vm.MAP_SIZE - vm.REGISTER_BYTES:
