@@ -59,6 +59,15 @@ def guarded_cell(tmp_path_factory):
             out = droid(CELL, "up", "--cell", str(path), timeout=120)
             os.environ.pop(LEAK_TAG_ENV, None) if old is None else os.environ.__setitem__(LEAK_TAG_ENV, old)
             assert out.returncode == 0, out.stdout + out.stderr
+            from droid.brain.cellfile import load_cell
+            from droid.brain.databases import open_brain
+
+            cell = load_cell(path)
+            for arm in HOMED_ARMS:  # a loaded host: the nice-scheduled GMF1 agent may answer late at first
+                def fresh(arm=arm):
+                    with open_brain(cell, cell.subunit(arm), "status") as st:
+                        return not int(st.read()["stale"])
+                wait_for(fresh, timeout=60, what=f"{arm} fresh before homing")
             home_at_once(path, HOMED_ARMS)
             yield path
     finally:
