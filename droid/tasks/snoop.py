@@ -75,15 +75,20 @@ def main(argv=None) -> int:
     if args.subunit == GUARD and GUARD not in cell.subunits and "guard" in cell.raw:
         return _snoop_guard(cell, args)
     sub = cell.subunit(args.subunit)
-    db = open_brain(cell, sub, "status")
+    return _print_records(open_brain(cell, sub, "status"), args, lambda rec: status_dict(sub, rec), status_text)
+
+
+def _print_records(db, args, as_dict, as_text) -> int:
+    """droid-snoop's loop: ``--count`` records of ``db`` at ``--rate``, a line each (``--json``:
+    the dict), until SIGTERM or Ctrl-C; closes ``db``."""
     signal.signal(signal.SIGTERM, signal.default_int_handler)
     timer = PeriodicTimer(int(round(1e9 / args.rate)), start_ns=time.monotonic_ns())
     n = 0
     try:
         while args.count is None or n < args.count:
             timer.wait()
-            d = status_dict(sub, db.read())
-            print(json.dumps(d) if args.json else status_text(d), flush=True)
+            d = as_dict(db.read())
+            print(json.dumps(d) if args.json else as_text(d), flush=True)
             n += 1
     finally:
         timer.close()
@@ -105,20 +110,7 @@ def _snoop_guard(cell, args) -> int:
     from droid.guard.live import open_status
     from droid.guard.station import guard_status_dict
 
-    db = open_status(cell)
-    signal.signal(signal.SIGTERM, signal.default_int_handler)
-    timer = PeriodicTimer(int(round(1e9 / args.rate)), start_ns=time.monotonic_ns())
-    n = 0
-    try:
-        while args.count is None or n < args.count:
-            timer.wait()
-            d = guard_status_dict(db.read())
-            print(json.dumps(d) if args.json else guard_text(d), flush=True)
-            n += 1
-    finally:
-        timer.close()
-        db.close()
-    return 0
+    return _print_records(open_status(cell), args, guard_status_dict, guard_text)
 
 
 if __name__ == "__main__":

@@ -294,11 +294,8 @@ class KarelController:
             return
         self._interp_free_s = t_line + 1.0 / self.p.cycle_hz
         t_reply = t_line + self.p.reply_delay_s
-        try:
-            req = kw.parse_request(line)
-        except kw.WireError as exc:
-            self.errors += 1
-            self._queue_reply(t_reply, kw.Reply(kw.ERR, exc.cmd_id, code=exc.code))
+        req = self._parsed(line, t_reply)
+        if req is None:
             return
         if req.verb == kw.STAT:
             state = kw.MOVING if self.moving_at(t_line) else kw.IDLE
@@ -333,15 +330,21 @@ class KarelController:
         else:
             self._done_pending = (req.cmd_id, t_reply + duration)
 
+    def _parsed(self, line: bytes, t_reply: float):
+        """The request of ``line``, or None after queueing its ``ERR`` reply (a garbled line)."""
+        try:
+            return kw.parse_request(line)
+        except kw.WireError as exc:
+            self.errors += 1
+            self._queue_reply(t_reply, kw.Reply(kw.ERR, exc.cmd_id, code=exc.code))
+            return None
+
     def _halt(self, line: bytes, t_line: float) -> None:
         """``HALT id``: the motion in progress ends along its path at its deceleration; ``ACK id s``
         (s: until it stands), its ``DONE`` when it stands (issue 41)."""
         t_reply = t_line + self.p.reply_delay_s
-        try:
-            req = kw.parse_request(line)
-        except kw.WireError as exc:
-            self.errors += 1
-            self._queue_reply(t_reply, kw.Reply(kw.ERR, exc.cmd_id, code=exc.code))
+        req = self._parsed(line, t_reply)
+        if req is None:
             return
         m = self.motion
         if m is None or t_line >= m.t_end:
