@@ -19,6 +19,7 @@ records are the evidence.  A bench script: timing never decides a test.
 """
 from __future__ import annotations
 
+import csv
 import json
 import os
 import subprocess
@@ -47,14 +48,57 @@ def records(cell: Path) -> dict[str, tuple[str, float | None]]:
     return {r["name"]: (r.get("sched") or "?", r.get("lateness_max_ms")) for r in rows if r.get("alive")}
 
 
-def track(cell: Path, k: int, length_mm: float) -> bool:
+def track(cell: Path, k: int, length_mm: float, keep: Path | None) -> bool:
     t0 = time.monotonic()
+    log = [] if keep is None else ["--log", str(keep / f"run{k + 1}.csv")]
     run = droid(cell, "droid-seamtrack", "16", "--mode", "plus", "--start", "i", "--length", f"{length_mm:g}",
-                timeout=600)
+                *log, timeout=600)
     ok, what = judged(run.returncode, run.stdout + run.stderr)
     print(f"run {k + 1}: exit {run.returncode} in {time.monotonic() - t0:.0f} s: {'ok' if ok else 'FAILED'}: "
           f"{what}", flush=True)
+    if keep is not None and (keep / f"run{k + 1}.csv").exists():
+        for row in glitches(keep / f"run{k + 1}.csv"):
+            print(f"  {row}", flush=True)
     return ok
+
+
+def glitches(path: Path, over_mm: float = 0.5) -> list[str]:
+    """The rows of a tracking log whose tool-tip lateral or depth error is beyond ``over_mm``
+    [mm], with the arm's travel since the row before (a row every 0.1 s: 1.6 mm at 16 mm/s)."""
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    out, prev = [], None
+    for r in rows:
+        s = float(r["s_mm"])
+        lat, dep = float(r["tool_lateral_mm"]), float(r["tool_depth_mm"])
+        if prev is not None and (abs(lat) > over_mm or abs(dep) > over_mm):
+            out.append(f"glitch at s {s:.1f} mm (t {float(r['t_s']):.2f} s, travel since last row "
+                       f"{s - prev:.2f} mm): tool lateral {lat:+.2f} depth {dep:+.2f} mm")
+        prev = s
+    return out
+
+
+def rose(before: dict, after: dict) -> str:
+    """The programs whose worst-lateness record rose between two readings: "name a->b ms, ..."."""
+    out = []
+    for name, (_, lt) in sorted(after.items(), key=lambda kv: -(kv[1][1] or 0.0)):
+        b = before.get(name, ("?", None))[1]
+        if lt is not None and (b is None or lt > b):
+            out.append(f"{name} {0.0 if b is None else b:.1f}->{lt:.1f}")
+    return ", ".join(out) or "none"
+
+
+def new_lines(logs: Path, seen: dict[Path, int], words=("took", "stalled", "slipped", "LAGGING")) -> list[str]:
+    """The cell's log lines written since the last call that name a stall (droid-sim's slow
+    steps, a slipped clock), each with its program's log name."""
+    found = []
+    for log in sorted(logs.glob("*.log")):
+        lines = log.read_text(errors="replace").splitlines()
+        for ln in lines[seen.get(log, 0):]:
+            if any(w in ln for w in words):
+                found.append(f"{log.stem}: {ln}")
+        seen[log] = len(lines)
+    return found
 
 
 def show(before: dict, after: dict) -> int:
@@ -78,7 +122,10 @@ def main() -> int:
     ap.add_argument("--minutes", type=bounded_float(0.5, 240.0), default=10.0, help="soak length [min]")
     ap.add_argument("--length", type=bounded_float(50.0, 400.0), default=400.0, help="seam length a run [mm]")
     ap.add_argument("--quiet", action="store_true", help="without the two busy processes")
+    ap.add_argument("--keep", type=Path, help="keep each run's tracking log (runN.csv) in this folder")
     args = ap.parse_args()
+    if args.keep is not None:
+        args.keep.mkdir(parents=True, exist_ok=True)
     print(f"bench_track_soak: {time.strftime('%Y-%m-%d %H:%M:%S %Z')}, {os.cpu_count()} CPUs, "
           f"{args.minutes:g} min {'quiet' if args.quiet else 'beside two busy processes'}", flush=True)
     print(f"before: {cyclictest_floor(3.0, 1000)}", flush=True)
@@ -95,9 +142,17 @@ def main() -> int:
             time.sleep(3.0)
             before = records(cell)
             end = time.monotonic() + args.minutes * 60.0
+            seen: dict[Path, int] = {}
+            new_lines(Path(tmp) / "run" / "logs", seen)
+            last = before
             while time.monotonic() < end:
-                passed += track(cell, runs, args.length)
+                passed += track(cell, runs, args.length, args.keep)
                 runs += 1
+                now = records(cell)  # which records rose in this run, and what the cell logged
+                print(f"  late records that rose: {rose(last, now)}", flush=True)
+                for ln in new_lines(Path(tmp) / "run" / "logs", seen):
+                    print(f"  {ln}", flush=True)
+                last = now
             after = records(cell)
             load = " ".join(f"{v:.2f}" for v in os.getloadavg())
         finally:
