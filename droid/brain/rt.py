@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import gc
 import os
 import select
 import struct
@@ -244,12 +245,39 @@ def normal_scheduler() -> None:
 NICE_LEVEL = -10
 
 
+def freeze_heap(collect: bool = True) -> int:
+    """Collect once, then move every object alive now into the garbage collector's permanent
+    generation (:func:`gc.freeze`); returns how many objects it holds.
+
+    CPython's cyclic collector runs inside whatever allocates the object that crosses its
+    threshold, and a full (generation-2) pass walks every tracked object: after a program's
+    imports (numpy, pyzmq, the cell file, the registry) that is 25,000-28,000 objects and took
+    10-31 ms here (docs/benchmarks.md "The collector's pauses") -- a stall of the loop it lands
+    in, at whatever priority the loop runs.  What a program imported and built before its loop
+    lives as long as the program, so it is frozen once, before the loop: later passes walk only
+    what the loop itself keeps (a tracker's rows, a seam map).  Reference counting still frees
+    everything; only cycles among frozen objects are never collected.  ``DROID_NO_GC_FREEZE=1``
+    skips it (for measuring what it buys).  ``collect=False`` freezes without the collection
+    (instant: for a program already at real-time priority, whose start-up was collected and frozen
+    once before it switched; what it built since lives as long as it does).
+    """
+    if os.environ.get("DROID_NO_GC_FREEZE") == "1":
+        return gc.get_freeze_count()
+    if collect:
+        gc.collect()
+    gc.freeze()
+    return gc.get_freeze_count()
+
+
 def try_sched_fifo(priority: int | None = None, *, wanted: bool = True, prog: str = "droid") -> bool:
     """Switch this process to SCHED_FIFO if wanted and permitted, at ``priority``
     (default: ``prog``'s entry in :data:`FIFO_PRIORITIES`), and lock its memory
     (:func:`lock_memory`).  A program the registry declares ``sched = "nice"`` (and no
     ``priority`` given) stays on the normal scheduler at :data:`NICE_LEVEL` instead, its
-    memory locked likewise; returns False for it (it is not real-time)."""
+    memory locked likewise; returns False for it (it is not real-time).  Either way -- and also
+    where SCHED_FIFO is not wanted -- the heap built so far is frozen first (:func:`freeze_heap`):
+    this is where a program ends its start-up and begins its loop."""
+    freeze_heap()
     if not wanted:
         return False
     if priority is None:
