@@ -22,6 +22,14 @@
  *
  *   scene.distances(q, out)   q: float64[B * n_arms * 6] joint vectors [deg], arm by arm;
  *                             out: float64[B * n_pairs] (writable) the pairs' distances [mm]
+ *   scene.closest(q, out, pa, pb)   the same distances and each pair's closest points [mm,
+ *                             global]: pa, pb float64[B * n_pairs * 3] (writable), as
+ *                             droid.guard.cell.GuardScene.closest_points_reference gives them
+ *                             (a capsule's on its axis; ties broken alike: the first least
+ *                             candidate; an axis or edge entering a box: its entry point twice)
+ *   scene.poses(q, p0, p1, bc, bR)   the bodies' poses [mm, global] as GuardScene._poses gives
+ *                             them: capsule ends float64[B * n_caps * 3] x2, box centres
+ *                             float64[B * n_boxes * 3] and rotations float64[B * n_boxes * 9]
  *
  * Built by setup.py (a second Extension beside droid._kernel) with the same flags: -O2, no
  * fast-math, no FMA contraction.
@@ -55,9 +63,11 @@ typedef struct {
 static inline double dot3(const double *a, const double *b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
 static inline double clip01(double v) { return v < 0.0 ? 0.0 : (v > 1.0 ? 1.0 : v); }
 
-/* droid.guard.distance.segment_segment, one pair */
-static double segment_segment(const double *p1, const double *q1, const double *p2, const double *q2) {
-    double d1[3], d2[3], r[3], diff[3];
+/* droid.guard.distance.segment_segment_points, one pair: the distance; the closest points into
+ * c1, c2 where they are not NULL */
+static double segment_segment(const double *p1, const double *q1, const double *p2, const double *q2,
+                              double *c1, double *c2) {
+    double d1[3], d2[3], r[3], diff[3], a1[3], a2[3];
     for (int k = 0; k < 3; k++) { d1[k] = q1[k] - p1[k]; d2[k] = q2[k] - p2[k]; r[k] = p1[k] - p2[k]; }
     double a = dot3(d1, d1), e = dot3(d2, d2), f = dot3(d2, r);
     double c = dot3(d1, r), b = dot3(d1, d2);
@@ -71,7 +81,9 @@ static double segment_segment(const double *p1, const double *q1, const double *
     t = clip01(t);
     if (!a_ok) { s = 0.0; t = clip01(f / e_safe); }
     if (!e_ok) { s = a_ok ? clip01(-c / a_safe) : 0.0; t = 0.0; }
-    for (int k = 0; k < 3; k++) diff[k] = (p1[k] + d1[k] * s) - (p2[k] + d2[k] * t);
+    for (int k = 0; k < 3; k++) { a1[k] = p1[k] + d1[k] * s; a2[k] = p2[k] + d2[k] * t; diff[k] = a1[k] - a2[k]; }
+    if (c1 != NULL) memcpy(c1, a1, sizeof a1);
+    if (c2 != NULL) memcpy(c2, a2, sizeof a2);
     return sqrt(dot3(diff, diff));
 }
 
@@ -123,13 +135,42 @@ static void init_edges(void) {
         }
 }
 
-/* droid.guard.distance.segment_box: p, q in the box's frame.  An edge whose bounding sphere is
- * farther from the segment's than the best so far cannot give the least distance, and is not
- * measured: the least of the rest is the same value (the pruning changes no result). */
-static double segment_box(const double *p, const double *q, const double *h) {
-    if (segment_enters_box(p, q, h)) return 0.0;
+/* droid.guard.distance.segment_entry: the entry parameter of a segment that enters the box */
+static double segment_entry(const double *p, const double *q, const double *h) {
+    double lo = -INFINITY;
+    for (int k = 0; k < 3; k++) {
+        double d = q[k] - p[k];
+        if (fabs(d) < EPS) continue;
+        double t0 = (-h[k] - p[k]) / d, t1 = (h[k] - p[k]) / d;
+        double l = t0 < t1 ? t0 : t1;
+        if (l > lo) lo = l;
+    }
+    double t = lo > 0.0 ? lo : 0.0;
+    return t < 1.0 ? t : 1.0;
+}
+
+static inline void clamp_box(const double *p, const double *h, double *out) {
+    for (int k = 0; k < 3; k++) { double v = p[k] > -h[k] ? p[k] : -h[k]; out[k] = v < h[k] ? v : h[k]; }
+}
+
+/* droid.guard.distance.segment_box (segment_box_points where cs, cb are not NULL: the closest
+ * points, in the box's frame; the candidates p, q, then the 12 edges, the first least one wins):
+ * p, q in the box's frame.  An edge whose bounding sphere is farther from the segment's than the
+ * best so far cannot give the least distance, and is not measured: the least of the rest is the
+ * same value, and the same candidate (the pruning changes no result). */
+static double segment_box(const double *p, const double *q, const double *h, double *cs, double *cb) {
+    if (segment_enters_box(p, q, h)) {
+        if (cs != NULL) {
+            double t = segment_entry(p, q, h);
+            for (int k = 0; k < 3; k++) { cs[k] = p[k] + t * (q[k] - p[k]); cb[k] = cs[k]; }
+        }
+        return 0.0;
+    }
     double dp = point_box(p, h), dq = point_box(q, h);
-    double d = dp < dq ? dp : dq;
+    double d = dp;
+    const double *end = p;
+    if (dq < d) { d = dq; end = q; }
+    if (cs != NULL) { memcpy(cs, end, 3 * sizeof(double)); clamp_box(end, h, cb); }
     double de = INFINITY;
     double mid[3] = {0.5 * (p[0] + q[0]), 0.5 * (p[1] + q[1]), 0.5 * (p[2] + q[2])};
     double hs[3] = {0.5 * (q[0] - p[0]), 0.5 * (q[1] - p[1]), 0.5 * (q[2] - p[2])};
@@ -146,8 +187,14 @@ static double segment_box(const double *p, const double *q, const double *h) {
         }
         double gap = sqrt(dot3(c, c)) - rs - h[axis] * (1.0 + 1e-12) - 1e-9;
         if (gap > best) continue;
-        double v = segment_segment(p, q, e0, e1);
-        if (v < de) de = v;
+        if (cs == NULL) {
+            double v = segment_segment(p, q, e0, e1, NULL, NULL);
+            if (v < de) de = v;
+        } else {
+            double s1[3], s2[3];
+            double v = segment_segment(p, q, e0, e1, s1, s2);
+            if (v < best) { de = v; memcpy(cs, s1, sizeof s1); memcpy(cb, s2, sizeof s2); }
+        }
     }
     return d < de ? d : de;
 }
@@ -156,6 +203,11 @@ static double segment_box(const double *p, const double *q, const double *h) {
 static inline void to_frame(const double *x, const double *c, const double *R, double *out) {
     double rel[3] = {x[0] - c[0], x[1] - c[1], x[2] - c[2]};
     for (int i = 0; i < 3; i++) out[i] = R[0 * 3 + i] * rel[0] + R[1 * 3 + i] * rel[1] + R[2 * 3 + i] * rel[2];
+}
+
+/* a box-frame point back to the global frame: c + R x */
+static inline void from_frame(const double *x, const double *c, const double *R, double *out) {
+    for (int i = 0; i < 3; i++) out[i] = c[i] + (R[i * 3 + 0] * x[0] + R[i * 3 + 1] * x[1] + R[i * 3 + 2] * x[2]);
 }
 
 /* 3x3 (row-major) products */
@@ -200,7 +252,8 @@ static void arm_points(const double *a, const double *q_deg, double *pts, double
                                   : pts[6 * 3 + i];
 }
 
-static void scene_pass(Scene *S, const double *q, double *out) {
+/* one configuration's forward kinematics: every arm's points and tool0, every box's frame */
+static void scene_fk(Scene *S, const double *q) {
     for (int n = 0; n < S->n_arms; n++) arm_points(S->arm + n * ARM_DOUBLES, q + n * 6, S->pts + n * 24, S->tool0 + n * 16);
     for (int k = 0; k < S->n_boxes; k++) {
         const double *T = S->boxes_d + k * BOX_DOUBLES;
@@ -209,31 +262,40 @@ static void scene_pass(Scene *S, const double *q, double *out) {
         if (S->boxes_i[k] >= 0) { mat4_mul(S->tool0 + S->boxes_i[k] * 16, T, W); G = W; }
         for (int i = 0; i < 3; i++) { S->bc[k * 3 + i] = G[i * 4 + 3]; for (int j = 0; j < 3; j++) S->bR[k * 9 + i * 3 + j] = G[i * 4 + j]; }
     }
+}
+
+/* one configuration: every pair's distance into out, and (pa, pb not NULL) its closest points */
+static void scene_pass(Scene *S, const double *q, double *out, double *pa, double *pb) {
+    scene_fk(S, q);
+    int want = pa != NULL;
     const int *pr = S->pairs;
     int o = 0;
-    for (int p = 0; p < S->n_cc; p++, pr += 2) {
+    for (int p = 0; p < S->n_cc; p++, pr += 2, o++) {
         const int *ci = S->caps_i + pr[0] * 3, *cj = S->caps_i + pr[1] * 3;
         const double *Pi = S->pts + ci[0] * 24, *Pj = S->pts + cj[0] * 24;
-        double d = segment_segment(Pi + ci[1] * 3, Pi + ci[2] * 3, Pj + cj[1] * 3, Pj + cj[2] * 3);
-        out[o++] = d - S->caps_r[pr[0]] - S->caps_r[pr[1]];
+        double d = segment_segment(Pi + ci[1] * 3, Pi + ci[2] * 3, Pj + cj[1] * 3, Pj + cj[2] * 3,
+                                   want ? pa + o * 3 : NULL, want ? pb + o * 3 : NULL);
+        out[o] = d - S->caps_r[pr[0]] - S->caps_r[pr[1]];
     }
-    for (int p = 0; p < S->n_cb; p++, pr += 2) {
+    for (int p = 0; p < S->n_cb; p++, pr += 2, o++) {
         const int *ci = S->caps_i + pr[0] * 3;
         const double *Pi = S->pts + ci[0] * 24, *h = S->boxes_d + pr[1] * BOX_DOUBLES + 16;
-        double a[3], b[3];
-        to_frame(Pi + ci[1] * 3, S->bc + pr[1] * 3, S->bR + pr[1] * 9, a);
-        to_frame(Pi + ci[2] * 3, S->bc + pr[1] * 3, S->bR + pr[1] * 9, b);
-        double d = segment_box(a, b, h), r = S->caps_r[pr[0]];
-        out[o++] = d > 0.0 ? d - r : -r;
+        const double *c = S->bc + pr[1] * 3, *R = S->bR + pr[1] * 9;
+        double a[3], b[3], cs[3], cb[3];
+        to_frame(Pi + ci[1] * 3, c, R, a);
+        to_frame(Pi + ci[2] * 3, c, R, b);
+        double d = segment_box(a, b, h, want ? cs : NULL, want ? cb : NULL), r = S->caps_r[pr[0]];
+        out[o] = d > 0.0 ? d - r : -r;
+        if (want) { from_frame(cs, c, R, pa + o * 3); from_frame(cb, c, R, pb + o * 3); }
     }
-    for (int p = 0; p < S->n_bb; p++, pr += 2) {
-        double best[2] = {INFINITY, INFINITY};
+    for (int p = 0; p < S->n_bb; p++, pr += 2, o++) {
+        double best[2] = {INFINITY, INFINITY}, bs[2][3] = {{0}}, bb[2][3] = {{0}};
         for (int dir = 0; dir < 2; dir++) {
             int k1 = dir ? pr[1] : pr[0], k2 = dir ? pr[0] : pr[1];
             const double *h1 = S->boxes_d + k1 * BOX_DOUBLES + 16, *h2 = S->boxes_d + k2 * BOX_DOUBLES + 16;
             const double *c1 = S->bc + k1 * 3, *R1 = S->bR + k1 * 9, *c2 = S->bc + k2 * 3, *R2 = S->bR + k2 * 9;
             for (int m = 0; m < 12; m++) {
-                double w[2][3], e[2][3];
+                double w[2][3], e[2][3], cs[3], cb[3];
                 for (int end = 0; end < 2; end++) {
                     double loc[3] = {UNIT_EDGES[m][end][0] * h1[0], UNIT_EDGES[m][end][1] * h1[1], UNIT_EDGES[m][end][2] * h1[2]};
                     double v[3];
@@ -241,11 +303,19 @@ static void scene_pass(Scene *S, const double *q, double *out) {
                     for (int k = 0; k < 3; k++) w[end][k] = c1[k] + v[k];
                     to_frame(w[end], c2, R2, e[end]);
                 }
-                double d = segment_box(e[0], e[1], h2);
-                if (d < best[dir]) best[dir] = d;
+                double d = segment_box(e[0], e[1], h2, want ? cs : NULL, want ? cb : NULL);
+                if (d < best[dir]) {
+                    best[dir] = d;
+                    if (want) { from_frame(cs, c2, R2, bs[dir]); from_frame(cb, c2, R2, bb[dir]); }
+                }
             }
         }
-        out[o++] = best[0] < best[1] ? best[0] : best[1];
+        int first = best[0] <= best[1];
+        out[o] = first ? best[0] : best[1];
+        if (want) {  /* dir 0: a's edge against box b; dir 1: b's edge against box a */
+            memcpy(pa + o * 3, first ? bs[0] : bb[1], 3 * sizeof(double));
+            memcpy(pb + o * 3, first ? bb[0] : bs[1], 3 * sizeof(double));
+        }
     }
 }
 
@@ -330,30 +400,91 @@ static int Scene_init(Scene *S, PyObject *args, PyObject *kw) {
     return 0;
 }
 
-static PyObject *Scene_distances(Scene *S, PyObject *args) {
-    PyObject *qo, *oo;
-    if (!PyArg_ParseTuple(args, "OO", &qo, &oo)) return NULL;
-    Py_buffer q, out;
+static int writable(PyObject *o, Py_buffer *view) {
+    return PyObject_GetBuffer(o, view, PyBUF_C_CONTIGUOUS | PyBUF_WRITABLE);
+}
+
+/* distances(q, out) and closest(q, out, pa, pb): B configurations, one pass each */
+static PyObject *scene_call(Scene *S, PyObject *args, int points) {
+    PyObject *qo, *oo, *ao = NULL, *bo = NULL;
+    if (points ? !PyArg_ParseTuple(args, "OOOO", &qo, &oo, &ao, &bo) : !PyArg_ParseTuple(args, "OO", &qo, &oo)) return NULL;
+    Py_buffer q, out, va, vb;
     if (PyObject_GetBuffer(qo, &q, PyBUF_C_CONTIGUOUS) < 0) return NULL;
-    if (PyObject_GetBuffer(oo, &out, PyBUF_C_CONTIGUOUS | PyBUF_WRITABLE) < 0) { PyBuffer_Release(&q); return NULL; }
+    if (writable(oo, &out) < 0) { PyBuffer_Release(&q); return NULL; }
+    if (points && writable(ao, &va) < 0) { PyBuffer_Release(&q); PyBuffer_Release(&out); return NULL; }
+    if (points && writable(bo, &vb) < 0) { PyBuffer_Release(&q); PyBuffer_Release(&out); PyBuffer_Release(&va); return NULL; }
     Py_ssize_t per_q = (Py_ssize_t)S->n_arms * 6, n_pairs = (Py_ssize_t)(S->n_cc + S->n_cb + S->n_bb);
     Py_ssize_t B = q.len / (Py_ssize_t)sizeof(double) / per_q;
-    if (q.len != B * per_q * (Py_ssize_t)sizeof(double) || out.len < B * n_pairs * (Py_ssize_t)sizeof(double)) {
-        PyBuffer_Release(&q); PyBuffer_Release(&out);
-        PyErr_SetString(PyExc_ValueError, "_guard.Scene.distances: q must hold B * n_arms * 6 doubles, out B * n_pairs");
-        return NULL;
+    Py_ssize_t need = B * n_pairs * (Py_ssize_t)sizeof(double);
+    int bad = q.len != B * per_q * (Py_ssize_t)sizeof(double) || out.len < need
+              || (points && (va.len < 3 * need || vb.len < 3 * need));
+    if (!bad) {
+        const double *qd = (const double *)q.buf;
+        double *od = (double *)out.buf, *ad = points ? (double *)va.buf : NULL, *bd = points ? (double *)vb.buf : NULL;
+        for (Py_ssize_t b = 0; b < B; b++)
+            scene_pass(S, qd + b * per_q, od + b * n_pairs, points ? ad + b * n_pairs * 3 : NULL,
+                       points ? bd + b * n_pairs * 3 : NULL);
     }
-    const double *qd = (const double *)q.buf;
-    double *od = (double *)out.buf;
-    for (Py_ssize_t b = 0; b < B; b++) scene_pass(S, qd + b * per_q, od + b * n_pairs);
     PyBuffer_Release(&q);
     PyBuffer_Release(&out);
+    if (points) { PyBuffer_Release(&va); PyBuffer_Release(&vb); }
+    if (bad) {
+        PyErr_SetString(PyExc_ValueError, points ? "_guard.Scene.closest: q must hold B * n_arms * 6 doubles, out B * n_pairs, pa and pb B * n_pairs * 3"
+                                                 : "_guard.Scene.distances: q must hold B * n_arms * 6 doubles, out B * n_pairs");
+        return NULL;
+    }
     Py_RETURN_NONE;
 }
+
+/* poses(q, p0, p1, bc, bR): the bodies' poses for B configurations */
+static PyObject *Scene_poses(Scene *S, PyObject *args) {
+    PyObject *qo, *o[4];
+    if (!PyArg_ParseTuple(args, "OOOOO", &qo, &o[0], &o[1], &o[2], &o[3])) return NULL;
+    Py_buffer q, v[4];
+    if (PyObject_GetBuffer(qo, &q, PyBUF_C_CONTIGUOUS) < 0) return NULL;
+    int got = 0;
+    for (; got < 4; got++)
+        if (writable(o[got], &v[got]) < 0) break;
+    Py_ssize_t per_q = (Py_ssize_t)S->n_arms * 6, d = (Py_ssize_t)sizeof(double);
+    Py_ssize_t B = q.len / d / per_q;
+    int bad = got < 4 || q.len != B * per_q * d || v[0].len < B * S->n_caps * 3 * d || v[1].len < B * S->n_caps * 3 * d
+              || v[2].len < B * S->n_boxes * 3 * d || v[3].len < B * S->n_boxes * 9 * d;
+    if (!bad) {
+        const double *qd = (const double *)q.buf;
+        double *p0 = (double *)v[0].buf, *p1 = (double *)v[1].buf, *bc = (double *)v[2].buf, *bR = (double *)v[3].buf;
+        for (Py_ssize_t b = 0; b < B; b++) {
+            scene_fk(S, qd + b * per_q);
+            for (int c = 0; c < S->n_caps; c++) {
+                const int *ci = S->caps_i + c * 3;
+                const double *P = S->pts + ci[0] * 24;
+                memcpy(p0 + (b * S->n_caps + c) * 3, P + ci[1] * 3, 3 * sizeof(double));
+                memcpy(p1 + (b * S->n_caps + c) * 3, P + ci[2] * 3, 3 * sizeof(double));
+            }
+            memcpy(bc + b * S->n_boxes * 3, S->bc, (size_t)S->n_boxes * 3 * sizeof(double));
+            memcpy(bR + b * S->n_boxes * 9, S->bR, (size_t)S->n_boxes * 9 * sizeof(double));
+        }
+    }
+    PyBuffer_Release(&q);
+    for (int i = 0; i < got; i++) PyBuffer_Release(&v[i]);
+    if (bad) {
+        if (!PyErr_Occurred())
+            PyErr_SetString(PyExc_ValueError, "_guard.Scene.poses: q must hold B * n_arms * 6 doubles, p0 and p1 B * n_caps * 3, "
+                                              "bc B * n_boxes * 3, bR B * n_boxes * 9");
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
+static PyObject *Scene_distances(Scene *S, PyObject *args) { return scene_call(S, args, 0); }
+static PyObject *Scene_closest(Scene *S, PyObject *args) { return scene_call(S, args, 1); }
 
 static PyMethodDef Scene_methods[] = {
     {"distances", (PyCFunction)Scene_distances, METH_VARARGS,
      "distances(q, out): every pair's distance [mm] for B joint configurations [deg]"},
+    {"closest", (PyCFunction)Scene_closest, METH_VARARGS,
+     "closest(q, out, pa, pb): the distances and every pair's closest points [mm, global]"},
+    {"poses", (PyCFunction)Scene_poses, METH_VARARGS,
+     "poses(q, p0, p1, bc, bR): the capsules' ends and the boxes' frames [mm, global]"},
     {NULL, NULL, 0, NULL},
 };
 

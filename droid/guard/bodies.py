@@ -29,7 +29,10 @@ FIXTURE = "fixture"  # the owner of a fixture body
 
 class ArmChain:
     """One arm's kinematic chain as the URDF writes it: joint origins and signed axes at q = 0
-    (ROS-Industrial style), the flange / tool0 frame of link 6, the base in the cell."""
+    (ROS-Industrial style), the flange / tool0 frame of link 6, the base in the cell; and what the
+    guard needs of the robot file besides: its joint speed limits ``vmax_deg_s`` (a larger step of
+    the measured joints in a tick is a re-zero, not motion: droid.guard.core) and the pose homing
+    leaves it at, ``home_deg`` (``home_switch_deg``)."""
 
     def __init__(self, model, base_T: np.ndarray) -> None:
         frames, axes, tip = opw_chain_frames(model)
@@ -39,6 +42,8 @@ class ArmChain:
         self.flange = tip[:3, 3] - pos[5]  # flange / tool0 origin in link 6's frame [mm]
         self.tip_R = tip[:3, :3]  # tool0's axes in link 6's frame
         self.base = np.asarray(base_T, float)
+        self.vmax_deg_s = np.asarray(model.vmax_deg_s, float)
+        self.home_deg = np.asarray(model.home_switch_deg, float)
         u = self.axes
         self._K = np.zeros((6, 3, 3))
         self._K[:, 0, 1], self._K[:, 0, 2], self._K[:, 1, 2] = -u[:, 2], u[:, 1], -u[:, 0]

@@ -171,6 +171,98 @@ class GuardScene:
                 out.append(np.minimum(ab, ba))
         return np.concatenate(out, axis=1) if out else np.full((B, 0), np.inf)
 
+    def closest_points(self, q_deg: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`distances` and every pair's closest points [mm, global]: (d (B, P), on a (B, P, 3),
+        on b (B, P, 3)) for the pair (a, b) of :attr:`pairs` -- a capsule's point on its axis (the
+        distance is the points' less both radii), a box's on or in it; where a box pair overlaps or a
+        capsule's axis enters a box both points are the axis's (the edge's) entry point.  The
+        compiled pass where droid.guard.kernel chooses it, else :meth:`closest_points_reference`."""
+        k = self.compiled
+        if k is None:
+            return self.closest_points_reference(q_deg)
+        rows = np.broadcast_arrays(*[np.asarray(q_deg[n], float).reshape(-1, 6) for n in self.arms])
+        q = np.ascontiguousarray(np.stack(rows, axis=1))  # (B, n_arms, 6)
+        B, P = q.shape[0], len(self.pairs)
+        out, pa, pb = np.empty((B, P)), np.empty((B, P, 3)), np.empty((B, P, 3))
+        k.closest(q, out, pa, pb)
+        return out, pa, pb
+
+    def poses(self, q_deg: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The bodies' poses [mm, global]: capsule ends (B, Nc, 3) x2, box centres (B, Nb, 3) and
+        rotations (B, Nb, 3, 3) -- the compiled pass's forward kinematics where droid.guard.kernel
+        chooses it, else :meth:`_poses` (the reference)."""
+        k = self.compiled
+        if k is None:
+            return self._poses(q_deg)
+        rows = np.broadcast_arrays(*[np.asarray(q_deg[n], float).reshape(-1, 6) for n in self.arms])
+        q = np.ascontiguousarray(np.stack(rows, axis=1))
+        B, nc, nb = q.shape[0], len(self.caps), len(self.boxes)
+        p0, p1, bc, bR = np.empty((B, nc, 3)), np.empty((B, nc, 3)), np.empty((B, nb, 3)), np.empty((B, nb, 3, 3))
+        k.poses(q, p0, p1, bc, bR)
+        return p0, p1, bc, bR
+
+    def closest_points_reference(self, q_deg: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`closest_points` in numpy: the specification of the compiled pass's ``closest``
+        (its distances are :meth:`distances_reference`'s, operation for operation)."""
+        p0, p1, bc, bR = self._poses(q_deg)
+        B = p0.shape[0]
+        d_out, a_out, b_out = [], [], []
+        i, j = self._cc
+        if len(i):
+            d, ca, cb = dist.segment_segment_points(p0[:, i], p1[:, i], p0[:, j], p1[:, j])
+            d_out.append(d - self.radius[i] - self.radius[j])
+            a_out.append(ca)
+            b_out.append(cb)
+        i, k = self._cb
+        kb, mb = self._bb
+        segs_a, segs_b, halves, frames = [], [], [], []
+        if len(i):
+            c, R = bc[:, k].reshape(-1, 3), bR[:, k].reshape(-1, 3, 3)
+            segs_a.append(dist.to_box_frame(p0[:, i].reshape(-1, 1, 3), c, R)[:, 0])
+            segs_b.append(dist.to_box_frame(p1[:, i].reshape(-1, 1, 3), c, R)[:, 0])
+            halves.append(np.broadcast_to(self.half[k], (B, len(k), 3)).reshape(-1, 3))
+            frames.append((c, R))
+        for src, dst in ((kb, mb), (mb, kb)):
+            if not len(src):
+                continue
+            hs = np.broadcast_to(self.half[src], (B, len(src), 3)).reshape(-1, 3)
+            hd = np.broadcast_to(self.half[dst], (B, len(dst), 3)).reshape(-1, 3)
+            c, R = bc[:, dst].reshape(-1, 3), bR[:, dst].reshape(-1, 3, 3)
+            e = dist.to_box_frame(dist.box_edges(bc[:, src].reshape(-1, 3), bR[:, src].reshape(-1, 3, 3), hs), c, R)
+            segs_a.append(e[:, :, 0].reshape(-1, 3))
+            segs_b.append(e[:, :, 1].reshape(-1, 3))
+            halves.append(np.repeat(hd, 12, axis=0))
+            frames.append((np.repeat(c, 12, axis=0), np.repeat(R, 12, axis=0)))
+        if segs_a:
+            d, cs, cb = dist.segment_box_points(np.concatenate(segs_a), np.concatenate(segs_b), np.concatenate(halves))
+            c = np.concatenate([f[0] for f in frames])
+            R = np.concatenate([f[1] for f in frames])
+            gs = c + np.einsum("nij,nj->ni", R, cs)  # back to the global frame
+            gb = c + np.einsum("nij,nj->ni", R, cb)
+            n_cb = B * len(i)
+            if len(i):
+                d_cb = d[:n_cb].reshape(B, -1)
+                d_out.append(np.where(d_cb > 0.0, d_cb - self.radius[i], -self.radius[i]))
+                a_out.append(gs[:n_cb].reshape(B, -1, 3))
+                b_out.append(gb[:n_cb].reshape(B, -1, 3))
+            if len(kb):
+                n = B * len(kb) * 12
+                halves_d = []
+                for off in (n_cb, n_cb + n):  # a's edges in b's frame, then b's edges in a's frame
+                    dd = d[off:off + n].reshape(B, len(kb), 12)
+                    m = np.argmin(dd, axis=2)  # the first least edge
+                    sel = lambda x: np.take_along_axis(x[off:off + n].reshape(B, len(kb), 12, 3),  # noqa: E731
+                                                       m[..., None, None], axis=2)[:, :, 0]
+                    halves_d.append((np.take_along_axis(dd, m[..., None], axis=2)[..., 0], sel(gs), sel(gb)))
+                (ab, ab_s, ab_b), (ba, ba_s, ba_b) = halves_d
+                first = (ab <= ba)[..., None]
+                d_out.append(np.minimum(ab, ba))
+                a_out.append(np.where(first, ab_s, ba_b))  # a's edge, or the point of box a
+                b_out.append(np.where(first, ab_b, ba_s))
+        if not d_out:
+            return np.full((B, 0), np.inf), np.zeros((B, 0, 3)), np.zeros((B, 0, 3))
+        return np.concatenate(d_out, axis=1), np.concatenate(a_out, axis=1), np.concatenate(b_out, axis=1)
+
     def closest(self, q_deg: dict[str, np.ndarray]) -> Closest:
         """The least distance [mm] over every checked pair for one joint vector [deg] of every arm."""
         d = self.distances({k: np.asarray(v, float).reshape(1, 6) for k, v in q_deg.items()})[0]

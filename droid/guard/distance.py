@@ -44,6 +44,12 @@ def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def segment_segment(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndarray) -> np.ndarray:
     """Distances [mm] between segments p1-q1 and p2-q2 (arrays (..., 3)); zero-length segments are points."""
+    return segment_segment_points(p1, q1, p2, q2)[0]
+
+
+def segment_segment_points(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray,
+                           q2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`segment_segment` with its closest points: (distance, point on p1-q1, point on p2-q2)."""
     d1, d2, r = q1 - p1, q2 - p2, p1 - p2
     a, e, f = _dot(d1, d1), _dot(d2, d2), _dot(d2, r)
     c, b = _dot(d1, r), _dot(d1, d2)
@@ -60,8 +66,9 @@ def segment_segment(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndarr
     t = np.where(a_ok, t, np.clip(f / e_safe, 0.0, 1.0))
     s = np.where(e_ok, s, np.where(a_ok, np.clip(-c / a_safe, 0.0, 1.0), 0.0))
     t = np.where(e_ok, t, 0.0)
-    diff = (p1 + d1 * s[..., None]) - (p2 + d2 * t[..., None])
-    return np.sqrt(_dot(diff, diff))
+    c1, c2 = p1 + d1 * s[..., None], p2 + d2 * t[..., None]
+    diff = c1 - c2
+    return np.sqrt(_dot(diff, diff)), c1, c2
 
 
 def point_box(p: np.ndarray, h: np.ndarray) -> np.ndarray:
@@ -91,6 +98,37 @@ def segment_box(p: np.ndarray, q: np.ndarray, h: np.ndarray) -> np.ndarray:
     d_edges = segment_segment(p[:, None, :], q[:, None, :], edges[:, :, 0, :], edges[:, :, 1, :]).min(axis=1)
     d = np.minimum(np.minimum(point_box(p, h), point_box(q, h)), d_edges)
     return np.where(segment_enters_box(p, q, h), 0.0, d)
+
+
+def segment_entry(p: np.ndarray, q: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """The slab clipping's entry parameter t in [0, 1] of segments p-q (..., 3) into origin-centred
+    boxes (meaningful where :func:`segment_enters_box`): its point p + t (q - p) is in the box."""
+    d = q - p
+    small = np.abs(d) < _EPS
+    d_safe = np.where(small, 1.0, d)
+    t0 = (-h - p) / d_safe
+    t1 = (h - p) / d_safe
+    lo = np.where(small, -np.inf, np.minimum(t0, t1))
+    return np.minimum(np.maximum(lo.max(axis=-1), 0.0), 1.0)
+
+
+def segment_box_points(p: np.ndarray, q: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`segment_box` with its closest points, in the box's frame: (distance, point on the
+    segment, point of the box).  The candidates in this order -- endpoint p, endpoint q, the 12
+    edges (UNIT_BOX_EDGES') -- the first least one wins (the compiled pass breaks ties alike); a
+    segment that enters the box gives 0 and its entry point twice (no direction: docs/guard.md §5)."""
+    edges = UNIT_BOX_EDGES[None, :, :, :] * h[:, None, None, :]  # (N, 12, 2, 3)
+    d_e, c_s, c_e = segment_segment_points(p[:, None, :], q[:, None, :], edges[:, :, 0, :], edges[:, :, 1, :])
+    cand_d = np.concatenate([point_box(p, h)[:, None], point_box(q, h)[:, None], d_e], axis=1)  # (N, 14)
+    cand_s = np.concatenate([p[:, None], q[:, None], c_s], axis=1)  # (N, 14, 3)
+    cand_b = np.concatenate([np.clip(p, -h, h)[:, None], np.clip(q, -h, h)[:, None], c_e], axis=1)
+    k = np.argmin(cand_d, axis=1)
+    n = np.arange(p.shape[0])
+    d, cs, cb = cand_d[n, k], cand_s[n, k], cand_b[n, k]
+    inside = segment_enters_box(p, q, h)
+    entry = p + segment_entry(p, q, h)[:, None] * (q - p)
+    cs = np.where(inside[:, None], entry, cs)
+    return np.where(inside, 0.0, d), cs, np.where(inside[:, None], entry, cb)
 
 
 def to_box_frame(points: np.ndarray, centre: np.ndarray, R: np.ndarray) -> np.ndarray:

@@ -14,7 +14,9 @@ install beside droid._kernel (setup.py).  ``DROID_GUARD_KERNEL`` chooses, read o
 * ``python`` -- the reference.
 
 The two agree to :data:`AGREE_MM` (1e-9 mm), not bit for bit: numpy's einsum and batched matmul
-may add a 3-term dot product in another order than the C loop.  tests/guard/test_guard_kernel.py
+may add a 3-term dot product in another order than the C loop.  Both give every pair's closest
+points too (``closest``, :meth:`~droid.guard.cell.GuardScene.closest_points`: the guard's closing
+speed along the pair's direction, droid.guard.core).  tests/guard/test_guard_kernel.py
 compares them on random configurations of every shipped cell.
 """
 from __future__ import annotations
@@ -27,6 +29,9 @@ KERNELS = ("auto", "c", "python")
 ENV = "DROID_GUARD_KERNEL"
 CHECKS = 64  # seeded configurations the compiled pass is compared on before a scene uses it
 AGREE_MM = 1e-9
+#: ... and its closest points (a near tie between two candidates may pick either: none was seen in
+#: 2,000 random configurations of every shipped cell, tests/guard/test_guard_kernel.py)
+AGREE_POINT_MM = 1e-6
 
 CHOICE = os.environ.get(ENV, "auto").strip().lower() or "auto"
 if CHOICE not in KERNELS:
@@ -79,13 +84,28 @@ def random_configs(scene, n: int, seed: int = 0) -> dict:
 
 
 def why_not(scene, compiled) -> str:
-    """'' when the compiled pass agrees with the reference on :data:`CHECKS` seeded configurations."""
+    """'' when the compiled pass agrees with the reference on :data:`CHECKS` seeded configurations:
+    its distances (both calls) within :data:`AGREE_MM`, its closest points within :data:`AGREE_POINT_MM`."""
+    if not (hasattr(compiled, "closest") and hasattr(compiled, "poses")):
+        return "the compiled pass is older than droid/guard/_guard.c (no closest points): rebuild it (pip install -e .)"
     q = random_configs(scene, CHECKS, seed=41)
-    want = scene.distances_reference(q)
-    got = np.empty(want.shape)
-    compiled.distances(np.ascontiguousarray(np.stack([q[n] for n in scene.arms], axis=1)), got)
+    want, want_a, want_b = scene.closest_points_reference(q)
+    qq = np.ascontiguousarray(np.stack([q[n] for n in scene.arms], axis=1))
+    got, got_a, got_b = np.empty(want.shape), np.empty(want_a.shape), np.empty(want_b.shape)
+    compiled.distances(qq, got)
     worst = float(np.max(np.abs(got - want))) if want.size else 0.0
-    return "" if worst <= AGREE_MM else f"the compiled pass differs from the reference by {worst:.3g} mm"
+    compiled.closest(qq, got, got_a, got_b)
+    worst = max(worst, float(np.max(np.abs(got - want))) if want.size else 0.0)
+    if worst > AGREE_MM:
+        return f"the compiled pass differs from the reference by {worst:.3g} mm"
+    off = float(np.max(np.abs(np.concatenate([got_a - want_a, got_b - want_b])))) if want.size else 0.0
+    if off > AGREE_POINT_MM:
+        return f"the compiled pass's closest points differ from the reference's by {off:.3g} mm"
+    want_poses = scene._poses(q)
+    got_poses = [np.empty(w.shape) for w in want_poses]
+    compiled.poses(qq, *got_poses)
+    off = max((float(np.max(np.abs(g - w))) if w.size else 0.0) for g, w in zip(got_poses, want_poses))
+    return "" if off <= AGREE_MM else f"the compiled pass's poses differ from the reference's by {off:.3g} mm"
 
 
 def compiled_for(scene):

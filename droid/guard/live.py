@@ -95,11 +95,16 @@ def run_live(cell_path, seconds: float | None, ready_fd: int | None = None) -> i
                 if t is not None:
                     last = t.tick
                     station.on_tick(t.tick)
-                    state = station.status["state"]
-                    if state != last_state:
-                        print(f"{PROG}: {state}: {station.status['distance_mm']:.1f} mm "
-                              f"({' with '.join(station.status['pair'])})", file=sys.stderr, flush=True)
-                        last_state = state
+                    for note in station.last.notes if station.last is not None else ():  # each said once
+                        print(f"{PROG}: {note}", file=sys.stderr, flush=True)
+                    st = station.status
+                    if st["state"] != last_state:
+                        print(f"{PROG}: {st['state']}: {st['distance_mm']:.1f} mm ({' with '.join(st['pair'])}); "
+                              f"deciding {st.get('deciding_mm', st['distance_mm']):.1f} mm "
+                              f"({' with '.join(st.get('deciding_pair', st['pair']))}) closing "
+                              f"{st.get('closing_mm_s', 0.0):.0f} mm/s, S_p {st.get('separation_mm', 0.0):.1f} mm",
+                              file=sys.stderr, flush=True)
+                        last_state = st["state"]
                 presence.beat(last, station.cycles, ticks.monitor.missed, ticks.lateness_max_ns,
                               bad_frames=ticks.bad_frames)
         finally:

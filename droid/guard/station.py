@@ -11,7 +11,10 @@ runs :class:`~droid.guard.core.GuardCore` and
   arm's Brain Command (where given): the planners' stale rule and override (droid.guard.gate);
 * keeps its own Status, :attr:`status` (a dict) and, where given, the ``guard_status`` record
   (:data:`droid.brain.layouts.GUARD_STATUS`, ``/droid.<cell>.guard.status``): least distance
-  [mm], the closest pair, the override per arm, state, the cycle time [us], trips, the tick.
+  [mm] and the closest pair, the closing speed and S_p of the pair that decides (the least margin
+  d - S_p; at rest the closest pair), the override per arm, state, the cycle time [us], trips,
+  the tick; the dict also the deciding pair and its distance, the re-zeros seen, the arms not
+  judged (not homed) and the guard's notes (:attr:`notes`, each said once: droid-guard logs them).
 
 Disabled (:attr:`enabled` False: a lockstep trial's "guard off") it runs no pass but still
 stamps the tick with override 1, so the planners' stale rule holds only for a guard that is gone.
@@ -33,6 +36,8 @@ from droid.guard.ssm import ssm_params
 
 #: the guard's place on a lockstep tick: after the arms' stations (ORDER_HEARTBEAT = 20), before tasks (30)
 ORDER_GUARD = 25
+#: the guard's notes its Status dict keeps (the newest)
+NOTES_KEPT = 20
 STATE_CODES = {name: code for code, name in GUARD_STATE_NAMES.items()}
 
 
@@ -63,7 +68,9 @@ class GuardStation:
         self.cycles = 0
         self.cycle_max_us = 0.0
         self.status: dict = {"state": "clear", "distance_mm": float("inf"), "pair": ("", ""), "override": {},
-                             "cycle_us": 0.0, "trips": 0, "tick": 0}
+                             "cycle_us": 0.0, "trips": 0, "tick": 0, "jumps": 0, "unjudged": (), "notes": []}
+        #: what the guard said, once each (a re-zero, an arm not homed): droid-guard logs each line
+        self.notes: list[str] = []
         self.last: GuardVerdict | None = None
         if status_db is not None:
             with status_db.locked() as r:
@@ -72,6 +79,24 @@ class GuardStation:
                     r["arms"][i] = _name(name)
                     r["override"][i] = 1.0
                 status_db.mark_written()
+
+    def readings(self) -> tuple[dict, dict, dict, dict]:
+        """Every arm's measured and commanded joints [deg] (:meth:`joints`), whether its Status says
+        homed, and the tick of its Status (when it was refreshed: a speed is measured over the ticks
+        between two refreshes, docs/guard.md §5)."""
+        meas, cmd, homed, ticks = {}, {}, {}, {}
+        for name, (gearing, brain_status, *_rest) in self.arms.items():
+            st = brain_status.read()
+            meas[name], cmd[name] = self._joints_of(name, gearing, st)
+            homed[name] = bool(int(st["homed"]))
+            ticks[name] = int(st["tick"])
+        return meas, cmd, homed, ticks
+
+    def _joints_of(self, name: str, gearing, st) -> tuple[np.ndarray, np.ndarray]:
+        q = gearing.counts_to_joints(np.asarray(st["encoder_pos"], float))
+        qc = (gearing.counts_to_joints(np.asarray(st["encoder_cmd"], float))
+              if self.waypoints is None or name in self.waypoints else q)
+        return q, qc
 
     def joints(self) -> tuple[dict, dict]:
         """Measured and commanded joints [deg] of every arm from its Brain Status.  Only an arm in
@@ -83,10 +108,7 @@ class GuardStation:
         the live cell on every GMF1 move."""
         meas, cmd = {}, {}
         for name, (gearing, brain_status, *_rest) in self.arms.items():
-            st = brain_status.read()
-            meas[name] = gearing.counts_to_joints(np.asarray(st["encoder_pos"], float))
-            cmd[name] = (gearing.counts_to_joints(np.asarray(st["encoder_cmd"], float))
-                         if self.waypoints is None or name in self.waypoints else meas[name])
+            meas[name], cmd[name] = self._joints_of(name, gearing, brain_status.read())
         return meas, cmd
 
     def on_tick(self, tick: int) -> None:
@@ -94,7 +116,7 @@ class GuardStation:
             self._stamp(tick, {})
             return
         t0 = time.perf_counter_ns()
-        v = self.core.step(*self.joints())
+        v = self.core.step(*self.readings())
         if v.stop != self.faulted:
             for _, _, ctrl_status, *_rest in self.arms.values():
                 set_collision_fault(ctrl_status, v.stop)
@@ -106,7 +128,12 @@ class GuardStation:
         self.cycle_max_us = max(self.cycle_max_us, cycle_us)
         self.status.update(state=v.state, distance_mm=v.distance_mm, pair=v.pair, override=dict(v.override),
                            closing_mm_s=v.closing_mm_s, separation_mm=v.separation_mm, trips=self.core.trips,
-                           tick=tick, cycle_us=cycle_us, ahead_mm=v.ahead_mm)
+                           tick=tick, cycle_us=cycle_us, ahead_mm=v.ahead_mm, deciding_mm=v.deciding_mm,
+                           deciding_pair=v.deciding_pair, jumps=self.core.jumps, unjudged=v.unjudged)
+        if v.notes:
+            self.notes += v.notes
+            del self.notes[:-NOTES_KEPT]
+            self.status["notes"] = list(self.notes)
         if self.status_db is not None:
             self._write_status(v, tick, cycle_us)
 

@@ -10,8 +10,11 @@ class (``snoop_fields`` in :mod:`droid.brain.classes`).
 Reads the Brain's database only (a task never touches a device, §3.4).
 
 ``droid-snoop guard`` (a cell that declares a collision guard and has no subunit of that name):
-the guard's own Status (``/droid.<cell>.guard.status``, docs/guard.md) -- the least distance,
-the closest pair, the state, the override per arm, the cycle time and how old it is.
+the guard's own Status (``/droid.<cell>.guard.status``, docs/guard.md) -- the state, the least
+distance and its pair, the closing speed and S_p of the pair that decides (the least margin
+d - S_p), the override per arm, the cycle time.  In a cell whose live guard is off (``[guard]
+run = false``: its Status database is made, no droid-guard runs) one line saying so (``--json``:
+``"state": "off"``), exit 0.
 
 Exit: 0 after ``--count`` samples or on SIGINT; 1 if the cell is not up.
 """
@@ -100,16 +103,33 @@ GUARD = "guard"
 
 
 def guard_text(d: dict) -> str:
-    """One line of the guard's Status: state, least distance and pair, overrides, cycle time."""
+    """One line of the guard's Status: state, least distance and pair, the deciding pair's closing speed
+    and S_p, overrides, cycle time."""
     over = " ".join(f"{a} {v:.2f}" for a, v in d["override"].items())
     return (f"guard tick {d['tick']}  {d['state']}  {d['distance_mm']:.1f} mm: {d['pair'][0]} with {d['pair'][1]}  "
-            f"S_p {d['separation_mm']:.1f} mm  override [{over}]  cycle {d['cycle_us']:.0f} us  trips {d['trips']}")
+            f"closing {d['closing_mm_s']:.0f} mm/s  S_p {d['separation_mm']:.1f} mm  override [{over}]  "
+            f"cycle {d['cycle_us']:.0f} us  trips {d['trips']}")
+
+
+def guard_off(cell) -> dict:
+    """What droid-snoop guard says of a cell whose live guard is off (``[guard] run = false``)."""
+    return {"subunit": GUARD, "cell": cell.name, "state": "off", "run": False}
+
+
+def guard_off_text(d: dict, cell) -> str:
+    return (f"guard: off in cell {d['cell']} ([guard] run = false in {cell.path}): no droid-guard runs; its bodies "
+            "serve droid-move's refusal, droid-cell up's home check and droid-guard check (docs/guard.md)")
 
 
 def _snoop_guard(cell, args) -> int:
+    from droid.guard.gate import guard_runs
     from droid.guard.live import open_status
     from droid.guard.station import guard_status_dict
 
+    if not guard_runs(cell):  # the Status database exists (droid-cell up makes it), nothing writes it
+        d = guard_off(cell)
+        print(json.dumps(d) if args.json else guard_off_text(d, cell), flush=True)
+        return 0
     return _print_records(open_status(cell), args, guard_status_dict, guard_text)
 
 

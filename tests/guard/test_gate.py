@@ -123,7 +123,7 @@ def test_the_station_writes_its_tick_and_overrides_into_the_commands_and_its_sta
         model = load_robot(cell.subunits[name].robot)
         brain = MemoryDatabase(f"{name}.status", L.ARM_STATUS_LAYOUT)
         counts = np.rint(model.gearing.joints_to_counts(np.asarray(model.home_switch_deg, float)))
-        brain.update(encoder_pos=counts, encoder_cmd=counts)
+        brain.update(encoder_pos=counts, encoder_cmd=counts, homed=1)  # homed: judged (docs/guard.md §5)
         homes[name] = model.gearing.counts_to_joints(counts)
         arms[name] = (model.gearing, brain, MemoryDatabase(f"{name}.ctrl_status", L.CTRL_STATUS_LAYOUT),
                       MemoryDatabase(f"{name}.command", L.ARM_COMMAND_LAYOUT))
@@ -162,7 +162,7 @@ def test_a_move_target_in_encoder_cmd_is_not_taken_for_a_way_point():
             brain = MemoryDatabase(f"{name}.status", L.ARM_STATUS_LAYOUT)
             target = q + (np.array([9.0, -9.0, 0, 0, 0, 0]) if name == "gmf1" else 0.0)
             brain.update(encoder_pos=np.rint(model.gearing.joints_to_counts(q)),
-                         encoder_cmd=np.rint(model.gearing.joints_to_counts(target)))
+                         encoder_cmd=np.rint(model.gearing.joints_to_counts(target)), homed=1)
             arms[name] = (model.gearing, brain, MemoryDatabase(f"{name}.ctrl_status", L.CTRL_STATUS_LAYOUT),
                           MemoryDatabase(f"{name}.command", L.ARM_COMMAND_LAYOUT))
         return GuardStation(core, arms, None, stale_ticks=7, waypoints=waypoints)

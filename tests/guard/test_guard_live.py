@@ -4,9 +4,10 @@ stands is refused -- exit 2, one ``would collide:`` line -- and arm1 does not mo
 
 The live guard's own tests (its Status database, killing droid-guard stops every arm, a head-on
 course held above C) passed 4 of 4 on a cell with ``[guard] run = true`` in session 24, then
-failed beside a loaded host (homing of that cell timed out: the guard trips on the encoders'
-jump at homing, docs/guard.md section 9); they are out of the suite until the live guard's
-closing speed is fixed, and the live guard is off on the shipped cells.
+failed beside a loaded host (homing of that cell timed out: the guard tripped on the encoders'
+jump at homing, docs/guard.md section 9).  The jump and the closing speed are fixed since (session
+25: lockstep, tests/guard/test_guard_demo.py); the live tests were not run again and stay out of
+the suite, and the live guard is off on the shipped cells (the demo's holder move is a collision).
 """
 from __future__ import annotations
 
