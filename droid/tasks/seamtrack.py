@@ -56,6 +56,7 @@ from droid.brain.program import Stop, open_cell, parser  # noqa: F401 (Stop: tes
 from droid.cli import (EXIT_OK, EXIT_RUNTIME, BadInput, RuntimeFailure, bounded_float,
                        bounded_int, run)
 from droid.tasks.arm import BrainArm
+from droid.tasks.guarded import refuse_colliding_move
 from droid.tasks.resume import MAX_RESUMES, summary_note
 from droid.tasks.seam import report
 from droid.tasks.seam.core import (DEAD_ZONE_CYCLES, LOST_CYCLES, MAX_CYCLES, MAX_GAIN, MAX_RUN_LENGTH_MM,
@@ -151,11 +152,49 @@ def pose_of(rec) -> np.ndarray:
     return record_pose(rec)
 
 
-def move_to_start(arm: BrainArm, T: np.ndarray, what: str, quiet: bool, resume: bool = True) -> int:
-    """Move ``arm`` to the wrist-centre pose ``T`` (global, mm) as droid-move would, and wait;
-    the number of resumes after a protective stop it took (BrainArm.move; ``resume`` False:
-    ``--no-resume``).  Interrupted (SIGINT/SIGTERM, Stop): the move is stopped where the arm
-    stands and droid.tasks.arm.Interrupted raised."""
+#: the holder's detour to a start pose whose straight move would sweep its workpiece through the
+#: welder (docs/guard.md §9): the pose's joints 1-3 turned by these [deg] -- the base away from the
+#: welder, the upper arm and forearm raised -- then the pose itself; checked like the straight move
+DETOUR_DEG = np.array([-20.0, 20.0, 40.0, 0.0, 0.0, 0.0])
+
+
+def start_move_s(arm: BrainArm, q_from_deg, q_to_deg) -> float:
+    """A start move's time [s]: max(START_MOVE_MIN_S, START_MOVE_MARGIN x the slowest joint at its limit)."""
+    dq = np.abs(np.asarray(q_to_deg, float) - np.asarray(q_from_deg, float))
+    return max(START_MOVE_MIN_S, START_MOVE_MARGIN * float(np.max(dq / arm.model.vmax_deg_s)))
+
+
+def start_route(cell, arm: BrainArm, q_now_deg, q_goal_deg, what: str) -> list[np.ndarray]:
+    """The joint way-points [deg] of ``arm``'s move to a start pose, checked against the other arms'
+    bodies where they stand (droid.tasks.guarded; a cell with a ``[guard]`` table): ``[q_goal]``
+    when the straight joint move is clear, ``[q_goal + DETOUR_DEG, q_goal]`` when it is not and
+    both legs of the detour are; BadInput with the guard's line when neither is (nothing moved).
+    A cell without a ``[guard]`` table: ``[]`` (the Cartesian move, unchecked)."""
+    if "guard" not in cell.raw:
+        return []
+    name = arm.sub.name
+    q_now, q_goal = np.asarray(q_now_deg, float), np.asarray(q_goal_deg, float)
+    try:
+        refuse_colliding_move(cell, name, q_now, q_goal, start_move_s(arm, q_now, q_goal))
+        return [q_goal]
+    except BadInput as exc:
+        straight = str(exc)
+    via = q_goal + DETOUR_DEG
+    try:
+        arm.check_joint_target(np.round(arm.model.gearing.joints_to_counts(via)), 1e9, None)
+        refuse_colliding_move(cell, name, q_now, via, start_move_s(arm, q_now, via))
+        refuse_colliding_move(cell, name, via, q_goal, start_move_s(arm, via, q_goal))
+    except BadInput:
+        raise BadInput(f"{name} to the {what}: {straight} (and no detour is clear)") from None
+    return [via, q_goal]
+
+
+def move_to_start(arm: BrainArm, T: np.ndarray, what: str, quiet: bool, resume: bool = True, cell=None) -> int:
+    """Move ``arm`` to the wrist-centre pose ``T`` (global, mm) and wait; the number of resumes after
+    a protective stop it took (BrainArm.move; ``resume`` False: ``--no-resume``).  In a ``cell``
+    with a ``[guard]`` table the move goes in joint space along :func:`start_route` (the path the
+    guard's bodies were checked on), else as droid-move's Cartesian move.  Interrupted (SIGINT/SIGTERM,
+    Stop): the move is stopped where the arm stands and droid.tasks.arm.Interrupted raised."""
     rec = arm.read()
     arm.check_fresh(rec)
     if not int(rec["homed"]):
@@ -165,11 +204,23 @@ def move_to_start(arm: BrainArm, T: np.ndarray, what: str, quiet: bool, resume: 
 
     pose = T_to_pose(T)
     _, q = arm.check_cart_target(pose, 1e9, q_now)
-    seconds = max(START_MOVE_MIN_S, START_MOVE_MARGIN * float(np.max(np.abs(q - q_now) / arm.model.vmax_deg_s)))
-    if not quiet:
-        print(f"{PROG}: moving {arm.sub.name} to the {what} ({seconds:.1f} s)", file=sys.stderr)
-    resumes = arm.move("cart", pose, seconds, resume=resume, arrive=False, timeout=lambda s: 3 * s + 30.0,
-                       interrupted=lambda: Stop.requested)
+    route = start_route(cell, arm, q_now, q, what) if cell is not None else []
+    resumes = 0
+
+    def go(mode: str, target, seconds: float, label: str) -> int:
+        if not quiet:
+            print(f"{PROG}: moving {arm.sub.name} to the {label} ({seconds:.1f} s)", file=sys.stderr)
+        return arm.move(mode, target, seconds, resume=resume, arrive=False, timeout=lambda s: 3 * s + 30.0,
+                        interrupted=lambda: Stop.requested)
+
+    if not route:
+        resumes += go("cart", pose, start_move_s(arm, q_now, q), what)
+    q_from = q_now
+    for k, q_leg in enumerate(route):
+        label = what if k == len(route) - 1 else f"way clear of the other arms to the {what}"
+        counts = np.round(arm.model.gearing.joints_to_counts(q_leg))
+        resumes += go("joint", counts, start_move_s(arm, q_from, q_leg), label)
+        q_from = q_leg
     # "done" is the planner's; let the servo settle before tracking starts from here
     prev = None
     deadline = time.monotonic() + SETTLE_TIMEOUT_S
@@ -255,8 +306,9 @@ class Tracker:
         T_reis, T_hold = self.layout.start_poses(position, self.args.wrist)
         resume = not self.args.no_resume
         self.resumes += move_to_start(self.hold, T_hold, f"holding pose of position ({position})",
-                                      self.args.quiet, resume)
-        self.resumes += move_to_start(self.reis, T_reis, f"start of position ({position})", self.args.quiet, resume)
+                                      self.args.quiet, resume, self.cell)
+        self.resumes += move_to_start(self.reis, T_reis, f"start of position ({position})", self.args.quiet, resume,
+                                      self.cell)
 
     # -- one tick: the station (droid.tasks.seam.station) between records and commands ----
     def arm_status(self, arm: BrainArm, rec) -> ArmStatus:

@@ -201,8 +201,9 @@ class ContactRun:
         T_arm, T_hold = self.start_pose(position)
         resume = not self.args.no_resume
         self.resumes += move_to_start(self.holder, T_hold, f"holding pose of position ({position})",
-                                      self.args.quiet, resume)
-        self.resumes += move_to_start(self.arm, T_arm, f"start over position ({position})", self.args.quiet, resume)
+                                      self.args.quiet, resume, self.cell)
+        self.resumes += move_to_start(self.arm, T_arm, f"start over position ({position})", self.args.quiet, resume,
+                                      self.cell)
 
     def bias_sensor(self) -> None:
         """Bias the sensor through its Command, and wait until its agent took it (the module
