@@ -487,6 +487,7 @@ def _tracking_cycle(params: SeamParams, geo: TrialGeometry, trial_id: str) -> Tr
         raise BadInput(f"trial {trial_id}: {exc}") from None
     if params.mode != MODE_LISTING:  # the patch search of interpolate_thesis, compiled (the same bits)
         seam_kernel.use_on(cyc.core)
+    seam_kernel.use_on_cycle(cyc)  # the pose histories' interpolation, compiled (the same bits)
     return cyc
 
 

@@ -130,7 +130,12 @@ def interpolate_pose(T0: np.ndarray, T1: np.ndarray, u: float) -> np.ndarray:
 
 
 class PoseHistory:
-    """Poses stamped with their time [ticks, may be fractional], oldest first, ``span`` ticks kept."""
+    """Poses stamped with their time [ticks, may be fractional], oldest first, ``span`` ticks kept.
+
+    :meth:`at` interpolates between neighbours with :attr:`interpolate` (:func:`interpolate_pose`;
+    an experiment may put a compiled one of the same bits here: droid.experiments.seam_kernel)."""
+
+    interpolate = staticmethod(interpolate_pose)
 
     def __init__(self, span_ticks: float = POSE_HISTORY_TICKS) -> None:
         self.span = float(span_ticks)
@@ -164,7 +169,7 @@ class PoseHistory:
                 if ti == t or i == len(items) - 1:
                     return Ti.copy()
                 tj, Tj = items[i + 1]
-                return interpolate_pose(Ti, Tj, (t - ti) / (tj - ti))
+                return self.interpolate(Ti, Tj, (t - ti) / (tj - ti))
         return None
 
 
