@@ -1826,6 +1826,157 @@ static PyObject *seam_nearest(PyObject *self, PyObject *const *args, Py_ssize_t 
 }
 
 
+/* == the tracker's pose interpolation (droid.tasks.seam.cycle.interpolate_pose; issue 44, h50) ==
+ *
+ * interpolate_pose(T0, T1, u) in numpy: out[:3, 3] = t0 + u (t1 - t0); out[:3, :3] = R0 exp(u log(R0^T
+ * R1)) (rotation log/exp of droid.tasks.seam.cycle._rot_log/_rot_exp).  Every elementwise operation
+ * is IEEE's and written here in the reference's order; what numpy leaves to its BLAS and its reduce
+ * loop is chosen by ``order`` (a packed int, droid.experiments.seam_kernel finds the one numpy uses
+ * on this machine, bit for bit, and keeps the reference where none matches):
+ *   bits 0-3: the 3x3 product R0^T R1 (numpy's dgemm, A transposed), bits 4-7: the products K K and
+ *   R0 E (dgemm, neither transposed): how one entry's three products are summed (pose_sum3);
+ *   bits 8-11: v . v (cblas_ddot) the same way; bit 12: the trace, (r00 + r11) + r22 (0) or
+ *   r00 + (r11 + r22) (1: numpy's reduce adds the rest to the first). */
+
+/* a0 b0 + a1 b1 + a2 b2 in one of the orders a BLAS kernel may take; form 8 set: + 0.0 at the end
+ * (a kernel that adds into a zeroed output) */
+static inline double pose_sum3(double a0, double b0, double a1, double b1, double a2, double b2, int form)
+{
+    double s;
+    switch (form & 7) {
+    case 0: s = (a0 * b0 + a1 * b1) + a2 * b2; break;
+    case 1: s = (a0 * b0 + a2 * b2) + a1 * b1; break;
+    case 2: s = fma(a2, b2, fma(a1, b1, a0 * b0)); break;
+    case 3: s = fma(a0, b0, fma(a1, b1, a2 * b2)); break;
+    case 4: s = fma(a2, b2, a0 * b0) + a1 * b1; break;
+    default: s = fma(a1, b1, a0 * b0) + a2 * b2; break;
+    }
+    return (form & 8) ? s + 0.0 : s;
+}
+
+/* c = a b (3x3; a's rows ``lda`` doubles apart, transposed if ``ta``; b's ``ldb``; c dense) */
+static void pose_mul3(const double *a, int lda, int ta, const double *b, int ldb, double *c, int form)
+{
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) {
+            double a0 = ta ? a[i] : a[lda * i], a1 = ta ? a[lda + i] : a[lda * i + 1],
+                   a2 = ta ? a[2 * lda + i] : a[lda * i + 2];
+            c[3 * i + j] = pose_sum3(a0, b[j], a1, b[ldb + j], a2, b[2 * ldb + j], form);
+        }
+}
+
+/* the pose a fraction u of the way from T0 to T1 (4x4 row-major, mm) into out */
+static void pose_interp_c(const double *T0, const double *T1, double u, int order, double *out)
+{
+    const int f_tn = order & 15, f_nn = (order >> 4) & 15, f_dot = (order >> 8) & 15, f_tr = (order >> 12) & 1;
+    double M[9], E[9], KK[9], K[9];
+    pose_mul3(T0, 4, 1, T1, 4, M, f_tn);  /* T0[:3, :3].T @ T1[:3, :3] */
+    /* _rot_log(M) */
+    double tr = f_tr ? M[0] + (M[4] + M[8]) : (M[0] + M[4]) + M[8];
+    double x = (tr - 1.0) / 2.0;
+    double m = x < 1.0 ? x : 1.0;  /* min(1.0, x): 1.0 unless x < 1.0 (NaN: 1.0) */
+    double c = m > -1.0 ? m : -1.0;  /* max(-1.0, m) */
+    double a = acos(c);
+    double w0 = M[7] - M[5], w1 = M[2] - M[6], w2 = M[3] - M[1];
+    if (a < 1e-9) {
+        w0 = w0 / 2.0, w1 = w1 / 2.0, w2 = w2 / 2.0;
+    } else {
+        double k = a / (2.0 * sin(a));
+        w0 = w0 * k, w1 = w1 * k, w2 = w2 * k;
+    }
+    /* u * w, then _rot_exp */
+    double v0 = u * w0, v1 = u * w1, v2 = u * w2;
+    double n = sqrt(pose_sum3(v0, v0, v1, v1, v2, v2, f_dot));
+    if (n < 1e-12) {
+        for (int i = 0; i < 9; i++)
+            E[i] = (i % 4 == 0) ? 1.0 : 0.0;
+    } else {
+        double k0 = v0 / n, k1 = v1 / n, k2 = v2 / n;
+        K[0] = 0.0, K[1] = -k2, K[2] = k1;
+        K[3] = k2, K[4] = 0.0, K[5] = -k0;
+        K[6] = -k1, K[7] = k0, K[8] = 0.0;
+        pose_mul3(K, 3, 0, K, 3, KK, f_nn);
+        double s = sin(n), c1 = 1.0 - cos(n);
+        for (int i = 0; i < 9; i++)
+            E[i] = (((i % 4 == 0) ? 1.0 : 0.0) + s * K[i]) + c1 * KK[i];
+    }
+    double R[9];
+    pose_mul3(T0, 4, 0, E, 3, R, f_nn);  /* T0[:3, :3] @ exp(...) */
+    for (int i = 0; i < 3; i++) {
+        out[4 * i] = R[3 * i], out[4 * i + 1] = R[3 * i + 1], out[4 * i + 2] = R[3 * i + 2];
+        out[4 * i + 3] = T0[4 * i + 3] + u * (T1[4 * i + 3] - T0[4 * i + 3]);
+    }
+    out[12] = 0.0, out[13] = 0.0, out[14] = 0.0, out[15] = 1.0;
+}
+
+/* pose_interp(T0, T1, u, order, out): interpolate_pose's pose into out (4x4 float64 each) */
+static PyObject *pose_interp(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 5) {
+        PyErr_SetString(PyExc_TypeError, "pose_interp takes 5 arguments");
+        return NULL;
+    }
+    double u = PyFloat_AsDouble(args[2]);
+    if (u == -1.0 && PyErr_Occurred())
+        return NULL;
+    int order = (int)PyLong_AsLong(args[3]);
+    if (order == -1 && PyErr_Occurred())
+        return NULL;
+    Bufs bs = {.n = 0};
+    const double *T0 = get(&bs, args[0], 128, 0, "T0");
+    const double *T1 = T0 ? get(&bs, args[1], 128, 0, "T1") : NULL;
+    double *out = T1 ? get(&bs, args[4], 128, 1, "out") : NULL;
+    if (out == NULL) {
+        release(&bs);
+        return NULL;
+    }
+    pose_interp_c(T0, T1, u, order, out);
+    release(&bs);
+    Py_RETURN_NONE;
+}
+
+/* pose_probe(kind, a, b, form, out): one part of pose_interp alone, for finding numpy's orders --
+ * kind 0: out (3x3) = a[:3, :3].T @ b[:3, :3] (a, b 4x4); 1: out = a[:3, :3] @ b (b 3x3); 2: out = a @ b
+ * (3x3 each); 3: out[0] = a[:3] . a[:3] (a 3 doubles); 4: out[0] = trace(a) (3x3), form 0 or 1 */
+static PyObject *pose_probe(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
+{
+    if (nargs != 5) {
+        PyErr_SetString(PyExc_TypeError, "pose_probe takes 5 arguments");
+        return NULL;
+    }
+    int kind = (int)PyLong_AsLong(args[0]);
+    int form = kind == -1 && PyErr_Occurred() ? 0 : (int)PyLong_AsLong(args[3]);
+    if (PyErr_Occurred())
+        return NULL;
+    static const Py_ssize_t la[] = {128, 128, 72, 24, 72}, lb[] = {128, 72, 72, -8, -8};
+    if (kind < 0 || kind > 4) {
+        PyErr_SetString(PyExc_ValueError, "pose_probe: kind is 0..4");
+        return NULL;
+    }
+    Bufs bs = {.n = 0};
+    const double *a = get(&bs, args[1], la[kind], 0, "a");
+    const double *b = a ? get(&bs, args[2], lb[kind], 0, "b") : NULL;
+    double *out = b ? get(&bs, args[4], kind < 3 ? 72 : 8, 1, "out") : NULL;
+    if (out == NULL) {
+        release(&bs);
+        return NULL;
+    }
+    if (kind == 0)
+        pose_mul3(a, 4, 1, b, 4, out, form);
+    else if (kind == 1)
+        pose_mul3(a, 4, 0, b, 3, out, form);
+    else if (kind == 2)
+        pose_mul3(a, 3, 0, b, 3, out, form);
+    else if (kind == 3)
+        out[0] = pose_sum3(a[0], a[0], a[1], a[1], a[2], a[2], form);
+    else
+        out[0] = form ? a[0] + (a[4] + a[8]) : (a[0] + a[4]) + a[8];
+    release(&bs);
+    Py_RETURN_NONE;
+}
+/* == end of the pose interpolation block (h50) == */
+
+
 static PyMethodDef methods[] = {
     {"set_gemv", set_gemv, METH_VARARGS, "set_gemv(address, int64): the cblas_dgemv to call (numpy's)"},
     {"exact_step", (PyCFunction)(void (*)(void))exact_step, METH_FASTCALL,
@@ -1867,6 +2018,10 @@ static PyMethodDef methods[] = {
      "rb_jacobian(model, q, J, oM): the last joint's placement (4x4 [m]) and 6 x n LOCAL_WORLD_ALIGNED Jacobian"},
     {"seam_nearest", (PyCFunction)(void (*)(void))seam_nearest, METH_FASTCALL,
      "seam_nearest(tool, a, ab, den, ok, order, foot) -> j: droid.tasks.seam.core.nearest_segment"},
+    {"pose_interp", (PyCFunction)(void (*)(void))pose_interp, METH_FASTCALL,
+     "pose_interp(T0, T1, u, order, out): droid.tasks.seam.cycle.interpolate_pose into out (h50)"},
+    {"pose_probe", (PyCFunction)(void (*)(void))pose_probe, METH_FASTCALL,
+     "pose_probe(kind, a, b, form, out): one part of pose_interp, for finding numpy's orders (h50)"},
     {NULL, NULL, 0, NULL},
 };
 

@@ -67,7 +67,7 @@ from droid.sim.lockstep import ORDER_DEVICE, ORDER_TASK, ORDER_WORLD, Scheduler
 from droid.sim.mvs.camera import CameraNoise
 from droid.tasks.seam.core import (DEAD_ZONE_CYCLES, LOST_CYCLES, MODE_LISTING, MODE_THESIS, MODES, SeamParams,
                                    speed_problem)
-from droid.tasks.seam.cycle import TrackingCycle
+from droid.tasks.seam.cycle import TrackingCycle, stamped
 from droid.tasks.seam.station import ArmStatus, SeamtrackStation
 from droid.tasks.seam.delay import INVALID_READING, Reading
 from droid.tasks.seam.report import COLUMNS, SETTLE_EXTRA_MM, log_row  # noqa: F401 (columns; settling)
@@ -385,7 +385,7 @@ class _LockstepTrial:
                 in_flight.append(in_flight[-1] if in_flight else (state["lead"], state["lead_tick"]))
             else:
                 if r.valid:
-                    r = replace(r, stamp_tick=float(tick))  # the MVS world's frame stamp: its capture tick
+                    r = stamped(r, float(tick))  # the MVS world's frame stamp: its capture tick
                 in_flight.append((r, tick + 1))
             while len(in_flight) > self.latency_cycles:
                 state["lead"], state["lead_tick"] = in_flight.popleft()
@@ -487,6 +487,7 @@ def _tracking_cycle(params: SeamParams, geo: TrialGeometry, trial_id: str) -> Tr
         raise BadInput(f"trial {trial_id}: {exc}") from None
     if params.mode != MODE_LISTING:  # the patch search of interpolate_thesis, compiled (the same bits)
         seam_kernel.use_on(cyc.core)
+    seam_kernel.use_on_cycle(cyc)  # the pose histories' interpolation, compiled (the same bits)
     return cyc
 
 

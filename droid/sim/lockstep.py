@@ -67,6 +67,7 @@ class Scheduler:
         # never compared) -- a dataclass's __lt__ cost as much as some tasks (issue 13 item 6)
         self._heap: list[tuple[int, int, int, Task]] = []
         self._seq = 0
+        self._running = False  # inside run_until
         self._tick_fns: list[tuple[int, int, str, Callable[[int], None]]] = []
         self.tasks: dict[str, Task] = {}
         self.every(heartbeat_hz, self._heartbeat, "heartbeat", order=ORDER_HEARTBEAT, phase_ns=None)
@@ -106,21 +107,61 @@ class Scheduler:
             fn(self.tick)
 
     def run_until(self, t_end_ns: int) -> None:
-        """Run every task due at or before ``t_end_ns`` [ns], then set the clock there."""
+        """Run every task due at or before ``t_end_ns`` [ns], then set the clock there.
+
+        The due task's entry stays at the heap's top while it runs and is then replaced by its
+        next one in one sift (``heapreplace``) -- unless the task scheduled or removed something
+        that moved it (then it is popped as before).  The keys (due, order, seq) are unique, so
+        the tasks run in the same order whatever the heap's shape.  A task must not run the
+        scheduler itself (RuntimeError)."""
+        if self._running:
+            raise RuntimeError("a scheduler task ran the scheduler (run_until inside a task)")
+        self._running = True
+        try:
+            self._run(t_end_ns)
+        finally:
+            self._running = False
+        self.t_ns = max(self.t_ns, t_end_ns)
+
+    def _run(self, t_end_ns: int) -> None:
         heap = self._heap
-        pop, push = heapq.heappop, heapq.heappush
+        pop, replace = heapq.heappop, heapq.heapreplace
         while heap and heap[0][0] <= t_end_ns:
-            due_ns, order, _, task = pop(heap)
+            entry = heap[0]
+            due_ns, order, _, task = entry
             if not task.enabled:
+                pop(heap)
                 continue
             self.t_ns = due_ns
-            task.fn(due_ns)
+            try:
+                task.fn(due_ns)
+            except BaseException:  # as before: a task that raised is not scheduled again
+                pop(heap) if heap[0] is entry else self._drop(entry)
+                raise
             task.k = k = task.k + 1
             if task.enabled:
                 self._seq += 1
                 per = task.period_ns  # Task.due inlined for whole-ns periods (the 500 Hz pair)
-                push(heap, (task.start_ns + k * per if per and k < _K_EXACT else task.due(k), order, self._seq, task))
-        self.t_ns = max(self.t_ns, t_end_ns)
+                nxt = (task.start_ns + k * per if per and k < _K_EXACT else task.due(k), order, self._seq, task)
+                if heap[0] is entry:
+                    replace(heap, nxt)
+                else:  # the task pushed an entry before its own: take its own out, then push
+                    self._drop(entry)
+                    heapq.heappush(heap, nxt)
+            elif heap[0] is entry:
+                pop(heap)
+            else:
+                self._drop(entry)
+
+    def _drop(self, entry) -> None:
+        """Take ``entry`` out of the heap wherever it is (a task's own entry after it scheduled
+        an earlier one while it ran)."""
+        heap = self._heap
+        i = next(j for j, e in enumerate(heap) if e is entry)
+        heap[i] = heap[-1]
+        heap.pop()
+        if i < len(heap):
+            heapq.heapify(heap)
 
     def run_for(self, seconds: float) -> None:
         """Advance virtual time by ``seconds`` [s]."""

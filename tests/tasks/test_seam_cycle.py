@@ -80,3 +80,21 @@ def test_the_real_time_shell_reads_the_capture_instant_from_the_sensor_status():
     assert reading_of(rec, int(round(1e9 / 60))).stamp_tick is None  # the cycle assumes the lag
     rec["homed"] = 1
     assert not reading_of(rec).valid
+
+
+def test_stamped_is_replace_with_the_capture_instant():
+    """The cycle's stamping (droid.tasks.seam.cycle.stamped) gives what dataclasses.replace gives,
+    for a plain Reading and for a subclass of it."""
+    from dataclasses import dataclass, replace
+
+    from droid.tasks.seam.cycle import stamped
+    from droid.tasks.seam.delay import Reading
+
+    @dataclass(frozen=True)
+    class Tagged(Reading):
+        tag: str = "t"
+
+    for r in (Reading(1.5, -0.25, 0.01, True), Reading(0.0, 0.0, 0.0, False), Reading(2.0, 1.0, -0.5, True, True, 3.0),
+              Tagged(1.0, 2.0, 3.0, True, tag="x")):
+        got, want = stamped(r, 41.25), replace(r, stamp_tick=41.25)
+        assert got == want and type(got) is type(want), (got, want)

@@ -274,6 +274,10 @@ class TravelGuard:
         self.chord_end: np.ndarray | None = None  # where the open chord starts (holder's wrist frame, mm)
         self.last_tool: np.ndarray | None = None
         self.recent: deque = deque(maxlen=RUNAWAY_WINDOW)  # (moved mm, cycles)
+        # the same two columns apart, so the guard's sums run over a deque, not a generator (the
+        # same numbers in the same order: the same bits)
+        self._recent_mm: deque = deque(maxlen=RUNAWAY_WINDOW)
+        self._recent_cycles: deque = deque(maxlen=RUNAWAY_WINDOW)
 
     def step(self, tool, elapsed_cycles: float, guard_runaway: bool,
              progress_mm: float | None = None) -> tuple[str, str] | None:
@@ -293,9 +297,12 @@ class TravelGuard:
             progress_mm = self._chord_travel(tool)
         self.travel_mm = max(self.travel_mm, float(progress_mm))
         if guard_runaway and self.p.runaway_factor > 0:
-            self.recent.append((moved_mm, max(1.0, elapsed_cycles)))
-            moved = sum(m for m, _ in self.recent)
-            limit_mm = max(self.p.runaway_factor * self.p.step_mm * sum(e for _, e in self.recent), RUNAWAY_MIN_MM)
+            cycles = max(1.0, elapsed_cycles)
+            self.recent.append((moved_mm, cycles))
+            self._recent_mm.append(moved_mm)
+            self._recent_cycles.append(cycles)
+            moved = sum(self._recent_mm)
+            limit_mm = max(self.p.runaway_factor * self.p.step_mm * sum(self._recent_cycles), RUNAWAY_MIN_MM)
             if moved > limit_mm:
                 return STOP_RUNAWAY, f"the tool moved {moved:.1f} mm in {len(self.recent)} cycles " \
                                      f"(limit {limit_mm:.1f} mm)"
@@ -461,6 +468,7 @@ class SeamTracker:
         self.Tmvs = np.eye(4)  # sensor T seam
         self._hold_inv_key, self._hold_inv = None, None  # global T (GMF1)6 (bytes) and its inverse
         self._T6tool_hold_sensed = None  # (GMF1)6 T (Reis)6 when the reading was taken (None: now)
+        self._sensed_inv_key, self._sensed_inv = None, None  # the holder's sensed pose (bytes), its inverse
 
     # ------------------------------------------------------------ listing functions
     def holder_robot_wcp(self, T_global_hold6) -> np.ndarray:
@@ -689,8 +697,7 @@ class SeamTracker:
             s.invalid_run = 0 if used.valid else s.invalid_run + 1
             if s.invalid_run > self.p.lost_cycles:
                 return self._stop(cycle, STOP_LOST, f"lead sensor invalid for {s.invalid_run} cycles")
-        hold_inv = self._hold_inv if T_global_hold6_sensed is None else inv_homo(np.asarray(T_global_hold6_sensed,
-                                                                                           float))
+        hold_inv = self._hold_inv if T_global_hold6_sensed is None else self._sensed_hold_inv(T_global_hold6_sensed)
         self._T6tool_hold_sensed = None if T_global_reis6_sensed is None else \
             hold_inv @ np.asarray(T_global_reis6_sensed, float)
         yaw, pitch = self.update_seam_wrt_holder(used)
@@ -707,6 +714,15 @@ class SeamTracker:
             reis_cmd, self.gen_hold_robot_wcp(), cycle=cycle, stop=None, phase=phase,
             travel_mm=s.travel_mm, yaw_rad=yaw, pitch_rad=pitch, reading=used, delay_state=delay_state,
             tcp_idx=s.tcp_idx, queue_len=len(s.seam_pos), q_reis_deg=q)
+
+    def _sensed_hold_inv(self, T_global_hold6_sensed) -> np.ndarray:
+        """The inverse of the holder's pose at the reading's instant: a holder at rest gives the
+        same bytes cycle after cycle, so a new pose only is inverted (the same bits)."""
+        T = np.asarray(T_global_hold6_sensed, float)
+        key = T.tobytes()
+        if key != self._sensed_inv_key:
+            self._sensed_inv_key, self._sensed_inv = key, inv_homo(T)
+        return self._sensed_inv
 
     def halt(self, reason: str, detail: str) -> TrackingStop:
         """Stop from outside a cycle (an arm fault seen by the shell): every later :meth:`step`

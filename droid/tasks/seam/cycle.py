@@ -76,6 +76,14 @@ STATUS_AGE_TICKS = 0.75
 POSE_HISTORY_TICKS = 128
 
 
+def stamped(reading: Reading, stamp_tick: float) -> Reading:
+    """``reading`` with its capture instant ``stamp_tick`` [ticks]: ``dataclasses.replace``'s
+    result, made directly for a plain Reading (a tracking cycle's every reading)."""
+    if type(reading) is Reading:
+        return Reading(reading.x_mm, reading.y_mm, reading.roll_rad, reading.valid, reading.zeroed, stamp_tick)
+    return replace(reading, stamp_tick=stamp_tick)
+
+
 def cycle_ticks_for(heartbeat_hz: float, rate_hz: float) -> int:
     """Heartbeat ticks per period of ``rate_hz``; refuses a heartbeat that cannot serve it."""
     if not (isinstance(heartbeat_hz, (int, float)) and math.isfinite(heartbeat_hz) and heartbeat_hz > 0):
@@ -130,7 +138,12 @@ def interpolate_pose(T0: np.ndarray, T1: np.ndarray, u: float) -> np.ndarray:
 
 
 class PoseHistory:
-    """Poses stamped with their time [ticks, may be fractional], oldest first, ``span`` ticks kept."""
+    """Poses stamped with their time [ticks, may be fractional], oldest first, ``span`` ticks kept.
+
+    :meth:`at` interpolates between neighbours with :attr:`interpolate` (:func:`interpolate_pose`;
+    an experiment may put a compiled one of the same bits here: droid.experiments.seam_kernel)."""
+
+    interpolate = staticmethod(interpolate_pose)
 
     def __init__(self, span_ticks: float = POSE_HISTORY_TICKS) -> None:
         self.span = float(span_ticks)
@@ -164,7 +177,7 @@ class PoseHistory:
                 if ti == t or i == len(items) - 1:
                     return Ti.copy()
                 tj, Tj = items[i + 1]
-                return interpolate_pose(Ti, Tj, (t - ti) / (tj - ti))
+                return self.interpolate(Ti, Tj, (t - ti) / (tj - ti))
         return None
 
 
@@ -238,6 +251,7 @@ class TrackingCycle:
         self.dropped = 0  # readings whose instant lies outside the pose history (or in the future)
         self.tool_dropped = 0  # tool-tip readings likewise (place_tool)
         self.travel = ValueHistory()  # the tool's travel [mm] at the instants the cycles saw
+        self._tool_inv_key, self._tool_inv = None, None  # place_tool's holder pose (bytes) and its inverse
         self._next_cycle: int | None = None
         self._next_log: int | None = None
         self._status_tick: int | None = None
@@ -320,7 +334,7 @@ class TrackingCycle:
         self._status_tick = reis_tick
         sensed = sensed_hold = None
         if reading.valid:
-            reading = replace(reading, stamp_tick=self.capture_tick(reading_status_tick, reading.stamp_tick))
+            reading = stamped(reading, self.capture_tick(reading_status_tick, reading.stamp_tick))
             if self.params.mode != MODE_PLUS:  # the thesis's cores place the fresh reading now
                 located = self.locate(reading)
                 if located is None:
@@ -354,7 +368,10 @@ class TrackingCycle:
         T_hold = self.hold_poses.at(t_c) if len(self.hold_poses) else None
         if T_hold is None:
             T_hold = self.hold_poses.newest[1] if len(self.hold_poses) else np.eye(4)
-        T_seam = np.linalg.inv(T_hold) @ T_reis @ np.asarray(T_wcp_tool, float) @ seam_transform(
+        key = T_hold.tobytes()  # the holder usually stands still: invert a new pose only (the same bits)
+        if key != self._tool_inv_key:
+            self._tool_inv_key, self._tool_inv = key, np.linalg.inv(T_hold)
+        T_seam = self._tool_inv @ T_reis @ np.asarray(T_wcp_tool, float) @ seam_transform(
             reading.x_mm, reading.y_mm, reading.roll_rad)
         return PlacedTool(tick=t_c, T_global_reis6=T_reis, T_global_hold6=T_hold, travel_mm=self.travel.at(t_c),
                           seam_in_hold_mm=T_seam[:3, 3].copy())
