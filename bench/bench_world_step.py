@@ -20,6 +20,10 @@ dynamics, droid.arm.rigid_body).  It measures the thread CPU time of ``World.adv
 With ``--plant`` the thread CPU of arm1's ``ReisPlant.advance`` alone is measured too, per phase
 (a clock read around each call: ~1 us more a step in the World.advance figures, in both versions).
 
+It also prints how many times a second droid-sim would wake for this world (1000 / its
+``World.steps_per_wake``; an old tree without it woke at every step): the figures above are per
+world step either way, the wake-ups' own cost (docs/benchmarks.md, issue 40) is per wake-up.
+
 With ``--base DIR`` (an old checkout's top directory, e.g. ``git archive COMMIT | tar -x -C DIR``)
 each version runs in a subprocess of its own (this file, ``PYTHONPATH`` = the checkout),
 alternating ``--rounds`` times so both see the same load, and the figures are min and median
@@ -174,7 +178,9 @@ def worker(idle_s: float, moves: int, home: bool = False, plant: bool = False) -
                 run(500, lambda i: homing)
                 if servo.homed:
                     break
-        out = {"homed": bool(servo.homed), "homing_steps": k, "digests": [_digest(world)]}
+        out = {"homed": bool(servo.homed), "homing_steps": k, "digests": [_digest(world)],
+               # droid-sim's wake-ups a second for this world (World.steps_per_wake: an old tree woke every step)
+               "wake_hz": 1.0 / DT_S / (world.steps_per_wake(1.0 / DT_S) if hasattr(world, "steps_per_wake") else 1)}
         hold = (Mode.JOG, (0,) * 6)
         run(1000, lambda i: hold)  # settle
         n_idle = int(round(idle_s / DT_S))
@@ -251,7 +257,7 @@ def main(argv=None) -> int:
     for n, rs in runs.items():
         out[n] = {"homed": all(r["homed"] for r in rs), "rest_steps": rs[-1]["rest_steps"],
                   "vm_rss_kb": max(r["vm_rss_kb"] for r in rs), "pinocchio": any(r["pinocchio"] for r in rs),
-                  "servo_fault": rs[-1]["fault"], "amps_on": rs[-1]["amps_on"],
+                  "servo_fault": rs[-1]["fault"], "amps_on": rs[-1]["amps_on"], "wake_hz": rs[-1]["wake_hz"],
                   "digests": rs[0]["digests"], "digests_repeat": all(r["digests"] == rs[0]["digests"] for r in rs)}
         for phase in ("idle_us", "moving_us") + (("plant_idle_us", "plant_moving_us") if args.plant else ()):
             v = [r[phase] for r in rs]
@@ -268,6 +274,7 @@ def main(argv=None) -> int:
               f"moving {v['moving_us']['min']:6.1f} min {v['moving_us']['median']:6.1f} median us/step "
               f"(CPU of World.advance, {args.rounds} rounds; homed: {v['homed']}, servo fault {v['servo_fault']}, "
               f"amps on {v['amps_on']}, advances at rest {v['rest_steps']}; digests {v['digests']}; "
+              f"droid-sim would wake {v['wake_hz']:g} times a second; "
               f"VmRSS {v['vm_rss_kb'] / 1024:.1f} MB, pinocchio imported: {v['pinocchio']})")
         if args.plant:
             print(f"{'':>5}  arm1's ReisPlant.advance alone: idle {v['plant_idle_us']['min']:6.1f} min "

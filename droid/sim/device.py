@@ -19,16 +19,34 @@ class Device:
     every world step (an arm twin, whose register map the servo reads at 500 Hz).  A device
     with a rate of its own (a camera's frames, an RDT stream, a serial line's bytes) keeps
     that rate on world time whatever ``dt_s`` it is given; the lockstep runners step their
-    twins themselves and never read this."""
+    twins themselves and never read this.
+
+    ``wake_hz`` [Hz]: how often the real-time world must wake for this device -- the fastest
+    rate anything outside it reads what it writes (droid-servo reads an arm's register map at
+    500 Hz) -- or None: as often as it is stepped (every ``step_s``; every world step for 0).
+    The world wakes at the fastest of its devices' rates and takes the world steps in between
+    back to back (:meth:`droid.sim.world.World.steps_per_wake`, docs/architecture.md "The
+    world's rates")."""
 
     name = "device"
     step_s = 0.0
+    wake_hz: float | None = None
 
     def advance(self, dt_s: float) -> None:  # pragma: no cover - interface
         raise NotImplementedError
 
     def close(self) -> None:
         pass
+
+
+def wake_hz_of(dev: Device, rate_hz: float) -> float:
+    """The rate [Hz] the real-time world must wake at for ``dev`` when it steps at ``rate_hz``:
+    its ``wake_hz``, else its own rate (1 / ``step_s``), else every world step; never above
+    ``rate_hz`` (a world step is the finest it has)."""
+    w = dev.wake_hz
+    if w is None:
+        w = 1.0 / dev.step_s if dev.step_s > 0 else rate_hz
+    return min(float(w), rate_hz)
 
 
 def arm_subunit(world, name: str, options: dict, known) -> tuple[str, object]:

@@ -29,7 +29,7 @@ from droid.brain.program import Presence, Stop, close_all, notify_ready, open_ce
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import BadInput, RuntimeFailure, file_number, run, seed_int
 from droid.numbers import SEED, Range
-from droid.sim.device import Device
+from droid.sim.device import Device, wake_hz_of
 
 PROG = "droid-sim"
 DEFAULT_RATE_HZ = program(PROG).rate_hz  # the world's default step rate [Hz], declared with droid-sim
@@ -86,6 +86,24 @@ class World:
                 print(f"{PROG}: device {name} took {took * 1e3:.0f} ms for one {due * 1e3:g} ms step "
                       f"at world time {self.t_s:.3f} s", file=sys.stderr, flush=True)
         self.t_s += dt_s
+
+    def steps(self, n: int, dt_s: float) -> None:
+        """``n`` world steps of ``dt_s`` [s] back to back (one wake-up's): the same as ``n`` calls
+        of :meth:`advance` (every device sees its 1 ms steps as ever)."""
+        advance = self.advance
+        for _ in range(n):
+            advance(dt_s)
+
+    def steps_per_wake(self, rate_hz: float) -> int:
+        """How many world steps of ``1 / rate_hz`` the real-time world takes per wake-up: the
+        most that still wakes it at least as often as its fastest device needs
+        (:func:`droid.sim.device.wake_hz_of`: an arm twin at droid-servo's 500 Hz, a camera or
+        a serial line at its own step).  2 for the built-in cell at 1 kHz; 1 when a device
+        needs every step or the world has none (docs/architecture.md "The world's rates")."""
+        need = max((wake_hz_of(dev, rate_hz) for dev in self.devices.values()), default=0.0)
+        if need <= 0.0:
+            return 1
+        return max(1, int(rate_hz / need + 1e-9))
 
     def close(self) -> None:
         for dev in reversed(list(self.devices.values())):
@@ -155,10 +173,51 @@ def truth_main(argv) -> int:
 #: The world's step rates ([world] rate_hz) [Hz].
 WORLD_RATE_HZ = Range(1.0, 10000.0, "Hz")
 
-#: World time integrated at most per wake-up [s], and the most it owes after a stall
-#: before it drops the rest [s]; see main().
-MAX_STEP_PER_WAKE_S = 0.004
+#: A wake-up integrates at most this many of its own periods of world time (it catches up
+#: after a stall at 3 periods a period: 4 ms a 1 ms wake-up, 8 ms a 2 ms one -- at most 8 ms
+#: between two of droid-servo's 2 ms reads either way), and the world owes at most
+#: MAX_OWED_S [s] after a stall before it drops the rest (its clock slips); see CatchUp.
+CATCH_UP_PERIODS = 4
 MAX_OWED_S = 0.1
+
+
+class CatchUp:
+    """The world steps the real-time world takes at each wake-up (issue 16, issue 40 item 2).
+
+    Each period of the wake-up timer owes ``steps_per_wake`` world steps.  A wake-up takes all
+    it owes up to ``per_wake`` steps (bounded: a stall is not integrated in one lump -- a 20 ms
+    lump moved a fast joint > 3000 counts between two servo reads, which the servo rightly
+    takes for an encoder glitch, ENCODER_JUMP); what it owes beyond ``max_owed`` steps is
+    dropped (``slipped``: the world's clock slips, the robots pause with it).  Nothing else is
+    lost or added: ``taken + owed + slipped == steps_per_wake * periods`` after every wake-up,
+    and every step taken is the world's ordinary step (the plant's exact step of 1 ms), so a
+    plant that caught up holds the bits of one that never stalled."""
+
+    def __init__(self, steps_per_wake: int, per_wake: int, max_owed: int) -> None:
+        if not (1 <= steps_per_wake <= per_wake <= max_owed):
+            raise ValueError(f"need 1 <= steps_per_wake ({steps_per_wake}) <= per_wake ({per_wake}) "
+                             f"<= max_owed ({max_owed}) [steps]")
+        self.steps_per_wake, self.per_wake, self.max_owed = steps_per_wake, per_wake, max_owed
+        self.periods = self.taken = self.owed = self.slipped = 0
+
+    @classmethod
+    def for_rate(cls, rate_hz: float, steps_per_wake: int) -> "CatchUp":
+        """The real-time world's: CATCH_UP_PERIODS wake-up periods a wake-up, MAX_OWED_S owed."""
+        per_wake = CATCH_UP_PERIODS * steps_per_wake
+        return cls(steps_per_wake, per_wake, max(per_wake, int(MAX_OWED_S * rate_hz)))
+
+    def wake(self, periods: int) -> tuple[int, int]:
+        """A wake-up after ``periods`` (>= 1) timer periods: ``(steps to take now, steps dropped)``."""
+        self.periods += periods
+        self.owed += periods * self.steps_per_wake
+        dropped = max(0, self.owed - self.max_owed)
+        if dropped:
+            self.slipped += dropped
+            self.owed = self.max_owed
+        k = min(self.owed, self.per_wake)
+        self.owed -= k
+        self.taken += k
+        return k, dropped
 
 
 class StepTimes:
@@ -194,6 +253,35 @@ class StepTimes:
                 f"max {self.max_ns / 1e3:.0f} us; {self.late} woke >= {self.LATE_NS // 1_000_000} ms late")
 
 
+def serve(world, timer, catch_up: CatchUp, dt_s: float, steps: StepTimes, stop, beat=None,
+          clock_ns=time.perf_counter_ns, log=None) -> CatchUp:
+    """The real-time world's loop (``main``): wait for ``timer`` (a :class:`PeriodicTimer` of
+    ``catch_up.steps_per_wake`` world steps a period, or a fake with ``wait``, ``cycles`` and
+    ``lateness_ns``), take the world steps of ``dt_s`` [s] that ``catch_up`` says, record the
+    wake-up in ``steps``, call ``beat()``; until ``stop()``.  After a stall the world does not
+    integrate the whole stall at once: it catches up a few periods per wake-up and drops what it
+    owes beyond MAX_OWED_S, saying so at most once a second of wake-ups (issue 16)."""
+    log = sys.stderr if log is None else log
+    period_ms = catch_up.steps_per_wake * dt_s * 1e3
+    wake_hz = 1e3 / period_ms
+    told_at = None
+    while not stop():
+        n = timer.wait(0.5)
+        if not n:
+            continue
+        k, dropped = catch_up.wake(n)
+        if dropped and (told_at is None or timer.cycles >= told_at + wake_hz):  # when, and how far
+            told_at = timer.cycles
+            print(f"{PROG}: stalled {n * period_ms:.0f} ms at wake-up {timer.cycles}: the world's clock "
+                  f"slipped {dropped * dt_s * 1e3:.0f} ms", file=log, flush=True)
+        t0 = clock_ns()
+        world.steps(k, dt_s)
+        steps.add(clock_ns() - t0, timer.lateness_ns)
+        if beat is not None:
+            beat()
+    return catch_up
+
+
 @run
 def main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -219,43 +307,19 @@ def main(argv=None) -> int:
     try:
         world = build_world(cell, args.seed)
         world.advance(1.0 / rate)  # power up: every register holds a real value before anyone reads
-        timer = PeriodicTimer(int(round(1e9 / rate)))
+        spw = world.steps_per_wake(rate)  # world steps a wake-up: 2 for the built-in cell (the servo's 500 Hz)
+        timer = PeriodicTimer(int(round(1e9 * spw / rate)))
         presence.ready()
         notify_ready(args.ready_fd)
-        dt = 1.0 / rate
-        per_wake = max(1, int(MAX_STEP_PER_WAKE_S * rate))  # steps at most between two servo reads
-        max_owed = max(per_wake, int(MAX_OWED_S * rate))
-        owed = slipped = 0
-        told_at = -int(rate)
         steps = StepTimes()
-        while not Stop.requested:
-            n = timer.wait(0.5)
-            if not n:
-                continue
-            # After an overrun the world does not integrate the whole stall at once: a
-            # 20 ms lump moved a fast joint > 3000 counts between two servo reads, which
-            # the servo rightly takes for an encoder glitch (ENCODER_JUMP) -- physics never
-            # stalls on real hardware.  It catches up a few steps per wake-up instead
-            # (1 ms wake-ups: it gains ~3 ms a ms) and drops what it owes beyond
-            # MAX_OWED_S (the world's clock slips: the robots pause with it) -- issue 16.
-            owed += n
-            if owed > max_owed:
-                slipped += owed - max_owed
-                if timer.cycles >= told_at + rate:  # at most once a second: when, and how far
-                    told_at = timer.cycles
-                    print(f"{PROG}: stalled {n * dt * 1e3:.0f} ms at step {timer.cycles}: the world's clock "
-                          f"slipped {(owed - max_owed) * dt * 1e3:.0f} ms", file=sys.stderr, flush=True)
-                owed = max_owed
-            t0 = time.perf_counter_ns()
-            for _ in range(min(owed, per_wake)):
-                world.advance(dt)
-            steps.add(time.perf_counter_ns() - t0, timer.lateness_ns)
-            owed -= min(owed, per_wake)
-            presence.beat(0, timer.cycles, timer.overruns, timer.lateness_max_ns)
-        print(f"{PROG}: {steps.summary()}", file=sys.stderr)
-        if slipped:
-            print(f"{PROG}: the world's clock slipped {slipped * dt * 1e3:.0f} ms over {timer.cycles} steps "
-                  f"(stalls it could not catch up within {MAX_OWED_S * 1e3:.0f} ms)", file=sys.stderr)
+        catch_up = serve(world, timer, CatchUp.for_rate(rate, spw), 1.0 / rate, steps,
+                         lambda: Stop.requested,
+                         lambda: presence.beat(0, timer.cycles, timer.overruns, timer.lateness_max_ns))
+        print(f"{PROG}: {steps.summary()} ({spw} world step(s) of {1e3 / rate:g} ms a wake-up)", file=sys.stderr)
+        if catch_up.slipped:
+            print(f"{PROG}: the world's clock slipped {catch_up.slipped * 1e3 / rate:.0f} ms over "
+                  f"{catch_up.taken + catch_up.slipped} steps (stalls it could not catch up within "
+                  f"{MAX_OWED_S * 1e3:.0f} ms)", file=sys.stderr)
     finally:
         close_all(timer, world, presence)
     return 0

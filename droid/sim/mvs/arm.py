@@ -17,6 +17,7 @@ from droid.sim.device import Device
 
 class FixedArm(Device):
     """An arm twin held at one wrist-centre pose (the arm-twin interface: ``wcp_global()``)."""
+    wake_hz = 0.0  # it has no step: the world need never wake for it
 
     def __init__(self, name: str, T_global_wcp: np.ndarray) -> None:
         self.name = name

@@ -48,6 +48,7 @@ from droid.sim.reis.plant import ReisPlant, ReisPlantParams
 from droid.sim.truth import TRUTH_PERIOD_S, TruthDoor, door_name
 from droid.sim.reis.vme_shm import SharedVmeMap
 from droid.sim.device import Device
+from droid.subunits.reis.device import SERVO_HZ
 from droid.subunits.reis.endpoints import reis_endpoints
 
 HOME_ERROR_MAX_DEG = 0.5  # calibration_seed: home-switch errors, joints 2-5
@@ -62,6 +63,13 @@ DEFAULT_CONTACT_TOOL_POSE = [0.0, 0.0, 250.0, -90.0, 90.0, 180.0]
 
 
 class ReisDevice(Device):
+    """The Reis arm twin: its plant stepped at every 1 ms world step (``step_s`` 0); the world
+    need wake for it only at droid-servo's rate (``wake_hz``: the servo reads the encoders and
+    writes the DACs at 500 Hz, the watchdog reads at 50 Hz), taking the two 1 ms plant steps
+    of a 2 ms wake-up back to back, as lockstep steps the plant once per servo tick
+    (docs/architecture.md "The world's rates")."""
+    wake_hz = float(SERVO_HZ)
+
     def __init__(self, name: str, shared: SharedVmeMap, plant: ReisPlant, model, door: TruthDoor | None = None) -> None:
         self.name = name
         self.shared = shared
