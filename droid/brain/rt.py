@@ -252,8 +252,8 @@ def freeze_heap(collect: bool = True) -> int:
     CPython's cyclic collector runs inside whatever allocates the object that crosses its
     threshold, and a full (generation-2) pass walks every tracked object: after a program's
     imports (numpy, pyzmq, the cell file, the registry) that is 25,000-28,000 objects and took
-    10-31 ms here (docs/benchmarks.md "The collector's pauses") -- a stall of the loop it lands
-    in, at whatever priority the loop runs.  What a program imported and built before its loop
+    10-31 ms here (docs/benchmarks.md, issue 40, "Session 25: the soak again") -- a stall of the
+    loop it lands in, at whatever priority the loop runs.  What a program imported and built before its loop
     lives as long as the program, so it is frozen once, before the loop: later passes walk only
     what the loop itself keeps (a tracker's rows, a seam map).  Reference counting still frees
     everything; only cycles among frozen objects are never collected.  ``DROID_NO_GC_FREEZE=1``
