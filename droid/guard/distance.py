@@ -77,8 +77,10 @@ def point_box(p: np.ndarray, h: np.ndarray) -> np.ndarray:
     return np.sqrt(_dot(g, g))
 
 
-def segment_enters_box(p: np.ndarray, q: np.ndarray, h: np.ndarray) -> np.ndarray:
-    """True where segment p-q (..., 3) meets the origin-centred box of half sizes h (slab clipping)."""
+def _slabs(p: np.ndarray, q: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Slab clipping of segments p-q (..., 3) against origin-centred boxes of half sizes h: each
+    axis's entry and exit parameters (lo, hi; -inf / inf where the segment runs along the slab)
+    and where it does (``small``)."""
     d = q - p
     small = np.abs(d) < _EPS
     d_safe = np.where(small, 1.0, d)
@@ -86,6 +88,12 @@ def segment_enters_box(p: np.ndarray, q: np.ndarray, h: np.ndarray) -> np.ndarra
     t1 = (h - p) / d_safe
     lo = np.where(small, -np.inf, np.minimum(t0, t1))
     hi = np.where(small, np.inf, np.maximum(t0, t1))
+    return lo, hi, small
+
+
+def segment_enters_box(p: np.ndarray, q: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """True where segment p-q (..., 3) meets the origin-centred box of half sizes h (slab clipping)."""
+    lo, hi, small = _slabs(p, q, h)
     inside_slab = np.where(small, np.abs(p) <= h, True)
     tmin = np.maximum(lo.max(axis=-1), 0.0)
     tmax = np.minimum(hi.min(axis=-1), 1.0)
@@ -103,12 +111,7 @@ def segment_box(p: np.ndarray, q: np.ndarray, h: np.ndarray) -> np.ndarray:
 def segment_entry(p: np.ndarray, q: np.ndarray, h: np.ndarray) -> np.ndarray:
     """The slab clipping's entry parameter t in [0, 1] of segments p-q (..., 3) into origin-centred
     boxes (meaningful where :func:`segment_enters_box`): its point p + t (q - p) is in the box."""
-    d = q - p
-    small = np.abs(d) < _EPS
-    d_safe = np.where(small, 1.0, d)
-    t0 = (-h - p) / d_safe
-    t1 = (h - p) / d_safe
-    lo = np.where(small, -np.inf, np.minimum(t0, t1))
+    lo = _slabs(p, q, h)[0]
     return np.minimum(np.maximum(lo.max(axis=-1), 0.0), 1.0)
 
 
