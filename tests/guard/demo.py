@@ -7,9 +7,11 @@ live cell -- from the first tick.  Then what ``scripts/demo.sh`` does, through t
 Commands as droid-home, droid-move and droid-seamtrack write them:
 
 * :meth:`DemoRun.home`: droid-home, one arm after the other (the welder, then the holder);
-* :meth:`DemoRun.move_to_start`: droid-seamtrack's ``move_to_start`` -- a cartesian move of the
-  wrist centre in max(3 s, 1.5 x the slowest joint at its limit), the holder to the holding pose
-  of the position, then the welder to the start;
+* :meth:`DemoRun.move_to_start`: a straight cartesian move of the wrist centre (droid-seamtrack's
+  ``move_to_start`` in a cell without a ``[guard]`` table; with one it takes
+  droid.tasks.seamtrack.start_route's joint moves, :meth:`DemoRun.move_joint`) in max(3 s, 1.5 x
+  the slowest joint at its limit), the holder to the holding pose of the position, then the
+  welder to the start;
 * :meth:`DemoRun.move_joint`: a joint move (droid-move ARM joint ...);
 * :meth:`DemoRun.track`: droid-seamtrack's tracking (its station, droid.tasks.seam.station, on
   the Brain Status of both arms and the lead sensor, its commands into the Brain Commands).
@@ -30,9 +32,8 @@ from droid.brain.cellfile import BUNDLED_CELLS, load_cell
 from droid.guard.station import ORDER_GUARD, attach_lockstep
 from droid.sim.lockstep import ORDER_TASK
 from droid.sim.lockstep_cell import build_lockstep_cell
+from droid.tasks.seamtrack import START_MOVE_MARGIN, START_MOVE_MIN_S  # droid-seamtrack's start moves
 
-#: droid-seamtrack's start moves (droid.tasks.seamtrack: START_MOVE_MIN_S, START_MOVE_MARGIN)
-START_MOVE_MIN_S, START_MOVE_MARGIN = 3.0, 1.5
 
 
 @dataclass
@@ -129,7 +130,7 @@ class DemoRun:
         return ph
 
     def move_to_start(self, name: str, T: np.ndarray, what: str) -> Phase:
-        """droid-seamtrack's ``move_to_start``: a cartesian move to the wrist-centre pose ``T``."""
+        """A straight cartesian move to the wrist-centre pose ``T`` in droid-seamtrack's start-move time."""
         ph = self.begin(what)
         m = self.model(name)
         q_now = self.joints(name)

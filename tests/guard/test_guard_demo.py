@@ -9,8 +9,8 @@ The whole cell in lockstep with droid-guard's station and the planners' gates fr
 * the holder to the holding pose of position (i), the welder to the start, tracking 400 mm of the
   seam at 16 mm/s in plus mode: no stop and no override below 1 -- with the holder brought to its
   holding pose by a joint move through a pose clear of the welder;
-* the demo's own holder move (droid-seamtrack's 3 s cartesian move, the welder at its home pose)
-  sweeps the held workpiece through the welder's upper arm -- the bodies overlap by 46 mm (the
+* the holder's straight move (droid-seamtrack's 3 s cartesian move before its start moves were
+  routed, droid.tasks.seamtrack.start_route; the welder at its home pose) sweeps the held workpiece through the welder's upper arm -- the bodies overlap by 46 mm (the
   Reis) and 88 mm (the ABB) unguarded, measured with the guard watching: a collision, not a
   conservative speed -- and the guard stops it above the stated limit C.
 
@@ -19,14 +19,15 @@ position (i).  The head-on and crossing courses that must still stop: tests/guar
 """
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
+from droid.tasks.seamtrack import DETOUR_DEG
 from tests.guard.demo import DemoRun
 
 #: the holder's route to its holding pose: first to the holding pose's joints turned by these [deg]
-#: (joint 1 away from the welder, the upper arm and forearm back), clear of the welder at home
-VIA_DEG = np.array([-20.0, 20.0, 40.0, 0.0, 0.0, 0.0])
+#: (joint 1 away from the welder, the upper arm and forearm back), clear of the welder at home --
+#: droid-seamtrack's own detour (start_route)
+VIA_DEG = DETOUR_DEG
 C_MM = 25.0  # the shipped cells' [guard] ssm: the stated limit ...
 CZ_MM = 35.0  # ... and C + Z
 
@@ -65,7 +66,7 @@ def test_the_demos_own_holder_move_is_a_collision_and_stopped_above_the_limit(ce
         welder, holder = r.layout.tool_robot, r.layout.holder_robot
         assert r.home(welder).trips == 0 and r.home(holder).trips == 0
         _, T_holder = r.start_poses()
-        ph = r.move_to_start(holder, T_holder, "holder to the holding pose (droid-seamtrack's move)")
+        ph = r.move_to_start(holder, T_holder, "holder to the holding pose (the straight cartesian move)")
         r.sched.run_for(1.0)  # at rest
         print(ph.line())
         assert not ph.ok and ph.trips == 1, ph.line()  # FAULT_COLLISION: the KAREL move halted
