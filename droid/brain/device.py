@@ -34,7 +34,7 @@ PACKAGE = DevicePackage(
                 cpu_pct=3.5, rss_mb=47, several=True, cpu_pct_each=0.6),
         Program("droid-sim", "droid.sim.world", rate_hz=1000.0, sched="fifo", priority=52, start=0,
                 role="brain", description="the world: every twin of the cell",
-                cpu_pct=13.0, rss_mb=100),  # its loop (1 kHz steps, woken at 500 Hz for the built-in cell); each twin adds its Twin.cpu_pct
+                cpu_pct=13.0, rss_mb=100),  # its loop (1 kHz steps, woken at 500 Hz here); + each Twin.cpu_pct
         # the generic subunit server (any class: copies the command in, replies with the status)
         # ([cell] share: a further subunit 0.45 %, docs/benchmarks.md "Scale")
         Program("droid-agent", "droid.subunits.agent", sched="fifo", priority=51, cpu_pct=3.0, rss_mb=42,
