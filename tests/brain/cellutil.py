@@ -150,13 +150,35 @@ def fixed_seam_cell(text: str, lateral_mm: float = 0.0, deeper_mm: float = 0.0) 
     return text.replace(camera, f'[world.devices.holder]\ntype = "fixed_arm"\nwcp = [{hold}]\n\n{camera}')
 
 
+_HANDED_OUT: set[int] = set()
+
+
 def free_port() -> int:
-    """A tcp port on 127.0.0.1 free at the time of asking."""
+    """A tcp port on 127.0.0.1 free at the time of asking, from below the kernel's ephemeral range
+    (net.ipv4.ip_local_port_range, 32768-60999 by default) and never the same twice in a process.
+    A port the kernel hands out (bind to port 0) may be handed out again, as the source port of
+    the next connect, before the program meant to listen on it has bound it: once, a cell's agent
+    found its port taken by a client of the same cell ("Address already in use")."""
+    import random
     import socket
 
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    low = 32768
+    try:
+        low = int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        pass
+    for _ in range(1000):
+        port = random.randint(max(1024, low // 2), low - 1)
+        if port in _HANDED_OUT:
+            continue
+        with socket.socket() as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+        _HANDED_OUT.add(port)
+        return port
+    raise RuntimeError(f"no free tcp port below {low} on 127.0.0.1")
 
 
 def small_tcp_cell(tmp_path: Path, name: str, keys: Path | None = None, extra: str = "") -> Path:

@@ -14,7 +14,7 @@ import sys
 import pytest
 
 from droid.brain.shmdb import cell_objects
-from tests.brain.cellutil import brought_down, ROOT, cell_status, droid, make_cell_file, wait_for
+from tests.brain.cellutil import brought_down, ROOT, cell_status, droid, free_port, make_cell_file, wait_for
 
 pytestmark = pytest.mark.integration
 CELL = "droid.brain.launcher"
@@ -151,12 +151,6 @@ def test_failed_start_leaves_nothing(tmp_path, cell_name):
         s.close()
 
 
-def _free_port():
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def test_cell_over_tcp_started_host_by_host(tmp_path, cell_name):
@@ -167,7 +161,7 @@ def test_cell_over_tcp_started_host_by_host(tmp_path, cell_name):
     import re
 
     path = make_cell_file(tmp_path, cell_name)
-    text = re.sub(r'"ipc://\{run\}/[a-z0-9.]+"', lambda m: f'"tcp://127.0.0.1:{_free_port()}"',
+    text = re.sub(r'"ipc://\{run\}/[a-z0-9.]+"', lambda m: f'"tcp://127.0.0.1:{free_port()}"',
                   path.read_text())
     assert "ipc://" not in text
     assert '[world]\nenabled = true\nhost = "world"' in text  # the hardware on its own host

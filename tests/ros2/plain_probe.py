@@ -6,8 +6,10 @@ with ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST.  Prints one JSON object on stdout.
     plain_probe.py listen OUT.json TIMEOUT_S TOPIC=TYPE ...
         one message of each topic decoded into plain JSON (TYPE: pkg/msg/Name; robot_description
         and command_status are subscribed transient-local, as robot_state_publisher does)
-    plain_probe.py graph TIMEOUT_S
-        the topic and service names with their types, after TIMEOUT_S of discovery
+    plain_probe.py graph TIMEOUT_S [TOPIC SETTLE_S]
+        the topic and service names with their types, after TIMEOUT_S of discovery; with TOPIC,
+        once TOPIC is in the graph (or TIMEOUT_S), then SETTLE_S more for the rest of its node's
+        endpoints (a new participant discovers the others' endpoints one by one)
     plain_probe.py trajectory ARM TIMEOUT_S JSON
         publishes JSON (``{"joint_names": [...], "points": [[positions, t_s], ...]}``) once a
         subscriber is matched on /ARM/joint_trajectory, then prints the /ARM/command_status
@@ -84,9 +86,13 @@ def listen(out: str, timeout_s: float, wants: list[str]) -> dict:
     return {"missing": res["missing"], "got": sorted(got)}
 
 
-def graph(timeout_s: float) -> dict:
+def graph(timeout_s: float, topic: str | None = None, settle_s: float = 0.0) -> dict:
     node = rclpy.create_node("plain_probe_graph")
-    spin_until(node, lambda: False, timeout_s)
+    if topic is None:
+        spin_until(node, lambda: False, timeout_s)
+    else:
+        spin_until(node, lambda: topic in dict(node.get_topic_names_and_types()), timeout_s)
+        spin_until(node, lambda: False, settle_s)
     res = {"topics": {n: t for n, t in node.get_topic_names_and_types()},
            "services": {n: t for n, t in node.get_service_names_and_types()}}
     node.destroy_node()
@@ -192,7 +198,7 @@ def main() -> int:
         if cmd == "listen":
             res = listen(rest[0], float(rest[1]), rest[2:])
         elif cmd == "graph":
-            res = graph(float(rest[0]))
+            res = graph(float(rest[0]), *(rest[1:2]), *[float(v) for v in rest[2:3]])
         elif cmd == "trajectory":
             res = trajectory(rest[0], float(rest[1]), rest[2])
         elif cmd == "trigger":

@@ -291,11 +291,14 @@ def test_without_allow_commands_no_command_topic_or_service(db_cell, domain):
     cell, path = db_cell
     write_statuses(cell)
     with reaped(start_node(path, domain)) as proc:
-        # wait for discovery of the node's publishers, then look at the whole graph
-        probe(domain, "listen", "/dev/null", str(DISCOVERY_S), "/arm1/joint_states=sensor_msgs/msg/JointState")
-        g = probe(domain, "graph", "3")
+        # wait for discovery of the node's publishers, then look at the whole graph: the graph probe is a
+        # new participant, so it waits (up to DISCOVERY_S) until it too sees the node's topic, then 5 s
+        # more for the node's other endpoints (under load, 3 s of discovery was once too few: CI)
+        heard = probe(domain, "listen", "/dev/null", str(DISCOVERY_S), "/arm1/joint_states=sensor_msgs/msg/JointState")
+        g = probe(domain, "graph", str(DISCOVERY_S), "/arm1/joint_states", "5")
         code, err = stop_node(proc)
     assert code == 0, err
+    assert heard["missing"] == [], heard
     assert "/arm1/joint_states" in g["topics"]
     assert not [t for t in g["topics"] if t.endswith(("joint_trajectory", "command_status"))], g["topics"]
     assert not [s for s in g["services"] if s.endswith(("/home", "/stop"))], g["services"]

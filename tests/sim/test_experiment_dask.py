@@ -11,6 +11,7 @@ import pytest
 import distributed  # the [cluster] extra (scripts/venv.sh installs it): its absence fails, never skips
 
 from droid.experiments.cli import main  # noqa: E402
+from tests.brain.cellutil import free_port
 from tests.sim.sweep20 import NAME as SWEEP20_NAME, SWEEP20, TRIALS as SWEEP20_TRIALS
 
 PROG = [sys.executable, "-m", "droid.experiments.cli"]
@@ -31,19 +32,13 @@ delay_cycles = [0, 2]
 """
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.fixture(scope="module")
 def loopback_cluster(tmp_path_factory):
     """A dask scheduler and two single-threaded workers on 127.0.0.1, importing this droid;
     started once for the module's tests that run on it (stopped after the module's last test)."""
     assert os.path.exists(DASK), f"no dask command at {DASK} (pip install 'droid[cluster]')"
     tmp_path = tmp_path_factory.mktemp("cluster")
-    port = _free_port()
+    port = free_port()
     address = f"tcp://127.0.0.1:{port}"
     env = {**os.environ, "PYTHONPATH": ROOT + os.pathsep + os.environ.get("PYTHONPATH", "")}
     logs = open(tmp_path / "dask.log", "w")
@@ -117,7 +112,7 @@ def test_dask_local_runs_a_local_cluster(tmp_path):
 def test_an_address_that_does_not_answer_exits_1_naming_it(tmp_path):
     plan = tmp_path / "p.toml"
     plan.write_text(PLAN)
-    address = f"tcp://127.0.0.1:{_free_port()}"
+    address = f"tcp://127.0.0.1:{free_port()}"
     t0 = time.monotonic()
     p = subprocess.run(PROG + ["run", "--plan", str(plan), "--out", str(tmp_path / "o"), "--dask", address],
                        capture_output=True, text=True, timeout=120)
