@@ -28,6 +28,7 @@ with the file's.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -170,6 +171,9 @@ class RigidBody:
         self.data = self.model.createData()
         self.link6 = _link_transform(dh, 5)  # link 6's D-H transform: joint 6's frame -> the wrist centre [m]
         self._upper = np.triu(np.ones((6, 6), bool))  # Pinocchio fills the upper triangle of M and Minv
+        # nle(q, qd) without a Python frame: Pinocchio's own call on the same model and data (the
+        # same bits); the plant's compiled exact step calls it every 2 ms (issue 44)
+        self.nle_fn = functools.partial(pinocchio.nonLinearEffects, self.model, self.data)
 
     def minv(self, q_rad: np.ndarray) -> np.ndarray:
         """``M(q)^-1`` [1/(kg m^2)], full."""
@@ -242,6 +246,7 @@ class KernelRigidBody(RigidBody):
         self.backend = "kernel"
         self._buf = pack_model(dh, dynamics, base_T_mm)
         self.model = self.data = None
+        self.nle_fn = self.nle
         self.link6 = _link_rt(dh, 5)  # link 6's D-H transform: joint 6's frame -> the wrist centre [m]
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = self.link6

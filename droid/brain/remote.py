@@ -24,6 +24,7 @@ its own station, agent link, stale rule and Status; a subunit's link failing tou
 """
 from __future__ import annotations
 
+import struct
 import sys
 import time
 
@@ -100,17 +101,20 @@ class StatusTranslator:
 
     def pose_fields(self, rec) -> dict:
         """The WCP pose's fields (x, y, z, R) of the record once the arm is homed, else none."""
-        out: dict = {}
-        if self.fk is not None and int(rec["homed"]):
-            pos = rec["encoder_pos"]
-            key, last = pos.tobytes(), self._fk_last
-            if last is not None and last[0] == key:  # the same counts: the same pose (fk is a pure
-                T = last[1]  # function of them); an arm at rest (a holder) skips the FK
-            else:
-                T = self.fk(pos)
-                self._fk_last = (key, T)
-            out.update(x=T[0, 3], y=T[1, 3], z=T[2, 3], R=T[:3, :3])
-        return out
+        T = self.pose_T(rec)
+        return {} if T is None else {"x": T[0, 3], "y": T[1, 3], "z": T[2, 3], "R": T[:3, :3]}
+
+    def pose_T(self, rec):
+        """The WCP pose (4x4, mm) of the record once the arm is homed, else None."""
+        if self.fk is None or not int(rec["homed"]):
+            return None
+        pos = rec["encoder_pos"]
+        key, last = pos.tobytes(), self._fk_last
+        if last is not None and last[0] == key:  # the same counts: the same pose (fk is a pure
+            return last[1]  # function of them); an arm at rest (a holder) skips the FK
+        T = self.fk(pos)
+        self._fk_last = (key, T)
+        return T
 
 
 class RemoteStation:
@@ -139,6 +143,7 @@ class RemoteStation:
         self.sent_cmd_id: int | None = None
         runs = getattr(translate, "byte_runs", None)
         self._runs = runs(status.layout) if runs is not None else None
+        self._pack = _reply_packers(status.layout.dtype) if self._runs is not None else None
 
     def on_poll(self, now_ns: int) -> bool:
         """A wake-up at ``now_ns`` (a tick or not): True once when the heartbeat fell silent."""
@@ -179,6 +184,25 @@ class RemoteStation:
         """:meth:`on_reply` where the copied fields are byte ranges of both records (the 60 Hz
         reply of every arm, issue 44): the same record, one lock and one seq bump as ``update``."""
         translate = self.translate
+        pack = self._pack
+        if pack is not None and hasattr(translate, "pose_T"):
+            T = translate.pose_T(translate.record(payload))
+            if not self.core.on_reply(tick):
+                return False
+            (h_off, head), (p_off, pose) = pack
+            with self.status.locked() as v:
+                mv, src = memoryview(v).cast("B"), memoryview(payload)
+                for s0, d0, n in self._runs:
+                    mv[d0:d0 + n] = src[s0:s0 + n]
+                head.pack_into(mv, h_off, tick, now_ns, 0)  # v["tick"], v["updated_ns"], v["stale"]
+                if T is not None:  # v["x"], v["y"], v["z"], v["R"]: the same doubles, row by row
+                    (r0, r1, r2, _) = T.tolist()
+                    pose.pack_into(mv, p_off, r0[3], r1[3], r2[3], r0[0], r0[1], r0[2], r1[0], r1[1], r1[2],
+                                   r2[0], r2[1], r2[2])
+                self.status.mark_written()
+            if self.command is not None:
+                _ack_sent(self.command, self.sent_cmd_id)
+            return True
         pose = translate.pose_fields(translate.record(payload))
         if not self.core.on_reply(tick):
             return False
@@ -193,6 +217,24 @@ class RemoteStation:
         if self.command is not None:
             _ack_sent(self.command, self.sent_cmd_id)
         return True
+
+
+def _reply_packers(dtype) -> tuple | None:
+    """The reply's own writes into a Status record of ``dtype`` as two struct packs (issue 44):
+    (offset, ``<QqI``) for tick, updated_ns and stale, (offset, ``<12d``) for x, y, z and R (row
+    by row) -- where the record holds them so, side by side, in native little-endian order: then a
+    pack writes the bytes numpy's field assignments write; else None (the assignments stay)."""
+    f = dtype.fields
+    want = (("tick", "<u8"), ("updated_ns", "<i8"), ("stale", "<u4"), ("x", "<f8"), ("y", "<f8"), ("z", "<f8"))
+    if sys.byteorder != "little" or any(n not in f or f[n][0] != np.dtype(t) for n, t in want):
+        return None
+    if "R" not in f or f["R"][0] != np.dtype(("<f8", (3, 3))):
+        return None
+    t0, p0 = f["tick"][1], f["x"][1]
+    if ((f["updated_ns"][1], f["stale"][1]) != (t0 + 8, t0 + 16)
+            or (f["y"][1], f["z"][1], f["R"][1]) != (p0 + 8, p0 + 16, p0 + 24)):
+        return None
+    return (t0, struct.Struct("<QqI")), (p0, struct.Struct("<12d"))
 
 
 @run

@@ -356,21 +356,26 @@ def test_servo_status_message_is_the_packed_snapshot():
 
 def test_remote_reply_as_byte_ranges_writes_the_record_the_field_update_writes():
     """The arm's reply copies its fields as byte ranges (issue 44) where both records hold them at
-    the same offsets and dtypes: the Brain Status afterwards is byte for byte what the field-wise
-    ``update`` leaves, homed or not, pose and seq included, over random replies."""
+    the same offsets and dtypes, and writes tick, updated_ns, stale and the pose as two struct packs
+    (``_reply_packers``): the Brain Status afterwards is byte for byte what the field-wise ``update``
+    leaves -- and what the byte ranges with numpy's field assignments leave -- homed or not, pose
+    and seq included, over random replies."""
     from droid.kinematics import load_robot
 
     model = load_robot("reis_v15")
     fk = lambda counts: model.fk(model.gearing.counts_to_joints(np.asarray(counts, float)))  # noqa: E731
     rng = np.random.default_rng(44)
     stations = []
-    for bytewise in (True, False):
+    for how in ("packed", "bytewise", "fields"):
         status, cmd = MemoryDatabase("status", L.ARM_STATUS_LAYOUT), MemoryDatabase("command", L.ARM_COMMAND_LAYOUT)
         st = RemoteStation(status, cmd, StatusTranslator("arm1", ARM6R, fk), 3)
-        if not bytewise:
+        if how != "packed":
+            st._pack = None
+        if how == "fields":
             st._runs = None
         stations.append((st, status, cmd))
     assert stations[0][0]._runs and len(stations[0][0]._runs) == 2  # encoder_pos .. homed, fault .. cmd_result
+    assert stations[0][0]._pack is not None  # the Brain's arm Status holds the packs' fields side by side
     ctrl = MemoryDatabase("ctrl_status", L.CTRL_STATUS_LAYOUT)
     for tick in range(1, 80):
         ctrl.update(homed=L.HOMED if tick % 9 else 0, busy=int(rng.integers(0, 5)), cmd_id=int(rng.integers(0, 2**32)),
@@ -383,5 +388,7 @@ def test_remote_reply_as_byte_ranges_writes_the_record_the_field_update_writes()
             st.on_tick(tick)
             st.command_payload()
             assert st.on_reply(tick, ctrl.raw_bytes(), 1000 * tick)
-        assert stations[0][1].raw_bytes() == stations[1][1].raw_bytes(), tick
-        assert stations[0][2].raw_bytes() == stations[1][2].raw_bytes(), tick
+        for other in stations[1:]:
+            assert stations[0][1].raw_bytes() == other[1].raw_bytes(), tick
+            assert stations[0][2].raw_bytes() == other[2].raw_bytes(), tick
+    assert int(stations[0][1].read()["tick"]) == 79 and float(stations[0][1].read()["x"]) != 0.0

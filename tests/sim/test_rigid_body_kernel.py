@@ -271,3 +271,21 @@ def test_droid_sims_world_never_imports_pinocchio(tmp_path, cell_name):
 def test_droid_sims_world_falls_back_to_pinocchio_without_the_kernel(tmp_path, cell_name):
     out = _world_in_subprocess(tmp_path, cell_name, "python")
     assert "pinocchio" in out["pinocchio"] and (out["arm1"], out["gmf1"]) == ("pinocchio", "pinocchio")
+
+
+@pytest.mark.parametrize("robot", ROBOTS)
+def test_nle_fn_is_nle_bit_for_bit(robot):
+    """``RigidBody.nle_fn`` -- what the plant's one-call exact step calls every 2 ms (issue 44) --
+    gives ``nle``'s bits on both backends (Pinocchio's: its own call on the same model and data,
+    without the Python frame), on random states; Pinocchio's answer depends on the state (a
+    constant would fail)."""
+    rng = np.random.default_rng(7)
+    for body in _bodies(robot, "dh_error"):
+        seen = set()
+        for _ in range(50):
+            q, qd = rng.uniform(-3.0, 3.0, 6), rng.uniform(-2.0, 2.0, 6)
+            want = body.nle(q, qd).copy()
+            got = np.asarray(body.nle_fn(q, qd)).copy()
+            assert got.tobytes() == want.tobytes()
+            seen.add(got.tobytes())
+        assert len(seen) == 50

@@ -98,9 +98,11 @@ class LockstepArm(ArmChain):
     def _servo(self, t_ns: int) -> None:
         if not self.alive["servo"]:
             return
-        for msg in self._inbox:  # ZeroMQ PUSH/PULL from the servo agent
-            self.servo_station.take(msg)
-        self._inbox.clear()
+        inbox = self._inbox
+        if inbox:  # ZeroMQ PUSH/PULL from the servo agent (a message at 60 Hz: most ticks none)
+            for msg in inbox:
+                self.servo_station.take(msg)
+            inbox.clear()
         report = self.servo_station.cycle()
         if report is not None:  # ZeroMQ PUB/SUB to the servo agent and the watchdog
             self.watchdog.take(report)

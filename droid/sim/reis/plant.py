@@ -775,7 +775,7 @@ class ReisPlant:
             ext = np.ascontiguousarray(ext, float)
         x = np.empty(24)
         enc = self._k.exact_step(self._view, self._consts, disc[0], disc[1], self._theta, self._omega, self._q,
-                                 self._qd, self.body.nle, ext, self._amps_on, self._wd_fault, self._enc_offset, x,
+                                 self._qd, self.body.nle_fn, ext, self._amps_on, self._wd_fault, self._enc_offset, x,
                                  self._lin_q, self._relin_rad, self._stop_mid, lim)
         if type(enc) is int:
             return enc
