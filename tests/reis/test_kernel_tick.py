@@ -100,8 +100,10 @@ def test_servo_cycle_is_the_references_tick_for_tick(walk, cmds, homed, jump_at,
 
 
 def test_the_servos_one_call_tick_runs_on_a_steady_stream():
-    """On a JOG stream the station's ticks are the kernel's servo_cycle but for the reference's
-    cache loads (one tick in 8 or 9: CommandQueue._load_cache), the same bits throughout."""
+    """On a JOG stream every station tick is the kernel's servo_cycle -- the cache loads too (one
+    tick in 8 or 9: CommandQueue._load_cache run first, then the kernel takes the ramp's head) --
+    but two: the first (no counts read yet, so the first message is ignored) and the ninth (the
+    hold's braking queue refilled before the second message), the same bits throughout."""
     (ra, a), (rb, b) = _stations()
     spy = b.core._pid._k = _Counting(b.core._pid._k, "servo_cycle")
     counts = np.array([1000, 20000, 40000, 60000, 300, 30000], np.int64)
@@ -116,7 +118,7 @@ def test_the_servos_one_call_tick_runs_on_a_steady_stream():
             assert a.cycle() == b.cycle()
             assert bytes(ra) == bytes(rb) and _servo_state(a) == _servo_state(b)
             ticks += 1
-    assert len(spy.calls) > 0.8 * ticks
+    assert len(spy.calls) == ticks - 2
 
 
 def test_a_bus_of_another_type_keeps_the_reference_cycle():

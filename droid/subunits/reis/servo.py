@@ -334,7 +334,8 @@ class ServoCore:
         map's bytes ``regs`` (ServoStation.cycle: ``bus.read_encoders_raw()``, ``step``,
         ``bus.write_dacs``), in one call of the compiled kernel (droid/_kernel.c ``servo_cycle``:
         the same operations, the same bits and the same state after it) on the tick's common path:
-        homed or not, a NORMAL or JOG stream with a way-point left in the queue, no fault, no
+        homed or not, a NORMAL or JOG stream with a way-point left in the queue or a new one in
+        the cache (its ramp loaded here first, as ``next_target`` loads it), no fault, no
         homing.  Returns (the encoder registers read, the DAC words), or None with nothing read,
         written or changed where the tick leaves that path (or without the compiled kernel): the
         caller then runs the Python reference."""
@@ -343,11 +344,19 @@ class ServoCore:
             return None
         q = self._queue
         qi = q._qi
-        if qi >= len(q._queue) or (q._starved and q._cache_full and not (q._brake_vel != 0.0).any()):
-            return None  # CommandQueue.next_target's other branches: the cache, the coast, the brake
+        load = qi >= len(q._queue) or (q._starved and q._cache_full and not (q._brake_vel != 0.0).any())
+        if load and not q._cache_full:
+            return None  # CommandQueue.next_target's other branches: the coast, the brake
         jump = self.params.max_encoder_step_counts
         if type(jump) is not int:
             return None
+        if load:
+            # next_target's cache branch (a new way-point, every 8-9 ticks): its ramp loaded as
+            # next_target loads it for this tick, then taken from the queue's head by the kernel --
+            # next_target's very result (ramp[0]) and state (qi 1).  Should the kernel hand the
+            # tick back, the reference's next_target takes the same head: the same tick either way.
+            q._load_cache(self._tick + 1)
+            q._qi = qi = 0
         pid = self._pid
         lo, hi = self._limits if self._limits is not None else (None, None)
         got = k.servo_cycle(regs, self._pos, q._queue, qi, self._target, self._vel, lo, hi, self._fe_max_arr,
