@@ -45,6 +45,12 @@ bg ft-ft droid-ft ft
 bg agent-ft droid-agent ft
 # 6. ... one remote client per subunit on the Brain ...
 for sub in arm1 gmf1 mvs tool joy ft; do bg "remote-$sub" droid-remote "$sub"; done
+# the collision guard, where the cell runs one ([guard] run = true, as the built-in cell: docs/guard.md §9)
+py="$(dirname "$(command -v droid-cell)")/python"
+if "$py" -c 'import sys; from droid.brain.cellfile import load_cell; from droid.guard.gate import guard_runs
+sys.exit(0 if guard_runs(load_cell()) else 1)'; then
+    bg guard droid-guard
+fi
 # 7. ... and the heartbeat that paces them all (60 Hz).
 bg heartbeat droid-heartbeat
 # wait (bounded) until every program says it is live, then show them

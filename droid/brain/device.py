@@ -53,9 +53,9 @@ PACKAGE = DevicePackage(
         Program("droid-move", "droid.tasks.move", role="tool"),
         Program("droid-home", "droid.tasks.home", role="tool"),
         Program("droid-jog", "droid.tasks.jog", role="tool"),
-        Program("droid-seamtrack", "droid.tasks.seamtrack", rate_hz=HEARTBEAT_HZ / 2, sched="nice",
-                role="tool"),  # its cycle pairs readings with poses by their times (thesis §7.1)
-        Program("droid-contact", "droid.tasks.contact.prog", rate_hz=HEARTBEAT_HZ / 2, sched="nice",
+        Program("droid-seamtrack", "droid.tasks.seamtrack", rate_hz=HEARTBEAT_HZ / 2, sched="fifo", priority=49,
+                role="tool"),  # below the remotes and agents; at nice -10 it lost ticks beside busy work (issue 40)
+        Program("droid-contact", "droid.tasks.contact.prog", rate_hz=HEARTBEAT_HZ / 2, sched="fifo", priority=49,
                 role="tool"),
         Program("droid-experiment", "droid.experiments.cli", role="tool"),
         Program("droid-fault", "droid.faults.cli", sched="fifo", priority=50, role="tool"),

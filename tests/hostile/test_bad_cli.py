@@ -18,6 +18,7 @@ import sys
 import numpy as np
 import pytest
 
+from droid.brain import layouts as L
 from droid.brain.cellfile import load_cell
 from droid.brain.databases import open_brain, open_local
 from droid.brain.shmdb import cell_objects
@@ -32,17 +33,24 @@ def live(homed_sim_cell):
     return homed_sim_cell
 
 
+#: the Brain Command's fields a task writes: all but the header and the collision guard's own two,
+#: which droid-guard stamps every heartbeat tick (docs/guard.md §7a) -- so the record's write counter
+#: moves with the guard too, and a task's write shows in these fields (its cmd_id at least)
+TASK_FIELDS = [n for n in L.ARM_COMMAND.names if n not in {f[0] for f in L.HEADER_FIELDS}
+               and n not in ("guard_tick", "guard_override")]
+
+
 def arm_state(path):
-    """(Brain Command payload bytes, its write counter, Status encoder_cmd, encoder_pos, ctrl cmd_id)."""
+    """(the Brain Command's task fields as bytes, their cmd_id, Status encoder_cmd, encoder_pos,
+    ctrl cmd_id)."""
     cell = load_cell(path)
     sub = cell.subunit("arm1")
     with open_brain(cell, sub, "command") as cmd, open_brain(cell, sub, "status") as st, \
             open_local(cell, sub, "ctrl_command") as cc:
-        raw = cmd.raw_bytes()
-        seq = cmd.seq
+        c = cmd.read()
         rec = st.read()
-        return (raw[32:], seq, np.array(rec["encoder_cmd"]), np.array(rec["encoder_pos"]),
-                int(cc.read()["cmd_id"]))
+        return (b"".join(np.asarray(c[n]).tobytes() for n in TASK_FIELDS), int(c["cmd_id"]),
+                np.array(rec["encoder_cmd"]), np.array(rec["encoder_pos"]), int(cc.read()["cmd_id"]))
 
 
 def settled(path):

@@ -158,10 +158,12 @@ def test_builtin_packages_make_the_old_tables():
     assert rt.FIFO_PRIORITIES == {
         "droid-servo": 60, "droid-watchdog": 55, "droid-servo-agent": 54, "droid-egm": 54, "droid-ft": 53, "droid-sim": 52,
         "droid-planner": 51, "droid-agent": 51, "droid-reis-agent": 51,
-        "droid-heartbeat": 50, "droid-remote": 50, "droid-fault": 50, "droid-guard": 50, "droid-record": 10}
-    # off the kernel's real-time budget: a tick's deadline or longer, and no servo fed (issue 40)
+        "droid-heartbeat": 50, "droid-remote": 50, "droid-fault": 50, "droid-guard": 50,
+        "droid-seamtrack": 49, "droid-contact": 49, "droid-record": 10}
+    # off the kernel's real-time budget: a tick's deadline or longer, and no servo fed (issue 40); the two
+    # tasks are not: at nice -10 the tracker lost heartbeat ticks beside busy work (docs/architecture.md)
     assert {p.name for p in R.registry().programs.values() if p.sched == "nice"} == {
-        "droid-gmf1-agent", "droid-gmf1-encoder", "droid-mvs", "droid-seamtrack", "droid-contact"}
+        "droid-gmf1-agent", "droid-gmf1-encoder", "droid-mvs"}
     assert max(rt.FIFO_PRIORITIES.values()) < rt.CEILING_PRIORITY
     # a class is not a package: arm6r is defined by the Brain, served by two program sets
     served_by = {p.name for p in R.registry().package_of_class("arm6r")}
