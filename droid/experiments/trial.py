@@ -65,8 +65,8 @@ from droid.experiments.trial_cell import resolve_trial_cell
 from droid.experiments.sensors import DEFAULT_NOISE, SENSOR_MODELS, LeadSensor, ToolTipSensor, tool_reading
 from droid.sim.lockstep import ORDER_DEVICE, ORDER_TASK, ORDER_WORLD, Scheduler
 from droid.sim.mvs.camera import CameraNoise
-from droid.tasks.seam.core import (DEAD_ZONE_CYCLES, LOST_CYCLES, MODE_LISTING, MODE_THESIS, MODES, SeamParams,
-                                   speed_problem)
+from droid.tasks.seam.params import (DEAD_ZONE_CYCLES, LOST_CYCLES, MODE_LISTING, MODE_THESIS, MODES, SeamParams,
+                                     speed_problem)
 from droid.tasks.seam.cycle import TrackingCycle, stamped
 from droid.tasks.seam.station import ArmStatus, SeamtrackStation
 from droid.tasks.seam.delay import INVALID_READING, Reading

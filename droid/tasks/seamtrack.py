@@ -59,8 +59,9 @@ from droid.tasks.arm import BrainArm
 from droid.tasks.guarded import refuse_colliding_move
 from droid.tasks.resume import MAX_RESUMES, summary_note
 from droid.tasks.seam import report
-from droid.tasks.seam.core import (DEAD_ZONE_CYCLES, LOST_CYCLES, MAX_CYCLES, MAX_GAIN, MAX_RUN_LENGTH_MM,
-                                   MAX_SPEED_MM_S, MODE_THESIS, MODES, STOP_END, SeamParams)
+from droid.tasks.seam.params import (DEAD_ZONE_CYCLES, LOST_CYCLES, MAX_CYCLES, MAX_GAIN, MAX_RUN_LENGTH_MM,
+                                     MAX_SPEED_MM_S, MODE_THESIS, MODES, SeamParams)
+from droid.tasks.seam.stops import STOP_END
 from droid.tasks.seam.cycle import SENSOR_LAG_TICKS, TrackingCycle  # noqa: F401 (SENSOR_LAG_TICKS: docs)
 from droid.tasks.seam.station import ArmStatus, SeamtrackStation
 from droid.tasks.seam.delay import INVALID_READING, Reading
@@ -79,7 +80,7 @@ SETTLE_TIMEOUT_S = 3.0
 # the lockstep trial.
 
 
-#: argparse types of the run's numbers: the limits live in droid.tasks.seam.core (issue 16).
+#: argparse types of the run's numbers: the limits live in droid.tasks.seam.params (issue 16).
 speed_mm_s = bounded_float(0.0, MAX_SPEED_MM_S, "mm/s", lo_open=True)
 gain = bounded_float(0.0, MAX_GAIN)
 cycles = bounded_int(0, MAX_CYCLES, "cycles")

@@ -153,7 +153,8 @@ class DemoRun:
     def track(self, speed_mm_s: float = 16.0, length_mm: float = 400.0, mode: str = "plus",
               max_s: float = 120.0) -> Phase:
         """droid-seamtrack ``speed --mode mode --length length`` from where the arms stand."""
-        from droid.tasks.seam.core import STOP_END, SeamParams
+        from droid.tasks.seam.params import SeamParams
+        from droid.tasks.seam.stops import STOP_END
         from droid.tasks.seam.cycle import TrackingCycle
         from droid.tasks.seam.station import ArmStatus, SeamtrackStation
         from droid.tasks.seamtrack import pose_of, reading_of

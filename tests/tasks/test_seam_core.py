@@ -15,8 +15,9 @@ from hypothesis import strategies as st
 
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import trans
-from droid.tasks.seam.core import (PHASE_DEAD_ZONE, STOP_END, STOP_LOST, STOP_UNREACHABLE, SeamParams,
-                                   SeamTracker)
+from droid.tasks.seam.core import SeamTracker
+from droid.tasks.seam.params import PHASE_DEAD_ZONE, SeamParams
+from droid.tasks.seam.stops import STOP_END, STOP_LOST, STOP_UNREACHABLE
 from droid.tasks.seam.delay import (DELAY_DELAYED, DELAY_OFF, DELAY_ZEROED, INVALID_READING, ZERO_READING,
                                     Reading, TransportDelay)
 from droid.brain.cell_layout import load_layout
@@ -167,7 +168,7 @@ def test_a_transport_delay_zeroes_then_delays_the_readings_the_core_uses():
 def test_a_tool_that_jumps_stops_the_run_as_a_runaway():
     """The runaway guard (an addition): the arm reported 15 mm from where it was one cycle ago
     (after the dead zone: during it the arm may still settle from its start move)."""
-    from droid.tasks.seam.core import STOP_RUNAWAY
+    from droid.tasks.seam.stops import STOP_RUNAWAY
 
     params = SeamParams(speed_mm_s=16.0, dead_zone_cycles=0)
     core = SeamTracker(params, WRIST.T_wcp_tool, WRIST.T_wcp_sensor)
@@ -238,7 +239,7 @@ def test_thesis_modes_measure_their_run_length_in_chords_not_the_jittery_per_cyc
 def test_chord_travel_follows_an_arc_and_never_decreases():
     """The chord measure of a tool point moving along a 25 mm radius arc, with 0.2 mm of jitter
     along and across the path, stays within 1 % of the arc length and never decreases."""
-    from droid.tasks.seam.core import TravelGuard
+    from droid.tasks.seam.guard import TravelGuard
 
     guard = TravelGuard(SeamParams(speed_mm_s=4.0, length_mm=1e9))
     rng = np.random.default_rng(3)
@@ -262,7 +263,7 @@ def test_the_patch_array_holds_the_same_values_as_its_points(ops):
     cuts it is, bit for bit, what converting the points would give -- the thesis-mode search reads
     the array instead of converting the list each cycle; so are its segments' vectors and
     divisors, computed once per segment."""
-    from droid.tasks.seam.core import SeamPatch
+    from droid.tasks.seam.patch import SeamPatch
 
     class Tight(SeamPatch):  # reallocates on almost every push
         __slots__ = ()

@@ -19,7 +19,8 @@ from droid.brain.layouts import (ARM_STATUS, FAULT_BRAKING, FAULT_DEVICE, FAULT_
                                  FAULT_LINK, FAULT_SERVO, FAULT_WATCHDOG, FAULTS_CANNOT_MOVE, SENSOR_STATUS)
 from droid.cli import EXIT_RUNTIME, RuntimeFailure
 from droid.tasks import seamtrack
-from droid.tasks.seam.core import MODES, STOP_FAULT, SeamParams
+from droid.tasks.seam.params import MODES, SeamParams
+from droid.tasks.seam.stops import STOP_FAULT
 from droid.tasks.seam.cycle import TrackingCycle, arm_faults
 from droid.tasks.seam.delay import INVALID_READING
 from droid.brain.cell_layout import load_layout

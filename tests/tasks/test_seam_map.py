@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from droid.tasks.seam.core import STOP_END, STOP_LOST, SeamParams
+from droid.tasks.seam.params import SeamParams
+from droid.tasks.seam.stops import STOP_END, STOP_LOST
 from droid.tasks.seam.cycle import TrackingCycle
 from droid.tasks.seam.delay import INVALID_READING
 from droid.tasks.seam.seammap import SeamMap, chord_point

@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from droid.tasks.seam.core import STOP_FAULT, STOP_STALE, SeamParams
+from droid.tasks.seam.params import SeamParams
+from droid.tasks.seam.stops import STOP_FAULT, STOP_STALE
 from droid.tasks.seam.cycle import TrackingCycle
 from droid.tasks.seam.delay import INVALID_READING
 from droid.brain.cell_layout import load_layout

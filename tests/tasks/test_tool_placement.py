@@ -16,7 +16,7 @@ from droid.kinematics.transforms import trans
 from droid.sim.mvs.devices import ToolSensorCore
 from droid.sim.mvs.tool_sensor import pose_for_reading
 from droid.sim.workpiece import load_workpiece
-from droid.tasks.seam.core import SeamParams
+from droid.tasks.seam.params import SeamParams
 from droid.tasks.seam.cycle import TrackingCycle
 from droid.tasks.seam.delay import Reading
 from droid.brain.cell_layout import load_layout

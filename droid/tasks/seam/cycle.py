@@ -58,7 +58,9 @@ import numpy as np
 from droid.brain.layouts import FAULTS_CANNOT_MOVE, fault_names
 from droid.brain.sensor_line import seam_transform
 from droid.kinematics.transforms import EYE4
-from droid.tasks.seam.core import MODE_PLUS, STOP_FAULT, CycleOutput, SeamParams, SeamTracker, TrackingStop
+from droid.tasks.seam.core import CycleOutput, SeamTracker
+from droid.tasks.seam.params import MODE_PLUS, SeamParams
+from droid.tasks.seam.stops import STOP_FAULT, TrackingStop
 from droid.tasks.seam.delay import INVALID_READING, Reading
 
 _EYE3 = np.eye(3)

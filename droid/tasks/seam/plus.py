@@ -42,9 +42,11 @@ import numpy as np
 
 from droid.kinematics import RobotModel, Unreachable
 from droid.kinematics.transforms import inv_homo
-from droid.tasks.seam.core import (hinted_ik, mount, PHASE_DEAD_ZONE, PHASE_INITIAL, PHASE_TRACKING, TravelGuard,
-                                   STOP_LOST, STOP_UNREACHABLE,
-                                   CycleOutput, SeamParams, TrackingStop, _seam_transform)
+from droid.tasks.seam.core import CycleOutput, _seam_transform, mount
+from droid.tasks.seam.guard import TravelGuard
+from droid.tasks.seam.ik import hinted_ik
+from droid.tasks.seam.params import PHASE_DEAD_ZONE, PHASE_INITIAL, PHASE_TRACKING, SeamParams
+from droid.tasks.seam.stops import STOP_LOST, STOP_UNREACHABLE, TrackingStop
 from droid.tasks.seam.compliance import StaticDeflection
 from droid.tasks.seam.delay import DELAY_OFF, INVALID_READING, Reading
 from droid.tasks.seam.seammap import SeamMap, chord_point

@@ -29,7 +29,8 @@ from typing import Callable
 
 import numpy as np
 
-from droid.tasks.seam.core import STOP_STALE, CycleOutput, TrackingStop
+from droid.tasks.seam.core import CycleOutput
+from droid.tasks.seam.stops import STOP_STALE, TrackingStop
 from droid.tasks.seam.cycle import TrackingCycle
 from droid.tasks.seam.delay import INVALID_READING, Reading
 
