@@ -238,6 +238,6 @@ def use_on_cycle(cyc) -> bool:
     False: the reference stays."""
     fn = pose_interpolation()
     if fn is not None:
-        for history in (cyc.reis_poses, cyc.hold_poses):
+        for history in (cyc.tool_poses, cyc.hold_poses):
             history.interpolate = fn
     return fn is not None

@@ -415,8 +415,8 @@ class _LockstepTrial:
             result.stop_s_mm = self.tool_s_now()
             result.stop_t_s = (self.sched.t_ns / 1e9)
             return
-        if res.reis_cmd is not None:
-            arm.command_cart(res.reis_cmd, self.ct)
+        if res.tool_cmd is not None:
+            arm.command_cart(res.tool_cmd, self.ct)
         if res.hold_cmd is not None and holder is not None and not self.moving_holder:
             holder.hold(res.hold_cmd, self.ct / HEARTBEAT_HZ)  # gen_hold_robot_wcp, as droid-seamtrack
         if res.log:

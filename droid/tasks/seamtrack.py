@@ -260,11 +260,11 @@ class Tracker:
                 self.tool_sub = cell.subunit(args.tool_sensor)
             elif args.tool_sensor != "tool":  # named explicitly: it must exist
                 cell.subunit(args.tool_sensor)
-        self.reis = BrainArm(cell, layout.tool_robot)
+        self.tool_robot = BrainArm(cell, layout.tool_robot)
         self.hold = BrainArm(cell, layout.holder_robot)
         self.sensor_sub = sensor
         try:
-            self.cyc = TrackingCycle(self.params, self.wrist.T_wcp_tool, self.wrist.T_wcp_sensor, self.reis.model,
+            self.cyc = TrackingCycle(self.params, self.wrist.T_wcp_tool, self.wrist.T_wcp_sensor, self.tool_robot.model,
                                      heartbeat_hz=cell.heartbeat_hz)
         except ValueError as exc:
             raise BadInput(f"cell {cell.name}: {exc}") from None
@@ -279,7 +279,7 @@ class Tracker:
 
     # -- set-up ------------------------------------------------------------
     def connect(self) -> None:
-        self.reis.connect()
+        self.tool_robot.connect()
         self.hold.connect()
         self.lead_db = open_brain(self.cell, self.sensor_sub, "status")
         self.dbs.append(self.lead_db)
@@ -289,13 +289,13 @@ class Tracker:
             self.dbs.append(self.tool_db)
 
     def close(self) -> None:
-        self.reis.close()
+        self.tool_robot.close()
         self.hold.close()
         for db in self.dbs:
             db.close()
 
     def check_ready(self) -> None:
-        for arm in (self.reis, self.hold):
+        for arm in (self.tool_robot, self.hold):
             rec = arm.read()
             arm.check_fresh(rec)
             if not int(rec["homed"]):
@@ -304,12 +304,12 @@ class Tracker:
             raise RuntimeFailure(f"lead sensor {self.sensor_sub.name} is stale (no readings)")
 
     def go_to_start(self, position: str) -> None:
-        T_reis, T_hold = self.layout.start_poses(position, self.args.wrist)
+        T_tool, T_hold = self.layout.start_poses(position, self.args.wrist)
         resume = not self.args.no_resume
         self.resumes += move_to_start(self.hold, T_hold, f"holding pose of position ({position})",
                                       self.args.quiet, resume, self.cell)
-        self.resumes += move_to_start(self.reis, T_reis, f"start of position ({position})", self.args.quiet, resume,
-                                      self.cell)
+        self.resumes += move_to_start(self.tool_robot, T_tool, f"start of position ({position})", self.args.quiet,
+                                      resume, self.cell)
 
     # -- one tick: the station (droid.tasks.seam.station) between records and commands ----
     def arm_status(self, arm: BrainArm, rec) -> ArmStatus:
@@ -324,13 +324,13 @@ class Tracker:
 
     def on_tick(self, tick: int) -> str | None:
         """Read both arms' Status, run the station, write its commands; a stop's text or None."""
-        rec, hold_rec = self.reis.read(), self.hold.read()
-        res = self.station.on_tick(tick, self.arm_status(self.reis, rec), self.arm_status(self.hold, hold_rec),
+        rec, hold_rec = self.tool_robot.read(), self.hold.read()
+        res = self.station.on_tick(tick, self.arm_status(self.tool_robot, rec), self.arm_status(self.hold, hold_rec),
                                    self.read_lead)
         if res.stop is not None:
             return str(res.stop)
-        if res.reis_cmd is not None:
-            self.reis.command_cart(res.reis_cmd, self.station.cycle_ticks)
+        if res.tool_cmd is not None:
+            self.tool_robot.command_cart(res.tool_cmd, self.station.cycle_ticks)
         if res.hold_cmd is not None:
             self.hold.command_cart(res.hold_cmd, self.station.cycle_ticks)
         self.log_due = res.log

@@ -185,8 +185,8 @@ class DemoRun:
             if res.stop is not None:
                 state["stop"] = res.stop
                 return
-            if res.reis_cmd is not None:
-                welder.command_cart(res.reis_cmd, station.cycle_ticks)
+            if res.tool_cmd is not None:
+                welder.command_cart(res.tool_cmd, station.cycle_ticks)
             if res.hold_cmd is not None:
                 holder.command_cart(res.hold_cmd, station.cycle_ticks)
 

@@ -116,7 +116,7 @@ def perfect_plus(sensor, cycles, **kw):
         outs.append((out, T))
         if out.stop is not None:
             break
-        T = out.reis_cmd
+        T = out.tool_cmd
     return cyc, outs
 
 
@@ -155,7 +155,7 @@ def _biased_run(bias_mm, cycles=900):
         out = cyc.step(T_HOLD, T, tick, straight_seam_reading(T @ WRIST.T_wcp_sensor), tick + 1)
         if out.stop is not None:
             break
-        T = out.reis_cmd @ sag
+        T = out.tool_cmd @ sag
     tool_z = float((T @ WRIST.T_wcp_tool)[2, 3])  # the seam lies at z = 0, the tool axis is -z
     return tool_z, cyc
 

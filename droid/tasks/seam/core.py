@@ -77,8 +77,8 @@ class CycleOutput:
     """What one seam-tracking cycle produced."""
 
     cycle: int
-    reis_cmd: np.ndarray | None  # Reis WCP command, 4x4 global [mm]; None once stopped
-    gmf1_cmd: np.ndarray | None  # GMF1 WCP command, 4x4 global [mm]; None once stopped
+    tool_cmd: np.ndarray | None  # Reis WCP command, 4x4 global [mm]; None once stopped
+    hold_cmd: np.ndarray | None  # GMF1 WCP command, 4x4 global [mm]; None once stopped
     stop: TrackingStop | None
     phase: str
     travel_mm: float  # tool travel since the start, in the holder's wrist frame [mm]
@@ -88,7 +88,7 @@ class CycleOutput:
     delay_state: str
     tcp_idx: int
     queue_len: int
-    q_reis_deg: np.ndarray | None = None  # the Reis pick for reis_cmd (None without a model)
+    q_tool_deg: np.ndarray | None = None  # the Reis pick for tool_cmd (None without a model)
 
 
 @dataclass
@@ -113,7 +113,7 @@ class _State:
         return self.travel.travel_mm
 
 
-def mount(tracker, params: SeamParams, T_wcp_tool, T_wcp_sensor, reis_model: RobotModel | None) -> None:
+def mount(tracker, params: SeamParams, T_wcp_tool, T_wcp_sensor, tool_model: RobotModel | None) -> None:
     """What every tracker core (thesis, listing, plus) keeps of its set-up: the parameters,
     the tool and sensor transforms on the Reis wrist [mm], the camera-to-tool distance [mm],
     the Reis model for reachability and the transport-delay buffer (§5.5)."""
@@ -124,7 +124,7 @@ def mount(tracker, params: SeamParams, T_wcp_tool, T_wcp_sensor, reis_model: Rob
     tracker.camera_to_tcp_mm = float(np.linalg.norm(tracker.Tcamera_6[:3, 3] - tracker.T67tool[:3, 3]))
     if not tracker.camera_to_tcp_mm > 0:
         raise ValueError("the sensor's measuring point coincides with the tool point")
-    tracker.reis_model = reis_model
+    tracker.tool_model = tool_model
     tracker.delay = TransportDelay(params.delay_cycles, params.delay_at_mm)
 
 
@@ -132,19 +132,19 @@ class SeamTracker:
     """The seamtrack core (see the module docstring).
 
     ``T_wcp_tool``: ``(Reis)6 T tool`` (the listing's T67tool);
-    ``T_wcp_sensor``: ``(Reis)6 T sensor`` (Tcamera_6); ``reis_model``: the
+    ``T_wcp_sensor``: ``(Reis)6 T sensor`` (Tcamera_6); ``tool_model``: the
     Reis robot model *with its base* (commands are global), used to refuse an
     unreachable command before it is sent (None: no check).
     """
 
-    def __init__(self, params: SeamParams, T_wcp_tool, T_wcp_sensor, reis_model: RobotModel | None = None):
-        mount(self, params, T_wcp_tool, T_wcp_sensor, reis_model)
+    def __init__(self, params: SeamParams, T_wcp_tool, T_wcp_sensor, tool_model: RobotModel | None = None):
+        mount(self, params, T_wcp_tool, T_wcp_sensor, tool_model)
         self.s = _State(dead_zone=params.dead_zone_cycles, travel=TravelGuard(params))
         # the listing's globals
         self.T06hold = np.eye(4)  # global T (GMF1)6
         self.T6tool_hold = np.eye(4)  # (GMF1)6 T (Reis)6
         self.Ttool7_hold = np.eye(4)  # (GMF1)6 T tool
-        self.Tmvs = np.eye(4)  # sensor T seam
+        self.T_sensor_seam = np.eye(4)  # sensor T seam (the listing's Tmvs)
         self._hold_inv_key, self._hold_inv = None, None  # global T (GMF1)6 (bytes) and its inverse
         self._T6tool_hold_sensed = None  # (GMF1)6 T (Reis)6 when the reading was taken (None: now)
         self._sensed_inv_key, self._sensed_inv = None, None  # the holder's sensed pose (bytes), its inverse
@@ -155,7 +155,7 @@ class SeamTracker:
         self.T06hold = np.asarray(T_global_hold6, float)
         return self.T06hold
 
-    def tool_robot_wcp_wrt_holder(self, T_global_reis6) -> np.ndarray:
+    def tool_robot_wcp_wrt_holder(self, T_global_tool6) -> np.ndarray:
         """Eq. 5.10: the Reis wrist centre w.r.t. the GMF1's, ``(GMF1)6 T (Reis)6``.
 
         ``(global T (GMF1)0 (GMF1)0 T 6)^-1  global T (Reis)0 (Reis)0 T 6``; the
@@ -164,7 +164,7 @@ class SeamTracker:
         key = self.T06hold.tobytes()  # the holder usually stands still: invert a new pose only
         if key != self._hold_inv_key:
             self._hold_inv_key, self._hold_inv = key, inv_homo(self.T06hold)
-        self.T6tool_hold = self._hold_inv @ np.asarray(T_global_reis6, float)
+        self.T6tool_hold = self._hold_inv @ np.asarray(T_global_tool6, float)
         return self.T6tool_hold
 
     def toolpt_wrt_holder(self) -> np.ndarray:
@@ -178,7 +178,7 @@ class SeamTracker:
         ``(GMF1)6 T seam = (GMF1)6 T (Reis)6  (Reis)6 T sensor  sensor T seam  Tpitch  Tyaw``
         with yaw = -(y / CAMERA_TO_TCP) k_yaw about x and pitch = (x /
         CAMERA_TO_TCP) k_pitch about y.  The sensor is not read during the
-        dead zone (``Tmvs`` stays as it was: the identity).  Returns (yaw,
+        dead zone (``T_sensor_seam`` stays as it was: the identity).  Returns (yaw,
         pitch) [rad].
         """
         s = self.s
@@ -190,12 +190,12 @@ class SeamTracker:
             s.dead_zone -= 1
         else:
             s.dead_zone = 0
-            self.Tmvs = _seam_transform(reading)
+            self.T_sensor_seam = _seam_transform(reading)
         L = self.camera_to_tcp_mm
-        yaw = -(self.Tmvs[1, 3] / L) * self.p.yaw_gain
-        pitch = (self.Tmvs[0, 3] / L) * self.p.pitch_gain
+        yaw = -(self.T_sensor_seam[1, 3] / L) * self.p.yaw_gain
+        pitch = (self.T_sensor_seam[0, 3] / L) * self.p.pitch_gain
         T6tool_hold = self.T6tool_hold if self._T6tool_hold_sensed is None else self._T6tool_hold_sensed
-        frame = T6tool_hold @ self.Tcamera_6 @ self.Tmvs @ roty(pitch) @ rotx(yaw)
+        frame = T6tool_hold @ self.Tcamera_6 @ self.T_sensor_seam @ roty(pitch) @ rotx(yaw)
         # rotating the seam queue: seam[i+1] = seam[i] for i = tcp_idx .. 0, seam[0] = newest
         s.seam_pos.push_front((float(frame[0, 3]), float(frame[1, 3]), float(frame[2, 3])))
         s.seam_front = frame
@@ -326,27 +326,27 @@ class SeamTracker:
             self.s.hold_cmd = self.T06hold.copy()
         return self.s.hold_cmd
 
-    def write_robot_cmd(self, reis_cmd, gmf1_cmd, **fields) -> CycleOutput:
+    def write_robot_cmd(self, tool_cmd, hold_cmd, **fields) -> CycleOutput:
         """Both robot commands of this cycle, as the shell writes them (cart commands, one cycle long)."""
-        return CycleOutput(reis_cmd=reis_cmd, gmf1_cmd=gmf1_cmd, **fields)
+        return CycleOutput(tool_cmd=tool_cmd, hold_cmd=hold_cmd, **fields)
 
     # ------------------------------------------------------------ one cycle
     @property
     def stopped(self) -> TrackingStop | None:
         return self.s.stop
 
-    def step(self, T_global_hold6, T_global_reis6, reading: Reading, q_reis_deg=None,
-             elapsed_cycles: float = 1.0, T_global_reis6_sensed=None, T_global_hold6_sensed=None) -> CycleOutput:
+    def step(self, T_global_hold6, T_global_tool6, reading: Reading, q_tool_deg=None,
+             elapsed_cycles: float = 1.0, T_global_tool6_sensed=None, T_global_hold6_sensed=None) -> CycleOutput:
         """One 30 Hz cycle.
 
-        ``T_global_hold6``, ``T_global_reis6``: the GMF1 and Reis wrist-centre
+        ``T_global_hold6``, ``T_global_tool6``: the GMF1 and Reis wrist-centre
         poses (4x4, mm, global, from their Status records); ``reading``: the
-        lead sensor's reading (invalid -> zeros); ``q_reis_deg``: the Reis's
+        lead sensor's reading (invalid -> zeros); ``q_tool_deg``: the Reis's
         joint angles [deg] (the first cycle's IK hint; later the previous
         pick is used, as the planner does); ``elapsed_cycles``: how many
         cycles of time lie between this Reis pose and the last one (a late
         Status counts more than one: the runaway guard scales with it);
-        ``T_global_reis6_sensed``: the Reis pose when the sensor took the
+        ``T_global_tool6_sensed``: the Reis pose when the sensor took the
         reading (eq. 5.3 places the reading with the camera pose of its own
         instant; a real-time shell whose readings arrive later than the pose
         passes the pose of the reading's time -- an addition; None: the
@@ -359,14 +359,14 @@ class SeamTracker:
         if s.stop is not None:
             return self._stopped_output(cycle)
         self.holder_robot_wcp(T_global_hold6)
-        self.tool_robot_wcp_wrt_holder(T_global_reis6)
+        self.tool_robot_wcp_wrt_holder(T_global_tool6)
         self.toolpt_wrt_holder()
         tool = self.Ttool7_hold[:3, 3].copy()
         stop = s.travel.step(tool, elapsed_cycles, guard_runaway=s.dead_zone == 0)  # (the arm may settle first)
         if stop:
             return self._stop(cycle, *stop)
-        if s.q_prev is None and q_reis_deg is not None:
-            s.q_prev = np.asarray(q_reis_deg, float)
+        if s.q_prev is None and q_tool_deg is not None:
+            s.q_prev = np.asarray(q_tool_deg, float)
 
         in_dead_zone = s.dead_zone > 0
         if not reading.valid:
@@ -377,22 +377,22 @@ class SeamTracker:
             if s.invalid_run > self.p.lost_cycles:
                 return self._stop(cycle, STOP_LOST, f"lead sensor invalid for {s.invalid_run} cycles")
         hold_inv = self._hold_inv if T_global_hold6_sensed is None else self._sensed_hold_inv(T_global_hold6_sensed)
-        self._T6tool_hold_sensed = None if T_global_reis6_sensed is None else \
-            hold_inv @ np.asarray(T_global_reis6_sensed, float)
+        self._T6tool_hold_sensed = None if T_global_tool6_sensed is None else \
+            hold_inv @ np.asarray(T_global_tool6_sensed, float)
         yaw, pitch = self.update_seam_wrt_holder(used)
         target = self.interpolate(self.p.step_mm)
-        reis_cmd = self.gen_tool_robot_wcp(target)
+        tool_cmd = self.gen_tool_robot_wcp(target)
         try:
-            q = hinted_ik(self.reis_model, reis_cmd, s.q_prev)
+            q = hinted_ik(self.tool_model, tool_cmd, s.q_prev)
         except (Unreachable, ValueError) as exc:
             return self._stop(cycle, STOP_UNREACHABLE, str(exc))
         if q is not None:
             s.q_prev = q
         phase = PHASE_DEAD_ZONE if in_dead_zone else (PHASE_TRACKING if s.initial_done else PHASE_INITIAL)
         return self.write_robot_cmd(
-            reis_cmd, self.gen_hold_robot_wcp(), cycle=cycle, stop=None, phase=phase,
+            tool_cmd, self.gen_hold_robot_wcp(), cycle=cycle, stop=None, phase=phase,
             travel_mm=s.travel_mm, yaw_rad=yaw, pitch_rad=pitch, reading=used, delay_state=delay_state,
-            tcp_idx=s.tcp_idx, queue_len=len(s.seam_pos), q_reis_deg=q)
+            tcp_idx=s.tcp_idx, queue_len=len(s.seam_pos), q_tool_deg=q)
 
     def _sensed_hold_inv(self, T_global_hold6_sensed) -> np.ndarray:
         """The inverse of the holder's pose at the reading's instant: a holder at rest gives the
@@ -416,7 +416,7 @@ class SeamTracker:
 
     def _stopped_output(self, cycle: int) -> CycleOutput:
         s = self.s
-        return CycleOutput(cycle=cycle, reis_cmd=None, gmf1_cmd=None, stop=s.stop, phase=PHASE_TRACKING,
+        return CycleOutput(cycle=cycle, tool_cmd=None, hold_cmd=None, stop=s.stop, phase=PHASE_TRACKING,
                            travel_mm=s.travel_mm, yaw_rad=0.0, pitch_rad=0.0, reading=INVALID_READING,
                            delay_state=DELAY_OFF, tcp_idx=s.tcp_idx, queue_len=len(s.seam_pos))
 
