@@ -120,11 +120,11 @@ def _demand(path):
 def test_the_default_cell_fits_two_cpus(tmp_path, cell_name, monkeypatch):
     monkeypatch.setattr(launcher.os, "sched_getaffinity", lambda pid: {0, 1})
     d = _demand(make_cell_file(tmp_path, cell_name))
-    assert d.programs == 22 and d.cpus == 2
-    # the live collision guard is off on the shipped cell ([guard] run = false); on, droid-guard joins them
-    guarded = make_cell_file(tmp_path, cell_name + "g")
-    guarded.write_text(guarded.read_text().replace("\nrun = false\n", "\nrun = true\n", 1))
-    assert _demand(guarded).programs == 23
+    assert d.programs == 23 and d.cpus == 2  # droid-guard among them: the shipped cell runs the live guard
+    # with the live collision guard off ([guard] run = false) droid-guard is not started
+    unguarded = make_cell_file(tmp_path, cell_name + "g")
+    unguarded.write_text(unguarded.read_text().replace("\nrun = true\n", "\nrun = false\n", 1))
+    assert _demand(unguarded).programs == 22
     assert 80.0 < d.cpu_pct < 160.0  # every program and twin declares its cost
     assert d.warnings() == []
 
@@ -133,9 +133,9 @@ def test_a_cell_too_big_for_the_host_is_warned_of(tmp_path, cell_name, monkeypat
     path = _cell_with_joysticks(tmp_path, cell_name, 16)
     monkeypatch.setattr(launcher.os, "sched_getaffinity", lambda pid: {0, 1})
     d = _demand(path)
-    assert d.programs == 22 + 3 * 16
+    assert d.programs == 23 + 3 * 16
     (line,) = d.warnings()
-    assert line.startswith("its 70 programs need about ") and "this host's 2 CPUs" in line
+    assert line.startswith("its 71 programs need about ") and "this host's 2 CPUs" in line
     monkeypatch.setattr(launcher.os, "sched_getaffinity", lambda pid: set(range(8)))
     assert _demand(path).warnings() == []  # the same cell on 8 CPUs
 
@@ -152,7 +152,7 @@ def test_droid_cell_up_says_it_before_any_program_starts(tmp_path, cell_name, mo
     monkeypatch.setattr(launcher, "_start", no_start)
     assert launcher.main(["up", "--force", "--cell", str(path)]) == 1  # over the RT budget too: --force
     err = capsys.readouterr().err
-    assert f"droid-cell: warning: cell {cell_name}: its 70 programs need about" in err
+    assert f"droid-cell: warning: cell {cell_name}: its 71 programs need about" in err
     assert f"droid-cell: warning: cell {cell_name}: its SCHED_FIFO programs declare" in err
     assert "stopped by the test" in err and len(started) == 1
 

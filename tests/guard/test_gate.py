@@ -99,10 +99,11 @@ def test_a_guard_gone_stale_ends_the_move_along_its_path():
 
 def test_stale_ticks_from_the_cell_file(tmp_path):
     sim = load_cell(BUNDLED_CELLS / "sim.toml")
-    assert guard_stale_ticks(sim) is None  # the shipped cell runs no live guard ([guard] run = false)
-    on = (BUNDLED_CELLS / "sim.toml").read_text().replace("\nrun = false\n", "\nrun = true\n", 1)
-    (tmp_path / "on.toml").write_text(on)
-    assert guard_stale_ticks(load_cell(tmp_path / "on.toml")) == DEFAULT_STALE_TICKS
+    assert guard_stale_ticks(sim) == DEFAULT_STALE_TICKS  # the shipped cell runs the live guard
+    on = (BUNDLED_CELLS / "sim.toml").read_text()
+    assert "\nrun = true\n" in on
+    (tmp_path / "off.toml").write_text(on.replace("\nrun = true\n", "\nrun = false\n", 1))
+    assert guard_stale_ticks(load_cell(tmp_path / "off.toml")) is None  # run = false: no live guard
     (tmp_path / "odd.toml").write_text(on.replace("\nrun = true\n", "\nrun = 1\n", 1))
     with pytest.raises(BadInput, match=r"\[guard\] run: must be true or false, got 1"):
         guard_stale_ticks(load_cell(tmp_path / "odd.toml"))

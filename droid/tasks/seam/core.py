@@ -77,8 +77,8 @@ class CycleOutput:
     """What one seam-tracking cycle produced."""
 
     cycle: int
-    tool_cmd: np.ndarray | None  # Reis WCP command, 4x4 global [mm]; None once stopped
-    hold_cmd: np.ndarray | None  # GMF1 WCP command, 4x4 global [mm]; None once stopped
+    tool_cmd: np.ndarray | None  # the tool robot's WCP command, 4x4 global [mm]; None once stopped
+    hold_cmd: np.ndarray | None  # the holder's WCP command, 4x4 global [mm]; None once stopped
     stop: TrackingStop | None
     phase: str
     travel_mm: float  # tool travel since the start, in the holder's wrist frame [mm]
@@ -88,7 +88,7 @@ class CycleOutput:
     delay_state: str
     tcp_idx: int
     queue_len: int
-    q_tool_deg: np.ndarray | None = None  # the Reis pick for tool_cmd (None without a model)
+    q_tool_deg: np.ndarray | None = None  # the tool robot's joints [deg] for tool_cmd (None without a model)
 
 
 @dataclass

@@ -72,7 +72,7 @@ class SeamParams:
     mode: str = MODE_THESIS  # MODES
     accel_mm_s2: float = 200.0  # plus mode: travel acceleration limit from rest [mm/s^2]
     gap_mm: float = 30.0  # plus mode: longest stretch of seam bridged by extrapolation [mm]
-    compliance: bool = True  # plus mode: correct the Reis's poses for its drives' static deflection
+    compliance: bool = True  # plus mode: correct the tool robot's poses for its drives' static deflection
     # (droid.tasks.seam.compliance; docs/seamtrack.md, "On the full arm")
 
     def __post_init__(self) -> None:

@@ -116,7 +116,7 @@ class SeamtrackStation:
         if fault is not None:
             return StationOutput(stop=fault)
         stale = [a for a in (tool, hold) if a.stale]
-        if stale:  # no command this cycle: the Reis finishes its last step and waits
+        if stale:  # no command this cycle: the tool robot finishes its last step and waits
             if self.stale_since is None:
                 self.stale_since = tick
             if tick - self.stale_since > self.stale_grace_ticks:
