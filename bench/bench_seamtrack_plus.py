@@ -34,7 +34,7 @@ import numpy as np
 
 from droid.cli import ArgumentParser, BadInput, bounded_float, bounded_int, run
 from droid.experiments.trial import ARM_MODELS, TrialConfig, run_trial
-from droid.tasks.seam.core import MAX_RUN_LENGTH_MM, MODES
+from droid.tasks.seam.params import MAX_RUN_LENGTH_MM, MODES
 from droid.tasks.seam.report import column, summarize
 
 

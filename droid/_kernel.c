@@ -1761,7 +1761,7 @@ error:
 }
 
 
-/* -- the seam tracker's nearest patch segment (droid.tasks.seam.core.nearest_segment) ----------- */
+/* -- the seam tracker's nearest patch segment (droid.tasks.seam.patch.nearest_segment) ----------- */
 
 /* a 3-term sum as numpy's c_einsum("ij,ij->i") adds one row's products: its SIMD loop's order,
  * ``order`` 0: (p0 + p2) + p1 (AVX-512's 8 lanes), 1: (p0 + p1) + p2 (AVX2's 4); then into the
@@ -2017,7 +2017,7 @@ static PyMethodDef methods[] = {
     {"rb_jacobian", (PyCFunction)(void (*)(void))py_rb_jacobian, METH_FASTCALL,
      "rb_jacobian(model, q, J, oM): the last joint's placement (4x4 [m]) and 6 x n LOCAL_WORLD_ALIGNED Jacobian"},
     {"seam_nearest", (PyCFunction)(void (*)(void))seam_nearest, METH_FASTCALL,
-     "seam_nearest(tool, a, ab, den, ok, order, foot) -> j: droid.tasks.seam.core.nearest_segment"},
+     "seam_nearest(tool, a, ab, den, ok, order, foot) -> j: droid.tasks.seam.patch.nearest_segment"},
     {"pose_interp", (PyCFunction)(void (*)(void))pose_interp, METH_FASTCALL,
      "pose_interp(T0, T1, u, order, out): droid.tasks.seam.cycle.interpolate_pose into out (h50)"},
     {"pose_probe", (PyCFunction)(void (*)(void))pose_probe, METH_FASTCALL,

@@ -36,7 +36,7 @@ for bit, so lockstep trials keep Pinocchio whatever ``DROID_KERNEL`` says.
 
 And the seam tracker's nearest-segment search (``seam_nearest``, issue 44): a lockstep trial puts it
 on its tracker once droid.experiments.seam_kernel has checked it against the numpy reference
-(droid.tasks.seam.core.nearest_segment) bit for bit, including the order in which numpy's einsum
+(droid.tasks.seam.patch.nearest_segment) bit for bit, including the order in which numpy's einsum
 adds a row on this CPU.
 """
 from __future__ import annotations

@@ -59,7 +59,7 @@ from droid.experiments.plan import FIELDS, TRIAL_CONTACT, Plan, PlanTrial, load_
 from droid.experiments.sensors import SENSOR_MODELS
 from droid.experiments.trial import ARM_MODELS
 from droid.tasks.seam import report
-from droid.tasks.seam.core import MAX_RUN_LENGTH_MM, MODES
+from droid.tasks.seam.params import MAX_RUN_LENGTH_MM, MODES
 
 PROG = "droid-experiment"
 DEFAULT_OUT = os.path.join("out", "experiments")

@@ -42,7 +42,7 @@ import numpy as np
 
 from droid.cli import BadInput
 from droid.experiments.contact_trial import HEARTBEAT_HZ, ContactTrialConfig
-from droid.tasks.seam.core import MAX_RUN_LENGTH_MM, MAX_SPEED_MM_S
+from droid.tasks.seam.params import MAX_RUN_LENGTH_MM, MAX_SPEED_MM_S
 
 CONTACT_FIELDS = ("force_n", "speed_mm_s", "length_mm", "seed", "workpiece", "position", "lateral_mm",
                   "clearance_mm", "gains")

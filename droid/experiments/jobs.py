@@ -22,7 +22,7 @@ from droid.experiments import phases
 from droid.experiments.matrix import Experiment
 from droid.experiments.plan import TRIAL_CONTACT, PlanTrial
 from droid.tasks.seam import report
-from droid.tasks.seam.core import STOP_END
+from droid.tasks.seam.stops import STOP_END
 
 
 @dataclass(frozen=True)

@@ -58,7 +58,7 @@ from pathlib import Path
 
 from droid.cli import BadInput, read_toml
 from droid.numbers import NumberError, check_numbers
-from droid.tasks.seam.core import MAX_CYCLES, MAX_GAIN, MAX_RUN_LENGTH_MM, MAX_SPEED_MM_S
+from droid.tasks.seam.params import MAX_CYCLES, MAX_GAIN, MAX_RUN_LENGTH_MM, MAX_SPEED_MM_S
 
 PLAN_DIR = Path(__file__).parent / "plans"
 

@@ -3,7 +3,7 @@
 The thesis-mode tracker (droid.tasks.seam.core.SeamTracker.interpolate_thesis) projects the tool
 point onto every segment of its seam patch each 30 Hz cycle: at 1.5 mm/s the patch from the
 camera to the tool holds ~2000 frames, and the numpy expressions of
-:func:`droid.tasks.seam.core.nearest_segment` were the largest single cost of a slow trial.
+:func:`droid.tasks.seam.patch.nearest_segment` were the largest single cost of a slow trial.
 ``droid._kernel.seam_nearest`` makes the same IEEE operations in the same order in one loop;
 only the order in which numpy's ``einsum`` adds a row's three products depends on the SIMD path
 numpy dispatched to on this CPU, so :func:`nearest_segment` tries each order the kernel knows
@@ -36,7 +36,7 @@ _chosen: list = []  # [function or None], once per process
 
 
 def _reference():
-    from droid.tasks.seam.core import nearest_segment
+    from droid.tasks.seam.patch import nearest_segment
 
     return nearest_segment
 
@@ -238,6 +238,6 @@ def use_on_cycle(cyc) -> bool:
     False: the reference stays."""
     fn = pose_interpolation()
     if fn is not None:
-        for history in (cyc.reis_poses, cyc.hold_poses):
+        for history in (cyc.tool_poses, cyc.hold_poses):
             history.interpolate = fn
     return fn is not None

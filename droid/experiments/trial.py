@@ -65,8 +65,8 @@ from droid.experiments.trial_cell import resolve_trial_cell
 from droid.experiments.sensors import DEFAULT_NOISE, SENSOR_MODELS, LeadSensor, ToolTipSensor, tool_reading
 from droid.sim.lockstep import ORDER_DEVICE, ORDER_TASK, ORDER_WORLD, Scheduler
 from droid.sim.mvs.camera import CameraNoise
-from droid.tasks.seam.core import (DEAD_ZONE_CYCLES, LOST_CYCLES, MODE_LISTING, MODE_THESIS, MODES, SeamParams,
-                                   speed_problem)
+from droid.tasks.seam.params import (DEAD_ZONE_CYCLES, LOST_CYCLES, MODE_LISTING, MODE_THESIS, MODES, SeamParams,
+                                     speed_problem)
 from droid.tasks.seam.cycle import TrackingCycle, stamped
 from droid.tasks.seam.station import ArmStatus, SeamtrackStation
 from droid.tasks.seam.delay import INVALID_READING, Reading
@@ -415,8 +415,8 @@ class _LockstepTrial:
             result.stop_s_mm = self.tool_s_now()
             result.stop_t_s = (self.sched.t_ns / 1e9)
             return
-        if res.reis_cmd is not None:
-            arm.command_cart(res.reis_cmd, self.ct)
+        if res.tool_cmd is not None:
+            arm.command_cart(res.tool_cmd, self.ct)
         if res.hold_cmd is not None and holder is not None and not self.moving_holder:
             holder.hold(res.hold_cmd, self.ct / HEARTBEAT_HZ)  # gen_hold_robot_wcp, as droid-seamtrack
         if res.log:

@@ -85,7 +85,7 @@ class BagConverter:
         self._TF, self._Joy, self._Log = t[T_TF], t[T_JOY], t[T_LOG]
         self.arms: dict[str, tuple] = {}  # name -> (gearing or None, base 4x4 [mm], inverse of base)
         self.sensors: dict[str, str] = {}  # name -> frame id of its readings
-        self.joysticks: list[str] = []
+        self.sticks: list[str] = []
         self._skipped: dict[str, str] = {}
         scene = meta.get("scene") or {}
         for s in meta.get("subunits", []):
@@ -103,7 +103,7 @@ class BagConverter:
             elif kind == "line_laser":
                 self.sensors[name] = "sensor" if name == scene.get("sensor") else name
             elif kind == "joystick":
-                self.joysticks.append(name)
+                self.sticks.append(name)
             else:
                 self._skipped[name] = f"class {s.get('class')} ({layout}): no fitting ROS message"
         self.scene = scene
@@ -205,7 +205,7 @@ class BagConverter:
                 continue  # homed = 1: the sensor flags its data invalid (Table 3.3)
             out.append((f"/{name}/reading", T_POSE, self._PS(header=self.header(t_ns, frame, st),
                                                              pose=self.record_pose(d))))
-        for name in self.joysticks:
+        for name in self.sticks:
             d = statuses.get(name)
             if d is None or not d.get("valid") or d.get("stale") or not self._fresh(name, d):
                 continue

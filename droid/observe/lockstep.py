@@ -35,20 +35,22 @@ def _pose_into(rec, T) -> None:
 class TrialRecorder:
     """One lockstep trial into a recording: ``sample`` once per heartbeat tick, ``close`` at the end.
 
-    ``reis``/``fanuc``: the robot models (bases included); ``T_wcp_tool``/``T_wcp_sensor``:
-    the wrist; ``T_hold6_W``: the workpiece mount; ``q_hold_deg``/``T_hold``: the holder, still;
+    ``tool_model``/``holder_model``: the tool robot's and the holder's models (bases included);
+    ``T_wcp_tool``/``T_wcp_sensor``: the wrist; ``T_hold6_W``: the workpiece mount;
+    ``q_hold_deg``/``T_hold``: the holder, still;
     ``workpiece_mesh``: the workpiece's surfaces in W for viewers (plain data, made by the trial's
     maker from the workpiece model: droid.sim.workpiece_mesh)."""
 
-    def __init__(self, path: str, trial_id: str, reis, fanuc, T_wcp_tool, T_wcp_sensor, T_hold6_W,
+    def __init__(self, path: str, trial_id: str, tool_model, holder_model, T_wcp_tool, T_wcp_sensor, T_hold6_W,
                  q_hold_deg, T_hold, *, names=("arm1", "gmf1", "mvs", "tool"),
                  workpiece_mesh: dict | None = None) -> None:
         self.arm, self.hold, self.lead, self.tool = names
-        self.reis, self.fanuc = reis, fanuc
+        self.tool_model, self.holder_model = tool_model, holder_model
         subs = [
-            {"name": self.arm, "class": "arm6r", "robot": reis.name, "base": T_to_pose(reis.base).tolist(),
+            {"name": self.arm, "class": "arm6r", "robot": tool_model.name, "base": T_to_pose(tool_model.base).tolist(),
              "areas": {"status": _area(ARM_STATUS_LAYOUT), "command": _area(ARM_COMMAND_LAYOUT)}},
-            {"name": self.hold, "class": "arm6r", "robot": fanuc.name, "base": T_to_pose(fanuc.base).tolist(),
+            {"name": self.hold, "class": "arm6r", "robot": holder_model.name,
+             "base": T_to_pose(holder_model.base).tolist(),
              "areas": {"status": _area(ARM_STATUS_LAYOUT)}},
             {"name": self.lead, "class": "line_laser", "robot": None, "base": [0.0] * 6,
              "areas": {"status": _area(SENSOR_STATUS_LAYOUT)}},
@@ -70,7 +72,7 @@ class TrialRecorder:
         self.s_lead = new_record(SENSOR_STATUS_LAYOUT)
         self.s_tool = new_record(SENSOR_STATUS_LAYOUT)
         _pose_into(self.s_hold, T_hold)
-        self.s_hold["encoder_pos"] = fanuc.gearing.joints_to_counts_int(np.asarray(q_hold_deg, float))
+        self.s_hold["encoder_pos"] = holder_model.gearing.joints_to_counts_int(np.asarray(q_hold_deg, float))
         self.s_hold["encoder_cmd"] = self.s_hold["encoder_pos"]
         for r in (self.s_arm, self.s_hold):
             r["homed"] = HOMED
@@ -89,18 +91,19 @@ class TrialRecorder:
         _pose_into(self.s_arm, arm.status_pose())
         if state.get("T_hold") is not None:  # the holder's Status pose (it moves in holder-moving trials)
             _pose_into(self.s_hold, state["T_hold"])
-        self.s_arm["encoder_pos"] = self.reis.gearing.joints_to_counts_int(np.asarray(arm.status_joints(), float))
+        self.s_arm["encoder_pos"] = self.tool_model.gearing.joints_to_counts_int(np.asarray(arm.status_joints(), float))
         out = state.get("out")
-        if out is not None and out.reis_cmd is not None and out.cycle != self._cycle:
+        if out is not None and out.tool_cmd is not None and out.cycle != self._cycle:
             self._cycle = out.cycle
-            _pose_into(self.c_arm, out.reis_cmd)
+            _pose_into(self.c_arm, out.tool_cmd)
             self.c_arm["cart_time_count"] = CYCLE_TICKS
             self.c_arm["cmd_id"] = out.cycle + 1
             self.c_arm["sent"] = 0
             self.s_arm["cmd_id"] = out.cycle + 1
             self.s_arm["busy"] = CYCLE_TICKS
-            if out.q_reis_deg is not None:
-                self.s_arm["encoder_cmd"] = self.reis.gearing.joints_to_counts_int(np.asarray(out.q_reis_deg, float))
+            if out.q_tool_deg is not None:
+                self.s_arm["encoder_cmd"] = self.tool_model.gearing.joints_to_counts_int(
+                    np.asarray(out.q_tool_deg, float))
         lead = state.get("lead")
         if lead is not None:
             self.s_lead["x"], self.s_lead["y"] = lead.x_mm, lead.y_mm

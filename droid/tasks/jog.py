@@ -215,7 +215,7 @@ def _keyboard(jog: Jogger) -> int:
         termios.tcsetattr(fd, termios.TCSADRAIN, saved)
 
 
-def _joystick(arm: BrainArm, cell, joy_name: str, cart: bool, seconds: float | None) -> int:
+def _jog_from_stick(arm: BrainArm, cell, joy_name: str, cart: bool, seconds: float | None) -> int:
     """Drive ``arm`` from the joystick subunit ``joy_name`` once per heartbeat tick (§3.4)."""
     joy = cell.subunit(joy_name)
     joy.check_class("joystick", "a joystick")
@@ -268,22 +268,22 @@ def main(argv=None) -> int:
                     help="cartesian step per key [mm] (default 1)")
     ap.add_argument("--step-deg", type=bounded_float(0.0, 90.0, "deg", lo_open=True), default=1.0, metavar="DEG",
                     help="orientation step per key [deg] (default 1)")
-    ap.add_argument("--joystick", metavar="SUBUNIT", default=None,
+    ap.add_argument("--joystick", dest="stick", metavar="SUBUNIT", default=None,
                     help="drive the arm from this joystick subunit (thesis §3.4), e.g. joy")
     ap.add_argument("--seconds", type=duration_s(), default=None, metavar="S",
                     help="with --joystick: stop after S seconds (default: button 7 or Ctrl-C)")
     args = ap.parse_args(argv)
-    if args.seconds is not None and args.joystick is None:
+    if args.seconds is not None and args.stick is None:
         ap.error("--seconds needs --joystick")
     cell = open_cell(args)
-    if args.joystick is not None:  # a bad joystick name: exit 2 before touching the arm
-        cell.subunit(args.joystick).check_class("joystick", "a joystick")
+    if args.stick is not None:  # a bad joystick name: exit 2 before touching the arm
+        cell.subunit(args.stick).check_class("joystick", "a joystick")
     with BrainArm(cell, args.robot) as arm:
         arm.connect()
         arm.check_fresh()
-        if args.joystick is not None:
+        if args.stick is not None:
             try:
-                return _joystick(arm, cell, args.joystick, args.cart, args.seconds)
+                return _jog_from_stick(arm, cell, args.stick, args.cart, args.seconds)
             except KeyboardInterrupt:
                 return 0
         jog = Jogger(arm, args.step, args.step_mm, args.step_deg)

@@ -59,8 +59,9 @@ from droid.tasks.arm import BrainArm
 from droid.tasks.guarded import refuse_colliding_move
 from droid.tasks.resume import MAX_RESUMES, summary_note
 from droid.tasks.seam import report
-from droid.tasks.seam.core import (DEAD_ZONE_CYCLES, LOST_CYCLES, MAX_CYCLES, MAX_GAIN, MAX_RUN_LENGTH_MM,
-                                   MAX_SPEED_MM_S, MODE_THESIS, MODES, STOP_END, SeamParams)
+from droid.tasks.seam.params import (DEAD_ZONE_CYCLES, LOST_CYCLES, MAX_CYCLES, MAX_GAIN, MAX_RUN_LENGTH_MM,
+                                     MAX_SPEED_MM_S, MODE_THESIS, MODES, SeamParams)
+from droid.tasks.seam.stops import STOP_END
 from droid.tasks.seam.cycle import SENSOR_LAG_TICKS, TrackingCycle  # noqa: F401 (SENSOR_LAG_TICKS: docs)
 from droid.tasks.seam.station import ArmStatus, SeamtrackStation
 from droid.tasks.seam.delay import INVALID_READING, Reading
@@ -79,7 +80,7 @@ SETTLE_TIMEOUT_S = 3.0
 # the lockstep trial.
 
 
-#: argparse types of the run's numbers: the limits live in droid.tasks.seam.core (issue 16).
+#: argparse types of the run's numbers: the limits live in droid.tasks.seam.params (issue 16).
 speed_mm_s = bounded_float(0.0, MAX_SPEED_MM_S, "mm/s", lo_open=True)
 gain = bounded_float(0.0, MAX_GAIN)
 cycles = bounded_int(0, MAX_CYCLES, "cycles")
@@ -259,11 +260,11 @@ class Tracker:
                 self.tool_sub = cell.subunit(args.tool_sensor)
             elif args.tool_sensor != "tool":  # named explicitly: it must exist
                 cell.subunit(args.tool_sensor)
-        self.reis = BrainArm(cell, layout.tool_robot)
+        self.tool_robot = BrainArm(cell, layout.tool_robot)
         self.hold = BrainArm(cell, layout.holder_robot)
         self.sensor_sub = sensor
         try:
-            self.cyc = TrackingCycle(self.params, self.wrist.T_wcp_tool, self.wrist.T_wcp_sensor, self.reis.model,
+            self.cyc = TrackingCycle(self.params, self.wrist.T_wcp_tool, self.wrist.T_wcp_sensor, self.tool_robot.model,
                                      heartbeat_hz=cell.heartbeat_hz)
         except ValueError as exc:
             raise BadInput(f"cell {cell.name}: {exc}") from None
@@ -278,7 +279,7 @@ class Tracker:
 
     # -- set-up ------------------------------------------------------------
     def connect(self) -> None:
-        self.reis.connect()
+        self.tool_robot.connect()
         self.hold.connect()
         self.lead_db = open_brain(self.cell, self.sensor_sub, "status")
         self.dbs.append(self.lead_db)
@@ -288,13 +289,13 @@ class Tracker:
             self.dbs.append(self.tool_db)
 
     def close(self) -> None:
-        self.reis.close()
+        self.tool_robot.close()
         self.hold.close()
         for db in self.dbs:
             db.close()
 
     def check_ready(self) -> None:
-        for arm in (self.reis, self.hold):
+        for arm in (self.tool_robot, self.hold):
             rec = arm.read()
             arm.check_fresh(rec)
             if not int(rec["homed"]):
@@ -303,12 +304,12 @@ class Tracker:
             raise RuntimeFailure(f"lead sensor {self.sensor_sub.name} is stale (no readings)")
 
     def go_to_start(self, position: str) -> None:
-        T_reis, T_hold = self.layout.start_poses(position, self.args.wrist)
+        T_tool, T_hold = self.layout.start_poses(position, self.args.wrist)
         resume = not self.args.no_resume
         self.resumes += move_to_start(self.hold, T_hold, f"holding pose of position ({position})",
                                       self.args.quiet, resume, self.cell)
-        self.resumes += move_to_start(self.reis, T_reis, f"start of position ({position})", self.args.quiet, resume,
-                                      self.cell)
+        self.resumes += move_to_start(self.tool_robot, T_tool, f"start of position ({position})", self.args.quiet,
+                                      resume, self.cell)
 
     # -- one tick: the station (droid.tasks.seam.station) between records and commands ----
     def arm_status(self, arm: BrainArm, rec) -> ArmStatus:
@@ -323,13 +324,13 @@ class Tracker:
 
     def on_tick(self, tick: int) -> str | None:
         """Read both arms' Status, run the station, write its commands; a stop's text or None."""
-        rec, hold_rec = self.reis.read(), self.hold.read()
-        res = self.station.on_tick(tick, self.arm_status(self.reis, rec), self.arm_status(self.hold, hold_rec),
+        rec, hold_rec = self.tool_robot.read(), self.hold.read()
+        res = self.station.on_tick(tick, self.arm_status(self.tool_robot, rec), self.arm_status(self.hold, hold_rec),
                                    self.read_lead)
         if res.stop is not None:
             return str(res.stop)
-        if res.reis_cmd is not None:
-            self.reis.command_cart(res.reis_cmd, self.station.cycle_ticks)
+        if res.tool_cmd is not None:
+            self.tool_robot.command_cart(res.tool_cmd, self.station.cycle_ticks)
         if res.hold_cmd is not None:
             self.hold.command_cart(res.hold_cmd, self.station.cycle_ticks)
         self.log_due = res.log

@@ -153,7 +153,8 @@ class DemoRun:
     def track(self, speed_mm_s: float = 16.0, length_mm: float = 400.0, mode: str = "plus",
               max_s: float = 120.0) -> Phase:
         """droid-seamtrack ``speed --mode mode --length length`` from where the arms stand."""
-        from droid.tasks.seam.core import STOP_END, SeamParams
+        from droid.tasks.seam.params import SeamParams
+        from droid.tasks.seam.stops import STOP_END
         from droid.tasks.seam.cycle import TrackingCycle
         from droid.tasks.seam.station import ArmStatus, SeamtrackStation
         from droid.tasks.seamtrack import pose_of, reading_of
@@ -184,8 +185,8 @@ class DemoRun:
             if res.stop is not None:
                 state["stop"] = res.stop
                 return
-            if res.reis_cmd is not None:
-                welder.command_cart(res.reis_cmd, station.cycle_ticks)
+            if res.tool_cmd is not None:
+                welder.command_cart(res.tool_cmd, station.cycle_ticks)
             if res.hold_cmd is not None:
                 holder.command_cart(res.hold_cmd, station.cycle_ticks)
 

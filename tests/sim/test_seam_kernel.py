@@ -1,5 +1,5 @@
 """The seam tracker's nearest-segment search compiled (droid/_kernel.c ``seam_nearest``, issue 44)
-against the numpy reference (droid.tasks.seam.core.nearest_segment), bit for bit.
+against the numpy reference (droid.tasks.seam.patch.nearest_segment), bit for bit.
 
 The kernel adds each row's three products in the order numpy's ``einsum`` does on this CPU
 (droid.experiments.seam_kernel finds which and refuses the kernel where none matches); the
@@ -14,7 +14,8 @@ import pytest
 
 from droid import kernel
 from droid.experiments import seam_kernel
-from droid.tasks.seam.core import SeamPatch, SeamTracker, nearest_segment
+from droid.tasks.seam.core import SeamTracker
+from droid.tasks.seam.patch import SeamPatch, nearest_segment
 
 
 def test_the_kernel_is_chosen_here():

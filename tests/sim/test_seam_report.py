@@ -9,7 +9,7 @@ import pytest
 
 from droid.cli import BadInput
 from droid.tasks.seam import report
-from droid.tasks.seam.core import STOP_END, STOP_LOST
+from droid.tasks.seam.stops import STOP_END, STOP_LOST
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 

@@ -15,8 +15,9 @@ from hypothesis import strategies as st
 
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import trans
-from droid.tasks.seam.core import (PHASE_DEAD_ZONE, STOP_END, STOP_LOST, STOP_UNREACHABLE, SeamParams,
-                                   SeamTracker)
+from droid.tasks.seam.core import SeamTracker
+from droid.tasks.seam.params import PHASE_DEAD_ZONE, SeamParams
+from droid.tasks.seam.stops import STOP_END, STOP_LOST, STOP_UNREACHABLE
 from droid.tasks.seam.delay import (DELAY_DELAYED, DELAY_OFF, DELAY_ZEROED, INVALID_READING, ZERO_READING,
                                     Reading, TransportDelay)
 from droid.brain.cell_layout import load_layout
@@ -51,7 +52,7 @@ def perfect_run(params: SeamParams, cycles: int, sensor=straight_seam_reading, m
         outs.append((out, T))
         if out.stop is not None:
             break
-        T = out.reis_cmd  # the perfect arm is where it was told to be one cycle later
+        T = out.tool_cmd  # the perfect arm is where it was told to be one cycle later
     return core, outs
 
 
@@ -127,10 +128,10 @@ def test_invalid_data_means_zeros_the_tracker_goes_straight_on():
     moving = [o for o, _ in outs if o.stop is None]
     assert len(moving) == 5 + 12  # the dead zone, lost_cycles invalid cycles; the next one stops
     assert all(o.yaw_rad == 0.0 and o.pitch_rad == 0.0 for o in moving)
-    ys = [tool_offset_mm(o.reis_cmd) for o in moving]
+    ys = [tool_offset_mm(o.tool_cmd) for o in moving]
     assert np.allclose(ys, 0.0, atol=1e-9)  # straight on along the start line
     last = outs[-1][0]
-    assert last.stop.reason == STOP_LOST and last.reis_cmd is None and last.gmf1_cmd is None
+    assert last.stop.reason == STOP_LOST and last.tool_cmd is None and last.hold_cmd is None
 
 
 def test_unreachable_command_stops_the_run_before_it_is_sent():
@@ -138,16 +139,16 @@ def test_unreachable_command_stops_the_run_before_it_is_sent():
     params = SeamParams(speed_mm_s=8.0)
     core, outs = perfect_run(params, 5, model=far)
     out = outs[-1][0]
-    assert out.stop.reason == STOP_UNREACHABLE and out.reis_cmd is None
+    assert out.stop.reason == STOP_UNREACHABLE and out.tool_cmd is None
     # stopped stays stopped
     again = core.step(T_HOLD, start_pose(), ZERO_READING)
-    assert again.stop is out.stop and again.reis_cmd is None
+    assert again.stop is out.stop and again.tool_cmd is None
 
 
 def test_the_holder_is_told_to_hold_the_pose_it_started_with():
     params = SeamParams(speed_mm_s=8.0, length_mm=50.0)
     _, outs = perfect_run(params, 200)
-    holds = [o.gmf1_cmd for o, _ in outs if o.gmf1_cmd is not None]
+    holds = [o.hold_cmd for o, _ in outs if o.hold_cmd is not None]
     assert holds and all(np.array_equal(h, T_HOLD) for h in holds)
 
 
@@ -167,17 +168,17 @@ def test_a_transport_delay_zeroes_then_delays_the_readings_the_core_uses():
 def test_a_tool_that_jumps_stops_the_run_as_a_runaway():
     """The runaway guard (an addition): the arm reported 15 mm from where it was one cycle ago
     (after the dead zone: during it the arm may still settle from its start move)."""
-    from droid.tasks.seam.core import STOP_RUNAWAY
+    from droid.tasks.seam.stops import STOP_RUNAWAY
 
     params = SeamParams(speed_mm_s=16.0, dead_zone_cycles=0)
     core = SeamTracker(params, WRIST.T_wcp_tool, WRIST.T_wcp_sensor)
     T = start_pose()
     out = core.step(T_HOLD, T, straight_seam_reading(T @ WRIST.T_wcp_sensor))
-    T = out.reis_cmd
+    T = out.tool_cmd
     assert core.step(T_HOLD, T, straight_seam_reading(T @ WRIST.T_wcp_sensor)).stop is None
     jumped = trans(0.0, 15.0, 0.0) @ T
     out = core.step(T_HOLD, jumped, straight_seam_reading(jumped @ WRIST.T_wcp_sensor))
-    assert out.stop is not None and out.stop.reason == STOP_RUNAWAY and out.reis_cmd is None
+    assert out.stop is not None and out.stop.reason == STOP_RUNAWAY and out.tool_cmd is None
     assert "15.5 mm in 3 cycles (limit 10.0 mm)" in out.stop.detail
     settling = SeamTracker(SeamParams(speed_mm_s=16.0, dead_zone_cycles=5), WRIST.T_wcp_tool, WRIST.T_wcp_sensor)
     settling.step(T_HOLD, start_pose(), ZERO_READING)
@@ -202,7 +203,7 @@ def run_with_a_shaking_tool(core) -> float:
         out = core.step(T_HOLD, T_meas, straight_seam_reading(T_meas @ WRIST.T_wcp_sensor))
         if out.stop is not None:
             break
-        T = out.reis_cmd
+        T = out.tool_cmd
     assert out.stop is not None and out.stop.reason == STOP_END
     return float((T @ WRIST.T_wcp_tool)[0, 3]) - x0  # along the seam (global +x)
 
@@ -238,7 +239,7 @@ def test_thesis_modes_measure_their_run_length_in_chords_not_the_jittery_per_cyc
 def test_chord_travel_follows_an_arc_and_never_decreases():
     """The chord measure of a tool point moving along a 25 mm radius arc, with 0.2 mm of jitter
     along and across the path, stays within 1 % of the arc length and never decreases."""
-    from droid.tasks.seam.core import TravelGuard
+    from droid.tasks.seam.guard import TravelGuard
 
     guard = TravelGuard(SeamParams(speed_mm_s=4.0, length_mm=1e9))
     rng = np.random.default_rng(3)
@@ -262,7 +263,7 @@ def test_the_patch_array_holds_the_same_values_as_its_points(ops):
     cuts it is, bit for bit, what converting the points would give -- the thesis-mode search reads
     the array instead of converting the list each cycle; so are its segments' vectors and
     divisors, computed once per segment."""
-    from droid.tasks.seam.core import SeamPatch
+    from droid.tasks.seam.patch import SeamPatch
 
     class Tight(SeamPatch):  # reallocates on almost every push
         __slots__ = ()

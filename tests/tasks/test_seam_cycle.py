@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from droid.kinematics.transforms import trans
-from droid.tasks.seam.core import SeamParams
+from droid.tasks.seam.params import SeamParams
 from droid.tasks.seam.cycle import PoseHistory, TrackingCycle, cycle_ticks_for, interpolate_pose
 from droid.tasks.seam.delay import Reading
 from droid.brain.cell_layout import load_layout

@@ -19,7 +19,8 @@ from droid.brain.layouts import (ARM_STATUS, FAULT_BRAKING, FAULT_DEVICE, FAULT_
                                  FAULT_LINK, FAULT_SERVO, FAULT_WATCHDOG, FAULTS_CANNOT_MOVE, SENSOR_STATUS)
 from droid.cli import EXIT_RUNTIME, RuntimeFailure
 from droid.tasks import seamtrack
-from droid.tasks.seam.core import MODES, STOP_FAULT, SeamParams
+from droid.tasks.seam.params import MODES, SeamParams
+from droid.tasks.seam.stops import STOP_FAULT
 from droid.tasks.seam.cycle import TrackingCycle, arm_faults
 from droid.tasks.seam.delay import INVALID_READING
 from droid.brain.cell_layout import load_layout
@@ -66,7 +67,7 @@ def test_check_faults_stops_the_core_for_good_and_the_first_stop_stays(mode):
     # the fault clears (a restarted servo): the run stays stopped, no command comes out
     I = np.eye(4)
     out = cyc.step(I, I, 10, INVALID_READING, 9)
-    assert out.reis_cmd is None and out.gmf1_cmd is None and out.stop is stop
+    assert out.tool_cmd is None and out.hold_cmd is None and out.stop is stop
     later = cyc.check_faults([("arm1", 0), ("gmf1", FAULT_DEVICE)])
     assert later is stop and later.detail == "arm1 faults: servo, braking"
 
@@ -102,21 +103,21 @@ class Fake:
         self.faults: dict[str, tuple[int, int]] = {}
         self.commands: list[tuple[str, int]] = []  # (arm, tick) of every command written
         self.T_reis, self.T_hold = LAYOUT.start_poses("i", "standard")
-        q = tr.reis.model.ik(self.T_reis, np.zeros(6))
-        self.counts = np.rint(tr.reis.model.gearing.joints_to_counts(q)).astype(np.int32)
+        q = tr.tool_robot.model.ik(self.T_reis, np.zeros(6))
+        self.counts = np.rint(tr.tool_robot.model.gearing.joints_to_counts(q)).astype(np.int32)
 
     def bits(self, name: str) -> int:
         start, bits = self.faults.get(name, (None, 0))
         return bits if start is not None and self.tick >= start else 0
 
     def install(self, tr) -> None:
-        tr.reis.status = FakeDb(lambda: _arm_record(self.T_reis, self.counts, self.tick, self.bits("arm1")))
+        tr.tool_robot.status = FakeDb(lambda: _arm_record(self.T_reis, self.counts, self.tick, self.bits("arm1")))
         tr.hold.status = FakeDb(lambda: _arm_record(self.T_hold, None, self.tick, self.bits("gmf1")))
         lead = np.zeros((), SENSOR_STATUS)
         lead["homed"] = 1  # no seam in view: an invalid reading (the dead zone does not read it)
         tr.lead_db = FakeDb(lambda: lead.copy())
         tr.tool_db = None
-        tr.reis.command_cart = lambda T, ticks: self.commands.append(("arm1", self.tick))
+        tr.tool_robot.command_cart = lambda T, ticks: self.commands.append(("arm1", self.tick))
         tr.hold.command_cart = lambda T, ticks: self.commands.append(("gmf1", self.tick))
 
 

@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from droid.tasks.seam.core import STOP_END, STOP_LOST, SeamParams
+from droid.tasks.seam.params import SeamParams
+from droid.tasks.seam.stops import STOP_END, STOP_LOST
 from droid.tasks.seam.cycle import TrackingCycle
 from droid.tasks.seam.delay import INVALID_READING
 from droid.tasks.seam.seammap import SeamMap, chord_point
@@ -115,7 +116,7 @@ def perfect_plus(sensor, cycles, **kw):
         outs.append((out, T))
         if out.stop is not None:
             break
-        T = out.reis_cmd
+        T = out.tool_cmd
     return cyc, outs
 
 
@@ -154,7 +155,7 @@ def _biased_run(bias_mm, cycles=900):
         out = cyc.step(T_HOLD, T, tick, straight_seam_reading(T @ WRIST.T_wcp_sensor), tick + 1)
         if out.stop is not None:
             break
-        T = out.reis_cmd @ sag
+        T = out.tool_cmd @ sag
     tool_z = float((T @ WRIST.T_wcp_tool)[2, 3])  # the seam lies at z = 0, the tool axis is -z
     return tool_z, cyc
 

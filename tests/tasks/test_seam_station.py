@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from droid.tasks.seam.core import STOP_FAULT, STOP_STALE, SeamParams
+from droid.tasks.seam.params import SeamParams
+from droid.tasks.seam.stops import STOP_FAULT, STOP_STALE
 from droid.tasks.seam.cycle import TrackingCycle
 from droid.tasks.seam.delay import INVALID_READING
 from droid.brain.cell_layout import load_layout
@@ -49,7 +50,7 @@ def test_no_command_while_stale_and_the_run_resumes_within_the_grace():
         reis, hold = arms(tick, stale_from)
         res = st.on_tick(tick, reis, hold, lead)
         assert res.stop is None, (tick, res.stop)
-        if res.reis_cmd is not None:
+        if res.tool_cmd is not None:
             cmds.append(tick)
     stale_ticks = [t for t in cmds if 40 <= t < 40 + st.stale_grace_ticks - 10]
     assert stale_ticks == []  # nothing written while stale
@@ -75,11 +76,11 @@ def test_stale_past_the_grace_stops_the_run_as_stale_naming_the_arm():
 def test_a_fault_stops_before_any_command_and_the_holder_is_commanded_once():
     st = station()
     res = st.on_tick(1, *arms(1), lead)
-    assert res.reis_cmd is not None and res.hold_cmd is not None  # gen_hold_robot_wcp: first cycle
+    assert res.tool_cmd is not None and res.hold_cmd is not None  # gen_hold_robot_wcp: first cycle
     res = st.on_tick(3, *arms(3), lead)
-    assert res.reis_cmd is not None and res.hold_cmd is None
+    assert res.tool_cmd is not None and res.hold_cmd is None
     res = st.on_tick(5, *arms(5, fault=FAULT_SERVO), lead)
-    assert res.stop is not None and res.stop.reason == STOP_FAULT and res.reis_cmd is None
+    assert res.stop is not None and res.stop.reason == STOP_FAULT and res.tool_cmd is None
 
 
 def test_first_cycle_and_log_ticks_hold_back_the_cycle_and_the_log():
@@ -87,7 +88,7 @@ def test_first_cycle_and_log_ticks_hold_back_the_cycle_and_the_log():
     first_cmd = first_log = None
     for tick in range(1, 30):
         res = st.on_tick(tick, *arms(tick), lead)
-        if res.reis_cmd is not None and first_cmd is None:
+        if res.tool_cmd is not None and first_cmd is None:
             first_cmd = tick
         if res.log and first_log is None:
             first_log = tick

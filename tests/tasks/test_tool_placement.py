@@ -16,7 +16,7 @@ from droid.kinematics.transforms import trans
 from droid.sim.mvs.devices import ToolSensorCore
 from droid.sim.mvs.tool_sensor import pose_for_reading
 from droid.sim.workpiece import load_workpiece
-from droid.tasks.seam.core import SeamParams
+from droid.tasks.seam.params import SeamParams
 from droid.tasks.seam.cycle import TrackingCycle
 from droid.tasks.seam.delay import Reading
 from droid.brain.cell_layout import load_layout
@@ -61,7 +61,7 @@ def test_a_tool_reading_is_placed_with_the_reis_pose_of_its_capture_instant():
     placed = cyc.place_tool(r, 122, WRIST.T_wcp_tool)
     # the Status of tick n shows the arm at n - STATUS_AGE_TICKS: x = t + status age
     assert placed.tick == 120.25
-    assert placed.T_global_reis6[0, 3] == pytest.approx(120.25 + cyc.status_age_ticks)
+    assert placed.T_global_tool6[0, 3] == pytest.approx(120.25 + cyc.status_age_ticks)
     expected = trans(120.25 + cyc.status_age_ticks, 0, 0) @ WRIST.T_wcp_tool
     np.testing.assert_allclose(placed.seam_in_hold_mm, expected[:3, 3], atol=1e-9)
     # an unstamped reading: its Status tick minus the sensor lag

@@ -57,175 +57,19 @@ core with :meth:`SeamTracker.halt`); and the transport-delay buffer of §6.2.5
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from droid.kinematics import RobotModel, Unreachable
-from droid.kinematics.transforms import c_einsum, inv_homo, rotx, roty
+from droid.kinematics.transforms import inv_homo, rotx, roty
 from droid.tasks.seam.delay import DELAY_OFF, INVALID_READING, Reading, TransportDelay
-
-#: Largest index of the seam patch (the listing's MAX_QUEUE).  The patch
-#: between the camera and the tool holds CAMERA_TO_TCP / (speed / 30 Hz)
-#: frames: 750 at 4 mm/s with the 100 mm sensor lead; 2048 covers 1.5 mm/s.
-MAX_QUEUE = 2048
-#: Seam-tracking cycle rate [Hz]: every second tick of the 60 Hz heartbeat.
-CYCLE_HZ = 30.0
-#: Cycles without reading the sensor at the start (the listing's dead_zone).
-DEAD_ZONE_CYCLES = 30
-#: Consecutive invalid sensor cycles after which the seam counts as lost
-#: (ASSUMED: the thesis stops by hand; 15 cycles = 0.5 s, 2 mm at 4 mm/s,
-#: 32 mm at 64 mm/s of straight-on travel on zero data).
-LOST_CYCLES = 15
-
-#: Fastest travel speed a run accepts [mm/s] (ASSUMED: the thesis gives no Reis TCP speed
-#: limit; plus mode tracks the step track at 400 mm/s in lockstep with the fast arm model,
-#: whose joints are speed-limited as the servo's).  A faster request is refused up front.
-MAX_SPEED_MM_S = 500.0
-
-#: The ranges the programs accept (droid-seamtrack's options, droid-experiment's --length; issue 16):
-#: a run length [mm] up to 10 m -- more than ten times the longest bundled seam (step_input, 760 mm
-#: with its lead-in and -out) and far beyond the Reis's reach (ASSUMED: chosen, not from the thesis);
-#: the proportional gains [-] 0..10 (the thesis runs 0.05..0.75, §6.2.5; above 1 a cycle corrects
-#: more than the measured angle); cycle counts [30 Hz cycles] up to one hour of cycles.
-MAX_RUN_LENGTH_MM = 10_000.0
-MAX_GAIN = 10.0
-MAX_CYCLES = 108_000
-
-STOP_END = "end of seam"
-STOP_LOST = "seam lost"
-STOP_UNREACHABLE = "unreachable"
-STOP_RUNAWAY = "runaway"
-STOP_FAULT = "fault"  # an arm's Status reports a fault it cannot move with (droid.tasks.seam.cycle.arm_faults)
-STOP_STALE = "stale"  # an arm's Status stale past the grace (droid.tasks.seam.station)
-#: Runaway guard (an addition): after the dead zone, the tool moving more than
-#: RUNAWAY_FACTOR times the commanded speed over the last RUNAWAY_WINDOW cycles (and
-#: more than RUNAWAY_MIN_MM) stops the run -- an oscillating, unstable loop (long
-#: delays, §6.2.5) or an arm that does not follow.  Normal tracking runs at ~0.5x the
-#: speed; the real-time arm moves in bursts (up to ~0.8 mm per 60 Hz tick at the wrist
-#: centre) and, on a busy host, lurches once by 20-30 mm in under a second and recovers:
-#: the guard looks at two seconds, so it stops sustained oscillation, not one lurch.
-RUNAWAY_FACTOR = 4.0
-RUNAWAY_WINDOW = 60
-RUNAWAY_MIN_MM = 10.0
-#: The run length of the thesis and listing modes is the measured tool's path resampled in
-#: straight chords of this length [mm] (``TravelGuard``): consecutive chords share their end
-#: points, so the tool point's jitter along the path cancels, and a jitter of amplitude a
-#: across it adds only ~2 a^2 / TRAVEL_CHORD_MM a chord (0.3 mm of stick-slip: 0.7 %), where the
-#: per-cycle sum adds ~2 a every cycle (the full arm's runs ended at 276-602 mm of 700 with it).
-#: A chord shortens an arc of radius R by CHORD^2 / (24 R^2): 0.17 % on the R25 arc.
-TRAVEL_CHORD_MM = 5.0
-
-PHASE_DEAD_ZONE = "dead zone"  # the sensor is not read yet (still the initial section)
-PHASE_INITIAL = "initial"  # the tool heads for the point where the sensor started
-PHASE_TRACKING = "tracking"
-
-#: Tracking modes (docs/seamtrack.md "Modes"): ``thesis`` -- the listing's tracker with the
-#: patch read as §5.2 describes it (the tool projected onto the nearest patch segment, ``vel``
-#: stepped along the patch); ``listing`` -- the literal port of the listing's ``interpolate()``;
-#: ``plus`` -- the seam-map tracker of droid.tasks.seam.plus.
-MODE_THESIS = "thesis"
-MODE_LISTING = "listing"
-MODE_PLUS = "plus"
-MODES = (MODE_THESIS, MODE_LISTING, MODE_PLUS)
-
-
-def nearest_segment(tool, a, ab, den, ok) -> tuple[int, np.ndarray]:
-    """The patch segment nearest the tool point ``tool`` (3,) [mm]: segment j runs from ``a[j]``
-    along ``ab[j]`` (m x 3), ``den[j]`` its squared length (1.0 where ``ok[j]`` is False: too
-    short).  The tool point's projection u onto each (0 on a short one), clipped to the segment,
-    gives its foot; returns (j, foot j) of the least squared distance (the first of equals)."""
-    u = c_einsum("ij,ij->i", tool - a, ab) / den  # np.einsum (optimize=False) without its wrapper
-    u = np.clip(np.where(ok, u, 0.0), 0.0, 1.0)
-    foot = a + u[:, None] * ab
-    off = foot - tool
-    d2 = c_einsum("ij,ij->i", off, off)
-    j = int(np.argmin(d2))
-    return j, foot[j]
-
-
-@dataclass(frozen=True)
-class SeamParams:
-    """Parameters of one seam-tracking run (units in the names)."""
-
-    speed_mm_s: float
-    yaw_gain: float = 0.15  # k_yaw (Experiment 1, §6.2.1)
-    pitch_gain: float = 0.25  # k_pitch
-    dead_zone_cycles: int = DEAD_ZONE_CYCLES
-    lost_cycles: int = LOST_CYCLES
-    length_mm: float = math.inf  # run length: tool travel after which the run ends (end of seam)
-    delay_cycles: int = 0  # transport delay N [cycles] (0 = none)
-    delay_at_mm: float = 150.0  # tool travel at which the delay is inserted [mm]
-    max_queue: int = MAX_QUEUE
-    cycle_hz: float = CYCLE_HZ
-    runaway_factor: float = RUNAWAY_FACTOR  # 0 = no runaway guard
-    mode: str = MODE_THESIS  # MODES
-    accel_mm_s2: float = 200.0  # plus mode: travel acceleration limit from rest [mm/s^2]
-    gap_mm: float = 30.0  # plus mode: longest stretch of seam bridged by extrapolation [mm]
-    compliance: bool = True  # plus mode: correct the Reis's poses for its drives' static deflection
-    # (droid.tasks.seam.compliance; docs/seamtrack.md, "On the full arm")
-
-    def __post_init__(self) -> None:
-        for name in ("speed_mm_s", "yaw_gain", "pitch_gain", "delay_at_mm", "cycle_hz", "runaway_factor"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v)):
-                raise ValueError(f"{name} must be a finite number, got {v!r}")
-        if self.mode not in MODES:
-            raise ValueError(f"unknown mode {self.mode!r} (known: {', '.join(MODES)})")
-        if not (isinstance(self.accel_mm_s2, (int, float)) and self.accel_mm_s2 > 0):
-            raise ValueError(f"acceleration must be > 0 mm/s^2, got {self.accel_mm_s2!r}")
-        if not (isinstance(self.gap_mm, (int, float)) and self.gap_mm > 0):
-            raise ValueError(f"the bridged gap must be > 0 mm, got {self.gap_mm!r}")
-        why = speed_problem(self.speed_mm_s)
-        if why:
-            raise ValueError(why)
-        if self.runaway_factor < 0:
-            raise ValueError("runaway_factor must be >= 0")
-        if self.cycle_hz <= 0:
-            raise ValueError("cycle rate must be > 0 Hz")
-        if not (self.length_mm > 0):
-            raise ValueError(f"run length must be > 0 mm, got {self.length_mm!r}")
-        if self.delay_at_mm < 0:
-            raise ValueError("the delay point must be >= 0 mm")
-        for name in ("dead_zone_cycles", "lost_cycles", "delay_cycles", "max_queue"):
-            v = getattr(self, name)
-            if not isinstance(v, int) or isinstance(v, bool) or v < 0:
-                raise ValueError(f"{name} must be an integer >= 0, got {v!r}")
-        if self.lost_cycles < 1 or self.max_queue < 2:
-            raise ValueError("lost_cycles must be >= 1 and max_queue >= 2")
-
-    @property
-    def step_mm(self) -> float:
-        """The listing's ``vel``: distance the tool target advances per cycle [mm]."""
-        return self.speed_mm_s / self.cycle_hz
-
-
-def speed_problem(speed_mm_s: float) -> str | None:
-    """Why a commanded travel speed [mm/s] cannot be tracked (None: it can): it must be > 0 and at
-    most MAX_SPEED_MM_S.  SeamParams and the experiments' TrialConfig both ask here."""
-    if speed_mm_s <= 0:
-        return f"speed must be > 0 mm/s, got {speed_mm_s!r}"
-    if speed_mm_s > MAX_SPEED_MM_S:
-        return f"speed {speed_mm_s:g} mm/s is beyond what the arm can do (at most {MAX_SPEED_MM_S:g} mm/s)"
-    return None
-
-
-@dataclass(frozen=True)
-class TrackingStop:
-    """Why a tracking run ended, where (tool travel [mm]) and in which cycle.
-
-    Not :class:`droid.brain.program.Stop` (the SIGTERM/SIGINT flag every program
-    polls): this is the tracking core's verdict, a value the report prints.
-    """
-
-    reason: str  # STOP_END, STOP_LOST, STOP_UNREACHABLE, STOP_RUNAWAY, STOP_FAULT, STOP_STALE
-    detail: str
-    travel_mm: float
-    cycle: int
-
-    def __str__(self) -> str:
-        return f"{self.reason} at {self.travel_mm:.1f} mm ({self.detail})"
+from droid.tasks.seam.guard import TravelGuard
+from droid.tasks.seam.ik import hinted_ik
+from droid.tasks.seam.params import (DEAD_ZONE_CYCLES, MODE_LISTING, PHASE_DEAD_ZONE, PHASE_INITIAL, PHASE_TRACKING,
+                                     SeamParams)
+from droid.tasks.seam.patch import SeamPatch, nearest_segment
+from droid.tasks.seam.stops import STOP_LOST, STOP_UNREACHABLE, TrackingStop
 
 
 @dataclass(frozen=True)
@@ -233,8 +77,8 @@ class CycleOutput:
     """What one seam-tracking cycle produced."""
 
     cycle: int
-    reis_cmd: np.ndarray | None  # Reis WCP command, 4x4 global [mm]; None once stopped
-    gmf1_cmd: np.ndarray | None  # GMF1 WCP command, 4x4 global [mm]; None once stopped
+    tool_cmd: np.ndarray | None  # the tool robot's WCP command, 4x4 global [mm]; None once stopped
+    hold_cmd: np.ndarray | None  # the holder's WCP command, 4x4 global [mm]; None once stopped
     stop: TrackingStop | None
     phase: str
     travel_mm: float  # tool travel since the start, in the holder's wrist frame [mm]
@@ -244,163 +88,7 @@ class CycleOutput:
     delay_state: str
     tcp_idx: int
     queue_len: int
-    q_reis_deg: np.ndarray | None = None  # the Reis pick for reis_cmd (None without a model)
-
-
-class TravelGuard:
-    """The tool's travel and the two stops it decides, as every tracker core (thesis, listing, plus) keeps them.
-
-    :meth:`step` takes the tool's position this cycle (holder's wrist frame
-    [mm]), advances ``travel_mm`` and says why the run must stop (None: it need
-    not).  ``travel_mm`` -- the run length, the delay trigger (§6.2.5) -- is the
-    caller's ``progress_mm`` when it gives one (plus mode: the tool's foot on its
-    seam map), else the tool's path in straight chords of TRAVEL_CHORD_MM
-    (thesis and listing modes: a new chord end each time the tool is that far
-    from the last one, plus the straight distance to the open end; never
-    decreasing) -- not the per-cycle sum ``path_mm``, which the tool point's
-    jitter on a stick-slip arm makes run ahead of the seam (an addition: the
-    listing's stop is by hand, §6.2.5).  The stops: ``runaway`` when, outside the dead zone, the tool moved more than
-    ``runaway_factor`` times the commanded step per cycle over the last
-    RUNAWAY_WINDOW cycles (and more than RUNAWAY_MIN_MM) -- an oscillating,
-    unstable loop (docs/safety.md); a late Status counts as ``elapsed_cycles``
-    cycles of time; ``end of seam`` when ``length_mm`` is travelled.
-    """
-
-    def __init__(self, params: "SeamParams") -> None:
-        self.p = params
-        self.travel_mm = 0.0  # the run's progress: the chord path, or the caller's progress_mm
-        self.path_mm = 0.0  # the summed path of the tool point [mm] (the runaway guard's measure)
-        self.chords_mm = 0.0  # the closed chords' length [mm]
-        self.chord_end: np.ndarray | None = None  # where the open chord starts (holder's wrist frame, mm)
-        self.last_tool: np.ndarray | None = None
-        self.recent: deque = deque(maxlen=RUNAWAY_WINDOW)  # (moved mm, cycles)
-        # the same two columns apart, so the guard's sums run over a deque, not a generator (the
-        # same numbers in the same order: the same bits)
-        self._recent_mm: deque = deque(maxlen=RUNAWAY_WINDOW)
-        self._recent_cycles: deque = deque(maxlen=RUNAWAY_WINDOW)
-
-    def step(self, tool, elapsed_cycles: float, guard_runaway: bool,
-             progress_mm: float | None = None) -> tuple[str, str] | None:
-        """One cycle's tool position [mm]; (stop reason, detail) or None.
-
-        ``progress_mm``: the tool's progress along the seam as the caller knows it (plus mode:
-        the arc length of the tool's foot on the seam map); when given it, not the summed path,
-        is ``travel_mm`` (never decreasing) -- the summed path of the measured tool runs ahead
-        of the seam coordinate on an arm whose tool point jitters across the seam."""
-        moved_mm = 0.0
-        if self.last_tool is not None:
-            d = tool - self.last_tool
-            moved_mm = math.sqrt(float(d.dot(d)))  # np.linalg.norm(d), without its overhead
-            self.path_mm += moved_mm
-        self.last_tool = tool
-        if progress_mm is None:
-            progress_mm = self._chord_travel(tool)
-        self.travel_mm = max(self.travel_mm, float(progress_mm))
-        if guard_runaway and self.p.runaway_factor > 0:
-            cycles = max(1.0, elapsed_cycles)
-            self.recent.append((moved_mm, cycles))
-            self._recent_mm.append(moved_mm)
-            self._recent_cycles.append(cycles)
-            moved = sum(self._recent_mm)
-            limit_mm = max(self.p.runaway_factor * self.p.step_mm * sum(self._recent_cycles), RUNAWAY_MIN_MM)
-            if moved > limit_mm:
-                return STOP_RUNAWAY, f"the tool moved {moved:.1f} mm in {len(self.recent)} cycles " \
-                                     f"(limit {limit_mm:.1f} mm)"
-        if self.travel_mm >= self.p.length_mm:
-            return STOP_END, f"run length {self.p.length_mm:g} mm reached"
-        return None
-
-    def _chord_travel(self, tool) -> float:
-        """The tool's path in chords of TRAVEL_CHORD_MM to ``tool`` [mm] (see the class)."""
-        if self.chord_end is None:
-            self.chord_end = np.array(tool, float)
-            return 0.0
-        d = tool - self.chord_end
-        open_mm = math.sqrt(float(d.dot(d)))
-        if open_mm >= TRAVEL_CHORD_MM:
-            self.chords_mm += open_mm
-            self.chord_end = np.array(tool, float)
-            open_mm = 0.0
-        return self.chords_mm + open_mm
-
-
-class SeamPatch:
-    """The seam patch's positions (x, y, z) [mm], index 0 the newest (thesis §5.2: the seam from
-    below the camera back to the tool tip): the list of tuples the listing's walk reads
-    (``len``, ``patch[i]``), and the same values as one float64 array ``array`` (n x 3), kept
-    beside it as points arrive and leave, so thesis mode's search over the whole patch does not
-    convert the list every cycle (issue 28 item 2; the same values, the same bits).
-
-    The array is a view into a buffer with room in front of the newest point, so a push writes
-    one row instead of copying the patch; beside it each segment j (``array[j+1]`` ->
-    ``array[j]``, its vector ``array[j] - array[j+1]`` [mm]) keeps the numbers the search
-    divides by, computed once when the segment arrives (:meth:`segments`)."""
-
-    __slots__ = ("points", "_buf", "_seg", "_den", "_ok", "_head", "_n")
-
-    ROOM_ROWS = 1024  # the fewest free rows in front of the newest point after a reallocation
-
-    def __init__(self, points=()) -> None:
-        self.points = [tuple(p) for p in points]
-        self._place(np.array(self.points, float).reshape(-1, 3))
-
-    def _place(self, arr: np.ndarray) -> None:
-        """Copy ``arr`` (n x 3, newest first) into fresh buffers with room in front; the
-        segments' numbers are computed for the whole patch at once."""
-        n = len(arr)
-        head = max(n, self.ROOM_ROWS)
-        self._buf = np.empty((head + n, 3))
-        self._buf[head:] = arr
-        self._seg = np.empty((head + n, 3))
-        self._den = np.empty(head + n)
-        self._ok = np.empty(head + n, bool)
-        self._head, self._n = head, n
-        if n > 1:
-            self._segments_from(head, n - 1)
-
-    def _segments_from(self, i: int, m: int) -> None:
-        """Segments ``i .. i+m-1`` of the buffers: vector, squared length's guard and divisor
-        (np.einsum's per-row sums are the same bits for one row as for many)."""
-        buf, seg = self._buf, self._seg[i:i + m]
-        np.subtract(buf[i:i + m], buf[i + 1:i + m + 1], out=seg)
-        l2 = c_einsum("ij,ij->i", seg, seg)
-        ok = l2 > 1e-18
-        self._ok[i:i + m] = ok
-        self._den[i:i + m] = np.where(ok, l2, 1.0)
-
-    @property
-    def array(self) -> np.ndarray:
-        """The positions [mm] (n x 3, index 0 newest): a view, which later pushes and cuts leave as it is."""
-        h = self._head
-        return self._buf[h:h + self._n]
-
-    def segments(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Per segment j (from ``array[j+1]`` to ``array[j]``): the vector [mm] (n-1 x 3), the
-        divisor (its squared length [mm^2], 1.0 where that is <= 1e-18) and whether it is > 1e-18."""
-        h, m = self._head, self._n - 1
-        return self._seg[h:h + m], self._den[h:h + m], self._ok[h:h + m]
-
-    def push_front(self, point: tuple) -> None:
-        """The newest position becomes index 0."""
-        self.points.insert(0, point)
-        if self._head == 0:
-            self._place(self.array.copy())
-        h = self._head = self._head - 1
-        self._buf[h] = point
-        self._n += 1
-        if self._n > 1:
-            self._segments_from(h, 1)
-
-    def keep(self, n: int) -> None:
-        """Drop everything from index ``n`` on (the oldest)."""
-        del self.points[n:]
-        self._n = len(self.points)
-
-    def __len__(self) -> int:
-        return len(self.points)
-
-    def __getitem__(self, i):
-        return self.points[i]
+    q_tool_deg: np.ndarray | None = None  # the tool robot's joints [deg] for tool_cmd (None without a model)
 
 
 @dataclass
@@ -425,16 +113,7 @@ class _State:
         return self.travel.travel_mm
 
 
-def hinted_ik(model: RobotModel | None, T_wcp, q_prev) -> np.ndarray | None:
-    """The arm's joints [deg] for the wrist-centre pose ``T_wcp``: the solution nearest ``q_prev``
-    (the last cycle's; zeros before the first), None without a model.  Raises Unreachable or
-    ValueError where there is none."""
-    if model is None:
-        return None
-    return model.ik(T_wcp, q_prev if q_prev is not None else np.zeros(6))
-
-
-def mount(tracker, params: SeamParams, T_wcp_tool, T_wcp_sensor, reis_model: RobotModel | None) -> None:
+def mount(tracker, params: SeamParams, T_wcp_tool, T_wcp_sensor, tool_model: RobotModel | None) -> None:
     """What every tracker core (thesis, listing, plus) keeps of its set-up: the parameters,
     the tool and sensor transforms on the Reis wrist [mm], the camera-to-tool distance [mm],
     the Reis model for reachability and the transport-delay buffer (§5.5)."""
@@ -445,7 +124,7 @@ def mount(tracker, params: SeamParams, T_wcp_tool, T_wcp_sensor, reis_model: Rob
     tracker.camera_to_tcp_mm = float(np.linalg.norm(tracker.Tcamera_6[:3, 3] - tracker.T67tool[:3, 3]))
     if not tracker.camera_to_tcp_mm > 0:
         raise ValueError("the sensor's measuring point coincides with the tool point")
-    tracker.reis_model = reis_model
+    tracker.tool_model = tool_model
     tracker.delay = TransportDelay(params.delay_cycles, params.delay_at_mm)
 
 
@@ -453,19 +132,19 @@ class SeamTracker:
     """The seamtrack core (see the module docstring).
 
     ``T_wcp_tool``: ``(Reis)6 T tool`` (the listing's T67tool);
-    ``T_wcp_sensor``: ``(Reis)6 T sensor`` (Tcamera_6); ``reis_model``: the
+    ``T_wcp_sensor``: ``(Reis)6 T sensor`` (Tcamera_6); ``tool_model``: the
     Reis robot model *with its base* (commands are global), used to refuse an
     unreachable command before it is sent (None: no check).
     """
 
-    def __init__(self, params: SeamParams, T_wcp_tool, T_wcp_sensor, reis_model: RobotModel | None = None):
-        mount(self, params, T_wcp_tool, T_wcp_sensor, reis_model)
+    def __init__(self, params: SeamParams, T_wcp_tool, T_wcp_sensor, tool_model: RobotModel | None = None):
+        mount(self, params, T_wcp_tool, T_wcp_sensor, tool_model)
         self.s = _State(dead_zone=params.dead_zone_cycles, travel=TravelGuard(params))
         # the listing's globals
         self.T06hold = np.eye(4)  # global T (GMF1)6
         self.T6tool_hold = np.eye(4)  # (GMF1)6 T (Reis)6
         self.Ttool7_hold = np.eye(4)  # (GMF1)6 T tool
-        self.Tmvs = np.eye(4)  # sensor T seam
+        self.T_sensor_seam = np.eye(4)  # sensor T seam (the listing's Tmvs)
         self._hold_inv_key, self._hold_inv = None, None  # global T (GMF1)6 (bytes) and its inverse
         self._T6tool_hold_sensed = None  # (GMF1)6 T (Reis)6 when the reading was taken (None: now)
         self._sensed_inv_key, self._sensed_inv = None, None  # the holder's sensed pose (bytes), its inverse
@@ -476,7 +155,7 @@ class SeamTracker:
         self.T06hold = np.asarray(T_global_hold6, float)
         return self.T06hold
 
-    def tool_robot_wcp_wrt_holder(self, T_global_reis6) -> np.ndarray:
+    def tool_robot_wcp_wrt_holder(self, T_global_tool6) -> np.ndarray:
         """Eq. 5.10: the Reis wrist centre w.r.t. the GMF1's, ``(GMF1)6 T (Reis)6``.
 
         ``(global T (GMF1)0 (GMF1)0 T 6)^-1  global T (Reis)0 (Reis)0 T 6``; the
@@ -485,7 +164,7 @@ class SeamTracker:
         key = self.T06hold.tobytes()  # the holder usually stands still: invert a new pose only
         if key != self._hold_inv_key:
             self._hold_inv_key, self._hold_inv = key, inv_homo(self.T06hold)
-        self.T6tool_hold = self._hold_inv @ np.asarray(T_global_reis6, float)
+        self.T6tool_hold = self._hold_inv @ np.asarray(T_global_tool6, float)
         return self.T6tool_hold
 
     def toolpt_wrt_holder(self) -> np.ndarray:
@@ -499,7 +178,7 @@ class SeamTracker:
         ``(GMF1)6 T seam = (GMF1)6 T (Reis)6  (Reis)6 T sensor  sensor T seam  Tpitch  Tyaw``
         with yaw = -(y / CAMERA_TO_TCP) k_yaw about x and pitch = (x /
         CAMERA_TO_TCP) k_pitch about y.  The sensor is not read during the
-        dead zone (``Tmvs`` stays as it was: the identity).  Returns (yaw,
+        dead zone (``T_sensor_seam`` stays as it was: the identity).  Returns (yaw,
         pitch) [rad].
         """
         s = self.s
@@ -511,12 +190,12 @@ class SeamTracker:
             s.dead_zone -= 1
         else:
             s.dead_zone = 0
-            self.Tmvs = _seam_transform(reading)
+            self.T_sensor_seam = _seam_transform(reading)
         L = self.camera_to_tcp_mm
-        yaw = -(self.Tmvs[1, 3] / L) * self.p.yaw_gain
-        pitch = (self.Tmvs[0, 3] / L) * self.p.pitch_gain
+        yaw = -(self.T_sensor_seam[1, 3] / L) * self.p.yaw_gain
+        pitch = (self.T_sensor_seam[0, 3] / L) * self.p.pitch_gain
         T6tool_hold = self.T6tool_hold if self._T6tool_hold_sensed is None else self._T6tool_hold_sensed
-        frame = T6tool_hold @ self.Tcamera_6 @ self.Tmvs @ roty(pitch) @ rotx(yaw)
+        frame = T6tool_hold @ self.Tcamera_6 @ self.T_sensor_seam @ roty(pitch) @ rotx(yaw)
         # rotating the seam queue: seam[i+1] = seam[i] for i = tcp_idx .. 0, seam[0] = newest
         s.seam_pos.push_front((float(frame[0, 3]), float(frame[1, 3]), float(frame[2, 3])))
         s.seam_front = frame
@@ -647,27 +326,27 @@ class SeamTracker:
             self.s.hold_cmd = self.T06hold.copy()
         return self.s.hold_cmd
 
-    def write_robot_cmd(self, reis_cmd, gmf1_cmd, **fields) -> CycleOutput:
+    def write_robot_cmd(self, tool_cmd, hold_cmd, **fields) -> CycleOutput:
         """Both robot commands of this cycle, as the shell writes them (cart commands, one cycle long)."""
-        return CycleOutput(reis_cmd=reis_cmd, gmf1_cmd=gmf1_cmd, **fields)
+        return CycleOutput(tool_cmd=tool_cmd, hold_cmd=hold_cmd, **fields)
 
     # ------------------------------------------------------------ one cycle
     @property
     def stopped(self) -> TrackingStop | None:
         return self.s.stop
 
-    def step(self, T_global_hold6, T_global_reis6, reading: Reading, q_reis_deg=None,
-             elapsed_cycles: float = 1.0, T_global_reis6_sensed=None, T_global_hold6_sensed=None) -> CycleOutput:
+    def step(self, T_global_hold6, T_global_tool6, reading: Reading, q_tool_deg=None,
+             elapsed_cycles: float = 1.0, T_global_tool6_sensed=None, T_global_hold6_sensed=None) -> CycleOutput:
         """One 30 Hz cycle.
 
-        ``T_global_hold6``, ``T_global_reis6``: the GMF1 and Reis wrist-centre
+        ``T_global_hold6``, ``T_global_tool6``: the GMF1 and Reis wrist-centre
         poses (4x4, mm, global, from their Status records); ``reading``: the
-        lead sensor's reading (invalid -> zeros); ``q_reis_deg``: the Reis's
+        lead sensor's reading (invalid -> zeros); ``q_tool_deg``: the Reis's
         joint angles [deg] (the first cycle's IK hint; later the previous
         pick is used, as the planner does); ``elapsed_cycles``: how many
         cycles of time lie between this Reis pose and the last one (a late
         Status counts more than one: the runaway guard scales with it);
-        ``T_global_reis6_sensed``: the Reis pose when the sensor took the
+        ``T_global_tool6_sensed``: the Reis pose when the sensor took the
         reading (eq. 5.3 places the reading with the camera pose of its own
         instant; a real-time shell whose readings arrive later than the pose
         passes the pose of the reading's time -- an addition; None: the
@@ -680,14 +359,14 @@ class SeamTracker:
         if s.stop is not None:
             return self._stopped_output(cycle)
         self.holder_robot_wcp(T_global_hold6)
-        self.tool_robot_wcp_wrt_holder(T_global_reis6)
+        self.tool_robot_wcp_wrt_holder(T_global_tool6)
         self.toolpt_wrt_holder()
         tool = self.Ttool7_hold[:3, 3].copy()
         stop = s.travel.step(tool, elapsed_cycles, guard_runaway=s.dead_zone == 0)  # (the arm may settle first)
         if stop:
             return self._stop(cycle, *stop)
-        if s.q_prev is None and q_reis_deg is not None:
-            s.q_prev = np.asarray(q_reis_deg, float)
+        if s.q_prev is None and q_tool_deg is not None:
+            s.q_prev = np.asarray(q_tool_deg, float)
 
         in_dead_zone = s.dead_zone > 0
         if not reading.valid:
@@ -698,22 +377,22 @@ class SeamTracker:
             if s.invalid_run > self.p.lost_cycles:
                 return self._stop(cycle, STOP_LOST, f"lead sensor invalid for {s.invalid_run} cycles")
         hold_inv = self._hold_inv if T_global_hold6_sensed is None else self._sensed_hold_inv(T_global_hold6_sensed)
-        self._T6tool_hold_sensed = None if T_global_reis6_sensed is None else \
-            hold_inv @ np.asarray(T_global_reis6_sensed, float)
+        self._T6tool_hold_sensed = None if T_global_tool6_sensed is None else \
+            hold_inv @ np.asarray(T_global_tool6_sensed, float)
         yaw, pitch = self.update_seam_wrt_holder(used)
         target = self.interpolate(self.p.step_mm)
-        reis_cmd = self.gen_tool_robot_wcp(target)
+        tool_cmd = self.gen_tool_robot_wcp(target)
         try:
-            q = hinted_ik(self.reis_model, reis_cmd, s.q_prev)
+            q = hinted_ik(self.tool_model, tool_cmd, s.q_prev)
         except (Unreachable, ValueError) as exc:
             return self._stop(cycle, STOP_UNREACHABLE, str(exc))
         if q is not None:
             s.q_prev = q
         phase = PHASE_DEAD_ZONE if in_dead_zone else (PHASE_TRACKING if s.initial_done else PHASE_INITIAL)
         return self.write_robot_cmd(
-            reis_cmd, self.gen_hold_robot_wcp(), cycle=cycle, stop=None, phase=phase,
+            tool_cmd, self.gen_hold_robot_wcp(), cycle=cycle, stop=None, phase=phase,
             travel_mm=s.travel_mm, yaw_rad=yaw, pitch_rad=pitch, reading=used, delay_state=delay_state,
-            tcp_idx=s.tcp_idx, queue_len=len(s.seam_pos), q_reis_deg=q)
+            tcp_idx=s.tcp_idx, queue_len=len(s.seam_pos), q_tool_deg=q)
 
     def _sensed_hold_inv(self, T_global_hold6_sensed) -> np.ndarray:
         """The inverse of the holder's pose at the reading's instant: a holder at rest gives the
@@ -737,7 +416,7 @@ class SeamTracker:
 
     def _stopped_output(self, cycle: int) -> CycleOutput:
         s = self.s
-        return CycleOutput(cycle=cycle, reis_cmd=None, gmf1_cmd=None, stop=s.stop, phase=PHASE_TRACKING,
+        return CycleOutput(cycle=cycle, tool_cmd=None, hold_cmd=None, stop=s.stop, phase=PHASE_TRACKING,
                            travel_mm=s.travel_mm, yaw_rad=0.0, pitch_rad=0.0, reading=INVALID_READING,
                            delay_state=DELAY_OFF, tcp_idx=s.tcp_idx, queue_len=len(s.seam_pos))
 

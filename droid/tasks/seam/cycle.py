@@ -58,7 +58,9 @@ import numpy as np
 from droid.brain.layouts import FAULTS_CANNOT_MOVE, fault_names
 from droid.brain.sensor_line import seam_transform
 from droid.kinematics.transforms import EYE4
-from droid.tasks.seam.core import MODE_PLUS, STOP_FAULT, CycleOutput, SeamParams, SeamTracker, TrackingStop
+from droid.tasks.seam.core import CycleOutput, SeamTracker
+from droid.tasks.seam.params import MODE_PLUS, SeamParams
+from droid.tasks.seam.stops import STOP_FAULT, TrackingStop
 from droid.tasks.seam.delay import INVALID_READING, Reading
 
 _EYE3 = np.eye(3)
@@ -216,7 +218,7 @@ class PlacedTool:
     measured seam point in the holder's wrist-centre frame [mm]."""
 
     tick: float
-    T_global_reis6: np.ndarray
+    T_global_tool6: np.ndarray
     T_global_hold6: np.ndarray
     travel_mm: float
     seam_in_hold_mm: np.ndarray
@@ -231,7 +233,7 @@ class TrackingCycle:
     :meth:`log_due` says so it logs a row.
     """
 
-    def __init__(self, params: SeamParams, T_wcp_tool, T_wcp_sensor, reis_model=None,
+    def __init__(self, params: SeamParams, T_wcp_tool, T_wcp_sensor, tool_model=None,
                  heartbeat_hz: float = 60.0, sensor_lag_ticks: float = SENSOR_LAG_TICKS,
                  status_age_ticks: float = STATUS_AGE_TICKS) -> None:
         self.heartbeat_hz = float(heartbeat_hz)
@@ -243,10 +245,10 @@ class TrackingCycle:
         if params.mode == MODE_PLUS:
             from droid.tasks.seam.plus import PlusTracker
 
-            self.core = PlusTracker(params, T_wcp_tool, T_wcp_sensor, reis_model)
+            self.core = PlusTracker(params, T_wcp_tool, T_wcp_sensor, tool_model)
         else:
-            self.core = SeamTracker(params, T_wcp_tool, T_wcp_sensor, reis_model)
-        self.reis_poses = PoseHistory()
+            self.core = SeamTracker(params, T_wcp_tool, T_wcp_sensor, tool_model)
+        self.tool_poses = PoseHistory()
         self.hold_poses = PoseHistory()
         self.dropped = 0  # readings whose instant lies outside the pose history (or in the future)
         self.tool_dropped = 0  # tool-tip readings likewise (place_tool)
@@ -284,11 +286,11 @@ class TrackingCycle:
         return False
 
     # -- the pose histories ----------------------------------------------------
-    def remember(self, reis_tick: int, T_global_reis6, hold_tick: int | None = None, T_global_hold6=None) -> None:
+    def remember(self, tool_tick: int, T_global_tool6, hold_tick: int | None = None, T_global_hold6=None) -> None:
         """Keep the Reis (and GMF1) Status poses under the times they show the arm at."""
-        self.reis_poses.add(reis_tick - self.status_age_ticks, T_global_reis6)
+        self.tool_poses.add(tool_tick - self.status_age_ticks, T_global_tool6)
         if T_global_hold6 is not None:
-            self.hold_poses.add((reis_tick if hold_tick is None else hold_tick) - self.status_age_ticks,
+            self.hold_poses.add((tool_tick if hold_tick is None else hold_tick) - self.status_age_ticks,
                                 T_global_hold6)
 
     def capture_tick(self, status_tick: int, stamp_tick: float | None = None) -> float:
@@ -300,10 +302,10 @@ class TrackingCycle:
         or None -- the reading dropped and counted -- when that instant lies in the future or
         before the history.  A GMF1 without a history: None in its place (the current pose)."""
         t_c = reading.stamp_tick
-        if t_c is None or not len(self.reis_poses):
+        if t_c is None or not len(self.tool_poses):
             return (None, None)
-        sensed = self.reis_poses.at(t_c)
-        newest_t, newest_T = self.reis_poses.newest
+        sensed = self.tool_poses.at(t_c)
+        newest_t, newest_T = self.tool_poses.newest
         if sensed is None and newest_t < t_c <= newest_t + self.status_age_ticks + 0.5:
             sensed = newest_T  # newer than the newest Status shows: the newest pose
         if sensed is None:
@@ -327,11 +329,11 @@ class TrackingCycle:
             return None
         return self.core.halt(STOP_FAULT, detail)
 
-    def step(self, T_global_hold6, T_global_reis6, reis_tick: int, reading: Reading, reading_status_tick: int,
-             q_reis_deg=None) -> CycleOutput:
+    def step(self, T_global_hold6, T_global_tool6, tool_tick: int, reading: Reading, reading_status_tick: int,
+             q_tool_deg=None) -> CycleOutput:
         """One tracking cycle: the reading placed with the poses of its instant, the core stepped."""
-        elapsed = 1.0 if self._status_tick is None else max(1.0, (reis_tick - self._status_tick) / self.cycle_ticks)
-        self._status_tick = reis_tick
+        elapsed = 1.0 if self._status_tick is None else max(1.0, (tool_tick - self._status_tick) / self.cycle_ticks)
+        self._status_tick = tool_tick
         sensed = sensed_hold = None
         if reading.valid:
             reading = stamped(reading, self.capture_tick(reading_status_tick, reading.stamp_tick))
@@ -341,11 +343,11 @@ class TrackingCycle:
                     reading = INVALID_READING
                 else:
                     sensed, sensed_hold = located
-        out = self.core.step(T_global_hold6, T_global_reis6, reading, q_reis_deg, elapsed_cycles=elapsed,
-                             T_global_reis6_sensed=sensed, T_global_hold6_sensed=sensed_hold,
+        out = self.core.step(T_global_hold6, T_global_tool6, reading, q_tool_deg, elapsed_cycles=elapsed,
+                             T_global_tool6_sensed=sensed, T_global_hold6_sensed=sensed_hold,
                              **({"locate": self.locate} if self.params.mode == MODE_PLUS else {}))
         self.last = out
-        self.travel.add(reis_tick - self.status_age_ticks, out.travel_mm)
+        self.travel.add(tool_tick - self.status_age_ticks, out.travel_mm)
         return out
 
     # -- the tool-tip sensor (measuring only) ------------------------------------
@@ -357,12 +359,12 @@ class TrackingCycle:
         if not reading.valid:
             return None
         t_c = self.capture_tick(status_tick, reading.stamp_tick)
-        T_reis = self.reis_poses.at(t_c)
-        if T_reis is None and len(self.reis_poses):
-            newest_t, newest_T = self.reis_poses.newest
+        T_tool = self.tool_poses.at(t_c)
+        if T_tool is None and len(self.tool_poses):
+            newest_t, newest_T = self.tool_poses.newest
             if newest_t < t_c <= newest_t + self.status_age_ticks + 0.5:
-                T_reis = newest_T  # newer than the newest Status shows: the newest pose
-        if T_reis is None:
+                T_tool = newest_T  # newer than the newest Status shows: the newest pose
+        if T_tool is None:
             self.tool_dropped += 1
             return None
         T_hold = self.hold_poses.at(t_c) if len(self.hold_poses) else None
@@ -371,7 +373,7 @@ class TrackingCycle:
         key = T_hold.tobytes()  # the holder usually stands still: invert a new pose only (the same bits)
         if key != self._tool_inv_key:
             self._tool_inv_key, self._tool_inv = key, np.linalg.inv(T_hold)
-        T_seam = self._tool_inv @ T_reis @ np.asarray(T_wcp_tool, float) @ seam_transform(
+        T_seam = self._tool_inv @ T_tool @ np.asarray(T_wcp_tool, float) @ seam_transform(
             reading.x_mm, reading.y_mm, reading.roll_rad)
-        return PlacedTool(tick=t_c, T_global_reis6=T_reis, T_global_hold6=T_hold, travel_mm=self.travel.at(t_c),
+        return PlacedTool(tick=t_c, T_global_tool6=T_tool, T_global_hold6=T_hold, travel_mm=self.travel.at(t_c),
                           seam_in_hold_mm=T_seam[:3, 3].copy())

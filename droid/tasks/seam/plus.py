@@ -42,9 +42,11 @@ import numpy as np
 
 from droid.kinematics import RobotModel, Unreachable
 from droid.kinematics.transforms import inv_homo
-from droid.tasks.seam.core import (hinted_ik, mount, PHASE_DEAD_ZONE, PHASE_INITIAL, PHASE_TRACKING, TravelGuard,
-                                   STOP_LOST, STOP_UNREACHABLE,
-                                   CycleOutput, SeamParams, TrackingStop, _seam_transform)
+from droid.tasks.seam.core import CycleOutput, _seam_transform, mount
+from droid.tasks.seam.guard import TravelGuard
+from droid.tasks.seam.ik import hinted_ik
+from droid.tasks.seam.params import PHASE_DEAD_ZONE, PHASE_INITIAL, PHASE_TRACKING, SeamParams
+from droid.tasks.seam.stops import STOP_LOST, STOP_UNREACHABLE, TrackingStop
 from droid.tasks.seam.compliance import StaticDeflection
 from droid.tasks.seam.delay import DELAY_OFF, INVALID_READING, Reading
 from droid.tasks.seam.seammap import SeamMap, chord_point
@@ -69,8 +71,8 @@ AIM_RATE_RAD = math.radians(3.0)
 class PlusTracker:
     """The plus-mode core; the same ``step`` interface as :class:`SeamTracker` (see the module docstring)."""
 
-    def __init__(self, params: SeamParams, T_wcp_tool, T_wcp_sensor, reis_model: RobotModel | None = None):
-        mount(self, params, T_wcp_tool, T_wcp_sensor, reis_model)
+    def __init__(self, params: SeamParams, T_wcp_tool, T_wcp_sensor, tool_model: RobotModel | None = None):
+        mount(self, params, T_wcp_tool, T_wcp_sensor, tool_model)
         self.map = SeamMap(gap_mm=params.gap_mm)
         self.cycle = 0
         self.s_cmd = 0.0  # commanded arc length along the map [mm]
@@ -86,8 +88,8 @@ class PlusTracker:
         self.z_aim: np.ndarray | None = None  # the smoothed travel axis (the sensor's aim), holder frame
         self.aim_rate = 0.0  # its turn about the tool axis per cycle [rad]
         self.defl = None  # the drives' static deflection (params.compliance and a robot file with [dynamics])
-        if params.compliance and reis_model is not None:
-            d = StaticDeflection(reis_model)
+        if params.compliance and tool_model is not None:
+            d = StaticDeflection(tool_model)
             self.defl = d if d.active else None
 
     @property
@@ -110,7 +112,7 @@ class PlusTracker:
         return self._stopped_output(cycle)
 
     def _stopped_output(self, cycle: int) -> CycleOutput:
-        return CycleOutput(cycle=cycle, reis_cmd=None, gmf1_cmd=None, stop=self.stop, phase=PHASE_TRACKING,
+        return CycleOutput(cycle=cycle, tool_cmd=None, hold_cmd=None, stop=self.stop, phase=PHASE_TRACKING,
                            travel_mm=self.travel_mm, yaw_rad=0.0, pitch_rad=0.0, reading=INVALID_READING,
                            delay_state=DELAY_OFF, tcp_idx=0, queue_len=self.map.size)
 
@@ -121,10 +123,10 @@ class PlusTracker:
         if self.defl is None:
             return T
         try:
-            q_m = hinted_ik(self.reis_model, T, self.q_prev)
+            q_m = hinted_ik(self.tool_model, T, self.q_prev)
         except (Unreachable, ValueError):
             return T
-        return self.reis_model.fk(self.defl.link_deg(q_m))
+        return self.tool_model.fk(self.defl.link_deg(q_m))
 
     def _smooth_aim(self, z: np.ndarray, x: np.ndarray) -> np.ndarray:
         """The travel axis toward the sensor's aim point ``z``, smoothed in the plane normal to
@@ -145,8 +147,8 @@ class PlusTracker:
         self.z_aim = out
         return out
 
-    def step(self, T_global_hold6, T_global_reis6, reading: Reading, q_reis_deg=None, elapsed_cycles: float = 1.0,
-             T_global_reis6_sensed=None, T_global_hold6_sensed=None, locate=None) -> CycleOutput:
+    def step(self, T_global_hold6, T_global_tool6, reading: Reading, q_tool_deg=None, elapsed_cycles: float = 1.0,
+             T_global_tool6_sensed=None, T_global_hold6_sensed=None, locate=None) -> CycleOutput:
         """One 30 Hz cycle (see the module docstring); ``locate(reading)`` gives the (Reis, GMF1)
         global poses of the reading's capture instant or None (dropped); without it the sensed
         poses passed (or the current ones) are used."""
@@ -156,8 +158,8 @@ class PlusTracker:
             return self._stopped_output(cycle)
         T_hold = np.asarray(T_global_hold6, float)
         hold_inv = inv_homo(T_hold)
-        T_global_reis6 = self._link_pose(T_global_reis6)
-        T_tool_H = hold_inv @ np.asarray(T_global_reis6, float) @ self.T67tool  # eq. 5.10, 5.5
+        T_global_tool6 = self._link_pose(T_global_tool6)
+        T_tool_H = hold_inv @ np.asarray(T_global_tool6, float) @ self.T67tool  # eq. 5.10, 5.5
         tool = T_tool_H[:3, 3].copy()
         in_dead_zone = cycle < self.p.dead_zone_cycles
         if self.map.size == 0:  # the initial straight section: from the tool's start point (§6.1.1)
@@ -169,11 +171,11 @@ class PlusTracker:
         stop = self.travel.step(tool, elapsed_cycles, guard_runaway=not in_dead_zone, progress_mm=self.s_tool)
         if stop:
             return self._stop(cycle, *stop)
-        if self.q_prev is None and q_reis_deg is not None:
-            self.q_prev = np.asarray(q_reis_deg, float)
+        if self.q_prev is None and q_tool_deg is not None:
+            self.q_prev = np.asarray(q_tool_deg, float)
 
-        used, delay_state = self._map_reading(reading, locate, T_global_reis6, hold_inv,
-                                              (T_global_reis6_sensed, T_global_hold6_sensed))
+        used, delay_state = self._map_reading(reading, locate, T_global_tool6, hold_inv,
+                                              (T_global_tool6_sensed, T_global_hold6_sensed))
         if not used.zeroed and not in_dead_zone:
             self.invalid_run = 0 if used.valid else self.invalid_run + 1
             if self.invalid_run > self.p.lost_cycles:
@@ -184,24 +186,24 @@ class PlusTracker:
                                                 f"(map ends at {self.map.front_s:.1f} mm)")
         self._depth_integral(tool, in_dead_zone)
         T_target, aim_rad = self._tool_frame(f)
-        reis_cmd = T_hold @ T_target @ self.T67tool_inv  # eq. 5.11
+        tool_cmd = T_hold @ T_target @ self.T67tool_inv  # eq. 5.11
         try:
-            q = hinted_ik(self.reis_model, reis_cmd, self.q_prev)
+            q = hinted_ik(self.tool_model, tool_cmd, self.q_prev)
         except (Unreachable, ValueError) as exc:
             return self._stop(cycle, STOP_UNREACHABLE, str(exc))
         if q is not None:
             if self.defl is not None:  # the motor angles that put the deflected links there
                 q = self.defl.motor_deg(q)
-                reis_cmd = self.reis_model.fk(q)
+                tool_cmd = self.tool_model.fk(q)
             self.q_prev = q
         first = self.map.first_reading_s
         phase = PHASE_DEAD_ZONE if in_dead_zone else (
             PHASE_TRACKING if first is not None and self.s_cmd >= first else PHASE_INITIAL)
-        return CycleOutput(cycle=cycle, reis_cmd=reis_cmd, gmf1_cmd=self.hold_cmd, stop=None, phase=phase,
+        return CycleOutput(cycle=cycle, tool_cmd=tool_cmd, hold_cmd=self.hold_cmd, stop=None, phase=phase,
                            travel_mm=self.travel_mm, yaw_rad=aim_rad, pitch_rad=0.0, reading=used,
-                           delay_state=delay_state, tcp_idx=0, queue_len=self.map.size, q_reis_deg=q)
+                           delay_state=delay_state, tcp_idx=0, queue_len=self.map.size, q_tool_deg=q)
 
-    def _map_reading(self, reading: Reading, locate, T_global_reis6, hold_inv, sensed):
+    def _map_reading(self, reading: Reading, locate, T_global_tool6, hold_inv, sensed):
         """The reading, placed where it was taken: through the transport delay, then (when valid
         and its capture poses are known) its seam point and tangent added to the map (eq. 5.1/5.3).
         Returns the reading used and the delay's state."""
@@ -211,9 +213,9 @@ class PlusTracker:
         if not used.zeroed and used.valid:
             located = locate(used) if locate is not None else sensed
             if located is not None:
-                reis_s = T_global_reis6 if located[0] is None else self._link_pose(located[0])
+                tool_s = T_global_tool6 if located[0] is None else self._link_pose(located[0])
                 hold_s_inv = hold_inv if located[1] is None else inv_homo(np.asarray(located[1], float))
-                frame = hold_s_inv @ reis_s @ self.Tcamera_6 @ _seam_transform(used)  # eq. 5.1/5.3
+                frame = hold_s_inv @ tool_s @ self.Tcamera_6 @ _seam_transform(used)  # eq. 5.1/5.3
                 self.map.add(frame[:3, 3], frame[:3, 0])
                 self.used_readings += 1
         return used, delay_state

@@ -27,7 +27,8 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from droid.cli import BadInput
-from droid.tasks.seam.core import PHASE_DEAD_ZONE, PHASE_INITIAL, PHASE_TRACKING, STOP_LOST
+from droid.tasks.seam.params import PHASE_DEAD_ZONE, PHASE_INITIAL, PHASE_TRACKING
+from droid.tasks.seam.stops import STOP_LOST
 
 #: The columns every log has, in this order (issue 7), with their units in the names.
 REQUIRED_COLUMNS = ("s_mm", "lead_lateral_mm", "lead_depth_mm", "lead_roll_rad", "tool_lateral_mm",
@@ -197,7 +198,7 @@ def summarize(rows: Sequence[Sequence], *, trial_id: str = "", stop_reason: str 
     """RMS and max tool error after settling, and how and where the run ended (see the module docstring).
 
     ``stop_s_mm``: the seam length at which the run stopped; a ``stop_reason``
-    of "seam lost" (droid.tasks.seam.core.STOP_LOST) marks the seam as lost there.
+    of "seam lost" (droid.tasks.seam.stops.STOP_LOST) marks the seam as lost there.
     """
     settle = camera_to_tcp_mm + SETTLE_EXTRA_MM
     s = column(rows, "s_mm") if rows else np.zeros(0)

@@ -29,7 +29,8 @@ from typing import Callable
 
 import numpy as np
 
-from droid.tasks.seam.core import STOP_STALE, CycleOutput, TrackingStop
+from droid.tasks.seam.core import CycleOutput
+from droid.tasks.seam.stops import STOP_STALE, TrackingStop
 from droid.tasks.seam.cycle import TrackingCycle
 from droid.tasks.seam.delay import INVALID_READING, Reading
 
@@ -63,7 +64,7 @@ class ArmStatus:
 class StationOutput:
     """What one tick gives the shell to write."""
 
-    reis_cmd: np.ndarray | None = None  # cartesian command of the Reis, for cycle_ticks ticks
+    tool_cmd: np.ndarray | None = None  # cartesian command of the tool robot, for cycle_ticks ticks
     hold_cmd: np.ndarray | None = None  # the holder's (first cycle only)
     stop: TrackingStop | None = None  # why the run ends (the core's stop, a fault, a stale arm)
     log: bool = False  # a 10 Hz log row is due at this tick
@@ -91,7 +92,7 @@ class SeamtrackStation:
     def cycle_ticks(self) -> int:
         return self.cyc.cycle_ticks
 
-    def on_tick(self, tick: int, reis: ArmStatus, hold: ArmStatus,
+    def on_tick(self, tick: int, tool: ArmStatus, hold: ArmStatus,
                 lead: Callable[[], tuple[Reading, int]]) -> StationOutput:
         """One heartbeat tick: remember both poses, and when a cycle is due, run it.
 
@@ -99,23 +100,23 @@ class SeamtrackStation:
         it is called only when a cycle steps the core."""
         if self.done is not None:
             return StationOutput(stop=self.done)
-        if not reis.stale and not hold.stale:
-            self.cyc.remember(reis.tick, reis.pose, hold.tick, hold.pose)
+        if not tool.stale and not hold.stale:
+            self.cyc.remember(tool.tick, tool.pose, hold.tick, hold.pose)
         res = StationOutput()
         if (self.first_cycle_tick is None or tick >= self.first_cycle_tick) and self.cyc.due(tick):
-            res = self._cycle(tick, reis, hold, lead)
+            res = self._cycle(tick, tool, hold, lead)
             if res.stop is not None:
                 self.done = res.stop
                 return res
         res.log = (self.first_log_tick is None or tick >= self.first_log_tick) and self.cyc.log_due(tick)
         return res
 
-    def _cycle(self, tick: int, reis: ArmStatus, hold: ArmStatus, lead) -> StationOutput:
-        fault = self.cyc.check_faults([(a.name, a.fault) for a in (reis, hold) if a.fault is not None])
+    def _cycle(self, tick: int, tool: ArmStatus, hold: ArmStatus, lead) -> StationOutput:
+        fault = self.cyc.check_faults([(a.name, a.fault) for a in (tool, hold) if a.fault is not None])
         if fault is not None:
             return StationOutput(stop=fault)
-        stale = [a for a in (reis, hold) if a.stale]
-        if stale:  # no command this cycle: the Reis finishes its last step and waits
+        stale = [a for a in (tool, hold) if a.stale]
+        if stale:  # no command this cycle: the tool robot finishes its last step and waits
             if self.stale_since is None:
                 self.stale_since = tick
             if tick - self.stale_since > self.stale_grace_ticks:
@@ -125,10 +126,10 @@ class SeamtrackStation:
         self.stale_since = None
         reading, reading_tick = lead()
         self.lead = reading
-        joints = reis.joints_deg() if reis.joints_deg is not None else None
-        out = self.cyc.step(hold.pose, reis.pose, reis.tick, reading, reading_tick, joints)
+        joints = tool.joints_deg() if tool.joints_deg is not None else None
+        out = self.cyc.step(hold.pose, tool.pose, tool.tick, reading, reading_tick, joints)
         self.out = out
         if out.stop is not None:
             return StationOutput(stop=out.stop)
-        hold_cmd = out.gmf1_cmd if out.cycle == 0 else None  # gen_hold_robot_wcp: the holder keeps its pose
-        return StationOutput(reis_cmd=out.reis_cmd, hold_cmd=hold_cmd)
+        hold_cmd = out.hold_cmd if out.cycle == 0 else None  # gen_hold_robot_wcp: the holder keeps its pose
+        return StationOutput(tool_cmd=out.tool_cmd, hold_cmd=hold_cmd)
