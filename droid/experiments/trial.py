@@ -5,13 +5,13 @@ Composition on a :class:`droid.sim.lockstep.Scheduler` (60 Hz heartbeat):
 ====================  ===============  ==================================================
 what                  when             does
 ====================  ===============  ==================================================
-Reis arm              every tick       ``full`` (arm_full, the default: every Reis core + the
+Reis arm              every tick       ``full`` (sim.trial_cell.FullArm, the default: every Reis core + the
                                        plant twin, homed from its power-up pose first) or
                                        ``fast`` (sim.reis.fast_arm: planner + analytic servo).  With
                                        ``cell`` (a cell file): the cell's welder, its layout's
                                        tool_robot -- the Reis, or the ABB on EGM (droid-egm and
                                        its controller twin, sim.abb.lockstep; full only) --
-                                       and its holder (trial_cell)
+                                       and its holder (sim.trial_cell)
 GMF1                  its own rates    ``holder="gmf1"`` (default): the Fanuc twin (KAREL, its
                                        path, the arm of its robot file) and the GMF1 programs'
                                        cores (experiment.holder); homed and moved to the holding
@@ -60,8 +60,7 @@ from droid.cli import BadInput
 from droid.kinematics.transforms import inv_homo
 from droid.experiments import phases, seam_kernel
 from droid.sim.reis.fast_arm import FastArmParams
-from droid.experiments.geometry import TrialGeometry, trial_geometry
-from droid.experiments.trial_cell import resolve_trial_cell
+from droid.sim.trial_cell import TrialGeometry, resolve_trial_cell, trial_geometry
 from droid.experiments.sensors import DEFAULT_NOISE, SENSOR_MODELS, LeadSensor, ToolTipSensor, tool_reading
 from droid.sim.lockstep import ORDER_DEVICE, ORDER_TASK, ORDER_WORLD, Scheduler
 from droid.sim.mvs.camera import CameraNoise
@@ -205,7 +204,7 @@ class TrialConfig:
     latency_cycles: int = 0  # constant extra latency of every lead reading [30 Hz cycles] (stamped)
     holder: str = "gmf1"  # the workpiece holder: gmf1 (its controller and encoder path) or fixed
     tool_noise: bool = True  # the tool-tip sensor through the lead sensor's noise model (False: exact)
-    cell: str | None = None  # a cell file: its layout, welder and holder (droid.experiments.trial_cell);
+    cell: str | None = None  # a cell file: its layout, welder and holder (droid.sim.trial_cell);
     # None: the bundled layout, the Reis and the built-in cell's GMF1
 
     def __post_init__(self) -> None:
@@ -277,7 +276,7 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None,
     a trial the core has not ended times out (:class:`ProgressLimit`).
 
     The config is read here, once (thesis §6.1): the trial's cell, resolved and checked
-    (trial_cell.resolve_trial_cell; ``layout`` instead of its own), the geometry of the position,
+    (droid.sim.trial_cell.resolve_trial_cell; ``layout`` instead of its own), the geometry of the position,
     workpiece and wrist, the tracking core's parameters; from those values the welder and the
     holder are built on the cell, then the tracking cycle, the two sensors and the recorder;
     :class:`_LockstepTrial` runs the loop."""
@@ -290,7 +289,7 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None,
                         delay_cycles=cfg.delay_cycles, delay_at_mm=cfg.delay_at_mm,
                         mode=cfg.mode, compliance=cfg.arm == "full")  # the fast arm's drives are rigid
     sched = Scheduler(HEARTBEAT_HZ)
-    arm, holder = tc.build_arms(sched, geo, cfg.arm, cfg.seed, cfg.fast_params)
+    arm, holder = tc.build_arms(sched, geo, cfg.arm, cfg.seed, cfg.fast_params, phases.mark)
     cyc = _tracking_cycle(params, geo, cfg.trial_id)
     lead = LeadSensor(geo.workpiece, cfg.sensor, cfg.noise, seed=cfg.seed, frames_per_read=cyc.cycle_ticks)
     tool_sensor = ToolTipSensor(lead.crossing, cfg.noise if cfg.tool_noise else CameraNoise(), seed=cfg.seed)
