@@ -150,7 +150,7 @@ class _Checker:
     """Type and range checks of one plan's values; each failure names plan, key and value."""
 
     def __init__(self, source: str, plan_dir: Path, layout=None) -> None:
-        from droid.experiments.sensors import SENSOR_MODELS
+        from droid.sim.mvs.trial_sensors import SENSOR_MODELS
         from droid.experiments.trial import ARM_MODELS
         from droid.brain.cell_layout import load_layout
 

@@ -20,14 +20,14 @@ GMF1                  its own rates    ``holder="gmf1"`` (default): the Fanuc tw
                                        MOVE through KAREL at that velocity from the start.
                                        ``"fixed"``: the exact holding pose, drifting at
                                        ``holder_mm_s`` (no controller, no encoders)
-lead sensor           the tick before  the frame the next cycle reads (sensors.LeadSensor),
+lead sensor           the tick before  the frame the next cycle reads (sim.mvs.trial_sensors.LeadSensor),
                       each cycle       stamped with its capture tick; ``latency_cycles`` holds
                                        every reading back that many cycles; a frame that brings
                                        no line (droid-mvs's station: dropped, inside the retrace
                                        timeout) leaves the reading the Status holds
 tool-tip sensor       the tick before  the sample the next log row shows (the lead sensor's
-                      each log row     noise model, sensors.ToolTipSensor; the truth --
-                                       sensors.tool_reading -- gives the seam progress)
+                      each log row     noise model, trial_sensors.ToolTipSensor; the truth --
+                                       trial_sensors.tool_reading -- gives the seam progress)
 tracking cycle        every tick:      droid.tasks.seam.cycle.TrackingCycle -- the same code as
                       poses; every     droid-seamtrack: pose histories, cycle counting from the
                       cycle_ticks      heartbeat, the reading placed with the poses of its
@@ -61,7 +61,7 @@ from droid.kinematics.transforms import inv_homo
 from droid.experiments import phases, seam_kernel
 from droid.sim.reis.fast_arm import FastArmParams
 from droid.sim.trial_cell import TrialGeometry, resolve_trial_cell, trial_geometry
-from droid.experiments.sensors import DEFAULT_NOISE, SENSOR_MODELS, LeadSensor, ToolTipSensor, tool_reading
+from droid.sim.mvs.trial_sensors import DEFAULT_NOISE, SENSOR_MODELS, LeadSensor, ToolTipSensor, tool_reading
 from droid.sim.lockstep import ORDER_DEVICE, ORDER_TASK, ORDER_WORLD, Scheduler
 from droid.sim.mvs.camera import CameraNoise
 from droid.tasks.seam.core import (DEAD_ZONE_CYCLES, LOST_CYCLES, MODE_LISTING, MODE_THESIS, MODES, SeamParams,
@@ -96,7 +96,7 @@ class ProgressLimit:
     slip under Coulomb friction; docs/experiments.md), so that limit ended most slow-but-
     tracking trials.  Now two rules, either of which ends the trial as ``timeout``:
 
-    * **stall**: the tool's seam coordinate s (the truth's, ``sensors.tool_reading``) has
+    * **stall**: the tool's seam coordinate s (the truth's, ``trial_sensors.tool_reading``) has
       advanced less than ``min_progress_mm(speed)`` = min(``min_mm``, ``min_fraction`` x
       speed x ``window_s``) over the last ``window_s`` seconds of simulated time.  30 s and
       2 mm: the slowest progress of a tracking trial measured on the full arm is the thesis-mode
@@ -379,10 +379,11 @@ class _LockstepTrial:
         T_W_g = state["T_W_g"]
         if k % ct == ct - 1:  # the frame the next cycle reads (it reaches the Status next tick)
             T_true = self.arm.true_wcp()
-            r = self.lead.read(T_W_g @ T_true @ self.T_wcp_sensor)
-            if r is None:  # no line from this frame: the Status keeps the reading it holds
+            line = self.lead.read(T_W_g @ T_true @ self.T_wcp_sensor)
+            if line is None:  # no line from this frame: the Status keeps the reading it holds
                 in_flight.append(in_flight[-1] if in_flight else (state["lead"], state["lead_tick"]))
             else:
+                r = _reading(line)
                 if r.valid:
                     r = stamped(r, float(tick))  # the MVS world's frame stamp: its capture tick
                 in_flight.append((r, tick + 1))
@@ -488,6 +489,13 @@ def _tracking_cycle(params: SeamParams, geo: TrialGeometry, trial_id: str) -> Tr
         seam_kernel.use_on(cyc.core)
     seam_kernel.use_on_cycle(cyc)  # the pose histories' interpolation, compiled (the same bits)
     return cyc
+
+
+def _reading(line) -> Reading:
+    """The tracker's reading of the lead sensor's parsed line (droid.brain.sensor_line: a
+    LineReading, or Garbled), as the Brain's Status hands it on: invalid for ``invalid`` and for
+    a garbled line."""
+    return Reading(line.x_mm, line.y_mm, line.roll_rad, True) if line.valid else INVALID_READING
 
 
 def _row(t_s: float, lead: Reading, tool, out, L: float, s_of) -> tuple:
