@@ -302,7 +302,7 @@ def builtin_cell() -> Cell:
     return replace(load_cell(builtin_cell_path()), stale_ticks=LIVENESS_TICKS)
 
 
-# The full arm model (formerly the experiments' arm_full): every core of the real-time arm subunit.
+# The ``full`` arm model: every core of the real-time arm subunit (docs/experiments.md, "--arm").
 HOME_TIMEOUT_S = 60.0
 MOVE_S = 4.0  # the move from home to the start pose
 SETTLE_S = 1.0
@@ -310,6 +310,13 @@ SETTLE_S = 1.0
 
 class FullArm:
     """An arm subunit's cores on a scheduler, with the harness's arm interface.
+
+    The experiments' default arm model (issue 13 item 5): a trial first homes the arm (the Reis's
+    servo homing from its seeded power-up pose, thesis §4.1.5.3) and moves it to the start pose
+    with a joint command; then the seam-tracking core drives it with cartesian commands through
+    the Brain Command record, exactly as droid-seamtrack does.  Every repetition homes, so
+    experiment 4 measures repeatability; ~5-10x slower than the ``fast`` model
+    (droid.sim.reis.fast_arm; docs/benchmarks.md).
 
     ``arm``: the lockstep arm its package's builder built on ``sched`` -- a droid.arm.protocol.Arm that
     also shows the world's ``wcp_global`` (a builder declared with ``truth``: the Reis's
