@@ -36,7 +36,8 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 from droid.cli import ArgumentParser, BadInput, bounded_int, run, seed_int
-from droid.experiments import sensors, trial
+from droid.experiments import trial
+from droid.sim.mvs import trial_sensors as sensors
 from droid.sim.reis import fast_arm as arm_fast
 from droid.sim.mvs.camera import MvsCamera
 from droid.subunits.mvs.sensor import SensorCore

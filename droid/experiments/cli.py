@@ -31,7 +31,7 @@ a summary line on stdout.  Per table: ``DIR/<table>/summary.csv`` and
 (§6.2.6).  ``--realtime`` runs each trial, one after the other, on the
 real-time process cell (droid.experiments.realtime).  ``--cell FILE`` runs the
 lockstep trials on that cell file: its layout, welder and holder
-(droid.experiments.trial_cell; not with ``--realtime``).
+(droid.sim.trial_cell; not with ``--realtime``).
 
 Exit 0 when every trial ran (whatever its tracking outcome), 1 when a trial
 could not run (or the Dask scheduler does not answer), 2 on bad arguments or a
@@ -56,7 +56,7 @@ from droid.experiments import phases
 from droid.experiments.jobs import NO_MATPLOTLIB, Job, Outcome, is_contact, json_safe, run_and_store, run_job, store
 from droid.experiments.matrix import EXP4_RUNS, POSITION_LABELS, TABLES, experiments, resolve, valid_forms, with_seed
 from droid.experiments.plan import FIELDS, TRIAL_CONTACT, Plan, PlanTrial, load_plan
-from droid.experiments.sensors import SENSOR_MODELS
+from droid.sim.mvs.trial_sensors import SENSOR_MODELS
 from droid.experiments.trial import ARM_MODELS
 from droid.tasks.seam import report
 from droid.tasks.seam.params import MAX_RUN_LENGTH_MM, MODES
@@ -464,7 +464,7 @@ def _trial_cell(args, picked: list) -> str:
     """``--cell``: the cell file's path, checked for every trial's arm and holder model before any
     runs (a missing file, a layout naming a subunit the cell lacks, a welder without a lockstep:
     one line, exit 2)."""
-    from droid.experiments.trial_cell import resolve_cell_path, resolve_trial_cell
+    from droid.sim.trial_cell import resolve_cell_path, resolve_trial_cell
 
     if args.realtime:
         raise BadInput("--cell runs lockstep trials only: --realtime builds its own cell from the built-in one "

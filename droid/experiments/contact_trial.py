@@ -30,7 +30,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from droid.experiments import phases
-from droid.experiments.geometry import trial_geometry
+from droid.sim.trial_cell import trial_geometry
 from droid.kinematics.transforms import inv_homo, trans
 from droid.sim.contact import ToolContact
 from droid.sim.ft.lockstep import LockstepFt
@@ -148,7 +148,7 @@ def _tool_robot(sched: Scheduler, name: str, seed: int):
     cell file's default ``stale_ticks`` and no world device of the cell's (the trial brings its own
     workpiece contact): the Reis's :class:`~droid.sim.reis.cell.LockstepArm`, whose plant the
     contact pushes on (``attach_contact``) and whose wrench the F/T twin reads."""
-    from droid.experiments.trial_cell import builtin_cell
+    from droid.sim.trial_cell import builtin_cell
     from droid.sim.lockstep_cell import build_lockstep_cell
 
     return build_lockstep_cell(builtin_cell(), seed, world={}, sched=sched, subunits={name: None}).subunits[name].parts

@@ -34,7 +34,7 @@ Each trial's ID is a hash of its parameters (:func:`trial_id`), so it is the
 same whatever else the plan sweeps, which is what ``--resume`` relies on.
 
 A top-level ``cell`` key runs every trial on a cell file (``TrialConfig.cell``,
-droid.experiments.trial_cell): a path relative to the plan file, or a bundled cell's name
+droid.sim.trial_cell): a path relative to the plan file, or a bundled cell's name
 (``abb_weld.toml``), as a cell's ``layout`` key is found.  Positions and wrists are then the
 cell's layout's; the cell joins every trial's parameters (and so its ID) as written.
 
@@ -150,7 +150,7 @@ class _Checker:
     """Type and range checks of one plan's values; each failure names plan, key and value."""
 
     def __init__(self, source: str, plan_dir: Path, layout=None) -> None:
-        from droid.experiments.sensors import SENSOR_MODELS
+        from droid.sim.mvs.trial_sensors import SENSOR_MODELS
         from droid.experiments.trial import ARM_MODELS
         from droid.brain.cell_layout import load_layout
 
@@ -438,7 +438,7 @@ def _plan_cell(data: dict, kind: str, source: str, plan_dir: Path):
         raise BadInput(f"plan {source}: cell = {_toml(value)}: applies to seam-tracking plans only")
     if not isinstance(value, str) or not value:
         raise BadInput(f"plan {source}: cell = {_toml(value)}: must be a cell file's path or a bundled cell's name")
-    from droid.experiments.trial_cell import resolve_cell_path, resolve_trial_cell
+    from droid.sim.trial_cell import resolve_cell_path, resolve_trial_cell
 
     try:
         return resolve_trial_cell(resolve_cell_path(value, plan_dir), "full", "gmf1")
@@ -455,7 +455,7 @@ def _check_cell_for(cell, config, source: str, checked: set) -> None:
     """The plan's cell checked for a trial's arm and holder models (once a pair, kept in ``checked``)."""
     if cell is None or (config.arm, config.holder) in checked:
         return
-    from droid.experiments.trial_cell import resolve_trial_cell
+    from droid.sim.trial_cell import resolve_trial_cell
 
     checked.add((config.arm, config.holder))
     try:

@@ -32,7 +32,7 @@ from pathlib import Path
 from droid.brain.cellfile import builtin_cell_path, without_table
 from droid.cli import RuntimeFailure
 from droid.kinematics.transforms import T_to_pose
-from droid.experiments.geometry import trial_geometry
+from droid.sim.trial_cell import trial_geometry
 from droid.experiments.trial import ProgressLimit, TrialConfig, TrialResult, default_length_mm
 from droid.tasks.seam import report
 from droid.tasks.seam.report import COLUMNS

@@ -5,13 +5,13 @@ Composition on a :class:`droid.sim.lockstep.Scheduler` (60 Hz heartbeat):
 ====================  ===============  ==================================================
 what                  when             does
 ====================  ===============  ==================================================
-Reis arm              every tick       ``full`` (arm_full, the default: every Reis core + the
+Reis arm              every tick       ``full`` (sim.trial_cell.FullArm, the default: every Reis core + the
                                        plant twin, homed from its power-up pose first) or
                                        ``fast`` (sim.reis.fast_arm: planner + analytic servo).  With
                                        ``cell`` (a cell file): the cell's welder, its layout's
                                        tool_robot -- the Reis, or the ABB on EGM (droid-egm and
                                        its controller twin, sim.abb.lockstep; full only) --
-                                       and its holder (trial_cell)
+                                       and its holder (sim.trial_cell)
 GMF1                  its own rates    ``holder="gmf1"`` (default): the Fanuc twin (KAREL, its
                                        path, the arm of its robot file) and the GMF1 programs'
                                        cores (experiment.holder); homed and moved to the holding
@@ -20,14 +20,14 @@ GMF1                  its own rates    ``holder="gmf1"`` (default): the Fanuc tw
                                        MOVE through KAREL at that velocity from the start.
                                        ``"fixed"``: the exact holding pose, drifting at
                                        ``holder_mm_s`` (no controller, no encoders)
-lead sensor           the tick before  the frame the next cycle reads (sensors.LeadSensor),
+lead sensor           the tick before  the frame the next cycle reads (sim.mvs.trial_sensors.LeadSensor),
                       each cycle       stamped with its capture tick; ``latency_cycles`` holds
                                        every reading back that many cycles; a frame that brings
                                        no line (droid-mvs's station: dropped, inside the retrace
                                        timeout) leaves the reading the Status holds
 tool-tip sensor       the tick before  the sample the next log row shows (the lead sensor's
-                      each log row     noise model, sensors.ToolTipSensor; the truth --
-                                       sensors.tool_reading -- gives the seam progress)
+                      each log row     noise model, trial_sensors.ToolTipSensor; the truth --
+                                       trial_sensors.tool_reading -- gives the seam progress)
 tracking cycle        every tick:      droid.tasks.seam.cycle.TrackingCycle -- the same code as
                       poses; every     droid-seamtrack: pose histories, cycle counting from the
                       cycle_ticks      heartbeat, the reading placed with the poses of its
@@ -60,9 +60,8 @@ from droid.cli import BadInput
 from droid.kinematics.transforms import inv_homo
 from droid.experiments import phases, seam_kernel
 from droid.sim.reis.fast_arm import FastArmParams
-from droid.experiments.geometry import TrialGeometry, trial_geometry
-from droid.experiments.trial_cell import resolve_trial_cell
-from droid.experiments.sensors import DEFAULT_NOISE, SENSOR_MODELS, LeadSensor, ToolTipSensor, tool_reading
+from droid.sim.trial_cell import TrialGeometry, resolve_trial_cell, trial_geometry
+from droid.sim.mvs.trial_sensors import DEFAULT_NOISE, SENSOR_MODELS, LeadSensor, ToolTipSensor, tool_reading
 from droid.sim.lockstep import ORDER_DEVICE, ORDER_TASK, ORDER_WORLD, Scheduler
 from droid.sim.mvs.camera import CameraNoise
 from droid.tasks.seam.params import (DEAD_ZONE_CYCLES, LOST_CYCLES, MODE_LISTING, MODE_THESIS, MODES, SeamParams,
@@ -97,7 +96,7 @@ class ProgressLimit:
     slip under Coulomb friction; docs/experiments.md), so that limit ended most slow-but-
     tracking trials.  Now two rules, either of which ends the trial as ``timeout``:
 
-    * **stall**: the tool's seam coordinate s (the truth's, ``sensors.tool_reading``) has
+    * **stall**: the tool's seam coordinate s (the truth's, ``trial_sensors.tool_reading``) has
       advanced less than ``min_progress_mm(speed)`` = min(``min_mm``, ``min_fraction`` x
       speed x ``window_s``) over the last ``window_s`` seconds of simulated time.  30 s and
       2 mm: the slowest progress of a tracking trial measured on the full arm is the thesis-mode
@@ -205,7 +204,7 @@ class TrialConfig:
     latency_cycles: int = 0  # constant extra latency of every lead reading [30 Hz cycles] (stamped)
     holder: str = "gmf1"  # the workpiece holder: gmf1 (its controller and encoder path) or fixed
     tool_noise: bool = True  # the tool-tip sensor through the lead sensor's noise model (False: exact)
-    cell: str | None = None  # a cell file: its layout, welder and holder (droid.experiments.trial_cell);
+    cell: str | None = None  # a cell file: its layout, welder and holder (droid.sim.trial_cell);
     # None: the bundled layout, the Reis and the built-in cell's GMF1
 
     def __post_init__(self) -> None:
@@ -277,7 +276,7 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None,
     a trial the core has not ended times out (:class:`ProgressLimit`).
 
     The config is read here, once (thesis §6.1): the trial's cell, resolved and checked
-    (trial_cell.resolve_trial_cell; ``layout`` instead of its own), the geometry of the position,
+    (droid.sim.trial_cell.resolve_trial_cell; ``layout`` instead of its own), the geometry of the position,
     workpiece and wrist, the tracking core's parameters; from those values the welder and the
     holder are built on the cell, then the tracking cycle, the two sensors and the recorder;
     :class:`_LockstepTrial` runs the loop."""
@@ -290,7 +289,7 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None,
                         delay_cycles=cfg.delay_cycles, delay_at_mm=cfg.delay_at_mm,
                         mode=cfg.mode, compliance=cfg.arm == "full")  # the fast arm's drives are rigid
     sched = Scheduler(HEARTBEAT_HZ)
-    arm, holder = tc.build_arms(sched, geo, cfg.arm, cfg.seed, cfg.fast_params)
+    arm, holder = tc.build_arms(sched, geo, cfg.arm, cfg.seed, cfg.fast_params, phases.mark)
     cyc = _tracking_cycle(params, geo, cfg.trial_id)
     lead = LeadSensor(geo.workpiece, cfg.sensor, cfg.noise, seed=cfg.seed, frames_per_read=cyc.cycle_ticks)
     tool_sensor = ToolTipSensor(lead.crossing, cfg.noise if cfg.tool_noise else CameraNoise(), seed=cfg.seed)
@@ -380,10 +379,11 @@ class _LockstepTrial:
         T_W_g = state["T_W_g"]
         if k % ct == ct - 1:  # the frame the next cycle reads (it reaches the Status next tick)
             T_true = self.arm.true_wcp()
-            r = self.lead.read(T_W_g @ T_true @ self.T_wcp_sensor)
-            if r is None:  # no line from this frame: the Status keeps the reading it holds
+            line = self.lead.read(T_W_g @ T_true @ self.T_wcp_sensor)
+            if line is None:  # no line from this frame: the Status keeps the reading it holds
                 in_flight.append(in_flight[-1] if in_flight else (state["lead"], state["lead_tick"]))
             else:
+                r = _reading(line)
                 if r.valid:
                     r = stamped(r, float(tick))  # the MVS world's frame stamp: its capture tick
                 in_flight.append((r, tick + 1))
@@ -489,6 +489,13 @@ def _tracking_cycle(params: SeamParams, geo: TrialGeometry, trial_id: str) -> Tr
         seam_kernel.use_on(cyc.core)
     seam_kernel.use_on_cycle(cyc)  # the pose histories' interpolation, compiled (the same bits)
     return cyc
+
+
+def _reading(line) -> Reading:
+    """The tracker's reading of the lead sensor's parsed line (droid.brain.sensor_line: a
+    LineReading, or Garbled), as the Brain's Status hands it on: invalid for ``invalid`` and for
+    a garbled line."""
+    return Reading(line.x_mm, line.y_mm, line.roll_rad, True) if line.valid else INVALID_READING
 
 
 def _row(t_s: float, lead: Reading, tool, out, L: float, s_of) -> tuple:

@@ -328,7 +328,7 @@ def test_realtime_shell_and_lockstep_send_the_same_lines_for_the_same_frames(mon
 # -- the experiments' lead sensor ------------------------------------------------------------
 
 def test_lead_sensor_dropped_frames_bring_no_line_until_the_timeout():
-    from droid.experiments.sensors import LeadSensor
+    from droid.sim.mvs.trial_sensors import LeadSensor
 
     lead = LeadSensor(STEP, "camera", CameraNoise(0.5, 0.0, drop_probability=1.0), frames_per_read=2)
     T = pose_for_reading(STEP, 60.0)

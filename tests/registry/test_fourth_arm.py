@@ -184,7 +184,7 @@ def test_the_lab_arm_uses_no_other_arm_familys_code(labarm):
 
 
 def test_a_fourth_arm_family_tracks_a_seam_in_lockstep(labarm, tmp_path):
-    from droid.experiments.trial_cell import resolve_trial_cell
+    from droid.sim.trial_cell import resolve_trial_cell
 
     cell = lab_cell(tmp_path)
     tc = resolve_trial_cell(str(cell))

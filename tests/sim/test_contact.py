@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from droid.cli import BadInput
-from droid.experiments.geometry import trial_geometry
+from droid.sim.trial_cell import trial_geometry
 from droid.kinematics.transforms import inv_homo, trans
 from droid.sim.contact import ContactParams, ToolContact, contact_force, surface_contact
 from droid.sim.ft.lockstep import LockstepFt

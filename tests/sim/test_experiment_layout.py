@@ -6,7 +6,7 @@ import pytest
 
 from droid.kinematics import Unreachable
 from droid.kinematics.transforms import inv_homo
-from droid.experiments.geometry import trial_geometry
+from droid.sim.trial_cell import trial_geometry
 from droid.sim.mvs.tool_sensor import seam_frame
 from droid.brain.cell_layout import POSITION_IDS, load_layout
 

@@ -5,7 +5,7 @@ import pytest
 
 from droid.brain.cellfile import load_cell
 from droid.kinematics.transforms import pose_to_T
-from droid.experiments.geometry import trial_geometry
+from droid.sim.trial_cell import trial_geometry
 from droid.experiments.realtime import trial_cell_text
 from droid.experiments.trial import TrialConfig
 from droid.tasks.seam.report import COLUMNS, log_row, read_csv, write_csv

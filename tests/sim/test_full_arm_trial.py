@@ -6,17 +6,17 @@ from droid.experiments.trial import TrialConfig, run_trial
 
 
 def test_the_default_arm_is_full_and_each_repetition_homes_from_its_own_power_up_pose(monkeypatch):
-    from droid.experiments import arm_full
+    from droid.sim import trial_cell
 
     homed = []
-    original = arm_full.FullArm.prepare
+    original = trial_cell.FullArm.prepare
 
     def prepare(self):
         homed.append(self.arm.plant.joint_deg.copy())  # the power-up pose before the homing
         original(self)
         assert int(self.arm.status["homed"]) == 1
 
-    monkeypatch.setattr(arm_full.FullArm, "prepare", prepare)
+    monkeypatch.setattr(trial_cell.FullArm, "prepare", prepare)
     assert TrialConfig("d", "i", 16.0).arm == "full"
     results = [run_trial(TrialConfig("rep", "iii", 16.0, length_mm=200.0, seed=s, sensor="ideal")) for s in (1, 2)]
     assert len(homed) == 2 and np.abs(homed[0] - homed[1]).max() > 1.0  # two homings, two power-up poses

@@ -3,8 +3,8 @@ sensor model's scatter scaled by the camera's stripe jitter, seeded and determin
 import numpy as np
 import pytest
 
-from droid.experiments.sensors import DEFAULT_NOISE, IDEAL_SIGMA_Y_MM, ToolTipSensor
-from droid.experiments.crossing import SeamCrossing
+from droid.sim.mvs.trial_sensors import DEFAULT_NOISE, IDEAL_SIGMA_Y_MM, ToolTipSensor
+from droid.sim.mvs.crossing import SeamCrossing
 from droid.experiments.trial import TrialConfig, run_trial
 from droid.sim.mvs.camera import CameraNoise
 from droid.sim.mvs.devices import ToolSensorCore

@@ -1,4 +1,4 @@
-"""The lockstep trial on a cell file (droid.experiments.trial_cell): TrialConfig.cell, droid-experiment
+"""The lockstep trial on a cell file (droid.sim.trial_cell): TrialConfig.cell, droid-experiment
 run --cell FILE and a plan's cell key -- the ABB welding cell's trial, the Reis's on sim.toml, and
 bad cells (one line, exit 2)."""
 from __future__ import annotations

@@ -16,7 +16,7 @@ from __future__ import annotations
 import pytest
 
 from droid.brain.layouts import FAULTS_CANNOT_MOVE
-from droid.experiments import arm_full
+from droid.sim import trial_cell
 from droid.experiments.trial import CYCLE_TICKS, TrialConfig, run_trial
 from droid.sim.lockstep import ORDER_TASK
 
@@ -27,7 +27,7 @@ INJECT_TICK = 240
 STOP_WITHIN_CYCLES = 1
 
 
-class InjectedArm(arm_full.FullArm):
+class InjectedArm(trial_cell.FullArm):
     """The full Reis whose servo program stops ``INJECT_TICK`` ticks into the trial; records
     what the Status showed after each tick's task and every command the trial wrote."""
 
@@ -63,7 +63,7 @@ def injected(monkeypatch):
             super().__init__(*a, **kw)
             made.append(self)
 
-    monkeypatch.setattr(arm_full, "FullArm", Arm)
+    monkeypatch.setattr(trial_cell, "FullArm", Arm)
     return made
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from droid.cli import BadInput
-from droid.experiments.sensors import LeadSensor
+from droid.sim.mvs.trial_sensors import LeadSensor
 from droid.sim.mvs.camera import CameraNoise, MvsCamera
 from droid.sim.seam3d import TACK_WIDTH_MM
 from droid.sim.mvs.tool_sensor import measure, pose_for_reading

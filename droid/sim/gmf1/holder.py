@@ -26,7 +26,7 @@ drifts); :meth:`status_pose`: the pose the tracker reads (the encoder program's
   which places the workpiece for the sensors.
 
 The GMF1 is built by its package's lockstep builder (droid.sim.gmf1.lockstep.build, through the
-registry: droid.experiments.trial_cell.TrialCell.build_arms, the layout's holder_robot whose package
+registry: droid.sim.trial_cell.TrialCell.build_arms, the layout's holder_robot whose package
 registers this ``holder`` model) from the trial's cell -- the built-in cell
 (droid/cells/sim.toml) or ``TrialConfig.cell`` -- at the subunit its layout names holder_robot: its
 serial line, encoder cards and rates, robot file and base; the twin is the trial's own

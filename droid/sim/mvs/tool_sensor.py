@@ -37,7 +37,7 @@ from droid.sim.workpiece import Workpiece
 
 #: The lead sensor's reading scatter through the camera chain at REFERENCE_JITTER_PX of stripe
 #: jitter (0.5 px, 2-10 % spurious rows: the feature extraction rejects the spurious rows;
-#: docs/bench-mvs.md): the ``ideal`` lead sensor model's sigmas (droid.experiments.sensors).
+#: docs/bench-mvs.md): the ``ideal`` lead sensor model's sigmas (droid.sim.mvs.trial_sensors).
 REFERENCE_JITTER_PX = 0.5
 SIGMA_HEIGHT_MM = 0.012  # x (depth): the column direction, fitted over many rows
 SIGMA_LATERAL_MM = 0.056  # y: the step's row, placed between rows

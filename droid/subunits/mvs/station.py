@@ -3,7 +3,7 @@ thesis §5.4, sensor.exe).
 
 The real-time shell (``droid-mvs``, :mod:`droid.subunits.mvs.sensor`), the lockstep chain
 (:func:`droid.sim.mvs.lockstep.mvs_lockstep`) and the experiments' lead sensor
-(:class:`droid.experiments.sensors.LeadSensor`) all step :class:`MvsStation`, so the rules
+(:class:`droid.sim.mvs.trial_sensors.LeadSensor`) all step :class:`MvsStation`, so the rules
 between the DSP board and the serial line exist once:
 
 * **a frame**: the core (:class:`SensorCore`) extracts the lap-joint feature and formats

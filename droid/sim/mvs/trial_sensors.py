@@ -6,11 +6,11 @@ the renderer of the real-time cell's camera twin), droid-mvs's station
 (:class:`~droid.subunits.mvs.station.MvsStation`) extracts the feature
 (droid.subunits.mvs.feature, Strauss's method) and formats the serial line,
 the Brain's parser reads it back (rounded to the line's 3 and 5 decimals):
-the reading the Status record holds.  A dropped frame is the station's too: no
-line (the Status keeps the one it has) until the retrace timeout, counted in
+the reading the Status record holds (the trial hands it to the tracker as its
+``Reading``).  A dropped frame is the station's too: no line (the Status keeps the one it has) until the retrace timeout, counted in
 frame periods, sends ``invalid``.  ``ideal`` model: the exact geometry at
 the sensor frame (``tool_sensor.measure``, in closed form:
-:mod:`droid.experiments.crossing`), invalid outside the field of view the
+:mod:`droid.sim.mvs.crossing`), invalid outside the field of view the
 feature extraction can use, plus Gaussian noise of the size the camera chain
 shows (docs/bench-mvs.md), through the same serial-line rounding.
 
@@ -35,8 +35,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from droid.brain.sensor_line import Garbled, format_line, parse_line
-from droid.experiments.crossing import SeamCrossing
+from droid.brain.sensor_line import Garbled, LineReading, format_line, parse_line
+from droid.sim.mvs.crossing import SeamCrossing
 from droid.sim.mvs.camera import CameraNoise, MvsCamera
 from droid.sim.mvs.tool_sensor import (SIGMA_HEIGHT_MM, SIGMA_LATERAL_MM, SIGMA_ROLL_RAD, ToolNoise, ToolReading,
                                        noisy)
@@ -45,7 +45,6 @@ from droid.subunits.mvs.calibration import MvsCalibration
 from droid.subunits.mvs.feature import FeatureParams
 from droid.subunits.mvs.station import MvsStation, SensorCore
 from droid.subunits.mvs.wire import ROWS
-from droid.tasks.seam.delay import INVALID_READING, Reading
 
 SENSOR_MODELS = ("camera", "ideal")
 
@@ -63,13 +62,6 @@ class _Values:
     x_mm: float
     y_mm: float
     roll_rad: float
-
-
-def _line_to_reading(line: bytes) -> Reading:
-    r = parse_line(line.rstrip(b"\n"))
-    if isinstance(r, Garbled) or not r.valid:
-        return INVALID_READING
-    return Reading(r.x_mm, r.y_mm, r.roll_rad, True)
 
 
 class LeadSensor:
@@ -100,9 +92,12 @@ class LeadSensor:
             self.y_limit_mm = half - margin
             self.x_limit_mm = (calib.column_at_origin - 1.0) * calib.depth_mm_per_column
 
-    def read(self, T_W_S: np.ndarray) -> Reading | None:
-        """The reading of a frame taken with the sensor frame at ``T_W_S`` (4x4, mm); None when
-        the frame brought no line (dropped, inside the retrace timeout: the Status keeps its line)."""
+    def read(self, T_W_S: np.ndarray) -> LineReading | Garbled | None:
+        """The line of a frame taken with the sensor frame at ``T_W_S`` (4x4, mm), as the Brain's
+        parser reads it (droid.brain.sensor_line.parse_line: the values rounded to the line's
+        decimals; ``valid`` False for ``invalid``); None when the frame brought no line (dropped,
+        inside the retrace timeout: the Status keeps its line).  The tracker's reading of it is
+        the trial's (the Brain's Status between them, as droid.brain.sensor_link fills it)."""
         self.frames += 1
         if self.model == "camera":
             rows = self.camera.frame(T_W_S, self.rng)
@@ -112,8 +107,8 @@ class LeadSensor:
             line = out.line
         else:
             line = format_line(self._ideal(T_W_S))
-        reading = _line_to_reading(line)
-        self.valid += reading.valid
+        reading = parse_line(line.rstrip(b"\n"))
+        self.valid += bool(reading.valid)
         return reading
 
     def _ideal(self, T_W_S: np.ndarray) -> _Values | None:

@@ -1,4 +1,8 @@
-"""A lockstep trial on a cell file: ``TrialConfig.cell``, ``droid-experiment run --cell FILE``, a plan's ``cell``.
+"""The lockstep trial cell (issue 43 item 2, thesis §6.1): a seam-tracking trial's cell, checked by role,
+its geometry at the start, its welder and holder built and started in order -- the set-up below the
+experiments, handed plain values (a cell file or Cell, an arm model's name, a seed, ...), never a trial's
+config.  Its cell is ``TrialConfig.cell``, ``droid-experiment run --cell FILE``, a plan's ``cell``, or
+the built-in cell.
 
 The trial reads the cell's seam-tracking layout (its ``[cell] layout``, else the bundled one:
 droid.brain.cell_layout.layout_for_cell); the welder is the subunit its layout names by role,
@@ -23,7 +27,9 @@ builder's own ``@builds``):
 through the lockstep cell builder (droid.sim.lockstep_cell.build_lockstep_cell, LockstepCell.add:
 the welder, homed, then the holder -- the trial's start order) with the trial's seed, the cell's ``stale_ticks`` and
 the trial's own world (its holder model's ``trial_world``: the holder's twin alone) instead of the
-cell's world-device tables.  A trial
+cell's world-device tables.  :func:`trial_geometry` places the layout's position, workpiece and wrist
+(:class:`TrialGeometry`: where everything is at the start); :class:`FullArm` is the ``full`` arm model over
+the welder its builder builds (homed, then moved to the start pose).  A trial
 without a cell file runs on the built-in cell (droid/cells/sim.toml, whatever $DROID_CELL says;
 :func:`builtin_cell`): the Reis ``arm1`` and the GMF1 ``gmf1``.
 
@@ -37,14 +43,21 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, replace
+from functools import lru_cache
 from pathlib import Path
+
+import numpy as np
 
 from droid.brain.cellfile import BUNDLED_CELLS, Cell, builtin_cell_path, find_file, load_cell
 from droid.brain.device import HEARTBEAT_HZ
 from droid.brain.wire import LIVENESS_TICKS
-from droid.cli import BadInput
-from droid.experiments import phases
-from droid.brain.cell_layout import Layout, check_bases, check_robots, layout_for_cell
+from droid.cli import BadInput, RuntimeFailure
+from droid.brain.cell_layout import Layout, Wrist, check_bases, check_robots, layout_for_cell, load_layout
+from droid.kinematics import RobotModel, Unreachable, load_robot
+from droid.kinematics.transforms import inv_homo, record_pose
+from droid.sim.lockstep import Scheduler
+from droid.sim.mvs.tool_sensor import seam_frame
+from droid.sim.workpiece import Workpiece, load_workpiece
 
 
 
@@ -77,6 +90,78 @@ def _model(package: str, name: str):
     return resolve(ref) if ref is not None else None
 
 
+def no_mark(phase: str, sched) -> None:
+    """The phase hook of a trial cell that reports no phases (droid.experiments.phases.mark reports them)."""
+
+
+@dataclass(frozen=True)
+class TrialGeometry:
+    """Frames of one trial (4x4, mm, global unless named otherwise)."""
+
+    layout: Layout
+    wrist: Wrist
+    workpiece: Workpiece
+    position: str
+    reis: RobotModel  # with its base
+    fanuc: RobotModel  # with its base
+    T_global_W: np.ndarray
+    T_hold6_W: np.ndarray  # (GMF1)6 T W, the mount
+    T_global_hold6: np.ndarray  # GMF1 wrist centre (held still)
+    q_hold_deg: np.ndarray
+    T_global_reis6_start: np.ndarray  # Reis wrist centre at the start
+    q_reis_start_deg: np.ndarray
+
+    @property
+    def camera_to_tcp_mm(self) -> float:
+        return self.wrist.camera_to_tcp_mm
+
+    @property
+    def T_W_global(self) -> np.ndarray:
+        return inv_homo(self.T_global_W)
+
+
+@lru_cache(maxsize=8)
+def _robot(name: str, base_key: tuple) -> RobotModel:
+    base = np.array(base_key, float).reshape(4, 4)
+    return load_robot(name).with_base(base)
+
+
+def robot_with_base(layout: Layout, subunit: str) -> RobotModel:
+    """The robot model of a layout subunit, placed at its base."""
+    name = layout.robots.get(subunit)
+    if not name:
+        raise BadInput(f"layout {layout.source}: [robots] names no model for {subunit}")
+    return _robot(name, tuple(layout.base(subunit).ravel().tolist()))
+
+
+def trial_geometry(position: str, workpiece: str | None = None, wrist: str = "standard",
+                   layout: Layout | None = None) -> TrialGeometry:
+    """The frames of a trial at ``position`` (i..vii) with ``workpiece`` (default: the position's)."""
+    lay = layout or load_layout()
+    pos = lay.position(position)
+    wr = lay.wrist(wrist)
+    wp = load_workpiece(workpiece or pos.workpiece)
+    reis = robot_with_base(lay, lay.tool_robot)
+    fanuc = robot_with_base(lay, lay.holder_robot)
+    L = wr.camera_to_tcp_mm
+    T_gW = pos.T_global_W(L)
+    mount = lay.mount(wp.name)
+    T_hold = T_gW @ inv_homo(mount)
+    try:
+        q_hold = fanuc.ik(T_hold, np.zeros(6))
+    except Unreachable as exc:
+        raise BadInput(f"position {position}: the {lay.holder_robot} cannot hold {wp.name} there: {exc}") from None
+    T_tool = T_gW @ seam_frame(wp, -L)
+    T_reis = T_tool @ inv_homo(wr.T_wcp_tool)
+    try:
+        q_reis = reis.ik(T_reis, np.zeros(6))
+    except Unreachable as exc:
+        raise BadInput(f"position {position}: the {lay.tool_robot} cannot reach the start: {exc}") from None
+    return TrialGeometry(layout=lay, wrist=wr, workpiece=wp, position=position, reis=reis, fanuc=fanuc,
+                         T_global_W=T_gW, T_hold6_W=mount, T_global_hold6=fanuc.fk(q_hold), q_hold_deg=q_hold,
+                         T_global_reis6_start=T_reis, q_reis_start_deg=q_reis)
+
+
 @dataclass(frozen=True)
 class TrialCell:
     """A checked cell of a trial (thesis §6.1: the Reis welds, the GMF1 holds), resolved once by
@@ -97,7 +182,7 @@ class TrialCell:
         the Reis's ``fast``), or None when its package registers none of that name."""
         return _model(self.welder_package, name)
 
-    def build_arms(self, sched, geo, arm_model: str, seed: int, fast_params):
+    def build_arms(self, sched, geo, arm_model: str, seed: int, fast_params, mark=None):
         """The trial's welder and holder on ``sched``, ready at the start (thesis §6.1.1-6.1.2):
         the welder, the ``tool_robot`` -- ``fast``: its package's model of that name (the Reis's
         FastArm, droid.sim.reis.fast_arm, at ``geo``'s start pose with ``fast_params``); ``full``:
@@ -105,10 +190,13 @@ class TrialCell:
         -- its package's holder model (the GMF1's Gmf1Holder) over the subunit its builder builds,
         at ``geo``'s holding pose; None for a
         fixed holder (no holder builder).  Both are the trial cell's subunits, started in that order on
-        ``sched`` (droid.sim.lockstep_cell.LockstepCell.add) with the trial's ``seed`` and world."""
+        ``sched`` (droid.sim.lockstep_cell.LockstepCell.add) with the trial's ``seed`` and world;
+        ``mark(phase, sched)`` is told the phases ``built``, ``homed`` and ``approached`` (the
+        experiments' phase report, droid.experiments.phases; none by default)."""
         from droid.sim.lockstep_cell import build_lockstep_cell
 
         tool_robot, holder_robot = self.layout.tool_robot, self.layout.holder_robot
+        mark = mark or no_mark
         # the trial's cell with nothing started yet: its start order is the welder (homed and at
         # its start), then the holder -- the holder never ticks while the welder homes
         cell = build_lockstep_cell(self.cell, seed, world=self.world, sched=sched, subunits={})
@@ -116,13 +204,11 @@ class TrialCell:
             arm = self.arm_model(arm_model)(geo.reis, geo.q_reis_start_deg, fast_params)
             arm.name = tool_robot  # the subunit the tracker's fault rule names
             for phase in ("built", "homed", "approached"):  # no homing, no approach: it starts at the start
-                phases.mark(phase, sched)
+                mark(phase, sched)
         else:
-            from droid.experiments.arm_full import FullArm
-
             welder = cell.add(tool_robot, self.builders[tool_robot])
-            arm = FullArm(sched, geo.reis, geo.q_reis_start_deg, welder.arm)
-            phases.mark("built", sched)
+            arm = FullArm(sched, geo.reis, geo.q_reis_start_deg, welder.arm, mark)
+            mark("built", sched)
             arm.prepare()
         if holder_robot not in self.builders:
             return arm, None
@@ -214,3 +300,71 @@ def builtin_cell() -> Cell:
     real-time stalls, which virtual time has none of, and a fault's order in the Status (a dead
     servo: the servo agent's fault before the watchdog's) follows it."""
     return replace(load_cell(builtin_cell_path()), stale_ticks=LIVENESS_TICKS)
+
+
+# The ``full`` arm model: every core of the real-time arm subunit (docs/experiments.md, "--arm").
+HOME_TIMEOUT_S = 60.0
+MOVE_S = 4.0  # the move from home to the start pose
+SETTLE_S = 1.0
+
+
+class FullArm:
+    """An arm subunit's cores on a scheduler, with the harness's arm interface.
+
+    The experiments' default arm model (issue 13 item 5): a trial first homes the arm (the Reis's
+    servo homing from its seeded power-up pose, thesis §4.1.5.3) and moves it to the start pose
+    with a joint command; then the seam-tracking core drives it with cartesian commands through
+    the Brain Command record, exactly as droid-seamtrack does.  Every repetition homes, so
+    experiment 4 measures repeatability; ~5-10x slower than the ``fast`` model
+    (droid.sim.reis.fast_arm; docs/benchmarks.md).
+
+    ``arm``: the lockstep arm its package's builder built on ``sched`` -- a droid.arm.protocol.Arm that
+    also shows the world's ``wcp_global`` (a builder declared with ``truth``: the Reis's
+    :class:`~droid.sim.reis.cell.LockstepArm`, droid.sim.abb.lockstep.LockstepAbbArm, a lab's own; the
+    trial cell's welder, built by TrialCell.build_arms) whose robot model
+    is ``model``; ``mark(phase, sched)`` is told the phases ``homed`` and ``approached`` (the
+    experiments' phase report, droid.experiments.phases; none by default)."""
+
+    def __init__(self, sched: Scheduler, model, q_start_deg, arm, mark=None) -> None:
+        self.sched = sched
+        self.model = model
+        self.arm = arm
+        self.q_start = np.asarray(q_start_deg, float)
+        self.mark = mark or no_mark
+
+    def prepare(self) -> None:
+        """Home (the Reis searches its switches; the ABB measures absolutely and homes at once),
+        then move to the start pose; raises RuntimeFailure if either does not finish."""
+        if not self.arm.home(HOME_TIMEOUT_S):
+            raise RuntimeFailure(f"full arm model {self.name}: homing did not finish")
+        self.mark("homed", self.sched)
+        counts = np.rint(self.model.gearing.joints_to_counts(self.q_start)).astype(np.int32)
+        cmd = self.arm.command_joint(counts, self.arm.ticks_for(MOVE_S))
+        if not self.arm.move_done(cmd, MOVE_S + 5.0):
+            raise RuntimeFailure(f"full arm model {self.name}: the move to the start pose did not finish")
+        self.sched.run_for(SETTLE_S)
+        self.mark("approached", self.sched)
+
+    def command_cart(self, T_global_wcp, ticks: int) -> None:
+        self.arm.command_cart(T_global_wcp, ticks)
+
+    def status_pose(self) -> np.ndarray:
+        return record_pose(self.arm.read())
+
+    def status_joints(self) -> np.ndarray:
+        return self.model.gearing.counts_to_joints(np.asarray(self.arm.read()["encoder_pos"], float))
+
+    @property
+    def name(self) -> str:
+        """The arm's subunit name (arm1; the layout's tool_robot on a cell)."""
+        return self.arm.name
+
+    def status_fault(self) -> int:
+        """The Brain Status ``fault`` bits (FAULT_*), as droid-seamtrack reads them."""
+        return int(self.arm.read()["fault"])
+
+    def true_wcp(self) -> np.ndarray:
+        return self.arm.wcp_global()
+
+    def tick(self) -> None:  # the cores run on the scheduler by themselves
+        pass
