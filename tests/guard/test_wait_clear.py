@@ -177,3 +177,26 @@ def test_one_arm_holds_until_the_others_move_ends_and_both_complete():
         assert ph.least_mm < wait_least  # the waiting run kept them farther apart
     finally:
         r.close()
+
+
+def test_a_move_is_checked_to_the_end_of_the_other_arms_longer_move():
+    """droid-move's check (droid.guard.refuse.check_move, also --wait-clear's) follows an other arm's
+    move that outlasts this one to its end, this arm standing at its goal: the reach (1.5 s) asked
+    0.25 s into an 8 s sweep ends clear of arm1, whose sweep then runs into it."""
+    from droid.brain.cellfile import load_cell
+    from droid.guard.cell import guard_scene
+    from droid.guard.refuse import check_move
+
+    scene = guard_scene(load_cell(CELL))
+    sweep_s, ask_s = 8.0, 0.25
+    j1 = SWEEP_FROM[0] + (SWEEP_TO[0] - SWEEP_FROM[0]) * ask_s / sweep_s
+    now = {"arm1": np.array([j1, *OUT_DEG])}
+    line = check_move(scene, "arm2", TUCK, REACH_TO, REACH_S, now, {"arm1": (SWEEP_TO, sweep_s - ask_s)}, CZ_MM)
+    assert line is not None and " after the move (+" in line and line.endswith(f"< {CZ_MM:.0f} mm)"), line
+    # over the reach itself the two stay apart: only the sweep's rest brings arm1 into arm2's goal
+    f = np.linspace(0.0, 1.0, 31)
+    q1 = now["arm1"] + (REACH_S * f / (sweep_s - ask_s))[:, None] * (SWEEP_TO - now["arm1"])
+    q2 = TUCK + f[:, None] * (REACH_TO - TUCK)
+    assert float(scene.distances({"arm1": q1, "arm2": q2}).min()) > CZ_MM
+    # the sweep done first (arm1 at its end): the reach is clear
+    assert check_move(scene, "arm2", TUCK, REACH_TO, REACH_S, {"arm1": SWEEP_TO}, {}, CZ_MM) is None
