@@ -14,14 +14,14 @@ A *snapshot* is one tick of the cell::
                "distance_mm", "pair": [{"arm", "body"}, {"arm", "body"}], "points": [[x,y,z], [x,y,z]] | null,
                "override": {arm: 0..1}, "closing_mm_s", "separation_mm", "trips", "stale"}}
 
-(mm; docs/guard.md §7a).  ``guard`` is the collision guard's Status (``/guard/status``): the
-least distance between the arms' bodies, the closest pair and its two closest points (the page
+(mm; droid/observe/scene.py).  What does not change over a run -- the workpiece's surfaces
+(``scene.workpiece_mesh`` of the recording's metadata) -- is served once, by ``/api/cell``.
+
+``guard`` is the collision guard's Status (``/guard/status``; docs/guard.md §7a): the least
+distance [mm] between the arms' bodies, the closest pair and its two closest points (the page
 draws the line between them), the guard's state and its speed override per arm.  A cell without
 a ``[guard]`` table, one with ``run = false`` (no droid-guard writes the record) or a record not
 yet written says ``off`` and why -- never zeros.
-
-(mm; droid/observe/scene.py).  What does not change over a run -- the workpiece's surfaces
-(``scene.workpiece_mesh`` of the recording's metadata) -- is served once, by ``/api/cell``.
 
 The seam map is sent apart (``seam``: the points so far), since it only grows.
 Tracking errors are the tool-tip sensor's reading (thesis §6.1: the seam's
