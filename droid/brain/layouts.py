@@ -376,8 +376,13 @@ GUARD_STATUS = _dtype(
         ("b_body", GUARD_NAME, None),
         ("arms", GUARD_NAME, (GUARD_ARMS,)),  # the arms' subunit names
         ("override", "<f8", (GUARD_ARMS,)),  # the speed override written into each arm's Command, 0..1
+        # version 2 (issue 41 item 5, droid-web/droid-foxglove draw the closest pair): the closest
+        # points of the closest pair now [mm, global frame], on body a and on body b (on a capsule's
+        # axis, on or in a box); NaN when nothing is judged
+        ("a_point_mm", "<f8", (3,)),
+        ("b_point_mm", "<f8", (3,)),
     ],
-    384,
+    432,
 )
 
 
@@ -412,7 +417,7 @@ FT6_STATUS_LAYOUT = Layout("ft6_status", KIND_FT6_STATUS, 1, FT6_STATUS, "droid_
 FT6_COMMAND_LAYOUT = Layout("ft6_command", KIND_FT6_COMMAND, 1, FT6_COMMAND, "droid_ft6_command")
 FT6_CTRL_COMMAND_LAYOUT = Layout("ft6_ctrl_command", KIND_FT6_CTRL_COMMAND, 1, FT6_CTRL_COMMAND,
                                  "droid_ft6_ctrl_command")
-GUARD_STATUS_LAYOUT = Layout("guard_status", KIND_GUARD_STATUS, 1, GUARD_STATUS, "droid_guard_status")
+GUARD_STATUS_LAYOUT = Layout("guard_status", KIND_GUARD_STATUS, 2, GUARD_STATUS, "droid_guard_status")
 
 LAYOUTS = {
     lay.kind: lay

@@ -76,6 +76,10 @@ class GuardVerdict:
     deciding_pair: tuple[str, str] = ("", "")
     notes: tuple[str, ...] = ()
     unjudged: tuple[str, ...] = ()
+    #: the closest points [mm, global frame] of ``pair`` now: on body a (``pair[0]``) and on body b
+    #: (on a capsule's axis, on or in a box: the distance is theirs less the radii); None when
+    #: nothing is judged
+    points_mm: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
 
 
 @dataclass
@@ -219,7 +223,7 @@ class GuardCore:
         d, pa, pb = sc.closest_points({n: r[:3] for n, r in rows.items()})  # (3, P), (3, P, 3) x2
         v = self._closing(d, pa, pb, sc.poses(rows), new, elapsed)
         self.last_d = d[0].copy()
-        return self._verdict(d, v, notes)
+        return self._verdict(d, v, notes, pa[0], pb[0])
 
     def _closing(self, d, pa, pb, poses, new: set[str], elapsed: dict[str, int]) -> np.ndarray:
         """Every pair's closing speed [mm/s] (the module docstring): ``poses`` of the rows now, the
@@ -312,7 +316,7 @@ class GuardCore:
             out[sel] = sp.max(axis=(0, 2))
         return out
 
-    def _verdict(self, d, v: np.ndarray, notes: list[str]) -> GuardVerdict:
+    def _verdict(self, d, v: np.ndarray, notes: list[str], pa: np.ndarray, pb: np.ndarray) -> GuardVerdict:
         p = self.params
         names = self._names
         P = len(self.pair_keys)
@@ -338,10 +342,12 @@ class GuardCore:
             moving = float(np.max(v[idx]))
             dk, pair, vk, spk = float(now[k]), self.pair_keys[k], float(v[k]), float(sp[k])
             least_mm, least_pair = float(now[least]), self.pair_keys[least]
+            points = (tuple(float(c) for c in pa[least]), tuple(float(c) for c in pb[least]))
         else:  # nothing to judge (no arm homed)
             trip, over, moving, ahead = False, 1.0, 0.0, math.inf
             dk, pair, vk, spk = math.inf, ("", ""), 0.0, p.separation_mm(0.0)
             least_mm, least_pair = math.inf, ("", "")
+            points = None
         trip = trip or held
         if trip and not self.latched:
             self.trips += 1
@@ -352,7 +358,7 @@ class GuardCore:
         o_all = 0.0 if self.latched else over
         state = STOPPED if self.latched else (CLEAR if o_all >= 1.0 else SLOWING)
         return GuardVerdict(least_mm, least_pair, ahead, vk, spk, {n: o_all for n in names}, state, self.latched,
-                            dk, pair, tuple(notes), unjudged)
+                            dk, pair, tuple(notes), unjudged, points)
 
 
 #: the 8 corners of the unit box [-1, 1]^3

@@ -11,6 +11,11 @@ returns the one-line refusal
 for the sample with the least clearance when it is below the limit (the ``[guard] ssm``
 clearance C plus the uncertainty Z), else None.  The percentage is the share of the move's
 time.  Joint vectors in deg, lengths in mm.
+
+An other arm's move that lasts longer than this one is followed to its end, this arm standing at
+its goal meanwhile (session 26: before, the samples stopped with this move, so a reach that ended
+in the other arm's path, before that arm's sweep passed there, was found clear); such a sample
+is named ``after the move (+0.8 s, at its goal)``.
 """
 from __future__ import annotations
 
@@ -35,13 +40,18 @@ def check_move(scene: GuardScene, arm: str, q_from_deg, q_to_deg, seconds: float
     seconds left) for an arm on a move of its own (it is interpolated toward its goal and then
     stands there)."""
     q0, q1 = np.asarray(q_from_deg, float), np.asarray(q_to_deg, float)
+    seconds = float(seconds)
     n = _samples(float(np.max(np.abs(q1 - q0))) if q1.size else 0.0)
+    horizon = seconds  # the last of the moves' ends [s]: this one's, or an other arm's later one
     for name, (goal, left) in (others_moves or {}).items():
         if left > 0:
             n = max(n, _samples(float(np.max(np.abs(np.asarray(goal, float) - np.asarray(others_deg[name], float))))))
-    s = np.linspace(0.0, 1.0, n)
+            horizon = max(horizon, float(left))
+    if horizon > seconds:  # as many samples over this move as without the longer one, within the bound
+        n = int(min(MAX_SAMPLES, np.ceil(n * horizon / seconds)))
+    t = np.linspace(0.0, horizon, n)
+    s = np.clip(t / seconds, 0.0, 1.0) if seconds > 0 else np.ones(n)
     q = {arm: q0 + s[:, None] * (q1 - q0)}
-    t = s * float(seconds)
     for name, qn in others_deg.items():
         qn = np.asarray(qn, float)
         move = (others_moves or {}).get(name)
@@ -62,5 +72,6 @@ def check_move(scene: GuardScene, arm: str, q_from_deg, q_to_deg, seconds: float
     a, b = scene.pairs[k]
     if b.owner == arm:
         a, b = b, a
-    return (f"would collide: {a.label()} with {b.label()} at {100.0 * s[i]:.0f} % of the move "
-            f"(clearance {least:.0f} mm < {limit_mm:.0f} mm)")
+    when = (f"at {100.0 * s[i]:.0f} % of the move" if t[i] <= seconds
+            else f"after the move (+{t[i] - seconds:.1f} s, at its goal)")
+    return f"would collide: {a.label()} with {b.label()} {when} (clearance {least:.0f} mm < {limit_mm:.0f} mm)"

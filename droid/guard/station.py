@@ -12,8 +12,8 @@ runs :class:`~droid.guard.core.GuardCore` and
 * keeps its own Status, :attr:`status` (a dict) and, where given, the ``guard_status`` record
   (:data:`droid.brain.layouts.GUARD_STATUS`, ``/droid.<cell>.guard.status``): least distance
   [mm] and the closest pair, the closing speed and S_p of the pair that decides (the least margin
-  d - S_p; at rest the closest pair), the override per arm, state, the cycle time [us], trips,
-  the tick; the dict also the deciding pair and its distance, the re-zeros seen, the arms not
+  d - S_p; at rest the closest pair) and the closest pair's two closest points [mm], the
+  override per arm, state, the cycle time [us], trips, the tick; the dict also the deciding pair and its distance, the re-zeros seen, the arms not
   judged (not homed) and the guard's notes (:attr:`notes`, each said once: droid-guard logs them).
 
 Disabled (:attr:`enabled` False: a lockstep trial's "guard off") it runs no pass but still
@@ -78,6 +78,7 @@ class GuardStation:
                 for i, name in enumerate(arms):
                     r["arms"][i] = _name(name)
                     r["override"][i] = 1.0
+                r["a_point_mm"] = r["b_point_mm"] = np.nan
                 status_db.mark_written()
 
     def readings(self) -> tuple[dict, dict, dict, dict]:
@@ -129,7 +130,8 @@ class GuardStation:
         self.status.update(state=v.state, distance_mm=v.distance_mm, pair=v.pair, override=dict(v.override),
                            closing_mm_s=v.closing_mm_s, separation_mm=v.separation_mm, trips=self.core.trips,
                            tick=tick, cycle_us=cycle_us, ahead_mm=v.ahead_mm, deciding_mm=v.deciding_mm,
-                           deciding_pair=v.deciding_pair, jumps=self.core.jumps, unjudged=v.unjudged)
+                           deciding_pair=v.deciding_pair, jumps=self.core.jumps, unjudged=v.unjudged,
+                           points_mm=v.points_mm)
         if v.notes:
             self.notes += v.notes
             del self.notes[:-NOTES_KEPT]
@@ -156,6 +158,7 @@ class GuardStation:
             r["state"], r["trips"] = STATE_CODES[v.state], self.core.trips
             r["a_arm"], r["a_body"], r["b_arm"], r["b_body"] = _name(a_arm), _name(a_body), _name(b_arm), _name(b_body)
             r["kernel"] = int(self.core.scene.compiled is not None)
+            r["a_point_mm"], r["b_point_mm"] = v.points_mm if v.points_mm is not None else (np.nan, np.nan)
             for i, name in enumerate(self.arms):
                 r["override"][i] = v.override.get(name, 1.0)
             self.status_db.mark_written()
@@ -181,7 +184,19 @@ def guard_status_dict(rec) -> dict:
             "closing_mm_s": float(rec["closing_mm_s"]), "separation_mm": float(rec["separation_mm"]),
             "cycle_us": float(rec["cycle_us"]), "cycle_max_us": float(rec["cycle_max_us"]),
             "trips": int(rec["trips"]), "cycles": int(rec["cycles"]), "stale_ticks": int(rec["stale_ticks"]),
-            "pairs": int(rec["pairs"]), "kernel": int(rec["kernel"])}
+            "pairs": int(rec["pairs"]), "kernel": int(rec["kernel"]), "points_mm": guard_points(rec)}
+
+
+def guard_points(rec) -> list[list[float]] | None:
+    """The closest pair's two closest points [mm, global frame] of a ``guard_status`` record (on
+    body a, on body b), or None where it has none (NaN: nothing judged; a version-1 record)."""
+    try:
+        a, b = np.asarray(rec["a_point_mm"], float), np.asarray(rec["b_point_mm"], float)
+    except (KeyError, ValueError, IndexError):
+        return None
+    if a.shape != (3,) or b.shape != (3,) or not (np.isfinite(a).all() and np.isfinite(b).all()):
+        return None
+    return [a.tolist(), b.tolist()]
 
 
 def guard_core(cell, scene=None) -> GuardCore:

@@ -556,8 +556,8 @@ _Static_assert(offsetof(droid_ft6_ctrl_command_t, brain_tick) == 56, "droid_ft6_
 _Static_assert(sizeof(droid_ft6_ctrl_command_t) == 64, "droid_ft6_ctrl_command size");
 
 #define DROID_GUARD_STATUS_KIND 11
-#define DROID_GUARD_STATUS_VERSION 1
-#define DROID_GUARD_STATUS_SIZE 384
+#define DROID_GUARD_STATUS_VERSION 2
+#define DROID_GUARD_STATUS_SIZE 432
 #pragma pack(push, 1)
 typedef struct droid_guard_status {
     uint32_t magic;
@@ -589,6 +589,8 @@ typedef struct droid_guard_status {
     char b_body[16];
     char arms[8][16];
     double override[8];
+    double a_point_mm[3];
+    double b_point_mm[3];
 } droid_guard_status_t;
 #pragma pack(pop)
 _Static_assert(offsetof(droid_guard_status_t, magic) == 0, "droid_guard_status.magic offset");
@@ -620,6 +622,8 @@ _Static_assert(offsetof(droid_guard_status_t, b_arm) == 160, "droid_guard_status
 _Static_assert(offsetof(droid_guard_status_t, b_body) == 176, "droid_guard_status.b_body offset");
 _Static_assert(offsetof(droid_guard_status_t, arms) == 192, "droid_guard_status.arms offset");
 _Static_assert(offsetof(droid_guard_status_t, override) == 320, "droid_guard_status.override offset");
-_Static_assert(sizeof(droid_guard_status_t) == 384, "droid_guard_status size");
+_Static_assert(offsetof(droid_guard_status_t, a_point_mm) == 384, "droid_guard_status.a_point_mm offset");
+_Static_assert(offsetof(droid_guard_status_t, b_point_mm) == 408, "droid_guard_status.b_point_mm offset");
+_Static_assert(sizeof(droid_guard_status_t) == 432, "droid_guard_status size");
 
 #endif /* DROID_LAYOUTS_H */

@@ -17,7 +17,13 @@ PyPI ``foxglove-sdk``, the optional extra ``droid[foxglove]``).  Every ``--rate`
 * ``/laser`` -- foxglove.SceneUpdate: the laser line across the lead sensor's frame;
 * ``/scene`` -- foxglove.SceneUpdate, twice a second: the workpiece plate and the seam map;
 * ``/<subunit>/status`` -- the subunit's Status record as JSON with its JSON Schema
-  (``droid.<layout>``, as in a recording), for every subunit.
+  (``droid.<layout>``, as in a recording), for every subunit;
+* ``/guard/status`` -- the collision guard's Status record (``droid.guard_status``), where the
+  cell (or the recording) has one; ``/guard`` -- what the page shows of it (``droid.guard_view``:
+  state ``off`` | ``clear`` | ``slowing`` | ``stopped`` -- ``off`` with why where the cell has no
+  guard, ``run = false`` or no pass yet -- the least distance [mm], the closest pair, the override
+  per arm); ``/guard/closest`` -- foxglove.SceneUpdate: the line between the closest pair's two
+  closest points, green / amber / red by state, empty when off (docs/guard.md §7a).
 
 Lengths are in metres, as Foxglove expects (everything else in DROID is mm).  The
 URDFs are assets: the app's URDF layer fetches ``package://droid/<robot>.urdf``
@@ -54,6 +60,7 @@ import numpy as np
 from droid.cli import BadInput, DroidError, RuntimeFailure, is_loopback, rate_hz, run, tcp_port
 from droid.observe.mcapfile import stamp
 from droid.observe.scene import WORKPIECE_BOX_MM, SceneBuilder, is_arm, quat
+from droid.observe.view import GUARD, guard_view
 
 PROG = "droid-foxglove"
 DEFAULT_PORT = 8765
@@ -68,6 +75,9 @@ M_PER_MM = 1e-3
 #: client operations the token gate relays to the SDK server; everything else is dropped
 GATE_OPS = frozenset({"subscribe", "unsubscribe", "fetchAsset"})
 GATE_MAX_MSG_BYTES = 65536
+#: the guard's closest-pair line by state (droid-web's colours)
+GUARD_COLORS = {"clear": {"r": 0.25, "g": 0.88, "b": 0.44, "a": 1.0}, "slowing": {"r": 1.0, "g": 0.69, "b": 0.13, "a": 1.0},
+                "stopped": {"r": 1.0, "g": 0.19, "b": 0.19, "a": 1.0}}
 
 # ------------------------------------------------------------------ URDF forward kinematics
 
@@ -203,6 +213,7 @@ class FoxgloveFeed:
                     self.assets[f"{PACKAGE}{robot}.urdf"] = text.encode()
             self.arms[s["name"]] = (robot, model, chain)
         self._scene_t = -math.inf
+        self._topics = self.topics()
 
     @staticmethod
     def _urdf(model) -> str | None:
@@ -226,6 +237,14 @@ class FoxgloveFeed:
                 t[f"/{arm}/joint_states"] = "foxglove.JointStates"
         for sub, lay in self.status_layouts.items():
             t[f"/{sub}/status"] = record_schema(lay)
+        if GUARD not in self.status_layouts:  # the collision guard (no subunit of that name)
+            from droid.brain.layouts import GUARD_STATUS_LAYOUT
+            from droid.observe.schemas import GUARD_VIEW
+
+            t["/guard"], t["/guard/closest"] = GUARD_VIEW, "foxglove.SceneUpdate"
+            g = self.meta.get("guard")
+            if g is not None and g.get("run"):  # a record droid-guard writes
+                t["/guard/status"] = record_schema(GUARD_STATUS_LAYOUT)
         return t
 
     def asset(self, uri: str) -> bytes | None:
@@ -247,6 +266,10 @@ class FoxgloveFeed:
         """The messages of one snapshot: ``{topic: message dict}`` (``/scene`` only every
         :data:`SCENE_PERIOD_S` of ``now_s`` [s]; ``t_ns`` [ns] stamps every message)."""
         ts = stamp(t_ns)
+        guard = None
+        if GUARD not in self.status_layouts:
+            statuses = dict(statuses)
+            guard = statuses.pop(GUARD, None)
         geo = self.scene.step(statuses)
         out: dict[str, dict] = {}
         tfs = [_tf(ts, "world", name, T) for name, T in geo["frames"].items()]
@@ -287,6 +310,16 @@ class FoxgloveFeed:
         for sub, d in statuses.items():
             if sub in self.status_layouts:
                 out[f"/{sub}/status"] = dict(d, _tick=int(tick), _subunit=sub)
+        if GUARD not in self.status_layouts:
+            newest = max((int(d.get("tick", 0)) for d in statuses.values()), default=0)
+            g = out["/guard"] = guard_view(self.meta.get("guard"), guard, newest)
+            if guard is not None and "/guard/status" in self._topics:
+                out["/guard/status"] = dict(guard, _tick=int(tick), _subunit=GUARD)
+            lines = ([_line(g["points"], GUARD_COLORS.get(g["state"], GUARD_COLORS["clear"]))]
+                     if g["points"] and g["state"] != "off" else [])
+            out["/guard/closest"] = {"deletions": [], "entities": [
+                {"timestamp": ts, "frame_id": "world", "id": "guard_closest", "lifetime": stamp(0),
+                 "frame_locked": False, "cubes": [], "lines": lines}]}
         return out
 
 

@@ -159,7 +159,17 @@ def cell_meta(cell, source: str, scene: dict | None = None) -> dict:
                      "areas": {area: {"layout": lay.name, "version": lay.version}
                                for area, lay in brain_layouts(sub).items()}})
     return {"cell": cell.name, "heartbeat_hz": cell.heartbeat_hz, "source": source,
-            "subunits": subs, "scene": scene or {}}
+            "subunits": subs, "scene": scene or {}, "guard": guard_meta(cell)}
+
+
+def guard_meta(cell) -> dict:
+    """Whether the cell declares a collision guard (``[guard]``) and runs it live (``run``, true by
+    default; docs/guard.md §9): what a viewer says when no droid-guard writes its Status."""
+    table = cell.raw.get("guard")
+    if table is None:
+        return {"declared": False, "run": False}
+    run = table.get("run", True) if isinstance(table, dict) else True
+    return {"declared": True, "run": run is True}
 
 
 # ---------------------------------------------------------------- reading

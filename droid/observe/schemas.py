@@ -134,6 +134,23 @@ TICK = {
     "properties": {"_tick": {"type": "integer"}, "t_ns": {"type": "integer"}, "missed": {"type": "integer"}},
 }
 
+_NUM_OR_NULL = {"type": ["number", "null"]}
+GUARD_VIEW = {
+    "title": "droid.guard_view", "type": "object",
+    "description": "the collision guard as the viewers show it (docs/guard.md §7a): state off|clear|slowing|stopped "
+                   "(off: no [guard] table, run = false, or no pass yet; why says which), the least distance [mm], "
+                   "the closest pair and its two closest points [mm, world], the override per arm, closing speed "
+                   "[mm/s] and S_p [mm] of the deciding pair",
+    "properties": {"state": {"type": "string"}, "why": {"type": ["string", "null"]},
+                   "tick": {"type": ["integer", "null"]}, "distance_mm": _NUM_OR_NULL,
+                   "pair": {"type": ["array", "null"], "items": {"type": "object", "properties": {
+                       "arm": {"type": "string"}, "body": {"type": "string"}}}},
+                   "points": {"type": ["array", "null"], "items": {"type": "array", "items": {"type": "number"}}},
+                   "override": {"type": "object", "additionalProperties": _NUM_OR_NULL},
+                   "closing_mm_s": _NUM_OR_NULL, "separation_mm": _NUM_OR_NULL,
+                   "trips": {"type": ["integer", "null"]}, "stale": {"type": "boolean"}},
+}
+
 
 def schema_bytes(schema: dict) -> bytes:
     return json.dumps(schema, separators=(",", ":")).encode()

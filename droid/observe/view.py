@@ -9,10 +9,19 @@ A *snapshot* is one tick of the cell::
              "bodies": {arm | "torch" | "bracket" | "fixture": [[x0,y0,z0,x1,y1,z1,r], ...]},
              "forces": [{"subunit", "at": [x,y,z], "force_N": [3], "torque_Nm": [3]}],
              "laser": [[x,y,z],[x,y,z]] | null, "laser_src": [x,y,z] | null,
-             "tool": [x,y,z] | null, "seam_n": N}}
+             "tool": [x,y,z] | null, "seam_n": N},
+     "guard": {"state": "off" | "clear" | "slowing" | "stopped", "why": str | null, "tick",
+               "distance_mm", "pair": [{"arm", "body"}, {"arm", "body"}], "points": [[x,y,z], [x,y,z]] | null,
+               "override": {arm: 0..1}, "closing_mm_s", "separation_mm", "trips", "stale"}}
 
 (mm; droid/observe/scene.py).  What does not change over a run -- the workpiece's surfaces
 (``scene.workpiece_mesh`` of the recording's metadata) -- is served once, by ``/api/cell``.
+
+``guard`` is the collision guard's Status (``/guard/status``; docs/guard.md §7a): the least
+distance [mm] between the arms' bodies, the closest pair and its two closest points (the page
+draws the line between them), the guard's state and its speed override per arm.  A cell without
+a ``[guard]`` table, one with ``run = false`` (no droid-guard writes the record) or a record not
+yet written says ``off`` and why -- never zeros.
 
 The seam map is sent apart (``seam``: the points so far), since it only grows.
 Tracking errors are the tool-tip sensor's reading (thesis §6.1: the seam's
@@ -25,11 +34,66 @@ import math
 
 import numpy as np
 
-from droid.brain.layouts import CMD_MODE_NAMES
+from droid.brain.layouts import CMD_MODE_NAMES, GUARD_STATE_NAMES
 from droid.brain.layouts import fault_names
 from droid.observe.scene import SceneBuilder, is_arm
 
 CMD_RESULT_NAMES = {0: "ok", 1: "failed", 2: "refused"}
+#: the collision guard's record among a snapshot's Status dicts (droid.observe.sampler.GUARD)
+GUARD = "guard"
+
+
+def _finite(v, nd: int = 3):
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        return None
+    return round(f, nd) if math.isfinite(f) else None
+
+
+def _split(key: str) -> dict:
+    arm, _, body = key.partition(".")
+    return {"arm": arm, "body": body}
+
+
+def guard_off(why: str) -> dict:
+    return {"state": "off", "why": why, "tick": None, "distance_mm": None, "pair": None, "points": None,
+            "override": {}, "closing_mm_s": None, "separation_mm": None, "trips": None, "stale": False}
+
+
+def guard_view(meta_guard: dict | None, d: dict | None, newest_tick: int = 0) -> dict:
+    """What the viewers show of the guard (the module docstring): ``meta_guard`` the recording's
+    ``guard`` metadata (:func:`droid.observe.mcapfile.guard_meta`; None in a recording made
+    before it), ``d`` the guard's Status dict (None: no record), ``newest_tick`` the newest
+    subunit tick of the snapshot (a guard record older than its ``stale_ticks``: ``stale``)."""
+    if meta_guard is not None and not meta_guard.get("declared"):
+        return guard_off("no [guard] table in the cell: no collision guard")
+    if meta_guard is not None and not meta_guard.get("run"):
+        return guard_off("[guard] run = false: no droid-guard runs (docs/guard.md §9)")
+    if d is None:
+        return guard_off("no guard Status in the cell" if meta_guard is None else "no guard Status record")
+    tick = int(d.get("tick", 0) or 0)
+    if tick == 0:
+        return guard_off("droid-guard has not written its Status (not running yet)")
+    n = int(d.get("n_arms", 0) or 0)
+    arms, over = list(d.get("arms") or [])[:n], list(d.get("override") or [])[:n]
+    pair = None
+    if d.get("a_arm"):
+        pair = [{"arm": d.get("a_arm", ""), "body": d.get("a_body", "")},
+                {"arm": d.get("b_arm", ""), "body": d.get("b_body", "")}]
+    points = None
+    a, b = d.get("a_point_mm"), d.get("b_point_mm")
+    if pair is not None and a is not None and b is not None:
+        pa, pb = [_finite(c, 2) for c in a], [_finite(c, 2) for c in b]
+        if None not in pa and None not in pb and len(pa) == len(pb) == 3:
+            points = [pa, pb]
+    stale_ticks = int(d.get("stale_ticks", 0) or 0)
+    return {"state": GUARD_STATE_NAMES.get(int(d.get("state", 0)), str(d.get("state"))), "why": None, "tick": tick,
+            "distance_mm": _finite(d.get("distance_mm")), "pair": pair, "points": points,
+            "override": {str(k): _finite(v) for k, v in zip(arms, over)},
+            "closing_mm_s": _finite(d.get("closing_mm_s"), 1), "separation_mm": _finite(d.get("separation_mm")),
+            "trips": int(d.get("trips", 0) or 0),
+            "stale": bool(stale_ticks and newest_tick - tick > stale_ticks)}
 
 
 def subunit_view(sub: dict, d: dict) -> dict:
@@ -62,6 +126,10 @@ class ViewBuilder:
         self._last_tool: tuple[int, np.ndarray] | None = None
 
     def snapshot(self, tick: int, t_ns: int, statuses: dict[str, dict], health: dict | None = None) -> dict:
+        guard = None
+        if GUARD not in self.subs:  # the collision guard's record is no subunit (a subunit may not be named so)
+            statuses = dict(statuses)
+            guard = statuses.pop(GUARD, None)
         geo = self.scene.step(statuses)
         subs = {n: subunit_view(self.subs.get(n, {}), d) for n, d in statuses.items()}
         tool_T = geo["frames"].get("tool")
@@ -86,7 +154,9 @@ class ViewBuilder:
                         "laser_src": None if geo["laser_src"] is None else [round(c, 2) for c in geo["laser_src"]],
                         "frames": frames, "laser": geo["laser"],
                         "tool": None if tool_T is None else tool_T[:3, 3].round(3).tolist(),
-                        "seam_n": len(geo["seam"])}}
+                        "seam_n": len(geo["seam"])},
+                "guard": guard_view(self.meta.get("guard"), guard,
+                                    max((int(d.get("tick", 0)) for d in statuses.values()), default=0))}
 
     @property
     def seam(self) -> list:

@@ -18,6 +18,11 @@ Going only once the other move has ended, not as soon as the time-aligned paths 
 keeps the two arms from closing at speed, where the guard's S_p (the speed terms) would slow or
 stop them.  A move against an arm at rest is refused at once: nothing would clear it.  The arm
 never moves before the check passes.
+
+The decision is pure (:func:`wait_clear_step`, on the other arms' records read by
+:func:`other_arm_of`), so the same rule runs on a live cell here and in lockstep, on virtual
+time (tests/guard/test_wait_clear.py: two arms in overlapping regions of a held-out cell,
+docs/guard.md §9).
 """
 from __future__ import annotations
 
@@ -34,10 +39,23 @@ from droid.guard.refuse import check_move
 from droid.guard.ssm import ssm_params
 from droid.kinematics import load_robot
 
+#: :func:`wait_clear_step`'s answers: write the move; hold (check again on a later tick); refuse it
+GO, HOLD, REFUSE = "go", "hold", "refuse"
+
+
+def other_arm_of(st, cmd, gearing, heartbeat_hz: float) -> tuple[np.ndarray, tuple | None, bool]:
+    """From an arm's Brain Status ``st`` and Command ``cmd``: its joints now [deg], (its joint
+    move's target [deg], seconds left) or None, and whether it is busy on any move (a Cartesian
+    one's path is not known here: it stands)."""
+    q = gearing.counts_to_joints(np.asarray(st["encoder_pos"], float))
+    busy = int(st["busy"])
+    if busy > 0 and int(cmd["coord"]) == JSPACE:
+        return q, (gearing.counts_to_joints(np.asarray(cmd["encoder_pos"], float)), busy / heartbeat_hz), True
+    return q, None, busy > 0
+
 
 def _other_arm(cell, name: str, gearing) -> tuple[np.ndarray, tuple | None, bool]:
-    """An arm's joints now [deg], (its joint move's target [deg], seconds left) or None, and
-    whether it is busy on any move (a Cartesian one's path is not known here: it stands)."""
+    """:func:`other_arm_of` an arm of the running cell (its Brain databases read once)."""
     sub = cell.subunit(name)
     st_db, cmd_db = open_brain(cell, sub, "status"), open_brain(cell, sub, "command")
     try:
@@ -45,11 +63,26 @@ def _other_arm(cell, name: str, gearing) -> tuple[np.ndarray, tuple | None, bool
     finally:
         st_db.close()
         cmd_db.close()
-    q = gearing.counts_to_joints(np.asarray(st["encoder_pos"], float))
-    busy = int(st["busy"])
-    if busy > 0 and int(cmd["coord"]) == JSPACE:
-        return q, (gearing.counts_to_joints(np.asarray(cmd["encoder_pos"], float)), busy / cell.heartbeat_hz), True
-    return q, None, busy > 0
+    return other_arm_of(st, cmd, gearing, cell.heartbeat_hz)
+
+
+def wait_clear_step(scene, arm: str, q_from_deg, q_to_deg, seconds: float, others: dict, limit_mm: float,
+                    waited_s: float, wait_s: float, holding: bool) -> tuple[str, str | None]:
+    """One look at the other arms (the module docstring's rule): ``(GO, None)``, ``(HOLD, line)``
+    -- ``line`` the reason, None while already holding for a busy arm -- or ``(REFUSE, line)``.
+    ``others``: arm -> :func:`other_arm_of`; ``limit_mm``: C + Z; ``waited_s``: the time since
+    the first look [s]; ``holding``: an earlier look said HOLD with a reason."""
+    now = {n: o[0] for n, o in others.items()}
+    moves = {n: o[1] for n, o in others.items() if o[1] is not None}
+    busy = [n for n, o in others.items() if o[2]]
+    if holding and busy and waited_s < wait_s:  # holding: until every other arm's move has ended
+        return HOLD, None
+    line = check_move(scene, arm, q_from_deg, q_to_deg, seconds, now, moves, limit_mm)
+    if not line:
+        return GO, None
+    if not busy or waited_s >= wait_s:
+        return REFUSE, line + (f"; the region did not clear in {waited_s:.1f} s" if holding else "")
+    return HOLD, line
 
 
 def refuse_colliding_move(cell, arm: str, q_from_deg, q_to_deg, seconds: float, wait_s: float = 0.0,
@@ -67,25 +100,16 @@ def refuse_colliding_move(cell, arm: str, q_from_deg, q_to_deg, seconds: float, 
     start = time.monotonic()
     said = False
     while True:
-        now, moves, busy = {}, {}, []
-        for name in others:
-            now[name], move, is_busy = _other_arm(cell, name, gearing[name])
-            if move is not None:
-                moves[name] = move
-            if is_busy:
-                busy.append(name)
+        state = {name: _other_arm(cell, name, gearing[name]) for name in others}
         waited = time.monotonic() - start
-        if said and busy and waited < wait_s:  # holding: until every other arm's move has ended
-            time.sleep(1.0 / cell.heartbeat_hz)
-            continue
-        line = check_move(scene, arm, q_from_deg, q_to_deg, seconds, now, moves,
-                          p.clearance_mm + p.uncertainty_mm)
-        if not line:
+        action, line = wait_clear_step(scene, arm, q_from_deg, q_to_deg, seconds, state,
+                                       p.clearance_mm + p.uncertainty_mm, waited, wait_s, said)
+        if action == GO:
             return waited if said else 0.0
-        if not busy or waited >= wait_s:
-            raise BadInput(line + (f"; the region did not clear in {waited:.1f} s" if said else ""))
+        if action == REFUSE:
+            raise BadInput(line)
         if not said:
-            who = " and ".join(f"{n}'s move" for n in busy)
+            who = " and ".join(f"{n}'s move" for n, o in state.items() if o[2])
             print(f"{arm}: holding until {who} clears the region ({line})", file=err, flush=True)
             said = True
         time.sleep(1.0 / cell.heartbeat_hz)

@@ -25,9 +25,11 @@ from tests.observe.webutil import lockstep_recording, stop_process, taken_port
 
 WELL_KNOWN = {"/tf": "foxglove.FrameTransforms", "/scene": "foxglove.SceneUpdate", "/laser": "foxglove.SceneUpdate",
               "/tool_pose": "foxglove.PoseInFrame", "/arm1/joint_states": "foxglove.JointStates",
-              "/gmf1/joint_states": "foxglove.JointStates"}
+              "/gmf1/joint_states": "foxglove.JointStates",
+              "/guard/closest": "foxglove.SceneUpdate"}  # the collision guard's closest pair (off here: empty)
 STATUS = {"/arm1/status": "droid.arm_status", "/gmf1/status": "droid.arm_status",
-          "/mvs/status": "droid.sensor_status", "/tool/status": "droid.sensor_status"}
+          "/mvs/status": "droid.sensor_status", "/tool/status": "droid.sensor_status",
+          "/guard": "droid.guard_view"}  # the guard as the viewers show it: "off" in a lockstep seam trial
 
 
 @pytest.fixture(scope="module")
@@ -203,6 +205,9 @@ def test_one_message_of_each_schema(recording):
     for t in STATUS:
         schema = json.loads(topics[t]["schema"])
         assert schema["title"] == STATUS[t]
+        if t == "/guard":  # no record: what the viewers say of a cell without a guard
+            assert msg[t]["state"] == "off" and msg[t]["distance_mm"] is None and msg[t]["why"]
+            continue
         assert set(schema["required"]) <= set(msg[t]) and msg[t]["_subunit"] == t.split("/")[1]
     # the URDF asset is robot_urdf of the robot file; anything else is not found
     status, data, _ = ok

@@ -17,7 +17,7 @@ import time
 import pytest
 
 from tests.brain.cellutil import ROOT, droid, make_cell_file, wait_for
-from tests.observe.webutil import WebServer, lockstep_recording
+from tests.observe.webutil import WebServer, guard_recording, lockstep_recording
 
 CHROMIUM = "/usr/bin/chromium"
 ARGS = ["--no-sandbox", "--enable-unsafe-swiftshader", "--use-angle=swiftshader"]
@@ -83,6 +83,38 @@ def test_recording_opens_and_scrubs(browser, tmp_path):
             page.evaluate("location.hash = '#view=side'")
             page.wait_for_function("droidView.view === 'side'", timeout=5000)
             assert page.locator("#views button.on").inner_text() == "side"
+            # a seam trial's recording has no collision guard: "off", no closest-pair line
+            assert page.locator("#guard-state").inner_text() == "off"
+            assert page.evaluate("droidView.guard().visible") is False
+            assert errors == []
+        finally:
+            page.close()
+
+
+def test_the_guard_and_its_closest_pair_on_the_page(browser, tmp_path):
+    """A recording with the guard's Status (issue 41 item 5): its state, least distance, pair and
+    override per arm in the side panel, and the line between the closest points in the 3-D view --
+    green while clear, red once stopped, at the recorded points."""
+    rec = guard_recording(tmp_path / "guard.mcap")
+    with WebServer("--file", rec) as w:
+        n = w.get("api/cell")["file"]["count"] - 1
+        last = w.get(f"api/frame?i={n}")["guard"]
+        page, errors = open_page(browser, w.url)
+        try:
+            assert page.locator("#guard-state").inner_text() == "clear"
+            assert page.evaluate("droidView.guard()")["color"] == 0x40e070
+            assert "least 627.4 mm" in page.locator("#guard-text").inner_text()
+            page.locator("#slider").evaluate(f"(s) => {{ s.value = {n}; s.dispatchEvent(new Event('input')); }}")
+            page.wait_for_function(f"droidState.index === {n}", timeout=10000)
+            assert page.locator("#guard-state").inner_text() == "stopped"
+            g = page.evaluate("droidView.guard()")
+            assert g["visible"] and g["color"] == 0xff3030
+            assert all(abs(a - b) < 0.01 for p, q in zip(g["points"], last["points"]) for a, b in zip(p, q))
+            text = page.locator("#guard-text").inner_text()
+            assert f"least {last['distance_mm']:.1f} mm" in text and "arm1 link_4 with arm2 link_4" in text
+            rows = page.locator("#guard-override tbody tr")
+            assert rows.evaluate_all("rs => rs.map(r => r.dataset.arm)") == ["arm1", "arm2"]
+            assert rows.nth(0).inner_text().split()[-1] == "0.00"
             assert errors == []
         finally:
             page.close()

@@ -86,3 +86,64 @@ def lockstep_recording(path) -> str:
     return str(path)
 
 
+
+
+#: the guard recording's course: both arms of reis_pair.toml (arm2's base at 1800 mm, so their reaches
+#: overlap) stretch toward each other from FROM_DEG to TO_DEG [deg] in COURSE_TICKS heartbeat ticks
+GUARD_GAP_MM = 1800.0
+GUARD_FROM_DEG = (0.0, 20.0, -10.0, 0.0, 0.0, 0.0)
+GUARD_TO_DEG = (0.0, -60.0, 40.0, 0.0, 0.0, 0.0)
+GUARD_COURSE_TICKS = 60
+
+
+def guard_cell(run: bool = True):
+    """reis_pair.toml with arm2's base at :data:`GUARD_GAP_MM` and ``[guard] run`` = ``run``."""
+    from droid.brain.cellfile import BUNDLED_CELLS, load_cell
+
+    cell = load_cell(BUNDLED_CELLS / "reis_pair.toml")
+    cell.subunits["arm2"].base = [GUARD_GAP_MM, *cell.subunits["arm2"].base[1:]]
+    cell.raw["guard"] = dict(cell.raw["guard"], run=run)
+    return cell
+
+
+def guard_recording(path, run: bool = True) -> str:
+    """A recording with the collision guard's Status (``/guard/status``), in the layout droid-record
+    writes: droid-guard's station (droid.guard.station.GuardStation, the live program's) over the two
+    arms' Status records as both stretch toward each other (:data:`GUARD_FROM_DEG` ->
+    :data:`GUARD_TO_DEG`, then at rest for 20 ticks), so the guard goes clear -> slowing -> stopped.
+    Pure: records in memory, virtual time; the arms are Status records, no planner moves them."""
+    import numpy as np
+
+    from droid.brain import layouts as L
+    from droid.brain.shmdb import MemoryDatabase
+    from droid.guard.station import GuardStation, guard_core
+    from droid.kinematics import load_robot
+    from droid.observe.mcapfile import RecordingWriter, cell_meta
+    from droid.observe.record import CellRecorder
+    from droid.observe.scene import scene_meta
+
+    cell = guard_cell(run)
+    core = guard_core(cell)
+    arms, gearing = {}, {}
+    for name in core.scene.arms:
+        gearing[name] = load_robot(cell.subunits[name].robot).gearing
+        arms[name] = (gearing[name], MemoryDatabase(f"{name}.status", L.ARM_STATUS_LAYOUT),
+                      MemoryDatabase(f"{name}.ctrl_status", L.CTRL_STATUS_LAYOUT),
+                      MemoryDatabase(f"{name}.command", L.ARM_COMMAND_LAYOUT))
+    gdb = MemoryDatabase("guard.status", L.GUARD_STATUS_LAYOUT)
+    station = GuardStation(core, arms, gdb, stale_ticks=6) if run else None
+    rec = CellRecorder(RecordingWriter(str(path), cell_meta(cell, "lockstep", scene_meta(cell))))
+    a, b = np.asarray(GUARD_FROM_DEG), np.asarray(GUARD_TO_DEG)
+    period_ns = int(round(1e9 / cell.heartbeat_hz))
+    for tick in range(1, GUARD_COURSE_TICKS + 22):
+        s = min(1.0, (tick - 1) / GUARD_COURSE_TICKS)
+        for name, (g, st, *_rest) in arms.items():
+            counts = np.rint(g.joints_to_counts(a + s * (b - a)))
+            st.update(encoder_pos=counts, encoder_cmd=counts, homed=1, tick=tick)
+        if station is not None:
+            station.on_tick(tick)
+        recs = [(n, "status", L.ARM_STATUS_LAYOUT, st.read()) for n, (_, st, *_r) in arms.items()]
+        recs.append(("guard", "status", L.GUARD_STATUS_LAYOUT, gdb.read()))
+        rec.sample(tick, tick * period_ns, recs)
+    rec.close()
+    return str(path)

@@ -1,5 +1,6 @@
 // droid-web page: status tables, plots, and a three.js view of the cell (docs/observe.md): the arms'
-// bodies, tool, sensor and laser sheet, the workpiece's surfaces, the seam map, force arrows; camera presets.
+// bodies, tool, sensor and laser sheet, the workpiece's surfaces, the seam map, force arrows, the collision
+// guard's closest pair; camera presets.
 // Read-only: the WebSocket only receives; the slider (recordings) uses GET /api/frame.
 import * as THREE from "three";
 import { OrbitControls } from "./vendor/three/OrbitControls.js";
@@ -149,6 +150,38 @@ function setSeam(points, from = 0) {
 }
 function matrixOf(m16) { const m = new THREE.Matrix4(); m.set(...m16); return m; }
 
+// The collision guard's closest pair (docs/guard.md §7a): a line between its two closest points, coloured by state.
+const GUARD_COLORS = { clear: 0x40e070, slowing: 0xffb020, stopped: 0xff3030 };
+const guardGeom = new THREE.BufferGeometry(); guardGeom.setAttribute("position", new THREE.BufferAttribute(new Float32Array(6), 3));
+const guardMat = new THREE.LineBasicMaterial({ color: GUARD_COLORS.clear, depthTest: false });
+const guardLine = new THREE.Line(guardGeom, guardMat); guardLine.visible = false; guardLine.frustumCulled = false; guardLine.renderOrder = 10; scene.add(guardLine);
+const guardEnds = [0, 1].map(() => { const m = new THREE.Mesh(new THREE.SphereGeometry(10, 12, 8), guardMat); m.visible = false; scene.add(m); return m; });
+const fmt = (v, nd = 1) => (v == null ? "–" : Number(v).toFixed(nd));
+function drawGuard(g) {
+  state.guard = g || null;
+  const on = !!(g && g.points && g.state !== "off");
+  guardLine.visible = on; guardEnds.forEach((m) => { m.visible = on; });
+  if (on) {
+    guardGeom.attributes.position.array.set([...g.points[0], ...g.points[1]]); guardGeom.attributes.position.needsUpdate = true;
+    guardMat.color.setHex(GUARD_COLORS[g.state] ?? 0xffffff);
+    guardEnds[0].position.set(...g.points[0]); guardEnds[1].position.set(...g.points[1]);
+  }
+  const tag = $("guard-state");
+  if (!g || g.state === "off") {
+    tag.textContent = "off"; tag.className = "tag";
+    $("guard-text").textContent = g && g.why ? g.why : "no collision guard";
+    $("guard-override").tBodies[0].innerHTML = "";
+    return;
+  }
+  tag.textContent = g.state + (g.stale ? " (STALE)" : "");
+  tag.className = "tag " + (g.stale || g.state === "stopped" ? "bad" : g.state === "slowing" ? "warn" : "ok");
+  const pair = g.pair ? g.pair.map((b) => `${b.arm} ${b.body}`).join(" with ") : "–";
+  $("guard-text").textContent = `least ${fmt(g.distance_mm)} mm: ${pair}; closing ${fmt(g.closing_mm_s, 0)} mm/s, ` +
+    `S_p ${fmt(g.separation_mm)} mm, trips ${g.trips ?? "–"}`;
+  $("guard-override").tBodies[0].innerHTML = Object.entries(g.override || {}).map(([a, v]) =>
+    `<tr data-arm="${esc(a)}"><td>override ${esc(a)}</td><td class="${v != null && v < 1 ? "bad" : "ok"}">${fmt(v, 2)}</td></tr>`).join("");
+}
+
 function drawGeo(geo) {
   drawBodies(geo.bodies);
   for (const [name, m16] of Object.entries(geo.frames || {})) {
@@ -205,6 +238,8 @@ const droidView = window.droidView = {
   view, rendered: 0, setView, FORCE_MM_PER_N,
   // a global point [mm] -> [x, y] in CSS pixels of the 3-D canvas (its top-left corner at 0, 0)
   draw(geo) { drawGeo(geo); },  // draw a scene payload (``geo`` of a snapshot), e.g. a synthetic one
+  guard: () => ({ visible: guardLine.visible, color: guardMat.color.getHex(),
+                  points: [0, 1].map((i) => [0, 1, 2].map((k) => guardGeom.attributes.position.array[3 * i + k])) }),
   project(p) {
     const v = new THREE.Vector3(...p).project(camera);
     return [(v.x + 1) / 2 * canvas.clientWidth, (1 - v.y) / 2 * canvas.clientHeight, v.z];
@@ -271,7 +306,7 @@ function show(snap) {
   state.snapshots++; updates++;
   state.lastTick = snap.tick; state.ticks = Object.fromEntries(Object.entries(snap.subunits).map(([n, s]) => [n, s.tick]));
   $("tick").textContent = snap.tick;
-  drawTables(snap); drawGeo(snap.geo);
+  drawTables(snap); drawGeo(snap.geo); drawGuard(snap.guard);
   if (snap.seam) setSeam(snap.seam, snap.seam_from ?? 0);
   if (snap.logs) drawLogs(snap.logs);
 }
