@@ -143,7 +143,8 @@ class RemoteStation:
         self.sent_cmd_id: int | None = None
         runs = getattr(translate, "byte_runs", None)
         self._runs = runs(status.layout) if runs is not None else None
-        self._pack = _reply_packers(status.layout.dtype) if self._runs is not None else None
+        self._pack = (_reply_packers(status.layout.dtype) if self._runs is not None and hasattr(translate, "pose_T")
+                      else None)  # the reply's tick and pose as two struct packs (issue 44)
 
     def on_poll(self, now_ns: int) -> bool:
         """A wake-up at ``now_ns`` (a tick or not): True once when the heartbeat fell silent."""
@@ -184,35 +185,27 @@ class RemoteStation:
         """:meth:`on_reply` where the copied fields are byte ranges of both records (the 60 Hz
         reply of every arm, issue 44): the same record, one lock and one seq bump as ``update``."""
         translate = self.translate
+        rec = translate.record(payload)
         pack = self._pack
-        if pack is not None and hasattr(translate, "pose_T"):
-            T = translate.pose_T(translate.record(payload))
-            if not self.core.on_reply(tick):
-                return False
-            (h_off, head), (p_off, pose) = pack
-            with self.status.locked() as v:
-                mv, src = memoryview(v).cast("B"), memoryview(payload)
-                for s0, d0, n in self._runs:
-                    mv[d0:d0 + n] = src[s0:s0 + n]
-                head.pack_into(mv, h_off, tick, now_ns, 0)  # v["tick"], v["updated_ns"], v["stale"]
-                if T is not None:  # v["x"], v["y"], v["z"], v["R"]: the same doubles, row by row
-                    (r0, r1, r2, _) = T.tolist()
-                    pose.pack_into(mv, p_off, r0[3], r1[3], r2[3], r0[0], r0[1], r0[2], r1[0], r1[1], r1[2],
-                                   r2[0], r2[1], r2[2])
-                self.status.mark_written()
-            if self.command is not None:
-                _ack_sent(self.command, self.sent_cmd_id)
-            return True
-        pose = translate.pose_fields(translate.record(payload))
+        T = translate.pose_T(rec) if pack is not None else None
+        pose = translate.pose_fields(rec) if pack is None else None
         if not self.core.on_reply(tick):
             return False
         with self.status.locked() as v:
             mv, src = memoryview(v).cast("B"), memoryview(payload)
             for s0, d0, n in self._runs:
                 mv[d0:d0 + n] = src[s0:s0 + n]
-            v["tick"], v["updated_ns"], v["stale"] = tick, now_ns, 0
-            for k, val in pose.items():
-                v[k] = val
+            if pack is None:
+                v["tick"], v["updated_ns"], v["stale"] = tick, now_ns, 0
+                for k, val in pose.items():
+                    v[k] = val
+            else:
+                (h_off, head), (p_off, packed_pose) = pack
+                head.pack_into(mv, h_off, tick, now_ns, 0)  # v["tick"], v["updated_ns"], v["stale"]
+                if T is not None:  # v["x"], v["y"], v["z"], v["R"]: the same doubles, row by row
+                    (r0, r1, r2, _) = T.tolist()
+                    packed_pose.pack_into(mv, p_off, r0[3], r1[3], r2[3], r0[0], r0[1], r0[2], r1[0], r1[1],
+                                          r1[2], r2[0], r2[1], r2[2])
             self.status.mark_written()
         if self.command is not None:
             _ack_sent(self.command, self.sent_cmd_id)
