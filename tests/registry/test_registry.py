@@ -163,7 +163,7 @@ def test_builtin_packages_make_the_old_tables():
     # off the kernel's real-time budget: a tick's deadline or longer, and no servo fed (issue 40); the two
     # tasks are not: at nice -10 the tracker lost heartbeat ticks beside busy work (docs/architecture.md)
     assert {p.name for p in R.registry().programs.values() if p.sched == "nice"} == {
-        "droid-gmf1-agent", "droid-gmf1-encoder", "droid-mvs"}
+        "droid-gmf1-agent", "droid-gmf1-serial", "droid-gmf1-encoder", "droid-mvs"}
     assert max(rt.FIFO_PRIORITIES.values()) < rt.CEILING_PRIORITY
     # a class is not a package: arm6r is defined by the Brain, served by two program sets
     served_by = {p.name for p in R.registry().package_of_class("arm6r")}

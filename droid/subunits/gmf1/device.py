@@ -19,7 +19,7 @@ PACKAGE = DevicePackage(
     programs=(
         Program("droid-gmf1-agent", "droid.subunits.gmf1.agent", sched="nice", cpu_pct=3.5, rss_mb=42),  # the KAREL
         # controller interpolates on its own: ticks late by a few ms reach it at <= 6 Hz anyway
-        Program("droid-gmf1-serial", "droid.subunits.gmf1.serial_prog", cpu_pct=2.5, rss_mb=44),
+        Program("droid-gmf1-serial", "droid.subunits.gmf1.serial_prog", sched="nice", cpu_pct=2.5, rss_mb=44),
         Program("droid-gmf1-encoder", "droid.subunits.gmf1.encoder_prog", rate_hz=ENCODER_HZ, sched="nice",
                 cpu_pct=2.5, rss_mb=46),
     ),

@@ -30,6 +30,7 @@ from droid.guard.gate import GuardGate, guard_stale_ticks
 from droid.subunits.gmf1.config import gmf1_config
 from droid.subunits.gmf1.karel_wire import MIN_BAUD
 from droid.brain.registry import open_url
+from droid.brain.rt import try_sched_fifo
 from droid.subunits.gmf1.port import PortLink
 from droid.subunits.gmf1.serial_core import SerialCore, SerialParams
 from droid.subunits.gmf1.station import SerialStation
@@ -52,7 +53,6 @@ def main(argv=None) -> int:
         ap.add_argument("--baud", type=baud_rate(MIN_BAUD), default=None,
                         help="baud rate (default: the cell file's, 9600)")
 
-    # tick-driven like the agent (no SCHED_FIFO): the 9600-baud line sets its pace
     args, cell, sub = subunit_program(PROG, "Send the newest GMF1 command to the Fanuc KAREL server over its serial "
                                       "line.", argv, arm=True, options=options, example="gmf1")
     cfg = gmf1_config(cell, sub)
@@ -60,6 +60,10 @@ def main(argv=None) -> int:
     baud = args.baud or cfg.baud
     link = PortLink(open_url(url, "serial", baud=baud))  # droid.brain.serial_port.serial_opener
     core = build_core(cell, sub, cfg, baud)
+    # tick-driven like the agent and, like it, declared sched = "nice" (nice -10, not real-time;
+    # docs/architecture.md): at nice 0 any normal process beside the cell took half its CPU and
+    # the holder's commands reached the line up to 345 ms late
+    try_sched_fifo(wanted=cell.sched_fifo, prog=PROG)
     ctrl_command = open_local(cell, sub, "ctrl_command")
     ctrl_status = None
     ctx = None
