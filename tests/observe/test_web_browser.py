@@ -9,6 +9,7 @@ databases fed by droid-replay, and -- marked integration -- a live cell), the
 from __future__ import annotations
 
 import io
+import os
 import re
 import shutil
 import subprocess
@@ -21,6 +22,8 @@ from tests.brain.cellutil import ROOT, droid, make_cell_file, wait_for
 from tests.observe.webutil import WebServer, guard_recording, lockstep_recording
 
 CHROMIUM = "/usr/bin/chromium"
+#: chromium started without CAP_SYS_NICE: as root it would lift itself to nice -8 beside the cells
+NO_NICE = ROOT / "tests" / "observe" / "chromium-no-nice"
 ARGS = ["--no-sandbox", "--enable-unsafe-swiftshader", "--use-angle=swiftshader"]
 
 
@@ -32,9 +35,57 @@ def browser():
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as p:
-        b = p.chromium.launch(executable_path=shutil.which("chromium") or CHROMIUM, args=ARGS, headless=True)
+        b = p.chromium.launch(executable_path=str(NO_NICE), args=ARGS, headless=True,
+                              env={**os.environ, "DROID_CHROMIUM": shutil.which("chromium") or CHROMIUM})
         yield b
         b.close()
+
+
+def chromium_processes() -> list[int]:
+    """The pids of the chromium processes below this pytest process."""
+    children: dict[int, list[int]] = {}
+    comm: dict[int, str] = {}
+    for d in os.listdir("/proc"):
+        if not d.isdigit():
+            continue
+        try:
+            with open(f"/proc/{d}/stat") as f:
+                stat = f.read()
+        except OSError:
+            continue
+        name, rest = stat[stat.index("(") + 1:stat.rindex(")")], stat[stat.rindex(")") + 2:].split()
+        comm[int(d)] = name
+        children.setdefault(int(rest[1]), []).append(int(d))
+    out, todo = [], [os.getpid()]
+    while todo:
+        for c in children.get(todo.pop(), []):
+            todo.append(c)
+            if "chrom" in comm.get(c, ""):
+                out.append(c)
+    return out
+
+
+def test_chromium_does_not_raise_its_priority(browser):
+    """Issue 40: the browser tests run beside the live cells; chromium as root lifts its threads to
+    nice -8, near the cell's nice -10 programs' weight.  Started through chromium-no-nice it cannot:
+    every thread of every chromium process stays at nice >= 0 on the normal scheduler."""
+    page = browser.new_page()
+    page.set_content("<canvas id=c></canvas><script>c.getContext('webgl')</script><p>x</p>")
+    page.wait_for_timeout(500)
+    pids = chromium_processes()
+    assert pids, "no chromium process found below pytest"
+    raised = []
+    for pid in pids:
+        for tid in os.listdir(f"/proc/{pid}/task"):
+            try:
+                nice = os.getpriority(os.PRIO_PROCESS, int(tid))
+                policy = os.sched_getscheduler(int(tid))
+            except OSError:
+                continue
+            if nice < 0 or policy not in (os.SCHED_OTHER, os.SCHED_BATCH, os.SCHED_IDLE):
+                raised.append((pid, int(tid), nice, policy))
+    page.close()
+    assert not raised, raised
 
 
 def open_page(browser, url):
