@@ -14,7 +14,8 @@ runs :class:`~droid.guard.core.GuardCore` and
   [mm] and the closest pair, the closing speed and S_p of the pair that decides (the least margin
   d - S_p; at rest the closest pair) and the closest pair's two closest points [mm], the
   override per arm, state, the cycle time [us], trips, the tick; the dict also the deciding
-  pair and its distance, the re-zeros seen, the arms not judged (not homed) and the guard's notes (:attr:`notes`, each said once: droid-guard logs them).
+  pair and its distance, the re-zeros seen, the arms not judged (not homed) and the guard's
+  notes (:attr:`notes`, each said once: droid-guard logs them).
 
 Disabled (:attr:`enabled` False: a lockstep trial's "guard off") it runs no pass but still
 stamps the tick with override 1, so the planners' stale rule holds only for a guard that is gone.
