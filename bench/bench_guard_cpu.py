@@ -7,7 +7,11 @@ record -- on in-memory records, with the arms' joints varied every tick (nothing
 CPU time of N cycles (time.process_time) x 60 Hz is the share of one core the guard's own work
 takes; the live program adds the heartbeat's ZeroMQ wake-up and its presence record.
 
-    nice -n 10 .venv/bin/python bench/bench_guard_cpu.py [--n 6000]
+``--still``: the arms at rest instead (the same joints every tick, as on an idle cell): the guard
+then takes its last pass's figures again (GuardCore.step) and computes only the fall and the
+verdict -- a separate figure, never the varied one.
+
+    nice -n 10 .venv/bin/python bench/bench_guard_cpu.py [--n 6000] [--still]
 """
 from __future__ import annotations
 
@@ -26,6 +30,7 @@ from droid.kinematics import load_robot
 def main() -> None:
     ap = ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=bounded_int(10, 10**7), default=6000, help="cycles")
+    ap.add_argument("--still", action="store_true", help="the arms at rest (the same joints every tick)")
     args = ap.parse_args()
     cell = load_cell(BUNDLED_CELLS / "sim.toml")
     core = guard_core(cell)
@@ -38,9 +43,10 @@ def main() -> None:
         home[name] = np.rint(m.gearing.joints_to_counts(np.asarray(m.home_switch_deg, float)))
     station = GuardStation(core, arms, MemoryDatabase("guard.status", L.GUARD_STATUS_LAYOUT))
     rng = np.random.default_rng(2)
-    wobble = {n: rng.integers(-3000, 3000, (args.n, 6)) for n in arms}  # a few deg about home, every tick
+    wobble = {n: rng.integers(-3000, 3000, (args.n, 6)) * (0 if args.still else 1) for n in arms}  # a few deg about home
     for i in range(200):
         station.on_tick(i + 1)
+    again0 = core.still_passes
     cpu0, wall0 = time.process_time(), time.perf_counter()
     for i in range(args.n):
         for n, (_, st, *_rest) in arms.items():
@@ -49,7 +55,8 @@ def main() -> None:
         station.on_tick(1000 + i)
     cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
     per = cpu / args.n
-    print(f"compiled pass: {core.scene.compiled is not None}; {args.n} cycles: {per * 1e6:.0f} us CPU a cycle "
+    print(f"{'at rest' if args.still else 'varied'}: {core.still_passes - again0} of the timed passes taken again; "
+          f"compiled pass: {core.scene.compiled is not None}; {args.n} cycles: {per * 1e6:.0f} us CPU a cycle "
           f"(wall {wall / args.n * 1e6:.0f} us); at 60 Hz {per * 60 * 100:.2f} % of one core "
           f"({per * 60:.4f} CPU-s a second); station cycle_max {station.cycle_max_us:.0f} us; trips {core.trips}")
 

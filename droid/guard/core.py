@@ -163,6 +163,8 @@ class GuardCore:
         self._courses = {n: _Course() for n in self.scene.arms}
         self.last_d: np.ndarray | None = None
         self._said_unhomed: set[str] = set()
+        self._still = None  # the last pass: (its key, d, pa, pb, closing speeds before the fall)
+        self.still_passes = 0  # passes taken again at rest (the figures of the tick before)
 
     def release(self) -> None:
         """End a latched protective stop (a task or an operator; the next step trips again if still near)."""
@@ -220,8 +222,24 @@ class GuardCore:
             c.homed = is_homed
             # now, the next way-point, the horizon; and the sample before (now where none)
             rows[name] = np.vstack([qm, qc, qc + c.vel * self.horizon * dt, qm if c.q_prev is None else c.q_prev])
-        d, pa, pb = sc.closest_points({n: r[:3] for n, r in rows.items()})  # (3, P), (3, P, 3) x2
-        v = self._closing(d, pa, pb, sc.poses(rows), new, elapsed)
+        # the pass and the closing speeds' geometry are functions of the rows and, for an arm
+        # whose sample before differs from its joints now, of the time between the two: the same
+        # as last tick's (the arms at rest, however their Status ticks fall) gives the same
+        # figures, taken again (equal values; only the fall since the last tick and the verdict
+        # are computed again)
+        ok = tuple(self._courses[n].q_prev is not None for n in self._names)
+        span = tuple(self._courses[n].dt_s or dt for n in self._names)
+        key = (b"".join(r.tobytes() for r in rows.values()),
+               tuple((o, s) if o and not np.array_equal(rows[n][3], rows[n][0]) else None
+                     for n, o, s in zip(self._names, ok, span)))
+        if self._still is not None and self._still[0] == key:
+            _, d, pa, pb, v0 = self._still
+            self.still_passes += 1
+        else:
+            d, pa, pb = sc.closest_points({n: r[:3] for n, r in rows.items()})  # (3, P), (3, P, 3) x2
+            v0 = self._closing_geometry(d, pa, pb, sc.poses(rows), ok, span)
+            self._still = (key, d, pa, pb, v0)
+        v = self._closing_fall(v0, d, new, elapsed)
         self.last_d = d[0].copy()
         return self._verdict(d, v, notes, pa[0], pb[0])
 
@@ -229,11 +247,18 @@ class GuardCore:
         """Every pair's closing speed [mm/s] (the module docstring): ``poses`` of the rows now, the
         next way-point, the horizon, the sample before; ``new``: the arms on a new course;
         ``elapsed``: the ticks each arm's new sample covers (0: none this tick)."""
+        ok = tuple(self._courses[n].q_prev is not None for n in self._names)
+        span = tuple(self._courses[n].dt_s or self.period_s for n in self._names)
+        return self._closing_fall(self._closing_geometry(d, pa, pb, poses, ok, span), d, new, elapsed)
+
+    def _closing_geometry(self, d, pa, pb, poses, ok: tuple[bool, ...], span: tuple[float, ...]) -> np.ndarray:
+        """The closing speeds [mm/s] from the pairs' closest points and the planned fall of their
+        distance (the part of :meth:`_closing` that the rows decide); ``ok``: each arm has a
+        speed measured, over ``span`` [s]."""
         dt, h = self.period_s, self.horizon
         P = len(self.pair_keys)
-        names = self._names
-        ok_arm = np.array([self._courses[n].q_prev is not None for n in names] + [True])  # [-1]: a fixture
-        dt_arm = np.array([self._courses[n].dt_s or dt for n in names] + [1.0])
+        ok_arm = np.array([*ok, True])  # [-1]: a fixture
+        dt_arm = np.array([*span, 1.0])
         gap = pb[0] - pa[0]
         sep = np.sqrt(np.einsum("ij,ij->i", gap, gap))
         n = gap / np.where(sep > DIR_MIN_MM, sep, 1.0)[:, None]
@@ -251,9 +276,14 @@ class GuardCore:
             both = np.concatenate([k, k + P])
             fast = self._fastest(both, poses, ok, step_s)
             v[k] = fast[:len(k)] + fast[len(k):]
-        # never less than the fall of the pair's own distance: planned, and measured since the last
-        # tick (across no new course) over the longest time its arms' new samples cover
-        falls = [(d[0] - d[1]) / dt, (d[1] - d[2]) / (h * dt)]
+        # never less than the fall of the pair's own distance planned ...
+        return np.maximum(v, np.maximum((d[0] - d[1]) / dt, (d[1] - d[2]) / (h * dt)))
+
+    def _closing_fall(self, v: np.ndarray, d, new: set[str], elapsed: dict[str, int]) -> np.ndarray:
+        """... and measured since the last tick (across no new course) over the longest time its
+        arms' new samples cover; never below 0."""
+        dt, P, names = self.period_s, len(self.pair_keys), self._names
+        falls = [v]
         if self.last_d is not None:
             a_arm, b_arm = self._arm[:P], self._arm[P:]
             cont = np.ones(P, bool)

@@ -200,3 +200,36 @@ def test_a_speed_is_measured_over_the_ticks_between_refreshes():
     assert each > 50.0
     assert run(2, True) == pytest.approx(each, rel=0.05)
     assert run(2, False) == pytest.approx(2 * each, rel=0.05)
+
+
+def _course(rng, n_ticks: int) -> list[dict]:
+    """Both arms of the sim cell about home: spells at rest (the same joints tick after tick),
+    spells of motion, one arm moving while the other stands, an approach that trips the stop."""
+    core = guard_core(load_cell(SIM))
+    home = {n: np.asarray(c.home_deg, float) for n, c in core.scene.arms.items()}
+    q = {n: h.copy() for n, h in home.items()}
+    out = []
+    for t in range(n_ticks):
+        spell = (t // 15) % 4  # 0: at rest, 1: arm1 moves, 2: both move, 3: at rest
+        for i, n in enumerate(q):
+            if spell == 2 or (spell == 1 and i == 0):
+                q[n] = q[n] + rng.normal(0.0, 0.4, 6)
+        out.append({n: v.copy() for n, v in q.items()})
+    return out
+
+
+def test_a_pass_at_rest_takes_the_tick_befores_figures_exactly():
+    """At rest (every arm's rows as the tick before) the guard takes its last pass again instead
+    of computing it: every verdict and every pair's figures are bit-identical to a guard that
+    computes each pass, over spells of rest, motion and Status ticks that do not advance."""
+    rng = np.random.default_rng(7)
+    course = _course(rng, 240)
+    a, b = guard_core(load_cell(SIM)), guard_core(load_cell(SIM))
+    for t, q in enumerate(course):
+        ticks = {n: 1 + t - (t % 3 == 1 and n == "gmf1") for n in q}  # gmf1's Status late every 3rd tick
+        b._still = None  # b computes every pass
+        va, vb = a.step(q, ticks=ticks), b.step(q, ticks=ticks)
+        assert va == vb, t
+        for f in ("distance_mm", "closing_mm_s", "separation_mm", "judged"):
+            assert np.array_equal(getattr(a.pairs_now, f), getattr(b.pairs_now, f)), (t, f)
+    assert a.still_passes > 60 and b.still_passes == 0
