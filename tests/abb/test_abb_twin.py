@@ -217,3 +217,39 @@ def test_device_from_the_abb_weld_cell_binds_loopback_only(tmp_path):
         with pytest.raises(BadInput):
             make_abb_egm(w, "abb", bad)
     assert select.select  # (imported for the drains above)
+
+
+def _correction(joints) -> bytes:
+    from abb_robot_client._egm_protobuf import egm_pb2  # the independent client's message definitions
+
+    m = egm_pb2.EgmSensor()
+    m.header.seqno, m.header.mtype = 1, egm_pb2.EgmHeader.MSGTYPE_CORRECTION
+    m.planned.joints.joints.extend(float(v) for v in joints)
+    return m.SerializeToString()
+
+
+def test_a_reference_at_rest_on_its_target_is_left_bit_for_bit_as_the_ramp_leaves_it():
+    """The twin skips the reference's ramp while the reference stands on its target at rest: over
+    moves, holds of the same target (sent again every 4 ms, as the EGM program does) and a stop,
+    every datagram, the reference, its rate and the joints are the same bits as a twin that ramps
+    every step."""
+    fast, full = (EgmController(MODEL, EgmTwinParams(test_signals=True), START) for _ in range(2))
+    full.rest_shortcut = False
+    for c in (fast, full):
+        c.set_rapid(True)
+        c.set_motors(True)
+    rng = np.random.default_rng(3)
+    target = np.array(START, float)
+    t = 0.0
+    for k in range(6000):  # 6 s of 1 ms steps
+        if k % 1500 == 0:  # a new target every 1.5 s: ~1 s of motion, then a hold
+            target = target + rng.uniform(-4.0, 4.0, 6)
+        t = (k + 1) * DT_S
+        if k % 4 == 0 and k < 4600:  # the sensor goes silent at 4.6 s: after 1 s a timeout ramps to rest
+            for c in (fast, full):
+                c.receive(_correction(target), t)
+        a, b = fast.advance(t), full.advance(t)
+        assert a == b, k
+        for f in ("ref_deg", "ref_rate", "q_motor_deg"):
+            assert np.asarray(getattr(fast, f)).tobytes() == np.asarray(getattr(full, f)).tobytes(), (k, f)
+    assert fast.timeouts == full.timeouts == 1

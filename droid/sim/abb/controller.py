@@ -95,6 +95,10 @@ class EgmController:
     """The controller; see the module docstring.  ``receive(data, t_s)``, ``advance(t_s)`` ->
     the EgmRobot datagrams due by then; read :attr:`q_deg` (the links) and :attr:`q_motor_deg`."""
 
+    #: a reference at its target at rest is left as it is instead of ramped (the same bits: the
+    #: ramp's arithmetic at e = 0, v = 0 returns them); False runs the ramp every step (tests)
+    rest_shortcut = True
+
     def __init__(self, model: RobotModel, params: EgmTwinParams | None = None, q0_deg=None,
                  rigid_body: str = "pinocchio") -> None:
         self.model = model
@@ -233,8 +237,11 @@ class EgmController:
         limits (``vmax_deg_s``) and accelerations of ``vmax / accel_time_s``: at each joint the
         speed that can still stop on the target, ``sqrt(2 a |e|)``, reached at ``a`` at most."""
         v = self.ref_rate
-        dv = self.amax * dt
         if self.guiding and self.target_deg is not None:
+            if self.rest_shortcut and not v.any() and self.target_deg.tobytes() == self.ref_deg.tobytes():
+                self.ref_rate = np.zeros(6)  # at the target at rest: what the ramp below leaves, bit for bit
+                return
+            dv = self.amax * dt
             e = self.target_deg - self.ref_deg
             want = np.sign(e) * np.minimum(self.vmax, np.sqrt(2.0 * self.amax * np.abs(e)))
             v = np.minimum(np.maximum(want, v - dv), v + dv)
@@ -242,6 +249,7 @@ class EgmController:
             self.ref_deg = np.where(arrive, self.target_deg, self.ref_deg + v * dt)
             self.ref_rate = np.where(arrive, 0.0, v)
         elif np.any(v):  # stopping: the path ramps down to rest
+            dv = self.amax * dt
             v = np.sign(v) * np.maximum(np.abs(v) - dv, 0.0)
             self.ref_deg = self.ref_deg + v * dt
             self.ref_rate = v
