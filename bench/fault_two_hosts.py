@@ -28,7 +28,7 @@ from droid.brain.cellfile import load_cell
 from droid.brain.databases import open_brain, open_local
 from droid.brain.layouts import FAULT_LINK
 from droid.cli import ArgumentParser, bounded_int
-from droid.faults.cells import two_host_cell_text
+from droid.faults.cells import CAMPAIGN_STALE_TICKS, TWO_HOST_STALE_TICKS, two_host_cell_text
 from droid.faults.netns import HostPair
 from droid.subunits.reis.servo_wire import unpack_status
 
@@ -73,13 +73,17 @@ def halts(run_dir):
 def main() -> int:
     ap = ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--reps", type=bounded_int(1, 1000, "repetitions"), default=5, help="repetitions")
+    ap.add_argument("--stale-ticks", type=bounded_int(1, 600, "stale ticks"), default=CAMPAIGN_STALE_TICKS,
+                    help="the cell's silence rule [heartbeat ticks] (default %(default)s, the thesis's, which "
+                         "docs/safety.md's figures were measured with; the test's cell uses "
+                         f"{TWO_HOST_STALE_TICKS})")
     args = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="droid-2h-"))
     name = f"b2h{uuid.uuid4().hex[:6]}"
     path = tmp / f"{name}.toml"
     rows = []
     with HostPair(subnet=250) as hp:
-        path.write_text(two_host_cell_text(name, str(tmp / "run"), hp.addr_a, hp.addr_b))
+        path.write_text(two_host_cell_text(name, str(tmp / "run"), hp.addr_a, hp.addr_b, args.stale_ticks))
         cell = load_cell(path)
         try:
             run("droid.brain.launcher", "up", "--cell", str(path), "--host", "brain", ns="a", hp=hp)

@@ -3,15 +3,29 @@
 from __future__ import annotations
 
 
-def _reis_cell_text(name: str, run_dir: str, brain_extra: str = "", arm_extra: str = "", tail: str = "") -> str:
+#: The campaign's silence rule [heartbeat ticks]: the thesis's 3 (50 ms), which the fault
+#: table of docs/safety.md counts in.
+CAMPAIGN_STALE_TICKS = 3
+#: The two-host cell's [heartbeat ticks]: the shipped cells' 12 (200 ms), set against this VM's
+#: host stalls.  At 3 the watchdog's servo-liveness rule is 60 ms, and a stall of the servo's
+#: CPU that long latched the amplifiers while the arm homed, before any cut (CI, 2026-12-03:
+#: the servo missed 96 of 1041 periods in 2.1 s).  How the arm stops at a cut does not depend
+#: on it (the servo agent brakes 1.5 periods after the last tick); when the link is declared
+#: lost does (docs/safety.md section 4).
+TWO_HOST_STALE_TICKS = 12
+
+
+def _reis_cell_text(name: str, run_dir: str, brain_extra: str = "", arm_extra: str = "", tail: str = "",
+                    stale_ticks: int = CAMPAIGN_STALE_TICKS) -> str:
     """The Reis alone (with the world) on host arm1, the Brain on host brain; the extras add
-    endpoint lines to [brain] and [subunits.arm1] and tables at the end."""
+    endpoint lines to [brain] and [subunits.arm1] and tables at the end; ``stale_ticks``
+    [heartbeat ticks] is the cell's silence rule."""
     return f'''
 [cell]
 name = "{name}"
 run_dir = "{run_dir}"
 heartbeat_hz = 60.0
-stale_ticks = 3
+stale_ticks = {stale_ticks}
 sched_fifo = true
 
 [brain]
@@ -46,12 +60,15 @@ def campaign_cell_text(name: str, run_dir: str) -> str:
 ''')
 
 
-def two_host_cell_text(name: str, run_dir: str, brain_addr: str, arm_addr: str) -> str:
-    """arm1 (Reis) on host arm1 with the world; the Brain on host brain; tcp between them."""
+def two_host_cell_text(name: str, run_dir: str, brain_addr: str, arm_addr: str,
+                       stale_ticks: int = TWO_HOST_STALE_TICKS) -> str:
+    """arm1 (Reis) on host arm1 with the world; the Brain on host brain; tcp between them;
+    ``stale_ticks`` [heartbeat ticks] as TWO_HOST_STALE_TICKS unless given."""
     return _reis_cell_text(
         name, run_dir,
         brain_extra=f'heartbeat = "tcp://{brain_addr}:5551"\nnames = "tcp://{brain_addr}:5550"\n',
-        arm_extra=f'agent = "tcp://{arm_addr}:5552"\nrelay = "ipc://{{run}}/arm1.relay"\n')
+        arm_extra=f'agent = "tcp://{arm_addr}:5552"\nrelay = "ipc://{{run}}/arm1.relay"\n',
+        stale_ticks=stale_ticks)
 
 
 def seam_campaign_cell_text(name: str, run_dir: str) -> str:
