@@ -7,7 +7,8 @@ samples every program ``droid-cell status --json`` lists over four windows:
 - homing: while ``droid-home ARM`` runs for the first arm (the Reis searches its switches);
 - idle: the homed cell, nothing commanded (``--idle-s``);
 - tracking: ``droid-seamtrack 16 --mode plus --start i --length LEN``, from the moment it tracks;
-- pressing: ``droid-contact arm1 --start i --force 20 --speed 10 --length LEN``, likewise.
+- pressing: ``droid-contact ARM --ft FT --start i --force 20 --speed 10 --length LEN``, likewise, for
+  the cell's first force/torque sensor (class ft6) and its ``guard_arm`` (skipped without one).
 
 Per program: its share of one core over the window (utime + stime from ``/proc/PID/stat``) [%],
 the scheduler it runs on (fifo / nice / other) and, at the end, its loop's worst wake-up lateness
@@ -86,6 +87,16 @@ def task(cell: Path, tmp: str, argv: list[str], settle_s: float, seconds: float,
     return got
 
 
+def pressing_pair(cell) -> tuple[str, str] | None:
+    """(arm, F/T sensor) for the pressing window: the first ft6 subunit whose guard_arm is an arm
+    of the cell; None if there is none (the ABB weld cell has no F/T sensor)."""
+    for name, sub in cell.subunits.items():
+        arm = sub.options.get("guard_arm")
+        if sub.cls == "ft6" and arm in cell.subunits and cell.subunits[arm].cls == "arm6r":
+            return arm, name
+    return None
+
+
 def main() -> int:
     ap = ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--cell", type=Path, default=builtin_cell_path(), help="cell file to copy (default: built-in)")
@@ -134,10 +145,15 @@ def main() -> int:
             sums.append(task(cell, tmp, ["droid-seamtrack", "16", "--mode", "plus", "--start", "i",
                                          "--length", f"{args.length:g}"], 8.0, seconds, cpus,
                              "tracking (plus mode, 16 mm/s)"))
-            sums.append(task(cell, tmp, ["droid-contact", "arm1", "--start", "i", "--force", "20", "--speed", "10",
-                                         "--length", f"{min(args.length, 200.0):g}"], 10.0,
-                             min(args.idle_s, min(args.length, 200.0) / 10.0 * 0.5), cpus,
-                             "pressing (20 N, 10 mm/s)"))
+            press = pressing_pair(c)
+            if press is None:
+                print("pressing: skipped: the cell has no force/torque sensor (class ft6) with a guard_arm")
+            else:
+                arm, ft = press
+                sums.append(task(cell, tmp, ["droid-contact", arm, "--ft", ft, "--start", "i", "--force", "20",
+                                             "--speed", "10", "--length", f"{min(args.length, 200.0):g}"], 10.0,
+                                 min(args.idle_s, min(args.length, 200.0) / 10.0 * 0.5), cpus,
+                                 f"pressing {arm} (20 N, 10 mm/s)"))
         finally:
             droid(cell, "droid-cell", "down")
             for log in sorted(Path(tmp).glob("**/logs/*sim*.log")):  # droid-sim's wake-ups, its whole life
