@@ -86,20 +86,20 @@ def run_contact_trial(cfg: ContactTrialConfig) -> ContactResult:
         return geo.T_global_W @ trans(x_w, cfg.lateral_mm, z_w) @ T_W_SEAM @ inv_homo(T_wcp_tool)
 
     T_start = wcp_for(cfg.x_start_mm, cfg.clearance_mm)
-    q_start = geo.reis.ik(T_start, np.zeros(6))
+    q_start = geo.tool.ik(T_start, np.zeros(6))
     sched = Scheduler(HEARTBEAT_HZ)
     arm = _tool_robot(sched, geo.layout.tool_robot, cfg.seed)
     phases.mark("built", sched)
     if not arm.home(60.0):
         raise RuntimeError("homing did not finish")
     phases.mark("homed", sched)
-    counts = np.rint(geo.reis.gearing.joints_to_counts(q_start)).astype(np.int32)
+    counts = np.rint(geo.tool.gearing.joints_to_counts(q_start)).astype(np.int32)
     cmd = arm.command_joint(counts, arm.ticks_for(4.0))
     if not arm.move_done(cmd, 9.0):
         raise RuntimeError("the move to the start did not finish")
     sched.run_for(1.0)
     phases.mark("approached", sched)
-    contact = ToolContact(wp, geo.T_global_W, geo.reis.base, T_wcp_tool)
+    contact = ToolContact(wp, geo.T_global_W, geo.tool.base, T_wcp_tool)
     arm.attach_contact(contact)
     T_wcp_sensor = trans(*FT_POSE_MM)
     ft = LockstepFt(sched, arm, T_wcp_sensor, inv_homo(T_wcp_sensor) @ T_wcp_tool, seed=cfg.seed + 7)

@@ -311,7 +311,7 @@ def _recorder(record: str, trial_id: str, geo: TrialGeometry):
     from droid.sim.workpiece_mesh import workpiece_mesh
 
     lay, mesh = geo.layout, workpiece_mesh(geo.workpiece)
-    return TrialRecorder(record, trial_id, geo.reis, geo.fanuc, geo.wrist.T_wcp_tool, geo.wrist.T_wcp_sensor,
+    return TrialRecorder(record, trial_id, geo.tool, geo.holder, geo.wrist.T_wcp_tool, geo.wrist.T_wcp_sensor,
                          geo.T_hold6_W, geo.q_hold_deg, geo.T_global_hold6, workpiece_mesh=mesh,
                          names=(lay.tool_robot, lay.holder_robot, lay.sensor, "tool"))
 
@@ -403,10 +403,10 @@ class _LockstepTrial:
             self.recorder.sample(tick, self.sched.t_ns, arm, state)
         if state["done"]:
             return
-        reis = ArmStatus(arm.name, tick, arm.status_pose(), arm.status_fault(), joints_deg=arm.status_joints)
+        tool = ArmStatus(arm.name, tick, arm.status_pose(), arm.status_fault(), joints_deg=arm.status_joints)
         hold = ArmStatus(holder.name if holder is not None else "holder", tick, state["T_hold"],
                          holder.status_fault() if holder is not None else None)  # a fixed holder: no faults
-        res = self.station.on_tick(tick, reis, hold, self.lead_now)
+        res = self.station.on_tick(tick, tool, hold, self.lead_now)
         state["out"] = self.station.out
         if res.stop is not None:
             state["done"] = True
@@ -481,7 +481,7 @@ class _LockstepTrial:
 def _tracking_cycle(params: SeamParams, geo: TrialGeometry, trial_id: str) -> TrackingCycle:
     """The tracking cycle of ``params`` (BadInput naming the trial when they do not fit)."""
     try:
-        cyc = TrackingCycle(params, geo.wrist.T_wcp_tool, geo.wrist.T_wcp_sensor, geo.reis,
+        cyc = TrackingCycle(params, geo.wrist.T_wcp_tool, geo.wrist.T_wcp_sensor, geo.tool,
                             heartbeat_hz=HEARTBEAT_HZ)
     except ValueError as exc:
         raise BadInput(f"trial {trial_id}: {exc}") from None

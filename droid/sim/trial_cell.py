@@ -102,14 +102,14 @@ class TrialGeometry:
     wrist: Wrist
     workpiece: Workpiece
     position: str
-    reis: RobotModel  # with its base
-    fanuc: RobotModel  # with its base
+    tool: RobotModel  # the tool robot's (the Reis), with its base
+    holder: RobotModel  # the holder's (the GMF1), with its base
     T_global_W: np.ndarray
     T_hold6_W: np.ndarray  # (GMF1)6 T W, the mount
     T_global_hold6: np.ndarray  # GMF1 wrist centre (held still)
     q_hold_deg: np.ndarray
-    T_global_reis6_start: np.ndarray  # Reis wrist centre at the start
-    q_reis_start_deg: np.ndarray
+    T_global_tool6_start: np.ndarray  # the tool robot's (Reis) wrist centre at the start
+    q_tool_start_deg: np.ndarray
 
     @property
     def camera_to_tcp_mm(self) -> float:
@@ -141,25 +141,25 @@ def trial_geometry(position: str, workpiece: str | None = None, wrist: str = "st
     pos = lay.position(position)
     wr = lay.wrist(wrist)
     wp = load_workpiece(workpiece or pos.workpiece)
-    reis = robot_with_base(lay, lay.tool_robot)
-    fanuc = robot_with_base(lay, lay.holder_robot)
+    tool = robot_with_base(lay, lay.tool_robot)
+    holder = robot_with_base(lay, lay.holder_robot)
     L = wr.camera_to_tcp_mm
     T_gW = pos.T_global_W(L)
     mount = lay.mount(wp.name)
     T_hold = T_gW @ inv_homo(mount)
     try:
-        q_hold = fanuc.ik(T_hold, np.zeros(6))
+        q_hold = holder.ik(T_hold, np.zeros(6))
     except Unreachable as exc:
         raise BadInput(f"position {position}: the {lay.holder_robot} cannot hold {wp.name} there: {exc}") from None
     T_tool = T_gW @ seam_frame(wp, -L)
-    T_reis = T_tool @ inv_homo(wr.T_wcp_tool)
+    T_tool6 = T_tool @ inv_homo(wr.T_wcp_tool)
     try:
-        q_reis = reis.ik(T_reis, np.zeros(6))
+        q_tool = tool.ik(T_tool6, np.zeros(6))
     except Unreachable as exc:
         raise BadInput(f"position {position}: the {lay.tool_robot} cannot reach the start: {exc}") from None
-    return TrialGeometry(layout=lay, wrist=wr, workpiece=wp, position=position, reis=reis, fanuc=fanuc,
-                         T_global_W=T_gW, T_hold6_W=mount, T_global_hold6=fanuc.fk(q_hold), q_hold_deg=q_hold,
-                         T_global_reis6_start=T_reis, q_reis_start_deg=q_reis)
+    return TrialGeometry(layout=lay, wrist=wr, workpiece=wp, position=position, tool=tool, holder=holder,
+                         T_global_W=T_gW, T_hold6_W=mount, T_global_hold6=holder.fk(q_hold), q_hold_deg=q_hold,
+                         T_global_tool6_start=T_tool6, q_tool_start_deg=q_tool)
 
 
 @dataclass(frozen=True)
@@ -201,13 +201,13 @@ class TrialCell:
         # its start), then the holder -- the holder never ticks while the welder homes
         cell = build_lockstep_cell(self.cell, seed, world=self.world, sched=sched, subunits={})
         if arm_model != "full":  # a model its package registers (the Reis's fast: droid.sim.reis.fast_arm)
-            arm = self.arm_model(arm_model)(geo.reis, geo.q_reis_start_deg, fast_params)
+            arm = self.arm_model(arm_model)(geo.tool, geo.q_tool_start_deg, fast_params)
             arm.name = tool_robot  # the subunit the tracker's fault rule names
             for phase in ("built", "homed", "approached"):  # no homing, no approach: it starts at the start
                 mark(phase, sched)
         else:
             welder = cell.add(tool_robot, self.builders[tool_robot])
-            arm = FullArm(sched, geo.reis, geo.q_reis_start_deg, welder.arm, mark)
+            arm = FullArm(sched, geo.tool, geo.q_tool_start_deg, welder.arm, mark)
             mark("built", sched)
             arm.prepare()
         if holder_robot not in self.builders:

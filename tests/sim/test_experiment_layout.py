@@ -18,11 +18,11 @@ def test_the_reis_reaches_the_whole_seam_from_the_start_pose(position, wrist):
     geo = trial_geometry(position, wrist=wrist)
     wp, L = geo.workpiece, geo.camera_to_tcp_mm
     T_tool_wcp = inv_homo(geo.wrist.T_wcp_tool)
-    q = geo.q_reis_start_deg
+    q = geo.q_tool_start_deg
     for s in np.arange(-L, wp.length_mm - L + 1e-9, 10.0):  # the tool's path while the sensor is on the seam
         T = geo.T_global_W @ seam_frame(wp, float(s)) @ T_tool_wcp
         try:
-            q_next = geo.reis.ik(T, q)
+            q_next = geo.tool.ik(T, q)
         except Unreachable as exc:
             pytest.fail(f"position {position}: tool at s = {s:.0f} mm unreachable: {exc}")
         assert np.max(np.abs(q_next - q)) < 20.0, (position, s, q, q_next)  # no configuration jump
@@ -34,9 +34,9 @@ def test_start_poses_are_the_trial_geometry_and_the_holder_can_hold(position):
     lay = load_layout()
     geo = trial_geometry(position)
     T_reis, T_hold = lay.start_poses(position)
-    assert np.allclose(T_reis, geo.T_global_reis6_start, atol=1e-9)
+    assert np.allclose(T_reis, geo.T_global_tool6_start, atol=1e-9)
     assert np.allclose(T_hold, geo.T_global_hold6, atol=1e-6)
-    assert np.allclose(geo.fanuc.fk(geo.fanuc.ik(T_hold, np.zeros(6))), T_hold, atol=1e-6)
+    assert np.allclose(geo.holder.fk(geo.holder.ik(T_hold, np.zeros(6))), T_hold, atol=1e-6)
 
 
 ABB_LAYOUT = "droid/cells/abb_weld_layout.toml"
@@ -54,11 +54,11 @@ def test_the_abb_reaches_the_whole_seam_from_the_start_pose(position, wrist):
     wp, L = geo.workpiece, geo.camera_to_tcp_mm
     assert L == pytest.approx(100.0)
     T_tool_wcp = inv_homo(geo.wrist.T_wcp_tool)
-    q = geo.q_reis_start_deg
+    q = geo.q_tool_start_deg
     for s in np.arange(-L, wp.length_mm - L + 1e-9, 10.0):
         T = geo.T_global_W @ seam_frame(wp, float(s)) @ T_tool_wcp
         try:
-            q_next = geo.reis.ik(T, q)
+            q_next = geo.tool.ik(T, q)
         except Unreachable as exc:
             pytest.fail(f"position {position}: tool at s = {s:.0f} mm unreachable: {exc}")
         assert np.max(np.abs(q_next - q)) < 20.0, (position, s, q, q_next)
