@@ -208,18 +208,18 @@ class SeamTrackLoop(Workload):
 
         self.speed_mm_s, self.length_mm, self.position = speed_mm_s, length_mm, position
         lay = load_layout()
-        reis = load_robot(lay.robots[lay.tool_robot]).with_base(lay.base(lay.tool_robot))
+        tool = load_robot(lay.robots[lay.tool_robot]).with_base(lay.base(lay.tool_robot))
         T_start, _ = lay.start_poses(position)
         T_tool_start = T_start @ lay.wrist().T_wcp_tool
-        q = reis.ik(T_start, np.zeros(6))
+        q = tool.ik(T_start, np.zeros(6))
         qs = [np.zeros(6), q]
         for d in np.linspace(0.0, length_mm + 20.0, 8):  # along the seam's start heading (tool z)
             for lateral in (-10.0, 10.0):
                 T = T_tool_start.copy()
                 T[:3, 3] += d * T_tool_start[:3, 2] + lateral * T_tool_start[:3, 1]
-                q = reis.ik(T @ np.linalg.inv(lay.wrist().T_wcp_tool), q)
+                q = tool.ik(T @ np.linalg.inv(lay.wrist().T_wcp_tool), q)
                 qs.append(q)
-        counts = np.array([reis.gearing.joints_to_counts(v) for v in qs])
+        counts = np.array([tool.gearing.joints_to_counts(v) for v in qs])
         self._start = np.rint(counts[1]).astype(int)
         self._envelope = np.stack([np.floor(counts.min(axis=0)), np.ceil(counts.max(axis=0))]).astype(int)
 

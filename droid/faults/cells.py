@@ -15,7 +15,7 @@ CAMPAIGN_STALE_TICKS = 3
 TWO_HOST_STALE_TICKS = 12
 
 
-def _reis_cell_text(name: str, run_dir: str, brain_extra: str = "", arm_extra: str = "", tail: str = "",
+def _one_arm_cell_text(name: str, run_dir: str, brain_extra: str = "", arm_extra: str = "", tail: str = "",
                     stale_ticks: int = CAMPAIGN_STALE_TICKS) -> str:
     """The Reis alone (with the world) on host arm1, the Brain on host brain; the extras add
     endpoint lines to [brain] and [subunits.arm1] and tables at the end; ``stale_ticks``
@@ -54,7 +54,7 @@ servo_status = "ipc://{{run}}/arm1.servostat"
 
 def campaign_cell_text(name: str, run_dir: str) -> str:
     """A one-host cell with the Reis alone, its agent link behind a fault proxy."""
-    return _reis_cell_text(name, run_dir, tail='''
+    return _one_arm_cell_text(name, run_dir, tail='''
 [interpose]
 "ipc://{run}/arm1.agent" = "ipc://{run}/arm1.agent.inner"
 ''')
@@ -64,7 +64,7 @@ def two_host_cell_text(name: str, run_dir: str, brain_addr: str, arm_addr: str,
                        stale_ticks: int = TWO_HOST_STALE_TICKS) -> str:
     """arm1 (Reis) on host arm1 with the world; the Brain on host brain; tcp between them;
     ``stale_ticks`` [heartbeat ticks] as TWO_HOST_STALE_TICKS unless given."""
-    return _reis_cell_text(
+    return _one_arm_cell_text(
         name, run_dir,
         brain_extra=f'heartbeat = "tcp://{brain_addr}:5551"\nnames = "tcp://{brain_addr}:5550"\n',
         arm_extra=f'agent = "tcp://{arm_addr}:5552"\nrelay = "ipc://{{run}}/arm1.relay"\n',
