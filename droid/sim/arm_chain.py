@@ -125,7 +125,7 @@ class ArmChain(ArmTasks):
         sched, name = self.sched, self.name
         self.planner = PlannerStation(PlannerCore(self.model), self.ctrl_command, self.ctrl_status)
         period_ns = int(round(1e9 / sched.heartbeat_hz))
-        self.reis_agent = AgentStation(self.ctrl_status, self.ctrl_command, period_ns, self.stale_ticks)
+        self.link_agent = AgentStation(self.ctrl_status, self.ctrl_command, period_ns, self.stale_ticks)
         self.remote = RemoteStation(self.brain_status, self.brain_command,
                                     StatusTranslator(name, ARM6R, self.wcp_from_counts), self.stale_ticks,
                                     sched.heartbeat_hz)
@@ -137,10 +137,10 @@ class ArmChain(ArmTasks):
         self.remote.on_poll(t_ns)  # the heartbeat-silence rule, on virtual time
         self.remote.on_tick(tick, t_ns)
         if self.alive["link"]:  # the remote sends the Brain's command; the agent copies it in
-            self.reis_agent.on_command(self.remote.command_payload(), tick, t_ns)
+            self.link_agent.on_command(self.remote.command_payload(), tick, t_ns)
             relay = tick
         else:  # the agent's own timer: the link dies after stale_ticks; then local ticks
-            relay = self.reis_agent.on_timer(t_ns)
+            relay = self.link_agent.on_timer(t_ns)
         self._relay_seen(relay)
         if self.alive["planner"] and relay is not None:
             self.planner.cycle(relay)
