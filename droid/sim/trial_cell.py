@@ -56,7 +56,6 @@ from droid.brain.cell_layout import Layout, Wrist, check_bases, check_robots, la
 from droid.kinematics import RobotModel, Unreachable, load_robot
 from droid.kinematics.transforms import inv_homo, record_pose
 from droid.sim.lockstep import Scheduler
-from droid.sim.mvs.tool_sensor import seam_frame
 from droid.sim.workpiece import Workpiece, load_workpiece
 
 
@@ -151,7 +150,7 @@ def trial_geometry(position: str, workpiece: str | None = None, wrist: str = "st
         q_hold = holder.ik(T_hold, np.zeros(6))
     except Unreachable as exc:
         raise BadInput(f"position {position}: the {lay.holder_robot} cannot hold {wp.name} there: {exc}") from None
-    T_tool = T_gW @ seam_frame(wp, -L)
+    T_tool = T_gW @ wp.seam_frame(-L)
     T_tool6 = T_tool @ inv_homo(wr.T_wcp_tool)
     try:
         q_tool = tool.ik(T_tool6, np.zeros(6))
