@@ -1,29 +1,26 @@
 #!/usr/bin/env bash
 # Run the test suite in the project's virtual environment (created on first use).
 #
-# Two pytest processes run side by side on the machine's two cores: one runs the tests that
-# bring cells of processes up (marked `integration`), one after another, since two real-time
-# cells must never share this 2-core machine; the other runs every other test (lockstep, pure
-# code, CLI checks).  Arguments go to both (e.g. a file, -k, --durations=30).  Each writes
-# its report; the live one streams, the other's follows it.  Exit 0 only when both pass (a
-# half that selects no test, pytest's exit 5, counts as passed when the other ran tests).
+# Two pytest runs, one after the other: first the tests that bring cells of processes up
+# (marked `integration`), one after another, since two real-time cells must never share this
+# 2-core machine; then every other test (lockstep, pure code, CLI checks).  They used to run
+# side by side, but the live cells do not yet hold their rates beside the other half on a
+# machine of this kind (issue 40): CI lost a live test to a host stall in two runs of two
+# (docs/benchmarks.md, session 29).  Arguments go to both (e.g. a file, -k, --durations=30).
+# Exit 0 only when both pass (a half that selects no test, pytest's exit 5, counts as passed
+# when the other ran tests).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/venv.sh
 # the real-browser test of droid-web needs chromium; if it cannot be installed that test fails (it never skips)
 scripts/browser.sh || echo "scripts/test.sh: chromium unavailable: tests/observe/test_web_browser.py will fail" >&2
 work=$(mktemp -d /tmp/droid-tests.XXXXXX)
-other_pid=
 cleanup() {
-    if [ -n "$other_pid" ]; then kill "$other_pid" 2>/dev/null || true; wait "$other_pid" 2>/dev/null || true; fi
     rm -rf "$work"
 }
 trap cleanup EXIT
 trap 'exit 130' INT
 trap 'exit 143' TERM
-.venv/bin/python -m pytest -q -p no:cacheprovider --basetemp "$work/other" -m "not integration" "$@" \
-    > "$work/other.log" 2>&1 &
-other_pid=$!
 # what the live cells will get from this host, for reading a failure later
 fifo=$(.venv/bin/python -c 'import os
 try:
@@ -40,13 +37,11 @@ echo "== tests that start cells (-m integration), one after another =="
 set +e
 .venv/bin/python -m pytest -q --durations=15 --basetemp "$work/live" -m integration "$@"
 live_rc=$?
-wait "$other_pid"
+echo
+echo "== every other test (-m 'not integration'), after them =="
+.venv/bin/python -m pytest -q -p no:cacheprovider --basetemp "$work/other" -m "not integration" "$@"
 other_rc=$?
 set -e
-other_pid=
-echo
-echo "== every other test (-m 'not integration'), run beside them =="
-cat "$work/other.log"
 echo
 echo "scripts/test.sh: live tests exit $live_rc, the others exit $other_rc"
 ok() { [ "$1" -eq 0 ] || [ "$1" -eq 5 ]; }
