@@ -40,6 +40,7 @@ class Quad04Twin:
             mv[: qm.MAP_SIZE] = bytes(qm.MAP_SIZE)
             qm.format_header(mv)
             self._mvs.append(mv)
+        self._words = [qm.words(mv) for mv in self._mvs]  # single stores (qm.words: no torn 0)
         self.offset = [int(v) for v in rng.integers(0, 1 << qm.COUNTER_BITS, size=_SLOTS)]
         self._motor = [0] * _SLOTS  # whole motor counts of each slot (unused channels stay 0)
         self._written = [-1] * _SLOTS
@@ -51,7 +52,7 @@ class Quad04Twin:
             for j in range(qm.JOINTS):
                 self._motor[j] = int(round(float(motor_counts[j])))
         for card in range(qm.CARDS):
-            mv = self._mvs[card]
+            mv, words = self._mvs[card], self._words[card]
             w = qm.CHANNEL_BLOCK.unpack_from(mv, qm.OFF_CHANNEL0)
             if motor_counts is None and not (w[2] or w[6] or w[10] or w[14]):
                 continue  # nothing moved, no command: the registers are up to date
@@ -59,31 +60,31 @@ class Quad04Twin:
                 slot = card * qm.CHANNELS + ch
                 count = (self._motor[slot] + self.offset[slot]) & qm.COUNTER_MASK
                 cmd = w[4 * ch + 2]
+                base = (qm.OFF_CHANNEL0 + qm.CHANNEL_STRIDE * ch) // 4  # the channel's first word
                 if cmd:
-                    base = qm.OFF_CHANNEL0 + qm.CHANNEL_STRIDE * ch
                     if cmd == qm.CMD_RESET:
                         self.offset[slot] = -self._motor[slot]
                         count = 0
                     elif cmd == qm.CMD_LATCH:
-                        qm.U32.pack_into(mv, base + qm.REG_LATCH, count)
-                    qm.U32.pack_into(mv, base + qm.REG_CTRL, qm.CMD_NONE)
-                    qm.U32.pack_into(mv, base + qm.REG_DONE, (w[4 * ch + 3] + 1) & 0xFFFFFFFF)
+                        words[base + qm.REG_LATCH // 4] = count
+                    words[base + qm.REG_CTRL // 4] = qm.CMD_NONE
+                    words[base + qm.REG_DONE // 4] = (w[4 * ch + 3] + 1) & 0xFFFFFFFF
                     self.commands_done += 1
                 if count != self._written[slot]:
-                    qm.U32.pack_into(mv, qm.OFF_CHANNEL0 + qm.CHANNEL_STRIDE * ch + qm.REG_COUNT, count)
+                    words[base + qm.REG_COUNT // 4] = count
                     self._written[slot] = count
 
     def power(self, on: bool) -> None:
         """Set or clear the cards' POWER status bit (the encoder program reports an unpowered card)."""
-        for mv in self._mvs:
-            st = qm.U32.unpack_from(mv, qm.OFF_STATUS)[0]
-            qm.U32.pack_into(mv, qm.OFF_STATUS, (st | qm.STATUS_POWER) if on else (st & ~qm.STATUS_POWER))
+        for words in self._words:
+            st = words[qm.OFF_STATUS // 4]
+            words[qm.OFF_STATUS // 4] = (st | qm.STATUS_POWER) if on else (st & ~qm.STATUS_POWER)
 
     def release(self) -> None:
         """Drop the views on the buffers (before a shared map is closed)."""
-        for mv in self._mvs:
-            mv.release()
-        self._mvs = []
+        for v in self._words + self._mvs:
+            v.release()
+        self._mvs, self._words = [], []
 
 
 class SharedCard:

@@ -50,6 +50,7 @@ class Quad04Card:
             raise BadInput(f"{name}: {n} bytes is too small for an encoder card ({qm.MAP_SIZE})")
         self._mv = mv[: qm.MAP_SIZE]
         mv.release()
+        self._words = qm.words(self._mv)  # CTRL writes as single stores (qm.words)
         self.name = name
         self._closer = closer
         # identity: () -> what object the path names now; opened_as: what we mapped
@@ -89,7 +90,7 @@ class Quad04Card:
         """Write a command (CMD_LATCH / CMD_RESET) into channel ``ch``'s CTRL register."""
         if cmd not in (qm.CMD_LATCH, qm.CMD_RESET):
             raise ValueError(f"unknown card command {cmd}")
-        qm.U32.pack_into(self._mv, qm.channel_offset(ch, qm.REG_CTRL), cmd)
+        self._words[qm.channel_offset(ch, qm.REG_CTRL) // 4] = cmd
 
     def replaced(self) -> bool:
         """True if the object behind the map was removed or replaced since it was opened."""
@@ -97,6 +98,7 @@ class Quad04Card:
 
     def close(self) -> None:
         if self._mv is not None:
+            self._words.release()
             self._mv.release()
             self._mv = None
         if self._closer is not None:

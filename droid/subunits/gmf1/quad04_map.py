@@ -34,6 +34,7 @@ channel ``i % 4``; card 1's channels 2 and 3 are unused.
 from __future__ import annotations
 
 import struct
+import sys
 
 MAGIC = 0x34304451  # b"QD04" little-endian
 VERSION = 1
@@ -85,3 +86,14 @@ U32 = struct.Struct("<I")
 def format_header(buf, power: bool = True) -> None:
     """Write the identification words of an empty card into ``buf`` (the card side)."""
     HEADER.pack_into(buf, 0, MAGIC, VERSION, CHANNELS, STATUS_POWER if power else 0)
+
+
+def words(buf) -> memoryview:
+    """The map ``buf`` as 32-bit words (a memoryview cast to ``I``) whose item assignment is one
+    4-byte store.  Write registers through it, never with ``struct.pack_into``: pack_into zeroes
+    its bytes before it writes the value, and a reader in another process (droid-gmf1-encoder
+    against droid-sim's twin) catches that 0 -- a COUNT read as 0 is the joint at home for one
+    cycle (the 26 deg step droid-guard stopped the abb_weld cell on)."""
+    if sys.byteorder != "little":
+        raise RuntimeError("the encoder card map is little-endian: a word view needs a little-endian host")
+    return memoryview(buf)[:MAP_SIZE].cast("I")
