@@ -29,6 +29,7 @@ import posix_ipc
 #: its world time ``t_s``; a per-millisecond rewrite cost the world a forward kinematics a step).
 TRUTH_PERIOD_S = 0.004
 RECORD = struct.Struct("<Q d 6d 3d")  # seq, t_s, q_deg, wcp_mm
+_SEQ = struct.Struct("<Q")  # the record's sequence word: odd while written, 0 before the first
 SIZE = RECORD.size
 
 
@@ -68,17 +69,20 @@ class TruthDoor:
         return cls(name, shm, region, False)
 
     def write(self, t_s: float, q_deg, wcp_mm) -> None:
+        # slice assignments (one copy each), never pack_into, which zero-fills first: a reader
+        # would see a sequence of 0, "nothing written yet" (docs/architecture.md)
         self._seq += 1
-        struct.pack_into("<Q", self._region, 0, 2 * self._seq - 1)  # odd: being written
-        RECORD.pack_into(self._region, 0, 2 * self._seq - 1, t_s, *q_deg, *wcp_mm)
-        struct.pack_into("<Q", self._region, 0, 2 * self._seq)
+        odd = 2 * self._seq - 1
+        self._region[0:8] = _SEQ.pack(odd)  # odd: being written
+        self._region[0:RECORD.size] = RECORD.pack(odd, t_s, *q_deg, *wcp_mm)
+        self._region[0:8] = _SEQ.pack(2 * self._seq)
 
     def read(self, timeout_s: float = 1.0) -> tuple[float, list, list] | None:
         """(t_s, q_deg, wcp_mm) of one consistent step, or None if nothing was written yet."""
         deadline = time.monotonic() + timeout_s
         while True:
             v = RECORD.unpack_from(self._region, 0)
-            seq2 = struct.unpack_from("<Q", self._region, 0)[0]
+            seq2 = _SEQ.unpack_from(self._region, 0)[0]
             if v[0] == seq2 and v[0] % 2 == 0:
                 if v[0] == 0:
                     return None
