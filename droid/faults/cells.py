@@ -16,7 +16,7 @@ TWO_HOST_STALE_TICKS = 12
 
 
 def _one_arm_cell_text(name: str, run_dir: str, brain_extra: str = "", arm_extra: str = "", tail: str = "",
-                    stale_ticks: int = CAMPAIGN_STALE_TICKS) -> str:
+                       stale_ticks: int = CAMPAIGN_STALE_TICKS) -> str:
     """The Reis alone (with the world) on host arm1, the Brain on host brain; the extras add
     endpoint lines to [brain] and [subunits.arm1] and tables at the end; ``stale_ticks``
     [heartbeat ticks] is the cell's silence rule."""

@@ -101,13 +101,13 @@ class TrialGeometry:
     wrist: Wrist
     workpiece: Workpiece
     position: str
-    tool: RobotModel  # the tool robot's (the Reis), with its base
-    holder: RobotModel  # the holder's (the GMF1), with its base
+    tool: RobotModel  # the layout's tool robot (the welder: the Reis or the ABB), with its base
+    holder: RobotModel  # the layout's holder robot, with its base
     T_global_W: np.ndarray
     T_hold6_W: np.ndarray  # (GMF1)6 T W, the mount
     T_global_hold6: np.ndarray  # GMF1 wrist centre (held still)
     q_hold_deg: np.ndarray
-    T_global_tool6_start: np.ndarray  # the tool robot's (Reis) wrist centre at the start
+    T_global_tool6_start: np.ndarray  # the tool robot's wrist centre at the start
     q_tool_start_deg: np.ndarray
 
     @property
