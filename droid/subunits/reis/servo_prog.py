@@ -14,6 +14,12 @@ off.
 Every halt of the arm (the end of a move, an emergency stop) is recorded in
 servo ticks (:mod:`~droid.subunits.reis.brake_log`) and printed as one line
 ``droid-servo NAME: halt {json}`` on the servo's log.
+
+A flight record keeps the last :data:`FLIGHT_TICKS` ticks (tick, timer periods, wake-up
+lateness [us], commands taken, positions and target [extended counts], DACs [DAC counts]);
+a new fault prints it after the fault's line, one ``flight`` line per tick, oldest first, so
+the ticks that led to a following error or an encoder jump are on the log
+(docs/safety.md).
 """
 from __future__ import annotations
 
@@ -43,6 +49,9 @@ from droid.subunits.reis.vme import VmeOpenError
 PROG = "droid-servo"
 OPEN_WAIT_S = 20.0
 LATENESS_WINDOW = 30000  # wake-ups kept for the exit report (60 s at 500 Hz)  # droid-sim creates the register map in parallel at cell start
+FLIGHT_TICKS = 150  # the flight record's depth [servo ticks] (0.3 s at 500 Hz)
+FLIGHT_COLUMNS = ("tick", "periods", "late_us", "taken") + tuple(
+    f"{what}{j}" for what in ("pos", "target", "dac") for j in range(1, 7))
 
 
 def open_vme_waiting(url: str, wait_s: float):
@@ -125,6 +134,7 @@ class _ServoLoop:
         self.lateness_us = np.zeros(LATENESS_WINDOW, np.float32)  # the last minute of wake-ups
         self.n_late = 0
         self.refused_seen, self.refused_tick = 0, -SERVO_HZ - 1
+        self.flight = np.zeros((FLIGHT_TICKS, len(FLIGHT_COLUMNS)), np.int64)  # a ring, by n_late
         self.failed = False  # the VME access failed (the exit is a failure)
 
     def run(self) -> None:
@@ -137,7 +147,10 @@ class _ServoLoop:
             self.lateness_us[self.n_late % LATENESS_WINDOW] = timer.lateness_ns / 1e3
             self.n_late += 1
             arrived = self._receive()
-            report = self._cycle(periods)
+            row = self.flight[self.n_late % FLIGHT_TICKS]
+            report = self._cycle(periods, row)
+            row[0:4] = (core.tick, periods, timer.lateness_ns // 1000, arrived)
+            core.flight_row(row[4:])
             if core.refused_resumes != self.refused_seen:  # at most one line per episode of refusals
                 self._log_refusal()
             event = self.halts.step(core.tick, arrived, core.starved, core.encoder_pos, core.homing)
@@ -158,9 +171,10 @@ class _ServoLoop:
             arrived = self.station.take(msg) or arrived
         return arrived
 
-    def _cycle(self, periods: int):
+    def _cycle(self, periods: int, row: np.ndarray):
         """One station cycle (encoders and switches in, DACs out); its status message or None.
-        A new fault is logged with the registers re-read; a VME error ends the program."""
+        A new fault is logged with the registers re-read and the flight record (``row``: this
+        tick's, filled in here first); a VME error ends the program."""
         core, station = self.core, self.station
         try:
             fault_before = core.fault
@@ -171,10 +185,24 @@ class _ServoLoop:
                       f"{station.raw}, positions {s.encoder_pos}, following error {s.following_error}, "
                       f"{self.timer.overruns} overruns so far; registers re-read now: "
                       f"{self.bus.read_encoders_raw()}", file=sys.stderr, flush=True)
+                row[0:4] = (core.tick, periods, self.timer.lateness_ns // 1000, 0)
+                core.flight_row(row[4:])
+                self._print_flight()
         except (OSError, ValueError) as exc:
             self.failed = True
             raise RuntimeFailure(f"VME access failed: {exc}") from None
         return report
+
+    def _print_flight(self) -> None:
+        """The flight record, oldest tick first: a header line, then one line per tick (this
+        tick, the fault's, last)."""
+        n = min(self.n_late, FLIGHT_TICKS)  # this tick's row is n_late's (run counts it first)
+        first = self.n_late - n + 1
+        print(f"{PROG} {self.name}: flight " + " ".join(FLIGHT_COLUMNS), file=sys.stderr)
+        for i in range(first, first + n):
+            print(f"{PROG} {self.name}: flight " + " ".join(map(str, self.flight[i % FLIGHT_TICKS].tolist())),
+                  file=sys.stderr)
+        sys.stderr.flush()
 
     def _log_refusal(self) -> None:
         """A refused way-point: one line per episode (none within a second of the last)."""
