@@ -14,14 +14,21 @@ closest point on body a to its closest point on body b (the separation direction
 velocities of those two material points -- exact for a rigid link: a point's displacement is
 affine in its position on the body, so a capsule's point moves as its ends interpolated, a box's
 as its frame -- since the arm's last Status sample (measured), toward the next way-point and over
-the horizon (planned).  Each side's contribution is its approach along n, a retreat counted as
-0 (both arms are braked by the stop: a retreating arm stops retreating), the largest of the three
-estimates; the pair's closing speed is the two added, never less than the fall of the pair's own
-distance (measured since the last tick, and planned).  Where the direction is undefined -- the
-pair touches or overlaps (distance <= 0: a box pair or a capsule's axis in a box has no closest
-points apart) or its closest points coincide -- the conservative fallback is ISO's most
-conservative reading for that pair: each body's fastest feature point (a capsule's ends, a
-box's corners) as if both came straight at each other.
+the horizon (planned).  Each side's contribution is its *signed* speed toward the other along n [mm/s]
+(a retreat is negative), the largest of its three estimates: a side counts as retreating only when
+every estimate says it moves away (on a new course, no speed measured, its measured estimate is 0:
+it does not count as retreating).  The pair's closing speed is the two added, signed -- a side
+moving away pays for the other's approach, as ISO's speed *toward* states it: during the reaction
+time T_r and the braking ramp T_s (one T_s for both arms, :class:`SsmParams`) a retreating arm
+keeps adding to the separation as an approaching one takes from it, so S_p's v (T_r + T_s/2) holds
+for the signed sum -- and never less than the fall of the pair's own distance (measured since the
+last tick, and planned); a pair that opens is 0 (S_p its floor C + Z).  (Until 2026-12 a retreat
+counted as 0: an arm turning toward one that retreated faster read as closing at its own speed and
+stopped both, tests/guard/test_retreat.py.)  Where the direction is undefined -- the pair touches
+or overlaps (distance <= 0: a box pair or a capsule's axis in a box has no closest points apart)
+or its closest points coincide -- the conservative fallback is ISO's most conservative reading for
+that pair: each body's fastest feature point (a capsule's ends, a box's
+corners) as if both came straight at each other.
 
 **The verdict**: S_p(v) per pair (:class:`~droid.guard.ssm.SsmParams`); the protective stop trips
 when any judged pair's distance now is at or below its S_p, or the way-points ahead come within
@@ -268,8 +275,9 @@ class GuardCore:
         ok, step_s = ok_arm[self._arm], dt_arm[self._arm]
         vel = np.stack([moved[0] / dt, (moved[1] - moved[0]) / (h * dt),
                         np.where(ok[:, None], -moved[2] / step_s[:, None], 0.0)])
-        # each side's approach along n (side b's along -n), a retreat as 0, the largest estimate
-        approach = np.maximum(np.einsum("kij,ij->ki", vel, np.concatenate([n, -n])).max(axis=0), 0.0)
+        # each side's signed approach along n (side b's along -n; a retreat < 0), the largest of its
+        # three estimates (a side retreats only when every estimate says so); the pair's: both added
+        approach = np.einsum("kij,ij->ki", vel, np.concatenate([n, -n])).max(axis=0)
         v = approach[:P] + approach[P:]
         if not defined.all():  # no direction: both bodies' fastest points, straight at each other
             k = np.flatnonzero(~defined)
