@@ -188,11 +188,18 @@ FAULT_NAMES = {
 #: the watchdog ("no further motion is possible without resetting the power", thesis
 #: §2.3, §4.1.2), or its device cannot be driven or read.  A task refuses to start a
 #: move on such an arm (droid.tasks.arm.BrainArm.check_fresh) and the seam tracker
-#: stops on one (droid.tasks.seam.cycle.arm_faults).  Not in it: FAULT_BRAKING alone
-#: (the servo ran out of way-points and braked; it follows again when the next command
-#: comes), FAULT_LINK and FAULT_HEARTBEAT (the Status goes stale: the stale rules),
+#: stops on one (droid.tasks.seam.cycle.arm_faults, with the protective stops:
+#: FAULTS_STOP_RUN).  Not in it: FAULT_BRAKING alone (the servo ran out of way-points and
+#: braked; it follows again when the next command comes), FAULT_LINK and FAULT_HEARTBEAT (the Status goes stale: the stale rules),
 #: FAULT_LIMIT (a target clamped).
 FAULTS_CANNOT_MOVE = FAULT_SERVO | FAULT_WATCHDOG | FAULT_DEVICE
+#: The fault bits that end a tracking or pressing run (droid-seamtrack, droid-contact and the
+#: lockstep tracking trial): the ones the arm cannot move with, and the protective stops --
+#: FAULT_BRAKING (the servo ran out of way-points and braked, e.g. after a host stall) and
+#: FAULT_COLLISION (the guard's stop).  A positioning move rides through a protective stop
+#: (droid.tasks.resume); a weld or a press that stopped is a defect, so the run ends as
+#: ``fault`` naming the stop (issue 40 item 4; docs/seamtrack.md).
+FAULTS_STOP_RUN = FAULTS_CANNOT_MOVE | FAULT_BRAKING | FAULT_COLLISION
 
 
 def fault_names(bits: int) -> list[str]:

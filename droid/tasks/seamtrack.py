@@ -27,11 +27,12 @@ around it, on the Brain's databases only (a task never touches a device, §3.4):
    one-cycle step and stands -- at the end of the seam (``--length`` of tool
    travel reached), when the seam is lost, on an unreachable command, on a
    runaway, when the Reis or the GMF1 reports a fault it cannot move with
-   (servo, watchdog, device: ``fault``, naming the arm and its faults, e.g.
+   (servo, watchdog, device) or a protective stop (braking, collision: the weld
+   slowed or stopped where the arm braked) (``fault``, naming the arm and its faults, e.g.
    ``stopped: fault at 312.0 mm (arm1 faults: servo, braking)``; the rule is
    droid.tasks.seam.cycle's, shared with the lockstep trial), on a stale
-   subunit, or on SIGINT/SIGTERM -- the tracking itself is never resumed: braking alone
-   does not stop it, and the faults that do are named; then print which, and a summary line (the
+   subunit, or on SIGINT/SIGTERM -- the tracking itself is never resumed (the start moves
+   are); then print which, and a summary line (the
    ``--log`` and ``--figure`` are written whatever the stop).  An arm that
    shows such a fault before tracking starts is refused before anything
    moves (BrainArm.check_fresh: ``arm1 cannot move: fault watchdog ...``).

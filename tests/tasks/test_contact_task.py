@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from droid.cli import BadInput
+from droid.brain.layouts import FAULT_BRAKING, FAULT_COLLISION, FAULT_LIMIT, FAULT_LINK, FAULT_SERVO, fault_names
 from droid.kinematics.transforms import trans
 from droid.tasks.contact.core import (STOP_ARM_FAULT, STOP_ARM_STALE, STOP_END, STOP_FT_STALE, STOP_LOST,
                                       STOP_NO_CONTACT, STOP_OVERFORCE, ArmStatus, ContactStation, FtStatus,
@@ -134,3 +135,31 @@ def test_over_force_between_cycles_stops_at_that_tick():
     run(st2, Spring(), 60 * 3)
     t = st2.next_tick - 1
     assert st2.on_tick(t, ArmStatus(t, spring.pose), FtStatus(np.array([-99.0, 0, 0]), valid=False)).stop is None
+
+
+@pytest.mark.parametrize("bits, stops", [(FAULT_BRAKING, True), (FAULT_COLLISION, True), (FAULT_SERVO, True),
+                                         (FAULT_LIMIT, False), (FAULT_LINK, False)])
+def test_droid_contact_ends_a_press_on_a_protective_stop(bits, stops):
+    """Issue 40 item 4: a press that a protective stop (braking, collision) interrupted ends as
+    ``arm fault`` naming it, as one on a fault the arm cannot move with; a clamped target or a
+    link bit does not (droid-contact's mask, FAULTS_STOP_RUN, on its arm's Status)."""
+    from droid.brain.cellfile import builtin_cell_path, load_cell
+    from droid.brain.layouts import ARM_STATUS, FT6_STATUS
+    from droid.tasks.contact import prog
+
+    run = prog.ContactRun(prog.build_parser().parse_args(["arm1"]), load_cell(builtin_cell_path()))
+    rec = np.zeros((), ARM_STATUS)
+    rec["R"], rec["homed"], rec["tick"], rec["fault"] = np.eye(3), 1, 5, bits
+    ft = np.zeros((), FT6_STATUS)
+    ft["valid"] = 1
+    sent = []
+    run.arm.read = lambda: rec
+    run.arm.command_cart = lambda T, ticks: sent.append(ticks)
+    run.ft_db = type("Ft", (), {"read": staticmethod(lambda: ft)})()
+    run.station.T0 = None
+    stop = run.on_tick(5)
+    if stops:
+        assert stop == "arm fault" and run.station.detail.endswith(", ".join(fault_names(bits))), run.station.detail
+        assert sent == []
+    else:
+        assert stop is None

@@ -16,7 +16,8 @@ import pytest
 
 from droid.brain.cellfile import builtin_cell_path, load_cell
 from droid.brain.layouts import (ARM_STATUS, FAULT_BRAKING, FAULT_DEVICE, FAULT_HEARTBEAT, FAULT_LIMIT,
-                                 FAULT_LINK, FAULT_SERVO, FAULT_WATCHDOG, FAULTS_CANNOT_MOVE, SENSOR_STATUS)
+                                 FAULT_LINK, FAULT_SERVO, FAULT_WATCHDOG, FAULTS_CANNOT_MOVE, SENSOR_STATUS,
+                                 FAULT_COLLISION, FAULTS_STOP_RUN)
 from droid.cli import EXIT_RUNTIME, RuntimeFailure
 from droid.tasks import seamtrack
 from droid.tasks.seam.params import MODES, SeamParams
@@ -32,11 +33,18 @@ WRIST = LAYOUT.wrist("standard")
 # -- the shared rule ---------------------------------------------------------------------------
 def test_no_fault_or_a_fault_the_arm_still_moves_with_does_not_stop():
     assert arm_faults([("arm1", 0), ("gmf1", 0)]) is None
-    # braking alone: the servo ran out of way-points and follows again at the next command;
     # link / heartbeat go with a stale Status (the stale rule); limit: a clamped target
-    for bits in (FAULT_BRAKING, FAULT_LINK, FAULT_HEARTBEAT, FAULT_LIMIT,
-                 FAULT_BRAKING | FAULT_LINK | FAULT_HEARTBEAT | FAULT_LIMIT):
+    for bits in (FAULT_LINK, FAULT_HEARTBEAT, FAULT_LIMIT, FAULT_LINK | FAULT_HEARTBEAT | FAULT_LIMIT):
         assert arm_faults([("arm1", bits), ("gmf1", bits)]) is None, bits
+
+
+@pytest.mark.parametrize("bit, name", [(FAULT_BRAKING, "braking"), (FAULT_COLLISION, "collision")])
+def test_a_protective_stop_ends_the_run_and_is_named(bit, name):
+    """Issue 40 item 4: the arm could follow again at the next command, but the weld slowed or
+    stopped where it braked -- a defect the run must not ride through."""
+    assert bit & FAULTS_STOP_RUN and not bit & FAULTS_CANNOT_MOVE
+    assert arm_faults([("arm1", bit), ("gmf1", 0)]) == f"arm1 faults: {name}"
+    assert arm_faults([("arm1", bit | FAULT_LIMIT), ("gmf1", 0)]) == f"arm1 faults: limit, {name}"
 
 
 @pytest.mark.parametrize("bit, name", [(FAULT_SERVO, "servo"), (FAULT_WATCHDOG, "watchdog"),
@@ -58,7 +66,7 @@ def test_the_detail_names_every_fault_bit_of_every_faulted_arm():
 @pytest.mark.parametrize("mode", MODES)
 def test_check_faults_stops_the_core_for_good_and_the_first_stop_stays(mode):
     cyc = TrackingCycle(SeamParams(16.0, mode=mode), WRIST.T_wcp_tool, WRIST.T_wcp_sensor)
-    assert cyc.check_faults([("arm1", FAULT_BRAKING), ("gmf1", 0)]) is None
+    assert cyc.check_faults([("arm1", FAULT_LIMIT), ("gmf1", 0)]) is None
     assert cyc.stopped is None
     stop = cyc.check_faults([("arm1", FAULT_SERVO | FAULT_BRAKING), ("gmf1", 0)])
     assert stop is not None and stop is cyc.stopped
@@ -152,13 +160,13 @@ def test_cycle_writes_commands_until_an_arm_faults_and_none_after():
     assert tr.on_tick(fake.tick) is None
     assert fake.commands == [("arm1", 1), ("gmf1", 1)]  # the Reis step and the GMF1's one hold
     fake.tick = 3
-    fake.faults["arm1"] = (3, FAULT_BRAKING)  # braking alone: the tracker goes on
+    fake.faults["arm1"] = (3, FAULT_LIMIT)  # a clamped target: the tracker goes on
     assert tr.on_tick(fake.tick) is None
     assert fake.commands[-1] == ("arm1", 3)
     fake.tick = 5
-    fake.faults["arm1"] = (5, FAULT_SERVO | FAULT_BRAKING)
+    fake.faults["arm1"] = (5, FAULT_BRAKING)  # a protective stop: the run ends
     why = tr.on_tick(fake.tick)
-    assert why == "fault at 0.0 mm (arm1 faults: servo, braking)"
+    assert why == "fault at 0.0 mm (arm1 faults: braking)"
     assert tr.core.stopped.reason == STOP_FAULT
     assert fake.commands[-1] == ("arm1", 3)
     fake.tick = 7

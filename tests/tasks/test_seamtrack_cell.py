@@ -196,6 +196,31 @@ def test_sigint_stops_the_run_cleanly_and_says_so(homed_sim_cell, tmp_path):
     assert_standing(homed_sim_cell)
 
 
+def test_a_protective_stop_while_tracking_ends_the_run_naming_it(homed_sim_cell, tmp_path):
+    """Issue 40 item 4: droid-servo-agent stopped for 0.3 s mid-seam (a stalled program): the
+    servo runs out of way-points and brakes (FAULT_BRAKING, a protective stop).  The arm could
+    follow again, but the weld stopped where it braked -- a defect -- so the run ends with
+    exit 1 and one line naming the stop, keeps its log, and leaves the arm standing."""
+    log = tmp_path / "braked.csv"
+    with reaped(start_tracking(homed_sim_cell, log)) as proc:
+        agent = next(r["pid"] for r in cell_status(homed_sim_cell) if r["name"] == "droid-servo-agent arm1")
+        os.kill(agent, signal.SIGSTOP)
+        try:
+            time.sleep(0.3)
+        finally:
+            os.kill(agent, signal.SIGCONT)
+        out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 1, err
+    stop = [ln for ln in err.splitlines() if "stopped: " in ln]
+    assert len(stop) == 1 and "stopped: fault at " in stop[0] and "(arm1 faults: " in stop[0], err
+    assert "braking" in stop[0], stop
+    assert "fault" in out.splitlines()[0]
+    assert len(read_log(log)["s_mm"]) >= 5
+    wait_for(lambda: "braking" not in snoop(homed_sim_cell, "arm1")["fault"], timeout=15,
+             what="the protective stop to clear")
+    assert_standing(homed_sim_cell)
+
+
 @pytest.mark.shared_cell_last
 def test_a_reis_fault_stops_the_run_at_once_naming_the_arm_and_its_faults(homed_sim_cell, tmp_path):
     """Issue 16 item 2: droid-servo dies mid-run (the servo agent reports FAULT_SERVO, the

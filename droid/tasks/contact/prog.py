@@ -32,7 +32,8 @@ only (a task never touches a device, §3.4), what droid-seamtrack does around it
 5. stop -- at the path's end no new command is written, so the arm finishes its last
    one-cycle step and stands; at any other stop a stop command (STOP_TICKS) is written over
    the step in progress, so the arm stands where it is -- on over-force (checked every tick), contact loss, no contact within the
-   approach, a stale or invalid F/T Status, an arm fault it cannot move with, a stale arm
+   approach, a stale or invalid F/T Status, an arm fault it cannot move with or a protective
+   stop (braking, collision: ``FAULTS_STOP_RUN``, a press that stopped is a defect), a stale arm
    Status, a lost heartbeat, or SIGINT/SIGTERM -- the approach and the pressing are never
    resumed; an arm fault names its bits (``arm fault (fault bits 0x4: servo)``).  Then print which, and the summary line
    ``normal force RMS error X N, max Y N ...`` (droid.tasks.contact.report); the ``--log``
@@ -53,7 +54,7 @@ import time
 
 import numpy as np
 
-from droid.brain.layouts import FAULTS_CANNOT_MOVE
+from droid.brain.layouts import FAULTS_STOP_RUN
 from droid.brain.databases import open_brain
 from droid.brain.heartbeat import TickSubscriber
 from droid.brain.program import open_cell, parser
@@ -246,7 +247,7 @@ class ContactRun:
     def on_tick(self, tick: int) -> str | None:
         rec = self.arm.read()
         f = self.ft_db.read()
-        arm = ArmStatus(int(rec["tick"]), pose_of(rec), int(rec["fault"]) & FAULTS_CANNOT_MOVE,
+        arm = ArmStatus(int(rec["tick"]), pose_of(rec), int(rec["fault"]) & FAULTS_STOP_RUN,
                         bool(int(rec["stale"])))
         ft = FtStatus(np.asarray(f["force_tool_N"], float) - self.tare, bool(int(f["valid"])), bool(int(f["stale"])))
         out = self.station.on_tick(tick, arm, ft)

@@ -35,16 +35,20 @@ shell, droid/tasks/seamtrack.py) and by the lockstep trial
 * **the fault rule** (issue 16; an addition): before each cycle the shell hands
   :meth:`TrackingCycle.check_faults` the ``fault`` field of both arms' Status
   (the Reis and the GMF1).  An arm with a fault it cannot move with
-  (``FAULTS_CANNOT_MOVE``: servo, watchdog -- the amplifiers latched off --, device)
+  (``FAULTS_CANNOT_MOVE``: servo, watchdog -- the amplifiers latched off --, device), or
+  one that a protective stop interrupted (FAULT_BRAKING: the servo ran out of way-points and
+  braked; FAULT_COLLISION: the guard's stop; together ``FAULTS_STOP_RUN``),
   stops the run at once as ``fault``, the detail naming the arm and every fault bit
   it shows (:func:`arm_faults`: ``arm1 faults: servo, braking``), and no command
   is written after it.  The thesis's tracker has no such rule -- it runs until
   "some kind of user intervention" stops it (§5.5.1) -- but a latched watchdog
   fault means "no further motion is possible without resetting the power"
   (§2.3, §4.1.2), and a task only reads the Status and writes the Command
-  (§3.4): commanding such an arm on would only wait for a stall.  FAULT_BRAKING
-  alone (the servo ran out of way-points and braked, e.g. a late command on a
-  busy host) does not stop the run: the arm follows again at the next command;
+  (§3.4): commanding such an arm on would only wait for a stall.  A protective
+  stop leaves an arm that could follow again at the next command, but the weld
+  slowed or stopped where it braked (a defect: the tool lags the seam by what it
+  braked), so the run says so and ends rather than ride through it (issue 40
+  item 4; the start moves before the run do ride through, droid.tasks.resume);
 * the core: :class:`droid.tasks.seam.core.SeamTracker` (modes ``thesis`` and
   ``listing``) or :class:`droid.tasks.seam.plus.PlusTracker` (mode ``plus``).
 """
@@ -55,7 +59,7 @@ from collections import deque
 from dataclasses import dataclass, replace
 import numpy as np
 
-from droid.brain.layouts import FAULTS_CANNOT_MOVE, fault_names
+from droid.brain.layouts import FAULTS_STOP_RUN, fault_names
 from droid.brain.sensor_line import seam_transform
 from droid.kinematics.transforms import EYE4
 from droid.tasks.seam.core import CycleOutput, SeamTracker
@@ -104,9 +108,10 @@ def arm_faults(arms) -> str | None:
     ``arms``: (subunit name, Status ``fault`` bits) of each arm the tracker drives.  None when
     every arm can move; else the stop detail naming each faulted arm and all of its fault bits
     (droid.brain.layouts.fault_names), e.g. ``arm1 faults: servo, braking``; two arms are
-    joined with ``; ``.  An arm stops the run when a bit of ``FAULTS_CANNOT_MOVE`` is set."""
+    joined with ``; ``.  An arm stops the run when a bit of ``FAULTS_STOP_RUN`` is set (a fault
+    it cannot move with, or a protective stop: braking, collision)."""
     parts = [f"{name} faults: {', '.join(fault_names(bits))}" for name, bits in arms
-             if int(bits) & FAULTS_CANNOT_MOVE]
+             if int(bits) & FAULTS_STOP_RUN]
     return "; ".join(parts) if parts else None
 
 

@@ -11,7 +11,7 @@ and the commands is here, so the two runners cannot drift apart:
 * the pose histories (:meth:`TrackingCycle.remember`), fed only while neither arm is
   stale;
 * the cycle's due tick (30 Hz) and the log's (10 Hz), counted in heartbeat ticks;
-* the fault rule (:meth:`TrackingCycle.check_faults`) before any command;
+* the fault rule (:meth:`TrackingCycle.check_faults`) every tick, before any command;
 * **the stale rule**, counted in heartbeat ticks (it was counted in wall seconds inside
   droid-seamtrack's loop): while an arm's Status is stale no command is written (the
   Reis finishes its last step and waits); stale for more than ``stale_grace_ticks``
@@ -102,6 +102,12 @@ class SeamtrackStation:
             return StationOutput(stop=self.done)
         if not tool.stale and not hold.stale:
             self.cyc.remember(tool.tick, tool.pose, hold.tick, hold.pose)
+        # the fault rule every tick, not only on cycles: a protective stop's bit may show for
+        # fewer ticks than a cycle has (the planner re-anchors at once), and the stop comes sooner
+        fault = self.cyc.check_faults([(a.name, a.fault) for a in (tool, hold) if a.fault is not None])
+        if fault is not None:
+            self.done = fault
+            return StationOutput(stop=fault)
         res = StationOutput()
         if (self.first_cycle_tick is None or tick >= self.first_cycle_tick) and self.cyc.due(tick):
             res = self._cycle(tick, tool, hold, lead)
@@ -112,9 +118,6 @@ class SeamtrackStation:
         return res
 
     def _cycle(self, tick: int, tool: ArmStatus, hold: ArmStatus, lead) -> StationOutput:
-        fault = self.cyc.check_faults([(a.name, a.fault) for a in (tool, hold) if a.fault is not None])
-        if fault is not None:
-            return StationOutput(stop=fault)
         stale = [a for a in (tool, hold) if a.stale]
         if stale:  # no command this cycle: the tool robot finishes its last step and waits
             if self.stale_since is None:
