@@ -228,10 +228,11 @@ def test_a_head_on_course_is_slowed_or_stopped_above_the_limit(homed_sim_cell):
         wait_for(lambda: int(status["arm1"].read()["busy"]) == 0, timeout=10, what="arm1's move ended")
         wait_for(lambda: "collision" not in snoop(homed_sim_cell, "arm1")["fault"], timeout=10,
                  what="the latch to end at rest")
-        # back slowly: the guard's closing estimate takes the largest approach of any point of the
-        # bodies (a retreat that swings the sensor counts), so a 4 s return from a stop that a stalled
-        # host left 47 mm from the Fanuc was stopped at S_p 55 mm (CI, 2026-12-03); at 12 s the
-        # estimate is a third and S_p near its 35 mm floor
+        # back slowly: a 4 s return from a stop that a stalled host left 47 mm from the Fanuc was
+        # stopped at S_p 55 mm (CI, 2026-12-03); in lockstep (tests/guard/test_retreat.py) the
+        # same stop comes from measured samples that step back toward the Fanuc when the servo's
+        # lag grows between two Status samples -- an approach in the samples, whatever the rule for
+        # retreats; at 12 s the estimate is a third and S_p near its 35 mm floor
         out = droid(MOVE, "arm1", "joint", *map(str, start), "12", "--cell", str(homed_sim_cell))
         command.close()
         for db in status.values():
