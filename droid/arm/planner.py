@@ -294,9 +294,11 @@ class PlannerStation:
         self.ctrl_command = ctrl_command
         self.ctrl_status = ctrl_status
         self.gate = gate  # a droid.guard.gate.GuardGate where the cell declares a guard
+        self.last_cmd = None  # the Command record of the last cycle
 
     def cycle(self, tick: int) -> PlanOutput:
         cmd, st = self.ctrl_command.read(), self.ctrl_status.read()
+        self.last_cmd = cmd  # the record this tick planned from (droid-planner's jump check)
         if self.gate is not None:  # the guard's stale rule (FAULT_GUARD) and its override
             self.core.speed = self.gate.apply(cmd, st, tick, self.ctrl_status)
         out = self.core.step(cmd, st)
@@ -305,6 +307,42 @@ class PlannerStation:
 
 
 PROG = "droid-planner"
+
+
+class JumpCheck:
+    """droid-planner's log of a way-point that steps farther in one tick than the robot file's
+    joint speed limit (``vmax_deg_s``) allows -- a step no planned move takes, so its line names
+    the command it came from (id, joint or cartesian, its ticks, its pose or counts) beside the
+    way-points before and after [counts].  The servo would ramp toward it at full speed (a
+    following error on a fresh machine's demo, docs/safety.md finding 11); the check only logs."""
+
+    def __init__(self, model: RobotModel, heartbeat_hz: float) -> None:
+        per_deg = np.abs(model.gearing.joints_to_counts(np.ones(N)) - model.gearing.joints_to_counts(np.zeros(N)))
+        self.limit = per_deg * np.asarray(model.vmax_deg_s, float) / float(heartbeat_hz)  # [counts/tick]
+        self.last: np.ndarray | None = None
+        self.jumps = 0
+
+    def note(self, out: PlanOutput, cmd) -> str:
+        """'' or the line for this tick's way-point (``out``), planned from the Command ``cmd``."""
+        wp = out.encoder_cmd_int
+        if wp is None:
+            return ""
+        before, self.last = self.last, wp
+        if before is None:
+            return ""
+        step = np.abs(wp.astype(np.int64) - before)
+        if not np.any(step > self.limit):
+            return ""
+        self.jumps += 1
+        j = int(np.argmax(step / self.limit))
+        cart = int(cmd["coord"]) != JSPACE
+        what = (f"cartesian, {int(cmd['cart_time_count'])} ticks, pose x {float(cmd['x']):.2f} y {float(cmd['y']):.2f} "
+                f"z {float(cmd['z']):.2f} mm R {np.round(np.asarray(cmd['R'], float), 5).tolist()}" if cart else
+                f"joint, {int(cmd['joint_time_count'])} ticks, counts {np.asarray(cmd['encoder_cmd_ext']).tolist()}")
+        return (f"way-point step over the joint speed limit: joint {j + 1} {int(step[j])} counts in one tick "
+                f"(limit {self.limit[j]:.0f}); command {int(cmd['cmd_id'])} ({what}); way-point "
+                f"{before.tolist()} -> {wp.tolist()} (target {np.asarray(out.encoder_cmd_ext).tolist()}; "
+                f"{self.jumps} so far)")
 
 
 @run
@@ -321,6 +359,7 @@ def main(argv=None) -> int:
     core = PlannerCore(model)
     stale = guard_stale_ticks(cell)  # a cell that declares a guard: its stale rule and override
     station = PlannerStation(core, ctrl_command, ctrl_status, None if stale is None else GuardGate(stale))
+    jumps = JumpCheck(model, cell.heartbeat_hz)
     try:
         presence.ready()
         notify_ready(args.ready_fd)
@@ -334,6 +373,9 @@ def main(argv=None) -> int:
             out = station.cycle(t.tick)
             if out.note:
                 print(f"{PROG} {sub.name}: {out.note}", file=sys.stderr, flush=True)
+            jump = jumps.note(out, station.last_cmd)
+            if jump:
+                print(f"{PROG} {sub.name}: {jump}", file=sys.stderr, flush=True)
             presence.beat(last, core.refused, ticks.monitor.missed, ticks.lateness_max_ns, bad_frames=ticks.bad_frames)
     finally:
         close_all(ticks, ctx.term, ctrl_command, ctrl_status, presence)
