@@ -310,17 +310,20 @@ PROG = "droid-planner"
 
 
 class JumpCheck:
-    """droid-planner's log of a way-point that steps farther in one tick than the robot file's
-    joint speed limit (``vmax_deg_s``) allows -- a step no planned move takes, so its line names
-    the command it came from (id, joint or cartesian, its ticks, its pose or counts) beside the
-    way-points before and after [counts].  The servo would ramp toward it at full speed (a
+    SHARE = 0.5  # of the joint speed limit
+    """droid-planner's log of a way-point that steps farther in one tick than half the robot
+    file's joint speed limit (``vmax_deg_s``) allows -- tracking steps a hundredth of it, the
+    start moves under half -- its line naming the command it came from (id, joint or cartesian,
+    its ticks, its pose or counts) beside the way-points before and after [counts]; one line a
+    command.  The servo would ramp toward it at full speed (a
     following error on a fresh machine's demo, docs/safety.md finding 11); the check only logs."""
 
     def __init__(self, model: RobotModel, heartbeat_hz: float) -> None:
         per_deg = np.abs(model.gearing.joints_to_counts(np.ones(N)) - model.gearing.joints_to_counts(np.zeros(N)))
-        self.limit = per_deg * np.asarray(model.vmax_deg_s, float) / float(heartbeat_hz)  # [counts/tick]
+        self.limit = self.SHARE * per_deg * np.asarray(model.vmax_deg_s, float) / float(heartbeat_hz)  # [counts/tick]
         self.last: np.ndarray | None = None
         self.jumps = 0
+        self.said: int | None = None  # the command of the last line
 
     def note(self, out: PlanOutput, cmd) -> str:
         """'' or the line for this tick's way-point (``out``), planned from the Command ``cmd``."""
@@ -334,12 +337,15 @@ class JumpCheck:
         if not np.any(step > self.limit):
             return ""
         self.jumps += 1
+        if int(cmd["cmd_id"]) == self.said:
+            return ""
+        self.said = int(cmd["cmd_id"])
         j = int(np.argmax(step / self.limit))
         cart = int(cmd["coord"]) != JSPACE
         what = (f"cartesian, {int(cmd['cart_time_count'])} ticks, pose x {float(cmd['x']):.2f} y {float(cmd['y']):.2f} "
                 f"z {float(cmd['z']):.2f} mm R {np.round(np.asarray(cmd['R'], float), 5).tolist()}" if cart else
                 f"joint, {int(cmd['joint_time_count'])} ticks, counts {np.asarray(cmd['encoder_cmd_ext']).tolist()}")
-        return (f"way-point step over the joint speed limit: joint {j + 1} {int(step[j])} counts in one tick "
+        return (f"way-point step over half the joint speed limit: joint {j + 1} {int(step[j])} counts in one tick "
                 f"(limit {self.limit[j]:.0f}); command {int(cmd['cmd_id'])} ({what}); way-point "
                 f"{before.tolist()} -> {wp.tolist()} (target {np.asarray(out.encoder_cmd_ext).tolist()}; "
                 f"{self.jumps} so far)")

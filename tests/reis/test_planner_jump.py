@@ -1,6 +1,6 @@
 """droid-planner's jump check (droid.arm.planner.JumpCheck): a way-point that steps farther in one
-tick than the robot file's joint speed limit allows is logged with the command it came from;
-steps within the limit are not."""
+tick than half the robot file's joint speed limit allows is logged with the command it came from,
+once a command; steps within it are not."""
 from __future__ import annotations
 
 import numpy as np
@@ -23,7 +23,7 @@ def test_a_step_over_the_joint_speed_limit_is_logged_with_its_command():
     model = load_robot(cell.subunit("arm1").robot)
     check = JumpCheck(model, cell.heartbeat_hz)
     per_tick = np.abs(model.gearing.joints_to_counts(np.ones(6)) - model.gearing.joints_to_counts(np.zeros(6))) \
-        * np.asarray(model.vmax_deg_s, float) / cell.heartbeat_hz
+        * np.asarray(model.vmax_deg_s, float) / cell.heartbeat_hz * 0.5
     assert np.allclose(check.limit, per_tick)
     cmd = np.zeros((), CTRL_COMMAND)
     cmd["cmd_id"], cmd["coord"], cmd["cart_time_count"], cmd["x"], cmd["R"] = 635, JSPACE + 1, 2, 812.5, np.eye(3)
@@ -34,11 +34,15 @@ def test_a_step_over_the_joint_speed_limit_is_logged_with_its_command():
     over = within.copy()
     over[5] += int(per_tick[5]) + 2
     line = check.note(_out(over), cmd)
-    assert line.startswith("way-point step over the joint speed limit: joint 6 ")
+    assert line.startswith("way-point step over half the joint speed limit: joint 6 ")
     assert "command 635 (cartesian, 2 ticks, pose x 812.50" in line and "1 so far" in line
     assert f"{within.tolist()} -> {over.tolist()}" in line
     assert check.note(_out(over), cmd) == ""  # standing again
-    cmd["coord"], cmd["joint_time_count"] = JSPACE, 3
+    again = over.copy()
+    again[5] += int(per_tick[5]) + 2
+    assert check.note(_out(again), cmd) == ""  # the same command again: one line a command
+    over = again
+    cmd["cmd_id"], cmd["coord"], cmd["joint_time_count"] = 636, JSPACE, 3
     back = over - np.array([0, 3 * int(per_tick[1]), 0, 0, 0, 0])
     line = check.note(_out(back), cmd)
-    assert "joint 2 " in line and "command 635 (joint, 3 ticks, counts " in line and "2 so far" in line
+    assert "joint 2 " in line and "command 636 (joint, 3 ticks, counts " in line and "3 so far" in line
