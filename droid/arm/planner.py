@@ -310,7 +310,6 @@ PROG = "droid-planner"
 
 
 class JumpCheck:
-    SHARE = 0.5  # of the joint speed limit
     """droid-planner's log of a way-point that steps farther in one tick than half the robot
     file's joint speed limit (``vmax_deg_s``) allows -- tracking steps a hundredth of it, the
     start moves under half -- its line naming the command it came from (id, joint or cartesian,
@@ -318,9 +317,12 @@ class JumpCheck:
     command.  The servo would ramp toward it at full speed (a
     following error on a fresh machine's demo, docs/safety.md finding 11); the check only logs."""
 
+    SHARE = 0.5  # of the joint speed limit
+
     def __init__(self, model: RobotModel, heartbeat_hz: float) -> None:
-        per_deg = np.abs(model.gearing.joints_to_counts(np.ones(N)) - model.gearing.joints_to_counts(np.zeros(N)))
-        self.limit = self.SHARE * per_deg * np.asarray(model.vmax_deg_s, float) / float(heartbeat_hz)  # [counts/tick]
+        # each motor's counts a tick with every joint at SHARE of its limit (the coupling's too)
+        self.limit = (np.abs(model.gearing.joint_to_counts_matrix) @ np.asarray(model.vmax_deg_s, float)
+                      * (self.SHARE / float(heartbeat_hz)))  # [counts/tick]
         self.last: np.ndarray | None = None
         self.jumps = 0
         self.said: int | None = None  # the command of the last line

@@ -22,8 +22,8 @@ def test_a_step_over_the_joint_speed_limit_is_logged_with_its_command():
     cell = load_cell(builtin_cell_path())
     model = load_robot(cell.subunit("arm1").robot)
     check = JumpCheck(model, cell.heartbeat_hz)
-    per_tick = np.abs(model.gearing.joints_to_counts(np.ones(6)) - model.gearing.joints_to_counts(np.zeros(6))) \
-        * np.asarray(model.vmax_deg_s, float) / cell.heartbeat_hz * 0.5
+    per_tick = np.abs(model.gearing.joint_to_counts_matrix) @ np.asarray(model.vmax_deg_s, float) \
+        / cell.heartbeat_hz * 0.5
     assert np.allclose(check.limit, per_tick)
     cmd = np.zeros((), CTRL_COMMAND)
     cmd["cmd_id"], cmd["coord"], cmd["cart_time_count"], cmd["x"], cmd["R"] = 635, JSPACE + 1, 2, 812.5, np.eye(3)

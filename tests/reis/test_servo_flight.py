@@ -44,19 +44,26 @@ class _Quiet:
         pass
 
 
-def test_a_fault_prints_the_flight_record_of_the_ticks_before_it(capsys):
+def _run_to_a_jump(jump_at: int) -> tuple[ServoCore, int]:
+    """The servo loop over a register map at 1000 counts, joint 3's counter set 2x the jump limit
+    away at tick ``jump_at``; returns the core and the jumped count."""
     p = ServoParams()
     regs = bytearray(vm.MAP_SIZE)
     vm.store(memoryview(regs), vm.ENCODER_OFFSET, vm.ENCODERS_FORMAT, *([1000] * 6))
     jumped = 1000 + 2 * p.max_encoder_step_counts
-    timer = _Timer(regs, jump_at=40, counts=jumped)
     core = ServoCore(p)
-    loop = servo_prog._ServoLoop("arm1", core, VmeBus(regs), timer, _Quiet(), _Quiet(), _Quiet())
+    loop = servo_prog._ServoLoop("arm1", core, VmeBus(regs), _Timer(regs, jump_at, jumped), _Quiet(), _Quiet(),
+                                 _Quiet())
     Stop.requested = False
     try:
         loop.run()
     finally:
         Stop.requested = False
+    return core, jumped
+
+
+def test_a_fault_prints_the_flight_record_of_the_ticks_before_it(capsys):
+    core, jumped = _run_to_a_jump(40)
     assert core.fault == Fault.ENCODER_JUMP
     err = capsys.readouterr().err.splitlines()
     fault = [i for i, line in enumerate(err) if "fault ENCODER_JUMP at servo tick" in line]
@@ -75,17 +82,8 @@ def test_a_fault_prints_the_flight_record_of_the_ticks_before_it(capsys):
 
 
 def test_the_flight_record_keeps_only_its_last_ticks(capsys):
-    p = ServoParams()
-    regs = bytearray(vm.MAP_SIZE)
-    vm.store(memoryview(regs), vm.ENCODER_OFFSET, vm.ENCODERS_FORMAT, *([1000] * 6))
     n = servo_prog.FLIGHT_TICKS + 57
-    timer = _Timer(regs, jump_at=n, counts=1000 + 2 * p.max_encoder_step_counts)
-    loop = servo_prog._ServoLoop("arm1", ServoCore(p), VmeBus(regs), timer, _Quiet(), _Quiet(), _Quiet())
-    Stop.requested = False
-    try:
-        loop.run()
-    finally:
-        Stop.requested = False
+    _run_to_a_jump(n)
     err = capsys.readouterr().err.splitlines()
     rows = [line.split(": flight ", 1)[1].split() for line in err if ": flight " in line][1:]
     assert [int(r[0]) for r in rows] == list(range(n - servo_prog.FLIGHT_TICKS + 1, n + 1))

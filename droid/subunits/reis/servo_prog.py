@@ -147,10 +147,7 @@ class _ServoLoop:
             self.lateness_us[self.n_late % LATENESS_WINDOW] = timer.lateness_ns / 1e3
             self.n_late += 1
             arrived = self._receive()
-            row = self.flight[self.n_late % FLIGHT_TICKS]
-            report = self._cycle(periods, row)
-            row[0:4] = (core.tick, periods, timer.lateness_ns // 1000, arrived)
-            core.flight_row(row[4:])
+            report = self._cycle(periods, arrived)
             if core.refused_resumes != self.refused_seen:  # at most one line per episode of refusals
                 self._log_refusal()
             event = self.halts.step(core.tick, arrived, core.starved, core.encoder_pos, core.homing)
@@ -171,22 +168,23 @@ class _ServoLoop:
             arrived = self.station.take(msg) or arrived
         return arrived
 
-    def _cycle(self, periods: int, row: np.ndarray):
-        """One station cycle (encoders and switches in, DACs out); its status message or None.
-        A new fault is logged with the registers re-read and the flight record (``row``: this
-        tick's, filled in here first); a VME error ends the program."""
+    def _cycle(self, periods: int, arrived: bool):
+        """One station cycle (encoders and switches in, DACs out), recorded in the flight record
+        (``arrived``: a command was taken before it); its status message or None.  A new fault is
+        logged with the registers re-read and the flight record; a VME error ends the program."""
         core, station = self.core, self.station
         try:
             fault_before = core.fault
             report = station.cycle(periods)
+            row = self.flight[self.n_late % FLIGHT_TICKS]
+            row[0:4] = (core.tick, periods, self.timer.lateness_ns // 1000, arrived)
+            core.flight_row(row[4:])
             if core.fault != fault_before:
                 s = core.status()
                 print(f"{PROG} {self.name}: fault {s.fault.name} at servo tick {s.tick}: raw encoders "
                       f"{station.raw}, positions {s.encoder_pos}, following error {s.following_error}, "
                       f"{self.timer.overruns} overruns so far; registers re-read now: "
                       f"{self.bus.read_encoders_raw()}", file=sys.stderr, flush=True)
-                row[0:4] = (core.tick, periods, self.timer.lateness_ns // 1000, 0)
-                core.flight_row(row[4:])
                 self._print_flight()
         except (OSError, ValueError) as exc:
             self.failed = True
