@@ -181,14 +181,12 @@ class ServoCore:
             return (0,) * N
         return tuple([t - p for t, p in zip(self._target.tolist(), self._pos.tolist())])
 
-    def flight_row(self, row: np.ndarray) -> None:
-        """Write this tick's positions, target [extended counts] and DAC words [DAC counts] into
-        ``row[0:18]`` (an int64 row of droid-servo's flight record: three slice stores, no
-        allocation)."""
-        if self._pos is not None:
-            row[0:6] = self._pos
-        row[6:12] = self._target
-        row[12:18] = self._dac
+    def flight_sample(self) -> tuple:
+        """This tick for droid-servo's flight record: positions and target [extended counts] as the
+        bytes of their int64 arrays (copies; zeros before the first read), DAC words [DAC counts]
+        -- two memcpys and a reference, a tenth of a microsecond at 500 Hz."""
+        pos = self._pos
+        return (pos.tobytes() if pos is not None else bytes(8 * N), self._target.tobytes(), self._dac)
 
     @property
     def dac(self) -> tuple[int, ...]:

@@ -134,7 +134,7 @@ class _ServoLoop:
         self.lateness_us = np.zeros(LATENESS_WINDOW, np.float32)  # the last minute of wake-ups
         self.n_late = 0
         self.refused_seen, self.refused_tick = 0, -SERVO_HZ - 1
-        self.flight = np.zeros((FLIGHT_TICKS, len(FLIGHT_COLUMNS)), np.int64)  # a ring, by n_late
+        self.flight: list = [None] * FLIGHT_TICKS  # a ring, by n_late: (tick, periods, late_us, taken, sample)
         self.failed = False  # the VME access failed (the exit is a failure)
 
     def run(self) -> None:
@@ -176,9 +176,8 @@ class _ServoLoop:
         try:
             fault_before = core.fault
             report = station.cycle(periods)
-            row = self.flight[self.n_late % FLIGHT_TICKS]
-            row[0:4] = (core.tick, periods, self.timer.lateness_ns // 1000, arrived)
-            core.flight_row(row[4:])
+            self.flight[self.n_late % FLIGHT_TICKS] = (core.tick, periods, self.timer.lateness_ns // 1000, int(arrived),
+                                                       core.flight_sample())
             if core.fault != fault_before:
                 s = core.status()
                 print(f"{PROG} {self.name}: fault {s.fault.name} at servo tick {s.tick}: raw encoders "
@@ -198,8 +197,9 @@ class _ServoLoop:
         first = self.n_late - n + 1
         print(f"{PROG} {self.name}: flight " + " ".join(FLIGHT_COLUMNS), file=sys.stderr)
         for i in range(first, first + n):
-            print(f"{PROG} {self.name}: flight " + " ".join(map(str, self.flight[i % FLIGHT_TICKS].tolist())),
-                  file=sys.stderr)
+            *head, (pos, target, dac) = self.flight[i % FLIGHT_TICKS]
+            values = head + np.frombuffer(pos, np.int64).tolist() + np.frombuffer(target, np.int64).tolist() + list(dac)
+            print(f"{PROG} {self.name}: flight " + " ".join(map(str, values)), file=sys.stderr)
         sys.stderr.flush()
 
     def _log_refusal(self) -> None:
