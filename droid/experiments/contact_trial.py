@@ -112,11 +112,7 @@ def run_contact_trial(cfg: ContactTrialConfig) -> ContactResult:
     R_W = geo.T_global_W[:3, :3]
 
     def task(tick: int) -> None:
-        st = arm.status
-        T = np.eye(4)
-        T[:3, :3] = st["R"]
-        T[:3, 3] = (float(st["x"]), float(st["y"]), float(st["z"]))
-        a = ArmStatus(int(st["tick"]), T, int(st["fault"]), bool(st["stale"]))
+        a = ArmStatus.of_record(arm.status)  # the fault bits droid-contact stops on (FAULTS_STOP_RUN)
         f = ft.fields
         fs = FtStatus(np.asarray(f["force_tool_N"], float), bool(f["valid"]), bool(f["stale"]))
         out = station.on_tick(tick, a, fs)

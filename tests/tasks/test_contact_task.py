@@ -163,3 +163,18 @@ def test_droid_contact_ends_a_press_on_a_protective_stop(bits, stops):
         assert sent == []
     else:
         assert stop is None
+
+
+@pytest.mark.parametrize("bits, kept", [(FAULT_BRAKING, FAULT_BRAKING), (FAULT_COLLISION | FAULT_LINK, FAULT_COLLISION),
+                                        (FAULT_LIMIT, 0), (FAULT_LINK, 0)])
+def test_both_runners_judge_the_arm_status_by_the_same_mask(bits, kept):
+    """droid-contact and the lockstep contact trial read the arm's Status through one
+    constructor, ``ArmStatus.of_record``: its pose and stale flag as recorded, and only the fault
+    bits that end a press (FAULTS_STOP_RUN) -- the lockstep trial stopped on any bit before."""
+    from droid.brain.layouts import ARM_STATUS
+
+    rec = np.zeros((), ARM_STATUS)
+    rec["R"], rec["x"], rec["y"], rec["z"], rec["tick"], rec["fault"], rec["stale"] = np.eye(3), 1.0, 2.0, 3.0, 7, bits, 1
+    a = ArmStatus.of_record(rec)
+    assert a.fault == kept and a.tick == 7 and a.stale is True
+    assert np.array_equal(a.pose[:3, 3], [1.0, 2.0, 3.0]) and np.array_equal(a.pose[:3, :3], np.eye(3))

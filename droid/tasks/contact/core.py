@@ -42,9 +42,9 @@ from pathlib import Path
 
 import numpy as np
 
-from droid.brain.layouts import fault_names
+from droid.brain.layouts import FAULTS_STOP_RUN, fault_names
 from droid.cli import BadInput, read_toml
-from droid.kinematics.transforms import inv_homo
+from droid.kinematics.transforms import inv_homo, record_pose
 from droid.numbers import NumberError, check_numbers
 
 BUNDLED_GAINS = Path(__file__).parent / "gains.toml"
@@ -117,6 +117,14 @@ class ArmStatus:
     pose: np.ndarray
     fault: int = 0
     stale: bool = False
+
+    @classmethod
+    def of_record(cls, rec) -> "ArmStatus":
+        """The arm's Status record as the station judges it, in both runners: its pose, its
+        stale flag and only the fault bits that stop a press (``FAULTS_STOP_RUN``: a fault the
+        arm cannot move with, or a protective stop -- braking, collision); a clamped joint
+        target or a silent link shows in the Status but is not the press's stop."""
+        return cls(int(rec["tick"]), record_pose(rec), int(rec["fault"]) & FAULTS_STOP_RUN, bool(int(rec["stale"])))
 
 
 @dataclass(frozen=True)

@@ -54,7 +54,6 @@ import time
 
 import numpy as np
 
-from droid.brain.layouts import FAULTS_STOP_RUN
 from droid.brain.databases import open_brain
 from droid.brain.heartbeat import TickSubscriber
 from droid.brain.program import open_cell, parser
@@ -67,7 +66,7 @@ from droid.tasks.contact import report
 from droid.tasks.contact.core import STOP_END, ArmStatus, ContactStation, FtStatus, load_gains
 from droid.brain.cell_layout import POSITION_IDS, T_W_SEAM, layout_for_cell
 from droid.tasks.shell import TickLoop, check_output_dirs, ready_then_run, run_on_ticks, say_outcome
-from droid.tasks.seamtrack import move_to_start, pose_of
+from droid.tasks.seamtrack import move_to_start
 
 PROG = "droid-contact"
 TARE_S = 0.5  # the F/T average taken at rest before the approach [s]
@@ -247,8 +246,7 @@ class ContactRun:
     def on_tick(self, tick: int) -> str | None:
         rec = self.arm.read()
         f = self.ft_db.read()
-        arm = ArmStatus(int(rec["tick"]), pose_of(rec), int(rec["fault"]) & FAULTS_STOP_RUN,
-                        bool(int(rec["stale"])))
+        arm = ArmStatus.of_record(rec)
         ft = FtStatus(np.asarray(f["force_tool_N"], float) - self.tare, bool(int(f["valid"])), bool(int(f["stale"])))
         out = self.station.on_tick(tick, arm, ft)
         if out.cmd is not None:
