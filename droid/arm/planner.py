@@ -15,7 +15,10 @@ controller's Command and Status records and
   nothing moves;
 * every tick ``plan_joint_cmd()``: the next way-point
   ``int + (ext - int) / joint_time_count``, ``joint_time_count -= 1``,
-  ``busy = joint_time_count`` (the thesis listing);
+  ``busy = joint_time_count`` (the thesis listing).  The listing keeps the move in the
+  controller's Command fields; here the agent copies the Brain's Command into them every tick,
+  so the planner writes its move to fields of its own (``plan_ext``, ``plan_time_count``:
+  one writer a field, docs/safety.md finding 11) and reads the Brain's;
 * a NORMAL command with 0 ticks (``STOP_TICKS``) is a stop: the move in
   progress ends at its current way-point and the arm holds there (a task
   that gives up writes one: issue 16);
@@ -61,8 +64,8 @@ class PlanOutput:
     """What the planner writes after a tick (None = leave the field alone)."""
 
     encoder_cmd_int: np.ndarray | None = None  # ctrl_command, [counts]
-    encoder_cmd_ext: np.ndarray | None = None  # ctrl_command, [counts] (the resolved target)
-    joint_time_count: int | None = None  # ctrl_command, ticks left
+    plan_ext: np.ndarray | None = None  # ctrl_command, [counts] (the move's resolved target)
+    plan_time_count: int | None = None  # ctrl_command, ticks left
     plan_id: int | None = None  # ctrl_command
     busy: int | None = None  # ctrl_status, ticks left
     cmd_id: int | None = None  # ctrl_status
@@ -146,11 +149,11 @@ class PlannerCore:
         self.time_count = 0
         self.brake_step = None
         out.encoder_cmd_int = np.rint(pos).astype(np.int32)
-        # encoder_cmd_ext is left as the agent copied it: in JOG mode it is the Brain's
-        # RELATIVE jog [counts] (§3.4) that the servo agent (droid-egm) adds once; writing the
-        # arm's absolute position there made a jog add the whole position (a runaway to the
-        # joint limits on an arm whose home is not at 0 counts)
-        out.joint_time_count = 0
+        # encoder_cmd_ext is the agent's: in JOG mode it is the Brain's RELATIVE jog [counts]
+        # (§3.4) that the servo agent (droid-egm) adds once; writing the arm's absolute position
+        # there once made a jog add the whole position (a runaway to the joint limits)
+        out.plan_ext = out.encoder_cmd_int.copy()
+        out.plan_time_count = 0
         return out
 
     def _on_faults(self, cmd, status, pos: np.ndarray, out: PlanOutput) -> bool:
@@ -264,8 +267,8 @@ class PlannerCore:
         if self.time_count > 0:
             self.time_count = self.time_count - o if scaled else max(self.time_count - 1, 0)
         out.encoder_cmd_int = np.rint(self.int_counts).astype(np.int32)
-        out.encoder_cmd_ext = np.rint(self.ext_counts).astype(np.int32)
-        out.joint_time_count = out.busy = int(math.ceil(self.time_count))
+        out.plan_ext = np.rint(self.ext_counts).astype(np.int32)
+        out.plan_time_count = out.busy = int(math.ceil(self.time_count))
 
 
 def apply(out: PlanOutput, ctrl_command, ctrl_status, tick: int) -> None:
@@ -273,9 +276,8 @@ def apply(out: PlanOutput, ctrl_command, ctrl_status, tick: int) -> None:
     with ctrl_command.locked() as c:
         if out.encoder_cmd_int is not None:
             c["encoder_cmd_int"] = out.encoder_cmd_int
-            if out.encoder_cmd_ext is not None:
-                c["encoder_cmd_ext"] = out.encoder_cmd_ext
-            c["joint_time_count"] = out.joint_time_count
+            c["plan_ext"] = out.plan_ext
+            c["plan_time_count"] = out.plan_time_count
         if out.plan_id is not None:
             c["plan_id"] = out.plan_id
         c["planner_tick"] = tick
@@ -349,7 +351,7 @@ class JumpCheck:
                 f"joint, {int(cmd['joint_time_count'])} ticks, counts {np.asarray(cmd['encoder_cmd_ext']).tolist()}")
         return (f"way-point step over half the joint speed limit: joint {j + 1} {int(step[j])} counts in one tick "
                 f"(limit {self.limit[j]:.0f}); command {int(cmd['cmd_id'])} ({what}); way-point "
-                f"{before.tolist()} -> {wp.tolist()} (target {np.asarray(out.encoder_cmd_ext).tolist()}; "
+                f"{before.tolist()} -> {wp.tolist()} (target {np.asarray(out.plan_ext).tolist()}; "
                 f"{self.jumps} so far)")
 
 

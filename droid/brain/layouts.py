@@ -248,10 +248,10 @@ CTRL_COMMAND = _dtype(
     HEADER_FIELDS
     + _POSE
     + [
-        ("cart_time_count", "<i4", None),
-        ("joint_time_count", "<i4", None),
-        ("encoder_cmd_ext", "<i4", (6,)),  # gross joint command [counts], external
-        ("encoder_cmd_int", "<i4", (6,)),  # interpolated way-point [counts], internal
+        ("cart_time_count", "<i4", None),  # the Brain Command's, copied in (droid-agent)
+        ("joint_time_count", "<i4", None),  # the Brain Command's, copied in
+        ("encoder_cmd_ext", "<i4", (6,)),  # gross joint command [counts], external: the Brain's, copied in
+        ("encoder_cmd_int", "<i4", (6,)),  # interpolated way-point [counts], internal: droid-planner's
         ("coord", "<i4", None),
         ("cmd_mode", "<i4", None),
         ("sent", "<i4", None),
@@ -262,8 +262,15 @@ CTRL_COMMAND = _dtype(
         ("planner_tick", "<u8", None),  # addition: last relayed tick the planner processed
         ("guard_tick", "<u8", None),  # version 2 (issue 41): the Brain Command's, copied in
         ("guard_override", "<f8", None),  # version 2: the Brain Command's, copied in
+        # version 3 (docs/safety.md finding 11): droid-planner's own move, in fields no other
+        # program writes.  The planner used to write its target and ticks left back into
+        # encoder_cmd_ext / joint_time_count, which droid-agent overwrites with the Brain's
+        # values every tick: a reader between the two writes (a servo agent bridging a late
+        # planner) took the Brain's last joint target for the planner's.
+        ("plan_ext", "<i4", (6,)),  # the planner's move target [counts] (a cartesian command's IK)
+        ("plan_time_count", "<i4", None),  # heartbeat ticks left of the planner's move
     ],
-    240,
+    272,
 )
 
 PROC_STATUS = _dtype(
@@ -412,7 +419,7 @@ ARM_STATUS_LAYOUT = Layout("arm_status", KIND_ARM_STATUS, 1, ARM_STATUS, "droid_
 ARM_COMMAND_LAYOUT = Layout("arm_command", KIND_ARM_COMMAND, 2, ARM_COMMAND, "droid_arm_command")
 SENSOR_STATUS_LAYOUT = Layout("sensor_status", KIND_SENSOR_STATUS, 2, SENSOR_STATUS, "droid_sensor_status")
 CTRL_STATUS_LAYOUT = Layout("ctrl_status", KIND_CTRL_STATUS, 1, CTRL_STATUS, "droid_ctrl_status")
-CTRL_COMMAND_LAYOUT = Layout("ctrl_command", KIND_CTRL_COMMAND, 2, CTRL_COMMAND, "droid_ctrl_command")
+CTRL_COMMAND_LAYOUT = Layout("ctrl_command", KIND_CTRL_COMMAND, 3, CTRL_COMMAND, "droid_ctrl_command")
 #: ``lateness_max_ns`` of a program that keeps no lateness record (it neither runs on its own
 #: timer nor reads ticks stamped on its own machine's clock)
 LATENESS_NO_RECORD = -1

@@ -266,8 +266,8 @@ _Static_assert(offsetof(droid_ctrl_status_t, cmd_result) == 220, "droid_ctrl_sta
 _Static_assert(sizeof(droid_ctrl_status_t) == 224, "droid_ctrl_status size");
 
 #define DROID_CTRL_COMMAND_KIND 5
-#define DROID_CTRL_COMMAND_VERSION 2
-#define DROID_CTRL_COMMAND_SIZE 240
+#define DROID_CTRL_COMMAND_VERSION 3
+#define DROID_CTRL_COMMAND_SIZE 272
 #pragma pack(push, 1)
 typedef struct droid_ctrl_command {
     uint32_t magic;
@@ -296,6 +296,9 @@ typedef struct droid_ctrl_command {
     uint64_t planner_tick;
     uint64_t guard_tick;
     double guard_override;
+    int32_t plan_ext[6];
+    int32_t plan_time_count;
+    uint8_t _pad0[4];
 } droid_ctrl_command_t;
 #pragma pack(pop)
 _Static_assert(offsetof(droid_ctrl_command_t, magic) == 0, "droid_ctrl_command.magic offset");
@@ -324,7 +327,9 @@ _Static_assert(offsetof(droid_ctrl_command_t, plan_id) == 212, "droid_ctrl_comma
 _Static_assert(offsetof(droid_ctrl_command_t, planner_tick) == 216, "droid_ctrl_command.planner_tick offset");
 _Static_assert(offsetof(droid_ctrl_command_t, guard_tick) == 224, "droid_ctrl_command.guard_tick offset");
 _Static_assert(offsetof(droid_ctrl_command_t, guard_override) == 232, "droid_ctrl_command.guard_override offset");
-_Static_assert(sizeof(droid_ctrl_command_t) == 240, "droid_ctrl_command size");
+_Static_assert(offsetof(droid_ctrl_command_t, plan_ext) == 240, "droid_ctrl_command.plan_ext offset");
+_Static_assert(offsetof(droid_ctrl_command_t, plan_time_count) == 264, "droid_ctrl_command.plan_time_count offset");
+_Static_assert(sizeof(droid_ctrl_command_t) == 272, "droid_ctrl_command size");
 
 #define DROID_PROC_STATUS_KIND 6
 #define DROID_PROC_STATUS_VERSION 3

@@ -186,7 +186,7 @@ def _moving_agent(v_counts_per_period: float, ext: int):
     agent = ServoAgentCore()
     cmd = L.new_record(L.CTRL_COMMAND_LAYOUT)
     cmd["link_alive"], cmd["cmd_mode"] = 1, L.NORMAL_MODE
-    cmd["encoder_cmd_ext"] = [ext] * 6
+    cmd["plan_ext"] = [ext] * 6  # the planner's move target
     sent = []
     for k in range(3):
         cmd["brain_tick"] = cmd["planner_tick"] = k + 1

@@ -14,7 +14,7 @@ from droid.kinematics import load_robot
 def _out(counts) -> PlanOutput:
     out = PlanOutput()
     out.encoder_cmd_int = np.asarray(counts, np.int32)
-    out.encoder_cmd_ext = np.asarray(counts, np.int32) + 5
+    out.plan_ext = np.asarray(counts, np.int32) + 5
     return out
 
 

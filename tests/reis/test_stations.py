@@ -158,7 +158,7 @@ def test_servo_agent_after_its_own_gap_does_not_send_a_way_point_on_drained_old_
     for k in range(1, 6):  # a slow move: 2 counts per period
         wp += 2
         cmd.update(link_alive=1, cmd_mode=L.NORMAL_MODE, cmd_id=1, brain_tick=k, planner_tick=k,
-                   encoder_cmd_int=(wp,) * 6, encoder_cmd_ext=(5000,) * 6)
+                   encoder_cmd_int=(wp,) * 6, plan_ext=(5000,) * 6)
         tick += 8
         st.take(rep(tick, wp - 2), t + k * P - 1000)
         assert st.cycle(t + k * P) is not None

@@ -31,8 +31,11 @@ period, at whatever deceleration that takes.  A period whose relayed tick came
 but whose way-point is not written yet (the planner is late) is bridged by one
 period of the planner's own velocity; a period with no tick at all (the Brain
 or its link went silent) steps the velocity down at the servo's braking profile
-(``brake_decel_counts_per_tick2``), never past the move's target
-(``encoder_cmd_ext``), and holds at rest.  So the cycle must run on the relayed
+(``brake_decel_counts_per_tick2``), never past the planner's move target
+(``plan_ext``: the planner's own field -- ``encoder_cmd_ext`` is the Brain's last joint target,
+which droid-agent copies in every tick, stale during a cartesian move: bounded by it, a late
+planner's bridge sent every joint moving away from it back toward it, docs/safety.md finding 11),
+and holds at rest.  So the cycle must run on the relayed
 tick, not on a free-running timer of its own: two free 60 Hz clocks slip a
 period now and then, and a slip would read as a pause.
 """
@@ -206,7 +209,7 @@ class ServoAgentCore:
     def _link_lost(self, cmd, mode: int, report: sw.ServoReport, status: dict, faults: int) -> AgentDecision:
         """The way-points stopped with the link: finish the stop through the braking profile
         (bounded by the move's target), then fall silent (the servo holds)."""
-        nxt = (self._next_without_way_point(cmd["encoder_cmd_ext"], False)
+        nxt = (self._next_without_way_point(cmd["plan_ext"], False)
                if mode == NORMAL_MODE and report.homed else None)
         if nxt is not None:
             return self._send(Mode.NORMAL, nxt, status, faults, "Brain link lost: braking")
@@ -222,7 +225,7 @@ class ServoAgentCore:
         if silent or planner_tick == self._wp_tick:
             # no new way-point this period: never the same one again (the servo would
             # stop within one period); bridge a late planner, brake if the ticks stopped
-            nxt = self._next_without_way_point(cmd["encoder_cmd_ext"], ticked and not silent)
+            nxt = self._next_without_way_point(cmd["plan_ext"], ticked and not silent)
             if nxt is not None:
                 return self._send(Mode.NORMAL, nxt, status, faults,
                                   "planner silent: braking" if silent else "")
