@@ -48,7 +48,7 @@ sys.path.insert(0, str(ROOT))
 
 from bench.live_cell import droid_program, renamed_cell  # noqa: E402
 from droid.brain.cellfile import builtin_cell_path, load_cell  # noqa: E402
-from droid.brain import wire  # noqa: E402
+from droid.brain.plumbing import wire  # noqa: E402
 from droid.cli import ArgumentParser, bounded_int, duration_s, seed_int  # noqa: E402
 
 

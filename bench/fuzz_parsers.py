@@ -30,8 +30,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
-from droid.brain import wire  # noqa: E402
-from droid.brain.sensor_line import Garbled, LineReading, SensorClientCore, parse_line  # noqa: E402
+from droid.brain.plumbing import wire  # noqa: E402
+from droid.brain.plumbing.sensor_line import Garbled, LineReading, SensorClientCore, parse_line  # noqa: E402
 from droid.cli import ArgumentParser, BadInput, bounded_int, seed_int  # noqa: E402
 from droid.subunits.gmf1 import karel_wire as kw  # noqa: E402
 from droid.subunits.reis import servo_wire as sw  # noqa: E402

@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import zmq
 
-from droid.brain.curve import CurveHost
+from droid.brain.plumbing.curve import CurveHost
 from droid.brain.databases import open_local
 from droid.brain.heartbeat import TickSubscriber
 from droid.brain.rt import try_sched_fifo

@@ -27,8 +27,8 @@ from droid.cli import BadInput, TableReader, read_toml
 from droid.numbers import NumberError, check_numbers, finite_numbers
 from droid.brain.classes import SubunitClass
 from droid.brain import registry as _registry
-from droid.brain.curve import CurveConfig, parse_curve_table
-from droid.brain.wire import LIVENESS_TICKS
+from droid.brain.plumbing.curve import CurveConfig, parse_curve_table
+from droid.brain.plumbing.wire import LIVENESS_TICKS
 from droid.brain.shmdb import check_name_part
 
 #: The heartbeat rates a cell accepts [Hz] ([cell] heartbeat_hz, droid-heartbeat --rate): at

@@ -69,7 +69,7 @@ PACKAGE = DevicePackage(
                 description="needs the optional extra droid[ros2]"),
     ),
     drivers=(
-        Driver("serial", SERIAL_SCHEMES, "droid.brain.serial_port:serial_opener",
+        Driver("serial", SERIAL_SCHEMES, "droid.brain.plumbing.serial_port:serial_opener",
                "a device path (/dev/ttyS0) or a pyserial URL (socket://HOST:PORT, loop://, ...)"),
     ),
     twins=(Twin("serial_cable", "droid.sim.serial_cable:serial_cable", cpu_pct=1.0),),

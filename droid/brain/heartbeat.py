@@ -2,7 +2,7 @@
 
 "The heartbeat program is a fixed timer tied to the computer's real-time clock
 generating a synchronization event at a rate of 60 Hz."  Here it is a ZeroMQ
-PUB socket sending one :class:`~droid.brain.wire.Tick` per period, on absolute
+PUB socket sending one :class:`~droid.brain.plumbing.wire.Tick` per period, on absolute
 deadlines (timerfd), counting missed ticks and wake-up lateness.  It registers
 itself in the name space as ``heartbeat``.
 
@@ -18,8 +18,8 @@ import time
 
 import zmq
 
-from droid.brain import wire
-from droid.brain.curve import CurveHost
+from droid.brain.plumbing import wire
+from droid.brain.plumbing.curve import CurveHost
 from droid.brain.layouts import LATENESS_NO_RECORD as NO_RECORD
 from droid.brain.names import NameClient
 from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key

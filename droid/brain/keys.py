@@ -15,7 +15,7 @@ import os
 import sys
 from pathlib import Path
 
-from droid.brain.curve import PUBLIC_SUFFIX, SECRET_SUFFIX, load_public_key
+from droid.brain.plumbing.curve import PUBLIC_SUFFIX, SECRET_SUFFIX, load_public_key
 from droid.brain.program import parser
 from droid.brain.shmdb import check_name_part
 from droid.cli import BadInput, RuntimeFailure, run

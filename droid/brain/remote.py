@@ -12,7 +12,7 @@ tool-tip sensor) has no agent: the sensor writes its lines over a serial
 cable straight to the Brain (§2.5, §5.4) and this program reads that port
 instead (:mod:`droid.brain.sensor_link`).
 
-Liveness (:class:`~droid.brain.link.RemoteLinkCore`): ``stale_ticks`` ticks
+Liveness (:class:`~droid.brain.plumbing.link.RemoteLinkCore`): ``stale_ticks`` ticks
 without a reply set ``stale = 1`` in the Status record; the remote then
 reconnects with back-off and clears ``stale`` on the next reply.
 
@@ -31,14 +31,14 @@ import time
 import numpy as np
 import zmq
 
-from droid.brain import wire
+from droid.brain.plumbing import wire
 from droid.brain.cellfile import Subunit
-from droid.brain.curve import CurveHost
+from droid.brain.plumbing.curve import CurveHost
 from droid.brain.databases import brain_layouts, open_brain
 from droid.brain.heartbeat import TickSubscriber
 from droid.brain.layouts import (ARM_COMMAND_LAYOUT, FAULT_HEARTBEAT, FAULT_LINK, LayoutError, byte_runs,
                                  check_header)
-from droid.brain.link import HeartbeatWatch, RemoteAction, RemoteLinkCore
+from droid.brain.plumbing.link import HeartbeatWatch, RemoteAction, RemoteLinkCore
 from droid.brain.names import NameClient
 from droid.brain.program import Presence, Stop, close_all, notify_ready, presence_key, subunit_program
 from droid.brain.rt import try_sched_fifo

@@ -23,7 +23,7 @@ blocks) and :class:`SensorStatusCore` turns the bytes into Status fields:
 * ``tick``, ``updated_ns``: the heartbeat tick and CLOCK_MONOTONIC [ns] at
   which the newest line arrived;
 * ``capture_age_us`` (layout v2, issue 12): for a line with a capture stamp
-  (droid.brain.sensor_line), how long before ``updated_ns`` its camera frame
+  (droid.brain.plumbing.sensor_line), how long before ``updated_ns`` its camera frame
   was taken [us]; ``NO_CAPTURE_AGE`` for a plain line.  A stamp from the
   future, older than a second or out of order drops the reading (invalid)
   and counts as garbled;
@@ -49,9 +49,9 @@ import numpy as np
 
 from droid.brain.cellfile import Cell, Subunit
 from droid.brain.layouts import FAULT_DEVICE, FAULT_HEARTBEAT, FAULT_LINK, NO_CAPTURE_AGE
-from droid.brain.sensor_line import DEFAULT_BAUD, INVALID, MIN_BAUD, LineReading, SensorClientCore
-from droid.brain.serial_port import ReopeningPort
-from droid.brain.wire import LIVENESS_TICKS
+from droid.brain.plumbing.sensor_line import DEFAULT_BAUD, INVALID, MIN_BAUD, LineReading, SensorClientCore
+from droid.brain.plumbing.serial_port import ReopeningPort
+from droid.brain.plumbing.wire import LIVENESS_TICKS
 from droid.cli import BadInput, file_number
 from droid.numbers import baud_range
 
@@ -166,7 +166,7 @@ class SerialPortReader(ReopeningPort):
     be opened or fails while reading (EIO, hang-up) is closed and tried again
     after ``min_backoff_ticks`` ticks, doubling up to ``max_backoff_ticks``.
     A URL pyserial rejects as malformed is a :class:`BadInput`.  (The cell's
-    one reopening port, :class:`droid.brain.serial_port.ReopeningPort`, reading
+    one reopening port, :class:`droid.brain.plumbing.serial_port.ReopeningPort`, reading
     at most MAX_READ_BYTES a tick.)
     """
 
@@ -180,10 +180,10 @@ def serve_serial(cell: Cell, sub: Subunit, ready_fd: int | None, prog: str) -> i
     """The loop of ``droid-remote NAME`` for a serial-linked sensor (see the module docstring)."""
     import zmq
 
-    from droid.brain.curve import CurveHost
+    from droid.brain.plumbing.curve import CurveHost
     from droid.brain.databases import open_brain
     from droid.brain.heartbeat import TickSubscriber
-    from droid.brain.link import HeartbeatWatch
+    from droid.brain.plumbing.link import HeartbeatWatch
     from droid.brain.program import Presence, Stop, notify_ready, presence_key
 
     opts = serial_link_options(cell, sub)

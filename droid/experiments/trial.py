@@ -492,7 +492,7 @@ def _tracking_cycle(params: SeamParams, geo: TrialGeometry, trial_id: str) -> Tr
 
 
 def _reading(line) -> Reading:
-    """The tracker's reading of the lead sensor's parsed line (droid.brain.sensor_line: a
+    """The tracker's reading of the lead sensor's parsed line (droid.brain.plumbing.sensor_line: a
     LineReading, or Garbled), as the Brain's Status hands it on: invalid for ``invalid`` and for
     a garbled line."""
     return Reading(line.x_mm, line.y_mm, line.roll_rad, True) if line.valid else INVALID_READING

@@ -23,7 +23,7 @@ import time
 import zmq
 
 from droid.brain.cellfile import load_cell
-from droid.brain.curve import CurveHost
+from droid.brain.plumbing.curve import CurveHost
 from droid.brain.databases import open_brain, open_local
 from droid.brain.heartbeat import TickSubscriber
 from droid.brain.layouts import GUARD_STATUS_LAYOUT

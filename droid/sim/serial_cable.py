@@ -56,8 +56,8 @@ from typing import Any
 
 import serial
 
-from droid.brain.sensor_line import DEFAULT_BAUD
-from droid.brain.serial_line import BITS_PER_BYTE
+from droid.brain.plumbing.sensor_line import DEFAULT_BAUD
+from droid.brain.plumbing.serial_line import BITS_PER_BYTE
 from droid.cli import BadInput
 from droid.sim.device import Device
 

@@ -50,7 +50,7 @@ import numpy as np
 
 from droid.brain.cellfile import BUNDLED_CELLS, Cell, builtin_cell_path, find_file, load_cell
 from droid.brain.device import HEARTBEAT_HZ
-from droid.brain.wire import LIVENESS_TICKS
+from droid.brain.plumbing.wire import LIVENESS_TICKS
 from droid.cli import BadInput, RuntimeFailure
 from droid.brain.cell_layout import Layout, Wrist, check_bases, check_robots, layout_for_cell, load_layout
 from droid.kinematics import RobotModel, Unreachable, load_robot

@@ -2,9 +2,9 @@
 import pytest
 from hypothesis import given, strategies as st
 
-from droid.brain import wire
+from droid.brain.plumbing import wire
 from droid.brain.heartbeat import HeartbeatCore, TickMonitor
-from droid.brain.link import AgentLinkCore, RemoteLinkCore
+from droid.brain.plumbing.link import AgentLinkCore, RemoteLinkCore
 from droid.brain.names import NameSpaceCore
 
 P = 16_666_667
@@ -101,7 +101,7 @@ def test_name_space_bad_requests(req):
 
 # -- the heartbeat's own silence (issue 16: the Brain marks every subunit stale) ------
 def test_heartbeat_watch_reports_a_silence_once_and_clears_on_the_next_tick():
-    from droid.brain.link import HeartbeatWatch
+    from droid.brain.plumbing.link import HeartbeatWatch
 
     period = 16_666_667
     w = HeartbeatWatch(period, stale_ticks=3)
@@ -119,7 +119,7 @@ def test_heartbeat_watch_reports_a_silence_once_and_clears_on_the_next_tick():
 
 
 def test_heartbeat_watch_counts_from_the_first_look_when_no_tick_ever_came():
-    from droid.brain.link import HeartbeatWatch
+    from droid.brain.plumbing.link import HeartbeatWatch
 
     w = HeartbeatWatch.for_rate(60.0, 3)
     assert w.poll_ms == 17

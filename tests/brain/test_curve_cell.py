@@ -10,9 +10,9 @@ from __future__ import annotations
 import pytest
 import zmq
 
-from droid.brain import wire
+from droid.brain.plumbing import wire
 from droid.brain.cellfile import load_cell
-from droid.brain.curve import CurveHost
+from droid.brain.plumbing.curve import CurveHost
 from droid.brain.databases import open_local
 from droid.brain.layouts import ARM_COMMAND_LAYOUT, CTRL_STATUS_LAYOUT, check_header, new_record
 from droid.brain.names import NameClient

@@ -6,8 +6,9 @@ import inspect
 
 import pytest
 
-from droid.brain import layouts, rt, wire
-from droid.brain.serial_line import LineSplitter
+from droid.brain import layouts, rt
+from droid.brain.plumbing import wire
+from droid.brain.plumbing.serial_line import LineSplitter
 from droid.brain.registry import registry
 from droid.programs import PROGRAMS
 
@@ -30,7 +31,7 @@ def test_mode_numbers_have_one_definition():
 
 
 def test_liveness_constants_are_the_defaults():
-    from droid.brain.link import AgentLinkCore, RemoteLinkCore
+    from droid.brain.plumbing.link import AgentLinkCore, RemoteLinkCore
 
     assert RemoteLinkCore().stale_ticks == wire.LIVENESS_TICKS
     assert RemoteLinkCore().max_backoff_ticks == wire.MAX_BACKOFF_TICKS
@@ -63,7 +64,7 @@ def test_one_bind_for_server_sockets_names_the_endpoint_it_could_not_bind(tmp_pa
 
     import zmq
 
-    from droid.brain.curve import CurveHost
+    from droid.brain.plumbing.curve import CurveHost
     from droid.cli import RuntimeFailure
 
     class NoKeys(CurveHost):  # a cell without [curve]: plain sockets
@@ -114,7 +115,7 @@ class _Port:
 def test_port_link_write_timeout_is_an_overrun_or_a_failure(keep):
     import serial
 
-    from droid.brain.serial_port import PortLink
+    from droid.brain.plumbing.serial_port import PortLink
 
     port = _Port()
     link = PortLink(lambda: port, write_timeout_keeps_open=keep)

@@ -8,7 +8,8 @@ import time
 
 import zmq
 
-from droid.brain import launcher, wire
+from droid.brain import launcher
+from droid.brain.plumbing import wire
 from droid.brain.cellfile import load_cell
 from droid.brain.heartbeat import TickSubscriber
 from droid.brain.layouts import LATENESS_NO_RECORD

@@ -9,9 +9,9 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from droid.brain import wire
+from droid.brain.plumbing import wire
 from droid.brain.names import NameSpaceCore
-from droid.brain.sensor_line import Garbled, LineReading, SensorClientCore, parse_line
+from droid.brain.plumbing.sensor_line import Garbled, LineReading, SensorClientCore, parse_line
 from droid.cli import BadInput
 from droid.subunits.gmf1 import karel_wire as kw
 from droid.subunits.reis import servo_wire as sw

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 import zmq
 
-from droid.brain import wire
+from droid.brain.plumbing import wire
 from droid.brain.cellfile import load_cell
 from droid.brain.launcher import STATUS_KEYS
 from droid.brain.names import boot_id

@@ -159,7 +159,7 @@ def test_sensor_in_a_cell_without_a_world_gives_up_with_a_reason(tmp_path, cell_
 def test_sensor_in_a_cell_takes_board_port_and_calibration_from_the_cell(tmp_path, cell_name):
     """droid-mvs --cell FILE mvs: dsp, sensor_serial and [subunits.mvs.calibration] from the file,
     the readiness handshake on --ready-fd, a presence record while it runs."""
-    from droid.brain.sensor_line import SensorClientCore
+    from droid.brain.plumbing.sensor_line import SensorClientCore
     from droid.sim.serial_cable import PtyEnd
     from droid.subunits.mvs.sensor import main
 

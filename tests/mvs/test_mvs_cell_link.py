@@ -17,7 +17,7 @@ from droid.brain.cellfile import parse_cell
 from droid.brain.layouts import FAULT_DEVICE, FAULT_LINK
 from droid.brain.sensor_link import (SensorStatusCore, SerialPortReader, link_kind, seam_status_fields,
                                      serial_link_options)
-from droid.brain.sensor_line import INVALID, LineReading
+from droid.brain.plumbing.sensor_line import INVALID, LineReading
 from droid.cli import BadInput
 
 LINE = b"1.250,-3.500,0.10000\n"

@@ -138,7 +138,7 @@ def test_seam_transform_is_table_3_3_record():
 # -- capture stamps (issue 12 item 2) ------------------------------------------------------
 
 def test_a_stamped_line_round_trips_and_a_plain_thesis_line_still_parses():
-    from droid.brain.sensor_line import LineReading, format_line, parse_line, stamp_ms_of
+    from droid.brain.plumbing.sensor_line import LineReading, format_line, parse_line, stamp_ms_of
 
     f = LineReading(True, -1.25, 3.5, 0.01)
     line = format_line(f, stamp_ms_of(123_456_789_000_000))
@@ -153,8 +153,8 @@ def test_a_stamped_line_round_trips_and_a_plain_thesis_line_still_parses():
 
 
 def test_stamps_from_the_future_too_old_or_out_of_order_are_dropped_and_counted():
-    from droid.brain.sensor_line import SensorClientCore, format_line, stamp_ms_of
-    from droid.brain.sensor_line import LineReading
+    from droid.brain.plumbing.sensor_line import SensorClientCore, format_line, stamp_ms_of
+    from droid.brain.plumbing.sensor_line import LineReading
 
     c = SensorClientCore(stale_after_feeds=100)
     f = LineReading(True, 0.5, -0.25, 0.0)
@@ -171,7 +171,7 @@ def test_stamps_from_the_future_too_old_or_out_of_order_are_dropped_and_counted(
 
 def test_the_sensor_status_keeps_the_capture_age():
     from droid.brain.layouts import NO_CAPTURE_AGE, SENSOR_STATUS_LAYOUT
-    from droid.brain.sensor_line import LineReading, format_line, stamp_ms_of
+    from droid.brain.plumbing.sensor_line import LineReading, format_line, stamp_ms_of
     from droid.brain.sensor_link import SensorStatusCore
 
     assert SENSOR_STATUS_LAYOUT.version == 2 and "capture_age_us" in SENSOR_STATUS_LAYOUT.dtype.names
@@ -188,7 +188,7 @@ def test_the_sensor_status_keeps_the_capture_age():
 
 
 def test_the_sensor_core_appends_the_capture_stamp_only_when_asked():
-    from droid.brain.sensor_line import parse_line
+    from droid.brain.plumbing.sensor_line import parse_line
     from droid.sim.mvs.camera import CameraNoise, lap_joint_profile_mm, quantise
     from droid.subunits.mvs.calibration import MvsCalibration
     from droid.subunits.mvs.sensor import SensorCore

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import serial
 
-from droid.brain.sensor_line import parse_line
+from droid.brain.plumbing.sensor_line import parse_line
 from droid.sim.lockstep import Scheduler
 from droid.sim.mvs.camera import CameraNoise, MvsCamera
 from droid.sim.mvs.tool_sensor import pose_for_reading

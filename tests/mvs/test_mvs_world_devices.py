@@ -10,7 +10,7 @@ import pytest
 import serial
 
 from droid.brain.cellfile import load_cell
-from droid.brain.sensor_line import SensorClientCore, parse_line
+from droid.brain.plumbing.sensor_line import SensorClientCore, parse_line
 from droid.cli import BadInput
 from droid.kinematics.transforms import pose_to_T
 from droid.sim.lockstep import ORDER_WORLD, Scheduler

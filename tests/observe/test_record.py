@@ -189,7 +189,7 @@ def test_record_cli_follows_the_heartbeat(db_cell, tmp_path):
 
     import zmq
 
-    from droid.brain import wire
+    from droid.brain.plumbing import wire
 
     cell, cf = db_cell
     cell.run_dir.mkdir(parents=True, exist_ok=True)

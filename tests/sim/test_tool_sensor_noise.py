@@ -11,7 +11,7 @@ from droid.sim.mvs.devices import ToolSensorCore
 from droid.sim.mvs.tool_sensor import (SIGMA_HEIGHT_MM, SIGMA_LATERAL_MM, SIGMA_ROLL_RAD, ToolNoise, ToolReading,
                                        noisy, pose_for_reading)
 from droid.sim.workpiece import load_workpiece
-from droid.brain.sensor_line import parse_line
+from droid.brain.plumbing.sensor_line import parse_line
 
 
 def test_the_noise_model_is_the_lead_sensors():

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from droid.brain.layouts import NO_CAPTURE_AGE, SENSOR_STATUS_LAYOUT
-from droid.brain.sensor_line import parse_line
+from droid.brain.plumbing.sensor_line import parse_line
 from droid.brain.sensor_link import SensorStatusCore
 from droid.brain.shmdb import MemoryDatabase
 from droid.kinematics.transforms import trans

@@ -66,7 +66,7 @@ from typing import Any
 
 import numpy as np
 
-from droid.brain.sensor_line import DEFAULT_BAUD, format_line, stamp_ms_of
+from droid.brain.plumbing.sensor_line import DEFAULT_BAUD, format_line, stamp_ms_of
 from droid.sim.device_options import DeviceOptions
 from droid.sim.mvs.camera import CameraNoise, MvsCamera
 from droid.sim.mvs.clock import FrameClock

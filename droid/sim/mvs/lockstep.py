@@ -13,10 +13,10 @@ from types import SimpleNamespace
 from typing import Any, Mapping
 
 from droid.brain.layouts import SENSOR_STATUS_LAYOUT
-from droid.brain.sensor_line import DEFAULT_BAUD
+from droid.brain.plumbing.sensor_line import DEFAULT_BAUD
 from droid.brain.sensor_link import SensorStatusCore
 from droid.brain.shmdb import MemoryDatabase
-from droid.brain.wire import LIVENESS_TICKS
+from droid.brain.plumbing.wire import LIVENESS_TICKS
 from droid.cli import BadInput
 from droid.sim.device_options import DeviceOptions
 from droid.sim.mvs.devices import IdealSensorCore, MvsCameraDevice, ToolSensorDevice, build_camera, tool_parts
@@ -224,7 +224,7 @@ def build(ctx, sub) -> LockstepSubunit:
     ``tool_sensor`` device writing its line (its ``serial`` is the subunit's).  The line's baud,
     the sensor's calibration (``[subunits.X.calibration]``) and the cell's ``stale_ticks`` are
     the subunit's; BadInput (one line) when the world has no such device."""
-    from droid.brain.sensor_line import DEFAULT_BAUD as baud_default
+    from droid.brain.plumbing.sensor_line import DEFAULT_BAUD as baud_default
 
     world = SimpleNamespace(devices=ctx.twins, seed=ctx.seed, cell=None)
     baud = int(sub.options.get("baud", baud_default))

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from droid.brain.sensor_line import Garbled, LineReading, format_line, parse_line
+from droid.brain.plumbing.sensor_line import Garbled, LineReading, format_line, parse_line
 from droid.sim.mvs.crossing import SeamCrossing
 from droid.sim.mvs.camera import CameraNoise, MvsCamera
 from droid.sim.mvs.tool_sensor import (SIGMA_HEIGHT_MM, SIGMA_LATERAL_MM, SIGMA_ROLL_RAD, ToolNoise, ToolReading,
@@ -94,7 +94,7 @@ class LeadSensor:
 
     def read(self, T_W_S: np.ndarray) -> LineReading | Garbled | None:
         """The line of a frame taken with the sensor frame at ``T_W_S`` (4x4, mm), as the Brain's
-        parser reads it (droid.brain.sensor_line.parse_line: the values rounded to the line's
+        parser reads it (droid.brain.plumbing.sensor_line.parse_line: the values rounded to the line's
         decimals; ``valid`` False for ``invalid``); None when the frame brought no line (dropped,
         inside the retrace timeout: the Status keeps its line).  The tracker's reading of it is
         the trial's (the Brain's Status between them, as droid.brain.sensor_link fills it)."""

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from droid.brain.wire import LIVENESS_TICKS
+from droid.brain.plumbing.wire import LIVENESS_TICKS
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.sim.arm_chain import ArmChain

@@ -25,7 +25,7 @@ import time
 
 import zmq
 
-from droid.brain.curve import CurveHost
+from droid.brain.plumbing.curve import CurveHost
 from droid.brain.databases import open_local
 from droid.brain.heartbeat import TickSubscriber
 from droid.brain.program import Presence, Stop, close_all, notify_ready, presence_key, subunit_program

@@ -51,12 +51,12 @@ import math
 import re
 from dataclasses import dataclass
 
-from droid.brain.serial_line import BITS_PER_BYTE  # noqa: F401  (kw.BITS_PER_BYTE for its users)
-from droid.brain.serial_line import LineSplitter as _SerialLineSplitter
+from droid.brain.plumbing.serial_line import BITS_PER_BYTE  # noqa: F401  (kw.BITS_PER_BYTE for its users)
+from droid.brain.plumbing.serial_line import LineSplitter as _SerialLineSplitter
 
 # -- line format ---------------------------------------------------------------
 BAUD = 9600  # thesis §4.2.4: "a RS-232 25-pin serial port which has a bandwidth of 9600 bps"
-# BITS_PER_BYTE (8N1: start + 8 data + stop) is droid.brain.serial_line's, imported above
+# BITS_PER_BYTE (8N1: start + 8 data + stop) is droid.brain.plumbing.serial_line's, imported above
 REQUEST_END = b"\r"
 REPLY_END = b"\r\n"
 MAX_LINE = 120  # bytes, terminator excluded (a KAREL STRING buffer)
@@ -306,7 +306,7 @@ class LineSplitter(_SerialLineSplitter):
     A partial line longer than :data:`MAX_LINE` is returned at once (cut to
     ``MAX_LINE + 1`` bytes, so the parser answers LONG), the rest of it is
     thrown away up to its end, and ``overlong`` counts it.  The one splitter
-    of the cell's serial lines (:class:`droid.brain.serial_line.LineSplitter`)
+    of the cell's serial lines (:class:`droid.brain.plumbing.serial_line.LineSplitter`)
     with the KAREL policy.
     """
 

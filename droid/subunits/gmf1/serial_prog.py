@@ -19,7 +19,7 @@ import sys
 
 import zmq
 
-from droid.brain.curve import CurveHost
+from droid.brain.plumbing.curve import CurveHost
 from droid.brain.databases import open_local
 from droid.brain.heartbeat import TickSubscriber
 from droid.brain.program import ErrorLine, Presence, Stop, close_all, notify_ready, presence_key, subunit_program
@@ -58,7 +58,7 @@ def main(argv=None) -> int:
     cfg = gmf1_config(cell, sub)
     url = args.serial or cfg.serial
     baud = args.baud or cfg.baud
-    link = PortLink(open_url(url, "serial", baud=baud))  # droid.brain.serial_port.serial_opener
+    link = PortLink(open_url(url, "serial", baud=baud))  # droid.brain.plumbing.serial_port.serial_opener
     core = build_core(cell, sub, cfg, baud)
     # tick-driven like the agent and, like it, declared sched = "nice" (nice -10, not real-time;
     # docs/architecture.md): at nice 0 any normal process beside the cell took half its CPU and

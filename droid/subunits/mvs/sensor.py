@@ -55,12 +55,12 @@ import time
 import numpy as np
 
 from droid.brain.registry import open_url
-from droid.brain.serial_port import PortLink
+from droid.brain.plumbing.serial_port import PortLink
 from droid.cli import (ArgumentParser, BadInput, MAX_WAIT_S, RuntimeFailure, baud_rate, bounded_float, bounded_int,
                        duration_s, file_number, read_toml, run)
 from droid.numbers import Range
 from droid.subunits.mvs.calibration import MvsCalibration
-from droid.brain.sensor_line import stamp_ms_of
+from droid.brain.plumbing.sensor_line import stamp_ms_of
 from droid.subunits.mvs.protocol import format_line
 from droid.subunits.mvs.station import MvsStation, SensorCore
 from droid.subunits.mvs.wire import COLUMNS, DEFAULT_BAUD, FRAME_RATE_HZ, MIN_BAUD, NO_STRIPE, ROWS
@@ -182,7 +182,7 @@ def live(args, core: SensorCore, ready=None, beat=None, reopen: bool = False) ->
     if threading.current_thread() is threading.main_thread():
         handlers = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     record = board = None
-    # the cell's one serial port (droid.brain.serial_port): a write that times out is an
+    # the cell's one serial port (droid.brain.plumbing.serial_port): a write that times out is an
     # overrun (the line is slower than the frames), any other error closes the port
     port = PortLink(open_url(args.serial, "serial", baud=args.baud, write_timeout_s=WRITE_TIMEOUT_S),
                     write_timeout_keeps_open=True)

@@ -24,7 +24,7 @@ between the DSP board and the serial line exist once:
 No clock, no board, no signals, no files: the shell waits for the retrace (with its
 timeout in seconds), opens the port, writes the recording and reports.  ``port`` is
 anything with ``is_open``, ``open()``, ``write(bytes) -> bool`` and ``last_error`` -- the
-cell's :class:`~droid.brain.serial_port.PortLink`, lockstep's in-memory cable -- or None:
+cell's :class:`~droid.brain.plumbing.serial_port.PortLink`, lockstep's in-memory cable -- or None:
 the caller takes :attr:`MvsOutput.line` itself.
 """
 from __future__ import annotations
@@ -62,7 +62,7 @@ class SensorCore:
 
     def step(self, rows: np.ndarray, stamp_ms: int | None = None) -> bytes:
         """One frame -> the line to send ("x,y,roll\\n" or "invalid\\n"); with ``stamp_ms`` the
-        frame's capture stamp as the line's optional fourth field (droid.brain.sensor_line)."""
+        frame's capture stamp as the line's optional fourth field (droid.brain.plumbing.sensor_line)."""
         return format_line(self.process(rows), stamp_ms)
 
     @property

@@ -43,6 +43,6 @@ DSP_RECORD = np.dtype(
 )
 
 # -- the serial line to the Brain (thesis §5.4: comma-delimited ASCII) ------------
-# Defined once in droid.brain.sensor_line (the Brain parses what the sensor writes).
-from droid.brain.sensor_line import (BITS_PER_BYTE, DEFAULT_BAUD, INVALID_LINE, LINE_END,  # noqa: E402,F401
+# Defined once in droid.brain.plumbing.sensor_line (the Brain parses what the sensor writes).
+from droid.brain.plumbing.sensor_line import (BITS_PER_BYTE, DEFAULT_BAUD, INVALID_LINE, LINE_END,  # noqa: E402,F401
                                      MAX_LINE_BYTES, MIN_BAUD, ROLL_DECIMALS, X_DECIMALS)

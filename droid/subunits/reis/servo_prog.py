@@ -31,7 +31,7 @@ import numpy as np
 import zmq
 
 from droid import kernel
-from droid.brain.curve import CurveHost
+from droid.brain.plumbing.curve import CurveHost
 from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import BadInput, RuntimeFailure, run

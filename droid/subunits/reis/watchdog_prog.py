@@ -16,7 +16,7 @@ import sys
 
 import zmq
 
-from droid.brain.curve import CurveHost
+from droid.brain.plumbing.curve import CurveHost
 from droid.brain.databases import open_local
 from droid.brain.program import Stop, notify_ready
 from droid.brain.rt import PeriodicTimer

@@ -60,7 +60,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from droid.brain.layouts import FAULTS_STOP_RUN, fault_names
-from droid.brain.sensor_line import seam_transform
+from droid.brain.plumbing.sensor_line import seam_transform
 from droid.kinematics.transforms import EYE4
 from droid.tasks.seam.core import CycleOutput, SeamTracker
 from droid.tasks.seam.params import MODE_PLUS, SeamParams

@@ -37,7 +37,7 @@ class Reading:
     line, or the lockstep harness); None: the tracking cycle assumes its
     Status tick minus ``SENSOR_LAG_TICKS`` (droid.tasks.seam.cycle).
 
-    Not :class:`droid.brain.sensor_line.LineReading` (one parsed "x,y,roll"
+    Not :class:`droid.brain.plumbing.sensor_line.LineReading` (one parsed "x,y,roll"
     line, stamped in ms mod the stamp modulo): the tracker reads the Brain's
     sensor Status, not the line.
     """

@@ -3,7 +3,7 @@
 Both serial protocols of the cell are ASCII lines: the KAREL server's
 requests and replies on the Fanuc's port (thesis §4.2.4,
 :mod:`droid.subunits.gmf1.karel_wire`) and the sensors' ``x,y,roll`` lines
-to the Brain (§5.4, :mod:`droid.brain.sensor_line`).  docs/design.md §9: read with
+to the Brain (§5.4, :mod:`droid.brain.plumbing.sensor_line`).  docs/design.md §9: read with
 ``read(in_waiting)`` and split lines yourself -- this module's
 :class:`LineSplitter` is that one splitter, with the two protocols' policies
 as options.  Pure: no I/O, no clock.

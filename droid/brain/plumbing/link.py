@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from droid.brain.wire import LIVENESS_TICKS, MAX_BACKOFF_TICKS
+from droid.brain.plumbing.wire import LIVENESS_TICKS, MAX_BACKOFF_TICKS
 
 
 @dataclass

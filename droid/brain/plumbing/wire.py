@@ -31,7 +31,7 @@ KIND_CMD = b"CMD"
 KIND_STA = b"STA"
 _TICK = struct.Struct("<Q")
 
-# Liveness (zguide Paranoid Pirate), counted in heartbeat ticks (droid.brain.link)
+# Liveness (zguide Paranoid Pirate), counted in heartbeat ticks (droid.brain.plumbing.link)
 LIVENESS_TICKS = 3  # missed ticks before a peer is declared stale (the cell file's stale_ticks default)
 MAX_BACKOFF_TICKS = 120  # a remote's reconnect back-off doubles from LIVENESS_TICKS up to this
 

@@ -37,8 +37,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from droid.brain.serial_line import BITS_PER_BYTE  # noqa: F401  (re-exported: droid.subunits.mvs.wire)
-from droid.brain.serial_line import LineSplitter as _SerialLineSplitter
+from droid.brain.plumbing.serial_line import BITS_PER_BYTE  # noqa: F401  (re-exported: droid.subunits.mvs.wire)
+from droid.brain.plumbing.serial_line import LineSplitter as _SerialLineSplitter
 
 # -- grammar constants (droid.subunits.mvs.wire re-exports them) ------------------
 #: A valid line: "x,y,roll\n" with x, y in mm (3 decimals) and roll in rad (5 decimals).
@@ -55,7 +55,7 @@ STAMP_MODULO_MS = 100_000
 STAMP_MAX_AGE_MS = 1_000
 #: Line rate of the sensors [lines/s] (one a video frame, thesis §5.4, §6.1).
 LINE_RATE_HZ = 60.0
-#: Bits on the wire per byte (8N1): droid.brain.serial_line's, imported above.
+#: Bits on the wire per byte (8N1): droid.brain.plumbing.serial_line's, imported above.
 #: Lowest baud rate accepted.  A line for a feature inside the default field of
 #: view is at most 25 bytes ("-25.600,-24.000,-1.57080\n"), 31 with a stamp: 60 lines/s
 #: x 31 bytes x 10 bits = 18 600 bit/s, which 9600 baud cannot carry and 19200 can.
@@ -171,7 +171,7 @@ class LineSplitter(_SerialLineSplitter):
     the parser rejects them as garbled); ``overlong`` counts such lines.
     :meth:`resync` (a port just reopened) skips to the next line end and
     counts the bytes in ``skipped``.  The cell's one line splitter
-    (:class:`droid.brain.serial_line.LineSplitter`) with this grammar's policy.
+    (:class:`droid.brain.plumbing.serial_line.LineSplitter`) with this grammar's policy.
     """
 
     def __init__(self, max_line_bytes: int = MAX_LINE_BYTES):

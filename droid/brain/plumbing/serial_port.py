@@ -18,7 +18,7 @@ from typing import Callable
 
 import serial
 
-from droid.brain.wire import LIVENESS_TICKS, MAX_BACKOFF_TICKS
+from droid.brain.plumbing.wire import LIVENESS_TICKS, MAX_BACKOFF_TICKS
 from droid.cli import BadInput
 
 READ_ROUNDS = 64  # socket:// reports at most 1 byte in_waiting: bound the loop
