@@ -46,8 +46,8 @@ from bench.floor import cyclictest_floor, when_and_load  # noqa: E402
 from bench.live_cell import droid_module as droid, renamed_cell, up_and_homed  # noqa: E402
 from bench.truth import standstill  # noqa: E402
 from droid.brain.cellfile import builtin_cell_path, load_cell  # noqa: E402
-from droid.brain.databases import open_brain  # noqa: E402
-from droid.brain.layouts import FAULT_FORCE  # noqa: E402
+from droid.brain.db.databases import open_brain  # noqa: E402
+from droid.brain.db.layouts import FAULT_FORCE  # noqa: E402
 from droid.cli import ArgumentParser, bounded_int  # noqa: E402
 from droid.kinematics.transforms import T_to_pose  # noqa: E402
 from droid.tasks.contact.prog import ContactRun, build_parser  # noqa: E402
@@ -101,7 +101,7 @@ class ArmHostSampler(threading.Thread):
 
     def __init__(self, cell) -> None:
         super().__init__(daemon=True)
-        from droid.brain.databases import open_local
+        from droid.brain.db.databases import open_local
         from droid.sim.truth import TruthDoor, door_name
         ft = cell.subunit("ft")
         self.ft = open_local(cell, ft, "ctrl_status")

@@ -146,7 +146,7 @@ def web_rate(cell_file: Path, seconds: float) -> str:
 
 
 def offline(args, tmp: Path) -> None:
-    from droid.brain.databases import create_databases
+    from droid.brain.db.databases import create_databases
     from droid.observe.mcapfile import RecordingWriter, cell_meta
     from droid.observe.record import CellRecorder
     from droid.observe.sampler import CellSampler, health

@@ -30,9 +30,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from droid.brain.cellfile import builtin_cell_path, load_cell  # noqa: E402
-from droid.brain.databases import open_brain, open_local  # noqa: E402
-from droid.brain.layouts import PROC_STATUS_LAYOUT  # noqa: E402
-from droid.brain.shmdb import Database, db_name  # noqa: E402
+from droid.brain.db.databases import open_brain, open_local  # noqa: E402
+from droid.brain.db.layouts import PROC_STATUS_LAYOUT  # noqa: E402
+from droid.brain.db.shmdb import Database, db_name  # noqa: E402
 from droid.cli import ArgumentParser, duration_s  # noqa: E402
 from droid.tasks.arm import BrainArm  # noqa: E402
 

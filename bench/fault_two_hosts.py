@@ -25,8 +25,8 @@ import numpy as np
 import zmq
 
 from droid.brain.cellfile import load_cell
-from droid.brain.databases import open_brain, open_local
-from droid.brain.layouts import FAULT_LINK
+from droid.brain.db.databases import open_brain, open_local
+from droid.brain.db.layouts import FAULT_LINK
 from droid.cli import ArgumentParser, bounded_int
 from droid.faults.cells import CAMPAIGN_STALE_TICKS, TWO_HOST_STALE_TICKS, two_host_cell_text
 from droid.faults.netns import HostPair

@@ -15,7 +15,7 @@ The rule counted: a *line of code outside a device's own package that names a de
 * A line counts once when one of its identifiers contains, in any case, ``reis``, ``gmf1``,
   ``fanuc``, ``mvs``, ``joystick``, ``ft6`` or ``abb`` (``T_global_reis6``, ``geo.fanuc``,
   ``MvsStation``, ``from droid.sim.mvs.camera import ...``).
-* Exempt (``EXEMPT``): ``droid/brain/layouts.py``, the registry of the wire layouts, where the
+* Exempt (``EXEMPT``): ``droid/brain/db/layouts.py``, the registry of the wire layouts, where the
   joystick's and the force/torque sensor's layouts predate the device registry and stay because the
   drivers, the twins and the tests import them from there (docs/architecture.md, "Measured for the
   joystick").
@@ -32,7 +32,7 @@ from pathlib import Path
 
 DEVICE_TOKEN = re.compile(r"reis|gmf1|fanuc|mvs|joystick|ft6|abb", re.IGNORECASE)
 DEVICE_PACKAGES = ("reis", "gmf1", "mvs", "joystick", "ft", "abb")
-EXEMPT = {"droid/brain/layouts.py": "the wire layouts' registry (the joystick's and ft6's pre-registry layouts)"}
+EXEMPT = {"droid/brain/db/layouts.py": "the wire layouts' registry (the joystick's and ft6's pre-registry layouts)"}
 #: 166 lines at d8bd1d5 (188 with layouts.py), 45 after the tracker and the observers named roles,
 #: 38 after the trial's cell moved to droid/sim, 6 after TrialGeometry's tool/holder models, the
 #: fault campaign's tool robot and one-arm cell text, ArmChain.link_agent and the workpiece's own

@@ -43,7 +43,7 @@ import numpy as np
 import zmq
 
 from droid.brain.plumbing.curve import CurveHost
-from droid.brain.databases import open_local
+from droid.brain.db.databases import open_local
 from droid.brain.heartbeat import TickSubscriber
 from droid.brain.rt import try_sched_fifo
 from droid.brain.program import close_all, Presence, Stop, notify_ready, presence_key, subunit_program
@@ -51,7 +51,7 @@ from droid.cli import run
 from droid.guard.gate import GuardGate, guard_stale_ticks
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T, record_pose
-from droid.brain.layouts import (CMD_FAILED, CMD_OK, CMD_REFUSED, FAULT_BRAKING, FAULT_COLLISION, FAULT_FORCE,
+from droid.brain.db.layouts import (CMD_FAILED, CMD_OK, CMD_REFUSED, FAULT_BRAKING, FAULT_COLLISION, FAULT_FORCE,
                                  FAULT_GUARD, FAULT_SERVO, FAULT_WATCHDOG, JSPACE, NORMAL_MODE, STOP_TICKS,
                                  fault_names)
 from droid.kinematics import RobotModel, Unreachable

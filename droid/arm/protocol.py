@@ -11,7 +11,7 @@ same few calls.  Two runners satisfy it:
   (:class:`droid.sim.arm_chain.ArmTasks` and its subclasses: the Reis's ``LockstepArm``, the ABB's
   ``LockstepAbbArm``, the GMF1's ``ArmTasks`` over its records; waits advance virtual time).
 
-Commands are counted in heartbeat ticks (:mod:`droid.brain.arm_command`); every ``command_*`` returns
+Commands are counted in heartbeat ticks (:mod:`droid.brain.db.arm_command`); every ``command_*`` returns
 the ``cmd_id`` it wrote.  ``home`` and ``move_done`` wait at most ``timeout_s`` seconds and say whether
 the arm got there (True) or not (False): neither raises for an arm that did not finish in time.
 

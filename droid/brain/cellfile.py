@@ -29,7 +29,7 @@ from droid.brain.classes import SubunitClass
 from droid.brain import registry as _registry
 from droid.brain.plumbing.curve import CurveConfig, parse_curve_table
 from droid.brain.plumbing.wire import LIVENESS_TICKS
-from droid.brain.shmdb import check_name_part
+from droid.brain.db.shmdb import check_name_part
 
 #: The heartbeat rates a cell accepts [Hz] ([cell] heartbeat_hz, droid-heartbeat --rate): at
 #: least 1 Hz (the stale rules count ticks), at most 1000 Hz (a 1 ms period).

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from droid.brain.layouts import (
+from droid.brain.db.layouts import (
     ARM_COMMAND_LAYOUT,
     ARM_STATUS_LAYOUT,
     CMD_MODE_NAMES,

@@ -20,7 +20,7 @@ import zmq
 
 from droid.brain.plumbing import wire
 from droid.brain.plumbing.curve import CurveHost
-from droid.brain.layouts import LATENESS_NO_RECORD as NO_RECORD
+from droid.brain.db.layouts import LATENESS_NO_RECORD as NO_RECORD
 from droid.brain.names import NameClient
 from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
 from droid.brain.rt import PeriodicTimer, now_ns, try_sched_fifo

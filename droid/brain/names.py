@@ -26,7 +26,7 @@ import zmq
 
 from droid.brain.plumbing.curve import CurveHost
 from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
-from droid.brain.shmdb import pid_alive
+from droid.brain.db.shmdb import pid_alive
 from droid.cli import RuntimeFailure, run
 
 PROG = "droid-names"

@@ -17,10 +17,10 @@ import sys
 import time
 
 from droid.brain.cellfile import Cell, load_cell
-from droid.brain.layouts import (LATENESS_NO_RECORD, PROC_FAILED, PROC_READY, PROC_STARTING, PROC_STATUS_LAYOUT,
+from droid.brain.db.layouts import (LATENESS_NO_RECORD, PROC_FAILED, PROC_READY, PROC_STARTING, PROC_STATUS_LAYOUT,
                                  PROC_STOPPING)
 from droid.brain.rt import freeze_heap
-from droid.brain.shmdb import Database, db_name, unlink_database
+from droid.brain.db.shmdb import Database, db_name, unlink_database
 from droid.cli import ArgumentParser, bounded_int
 
 
@@ -40,7 +40,7 @@ def argparse_suppress():
 
 def open_cell(args) -> Cell:
     """Load the cell file a program was given; in a cell that wants SCHED_FIFO, the
-    program's database accesses use the priority ceiling (droid.brain.shmdb)."""
+    program's database accesses use the priority ceiling (droid.brain.db.shmdb)."""
     cell = load_cell(args.cell)
     use_cell(cell)
     return cell
@@ -48,7 +48,7 @@ def open_cell(args) -> Cell:
 
 def use_cell(cell: Cell) -> None:
     """Process-wide settings a cell asks for: the databases' priority ceiling."""
-    from droid.brain import shmdb
+    from droid.brain.db import shmdb
 
     off = os.environ.get("DROID_NO_CEILING") == "1"  # for comparisons (bench/bench_under_load.py)
     shmdb.set_priority_ceiling(shmdb.CEILING_PRIORITY if cell.sched_fifo and not off else None)

@@ -34,7 +34,7 @@ first read, a program's, driver's or twin's module only when it is used.
 
 ``classes()`` (class name -> SubunitClass), ``droid.programs.PROGRAMS``,
 ``droid.sim.world.DEVICE_TYPES``, ``droid.brain.rt.FIFO_PRIORITIES`` and
-``droid.brain.layouts.LAYOUTS`` (the layouts of packages outside the
+``droid.brain.db.layouts.LAYOUTS`` (the layouts of packages outside the
 repository are added to it) are views of this registry.
 :func:`validate_cell` is what ``droid-cell up`` and ``droid-sim`` check before
 they start anything (docs/architecture.md "Adding a device class").
@@ -228,7 +228,7 @@ class Registry:
             self.twin_package[t.type] = pkg.name
 
     def _problems(self, pkg: DevicePackage) -> Iterable[str]:
-        from droid.brain.layouts import LAYOUTS
+        from droid.brain.db.layouts import LAYOUTS
 
         if pkg.name in self.packages:
             yield f"a package {pkg.name!r} is already registered ({self.origin[pkg.name]})"
@@ -344,7 +344,7 @@ def registry() -> Registry:
 
 
 def _fill_views(reg: Registry) -> None:
-    from droid.brain.layouts import LAYOUTS
+    from droid.brain.db.layouts import LAYOUTS
 
     CLASSES_VIEW.clear()
     CLASSES_VIEW.update(reg.classes)
@@ -364,7 +364,7 @@ def _fill_views(reg: Registry) -> None:
 def reset() -> None:
     """Forget the registry (tests that put a package on sys.path); rebuilt on next use."""
     global _REGISTRY
-    from droid.brain.layouts import LAYOUTS
+    from droid.brain.db.layouts import LAYOUTS
 
     _REGISTRY = None
     for kind in _ADDED_LAYOUTS:
@@ -412,7 +412,7 @@ def program(name: str) -> Program:
 
 def layouts():
     """Every layout: the Brain's table plus those of every registered class (droid-cheader)."""
-    from droid.brain.layouts import LAYOUTS
+    from droid.brain.db.layouts import LAYOUTS
 
     registry()
     return LAYOUTS

@@ -34,9 +34,9 @@ import zmq
 from droid.brain.plumbing import wire
 from droid.brain.cellfile import Subunit
 from droid.brain.plumbing.curve import CurveHost
-from droid.brain.databases import brain_layouts, open_brain
+from droid.brain.db.databases import brain_layouts, open_brain
 from droid.brain.heartbeat import TickSubscriber
-from droid.brain.layouts import (ARM_COMMAND_LAYOUT, FAULT_HEARTBEAT, FAULT_LINK, LayoutError, byte_runs,
+from droid.brain.db.layouts import (ARM_COMMAND_LAYOUT, FAULT_HEARTBEAT, FAULT_LINK, LayoutError, byte_runs,
                                  check_header)
 from droid.brain.plumbing.link import HeartbeatWatch, RemoteAction, RemoteLinkCore
 from droid.brain.names import NameClient
@@ -94,7 +94,7 @@ class StatusTranslator:
     def byte_runs(self, layout) -> tuple | None:
         """The copied fields as byte ranges (reply offset, Status offset, bytes) into a record of
         ``layout`` (the Brain's Status), when each has the reply's type there -- copying those
-        bytes then is the fields' assignment (droid.brain.layouts.byte_runs); else None."""
+        bytes then is the fields' assignment (droid.brain.db.layouts.byte_runs); else None."""
         if not all(f in layout.dtype.fields for f in self.fields):
             return None
         return byte_runs(self.reply_layout.dtype, layout.dtype, {f: f for f in self.fields})

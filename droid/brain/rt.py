@@ -144,7 +144,7 @@ def __getattr__(name: str):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-#: The priority ceiling of the databases' semaphores (droid.brain.shmdb): above them all.
+#: The priority ceiling of the databases' semaphores (droid.brain.db.shmdb): above them all.
 CEILING_PRIORITY = 61
 DEFAULT_FIFO_PRIORITY = 50
 

@@ -48,7 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from droid.brain.cellfile import Cell, Subunit
-from droid.brain.layouts import FAULT_DEVICE, FAULT_HEARTBEAT, FAULT_LINK, NO_CAPTURE_AGE
+from droid.brain.db.layouts import FAULT_DEVICE, FAULT_HEARTBEAT, FAULT_LINK, NO_CAPTURE_AGE
 from droid.brain.plumbing.sensor_line import DEFAULT_BAUD, INVALID, MIN_BAUD, LineReading, SensorClientCore
 from droid.brain.plumbing.serial_port import ReopeningPort
 from droid.brain.plumbing.wire import LIVENESS_TICKS
@@ -181,7 +181,7 @@ def serve_serial(cell: Cell, sub: Subunit, ready_fd: int | None, prog: str) -> i
     import zmq
 
     from droid.brain.plumbing.curve import CurveHost
-    from droid.brain.databases import open_brain
+    from droid.brain.db.databases import open_brain
     from droid.brain.heartbeat import TickSubscriber
     from droid.brain.plumbing.link import HeartbeatWatch
     from droid.brain.program import Presence, Stop, notify_ready, presence_key

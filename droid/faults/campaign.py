@@ -47,9 +47,9 @@ import numpy as np
 
 from droid.brain import launcher
 from droid.brain.cellfile import load_cell
-from droid.brain.databases import open_local
-from droid.brain.layouts import FAULT_WATCHDOG
-from droid.brain.shmdb import cell_objects, pid_alive
+from droid.brain.db.databases import open_local
+from droid.brain.db.layouts import FAULT_WATCHDOG
+from droid.brain.db.shmdb import cell_objects, pid_alive
 from droid.faults import procs
 from droid.faults.cells import campaign_cell_text  # noqa: F401  (re-exported)
 from droid.cli import RuntimeFailure
@@ -415,7 +415,7 @@ class Campaign:
             sub, area = f.target.split(".")
             code = ("import sys,time\n"
                     "from droid.brain.cellfile import load_cell\n"
-                    "from droid.brain.databases import open_brain, open_local\n"
+                    "from droid.brain.db.databases import open_brain, open_local\n"
                     "c = load_cell(sys.argv[1]); s = c.subunit(sys.argv[2]); a = sys.argv[3]\n"
                     "db = (open_local if a.startswith('ctrl_') else open_brain)(c, s, a)\n"
                     "print('ready', flush=True); sys.stdin.readline()\n"

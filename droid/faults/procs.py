@@ -11,9 +11,9 @@ import signal
 
 from droid.brain import launcher
 from droid.brain.cellfile import Cell
-from droid.brain.databases import brain_layouts, local_layouts
-from droid.brain.layouts import PROC_STATUS_LAYOUT
-from droid.brain.shmdb import Database, LockTimeout, NoDatabase, cell_objects, db_name
+from droid.brain.db.databases import brain_layouts, local_layouts
+from droid.brain.db.layouts import PROC_STATUS_LAYOUT
+from droid.brain.db.shmdb import Database, LockTimeout, NoDatabase, cell_objects, db_name
 from droid.cli import BadInput, RuntimeFailure
 
 ACTIONS = {"kill": signal.SIGKILL, "term": signal.SIGTERM, "pause": signal.SIGSTOP, "resume": signal.SIGCONT}

@@ -1,7 +1,7 @@
 """The planners' side of the collision guard: its stale rule and its override (issue 41 items 2-3).
 
 droid-guard (and its lockstep station) writes two fields into every guarded arm's Brain Command
-on each heartbeat tick it runs a pass (:data:`droid.brain.layouts.ARM_COMMAND`, version 2):
+on each heartbeat tick it runs a pass (:data:`droid.brain.db.layouts.ARM_COMMAND`, version 2):
 ``guard_tick``, the tick of the pass, and ``guard_override``, the arm's speed override in 0..1.
 The agent copies them into the controller's Command with the rest of the record
 (``ARM6R.command_map``), so a planner on another host sees them on its relayed tick.
@@ -10,7 +10,7 @@ Where the cell declares a guard (a ``[guard]`` table), a planner keeps a :class:
 
 * **a dead guard stops the cell** -- the guard's record is *stale* when its ``guard_tick`` is 0
   (the guard has not run yet) or more than ``[guard] stale_ticks`` ticks behind the relayed
-  tick.  While it is stale the gate sets :data:`~droid.brain.layouts.FAULT_GUARD` in the arm's
+  tick.  While it is stale the gate sets :data:`~droid.brain.db.layouts.FAULT_GUARD` in the arm's
   own Status, and the planner treats it as FAULT_COLLISION: a running move is ended along its
   path (the protective stop's ramp) and a new NORMAL command is refused (a stop command is
   still taken).  The bit clears at the first fresh record;
@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 
-from droid.brain.layouts import FAULT_GUARD
+from droid.brain.db.layouts import FAULT_GUARD
 from droid.cli import BadInput
 
 #: ``[guard] stale_ticks`` when the cell gives none: 100 ms at 60 Hz (the pass writes every tick;

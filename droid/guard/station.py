@@ -10,7 +10,7 @@ runs :class:`~droid.guard.core.GuardCore` and
 * writes ``guard_tick`` (this tick) and ``guard_override`` (the arm's speed override) into every
   arm's Brain Command (where given): the planners' stale rule and override (droid.guard.gate);
 * keeps its own Status, :attr:`status` (a dict) and, where given, the ``guard_status`` record
-  (:data:`droid.brain.layouts.GUARD_STATUS`, ``/droid.<cell>.guard.status``): least distance
+  (:data:`droid.brain.db.layouts.GUARD_STATUS`, ``/droid.<cell>.guard.status``): least distance
   [mm] and the closest pair, the closing speed and S_p of the pair that decides (the least margin
   d - S_p; at rest the closest pair) and the closest pair's two closest points [mm], the
   override per arm, state, the cycle time [us], trips, the tick; the dict also the deciding
@@ -29,7 +29,7 @@ import time
 
 import numpy as np
 
-from droid.brain.layouts import FAULT_COLLISION, GUARD_ARMS, GUARD_STATE_NAMES
+from droid.brain.db.layouts import FAULT_COLLISION, GUARD_ARMS, GUARD_STATE_NAMES
 from droid.guard.cell import guard_scene, guard_table
 from droid.guard.core import GuardCore, GuardVerdict
 from droid.guard.gate import DEFAULT_STALE_TICKS, GuardGate, guard_stale_ticks, set_fault_bit

@@ -9,7 +9,7 @@ invalid, a program changing state or dying, and heartbeat ticks missed.
 """
 from __future__ import annotations
 
-from droid.brain.layouts import CMD_FAILED, CMD_MODE_NAMES, CMD_REFUSED, FAULT_NAMES
+from droid.brain.db.layouts import CMD_FAILED, CMD_MODE_NAMES, CMD_REFUSED, FAULT_NAMES
 from droid.observe.mcapfile import LOG_ERROR, LOG_INFO, LOG_WARNING
 
 

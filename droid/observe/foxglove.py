@@ -183,7 +183,7 @@ class FoxgloveFeed:
     """
 
     def __init__(self, meta: dict) -> None:
-        from droid.brain.layouts import LAYOUTS
+        from droid.brain.db.layouts import LAYOUTS
         from droid.kinematics import load_robot
 
         self.meta = meta
@@ -238,7 +238,7 @@ class FoxgloveFeed:
         for sub, lay in self.status_layouts.items():
             t[f"/{sub}/status"] = record_schema(lay)
         if GUARD not in self.status_layouts:  # the collision guard (no subunit of that name)
-            from droid.brain.layouts import GUARD_STATUS_LAYOUT
+            from droid.brain.db.layouts import GUARD_STATUS_LAYOUT
             from droid.observe.schemas import GUARD_VIEW
 
             t["/guard"], t["/guard/closest"] = GUARD_VIEW, "foxglove.SceneUpdate"

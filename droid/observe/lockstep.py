@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from droid.brain.layouts import (ARM_COMMAND_LAYOUT, ARM_STATUS_LAYOUT, CARTSPACE, HOMED, NORMAL_MODE,
+from droid.brain.db.layouts import (ARM_COMMAND_LAYOUT, ARM_STATUS_LAYOUT, CARTSPACE, HOMED, NORMAL_MODE,
                                  SENSOR_STATUS_LAYOUT, new_record)
 from droid.kinematics.transforms import T_to_pose, rotz
 from droid.observe.mcapfile import RecordingWriter

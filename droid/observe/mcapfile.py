@@ -33,7 +33,7 @@ from mcap.records import Channel, Chunk, Footer, Header, Message, Metadata, Sche
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
 
-from droid.brain.layouts import Layout
+from droid.brain.db.layouts import Layout
 from droid.cli import BadInput, open_input
 from droid.observe import schemas
 
@@ -151,7 +151,7 @@ def stamp(t_ns: int) -> dict:
 
 def cell_meta(cell, source: str, scene: dict | None = None) -> dict:
     """The ``droid`` metadata of a recording of ``cell`` (layouts read from the cell generically)."""
-    from droid.brain.databases import brain_layouts
+    from droid.brain.db.databases import brain_layouts
 
     subs = []
     for sub in cell.subunits.values():
@@ -407,7 +407,7 @@ def recover(src: str, dst: str) -> Recording:
 
 def write_recording(rec: Recording, dst: str, ticks: range | None = None) -> None:
     """Write ``rec`` (or the frames of ``ticks`` indices) as a complete recording ``dst``."""
-    from droid.brain.layouts import LAYOUTS
+    from droid.brain.db.layouts import LAYOUTS
 
     by_name = {lay.name: lay for lay in LAYOUTS.values()}
     schema_of = {TOPIC_TICK: schemas.TICK, TOPIC_HEALTH: schemas.HEALTH, TOPIC_LOG: schemas.LOG,

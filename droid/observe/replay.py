@@ -32,15 +32,15 @@ import os
 import sys
 import time
 
-from droid.brain.databases import brain_layouts, open_brain
-from droid.brain.layouts import HEADER_FIELDS
+from droid.brain.db.databases import brain_layouts, open_brain
+from droid.brain.db.layouts import HEADER_FIELDS
 from droid.brain.program import Presence, Stop, open_cell, parser
 from droid.cli import BadInput, RuntimeFailure, bounded_float, bounded_int, run
 from droid.observe import schemas
 from droid.observe.mcapfile import Recording, db_topic, read_recording, recover
 from droid.observe.sampler import GUARD
-from droid.brain.layouts import GUARD_STATUS_LAYOUT
-from droid.brain.shmdb import Database, db_name
+from droid.brain.db.layouts import GUARD_STATUS_LAYOUT
+from droid.brain.db.shmdb import Database, db_name
 
 PROG = "droid-replay"
 REPLAY_KEY = "replay"  # cell.json of a replay cell: {"replay": FILE, "programs": []}

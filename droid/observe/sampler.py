@@ -1,17 +1,17 @@
 """One snapshot of a running cell's Brain databases (read-only, like a task, thesis §3.4).
 
 :class:`CellSampler` opens every Brain database of the chosen subunits --
-whatever areas :func:`droid.brain.databases.brain_layouts` gives each, so a
+whatever areas :func:`droid.brain.db.databases.brain_layouts` gives each, so a
 new subunit class or area is recorded without a change here -- and reads
 them all on :meth:`read` -- and the collision guard's Status where the cell declares one.  :func:`health` gives the ``droid-cell status --json``
 rows plus the heartbeat's worst lateness [ns].  Nothing here writes.
 """
 from __future__ import annotations
 
-from droid.brain.databases import brain_layouts, open_brain
-from droid.brain.layouts import GUARD_STATUS_LAYOUT, PROC_STATUS_LAYOUT, Layout
+from droid.brain.db.databases import brain_layouts, open_brain
+from droid.brain.db.layouts import GUARD_STATUS_LAYOUT, PROC_STATUS_LAYOUT, Layout
 from droid.brain.program import presence_key
-from droid.brain.shmdb import Database, NoDatabase, db_name
+from droid.brain.db.shmdb import Database, NoDatabase, db_name
 from droid.cli import BadInput, DroidError
 
 

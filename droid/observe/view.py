@@ -34,8 +34,8 @@ import math
 
 import numpy as np
 
-from droid.brain.layouts import CMD_MODE_NAMES, GUARD_STATE_NAMES
-from droid.brain.layouts import fault_names
+from droid.brain.db.layouts import CMD_MODE_NAMES, GUARD_STATE_NAMES
+from droid.brain.db.layouts import fault_names
 from droid.observe.scene import SceneBuilder, is_arm
 
 CMD_RESULT_NAMES = {0: "ok", 1: "failed", 2: "refused"}

@@ -253,7 +253,7 @@ class Feed:
 
     # -- diagnostics ---------------------------------------------------------------
     def diagnostics(self, st: dict[str, dict], health: dict | None):
-        from droid.brain.layouts import FAULTS_CANNOT_MOVE, fault_names
+        from droid.brain.db.layouts import FAULTS_CANNOT_MOVE, fault_names
 
         DS, KV = self.M["DiagnosticStatus"], self.M["KeyValue"]
         arr = self.M["DiagnosticArray"]()
@@ -465,7 +465,7 @@ class ArmCommands:
         return response
 
     def on_stop(self, request, response):
-        from droid.brain import arm_command
+        from droid.brain.db import arm_command
 
         with self.lock:
             self.seq += 1
@@ -498,7 +498,7 @@ class StatusReader:
     records are opened only by :class:`ArmCommands`)."""
 
     def __init__(self, cell) -> None:
-        from droid.brain.databases import brain_layouts, open_brain
+        from droid.brain.db.databases import brain_layouts, open_brain
 
         self.dbs = []
         try:

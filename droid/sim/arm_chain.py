@@ -14,7 +14,7 @@ RemoteStation               tick      droid-remote (the reply: controller Status
 
 :class:`ArmTasks` is that task side alone, over any arm's Brain records (the GMF1's lockstep
 builder gives it to task programs).  :class:`ArmChain` makes the four records (the Brain's Status and Command, the controller's
-Status and Command: :class:`~droid.brain.shmdb.MemoryDatabase`), those stations and the tick's
+Status and Command: :class:`~droid.brain.db.shmdb.MemoryDatabase`), those stations and the tick's
 order, and gives a task program what ``BrainArm`` gives it on shared memory: ``status``,
 ``command_home``/``command_joint``/``command_cart`` (heartbeat ticks), ``ticks_for``,
 ``set_normal``, ``run_until``, ``home``, ``move_done``.  The subclass adds the servo side
@@ -27,20 +27,20 @@ from __future__ import annotations
 import numpy as np
 
 from droid.arm.planner import PlannerCore, PlannerStation
-from droid.brain import arm_command
+from droid.brain.db import arm_command
 from droid.brain.classes import ARM6R
-from droid.brain.layouts import (ARM_COMMAND_LAYOUT, ARM_STATUS_LAYOUT, CTRL_COMMAND_LAYOUT,
+from droid.brain.db.layouts import (ARM_COMMAND_LAYOUT, ARM_STATUS_LAYOUT, CTRL_COMMAND_LAYOUT,
                                  CTRL_STATUS_LAYOUT)
-from droid.brain.databases import safe_start
+from droid.brain.db.databases import safe_start
 from droid.brain.remote import RemoteStation, StatusTranslator
-from droid.brain.shmdb import MemoryDatabase
+from droid.brain.db.shmdb import MemoryDatabase
 from droid.sim.lockstep import ORDER_HEARTBEAT, Scheduler
 from droid.subunits.agent import AgentStation
 
 
 class ArmTasks:
     """What a task program sees of a lockstep arm: its Brain records on a scheduler, driven as
-    ``BrainArm`` drives them on shared memory (droid.brain.arm_command) -- the neutral arm's
+    ``BrainArm`` drives them on shared memory (droid.brain.db.arm_command) -- the neutral arm's
     :class:`droid.arm.protocol.Arm`, its waits on virtual time.  Needs ``sched``, ``name``,
     ``brain_status`` and ``brain_command``; :class:`ArmChain` has them, and :meth:`over` makes one
     for any arm's Brain records (the GMF1's)."""

@@ -17,7 +17,7 @@ subunit runs (so the ABB's, which stands for ``droid-reis-agent`` and ``droid-pl
 ``droid-egm``, builds an ABB arm, and the Reis's a Reis arm).
 
 The result, :class:`LockstepSubunit`, exposes the subunit's Brain databases as real time has them
-in shared memory (``status``, ``command``: :class:`~droid.brain.shmdb.MemoryDatabase` of the same
+in shared memory (``status``, ``command``: :class:`~droid.brain.db.shmdb.MemoryDatabase` of the same
 layouts, the class's ``brain`` table), its stations (program -> scheduler task names) and, for an
 arm, what a task program drives (``arm``: :class:`droid.arm.protocol.Arm`, as ``BrainArm``).
 
@@ -32,9 +32,9 @@ from dataclasses import dataclass, field
 from typing import Any, Callable
 
 from droid.arm.protocol import Arm
-from droid.brain.databases import safe_start
+from droid.brain.db.databases import safe_start
 from droid.brain.remote import RemoteStation, StatusTranslator
-from droid.brain.shmdb import MemoryDatabase
+from droid.brain.db.shmdb import MemoryDatabase
 from droid.sim.lockstep import ORDER_HEARTBEAT, Scheduler
 from droid.subunits.agent import AgentStation, CommandCopier
 
@@ -59,7 +59,7 @@ def builds(*programs: str, check: Callable | None = None, truth: bool = False) -
 
 def brain_databases(sub) -> dict[str, MemoryDatabase]:
     """The subunit's Brain records (area -> MemoryDatabase of its class's layout), command records
-    with the safe start values of ``droid.brain.databases.create_databases`` (JOG, joint space)."""
+    with the safe start values of ``droid.brain.db.databases.create_databases`` (JOG, joint space)."""
     return {area: _fresh(f"{sub.name}.{area}", lay) for area, lay in sub.kind.brain.items()}
 
 

@@ -23,9 +23,9 @@ from typing import Callable
 import numpy as np
 
 from droid.brain.cellfile import Cell
-from droid.brain import arm_command
-from droid.brain.databases import open_brain
-from droid.brain.layouts import CMD_OK, CMD_REFUSED, FAULT_WATCHDOG, FAULTS_CANNOT_MOVE, NORMAL_MODE, fault_names
+from droid.brain.db import arm_command
+from droid.brain.db.databases import open_brain
+from droid.brain.db.layouts import CMD_OK, CMD_REFUSED, FAULT_WATCHDOG, FAULTS_CANNOT_MOVE, NORMAL_MODE, fault_names
 from droid.cli import EXIT_INTERRUPTED, MAX_MOVE_S, BadInput, DroidError, RuntimeFailure
 from droid.kinematics import Unreachable, load_robot
 from droid.kinematics.transforms import pose_to_T
@@ -206,7 +206,7 @@ class BrainArm:
         return cmd_id
 
     def command_joint(self, counts, ticks: int, mode: int = NORMAL_MODE) -> int:
-        """A joint command [encoder counts] in ``ticks`` heartbeat ticks (:mod:`droid.brain.arm_command`)."""
+        """A joint command [encoder counts] in ``ticks`` heartbeat ticks (:mod:`droid.brain.db.arm_command`)."""
         return self._written(arm_command.joint(self.command, counts, ticks, mode))
 
     def command_cart(self, T, ticks: int) -> int:

@@ -9,7 +9,7 @@ Status while |F| is above it, and the arm's planner cancels its move; 0 disarms 
 """
 from __future__ import annotations
 
-from droid.brain.databases import open_brain, write_command
+from droid.brain.db.databases import open_brain, write_command
 from droid.cli import BadInput
 from droid.numbers import Range
 

@@ -31,8 +31,8 @@ import time
 
 import numpy as np
 
-from droid.brain.databases import open_brain
-from droid.brain.layouts import JSPACE
+from droid.brain.db.databases import open_brain
+from droid.brain.db.layouts import JSPACE
 from droid.cli import BadInput
 from droid.guard.cell import guard_scene, guard_table
 from droid.guard.refuse import check_move

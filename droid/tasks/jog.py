@@ -40,7 +40,7 @@ import time
 
 import numpy as np
 
-from droid.brain.databases import open_brain
+from droid.brain.db.databases import open_brain
 from droid.brain.program import open_cell, parser
 from droid.brain.rt import PeriodicTimer
 from droid.cli import BadInput, RuntimeFailure, bounded_float, bounded_int, duration_s, parse_finite, run

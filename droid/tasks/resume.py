@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from droid.brain.layouts import CMD_FAILED, FAULT_BRAKING, FAULT_NAMES, fault_names
+from droid.brain.db.layouts import CMD_FAILED, FAULT_BRAKING, FAULT_NAMES, fault_names
 
 #: At most this many resumes of one move; a further protective stop fails it.
 MAX_RESUMES = 3

@@ -25,7 +25,7 @@ import signal
 import sys
 import time
 
-from droid.brain.databases import open_brain
+from droid.brain.db.databases import open_brain
 from droid.brain.classes import field_json
 from droid.brain.program import open_cell, parser
 from droid.brain.rt import PeriodicTimer

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from abb_robot_client._egm_protobuf import egm_pb2
-from droid.brain.layouts import CTRL_COMMAND_LAYOUT, NORMAL_MODE, new_record
+from droid.brain.db.layouts import CTRL_COMMAND_LAYOUT, NORMAL_MODE, new_record
 
 CONTROLLER = ("127.0.0.1", 40001)
 MS = 1_000_000  # ns

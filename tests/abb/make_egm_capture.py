@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from droid.brain.layouts import CTRL_COMMAND_LAYOUT, JSPACE, NORMAL_MODE, new_record
+from droid.brain.db.layouts import CTRL_COMMAND_LAYOUT, JSPACE, NORMAL_MODE, new_record
 from droid.kinematics import load_robot
 from droid.sim.abb.controller import AbbEgmDevice, EgmController, EgmTwinParams, open_socket
 from droid.subunits.abb.egm_core import EgmCore

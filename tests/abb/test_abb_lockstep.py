@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from droid.brain.cellfile import load_cell
-from droid.brain.layouts import CMD_OK, HOMED
+from droid.brain.db.layouts import CMD_OK, HOMED
 from droid.cli import BadInput
 from droid.sim.abb.lockstep import LockstepAbbArm
 from droid.sim.lockstep import Scheduler

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from abb_robot_client._egm_protobuf import egm_pb2
-from droid.brain.layouts import (CMD_OK, FAULT_BRAKING, FAULT_DEVICE, FAULT_SERVO, HOME_MODE, HOMED, JOG_MODE,
+from droid.brain.db.layouts import (CMD_OK, FAULT_BRAKING, FAULT_DEVICE, FAULT_SERVO, HOME_MODE, HOMED, JOG_MODE,
                                  NORMAL_MODE, OFF)
 from droid.kinematics import load_robot
 from droid.subunits.abb.egm_core import MAX_DATAGRAM_BYTES, SEQ_WINDOW, EgmCore, SeqTracker

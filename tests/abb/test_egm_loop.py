@@ -8,9 +8,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from droid.brain.layouts import (CTRL_COMMAND_LAYOUT, CTRL_STATUS_LAYOUT, FAULT_DEVICE, FAULT_SERVO, HOMED, JSPACE,
+from droid.brain.db.layouts import (CTRL_COMMAND_LAYOUT, CTRL_STATUS_LAYOUT, FAULT_DEVICE, FAULT_SERVO, HOMED, JSPACE,
                                  NORMAL_MODE, CMD_OK)
-from droid.brain.shmdb import MemoryDatabase
+from droid.brain.db.shmdb import MemoryDatabase
 from droid.kinematics import load_robot
 from droid.sim.abb.controller import EgmController, EgmTwinParams
 from droid.subunits.abb.egm_core import EgmCore

@@ -16,9 +16,9 @@ import pytest
 
 from abb_robot_client._egm_protobuf import egm_pb2
 from droid.brain.cellfile import load_cell
-from droid.brain.databases import create_databases, open_local
-from droid.brain.layouts import HOMED
-from droid.brain.shmdb import Database, db_name, remove_cell_objects
+from droid.brain.db.databases import create_databases, open_local
+from droid.brain.db.layouts import HOMED
+from droid.brain.db.shmdb import Database, db_name, remove_cell_objects
 from droid.kinematics import load_robot
 from droid.subunits.abb.egm_layout import EGM_STATUS_LAYOUT
 from tests.abb.egm_helpers import robot_bytes
@@ -246,7 +246,7 @@ def test_a_controller_with_another_joint_count_is_refused_at_start(tmp_path, cel
     which brings nothing up."""
     import threading
 
-    from droid.brain.shmdb import cell_objects
+    from droid.brain.db.shmdb import cell_objects
     from tests.brain.cellutil import droid
 
     port = free_udp_port()

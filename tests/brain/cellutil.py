@@ -28,7 +28,7 @@ def make_cell_file(tmp_path: Path, name: str, source: Path | None = None, extra:
 def brought_down(path: Path, cell_name: str):
     """Whatever the body does with the cell file ``path``, bring the cell down after it and
     check that ``down`` succeeds and leaves nothing of the cell in /dev/shm."""
-    from droid.brain.shmdb import cell_objects
+    from droid.brain.db.shmdb import cell_objects
 
     try:
         yield path

@@ -13,7 +13,7 @@ import sys
 
 import pytest
 
-from droid.brain.shmdb import cell_objects
+from droid.brain.db.shmdb import cell_objects
 from tests.brain.cellutil import brought_down, ROOT, cell_status, droid, free_port, make_cell_file, wait_for
 
 pytestmark = pytest.mark.integration

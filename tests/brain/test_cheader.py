@@ -5,8 +5,8 @@ import subprocess
 import pytest
 
 from droid.brain import cheader
-from droid.brain import layouts as L
-from droid.brain.shmdb import Database, db_name
+from droid.brain.db import layouts as L
+from droid.brain.db.shmdb import Database, db_name
 
 C_PROGRAM = r"""
 #include <fcntl.h>

@@ -13,10 +13,10 @@ import zmq
 from droid.brain.plumbing import wire
 from droid.brain.cellfile import load_cell
 from droid.brain.plumbing.curve import CurveHost
-from droid.brain.databases import open_local
-from droid.brain.layouts import ARM_COMMAND_LAYOUT, CTRL_STATUS_LAYOUT, check_header, new_record
+from droid.brain.db.databases import open_local
+from droid.brain.db.layouts import ARM_COMMAND_LAYOUT, CTRL_STATUS_LAYOUT, check_header, new_record
 from droid.brain.names import NameClient
-from droid.brain.shmdb import cell_objects
+from droid.brain.db.shmdb import cell_objects
 from droid.brain.keys import main as keys_main
 from tests.brain.cellutil import cell_status, droid, small_tcp_cell, wait_for
 from tests.brain.test_curve import _first_handshake, stranger_client

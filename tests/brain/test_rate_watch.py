@@ -13,7 +13,7 @@ from pathlib import Path
 from droid.brain import launcher
 from droid.brain.cellfile import builtin_cell_path, load_cell
 from droid.brain.program import Presence, RateWatch
-from droid.brain.shmdb import unlink_database
+from droid.brain.db.shmdb import unlink_database
 from tests.brain.cellutil import make_cell_file
 
 S = 1_000_000_000  # ns
@@ -181,7 +181,7 @@ def test_a_cell_without_sched_fifo_asks_nothing_of_the_real_time_budget(tmp_path
 
 def test_droid_cell_up_refuses_a_cell_over_the_real_time_budget_before_anything_is_made(
         tmp_path, cell_name, monkeypatch, capsys):
-    from droid.brain.shmdb import cell_objects
+    from droid.brain.db.shmdb import cell_objects
 
     path = _cell_with_joysticks(tmp_path, cell_name, 16)  # 16 more agents and remotes at FIFO
     monkeypatch.setattr(launcher.os, "sched_getaffinity", lambda pid: {0, 1})

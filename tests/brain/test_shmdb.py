@@ -8,8 +8,8 @@ import time
 import numpy as np
 import pytest
 
-from droid.brain import layouts as L
-from droid.brain.shmdb import (Database, LockTimeout, MemoryDatabase, NoDatabase, cell_objects,
+from droid.brain.db import layouts as L
+from droid.brain.db.shmdb import (Database, LockTimeout, MemoryDatabase, NoDatabase, cell_objects,
                                db_name, remove_cell_objects)
 from droid.cli import BadInput
 
@@ -188,8 +188,8 @@ def test_priority_ceiling_holds_the_lock_at_fifo_61_and_restores_the_policy(cell
     processes (it runs at the ceiling while it holds it), then drops back."""
     import os
 
-    from droid.brain import shmdb
-    from droid.brain.layouts import ARM_STATUS_LAYOUT
+    from droid.brain.db import shmdb
+    from droid.brain.db.layouts import ARM_STATUS_LAYOUT
 
     name = f"/droid.{cell_name}.arm1.status"
     db = shmdb.Database(name, ARM_STATUS_LAYOUT, create=True)

@@ -12,9 +12,9 @@ from droid.brain import launcher
 from droid.brain.plumbing import wire
 from droid.brain.cellfile import load_cell
 from droid.brain.heartbeat import TickSubscriber
-from droid.brain.layouts import LATENESS_NO_RECORD
+from droid.brain.db.layouts import LATENESS_NO_RECORD
 from droid.brain.program import Presence
-from droid.brain.shmdb import unlink_database
+from droid.brain.db.shmdb import unlink_database
 from tests.brain.cellutil import make_cell_file
 
 

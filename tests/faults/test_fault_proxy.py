@@ -163,8 +163,8 @@ def test_wedged_databases_finds_a_live_holder_and_not_a_dead_one(tmp_path, cell_
     import subprocess
     import sys
 
-    from droid.brain.databases import create_databases
-    from droid.brain.shmdb import remove_cell_objects
+    from droid.brain.db.databases import create_databases
+    from droid.brain.db.shmdb import remove_cell_objects
     from droid.faults.cells import campaign_cell_text
     from droid.faults.procs import wedged_databases
 
@@ -174,7 +174,7 @@ def test_wedged_databases_finds_a_live_holder_and_not_a_dead_one(tmp_path, cell_
     for db in create_databases(c):
         db.close()
     code = ("import sys,time\nfrom droid.brain.cellfile import load_cell\n"
-            "from droid.brain.databases import open_local\n"
+            "from droid.brain.db.databases import open_local\n"
             "c = load_cell(sys.argv[1]); db = open_local(c, c.subunit('arm1'), 'ctrl_command')\n"
             "db._acquire(); print('held', flush=True); time.sleep(60)\n")
     p = subprocess.Popen([sys.executable, "-c", code, str(path)], stdout=subprocess.PIPE, text=True)

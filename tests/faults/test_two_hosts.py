@@ -55,7 +55,7 @@ def snoop(path):
 def local_status(path):
     """arm1's own controller Status (host arm1's database, not the Brain's)."""
     from droid.brain.cellfile import load_cell
-    from droid.brain.databases import open_local
+    from droid.brain.db.databases import open_local
 
     cell = load_cell(path)
     db = open_local(cell, cell.subunit("arm1"), "ctrl_status")
@@ -116,7 +116,7 @@ class ServoTicks:
 
 
 def test_link_cut_during_a_move_brakes_the_arm_which_stays_stopped_until_a_new_command(two_hosts):
-    from droid.brain.layouts import FAULT_LINK
+    from droid.brain.db.layouts import FAULT_LINK
 
     hp, path = two_hosts
     wait_for(lambda: not snoop(path)["stale"], timeout=30, what="the Brain reaches arm1 over tcp")

@@ -17,7 +17,7 @@ import pytest
 from droid.brain import cheader
 from droid.brain.cellfile import load_cell
 from droid.brain.registry import classes
-from droid.brain.layouts import FAULT_DEVICE, FT6_STATUS_LAYOUT, LAYOUTS, new_record
+from droid.brain.db.layouts import FAULT_DEVICE, FT6_STATUS_LAYOUT, LAYOUTS, new_record
 from droid.cli import BadInput
 from droid.kinematics.transforms import pose_to_T
 from droid.sim.ft.netft import CalibrationPage

@@ -7,10 +7,10 @@ import time
 import numpy as np
 import pytest
 
-from droid.brain import layouts as L
+from droid.brain.db import layouts as L
 from droid.brain.cellfile import load_cell
 from droid.brain.registry import classes
-from droid.brain.shmdb import MemoryDatabase
+from droid.brain.db.shmdb import MemoryDatabase
 from droid.cli import BadInput
 from droid.kinematics import load_robot
 from droid.observe.scene import is_arm

@@ -15,8 +15,8 @@ import time
 import numpy as np
 
 from droid.brain.cellfile import load_cell
-from droid.brain.databases import local_layouts
-from droid.brain.shmdb import Database, db_name
+from droid.brain.db.databases import local_layouts
+from droid.brain.db.shmdb import Database, db_name
 from tests.brain.cellutil import make_cell_file
 from tests.ft.test_ft_twin import SIGMA, Stepper, twin_device, within_noise
 

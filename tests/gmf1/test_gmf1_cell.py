@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from droid.brain.cellfile import load_cell
-from droid.brain.databases import open_brain
-from droid.brain.shmdb import pid_alive
+from droid.brain.db.databases import open_brain
+from droid.brain.db.shmdb import pid_alive
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T, T_to_pose
 from tests.brain.cellutil import ROOT, brought_down, cell_status, droid, make_cell_file, wait_for

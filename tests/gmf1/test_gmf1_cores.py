@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from droid.brain.layouts import (CARTSPACE, CMD_FAILED, CMD_OK, HOME_MODE, HOMED, JOG_MODE, NORMAL_MODE, OFF)
+from droid.brain.db.layouts import (CARTSPACE, CMD_FAILED, CMD_OK, HOME_MODE, HOMED, JOG_MODE, NORMAL_MODE, OFF)
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.subunits.gmf1 import karel_wire as kw
@@ -287,7 +287,7 @@ def test_gmf1_programs_do_not_import_the_world():
 
 def test_a_stop_drops_the_pending_command_and_the_move_in_flight_runs_out():
     """Issue 16: a task that gave up writes a stop (STOP_TICKS); what waited is never sent."""
-    from droid.brain.layouts import STOP_TICKS
+    from droid.brain.db.layouts import STOP_TICKS
 
     c = opened_core()
     c.step(20, cmd(1), HOMED_VIEW, b"", True)  # in flight

@@ -16,8 +16,8 @@ import pytest
 
 import droid
 
-from droid.brain import arm_command
-from droid.brain.layouts import CMD_OK, HOME_MODE, NORMAL_MODE
+from droid.brain.db import arm_command
+from droid.brain.db.layouts import CMD_OK, HOME_MODE, NORMAL_MODE
 from droid.kinematics.transforms import T_to_pose, pose_to_T
 from droid.sim.gmf1.lockstep import Gmf1Lockstep
 from droid.subunits.gmf1.serial_core import SerialCore, SerialParams
@@ -36,7 +36,7 @@ def homed_and_idle(g, cmd_id):
 def test_a_home_written_in_the_first_ticks_homes_the_arm(ticks_before):
     g = Gmf1Lockstep()
     g.run_ticks(ticks_before)
-    cmd_id = g.command_home()  # as droid-home writes it (droid.brain.arm_command.home)
+    cmd_id = g.command_home()  # as droid-home writes it (droid.brain.db.arm_command.home)
     assert g.run_until(lambda: homed_and_idle(g, cmd_id), 30), (
         f"sent {g.serial_core.sent}, dropped {g.serial_core.dropped}, last_seen {g.serial_core.last_seen}, "
         f"Status cmd_id {int(g.status()['cmd_id'])}")

@@ -5,8 +5,8 @@ Virtual time only: these are verdicts on behaviour (counts, states, positions), 
 import numpy as np
 import pytest
 
-from droid.brain import arm_command
-from droid.brain.layouts import CMD_FAILED, CMD_OK, CMD_REFUSED, FAULT_DEVICE, HOME_MODE
+from droid.brain.db import arm_command
+from droid.brain.db.layouts import CMD_FAILED, CMD_OK, CMD_REFUSED, FAULT_DEVICE, HOME_MODE
 from droid.brain.remote import ArmPose
 from droid.kinematics.transforms import T_to_pose, pose_to_T
 from droid.sim.gmf1.lockstep import Gmf1Lockstep
@@ -271,7 +271,7 @@ def test_requests_on_the_line_follow_the_grammar(homed):
 def test_the_protective_stop_halts_a_move_in_flight_and_refuses_the_next(homed):
     """Issue 41: FAULT_COLLISION in the Status (the collision guard) -> HALT: the Fanuc ends its move
     along its path, short of the target, CMD_FAILED; a NORMAL command while it is set is refused."""
-    from droid.brain.layouts import FAULT_COLLISION
+    from droid.brain.db.layouts import FAULT_COLLISION
     from droid.guard.gate import set_fault_bit
 
     g = homed

@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from droid.brain import layouts as L
+from droid.brain.db import layouts as L
 from droid.brain.cellfile import BUNDLED_CELLS, load_cell
-from droid.brain.shmdb import MemoryDatabase
+from droid.brain.db.shmdb import MemoryDatabase
 from droid.cli import BadInput
 from droid.guard.gate import DEFAULT_STALE_TICKS, GuardGate, guard_stale_ticks
 from droid.kinematics import load_robot

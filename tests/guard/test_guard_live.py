@@ -125,9 +125,9 @@ def test_killing_droid_guard_stops_every_arm_within_the_stale_window(homed_sim_c
     that did not stop would run on to the target, 24 deg further.  The stop's latency itself is a
     bench figure (bench/bench_guard_cpu.py), never this test's verdict.  A NORMAL move is refused
     meanwhile; ``droid-cell restart droid-guard`` clears the fault and arm1 goes home."""
-    from droid.brain import arm_command
+    from droid.brain.db import arm_command
     from droid.brain.cellfile import load_cell
-    from droid.brain.databases import open_brain
+    from droid.brain.db.databases import open_brain
 
     cell = load_cell(homed_sim_cell)
     models = _scene_and_models(homed_sim_cell)[2]
@@ -175,8 +175,8 @@ def test_a_head_on_course_is_slowed_or_stopped_above_the_limit(homed_sim_cell):
     protective stop (FAULT_COLLISION) ends the move if the override cannot: either way arm1 comes
     to rest short of the goal with the separation -- sampled from both arms' Status all along --
     above the stated limit C (25 mm)."""
-    from droid.brain import arm_command
-    from droid.brain.databases import open_brain
+    from droid.brain.db import arm_command
+    from droid.brain.db.databases import open_brain
     from droid.guard.refuse import check_move
 
     cell, scene, models = _scene_and_models(homed_sim_cell)

@@ -35,8 +35,8 @@ def test_the_guard_off_is_one_line_and_exit_0(tmp_path, capsys):
 
 
 def test_a_cell_that_runs_the_guard_reads_its_status(tmp_path, capsys, monkeypatch):
-    from droid.brain import layouts as L
-    from droid.brain.shmdb import MemoryDatabase
+    from droid.brain.db import layouts as L
+    from droid.brain.db.shmdb import MemoryDatabase
     from droid.guard import live
 
     cell = _cell(tmp_path, "true")

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from droid.brain.cellfile import load_cell
-from droid.brain.layouts import FAULT_COLLISION, FAULT_NAMES, fault_names
+from droid.brain.db.layouts import FAULT_COLLISION, FAULT_NAMES, fault_names
 from droid.cli import BadInput
 from droid.guard.ssm import CLEAR, SLOWING, STOPPED, SsmParams, ssm_params
 from droid.guard.station import guard_core

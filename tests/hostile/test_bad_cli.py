@@ -18,10 +18,10 @@ import sys
 import numpy as np
 import pytest
 
-from droid.brain import layouts as L
+from droid.brain.db import layouts as L
 from droid.brain.cellfile import load_cell
-from droid.brain.databases import open_brain, open_local
-from droid.brain.shmdb import cell_objects
+from droid.brain.db.databases import open_brain, open_local
+from droid.brain.db.shmdb import cell_objects
 from tests.brain.cellutil import make_cell_file, wait_for
 
 pytestmark = pytest.mark.integration

@@ -16,7 +16,7 @@ import pytest
 
 from droid.brain.cellfile import load_cell
 from droid.brain.registry import program
-from droid.brain.shmdb import cell_objects
+from droid.brain.db.shmdb import cell_objects
 from droid.brain.cellfile import builtin_cell_path
 from tests.brain.cellutil import make_cell_file
 

@@ -22,7 +22,7 @@ from droid.brain.plumbing import wire
 from droid.brain.cellfile import load_cell
 from droid.brain.launcher import STATUS_KEYS
 from droid.brain.names import boot_id
-from droid.brain.shmdb import cell_objects
+from droid.brain.db.shmdb import cell_objects
 from droid.subunits.reis.endpoints import reis_endpoints
 from tests.brain.cellutil import cell_status, droid, make_cell_file, wait_for
 
@@ -151,7 +151,7 @@ def test_random_frames_on_every_endpoint_crash_nothing(sim_cell):
 
 
 def _alive(pid: int) -> bool:
-    from droid.brain.shmdb import pid_alive
+    from droid.brain.db.shmdb import pid_alive
 
     return pid_alive(pid)
 
@@ -166,7 +166,7 @@ def _alive(pid: int) -> bool:
 ])
 def test_foreign_database_refused_by_a_program(tmp_path, cell_name, capsys, field, value, reason):
     """`droid-snoop` on a Status database of a foreign layout: one line, exit 2."""
-    from droid.brain import layouts as L
+    from droid.brain.db import layouts as L
     from droid.tasks.snoop import main as snoop
 
     path = make_cell_file(tmp_path, cell_name)

@@ -35,7 +35,7 @@ import pytest
 
 import droid.cli as cli
 from droid import cliranges
-from droid.brain.shmdb import cell_objects
+from droid.brain.db.shmdb import cell_objects
 from tests.brain.cellutil import make_cell_file
 
 ROOT = Path(__file__).resolve().parents[2]

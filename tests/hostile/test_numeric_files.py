@@ -27,7 +27,7 @@ import pytest
 
 from droid import numbers
 from droid.brain.cellfile import load_cell
-from droid.brain.shmdb import cell_objects
+from droid.brain.db.shmdb import cell_objects
 from droid.cli import BadInput
 from droid.kinematics import RobotFileError, load_robot
 from tests.hostile.filewalk import dumps, key_of, leaves, replaced

@@ -10,9 +10,9 @@ import pytest
 from droid.brain import cheader
 from droid.brain.cellfile import load_cell
 from droid.brain.registry import classes
-from droid.brain.databases import brain_layouts, local_layouts
-from droid.brain import layouts as L
-from droid.brain.layouts import JOYSTICK_STATUS_LAYOUT, LAYOUTS, new_record
+from droid.brain.db.databases import brain_layouts, local_layouts
+from droid.brain.db import layouts as L
+from droid.brain.db.layouts import JOYSTICK_STATUS_LAYOUT, LAYOUTS, new_record
 from droid.cli import BadInput
 from droid.kinematics import load_robot
 from droid.sim.joystick.device import JoystickDevice, JoystickTwin

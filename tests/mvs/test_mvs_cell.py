@@ -18,7 +18,7 @@ import time
 import numpy as np
 import pytest
 
-from droid.brain.shmdb import cell_objects
+from droid.brain.db.shmdb import cell_objects
 from tests.brain.cellutil import ROOT, cell_status, droid, fixed_seam_cell, make_cell_file, wait_for
 
 pytestmark = pytest.mark.integration
@@ -146,8 +146,8 @@ def test_sensor_in_a_cell_without_a_world_gives_up_with_a_reason(tmp_path, cell_
     err = capsys.readouterr().err
     assert f"droid.{cell_name}.mvs.dsp" in err and "after waiting 0.3 s (is droid-sim running?)" in err
     # like every program, a failure leaves its presence record marked for droid-cell status
-    from droid.brain.layouts import PROC_FAILED, PROC_STATUS_LAYOUT
-    from droid.brain.shmdb import Database, db_name, unlink_database
+    from droid.brain.db.layouts import PROC_FAILED, PROC_STATUS_LAYOUT
+    from droid.brain.db.shmdb import Database, db_name, unlink_database
 
     name = db_name(cell_name, "proc", "mvs-mvs")
     with Database(name, PROC_STATUS_LAYOUT) as db:

@@ -4,7 +4,7 @@ from __future__ import annotations
 import pytest
 
 from droid.brain.cellfile import load_cell
-from droid.brain.databases import create_databases
+from droid.brain.db.databases import create_databases
 from tests.brain.cellutil import make_cell_file
 
 
@@ -19,6 +19,6 @@ def db_cell(tmp_path, cell_name):
     try:
         yield cell, path
     finally:
-        from droid.brain.shmdb import remove_cell_objects
+        from droid.brain.db.shmdb import remove_cell_objects
 
         remove_cell_objects(cell.name)

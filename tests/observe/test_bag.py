@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from droid.brain.databases import open_brain
+from droid.brain.db.databases import open_brain
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.observe.bag import JOINT_NAMES, summary_lines

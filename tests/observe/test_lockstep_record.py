@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from droid.brain.layouts import ARM_STATUS_LAYOUT
+from droid.brain.db.layouts import ARM_STATUS_LAYOUT
 from droid.kinematics import load_robot
 from droid.observe.mcapfile import read_recording
 from droid.experiments.matrix import resolve

@@ -5,7 +5,7 @@ import importlib
 
 import pytest
 
-from droid.brain.shmdb import cell_objects
+from droid.brain.db.shmdb import cell_objects
 from tests.brain.cellutil import make_cell_file
 
 BAD = [  # (module, argv, reason); rows alike in shape only: web and foxglove refuse the same mistakes each

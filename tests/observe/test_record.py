@@ -8,8 +8,8 @@ import sys
 
 import pytest
 
-from droid.brain.databases import open_brain
-from droid.brain.layouts import CMD_REFUSED, FAULT_WATCHDOG, HOME_MODE
+from droid.brain.db.databases import open_brain
+from droid.brain.db.layouts import CMD_REFUSED, FAULT_WATCHDOG, HOME_MODE
 from droid.cli import BadInput
 from droid.observe.mcapfile import (FORMAT_VERSION, RecordingWriter, cell_meta, read_recording, recover)
 from droid.observe.record import CellRecorder

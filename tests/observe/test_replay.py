@@ -6,9 +6,9 @@ import dataclasses
 import io
 import json
 
-from droid.brain.databases import open_brain
-from droid.brain.layouts import ARM_STATUS_LAYOUT
-from droid.brain.shmdb import cell_objects
+from droid.brain.db.databases import open_brain
+from droid.brain.db.layouts import ARM_STATUS_LAYOUT
+from droid.brain.db.shmdb import cell_objects
 from droid.observe.mcapfile import RecordingWriter, cell_meta, read_recording
 from tests.brain.cellutil import droid, make_cell_file
 from tests.observe.test_record import record_ticks

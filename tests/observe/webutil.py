@@ -114,8 +114,8 @@ def guard_recording(path, run: bool = True) -> str:
     Pure: records in memory, virtual time; the arms are Status records, no planner moves them."""
     import numpy as np
 
-    from droid.brain import layouts as L
-    from droid.brain.shmdb import MemoryDatabase
+    from droid.brain.db import layouts as L
+    from droid.brain.db.shmdb import MemoryDatabase
     from droid.guard.station import GuardStation, guard_core
     from droid.kinematics import load_robot
     from droid.observe.mcapfile import RecordingWriter, cell_meta

@@ -53,7 +53,7 @@ import math
 
 import numpy as np
 
-from droid.brain.layouts import CMD_OK, HOME_MODE, HOMED, NORMAL_MODE
+from droid.brain.db.layouts import CMD_OK, HOME_MODE, HOMED, NORMAL_MODE
 
 LAG_S = 0.02
 

@@ -22,7 +22,7 @@ from tests.registry.test_registry import LAB_SUBUNIT, cell_text, install, lab  #
 LABLOCK_DEVICE = '''
 """lablock: a lab's counter, registered through droid.devices, with its own lockstep builder."""
 from droid.brain.classes import SubunitClass
-from droid.brain.layouts import HEADER_FIELDS, Layout, record_dtype
+from droid.brain.db.layouts import HEADER_FIELDS, Layout, record_dtype
 from droid.brain.registry import DevicePackage, Program
 
 FIELDS = (("count", "<u8"), ("tick", "<u8"), ("updated_ns", "<i8"), ("stale", "<u4"), ("fault", "<u4"))

@@ -22,7 +22,7 @@ from droid.cli import BadInput
 LABSENSOR_DEVICE = '''
 """labsensor: a lab's own sensor class, registered through droid.devices."""
 from droid.brain.classes import SubunitClass
-from droid.brain.layouts import HEADER_FIELDS, Layout, record_dtype
+from droid.brain.db.layouts import HEADER_FIELDS, Layout, record_dtype
 from droid.brain.registry import DevicePackage, Driver, Program, Twin
 
 LAB_STATUS = Layout("labsensor_status", 101, 1, record_dtype(HEADER_FIELDS + [
@@ -240,7 +240,7 @@ def test_an_external_package_brings_its_class_up(lab, tmp_path):
     from droid.brain.registry import classes
     from droid.brain.cellfile import load_cell
     from droid.brain.launcher import cell_programs
-    from droid.brain.layouts import LAYOUTS, new_record
+    from droid.brain.db.layouts import LAYOUTS, new_record
     from droid.programs import PROGRAMS
     from droid.sim.world import DEVICE_TYPES, build_world
 
@@ -322,7 +322,7 @@ def test_a_bad_cell_is_one_line(lab, tmp_path, case, subunits, words):
 
 def test_droid_cell_up_refuses_a_bad_cell_before_anything_starts(lab, tmp_path, capsys):
     from droid.brain import launcher
-    from droid.brain.shmdb import cell_objects
+    from droid.brain.db.shmdb import cell_objects
 
     for i, subunits in enumerate(['[subunits.b1]\nclass = "labbroken"\n',
                                   '[subunits.p1]\nclass = "labprobe"\ndevice = "shm://droid.lab.p1"\n',

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from droid.brain import arm_command
+from droid.brain.db import arm_command
 from droid.sim.lockstep import Scheduler
 from droid.sim.reis.cell import LockstepArm
 

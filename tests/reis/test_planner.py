@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from droid.brain import layouts as L
+from droid.brain.db import layouts as L
 from droid.kinematics import load_robot
 from droid.arm.planner import PlannerCore
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from droid.brain.cellfile import load_cell
-from droid.brain import layouts as L
+from droid.brain.db import layouts as L
 from droid.cli import BadInput
 from droid.sim.lockstep import Scheduler
 from droid.sim.reis.cell import arms_from_cell

@@ -1,7 +1,7 @@
 """The Reis subunit's program cores in lockstep (issue 4 §6): home, move, brake, watchdog."""
 import numpy as np
 
-from droid.brain import layouts as L
+from droid.brain.db import layouts as L
 from droid.sim.lockstep import Scheduler
 from droid.sim.reis.cell import LockstepArm
 from droid.sim.reis.plant import ReisPlantParams

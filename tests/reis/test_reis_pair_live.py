@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from droid.brain.shmdb import cell_objects
+from droid.brain.db.shmdb import cell_objects
 from droid.kinematics import load_robot
 from tests.brain.cellutil import droid, home_at_once, make_cell_file
 

@@ -5,11 +5,11 @@ messages -- what a shell or LockstepArm hands it -- and checked on what it write
 """
 import numpy as np
 
-from droid.brain import arm_command
-from droid.brain import layouts as L
+from droid.brain.db import arm_command
+from droid.brain.db import layouts as L
 from droid.brain.classes import ARM6R
 from droid.brain.remote import RemoteStation, StatusTranslator
-from droid.brain.shmdb import MemoryDatabase
+from droid.brain.db.shmdb import MemoryDatabase
 from droid.subunits.agent import AgentStation
 from droid.subunits.reis import servo_wire as sw
 from droid.subunits.reis import vme_map as vm

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from droid.brain.databases import open_brain
+from droid.brain.db.databases import open_brain
 from droid.kinematics import load_robot
 from tests.brain.cellutil import reaped
 
@@ -351,7 +351,7 @@ def test_not_homed_refused(db_cell, domain):
 def test_a_good_trajectory_becomes_droid_moves_command_and_stop_ends_it(db_cell, domain):
     """No agent answers here: the first segment's joint command is written as droid-move writes it
     (target counts, its ticks), then /arm1/stop writes a stop over it and the status says stopped."""
-    from droid.brain import arm_command
+    from droid.brain.db import arm_command
 
     cell, path = db_cell
     write_statuses(cell)
@@ -467,7 +467,7 @@ class FakeAgent:
         self.th = threading.Thread(target=self.run)
 
     def run(self) -> None:
-        from droid.brain.layouts import CMD_OK, HOME_MODE, STOP_TICKS
+        from droid.brain.db.layouts import CMD_OK, HOME_MODE, STOP_TICKS
 
         st = open_brain(self.cell, self.cell.subunit("arm1"), "status")
         cmd = open_brain(self.cell, self.cell.subunit("arm1"), "command")
@@ -507,8 +507,8 @@ def test_home_then_a_trajectory_carried_out_to_done(db_cell, domain):
     """With an agent that answers (a thread of the test): /arm1/home runs droid-home's routine to
     "done", then a three-point trajectory becomes three joint moves, in order, each with its
     segment's ticks, and the status topic says "done"."""
-    from droid.brain import arm_command
-    from droid.brain.layouts import HOME_MODE
+    from droid.brain.db import arm_command
+    from droid.brain.db.layouts import HOME_MODE
 
     cell, path = db_cell
     write_statuses(cell, homed=0)

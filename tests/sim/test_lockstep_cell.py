@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from droid.brain import arm_command
+from droid.brain.db import arm_command
 from droid.brain.cellfile import BUNDLED_CELLS
 from droid.brain.registry import registry, resolve
 from droid.cli import BadInput
@@ -164,7 +164,7 @@ def test_the_ft_sensor_biases_and_guards_its_arm_through_the_brain():
     page and starts the stream; a task's bias and over-force limit go through the Brain Command,
     droid-remote and droid-agent; the guard sets FAULT_FORCE in arm1's own Status, and a
     limit of 0 clears it, with the lines droid-ft would print."""
-    from droid.brain.layouts import FAULT_FORCE
+    from droid.brain.db.layouts import FAULT_FORCE
 
     with build_lockstep_cell(SIM) as lc:
         ft, arm1 = lc.subunits["ft"], lc.subunits["arm1"].parts

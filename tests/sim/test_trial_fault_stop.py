@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import pytest
 
-from droid.brain.layouts import FAULTS_CANNOT_MOVE
+from droid.brain.db.layouts import FAULTS_CANNOT_MOVE
 from droid.sim import trial_cell
 from droid.experiments.trial import CYCLE_TICKS, TrialConfig, run_trial
 from droid.sim.lockstep import ORDER_TASK

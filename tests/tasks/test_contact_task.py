@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from droid.cli import BadInput
-from droid.brain.layouts import FAULT_BRAKING, FAULT_COLLISION, FAULT_LIMIT, FAULT_LINK, FAULT_SERVO, fault_names
+from droid.brain.db.layouts import FAULT_BRAKING, FAULT_COLLISION, FAULT_LIMIT, FAULT_LINK, FAULT_SERVO, fault_names
 from droid.kinematics.transforms import trans
 from droid.tasks.contact.core import (STOP_ARM_FAULT, STOP_ARM_STALE, STOP_END, STOP_FT_STALE, STOP_LOST,
                                       STOP_NO_CONTACT, STOP_OVERFORCE, ArmStatus, ContactStation, FtStatus,
@@ -144,7 +144,7 @@ def test_droid_contact_ends_a_press_on_a_protective_stop(bits, stops):
     ``arm fault`` naming it, as one on a fault the arm cannot move with; a clamped target or a
     link bit does not (droid-contact's mask, FAULTS_STOP_RUN, on its arm's Status)."""
     from droid.brain.cellfile import builtin_cell_path, load_cell
-    from droid.brain.layouts import ARM_STATUS, FT6_STATUS
+    from droid.brain.db.layouts import ARM_STATUS, FT6_STATUS
     from droid.tasks.contact import prog
 
     run = prog.ContactRun(prog.build_parser().parse_args(["arm1"]), load_cell(builtin_cell_path()))

@@ -5,7 +5,7 @@ progress; the servo's next status clears the bit.  droid-move / droid-seamtrack 
 after that, so the failure line must also name the faults seen while they waited."""
 import pytest
 
-from droid.brain import layouts as L
+from droid.brain.db import layouts as L
 from droid.cli import RuntimeFailure
 from droid.tasks.arm import BrainArm
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import pytest
 
-from droid.brain.shmdb import cell_objects
+from droid.brain.db.shmdb import cell_objects
 from tests.brain.cellutil import droid, make_cell_file
 
 

@@ -17,10 +17,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from droid.brain import layouts as L
+from droid.brain.db import layouts as L
 from droid.brain.cellfile import builtin_cell_path, load_cell
 from droid.brain.classes import ARM6R
-from droid.brain.shmdb import MemoryDatabase
+from droid.brain.db.shmdb import MemoryDatabase
 from droid.cli import RuntimeFailure
 from droid.kinematics.transforms import T_to_pose
 from droid.arm.planner import PlannerCore, apply

@@ -67,7 +67,7 @@ def test_a_reading_is_placed_with_the_pose_of_its_capture_and_a_future_one_is_dr
 
 
 def test_the_real_time_shell_reads_the_capture_instant_from_the_sensor_status():
-    from droid.brain.layouts import NO_CAPTURE_AGE, SENSOR_STATUS
+    from droid.brain.db.layouts import NO_CAPTURE_AGE, SENSOR_STATUS
     from droid.tasks.seamtrack import reading_of
 
     rec = np.zeros((), SENSOR_STATUS)

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from droid.brain.cellfile import builtin_cell_path, load_cell
-from droid.brain.layouts import (ARM_STATUS, FAULT_BRAKING, FAULT_DEVICE, FAULT_HEARTBEAT, FAULT_LIMIT,
+from droid.brain.db.layouts import (ARM_STATUS, FAULT_BRAKING, FAULT_DEVICE, FAULT_HEARTBEAT, FAULT_LIMIT,
                                  FAULT_LINK, FAULT_SERVO, FAULT_WATCHDOG, FAULTS_CANNOT_MOVE, SENSOR_STATUS,
                                  FAULT_COLLISION, FAULTS_STOP_RUN)
 from droid.cli import EXIT_RUNTIME, RuntimeFailure

@@ -13,7 +13,7 @@ from droid.tasks.seam.cycle import TrackingCycle
 from droid.tasks.seam.delay import INVALID_READING
 from droid.brain.cell_layout import load_layout
 from droid.tasks.seam.station import STALE_GRACE_S, ArmStatus, SeamtrackStation, stale_grace_ticks
-from droid.brain.layouts import FAULT_SERVO
+from droid.brain.db.layouts import FAULT_SERVO
 
 LAYOUT = load_layout()
 WRIST = LAYOUT.wrist("standard")

@@ -8,10 +8,10 @@ import math
 import numpy as np
 import pytest
 
-from droid.brain.layouts import NO_CAPTURE_AGE, SENSOR_STATUS_LAYOUT
+from droid.brain.db.layouts import NO_CAPTURE_AGE, SENSOR_STATUS_LAYOUT
 from droid.brain.plumbing.sensor_line import parse_line
 from droid.brain.sensor_link import SensorStatusCore
-from droid.brain.shmdb import MemoryDatabase
+from droid.brain.db.shmdb import MemoryDatabase
 from droid.kinematics.transforms import trans
 from droid.sim.mvs.devices import ToolSensorCore
 from droid.sim.mvs.tool_sensor import pose_for_reading

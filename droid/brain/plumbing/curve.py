@@ -203,7 +203,7 @@ class CurveHost:
 
 def parse_curve_table(table: dict, path: Path, hosts: list[str], expand) -> CurveConfig:
     """Validate a cell file's ``[curve]`` table (``expand`` does ``{run}``/``{cell}``)."""
-    from droid.brain.shmdb import check_name_part
+    from droid.brain.db.shmdb import check_name_part
 
     where = f"{path}: [curve]"
     if not isinstance(table, dict):

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from droid.brain.shmdb import MemoryDatabase
+from droid.brain.db.shmdb import MemoryDatabase
 from droid.cli import BadInput
 from droid.kinematics.transforms import pose_to_T
 from droid.sim.arm_chain import ArmChain

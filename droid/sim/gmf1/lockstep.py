@@ -24,12 +24,12 @@ import dataclasses
 import numpy as np
 
 from droid.brain.cellfile import Cell, load_cell
-from droid.brain import arm_command
-from droid.brain.layouts import (ARM_COMMAND_LAYOUT, ARM_STATUS_LAYOUT, CTRL_COMMAND_LAYOUT, CTRL_STATUS_LAYOUT,
+from droid.brain.db import arm_command
+from droid.brain.db.layouts import (ARM_COMMAND_LAYOUT, ARM_STATUS_LAYOUT, CTRL_COMMAND_LAYOUT, CTRL_STATUS_LAYOUT,
                                  NORMAL_MODE)
-from droid.brain.databases import safe_start
+from droid.brain.db.databases import safe_start
 from droid.brain.remote import RemoteStation, StatusTranslator
-from droid.brain.shmdb import MemoryDatabase
+from droid.brain.db.shmdb import MemoryDatabase
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T
 from droid.sim.arm_chain import ArmTasks
@@ -120,7 +120,7 @@ class Gmf1Lockstep:
         if self.serial_running:
             self.serial.cycle(tick)
 
-    # -- the Brain side (what droid-move / droid-home write: droid.brain.arm_command) ----------
+    # -- the Brain side (what droid-move / droid-home write: droid.brain.db.arm_command) ----------
     def command_cart(self, T, ticks: int) -> int:
         """A cartesian move of the WCP to ``T`` (4x4, global frame, mm) in ``ticks`` heartbeat ticks."""
         return arm_command.cart(self.brain_command, T, ticks)

@@ -28,7 +28,7 @@ from __future__ import annotations
 import termios
 from typing import Any
 
-from droid.brain.layouts import JOYSTICK_AXES, JOYSTICK_BUTTONS
+from droid.brain.db.layouts import JOYSTICK_AXES, JOYSTICK_BUTTONS
 from droid.sim.serial_cable import PtyEnd
 from droid.sim.device import Device
 from droid.subunits.joystick.driver import JS_AXIS_MAX, JS_EVENT, JS_EVENT_AXIS, JS_EVENT_BUTTON, JS_EVENT_INIT

@@ -12,10 +12,10 @@ from dataclasses import dataclass
 from types import SimpleNamespace
 from typing import Any, Mapping
 
-from droid.brain.layouts import SENSOR_STATUS_LAYOUT
+from droid.brain.db.layouts import SENSOR_STATUS_LAYOUT
 from droid.brain.plumbing.sensor_line import DEFAULT_BAUD
 from droid.brain.sensor_link import SensorStatusCore
-from droid.brain.shmdb import MemoryDatabase
+from droid.brain.db.shmdb import MemoryDatabase
 from droid.brain.plumbing.wire import LIVENESS_TICKS
 from droid.cli import BadInput
 from droid.sim.device_options import DeviceOptions

@@ -2,7 +2,7 @@
 
 The same stations (read -> core.step -> write) as the processes of ``droid-cell up``, on
 virtual time (:class:`droid.sim.lockstep.Scheduler`), joined by in-memory databases
-(:class:`~droid.brain.shmdb.MemoryDatabase`) and in-memory messages (the same bytes)
+(:class:`~droid.brain.db.shmdb.MemoryDatabase`) and in-memory messages (the same bytes)
 instead of shared memory and ZeroMQ:
 
 ==========================  ========  ==============================================

@@ -61,7 +61,7 @@ from dataclasses import dataclass, field, make_dataclass
 
 import numpy as np
 
-from droid.brain.layouts import (CMD_OK, FAULT_BRAKING, FAULT_DEVICE, FAULT_LIMIT, FAULT_SERVO, HOME_MODE,
+from droid.brain.db.layouts import (CMD_OK, FAULT_BRAKING, FAULT_DEVICE, FAULT_LIMIT, FAULT_SERVO, HOME_MODE,
                                  HOMED, JOG_MODE, NORMAL_MODE)
 from droid.kinematics import RobotModel
 from droid.subunits.abb import egm_schema as es

@@ -6,13 +6,13 @@ positions and commands, homed, busy, faults.  What only an EGM link has lives he
 target sent [deg], motor / RAPID / MCI state and the convergence flag as EGM reports them (the
 enum numbers of egm.proto), the newest sample's sequence number, controller time and age, and
 the link's counters.  The record is this package's: its kind is not in
-``droid.brain.layouts.LAYOUTS`` (the Brain never reads it; ``droid-cheader`` does not emit it).
+``droid.brain.db.layouts.LAYOUTS`` (the Brain never reads it; ``droid-cheader`` does not emit it).
 """
 from __future__ import annotations
 
-from droid.brain.layouts import HEADER_FIELDS, Layout, _dtype
+from droid.brain.db.layouts import HEADER_FIELDS, Layout, _dtype
 
-KIND_EGM_STATUS = 32  # this package's record kind (outside droid.brain.layouts' numbering, 1..7)
+KIND_EGM_STATUS = 32  # this package's record kind (outside droid.brain.db.layouts' numbering, 1..7)
 
 #: the link counters, in record order (docs/abb.md "Counters")
 COUNTERS = ("accepted", "lost", "late", "duplicated", "reordered", "malformed", "oversized", "foreign",

@@ -1,13 +1,13 @@
 """The six-axis force/torque sensor (ATI Net F/T over RDT) as a device package (thesis §7.3; docs/design.md §11).
 
-Defines class ``ft6`` (its layout ``ft6_status`` in :mod:`droid.brain.layouts`), its program
+Defines class ``ft6`` (its layout ``ft6_status`` in :mod:`droid.brain.db.layouts`), its program
 ``droid-ft`` (served by the generic ``droid-agent``; its read rate is its URL's ``rate_hz``),
 its ``netft://`` driver, its twin ``netft`` and its lockstep builder (:func:`droid.sim.ft.lockstep.build`).
 """
 from __future__ import annotations
 
 from droid.brain.classes import SubunitClass
-from droid.brain.layouts import FT6_COMMAND_LAYOUT, FT6_CTRL_COMMAND_LAYOUT, FT6_STATUS_LAYOUT
+from droid.brain.db.layouts import FT6_COMMAND_LAYOUT, FT6_CTRL_COMMAND_LAYOUT, FT6_STATUS_LAYOUT
 from droid.brain.registry import DevicePackage, Driver, Program, Twin
 
 #: URL scheme -> driver class (droid.subunits.ft.rdt.DRIVERS holds the same classes)

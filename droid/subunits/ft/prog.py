@@ -36,8 +36,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from droid.brain.databases import open_local
-from droid.brain.layouts import FAULT_DEVICE, FAULT_FORCE
+from droid.brain.db.databases import open_local
+from droid.brain.db.layouts import FAULT_DEVICE, FAULT_FORCE
 from droid.brain.program import Presence, Stop, close_all, notify_ready, presence_key, subunit_program
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import BadInput, run

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from droid.brain.layouts import CMD_OK, HOMED, HOME_MODE
+from droid.brain.db.layouts import CMD_OK, HOMED, HOME_MODE
 from droid.kinematics import RobotModel, extend_counters
 from droid.subunits.gmf1.quad04_map import COUNTER_BITS
 

@@ -22,7 +22,7 @@ from __future__ import annotations
 import sys
 import time
 
-from droid.brain.databases import open_local
+from droid.brain.db.databases import open_local
 from droid.brain.program import ErrorLine, Presence, Stop, close_all, notify_ready, presence_key, subunit_program
 from droid.brain.rt import PeriodicTimer, now_ns, try_sched_fifo
 from droid.cli import BadInput, rate_hz, run

@@ -81,7 +81,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from droid.brain.layouts import (CARTSPACE, CMD_FAILED, CMD_OK, CMD_REFUSED, FAULT_COLLISION, FAULT_GUARD, HOME_MODE,
+from droid.brain.db.layouts import (CARTSPACE, CMD_FAILED, CMD_OK, CMD_REFUSED, FAULT_COLLISION, FAULT_GUARD, HOME_MODE,
                                  JSPACE, NORMAL_MODE, OFF, STOP_TICKS)
 from droid.kinematics import RobotModel, Unreachable
 from droid.kinematics.transforms import T_to_pose, inv_homo, record_pose

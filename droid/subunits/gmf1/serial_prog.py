@@ -20,7 +20,7 @@ import sys
 import zmq
 
 from droid.brain.plumbing.curve import CurveHost
-from droid.brain.databases import open_local
+from droid.brain.db.databases import open_local
 from droid.brain.heartbeat import TickSubscriber
 from droid.brain.program import ErrorLine, Presence, Stop, close_all, notify_ready, presence_key, subunit_program
 from droid.cli import baud_rate, run

@@ -3,8 +3,8 @@
 Shared by the real-time shells (droid-gmf1-serial, droid-gmf1-encoder) and the
 lockstep runner, so both modes run exactly the same code between the records,
 the port or the cards, and the cores.  The records may be shared-memory
-:class:`~droid.brain.shmdb.Database` objects or lockstep
-:class:`~droid.brain.shmdb.MemoryDatabase` objects.
+:class:`~droid.brain.db.shmdb.Database` objects or lockstep
+:class:`~droid.brain.db.shmdb.MemoryDatabase` objects.
 
 Both programs write the controller's Status record (Table 4.2); each owns its
 fields:
@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from droid.brain.layouts import FAULT_DEVICE
+from droid.brain.db.layouts import FAULT_DEVICE
 from droid.subunits.gmf1.encoder_core import EncoderCore, EncoderOut, HomeView, wants_zeroing_fields
 from droid.subunits.gmf1.port import PortLink
 from droid.subunits.gmf1.quad04 import Quad04Bank

@@ -8,7 +8,7 @@ Defines class ``joystick`` (its layout ``joystick_status``), its program
 from __future__ import annotations
 
 from droid.brain.classes import SubunitClass
-from droid.brain.layouts import JOYSTICK_STATUS_LAYOUT
+from droid.brain.db.layouts import JOYSTICK_STATUS_LAYOUT
 from droid.brain.registry import DevicePackage, Driver, Program, Twin
 
 #: URL scheme -> driver class (droid.subunits.joystick.driver.DRIVERS holds the same classes)

@@ -38,7 +38,7 @@ import os
 import struct
 from urllib.parse import parse_qsl, urlsplit
 
-from droid.brain.layouts import JOYSTICK_AXES, JOYSTICK_BUTTONS
+from droid.brain.db.layouts import JOYSTICK_AXES, JOYSTICK_BUTTONS
 from droid.cli import BadInput
 
 # --- Linux joystick API (linux/joystick.h)

@@ -32,7 +32,7 @@ from __future__ import annotations
 import sys
 import time
 
-from droid.brain.databases import open_local
+from droid.brain.db.databases import open_local
 from droid.brain.registry import open_url, program
 from droid.brain.program import Stop, close_all, notify_ready, serving_presence, subunit_program
 from droid.brain.rt import PeriodicTimer

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import sys
 
-from droid.brain.layouts import FAULT_DEVICE
+from droid.brain.db.layouts import FAULT_DEVICE
 from droid.subunits.joystick.driver import JoystickDevice
 
 #: How often a device that cannot be read is tried again [s] (the shell converts to cycles).

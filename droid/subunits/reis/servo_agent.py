@@ -50,8 +50,8 @@ import zmq
 
 from droid.brain.device import HEARTBEAT_HZ
 from droid.brain.plumbing.curve import CurveHost
-from droid.brain.databases import open_local
-from droid.brain.layouts import CMD_FAILED, CMD_OK, FAULT_BRAKING, FAULT_SERVO, HOME_MODE, HOMED, NORMAL_MODE, OFF
+from droid.brain.db.databases import open_local
+from droid.brain.db.layouts import CMD_FAILED, CMD_OK, FAULT_BRAKING, FAULT_SERVO, HOME_MODE, HOMED, NORMAL_MODE, OFF
 from droid.brain.program import close_all, Presence, Stop, notify_ready, presence_key, subunit_program
 from droid.brain.heartbeat import TickSubscriber
 from droid.brain.rt import try_sched_fifo

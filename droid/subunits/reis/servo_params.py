@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from droid.brain.device import HEARTBEAT_HZ
-from droid.brain.layouts import CmdMode
+from droid.brain.db.layouts import CmdMode
 from droid.kinematics import load_robot
 from droid.subunits.reis.device import SERVO_HZ
 from droid.subunits.reis.robot_file import DEFAULT_ROBOT, joint_to_counts_tuple, load_gearing
@@ -24,7 +24,7 @@ Six = tuple[float, float, float, float, float, float]
 SixInt = tuple[int, int, int, int, int, int]
 
 #: The servo's command modes are the controller's ``cmd_mode`` numbers (Table 4.3, thesis §3.3):
-#: one definition, :class:`droid.brain.layouts.CmdMode` (OFF 0, JOG 1, HOME 2, NORMAL 3).  The
+#: one definition, :class:`droid.brain.db.layouts.CmdMode` (OFF 0, JOG 1, HOME 2, NORMAL 3).  The
 #: servo agent passes ``cmd_mode`` through to the servo message unchanged.
 #: OFF: servo disabled, DACs 0, targets follow the encoders (bumpless restart); HOME: run the
 #: homing state machine (§4.1.5.3); JOG: the encoder command is relative to the last command

@@ -17,7 +17,7 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 
-# Version 2: ``mode`` carries droid.brain.layouts.CmdMode's numbers (JOG 1, HOME 2; version 1
+# Version 2: ``mode`` carries droid.brain.db.layouts.CmdMode's numbers (JOG 1, HOME 2; version 1
 # numbered the servo's own HOME 1, JOG 2): a servo and agent of different versions refuse
 # each other's messages (counted as bad frames, the servo brakes) instead of swapping modes.
 CMD_MAGIC = b"DSC2"
@@ -34,7 +34,7 @@ class BadServoMessage(ValueError):
 @dataclass(frozen=True)
 class ServoCommand:
     seq: int
-    mode: int  # droid.brain.layouts.CmdMode (= servo_params.Mode)
+    mode: int  # droid.brain.db.layouts.CmdMode (= servo_params.Mode)
     counts: tuple[int, ...]
 
 

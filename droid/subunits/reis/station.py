@@ -19,7 +19,7 @@ remote's cycle :class:`droid.brain.remote.RemoteStation`.
 """
 from __future__ import annotations
 
-from droid.brain.layouts import FAULT_WATCHDOG
+from droid.brain.db.layouts import FAULT_WATCHDOG
 from droid.subunits.reis import servo_wire as sw
 from droid.subunits.reis import vme_map as vm
 from droid.arm.planner import PlannerStation  # droid-planner: the neutral arm's, run by the Reis

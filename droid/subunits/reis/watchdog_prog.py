@@ -17,7 +17,7 @@ import sys
 import zmq
 
 from droid.brain.plumbing.curve import CurveHost
-from droid.brain.databases import open_local
+from droid.brain.db.databases import open_local
 from droid.brain.program import Stop, notify_ready
 from droid.brain.rt import PeriodicTimer
 from droid.cli import run

@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from droid.brain.layouts import FAULTS_STOP_RUN, fault_names
+from droid.brain.db.layouts import FAULTS_STOP_RUN, fault_names
 from droid.cli import BadInput, read_toml
 from droid.kinematics.transforms import inv_homo, record_pose
 from droid.numbers import NumberError, check_numbers

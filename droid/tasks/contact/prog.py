@@ -54,7 +54,7 @@ import time
 
 import numpy as np
 
-from droid.brain.databases import open_brain
+from droid.brain.db.databases import open_brain
 from droid.brain.heartbeat import TickSubscriber
 from droid.brain.program import open_cell, parser
 from droid.cli import EXIT_OK, EXIT_RUNTIME, BadInput, RuntimeFailure, bounded_float, run

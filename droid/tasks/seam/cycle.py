@@ -59,7 +59,7 @@ from collections import deque
 from dataclasses import dataclass, replace
 import numpy as np
 
-from droid.brain.layouts import FAULTS_STOP_RUN, fault_names
+from droid.brain.db.layouts import FAULTS_STOP_RUN, fault_names
 from droid.brain.plumbing.sensor_line import seam_transform
 from droid.kinematics.transforms import EYE4
 from droid.tasks.seam.core import CycleOutput, SeamTracker
@@ -107,7 +107,7 @@ def arm_faults(arms) -> str | None:
 
     ``arms``: (subunit name, Status ``fault`` bits) of each arm the tracker drives.  None when
     every arm can move; else the stop detail naming each faulted arm and all of its fault bits
-    (droid.brain.layouts.fault_names), e.g. ``arm1 faults: servo, braking``; two arms are
+    (droid.brain.db.layouts.fault_names), e.g. ``arm1 faults: servo, braking``; two arms are
     joined with ``; ``.  An arm stops the run when a bit of ``FAULTS_STOP_RUN`` is set (a fault
     it cannot move with, or a protective stop: braking, collision)."""
     parts = [f"{name} faults: {', '.join(fault_names(bits))}" for name, bits in arms

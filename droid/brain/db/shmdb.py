@@ -13,7 +13,7 @@ docs/design.md §3 and §9 add what a Python cell on Linux needs:
   without blocking, and the winner re-checks the holder under it.  The record's
   ``FLAG_RECOVERED`` bit tells everyone it happened;
 * attaching to a record whose magic, kind, version or size differs is refused
-  with :class:`~droid.brain.layouts.LayoutError`.
+  with :class:`~droid.brain.db.layouts.LayoutError`.
 
 :class:`MemoryDatabase` has the same interface without shared memory, for the
 lockstep mode (everything in one process on virtual time).
@@ -34,7 +34,7 @@ import posix_ipc
 from droid.brain import rt
 
 from droid.cli import BadInput, RuntimeFailure
-from droid.brain.layouts import (
+from droid.brain.db.layouts import (
     FLAG_RECOVERED,
     HOLDER_PID_OFFSET,
     Layout,
@@ -336,7 +336,7 @@ HEADER_MIN = 32
 
 
 def raise_short(name: str, got: int, want: int) -> None:
-    from droid.brain.layouts import LayoutError
+    from droid.brain.db.layouts import LayoutError
 
     raise LayoutError(f"database {name}: object is {got} bytes, expected {want}")
 

@@ -5,15 +5,15 @@ heartbeat counts needed to complete it", §3.3): ``joint_time_count`` for a join
 command, ``cart_time_count`` for a cartesian one.  Task programs (BrainArm), the
 lockstep arms and the experiments write through these functions; a caller holding
 seconds converts once with :func:`ticks_for`.  Each write sets the next ``cmd_id``
-and ``sent = 1`` under one lock (:func:`droid.brain.databases.write_command`) and
+and ``sent = 1`` under one lock (:func:`droid.brain.db.databases.write_command`) and
 returns the ``cmd_id``.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from droid.brain.databases import write_command
-from droid.brain.layouts import CARTSPACE, HOME_MODE, JOG_MODE, JSPACE, NORMAL_MODE, STOP_TICKS
+from droid.brain.db.databases import write_command
+from droid.brain.db.layouts import CARTSPACE, HOME_MODE, JOG_MODE, JSPACE, NORMAL_MODE, STOP_TICKS
 
 
 def ticks_for(seconds: float, heartbeat_hz: float) -> int:

@@ -17,8 +17,8 @@ on the Brain's host (droid-guard writes it; docs/guard.md).
 from __future__ import annotations
 
 from droid.brain.cellfile import Cell, Subunit
-from droid.brain.layouts import GUARD_STATUS_LAYOUT, JOG_MODE, JSPACE, Layout
-from droid.brain.shmdb import Database, db_name
+from droid.brain.db.layouts import GUARD_STATUS_LAYOUT, JOG_MODE, JSPACE, Layout
+from droid.brain.db.shmdb import Database, db_name
 
 
 def brain_layouts(sub: Subunit) -> dict[str, Layout]:
