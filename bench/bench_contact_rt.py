@@ -45,7 +45,7 @@ sys.path.insert(0, str(ROOT))
 from bench.floor import cyclictest_floor, when_and_load  # noqa: E402
 from bench.live_cell import droid_module as droid, renamed_cell, up_and_homed  # noqa: E402
 from bench.truth import standstill  # noqa: E402
-from droid.brain.cellfile import builtin_cell_path, load_cell  # noqa: E402
+from droid.brain.cell.cellfile import builtin_cell_path, load_cell  # noqa: E402
 from droid.brain.db.databases import open_brain  # noqa: E402
 from droid.brain.db.layouts import FAULT_FORCE  # noqa: E402
 from droid.cli import ArgumentParser, bounded_int  # noqa: E402

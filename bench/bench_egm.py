@@ -46,7 +46,7 @@ sys.path.insert(0, str(ROOT))
 from bench.floor import cyclictest_floor, when_and_load  # noqa: E402
 from bench.live_cell import droid_module as droid, renamed_cell  # noqa: E402
 from bench.truth import standstill  # noqa: E402
-from droid.brain.cellfile import load_cell  # noqa: E402
+from droid.brain.cell.cellfile import load_cell  # noqa: E402
 from droid.brain.db.databases import open_brain  # noqa: E402
 from droid.brain.db.layouts import FAULT_DEVICE  # noqa: E402
 from droid.cli import ArgumentParser, bounded_int  # noqa: E402

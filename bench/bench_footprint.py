@@ -30,7 +30,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from bench.live_cell import droid_program as droid, renamed_cell  # noqa: E402
-from droid.brain.cellfile import builtin_cell_path, load_cell  # noqa: E402
+from droid.brain.cell.cellfile import builtin_cell_path, load_cell  # noqa: E402
 from droid.cli import ArgumentParser, bounded_float  # noqa: E402
 
 TICKS_PER_S = os.sysconf("SC_CLK_TCK")

@@ -94,7 +94,7 @@ def bench_lockstep(moves: int) -> None:
 
 # -- real time -----------------------------------------------------------------------------
 def bench_realtime(moves: int) -> None:
-    from droid.brain.cellfile import builtin_cell_path, load_cell
+    from droid.brain.cell.cellfile import builtin_cell_path, load_cell
     from droid.brain.db.databases import open_brain, open_local
     from droid.brain.db import arm_command
     from droid.kinematics import load_robot

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from droid.cli import ArgumentParser, bounded_int
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.guard.bodies import FIXTURE, Body
 from droid.guard.cell import GuardScene, guard_scene
 from droid.kinematics import load_robot

@@ -20,7 +20,7 @@ import time
 import numpy as np
 
 from droid.brain.db import layouts as L
-from droid.brain.cellfile import BUNDLED_CELLS, load_cell
+from droid.brain.cell.cellfile import BUNDLED_CELLS, load_cell
 from droid.brain.db.shmdb import MemoryDatabase
 from droid.cli import ArgumentParser, bounded_int
 from droid.guard.station import GuardStation, guard_core

@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from droid.brain.cellfile import BUNDLED_CELLS, load_cell
+from droid.brain.cell.cellfile import BUNDLED_CELLS, load_cell
 from droid.cli import ArgumentParser
 from droid.experiments import trial as T
 from droid.guard.station import guard_core

@@ -373,7 +373,7 @@ def trials(n: int, position: str, speed: float) -> list[dict]:
 def main(argv=None) -> int:
     import argparse
 
-    from droid.brain.cell_layout import load_layout
+    from droid.brain.cell.cell_layout import load_layout
     from droid.cli import ArgumentParser, bounded_float, bounded_int
 
     parser = ArgumentParser(prog="bench_kernel", description=__doc__.split("\n")[0])

@@ -14,7 +14,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from droid.brain.cellfile import builtin_cell_path, load_cell
+from droid.brain.cell.cellfile import builtin_cell_path, load_cell
 from droid.cli import ArgumentParser, duration_s
 from droid.sim.lockstep import Scheduler
 from droid.sim.mvs.lockstep import mvs_lockstep

@@ -29,7 +29,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from droid.brain.cellfile import builtin_cell_path, load_cell  # noqa: E402
+from droid.brain.cell.cellfile import builtin_cell_path, load_cell  # noqa: E402
 from droid.cli import ArgumentParser, duration_s  # noqa: E402
 
 

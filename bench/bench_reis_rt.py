@@ -29,7 +29,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from droid.brain.cellfile import builtin_cell_path, load_cell  # noqa: E402
+from droid.brain.cell.cellfile import builtin_cell_path, load_cell  # noqa: E402
 from droid.brain.db.databases import open_brain, open_local  # noqa: E402
 from droid.brain.db.layouts import PROC_STATUS_LAYOUT  # noqa: E402
 from droid.brain.db.shmdb import Database, db_name  # noqa: E402

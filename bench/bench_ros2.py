@@ -72,7 +72,7 @@ def main() -> int:
     ap.add_argument("--domain", type=bounded_int(1, 232), default=None, metavar="N")
     args = ap.parse_args()
     from bench.floor import cyclictest_floor, when_and_load
-    from droid.brain.cellfile import load_cell
+    from droid.brain.cell.cellfile import load_cell
 
     cell = load_cell(args.cell)
     arms = [s.name for s in cell.subunits.values() if s.is_arm]

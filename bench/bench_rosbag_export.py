@@ -34,7 +34,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from droid.brain.cellfile import load_cell  # noqa: E402
+from droid.brain.cell.cellfile import load_cell  # noqa: E402
 from droid.brain.db.databases import brain_layouts  # noqa: E402
 from droid.brain.db.layouts import CARTSPACE, HOMED, NORMAL_MODE, new_record  # noqa: E402
 from droid.cli import ArgumentParser, bounded_float  # noqa: E402

@@ -39,7 +39,7 @@ sys.path.insert(0, str(ROOT))
 from bench.bench_footprint import cpu_window, make_cell, programs  # noqa: E402
 from bench.floor import cyclictest_floor  # noqa: E402
 from bench.live_cell import droid_program as droid  # noqa: E402
-from droid.brain.cellfile import builtin_cell_path, load_cell  # noqa: E402
+from droid.brain.cell.cellfile import builtin_cell_path, load_cell  # noqa: E402
 from droid.brain.launcher import RT_BUDGET_PCT_PER_CPU, cell_programs, demand, measured_cpu  # noqa: E402
 from droid.cli import ArgumentParser, bounded_float  # noqa: E402
 

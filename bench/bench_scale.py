@@ -42,7 +42,7 @@ from bench_footprint import TICKS_PER_S, cpu_snapshot, memory_mb  # noqa: E402
 from bench_footprint import make_cell as footprint_cell  # noqa: E402
 from bench_under_load import TickLateness, cyclictest, droid, status_json  # noqa: E402
 
-from droid.brain.cellfile import builtin_cell_path, load_cell  # noqa: E402
+from droid.brain.cell.cellfile import builtin_cell_path, load_cell  # noqa: E402
 from droid.cli import ArgumentParser, bounded_float  # noqa: E402
 
 

@@ -42,7 +42,7 @@ from droid.sim.reis import fast_arm as arm_fast
 from droid.sim.mvs.camera import MvsCamera
 from droid.subunits.mvs.sensor import SensorCore
 from droid.tasks.seam.core import SeamTracker
-from droid.brain.cell_layout import load_layout
+from droid.brain.cell.cell_layout import load_layout
 
 STAGES = (("render", MvsCamera, "frame"), ("feature", SensorCore, "step"), ("lead sensor", sensors.LeadSensor, "read"),
           ("arm", arm_fast.FastArm, "tick"), ("core", SeamTracker, "step"), ("tool sensor", trial, "tool_reading"))

@@ -27,7 +27,7 @@ sys.path.insert(0, str(ROOT))
 
 from bench.floor import when_and_load  # noqa: E402
 from bench.live_cell import droid_module as droid, renamed_cell, up_and_homed  # noqa: E402
-from droid.brain.cellfile import builtin_cell_path  # noqa: E402
+from droid.brain.cell.cellfile import builtin_cell_path  # noqa: E402
 from droid.cli import ArgumentParser, bounded_float, bounded_int  # noqa: E402
 from droid.tasks.seam.report import read_csv, summarize  # noqa: E402
 

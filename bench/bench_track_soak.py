@@ -35,7 +35,7 @@ from bench.bench_demo_soak import MAX_RMS_MM, SPEED_MM_S, busy, judged, stop  # 
 from bench.bench_footprint import make_cell  # noqa: E402
 from bench.floor import cyclictest_floor  # noqa: E402
 from bench.live_cell import droid_program as droid, up_and_homed  # noqa: E402
-from droid.brain.cellfile import builtin_cell_path  # noqa: E402
+from droid.brain.cell.cellfile import builtin_cell_path  # noqa: E402
 from droid.cli import ArgumentParser, bounded_float  # noqa: E402
 
 LATE_MS = 20.0  # the "late by 20 ms or more"

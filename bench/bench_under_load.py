@@ -47,7 +47,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from bench.live_cell import droid_program, renamed_cell  # noqa: E402
-from droid.brain.cellfile import builtin_cell_path, load_cell  # noqa: E402
+from droid.brain.cell.cellfile import builtin_cell_path, load_cell  # noqa: E402
 from droid.brain.plumbing import wire  # noqa: E402
 from droid.cli import ArgumentParser, bounded_int, duration_s, seed_int  # noqa: E402
 

@@ -100,7 +100,7 @@ def worker(idle_s: float, moves: int, home: bool = False, plant: bool = False) -
 
     import numpy as np
 
-    from droid.brain.cellfile import builtin_cell_path, load_cell
+    from droid.brain.cell.cellfile import builtin_cell_path, load_cell
     from droid.sim.world import build_world
     from droid.subunits.ft.rdt import CMD_START_REALTIME, request
     from droid.subunits.reis.servo import ServoCore

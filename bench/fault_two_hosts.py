@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import zmq
 
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.brain.db.databases import open_brain, open_local
 from droid.brain.db.layouts import FAULT_LINK
 from droid.cli import ArgumentParser, bounded_int

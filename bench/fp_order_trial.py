@@ -25,7 +25,7 @@ from droid.cli import ArgumentParser, BadInput, bounded_float, run, seed_int
 from droid.experiments import trial
 from droid.sim.reis import plant as reis_plant
 from droid.tasks.seam.params import MAX_SPEED_MM_S
-from droid.brain.cell_layout import load_layout
+from droid.brain.cell.cell_layout import load_layout
 
 AFTER_MM = 150.0  # as bench/bench_seamtrack.py
 

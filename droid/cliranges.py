@@ -18,7 +18,7 @@ import sys
 from dataclasses import dataclass
 
 from droid import cli
-from droid.brain.registry import programs
+from droid.brain.cell.registry import programs
 
 #: argv prefixes a main dispatches on before it builds another parser (``droid-sim truth``, ``droid-sim lockstep``).
 ENTRIES = {"droid-sim": [[], ["truth"], ["lockstep"]]}

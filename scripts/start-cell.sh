@@ -47,7 +47,7 @@ bg agent-ft droid-agent ft
 for sub in arm1 gmf1 mvs tool joy ft; do bg "remote-$sub" droid-remote "$sub"; done
 # the collision guard, where the cell runs one ([guard] run = true, as the built-in cell: docs/guard.md §9)
 py="$(dirname "$(command -v droid-cell)")/python"
-if "$py" -c 'import sys; from droid.brain.cellfile import load_cell; from droid.guard.gate import guard_runs
+if "$py" -c 'import sys; from droid.brain.cell.cellfile import load_cell; from droid.guard.gate import guard_runs
 sys.exit(0 if guard_runs(load_cell()) else 1)'; then
     bg guard droid-guard
 fi

@@ -380,7 +380,7 @@ def homed_sim_cell(shared_sim_cell):
     the next one here, naming what it left, rather than somewhere in the middle of a run.  The
     check reads the cell's state and the Brain's Status records in this process (no program
     started: it runs before each of many tests)."""
-    from droid.brain.cellfile import load_cell
+    from droid.brain.cell.cellfile import load_cell
     from droid.brain.db.databases import open_brain
     from droid.brain.launcher import status
     from tests.brain.cellutil import wait_for

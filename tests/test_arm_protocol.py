@@ -8,7 +8,7 @@ import ast
 from pathlib import Path
 
 from droid.arm.protocol import Arm
-from droid.brain.cellfile import BUNDLED_CELLS, load_cell
+from droid.brain.cell.cellfile import BUNDLED_CELLS, load_cell
 from droid.sim.lockstep_cell import build_lockstep_cell
 from droid.tasks.arm import BrainArm
 

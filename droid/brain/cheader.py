@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from droid.brain.db import layouts as L
-from droid.brain.registry import layouts
+from droid.brain.cell.registry import layouts
 from droid.cli import ArgumentParser, run
 
 PROG = "droid-cheader"
@@ -64,7 +64,7 @@ def generate() -> str:
                  "CMD_OK", "CMD_REFUSED", "CMD_FAILED"):
         out.append(f"#define DROID_{name} {getattr(L, name)}")
     out.append("")
-    for lay in layouts().values():  # the Brain's and every registered package's (droid.brain.registry)
+    for lay in layouts().values():  # the Brain's and every registered package's (droid.brain.cell.registry)
         up = lay.c_name.upper()
         out.append(f"#define {up}_KIND {lay.kind}")
         out.append(f"#define {up}_VERSION {lay.version}")

@@ -24,7 +24,7 @@ from droid.brain.db.layouts import LATENESS_NO_RECORD as NO_RECORD
 from droid.brain.names import NameClient
 from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
 from droid.brain.rt import PeriodicTimer, now_ns, try_sched_fifo
-from droid.brain.cellfile import HEARTBEAT_HZ_RANGE
+from droid.brain.cell.cellfile import HEARTBEAT_HZ_RANGE
 from droid.cli import bounded_int, rate_hz, run
 
 PROG = "droid-heartbeat"

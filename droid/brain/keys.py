@@ -62,7 +62,7 @@ def main(argv=None) -> int:
     if args.name:
         names = args.name
     else:
-        from droid.brain.cellfile import load_cell
+        from droid.brain.cell.cellfile import load_cell
 
         cell = load_cell(args.cell)
         hosts = cell.hosts()

@@ -39,7 +39,7 @@ import sys
 import time
 from dataclasses import asdict, dataclass, field
 
-from droid.brain.cellfile import REMOTES_ONE, Cell, load_cell
+from droid.brain.cell.cellfile import REMOTES_ONE, Cell, load_cell
 from droid.brain.db.databases import create_databases
 from droid.brain.db.layouts import LATENESS_NO_RECORD, PROC_STATE_NAMES, PROC_STATUS_LAYOUT
 from droid.brain.program import presence_key, shared_key, use_cell
@@ -48,7 +48,7 @@ from droid.brain.sensor_link import LINK_AGENT, link_kind
 from droid.brain.db.shmdb import (Database, NoDatabase, cell_objects, db_name, pid_alive,
                                remove_cell_objects, unlink_database)
 from droid.cli import ArgumentParser, BadInput, RuntimeFailure, run, timeout_s
-from droid.brain.registry import program, programs, twin, validate_cell
+from droid.brain.cell.registry import program, programs, twin, validate_cell
 
 PROG = "droid-cell"
 READY_TIMEOUT_S = 30.0
@@ -71,7 +71,7 @@ class Spec:
 def cell_programs(cell: Cell, hosts: set[str] | None = None) -> tuple[list[Spec], list[Spec]]:
     """(first, rest): the programs of start group 0 (the name space; the world: the hardware is
     powered before the programs that drive it, §4.1.4), then group 1 in parallel after them.
-    Each program's group is its declaration's ``start`` (droid.brain.registry)."""
+    Each program's group is its declaration's ``start`` (droid.brain.cell.registry)."""
     want = (lambda h: True) if hosts is None else (lambda h: h in hosts)
     specs = []
     if want(cell.brain_host):
@@ -190,7 +190,7 @@ def _mem_available_mb() -> float | None:
 
 def demand(cell: Cell, specs: list[Spec]) -> Demand:
     """The host's share of ``specs``: each program's declared cost, droid-sim's with the
-    twins of ``[world.devices]`` (droid.brain.registry.Program.cpu_pct, Twin.cpu_pct); the
+    twins of ``[world.devices]`` (droid.brain.cell.registry.Program.cpu_pct, Twin.cpu_pct); the
     SCHED_FIFO part where the cell asks for it (``[cell] sched_fifo``)."""
     cpu = rss = 0.0
     fifo: dict[str, float] = {}

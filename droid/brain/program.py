@@ -16,7 +16,7 @@ import signal
 import sys
 import time
 
-from droid.brain.cellfile import Cell, load_cell
+from droid.brain.cell.cellfile import Cell, load_cell
 from droid.brain.db.layouts import (LATENESS_NO_RECORD, PROC_FAILED, PROC_READY, PROC_STARTING, PROC_STATUS_LAYOUT,
                                  PROC_STOPPING)
 from droid.brain.rt import freeze_heap

@@ -32,7 +32,7 @@ import numpy as np
 import zmq
 
 from droid.brain.plumbing import wire
-from droid.brain.cellfile import Subunit
+from droid.brain.cell.cellfile import Subunit
 from droid.brain.plumbing.curve import CurveHost
 from droid.brain.db.databases import brain_layouts, open_brain
 from droid.brain.heartbeat import TickSubscriber
@@ -65,7 +65,7 @@ class ArmPose:
 class StatusTranslator:
     """Agent reply (the subunit side's status record) -> Brain Status fields (the class's copy_fields).
 
-    ``kind`` is the subunit's :class:`~droid.brain.classes.SubunitClass`; ``fk`` (arms) maps
+    ``kind`` is the subunit's :class:`~droid.brain.cell.classes.SubunitClass`; ``fk`` (arms) maps
     encoder counts to the WCP pose, added to the fields once the arm is homed (§4.1.8); it must
     be a pure function of the counts: the last pose is reused while the counts stay the same."""
 

@@ -130,7 +130,7 @@ class PeriodicTimer:
 
 
 #: SCHED_FIFO priority of every program that asks for it (higher runs first) is declared
-#: with the program in its device package (droid.brain.registry.Program: sched "fifo",
+#: with the program in its device package (droid.brain.cell.registry.Program: sched "fifo",
 #: priority); ``FIFO_PRIORITIES`` is the registry's view (module ``__getattr__`` below).
 #: The servo's 500 Hz loop outranks everything; the watchdog must kick while the servo
 #: lives; the world (the hardware) outranks the programs that drive it except the
@@ -138,7 +138,7 @@ class PeriodicTimer:
 #: the encoder program below (docs/design.md §9; docs/architecture.md "Real time").
 def __getattr__(name: str):
     if name == "FIFO_PRIORITIES":
-        from droid.brain.registry import fifo_priorities
+        from droid.brain.cell.registry import fifo_priorities
 
         return fifo_priorities()
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
@@ -239,7 +239,7 @@ def normal_scheduler() -> None:
     _libc.munlockall()
 
 
-#: The nice level of a program declared ``sched = "nice"`` (droid.brain.registry.Program): the
+#: The nice level of a program declared ``sched = "nice"`` (droid.brain.cell.registry.Program): the
 #: normal scheduler's weight of nice -10 is 9.3x that of nice 0, so a busy normal process beside
 #: it delays its wake-ups by a scheduler slice (a few ms), never by the kernel's RT throttling.
 NICE_LEVEL = -10
@@ -281,7 +281,7 @@ def try_sched_fifo(priority: int | None = None, *, wanted: bool = True, prog: st
     if not wanted:
         return False
     if priority is None:
-        from droid.brain.registry import fifo_priorities, registry
+        from droid.brain.cell.registry import fifo_priorities, registry
 
         declared = registry().programs.get(prog)
         if declared is not None and declared.sched == "nice":

@@ -47,7 +47,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from droid.brain.cellfile import Cell, Subunit
+from droid.brain.cell.cellfile import Cell, Subunit
 from droid.brain.db.layouts import FAULT_DEVICE, FAULT_HEARTBEAT, FAULT_LINK, NO_CAPTURE_AGE
 from droid.brain.plumbing.sensor_line import DEFAULT_BAUD, INVALID, MIN_BAUD, LineReading, SensorClientCore
 from droid.brain.plumbing.serial_port import ReopeningPort

@@ -36,7 +36,7 @@ from droid.sim.contact import ToolContact
 from droid.sim.ft.lockstep import LockstepFt
 from droid.sim.lockstep import ORDER_TASK, Scheduler
 from droid.tasks.contact.core import ArmStatus, ContactStation, FtStatus, load_gains
-from droid.brain.cell_layout import T_W_SEAM
+from droid.brain.cell.cell_layout import T_W_SEAM
 
 COLUMNS = ("t_s", "phase", "force_n", "force_error_n", "true_force_n", "friction_n", "depth_mm", "along_mm",
            "speed_mm_s")

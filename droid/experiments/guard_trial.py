@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from droid.brain.cellfile import BUNDLED_CELLS, load_cell
+from droid.brain.cell.cellfile import BUNDLED_CELLS, load_cell
 from droid.guard.station import attach_lockstep
 from droid.sim.lockstep_cell import build_lockstep_cell
 

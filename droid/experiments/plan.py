@@ -152,7 +152,7 @@ class _Checker:
     def __init__(self, source: str, plan_dir: Path, layout=None) -> None:
         from droid.sim.mvs.trial_sensors import SENSOR_MODELS
         from droid.experiments.trial import ARM_MODELS
-        from droid.brain.cell_layout import load_layout
+        from droid.brain.cell.cell_layout import load_layout
 
         self.source = source
         self.plan_dir = plan_dir

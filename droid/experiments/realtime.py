@@ -29,7 +29,7 @@ import time
 import uuid
 from pathlib import Path
 
-from droid.brain.cellfile import builtin_cell_path, without_table
+from droid.brain.cell.cellfile import builtin_cell_path, without_table
 from droid.cli import RuntimeFailure
 from droid.kinematics.transforms import T_to_pose
 from droid.sim.trial_cell import trial_geometry

@@ -73,7 +73,7 @@ from droid.tasks.seam.report import COLUMNS, SETTLE_EXTRA_MM, log_row  # noqa: F
 
 ARM_MODELS = ("fast", "full")
 HOLDER_MODELS = ("gmf1", "fixed")  # the GMF1 through its controller and encoders, or an exact pose
-from droid.brain.device import HEARTBEAT_HZ  # [Hz], the droid-heartbeat declaration
+from droid.brain.cell.device import HEARTBEAT_HZ  # [Hz], the droid-heartbeat declaration
 CYCLE_TICKS = 2  # one 30 Hz seam-tracking cycle = 2 heartbeat ticks (cart_time_count; TrackingCycle.cycle_ticks)
 LOG_TICKS = 6  # 10 Hz log (TrackingCycle.log_ticks)
 #: The stall rule's window [s of simulated time] (ProgressLimit).

@@ -46,7 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from droid.brain import launcher
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.brain.db.databases import open_local
 from droid.brain.db.layouts import FAULT_WATCHDOG
 from droid.brain.db.shmdb import cell_objects, pid_alive
@@ -204,7 +204,7 @@ class SeamTrackLoop(Workload):
 
     def __init__(self, speed_mm_s: float = 16.0, length_mm: float = 120.0, position: str = "i"):
         from droid.kinematics import load_robot
-        from droid.brain.cell_layout import load_layout
+        from droid.brain.cell.cell_layout import load_layout
 
         self.speed_mm_s, self.length_mm, self.position = speed_mm_s, length_mm, position
         lay = load_layout()
@@ -414,7 +414,7 @@ class Campaign:
         if f.kind == "semkill":
             sub, area = f.target.split(".")
             code = ("import sys,time\n"
-                    "from droid.brain.cellfile import load_cell\n"
+                    "from droid.brain.cell.cellfile import load_cell\n"
                     "from droid.brain.db.databases import open_brain, open_local\n"
                     "c = load_cell(sys.argv[1]); s = c.subunit(sys.argv[2]); a = sys.argv[3]\n"
                     "db = (open_local if a.startswith('ctrl_') else open_brain)(c, s, a)\n"

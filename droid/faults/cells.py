@@ -76,7 +76,7 @@ def seam_campaign_cell_text(name: str, run_dir: str) -> str:
     agent link behind a fault proxy, as in :func:`campaign_cell_text`."""
     import re
 
-    from droid.brain.cellfile import builtin_cell_path
+    from droid.brain.cell.cellfile import builtin_cell_path
 
     text = builtin_cell_path().read_text()
     text, n = re.subn(r'(?m)^name = "[^"]*"', f'name = "{name}"\nrun_dir = "{run_dir}"', text, count=1)

@@ -29,7 +29,7 @@ from __future__ import annotations
 import json
 import sys
 
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.brain.program import Stop
 from droid.brain.rt import try_sched_fifo
 from droid.cli import ArgumentParser, BadInput, DroidError, bounded_float, run, seed_int

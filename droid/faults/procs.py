@@ -10,7 +10,7 @@ import os
 import signal
 
 from droid.brain import launcher
-from droid.brain.cellfile import Cell
+from droid.brain.cell.cellfile import Cell
 from droid.brain.db.databases import brain_layouts, local_layouts
 from droid.brain.db.layouts import PROC_STATUS_LAYOUT
 from droid.brain.db.shmdb import Database, LockTimeout, NoDatabase, cell_objects, db_name

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import zmq
 
-from droid.brain.cellfile import Cell
+from droid.brain.cell.cellfile import Cell
 from droid.cli import BadInput, RuntimeFailure
 from droid.faults.core import DelayLine, LinkFaults, MessageFate
 from droid.subunits.abb.config import bind_udp, egm_config, egm_url, udp_address

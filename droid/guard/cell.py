@@ -336,7 +336,7 @@ def _arms(cell) -> list[str]:
 
 
 def guard_scene(cell) -> GuardScene:
-    """The :class:`GuardScene` of a parsed cell (:class:`~droid.brain.cellfile.Cell`)."""
+    """The :class:`GuardScene` of a parsed cell (:class:`~droid.brain.cell.cellfile.Cell`)."""
     table = guard_table(cell)
     held = _held(cell, table)
     arms, bodies = {}, []

@@ -32,7 +32,7 @@ from typing import Sequence
 
 import numpy as np
 
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.cli import ArgumentParser, BadInput, bounded_float, bounded_int, parse_finite, run
 from droid.guard.cell import guard_scene
 

@@ -22,7 +22,7 @@ import time
 
 import zmq
 
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.brain.plumbing.curve import CurveHost
 from droid.brain.db.databases import open_brain, open_local
 from droid.brain.heartbeat import TickSubscriber

@@ -101,7 +101,7 @@ def live_workpiece_mesh(cell) -> dict | None:
     (no such file: a real cell, or a cell not up; a file that is not a mesh is ignored)."""
     import json
 
-    from droid.brain.cellfile import WORKPIECE_MESH_FILE
+    from droid.brain.cell.cellfile import WORKPIECE_MESH_FILE
 
     try:
         with open(cell.run_dir / WORKPIECE_MESH_FILE) as f:
@@ -122,7 +122,7 @@ def scene_meta(cell, layout_path=None) -> dict:
     The workpiece's shape (``workpiece_mesh``, :mod:`droid.sim.workpiece_mesh`) is not here: an
     observer cannot read the simulator's workpiece model (docs/design.md §7).  A recording whose maker may
     (a lockstep trial) carries it in its scene metadata."""
-    from droid.brain.cell_layout import layout_for_cell
+    from droid.brain.cell.cell_layout import layout_for_cell
 
     try:
         lay = layout_for_cell(cell, layout_path)
@@ -160,7 +160,7 @@ def _capsule(p0, p1, r: float) -> list[float]:
 def is_arm(sub: dict) -> bool:
     """A recorded subunit is an arm if it has a Command database (or a robot model): read from the
     recording's metadata, not from a list of classes."""
-    from droid.brain.registry import classes
+    from droid.brain.cell.registry import classes
 
     cls = classes().get(sub.get("class"))  # a class of the device registry: kinematic or not
     if cls is not None:  # (a force/torque sensor has a Command too: bias, guard)

@@ -28,7 +28,7 @@ import numpy as np
 
 from droid.arm.planner import PlannerCore, PlannerStation
 from droid.brain.db import arm_command
-from droid.brain.classes import ARM6R
+from droid.brain.cell.classes import ARM6R
 from droid.brain.db.layouts import (ARM_COMMAND_LAYOUT, ARM_STATUS_LAYOUT, CTRL_COMMAND_LAYOUT,
                                  CTRL_STATUS_LAYOUT)
 from droid.brain.db.databases import safe_start

@@ -38,7 +38,7 @@ from droid.brain.db.shmdb import MemoryDatabase
 from droid.sim.lockstep import ORDER_HEARTBEAT, Scheduler
 from droid.subunits.agent import AgentStation, CommandCopier
 
-#: The generic subunit server (droid.brain.device): a sensor's builder names it among its programs.
+#: The generic subunit server (droid.brain.cell.device): a sensor's builder names it among its programs.
 AGENT = "droid-agent"
 
 
@@ -114,7 +114,7 @@ class BuildContext:
     ``abb_egm``) is still read from the cell by its builder."""
 
     sched: Scheduler
-    cell: Any  # droid.brain.cellfile.Cell
+    cell: Any  # droid.brain.cell.cellfile.Cell
     seed: int
     world: dict | None = None
     twins: dict[str, Any] = field(default_factory=dict)
@@ -132,7 +132,7 @@ class BuildContext:
 
     def rate_hz(self, program: str) -> float | None:
         """The rate [Hz] program ``program`` declares in the registry (None: tick-driven)."""
-        from droid.brain.registry import program as declared
+        from droid.brain.cell.registry import program as declared
 
         return declared(program).rate_hz
 

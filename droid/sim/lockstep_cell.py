@@ -21,7 +21,7 @@ from typing import Callable
 
 import numpy as np
 
-from droid.brain.cellfile import Cell, load_cell
+from droid.brain.cell.cellfile import Cell, load_cell
 from droid.cli import BadInput
 from droid.sim.lockstep import Scheduler
 from droid.sim.lockstep_build import BuildContext, LockstepSubunit
@@ -49,7 +49,7 @@ def choose_builder(cell: Cell, sub) -> Callable:
 def class_builders(cell: Cell, sub) -> list[tuple[str, Callable]]:
     """(package name, lockstep builder) of every package serving ``sub``'s class that registers
     one, in the registry's order; BadInput, one line, for an unknown class or one without any."""
-    from droid.brain.registry import registry
+    from droid.brain.cell.registry import registry
 
     reg = registry()
     where = f"{cell.path}: [subunits.{sub.name}]"
@@ -67,7 +67,7 @@ def class_builders(cell: Cell, sub) -> list[tuple[str, Callable]]:
 def _builder(reg, pkg, where: str) -> Callable:
     """Package ``pkg``'s lockstep builder (imported now); BadInput, one line, when its slot names
     something that does not import or is no builder (no ``@builds`` programs)."""
-    from droid.brain.registry import resolve
+    from droid.brain.cell.registry import resolve
 
     try:
         build = resolve(pkg.lockstep)
@@ -125,7 +125,7 @@ def build_lockstep_cell(cell_or_path: Cell | str | os.PathLike | None, seed: int
                         subunits: dict[str, Callable | None] | None = None) -> LockstepCell:
     """Every subunit of a cell file (a path, a parsed Cell, or None: the default cell) on one
     scheduler at the cell's heartbeat; ``seed``: the world's (default its ``[world] seed``).
-    The cell is checked as ``droid-cell up`` checks it (droid.brain.registry.validate_cell) and
+    The cell is checked as ``droid-cell up`` checks it (droid.brain.cell.registry.validate_cell) and
     every builder chosen before anything is built (BadInput, one line: nothing built).
 
     A task that brings a world of its own passes ``world``, a ``[world]`` table its builders read
@@ -133,7 +133,7 @@ def build_lockstep_cell(cell_or_path: Cell | str | os.PathLike | None, seed: int
     scheduler at the cell's heartbeat, and ``subunits``, the subunits it needs (name -> its
     builder, or None for the one :func:`choose_builder` picks), built in that order; the others it
     may start later (:meth:`LockstepCell.add`)."""
-    from droid.brain.registry import validate_cell
+    from droid.brain.cell.registry import validate_cell
 
     cell = cell_or_path if isinstance(cell_or_path, Cell) else load_cell(cell_or_path)
     validate_cell(cell)  # what droid-cell up refuses, lockstep refuses
@@ -167,7 +167,7 @@ def _build_all(ctx: BuildContext, chosen, deferred: int = 0) -> None:
 def status_summary(sub: LockstepSubunit) -> dict:
     """A subunit's Brain Status as plain JSON values: its name, class, ``tick``, ``stale`` and its
     class's snoop fields (droid-snoop's; the 3x3 ``R`` left out)."""
-    from droid.brain.registry import classes
+    from droid.brain.cell.registry import classes
 
     rec = sub.status.read()
     out = {"subunit": sub.name, "class": sub.cls}

@@ -5,7 +5,7 @@ config.  Its cell is ``TrialConfig.cell``, ``droid-experiment run --cell FILE``,
 the built-in cell.
 
 The trial reads the cell's seam-tracking layout (its ``[cell] layout``, else the bundled one:
-droid.brain.cell_layout.layout_for_cell); the welder is the subunit its layout names by role,
+droid.brain.cell.cell_layout.layout_for_cell); the welder is the subunit its layout names by role,
 ``tool_robot``, the holder ``holder_robot``, both subunits of the cell at the cell's bases with the
 layout's robot files.  Both are chosen through the registry, by what they are, never by brand:
 the builder a device package registers in the ``lockstep`` slot (droid.sim.lockstep_cell.choose_builder,
@@ -37,7 +37,7 @@ An arm model other than ``full`` is one the welder's device package registers
 (``DevicePackage.lockstep_models``: the Reis's ``fast``, droid.sim.reis.fast_arm, calibrated against
 its servo and plant); a welder whose package registers none is refused.  The GMF1's holder model
 drives the GMF1 with the cell's serial and encoder set-up (droid.sim.gmf1.holder).  The trial runs
-at the heartbeat of droid.brain.device.HEARTBEAT_HZ (its 30 Hz cycle is 2 ticks): a cell of another rate is refused.
+at the heartbeat of droid.brain.cell.device.HEARTBEAT_HZ (its 30 Hz cycle is 2 ticks): a cell of another rate is refused.
 """
 from __future__ import annotations
 
@@ -48,11 +48,11 @@ from pathlib import Path
 
 import numpy as np
 
-from droid.brain.cellfile import BUNDLED_CELLS, Cell, builtin_cell_path, find_file, load_cell
-from droid.brain.device import HEARTBEAT_HZ
+from droid.brain.cell.cellfile import BUNDLED_CELLS, Cell, builtin_cell_path, find_file, load_cell
+from droid.brain.cell.device import HEARTBEAT_HZ
 from droid.brain.plumbing.wire import LIVENESS_TICKS
 from droid.cli import BadInput, RuntimeFailure
-from droid.brain.cell_layout import Layout, Wrist, check_bases, check_robots, layout_for_cell, load_layout
+from droid.brain.cell.cell_layout import Layout, Wrist, check_bases, check_robots, layout_for_cell, load_layout
 from droid.kinematics import RobotModel, Unreachable, load_robot
 from droid.kinematics.transforms import inv_homo, record_pose
 from droid.sim.lockstep import Scheduler
@@ -74,7 +74,7 @@ def holder_builders(cell: Cell, sub) -> dict:
     """The lockstep builders that can build ``sub`` as the trial's workpiece holder, by the name of
     the package that registers each: of the packages serving its class, those that register a
     ``holder`` lockstep model (DevicePackage.lockstep_models: the GMF1's, droid.sim.gmf1.holder)."""
-    from droid.brain.registry import registry
+    from droid.brain.cell.registry import registry
     from droid.sim.lockstep_cell import class_builders
 
     pkgs = registry().packages
@@ -83,7 +83,7 @@ def holder_builders(cell: Cell, sub) -> dict:
 
 def _model(package: str, name: str):
     """Package ``package``'s lockstep model ``name`` (its class), or None when it registers none."""
-    from droid.brain.registry import registry, resolve
+    from droid.brain.cell.registry import registry, resolve
 
     ref = registry().packages[package].lockstep_model(name)
     return resolve(ref) if ref is not None else None

@@ -12,7 +12,7 @@ Devices are declared in the cell file, in stepping order::
     ...                           # options of that type
 
 Each device package declares its twins in its ``device.py``
-(:class:`droid.brain.registry.Twin`: type -> ``"module:factory"``), imported only
+(:class:`droid.brain.cell.registry.Twin`: type -> ``"module:factory"``), imported only
 when a cell asks for it (python-can's lazy backend table); :data:`DEVICE_TYPES`
 is the registry's view ``type -> (module, factory)``.  A factory is called as
 ``factory(world, name, options)`` and returns a :class:`Device`; it may look up
@@ -24,7 +24,7 @@ import sys
 import time
 from typing import Any
 
-from droid.brain.registry import program, registry, twin_factory, validate_cell
+from droid.brain.cell.registry import program, registry, twin_factory, validate_cell
 from droid.brain.program import Presence, Stop, close_all, notify_ready, open_cell, parser, presence_key
 from droid.brain.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import BadInput, RuntimeFailure, file_number, run, seed_int
@@ -38,9 +38,9 @@ DEFAULT_RATE_HZ = program(PROG).rate_hz  # the world's default step rate [Hz], d
 
 def __getattr__(name: str):
     # DEVICE_TYPES (type -> (module, factory)) is a view of the device registry: each device
-    # package declares its twins in its device.py (droid.brain.registry.Twin)
+    # package declares its twins in its device.py (droid.brain.cell.registry.Twin)
     if name == "DEVICE_TYPES":
-        from droid.brain.registry import device_types
+        from droid.brain.cell.registry import device_types
 
         return device_types()
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

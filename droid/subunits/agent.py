@@ -35,7 +35,7 @@ import zmq
 from droid.brain.plumbing import wire
 from droid.brain.plumbing.curve import CurveHost
 from droid.brain.db.databases import local_layouts, open_local
-from droid.brain.classes import ARM6R
+from droid.brain.cell.classes import ARM6R
 from droid.brain.db.layouts import ARM_COMMAND_LAYOUT, FAULT_LINK, Layout, LayoutError, byte_runs, check_header
 from droid.brain.plumbing.link import AgentLinkCore
 from droid.brain.names import NameClient

@@ -22,7 +22,7 @@ from typing import Callable
 
 import numpy as np
 
-from droid.brain.cellfile import Cell
+from droid.brain.cell.cellfile import Cell
 from droid.brain.db import arm_command
 from droid.brain.db.databases import open_brain
 from droid.brain.db.layouts import CMD_OK, CMD_REFUSED, FAULT_WATCHDOG, FAULTS_CANNOT_MOVE, NORMAL_MODE, fault_names

@@ -67,7 +67,7 @@ from droid.tasks.seam.cycle import SENSOR_LAG_TICKS, TrackingCycle  # noqa: F401
 from droid.tasks.seam.station import ArmStatus, SeamtrackStation
 from droid.tasks.seam.delay import INVALID_READING, Reading
 from droid.kinematics.transforms import record_pose
-from droid.brain.cell_layout import POSITION_IDS, check_bases, layout_for_cell, layout_path_for
+from droid.brain.cell.cell_layout import POSITION_IDS, check_bases, layout_for_cell, layout_path_for
 from droid.tasks.shell import TickLoop, check_output_dirs, ready_then_run, run_on_ticks, say_outcome
 
 PROG = "droid-seamtrack"

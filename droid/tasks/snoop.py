@@ -6,7 +6,7 @@ object on its own line, with the thesis's field names (x, y, z, R,
 encoder_pos, encoder_cmd, busy, homed) plus ``tick`` and ``stale``; sensors
 also carry ``invalid`` (Table 3.3 uses ``homed`` as the invalid flag); a
 joystick ``axes``, ``buttons`` and ``valid``.  Which fields: the subunit's
-class (``snoop_fields`` in :mod:`droid.brain.classes`).
+class (``snoop_fields`` in :mod:`droid.brain.cell.classes`).
 Reads the Brain's database only (a task never touches a device, §3.4).
 
 ``droid-snoop guard`` (a cell that declares a collision guard and has no subunit of that name):
@@ -26,7 +26,7 @@ import sys
 import time
 
 from droid.brain.db.databases import open_brain
-from droid.brain.classes import field_json
+from droid.brain.cell.classes import field_json
 from droid.brain.program import open_cell, parser
 from droid.brain.rt import PeriodicTimer
 from droid.cli import bounded_int, rate_hz, run

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.brain.db.layouts import CMD_OK, HOMED
 from droid.cli import BadInput
 from droid.sim.abb.lockstep import LockstepAbbArm

@@ -194,7 +194,7 @@ def test_garbage_to_the_twin_is_counted_and_ignored(rig):
 
 
 def test_device_from_the_abb_weld_cell_binds_loopback_only(tmp_path):
-    from droid.brain.cellfile import load_cell
+    from droid.brain.cell.cellfile import load_cell
     from droid.cli import BadInput
     from droid.sim.abb.controller import make_abb_egm
 
@@ -205,7 +205,7 @@ def test_device_from_the_abb_weld_cell_binds_loopback_only(tmp_path):
     w.cell = load_cell("cells/abb_weld.toml")
     dev = make_abb_egm(w, "abb", {"subunit": "abb", "start_deg": START, "comm_timeout_s": 0.5})
     try:
-        from droid.brain.cellfile import loopback_address
+        from droid.brain.cell.cellfile import loopback_address
 
         own = loopback_address(w.cell.name)  # the cell's own 127.x.y.z ({loopback} in the cell file)
         assert dev.address[0] == own and dev.sensor_addr == (own, 6510)

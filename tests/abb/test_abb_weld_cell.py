@@ -13,8 +13,8 @@ import math
 import numpy as np
 import pytest
 
-from droid.brain.cellfile import load_cell
-from droid.brain.cell_layout import layout_for_cell
+from droid.brain.cell.cellfile import load_cell
+from droid.brain.cell.cell_layout import layout_for_cell
 from tests.brain.cellutil import ROOT, cell_up, droid, home_at_once, make_cell_file, reaped
 from tests.tasks.test_seamtrack_cell import assert_agrees_with_lockstep, assert_standing, read_log, snoop
 

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from abb_robot_client._egm_protobuf import egm_pb2
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.brain.db.databases import create_databases, open_local
 from droid.brain.db.layouts import HOMED
 from droid.brain.db.shmdb import Database, db_name, remove_cell_objects

@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 from types import SimpleNamespace
 
-from droid.brain.cellfile import builtin_cell_path, without_table
+from droid.brain.cell.cellfile import builtin_cell_path, without_table
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -130,7 +130,7 @@ def fixed_seam_cell(text: str, lateral_mm: float = 0.0, deeper_mm: float = 0.0) 
     deeper (+x), at s = 95 mm (SEAM_BACK_MM); the tool sensor sees the same offsets."""
 
     from droid.kinematics.transforms import T_to_pose
-    from droid.brain.cell_layout import load_layout
+    from droid.brain.cell.cell_layout import load_layout
 
     lay = load_layout()
     T_reis, T_hold = lay.start_poses("i")

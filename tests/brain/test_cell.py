@@ -28,7 +28,7 @@ def cell(tmp_path, cell_name):
 
 
 def n_programs(path) -> int:
-    from droid.brain.cellfile import load_cell
+    from droid.brain.cell.cellfile import load_cell
     from droid.brain.launcher import cell_programs
 
     first, rest = cell_programs(load_cell(path))

@@ -1,5 +1,5 @@
 """The cell file's ``[cell] layout`` key: the seam-tracking layout a task on that cell reads
-(issue 26: the ABB welding cell names its own; droid.brain.cell_layout.layout_for_cell)."""
+(issue 26: the ABB welding cell names its own; droid.brain.cell.cell_layout.layout_for_cell)."""
 from __future__ import annotations
 
 import re
@@ -8,9 +8,9 @@ import sys
 
 import pytest
 
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.cli import BadInput
-from droid.brain.cell_layout import BUNDLED_LAYOUT, layout_for_cell
+from droid.brain.cell.cell_layout import BUNDLED_LAYOUT, layout_for_cell
 from tests.brain.cellutil import ROOT, make_cell_file
 
 

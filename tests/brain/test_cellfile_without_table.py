@@ -1,9 +1,9 @@
-"""droid.brain.cellfile.without_table: derived cells drop one table of the built-in cell."""
+"""droid.brain.cell.cellfile.without_table: derived cells drop one table of the built-in cell."""
 from __future__ import annotations
 
 import pytest
 
-from droid.brain.cellfile import builtin_cell_path, without_table
+from droid.brain.cell.cellfile import builtin_cell_path, without_table
 from droid.cli import read_toml
 
 

@@ -5,7 +5,7 @@ import re
 
 import pytest
 
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.brain.db.shmdb import cell_objects
 from tests.brain.cellutil import droid, make_cell_file
 from tests.refusals import refused

@@ -15,7 +15,7 @@ import pytest
 import zmq
 from zmq.utils.monitor import recv_monitor_message
 
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.brain.plumbing.curve import CurveHost, load_key_pair, secured
 from droid.brain.keys import main as keys_main
 from droid.cli import BadInput

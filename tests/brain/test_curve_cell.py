@@ -11,7 +11,7 @@ import pytest
 import zmq
 
 from droid.brain.plumbing import wire
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.brain.plumbing.curve import CurveHost
 from droid.brain.db.databases import open_local
 from droid.brain.db.layouts import ARM_COMMAND_LAYOUT, CTRL_STATUS_LAYOUT, check_header, new_record

@@ -19,6 +19,8 @@ DROID = Path(__file__).resolve().parents[2] / "droid"
 #: old path -> new path
 MOVED = {
     "droid.brain.layouts": "droid.brain.db.layouts",
+    "droid.brain.classes": "droid.brain.cell.classes",
+    "droid.brain.registry": "droid.brain.cell.registry",
 }
 
 

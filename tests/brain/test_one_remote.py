@@ -11,7 +11,7 @@ import signal
 
 import pytest
 
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.brain.launcher import cell_programs
 from droid.cli import BadInput
 from tests.brain.cellutil import brought_down, cell_status, droid, in_process, make_cell_file, wait_for
@@ -54,7 +54,7 @@ def test_the_host_warning_counts_one_remote_at_its_measured_cost(tmp_path, cell_
     """droid-cell up's demand (issue 28 item 4): the shared remote declares its own cost plus a
     share per further subunit, so the same cell asks for less with it, but not for nothing."""
     from droid.brain.launcher import demand
-    from droid.brain.registry import program
+    from droid.brain.cell.registry import program
 
     def asked(path):
         cell = load_cell(path)

@@ -10,7 +10,7 @@ from droid.brain import rt
 from droid.brain.db import layouts
 from droid.brain.plumbing import wire
 from droid.brain.plumbing.serial_line import LineSplitter
-from droid.brain.registry import registry
+from droid.brain.cell.registry import registry
 from droid.programs import PROGRAMS
 
 

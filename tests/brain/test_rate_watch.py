@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 
 from droid.brain import launcher
-from droid.brain.cellfile import builtin_cell_path, load_cell
+from droid.brain.cell.cellfile import builtin_cell_path, load_cell
 from droid.brain.program import Presence, RateWatch
 from droid.brain.db.shmdb import unlink_database
 from tests.brain.cellutil import make_cell_file
@@ -196,7 +196,7 @@ def test_droid_cell_up_refuses_a_cell_over_the_real_time_budget_before_anything_
 
 
 def test_every_builtin_program_and_twin_declares_its_cost():
-    from droid.brain.registry import BUILTIN_PACKAGES, registry
+    from droid.brain.cell.registry import BUILTIN_PACKAGES, registry
 
     reg = registry()
     for pkg in reg.packages.values():

@@ -53,7 +53,7 @@ def test_a_nice_program_stays_on_the_normal_scheduler_at_its_nice_level_and_the_
 def test_launcher_starts_programs_on_the_normal_scheduler_from_a_fifo_parent(tmp_path, cell_name):
     """droid-cell's children start on SCHED_OTHER even when droid-cell itself runs at FIFO
     priority; each program asks for FIFO itself once its imports are done."""
-    from droid.brain.cellfile import load_cell
+    from droid.brain.cell.cellfile import load_cell
     from droid.brain.launcher import Spec, _start
     from tests.brain.cellutil import make_cell_file
 

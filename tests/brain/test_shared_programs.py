@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.brain.launcher import cell_programs
 from droid.cli import BadInput
 from tests.brain.cellutil import brought_down, cell_status, droid, in_process, make_cell_file, wait_for
@@ -72,7 +72,7 @@ def test_share_starts_one_process_a_host_for_its_subunits(tmp_path, cell_name):
 
 def test_the_host_warning_counts_a_shared_process_at_its_measured_cost(tmp_path, cell_name):
     from droid.brain.launcher import demand
-    from droid.brain.registry import program
+    from droid.brain.cell.registry import program
 
     def asked(path):
         cell = load_cell(path)

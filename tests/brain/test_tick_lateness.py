@@ -10,7 +10,7 @@ import zmq
 
 from droid.brain import launcher
 from droid.brain.plumbing import wire
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.brain.heartbeat import TickSubscriber
 from droid.brain.db.layouts import LATENESS_NO_RECORD
 from droid.brain.program import Presence

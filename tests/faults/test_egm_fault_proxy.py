@@ -22,7 +22,7 @@ import time
 import numpy as np
 import pytest
 
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.cli import BadInput
 from droid.faults import cli
 from droid.faults.proxy import FaultProxy, cell_endpoints, control, inner_endpoint

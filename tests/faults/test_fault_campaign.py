@@ -55,11 +55,11 @@ def test_the_seam_tracking_workload_starts_at_the_layout_start_inside_its_envelo
     goes to the seam start, and home and the start both lie inside its envelope."""
     import numpy as np
 
-    from droid.brain.cellfile import load_cell
+    from droid.brain.cell.cellfile import load_cell
     from droid.faults.campaign import WORKLOADS
     from droid.faults.cells import seam_campaign_cell_text
     from droid.kinematics import load_robot
-    from droid.brain.cell_layout import load_layout
+    from droid.brain.cell.cell_layout import load_layout
 
     w = WORKLOADS["seamtrack"]()
     assert w.needs_holder

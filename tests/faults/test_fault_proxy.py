@@ -7,7 +7,7 @@ import time
 import pytest
 import zmq
 
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.cli import BadInput
 from droid.faults import cli
 from droid.faults.core import DelayLine, LinkFaults, MessageFate
@@ -173,7 +173,7 @@ def test_wedged_databases_finds_a_live_holder_and_not_a_dead_one(tmp_path, cell_
     c = load_cell(path)
     for db in create_databases(c):
         db.close()
-    code = ("import sys,time\nfrom droid.brain.cellfile import load_cell\n"
+    code = ("import sys,time\nfrom droid.brain.cell.cellfile import load_cell\n"
             "from droid.brain.db.databases import open_local\n"
             "c = load_cell(sys.argv[1]); db = open_local(c, c.subunit('arm1'), 'ctrl_command')\n"
             "db._acquire(); print('held', flush=True); time.sleep(60)\n")

@@ -54,7 +54,7 @@ def snoop(path):
 
 def local_status(path):
     """arm1's own controller Status (host arm1's database, not the Brain's)."""
-    from droid.brain.cellfile import load_cell
+    from droid.brain.cell.cellfile import load_cell
     from droid.brain.db.databases import open_local
 
     cell = load_cell(path)
@@ -89,7 +89,7 @@ class ServoTicks:
     def __init__(self, path):
         import zmq
 
-        from droid.brain.cellfile import load_cell
+        from droid.brain.cell.cellfile import load_cell
 
         self.ctx = zmq.Context()
         self.sock = self.ctx.socket(zmq.SUB)

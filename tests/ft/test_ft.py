@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from droid.brain import cheader
-from droid.brain.cellfile import load_cell
-from droid.brain.registry import classes
+from droid.brain.cell.cellfile import load_cell
+from droid.brain.cell.registry import classes
 from droid.brain.db.layouts import FAULT_DEVICE, FT6_STATUS_LAYOUT, LAYOUTS, new_record
 from droid.cli import BadInput
 from droid.kinematics.transforms import pose_to_T

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from droid.brain.db import layouts as L
-from droid.brain.cellfile import load_cell
-from droid.brain.registry import classes
+from droid.brain.cell.cellfile import load_cell
+from droid.brain.cell.registry import classes
 from droid.brain.db.shmdb import MemoryDatabase
 from droid.cli import BadInput
 from droid.kinematics import load_robot
@@ -105,7 +105,7 @@ def test_a_bias_command_reaches_the_device_once_records_flow():
 
 
 def test_guard_arm_must_be_an_arm_on_the_sensors_host(tmp_path):
-    from droid.brain.cellfile import builtin_cell_path
+    from droid.brain.cell.cellfile import builtin_cell_path
 
     text = builtin_cell_path().read_text()
     line = 'guard_arm = "arm1"'
@@ -129,7 +129,7 @@ def test_guard_arm_must_be_an_arm_on_the_sensors_host(tmp_path):
 
 
 def test_brain_ft_writes_one_command_per_request_and_sees_it_delivered(tmp_path):
-    from droid.brain.cellfile import builtin_cell_path
+    from droid.brain.cell.cellfile import builtin_cell_path
 
     cell = load_cell(builtin_cell_path())
     ft = BrainFt(cell, "ft")

@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.brain.db.databases import local_layouts
 from droid.brain.db.shmdb import Database, db_name
 from tests.brain.cellutil import make_cell_file

@@ -13,7 +13,7 @@ import time
 import numpy as np
 import pytest
 
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.kinematics.transforms import pose_to_T
 from droid.sim.ft.netft import (GRAVITY_MPS2, SENSOR_MODELS, NetFtTwin, NetFtTwinDevice, make_netft,
                                 wrench_on_sensor)
@@ -322,7 +322,7 @@ def test_each_cell_binds_its_twins_on_its_own_loopback_address():
     twins (vendor port 49152 each) never contend; never 127.0.0.1; stable for a name."""
     import ipaddress
 
-    from droid.brain.cellfile import builtin_cell_path, load_cell, loopback_address
+    from droid.brain.cell.cellfile import builtin_cell_path, load_cell, loopback_address
 
     names = [f"cell{i}" for i in range(200)]
     addrs = {loopback_address(n) for n in names}

@@ -14,7 +14,7 @@ import sys
 import numpy as np
 import pytest
 
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.brain.db.databases import open_brain
 from droid.brain.db.shmdb import pid_alive
 from droid.kinematics import load_robot

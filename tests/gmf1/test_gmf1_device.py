@@ -6,7 +6,7 @@ import time
 import numpy as np
 import pytest
 
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.cli import BadInput
 from droid.sim.world import build_world
 from droid.subunits.gmf1 import karel_wire as kw

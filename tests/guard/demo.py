@@ -27,8 +27,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from droid.brain.cell_layout import layout_for_cell
-from droid.brain.cellfile import BUNDLED_CELLS, load_cell
+from droid.brain.cell.cell_layout import layout_for_cell
+from droid.brain.cell.cellfile import BUNDLED_CELLS, load_cell
 from droid.guard.station import ORDER_GUARD, attach_lockstep
 from droid.sim.lockstep import ORDER_TASK
 from droid.sim.lockstep_cell import build_lockstep_cell

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.experiments.guard_trial import trial_cell
 from droid.guard.core import JUMP_MARGIN
 from droid.guard.station import guard_core

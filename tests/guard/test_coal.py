@@ -21,7 +21,7 @@ import pytest
 coal = pytest.importorskip("coal", reason="coal is in the test extra (pyproject.toml)")
 yourdfpy = pytest.importorskip("yourdfpy", reason="yourdfpy is in the test extra (pyproject.toml)")
 
-from droid.brain.cellfile import load_cell  # noqa: E402
+from droid.brain.cell.cellfile import load_cell  # noqa: E402
 from droid.guard.cell import GuardScene, guard_scene  # noqa: E402
 from droid.kinematics import load_robot  # noqa: E402
 from droid.kinematics.cli import cell_mounts  # noqa: E402

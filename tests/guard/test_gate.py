@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from droid.brain.db import layouts as L
-from droid.brain.cellfile import BUNDLED_CELLS, load_cell
+from droid.brain.cell.cellfile import BUNDLED_CELLS, load_cell
 from droid.brain.db.shmdb import MemoryDatabase
 from droid.cli import BadInput
 from droid.guard.gate import DEFAULT_STALE_TICKS, GuardGate, guard_stale_ticks

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from droid.brain.cellfile import BUNDLED_CELLS, load_cell
+from droid.brain.cell.cellfile import BUNDLED_CELLS, load_cell
 from droid.guard import kernel
 from droid.guard.cell import guard_scene
 
@@ -111,7 +111,7 @@ def test_a_compiled_pass_without_closest_points_is_not_used():
 
 
 def test_droid_guard_kernel_chooses():
-    code = ("from droid.brain.cellfile import BUNDLED_CELLS, load_cell; from droid.guard.cell import guard_scene; "
+    code = ("from droid.brain.cell.cellfile import BUNDLED_CELLS, load_cell; from droid.guard.cell import guard_scene; "
             "print(guard_scene(load_cell(BUNDLED_CELLS / 'sim.toml')).compiled is not None)")
     for choice, want in (("python", "False"), ("c", "True"), ("auto", "True")):
         out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,

@@ -40,7 +40,7 @@ def guard_status(cell_file) -> dict:
 
 
 def _scene_and_models(cell_file):
-    from droid.brain.cellfile import load_cell
+    from droid.brain.cell.cellfile import load_cell
     from droid.guard.cell import guard_scene
     from droid.kinematics import load_robot
 
@@ -126,7 +126,7 @@ def test_killing_droid_guard_stops_every_arm_within_the_stale_window(homed_sim_c
     bench figure (bench/bench_guard_cpu.py), never this test's verdict.  A NORMAL move is refused
     meanwhile; ``droid-cell restart droid-guard`` clears the fault and arm1 goes home."""
     from droid.brain.db import arm_command
-    from droid.brain.cellfile import load_cell
+    from droid.brain.cell.cellfile import load_cell
     from droid.brain.db.databases import open_brain
 
     cell = load_cell(homed_sim_cell)

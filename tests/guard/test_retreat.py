@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.guard.refuse import check_move
 from droid.guard.station import guard_core
 from droid.kinematics import load_robot

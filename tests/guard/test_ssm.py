@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.brain.db.layouts import FAULT_COLLISION, FAULT_NAMES, fault_names
 from droid.cli import BadInput
 from droid.guard.ssm import CLEAR, SLOWING, STOPPED, SsmParams, ssm_params

@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from droid.brain.cell_layout import layout_for_cell
-from droid.brain.cellfile import BUNDLED_CELLS, load_cell
+from droid.brain.cell.cell_layout import layout_for_cell
+from droid.brain.cell.cellfile import BUNDLED_CELLS, load_cell
 from droid.cli import BadInput
 from droid.kinematics import load_robot
 from droid.tasks import guarded, seamtrack

@@ -183,7 +183,7 @@ def test_a_move_is_checked_to_the_end_of_the_other_arms_longer_move():
     """droid-move's check (droid.guard.refuse.check_move, also --wait-clear's) follows an other arm's
     move that outlasts this one to its end, this arm standing at its goal: the reach (1.5 s) asked
     0.25 s into an 8 s sweep ends clear of arm1, whose sweep then runs into it."""
-    from droid.brain.cellfile import load_cell
+    from droid.brain.cell.cellfile import load_cell
     from droid.guard.cell import guard_scene
     from droid.guard.refuse import check_move
 

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from droid.brain.db import layouts as L
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.brain.db.databases import open_brain, open_local
 from droid.brain.db.shmdb import cell_objects
 from tests.brain.cellutil import make_cell_file, wait_for

@@ -14,10 +14,10 @@ import sys
 
 import pytest
 
-from droid.brain.cellfile import load_cell
-from droid.brain.registry import program
+from droid.brain.cell.cellfile import load_cell
+from droid.brain.cell.registry import program
 from droid.brain.db.shmdb import cell_objects
-from droid.brain.cellfile import builtin_cell_path
+from droid.brain.cell.cellfile import builtin_cell_path
 from tests.brain.cellutil import make_cell_file
 
 WAITS_FOR_ITS_DEVICE = {"droid-mvs"}

@@ -19,7 +19,7 @@ import pytest
 import zmq
 
 from droid.brain.plumbing import wire
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.brain.launcher import STATUS_KEYS
 from droid.brain.names import boot_id
 from droid.brain.db.shmdb import cell_objects

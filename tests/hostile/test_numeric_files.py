@@ -26,7 +26,7 @@ from pathlib import Path
 import pytest
 
 from droid import numbers
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.brain.db.shmdb import cell_objects
 from droid.cli import BadInput
 from droid.kinematics import RobotFileError, load_robot
@@ -72,7 +72,7 @@ def _loaders():
     from droid.experiments.plan import load_plan
     from droid.sim.workpiece import load_workpiece
     from droid.tasks.contact.core import load_gains
-    from droid.brain.cell_layout import load_layout
+    from droid.brain.cell.cell_layout import load_layout
 
     return {"robot": load_robot, "workpiece": load_workpiece, "layout": load_layout, "plan": load_plan,
             "cell": check_cell, "gains": load_gains}

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from droid.brain import cheader
-from droid.brain.cellfile import load_cell
-from droid.brain.registry import classes
+from droid.brain.cell.cellfile import load_cell
+from droid.brain.cell.registry import classes
 from droid.brain.db.databases import brain_layouts, local_layouts
 from droid.brain.db import layouts as L
 from droid.brain.db.layouts import JOYSTICK_STATUS_LAYOUT, LAYOUTS, new_record

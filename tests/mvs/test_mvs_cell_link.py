@@ -13,7 +13,7 @@ import serial
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from droid.brain.cellfile import parse_cell
+from droid.brain.cell.cellfile import parse_cell
 from droid.brain.db.layouts import FAULT_DEVICE, FAULT_LINK
 from droid.brain.sensor_link import (SensorStatusCore, SerialPortReader, link_kind, seam_status_fields,
                                      serial_link_options)

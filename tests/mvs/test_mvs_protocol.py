@@ -210,7 +210,7 @@ def test_a_cells_stamp_option_turns_stamps_on_and_a_bad_one_is_refused(tmp_path)
 
     import pytest
 
-    from droid.brain.cellfile import builtin_cell_path
+    from droid.brain.cell.cellfile import builtin_cell_path
     from droid.cli import BadInput
     from droid.subunits.mvs.sensor import apply_cell
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import serial
 
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.brain.plumbing.sensor_line import SensorClientCore, parse_line
 from droid.cli import BadInput
 from droid.kinematics.transforms import pose_to_T

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import pytest
 
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.brain.db.databases import create_databases
 from tests.brain.cellutil import make_cell_file
 

@@ -53,7 +53,7 @@ def test_replay_into_a_replay_cell_then_snoop_reads_it(db_cell, tmp_path, cell_n
         assert snoop.returncode == 0, snoop.stderr
         d = json.loads(snoop.stdout)
         assert d["tick"] == 129 and d["x"] == 539.0 and d["encoder_pos"] == [39, 78, 0, 0, 0, -39]
-        from droid.brain.cellfile import load_cell
+        from droid.brain.cell.cellfile import load_cell
 
         cell2 = load_cell(cf)
         with open_brain(cell2, cell2.subunit("arm1"), "command") as db:

@@ -58,7 +58,7 @@ def test_seam_map_from_valid_lead_readings():
 
 def test_observers_import_only_brain_kinematics_and_cli():
     """docs/design.md §7: observers read the Brain's databases like a task; never a device, a task or the
-    simulator (the seam layout is cell geometry: droid.brain.cell_layout)."""
+    simulator (the seam layout is cell geometry: droid.brain.cell.cell_layout)."""
     from tests.layering import DROID, droid_imports, within
 
     may = ("droid.brain", "droid.kinematics", "droid.cli", "droid.observe")
@@ -178,7 +178,7 @@ def test_force_arrow_keyed_on_the_status_fields():
 
 def test_scene_meta_reads_the_cells_mounts(tmp_path):
     """tool_pose / sensor_pose / workpiece_mount / workpiece of the cell's world devices (cells/sim.toml)."""
-    from droid.brain.cellfile import load_cell
+    from droid.brain.cell.cellfile import load_cell
     from droid.observe.scene import scene_meta
     from tests.brain.cellutil import make_cell_file
 
@@ -196,7 +196,7 @@ def test_scene_meta_reads_the_cells_mounts(tmp_path):
 def test_a_live_cell_shows_the_workpiece_the_world_published(tmp_path):
     """droid-sim's camera twin writes the workpiece's mesh into the run directory when the cell's
     world is built there; droid-web's live source reads it (plain data, no import of droid.sim)."""
-    from droid.brain.cellfile import load_cell
+    from droid.brain.cell.cellfile import load_cell
     from droid.observe.scene import live_workpiece_mesh
     from droid.sim.mvs.devices import publish_workpiece_mesh
     from droid.sim.workpiece import load_workpiece

@@ -98,7 +98,7 @@ GUARD_COURSE_TICKS = 60
 
 def guard_cell(run: bool = True):
     """reis_pair.toml with arm2's base at :data:`GUARD_GAP_MM` and ``[guard] run`` = ``run``."""
-    from droid.brain.cellfile import BUNDLED_CELLS, load_cell
+    from droid.brain.cell.cellfile import BUNDLED_CELLS, load_cell
 
     cell = load_cell(BUNDLED_CELLS / "reis_pair.toml")
     cell.subunits["arm2"].base = [GUARD_GAP_MM, *cell.subunits["arm2"].base[1:]]

@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from droid.brain import registry as R
-from droid.brain.cellfile import BUNDLED_CELLS
+from droid.brain.cell import registry as R
+from droid.brain.cell.cellfile import BUNDLED_CELLS
 from droid.experiments.trial import TrialConfig, run_trial
 from tests.registry.test_registry import install
 from tests.test_device_imports import device_of_module
@@ -30,7 +30,7 @@ ROBOTS = Path(__file__).resolve().parents[2] / "droid" / "kinematics" / "robots"
 
 LABARM_DEVICE = '''
 """labarm: a lab's small 6R arm (serves arm6r), its controller program and its lockstep builder."""
-from droid.brain.registry import DevicePackage, Program
+from droid.brain.cell.registry import DevicePackage, Program
 
 PACKAGE = DevicePackage(
     name="labarm",

@@ -14,16 +14,16 @@ import sys
 
 import pytest
 
-from droid.brain import registry as R
+from droid.brain.cell import registry as R
 from droid.cli import BadInput
 from droid.sim.lockstep_cell import build_lockstep_cell
 from tests.registry.test_registry import LAB_SUBUNIT, cell_text, install, lab  # noqa: F401 (a fixture)
 
 LABLOCK_DEVICE = '''
 """lablock: a lab's counter, registered through droid.devices, with its own lockstep builder."""
-from droid.brain.classes import SubunitClass
+from droid.brain.cell.classes import SubunitClass
 from droid.brain.db.layouts import HEADER_FIELDS, Layout, record_dtype
-from droid.brain.registry import DevicePackage, Program
+from droid.brain.cell.registry import DevicePackage, Program
 
 FIELDS = (("count", "<u8"), ("tick", "<u8"), ("updated_ns", "<i8"), ("stale", "<u4"), ("fault", "<u4"))
 LOCK_STATUS = Layout("lablock_status", 111, 1, record_dtype(HEADER_FIELDS + [(f, t, None) for f, t in FIELDS], 64),

@@ -1,4 +1,4 @@
-"""The device registry (issue 25 items 1 and 5; docs/design.md §11; droid.brain.registry).
+"""The device registry (issue 25 items 1 and 5; docs/design.md §11; droid.brain.cell.registry).
 
 A tiny package outside the repository, ``labsensor``, is written into tmp_path with a
 ``labsensor-0.1.dist-info/entry_points.txt`` (importlib.metadata finds dist-info on
@@ -16,14 +16,14 @@ from pathlib import Path
 
 import pytest
 
-from droid.brain import registry as R
+from droid.brain.cell import registry as R
 from droid.cli import BadInput
 
 LABSENSOR_DEVICE = '''
 """labsensor: a lab's own sensor class, registered through droid.devices."""
-from droid.brain.classes import SubunitClass
+from droid.brain.cell.classes import SubunitClass
 from droid.brain.db.layouts import HEADER_FIELDS, Layout, record_dtype
-from droid.brain.registry import DevicePackage, Driver, Program, Twin
+from droid.brain.cell.registry import DevicePackage, Driver, Program, Twin
 
 LAB_STATUS = Layout("labsensor_status", 101, 1, record_dtype(HEADER_FIELDS + [
     ("reading", "<f8", None),      # the sensor's value [N]
@@ -146,7 +146,7 @@ gain = 2.0
 # -- the built-in table ----------------------------------------------------------------
 def test_builtin_packages_make_the_old_tables():
     from droid.brain import rt
-    from droid.brain.registry import classes
+    from droid.brain.cell.registry import classes
     from droid.programs import PROGRAMS
     from droid.sim.world import DEVICE_TYPES
 
@@ -197,7 +197,7 @@ def test_rates_are_declared_once():
     from droid.sim.reis.lockstep import LockstepRates
     from droid.subunits.reis import brake_log, servo_agent, servo_prog
     from droid.subunits.reis.servo_params import ServoParams
-    from droid.brain.cellfile import load_cell
+    from droid.brain.cell.cellfile import load_cell
 
     servo = R.program("droid-servo").rate_hz
     heartbeat = R.program("droid-heartbeat").rate_hz
@@ -236,9 +236,9 @@ def test_open_url_names_the_known_schemes(url, kind, words):
 # -- a package outside the repository ------------------------------------------------------
 def test_an_external_package_brings_its_class_up(lab, tmp_path):
     from droid.brain import cheader
-    from droid.brain.classes import field_json
-    from droid.brain.registry import classes
-    from droid.brain.cellfile import load_cell
+    from droid.brain.cell.classes import field_json
+    from droid.brain.cell.registry import classes
+    from droid.brain.cell.cellfile import load_cell
     from droid.brain.launcher import cell_programs
     from droid.brain.db.layouts import LAYOUTS, new_record
     from droid.programs import PROGRAMS
@@ -276,7 +276,7 @@ def test_an_external_package_brings_its_class_up(lab, tmp_path):
 
 
 def test_an_external_package_in_a_cell_with_the_world_off_needs_no_twin(lab, tmp_path):
-    from droid.brain.cellfile import load_cell
+    from droid.brain.cell.cellfile import load_cell
 
     probe = LAB_SUBUNIT.replace('"labsensor"', '"labprobe"').replace('"droid-labsensor", ', "")
     path = cell_text(tmp_path, "labcell", probe).read_text().replace("enabled = true", "enabled = false")
@@ -289,7 +289,7 @@ def test_an_external_package_in_a_cell_with_the_world_off_needs_no_twin(lab, tmp
 
 # -- bad input: one line naming the file, the subunit and what is missing ----------------------
 def _bad(path: Path) -> str:
-    from droid.brain.cellfile import load_cell
+    from droid.brain.cell.cellfile import load_cell
 
     with pytest.raises(BadInput) as exc:
         R.validate_cell(load_cell(path))

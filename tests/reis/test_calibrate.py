@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.sim.lockstep import Scheduler
 from droid.sim.reis.cell import arms_from_cell
 from droid.sim.reis.world import world_errors

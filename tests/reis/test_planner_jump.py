@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from droid.arm.planner import JumpCheck, PlanOutput
-from droid.brain.cellfile import builtin_cell_path, load_cell
+from droid.brain.cell.cellfile import builtin_cell_path, load_cell
 from droid.brain.db.layouts import CTRL_COMMAND, JSPACE
 from droid.kinematics import load_robot
 

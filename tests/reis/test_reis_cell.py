@@ -150,7 +150,7 @@ def test_arm_brakes_when_its_command_stream_stops_and_stays_stopped(homed_sim_ce
 
 def _local_pos(path) -> np.ndarray:
     """arm1's encoder positions [counts] from its own Status record (not the Brain's)."""
-    from droid.brain.cellfile import load_cell
+    from droid.brain.cell.cellfile import load_cell
     from droid.brain.db.databases import open_local
 
     cell = load_cell(path)

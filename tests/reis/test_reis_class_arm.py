@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.brain.db import layouts as L
 from droid.cli import BadInput
 from droid.sim.lockstep import Scheduler

@@ -7,7 +7,7 @@ import numpy as np
 
 from droid.brain.db import arm_command
 from droid.brain.db import layouts as L
-from droid.brain.classes import ARM6R
+from droid.brain.cell.classes import ARM6R
 from droid.brain.remote import RemoteStation, StatusTranslator
 from droid.brain.db.shmdb import MemoryDatabase
 from droid.subunits.agent import AgentStation

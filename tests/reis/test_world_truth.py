@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.cli import BadInput
 from droid.sim.world import build_world
 

@@ -146,7 +146,7 @@ def test_bad_ros_domain_id_in_the_environment(monkeypatch, capsys):
 def test_domain_from_the_flag_then_the_cell_file_then_the_environment(tmp_path):
     from types import SimpleNamespace
 
-    from droid.brain.cellfile import builtin_cell_path, load_cell
+    from droid.brain.cell.cellfile import builtin_cell_path, load_cell
     from droid.ros2.node import domain_of
 
     p = tmp_path / "c.toml"
@@ -172,7 +172,7 @@ def test_environment_is_loopback_unless_subnet():
 
 
 def _arm():
-    from droid.brain.cellfile import builtin_cell_path, load_cell
+    from droid.brain.cell.cellfile import builtin_cell_path, load_cell
     from droid.tasks.arm import BrainArm
 
     return BrainArm(load_cell(builtin_cell_path()), "arm1")
@@ -439,7 +439,7 @@ def test_live_messages_are_the_bags_message_definitions(db_cell):
 def test_setup_writes_the_urdfs_and_the_tf_lines(tmp_path, capsys):
     """--setup needs no ROS: the arms' URDFs as droid-kin urdf writes them and, per arm, a
     static_transform_publisher of world -> <arm>/base_link (the cell's base) and a robot_state_publisher."""
-    from droid.brain.cellfile import builtin_cell_path
+    from droid.brain.cell.cellfile import builtin_cell_path
     from droid.ros2 import node
 
     path = builtin_cell_path()

@@ -17,7 +17,7 @@ from droid.sim.lockstep import Scheduler
 from droid.sim.reis.cell import LockstepArm
 from droid.sim.reis.plant import ReisPlant, ReisPlantParams
 from droid.sim.workpiece import load_workpiece
-from droid.brain.cell_layout import T_W_SEAM
+from droid.brain.cell.cell_layout import T_W_SEAM
 from tests.refusals import refused
 
 P = ContactParams(stiffness_n_per_mm=20.0, damping_n_s_per_mm=0.5, friction_coefficient=0.3, slip_speed_mm_s=2.0)
@@ -425,7 +425,7 @@ SIM = Path(__file__).resolve().parents[2] / "cells" / "sim.toml"
 
 
 def _cell_with(tmp_path, lines: str):
-    from droid.brain.cellfile import load_cell
+    from droid.brain.cell.cellfile import load_cell
 
     text = SIM.read_text().replace('[world.devices.arm1]\ntype = "reis_vme"\nsubunit = "arm1"\n',
                                    f'[world.devices.arm1]\ntype = "reis_vme"\nsubunit = "arm1"\n{lines}')

@@ -8,7 +8,7 @@ import itertools
 import numpy as np
 import pytest
 
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.cli import BadInput
 from droid.kinematics.transforms import inv_homo, pose_to_T, trans
 from droid.sim.contact import ToolContact

@@ -8,7 +8,7 @@ from droid.kinematics import Unreachable
 from droid.kinematics.transforms import inv_homo
 from droid.sim.trial_cell import trial_geometry
 from droid.sim.mvs.tool_sensor import seam_frame
-from droid.brain.cell_layout import POSITION_IDS, load_layout
+from droid.brain.cell.cell_layout import POSITION_IDS, load_layout
 
 CASES = [(p, "standard") for p in POSITION_IDS] + [("i", "extension30")]
 

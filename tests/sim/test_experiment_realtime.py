@@ -3,7 +3,7 @@ real-time trial is tests/tasks/test_seamtrack_cell.py and test_experiment_cli.py
 import numpy as np
 import pytest
 
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.kinematics.transforms import pose_to_T
 from droid.sim.trial_cell import trial_geometry
 from droid.experiments.realtime import trial_cell_text

@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 from droid.brain.db import arm_command
-from droid.brain.cellfile import BUNDLED_CELLS
-from droid.brain.registry import registry, resolve
+from droid.brain.cell.cellfile import BUNDLED_CELLS
+from droid.brain.cell.registry import registry, resolve
 from droid.cli import BadInput
 from droid.sim.lockstep_cell import build_lockstep_cell, status_summary
 from tests.robot_files import spoiled

@@ -230,8 +230,8 @@ def test_lockstep_plants_keep_pinocchio():
 
 WORLD_SCRIPT = textwrap.dedent("""
     import json, sys
-    from droid.brain.cellfile import load_cell
-    from droid.brain.registry import validate_cell
+    from droid.brain.cell.cellfile import load_cell
+    from droid.brain.cell.registry import validate_cell
     from droid.sim.world import build_world
     cell = load_cell(sys.argv[1])
     validate_cell(cell)
@@ -249,7 +249,7 @@ WORLD_SCRIPT = textwrap.dedent("""
 
 
 def _world_in_subprocess(tmp_path, cell_name, env_kernel: str) -> dict:
-    from droid.brain.cellfile import builtin_cell_path
+    from droid.brain.cell.cellfile import builtin_cell_path
 
     text = builtin_cell_path().read_text().replace('name = "sim"', f'name = "{cell_name}"\nrun_dir = "{tmp_path}/run"', 1)
     assert f'name = "{cell_name}"' in text

@@ -7,11 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from droid.brain.cellfile import load_cell
+from droid.brain.cell.cellfile import load_cell
 from droid.kinematics.transforms import inv_homo
 from droid.tasks.contact import report
 from droid.tasks.contact.prog import ContactRun, build_parser
-from droid.brain.cell_layout import load_layout
+from droid.brain.cell.cell_layout import load_layout
 from tests.brain.cellutil import droid, make_cell_file
 
 PROG = "droid.tasks.contact.prog"

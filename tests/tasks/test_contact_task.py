@@ -143,7 +143,7 @@ def test_droid_contact_ends_a_press_on_a_protective_stop(bits, stops):
     """Issue 40 item 4: a press that a protective stop (braking, collision) interrupted ends as
     ``arm fault`` naming it, as one on a fault the arm cannot move with; a clamped target or a
     link bit does not (droid-contact's mask, FAULTS_STOP_RUN, on its arm's Status)."""
-    from droid.brain.cellfile import builtin_cell_path, load_cell
+    from droid.brain.cell.cellfile import builtin_cell_path, load_cell
     from droid.brain.db.layouts import ARM_STATUS, FT6_STATUS
     from droid.tasks.contact import prog
 

@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 
 from droid.brain.db import layouts as L
-from droid.brain.cellfile import builtin_cell_path, load_cell
-from droid.brain.classes import ARM6R
+from droid.brain.cell.cellfile import builtin_cell_path, load_cell
+from droid.brain.cell.classes import ARM6R
 from droid.brain.db.shmdb import MemoryDatabase
 from droid.cli import RuntimeFailure
 from droid.kinematics.transforms import T_to_pose

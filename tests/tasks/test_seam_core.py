@@ -20,7 +20,7 @@ from droid.tasks.seam.params import PHASE_DEAD_ZONE, SeamParams
 from droid.tasks.seam.stops import STOP_END, STOP_LOST, STOP_UNREACHABLE
 from droid.tasks.seam.delay import (DELAY_DELAYED, DELAY_OFF, DELAY_ZEROED, INVALID_READING, ZERO_READING,
                                     Reading, TransportDelay)
-from droid.brain.cell_layout import load_layout
+from droid.brain.cell.cell_layout import load_layout
 
 LAYOUT = load_layout()
 WRIST = LAYOUT.wrist("standard")

@@ -10,7 +10,7 @@ from droid.kinematics.transforms import trans
 from droid.tasks.seam.params import SeamParams
 from droid.tasks.seam.cycle import PoseHistory, TrackingCycle, cycle_ticks_for, interpolate_pose
 from droid.tasks.seam.delay import Reading
-from droid.brain.cell_layout import load_layout
+from droid.brain.cell.cell_layout import load_layout
 
 WRIST = load_layout().wrist("standard")
 

@@ -14,7 +14,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from droid.brain.cellfile import builtin_cell_path, load_cell
+from droid.brain.cell.cellfile import builtin_cell_path, load_cell
 from droid.brain.db.layouts import (ARM_STATUS, FAULT_BRAKING, FAULT_DEVICE, FAULT_HEARTBEAT, FAULT_LIMIT,
                                  FAULT_LINK, FAULT_SERVO, FAULT_WATCHDOG, FAULTS_CANNOT_MOVE, SENSOR_STATUS,
                                  FAULT_COLLISION, FAULTS_STOP_RUN)
@@ -24,7 +24,7 @@ from droid.tasks.seam.params import MODES, SeamParams
 from droid.tasks.seam.stops import STOP_FAULT
 from droid.tasks.seam.cycle import TrackingCycle, arm_faults
 from droid.tasks.seam.delay import INVALID_READING
-from droid.brain.cell_layout import load_layout
+from droid.brain.cell.cell_layout import load_layout
 
 LAYOUT = load_layout()
 WRIST = LAYOUT.wrist("standard")

@@ -11,7 +11,7 @@ from droid.tasks.seam.params import SeamParams
 from droid.tasks.seam.stops import STOP_FAULT, STOP_STALE
 from droid.tasks.seam.cycle import TrackingCycle
 from droid.tasks.seam.delay import INVALID_READING
-from droid.brain.cell_layout import load_layout
+from droid.brain.cell.cell_layout import load_layout
 from droid.tasks.seam.station import STALE_GRACE_S, ArmStatus, SeamtrackStation, stale_grace_ticks
 from droid.brain.db.layouts import FAULT_SERVO
 

@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 
 from droid.kinematics.transforms import T_to_pose
-from droid.brain.cell_layout import load_layout
+from droid.brain.cell.cell_layout import load_layout
 from droid.tasks.seam.report import COLUMNS
 from tests.brain.cellutil import ROOT, cell_status, droid, reaped, wait_for
 

@@ -19,7 +19,7 @@ from droid.sim.workpiece import load_workpiece
 from droid.tasks.seam.params import SeamParams
 from droid.tasks.seam.cycle import TrackingCycle
 from droid.tasks.seam.delay import Reading
-from droid.brain.cell_layout import load_layout
+from droid.brain.cell.cell_layout import load_layout
 from droid.tasks.seamtrack import reading_of
 
 WRIST = load_layout().wrist("standard")

@@ -1,6 +1,6 @@
 """Which databases a cell has, and their names (thesis §3.2–3.3, §4.1.3).
 
-The layouts of each area come from the subunit's class (:mod:`droid.brain.classes`);
+The layouts of each area come from the subunit's class (:mod:`droid.brain.cell.classes`);
 for the classes shipped:
 
 Brain (one per subunit):
@@ -16,7 +16,7 @@ on the Brain's host (droid-guard writes it; docs/guard.md).
 """
 from __future__ import annotations
 
-from droid.brain.cellfile import Cell, Subunit
+from droid.brain.cell.cellfile import Cell, Subunit
 from droid.brain.db.layouts import GUARD_STATUS_LAYOUT, JOG_MODE, JSPACE, Layout
 from droid.brain.db.shmdb import Database, db_name
 

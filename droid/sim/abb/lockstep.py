@@ -61,7 +61,7 @@ def egm_device(cell, subunit: str) -> tuple[str, dict]:
 class LockstepAbbArm(ArmChain):
     """One ABB arm on EGM, every station of its subunit and its controller twin, on ``sched``.
 
-    ``cell``: the cell file (droid.brain.cellfile.Cell); ``subunit``: its ABB arm.  The task
+    ``cell``: the cell file (droid.brain.cell.cellfile.Cell); ``subunit``: its ABB arm.  The task
     interface is :class:`~droid.sim.arm_chain.ArmChain`'s (``status``, ``command_*``, ``home``,
     ``move_done``, ...); :meth:`wcp_global` and :meth:`truth` are the world's.  ``alive``:
     ``egm``/``planner``/``link`` false stops that program (fault-injection tests)."""

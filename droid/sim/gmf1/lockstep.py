@@ -23,7 +23,7 @@ import dataclasses
 
 import numpy as np
 
-from droid.brain.cellfile import Cell, load_cell
+from droid.brain.cell.cellfile import Cell, load_cell
 from droid.brain.db import arm_command
 from droid.brain.db.layouts import (ARM_COMMAND_LAYOUT, ARM_STATUS_LAYOUT, CTRL_COMMAND_LAYOUT, CTRL_STATUS_LAYOUT,
                                  NORMAL_MODE)

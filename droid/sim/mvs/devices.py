@@ -268,7 +268,7 @@ def publish_workpiece_mesh(world, workpiece: Workpiece) -> None:
     import json
     import os
 
-    from droid.brain.cellfile import WORKPIECE_MESH_FILE
+    from droid.brain.cell.cellfile import WORKPIECE_MESH_FILE
     from droid.sim.workpiece_mesh import workpiece_mesh
 
     run_dir = getattr(getattr(world, "cell", None), "run_dir", None)

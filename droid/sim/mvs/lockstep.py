@@ -112,7 +112,7 @@ def mvs_lockstep(scheduler, devices: Mapping[str, Any], camera: dict[str, Any],
     reports it), ``invalid`` outside the sensor calibration's field of view.
     No pixels, no noise; use it where only the geometry matters.
     """
-    from droid.brain.registry import open_url
+    from droid.brain.cell.registry import open_url
 
     uid = next(_LOCKSTEP_IDS)
     world = SimpleNamespace(devices=dict(devices), seed=seed, cell=None)

@@ -44,7 +44,7 @@ from droid.kinematics import RobotModel, Unreachable
 from droid.subunits.reis.servo_params import ServoParams
 from droid.subunits.reis.servo_wire import STATUS_EVERY_TICKS
 
-from droid.brain.device import HEARTBEAT_HZ  # [Hz], the droid-heartbeat declaration
+from droid.brain.cell.device import HEARTBEAT_HZ  # [Hz], the droid-heartbeat declaration
 
 
 @dataclass(frozen=True)

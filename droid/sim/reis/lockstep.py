@@ -25,7 +25,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from droid.brain.device import HEARTBEAT_HZ
+from droid.brain.cell.device import HEARTBEAT_HZ
 from droid.subunits.reis.device import SERVO_HZ, WATCHDOG_HZ
 from droid.sim.lockstep import ORDER_DEVICE, Scheduler
 from droid.sim.reis.plant import ReisPlant, ReisPlantParams
@@ -44,7 +44,7 @@ class LockstepRates:
     plant_hz: int = 2000
     servo_hz: int = int(SERVO_HZ)  # droid.subunits.reis.device
     watchdog_hz: int = int(WATCHDOG_HZ)
-    command_hz: int = int(HEARTBEAT_HZ)  # droid.brain.device
+    command_hz: int = int(HEARTBEAT_HZ)  # droid.brain.cell.device
 
     @property
     def base_hz(self) -> int:

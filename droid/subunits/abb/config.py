@@ -18,7 +18,7 @@ import socket
 from dataclasses import dataclass
 from urllib.parse import urlsplit
 
-from droid.brain.cellfile import Cell, Subunit
+from droid.brain.cell.cellfile import Cell, Subunit
 from droid.cli import BadInput, RuntimeFailure
 
 DEFAULT_EGM_PORT = 6510  # the port of ABB's EGM examples (and abb-robot-client's default)

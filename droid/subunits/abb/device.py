@@ -9,7 +9,7 @@ lockstep builder, :func:`droid.sim.abb.lockstep.build`, puts the subunit's stati
 """
 from __future__ import annotations
 
-from droid.brain.registry import DevicePackage, Program, Twin
+from droid.brain.cell.registry import DevicePackage, Program, Twin
 
 PACKAGE = DevicePackage(
     name="abb",

@@ -6,9 +6,9 @@ its ``netft://`` driver, its twin ``netft`` and its lockstep builder (:func:`dro
 """
 from __future__ import annotations
 
-from droid.brain.classes import SubunitClass
+from droid.brain.cell.classes import SubunitClass
 from droid.brain.db.layouts import FT6_COMMAND_LAYOUT, FT6_CTRL_COMMAND_LAYOUT, FT6_STATUS_LAYOUT
-from droid.brain.registry import DevicePackage, Driver, Program, Twin
+from droid.brain.cell.registry import DevicePackage, Driver, Program, Twin
 
 #: URL scheme -> driver class (droid.subunits.ft.rdt.DRIVERS holds the same classes)
 DRIVER_CLASSES = {"netft": "droid.subunits.ft.rdt:NetFtDevice"}

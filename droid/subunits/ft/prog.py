@@ -43,7 +43,7 @@ from droid.brain.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import BadInput, run
 from droid.kinematics.transforms import pose_to_T
 from droid.numbers import POSE
-from droid.brain.registry import open_url
+from droid.brain.cell.registry import open_url
 from droid.subunits.ft.rdt import STATUS_SATURATION, Calibration, CalibrationError, NetFtDevice, Record
 
 PROG = "droid-ft"

@@ -342,7 +342,7 @@ class NetFtDevice:
             self.sock.close()
 
 
-#: URL scheme -> driver class (the handler table; droid.brain.classes names the same)
+#: URL scheme -> driver class (the handler table; droid.brain.cell.classes names the same)
 DRIVERS: dict[str, type[NetFtDevice]] = {"netft": NetFtDevice}
 
 

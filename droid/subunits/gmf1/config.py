@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from droid.brain.cellfile import Cell, Subunit
+from droid.brain.cell.cellfile import Cell, Subunit
 from droid.cli import BadInput, file_number
 from droid.numbers import Range, baud_range
 from droid.subunits.gmf1.karel_wire import BAUD, MIN_BAUD

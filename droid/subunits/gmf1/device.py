@@ -6,7 +6,7 @@ the encoder-card driver (the KAREL line uses the Brain's ``serial`` driver), the
 """
 from __future__ import annotations
 
-from droid.brain.registry import DevicePackage, Driver, Program, Twin
+from droid.brain.cell.registry import DevicePackage, Driver, Program, Twin
 
 #: The encoder program's rate [Hz] (§4.2.5).
 ENCODER_HZ = 120.0

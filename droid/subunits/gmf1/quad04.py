@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from droid.brain.registry import open_url
+from droid.brain.cell.registry import open_url
 from droid.cli import BadInput
 from droid.subunits.gmf1 import quad04_map as qm
 from droid.subunits.regmap import URL_FORMS, MapUnavailable, identity_changed, open_region, parse_url

@@ -29,7 +29,7 @@ from droid.kinematics.transforms import pose_to_T
 from droid.guard.gate import GuardGate, guard_stale_ticks
 from droid.subunits.gmf1.config import gmf1_config
 from droid.subunits.gmf1.karel_wire import MIN_BAUD
-from droid.brain.registry import open_url
+from droid.brain.cell.registry import open_url
 from droid.brain.rt import try_sched_fifo
 from droid.subunits.gmf1.port import PortLink
 from droid.subunits.gmf1.serial_core import SerialCore, SerialParams

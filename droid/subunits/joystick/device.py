@@ -7,9 +7,9 @@ Defines class ``joystick`` (its layout ``joystick_status``), its program
 """
 from __future__ import annotations
 
-from droid.brain.classes import SubunitClass
+from droid.brain.cell.classes import SubunitClass
 from droid.brain.db.layouts import JOYSTICK_STATUS_LAYOUT
-from droid.brain.registry import DevicePackage, Driver, Program, Twin
+from droid.brain.cell.registry import DevicePackage, Driver, Program, Twin
 
 #: URL scheme -> driver class (droid.subunits.joystick.driver.DRIVERS holds the same classes)
 DRIVER_CLASSES = {"js": "droid.subunits.joystick.driver:JsDevice",

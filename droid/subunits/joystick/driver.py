@@ -273,7 +273,7 @@ class EvdevDevice(JoystickDevice):
         self.parser.ranges = ranges
 
 
-#: URL scheme -> driver class (the handler table; droid.brain.classes names the same)
+#: URL scheme -> driver class (the handler table; droid.brain.cell.classes names the same)
 DRIVERS: dict[str, type[JoystickDevice]] = {"js": JsDevice, "evdev": EvdevDevice}
 
 

@@ -7,7 +7,7 @@ rigs use -- and the lockstep builder (:func:`droid.sim.mvs.lockstep.build`).
 """
 from __future__ import annotations
 
-from droid.brain.registry import DevicePackage, Driver, Program, Twin
+from droid.brain.cell.registry import DevicePackage, Driver, Program, Twin
 from droid.subunits.mvs.wire import FRAME_RATE_HZ  # the video frame rate [Hz] (§2.5): a line a frame
 
 PACKAGE = DevicePackage(

@@ -54,7 +54,7 @@ import time
 
 import numpy as np
 
-from droid.brain.registry import open_url
+from droid.brain.cell.registry import open_url
 from droid.brain.plumbing.serial_port import PortLink
 from droid.cli import (ArgumentParser, BadInput, MAX_WAIT_S, RuntimeFailure, baud_rate, bounded_float, bounded_int,
                        duration_s, file_number, read_toml, run)
@@ -267,7 +267,7 @@ def build_parser() -> ArgumentParser:
 
 def apply_cell(args):
     """Fill unset live options from the cell file's ``[subunits.NAME]``; returns (cell, subunit)."""
-    from droid.brain.cellfile import load_cell
+    from droid.brain.cell.cellfile import load_cell
     from droid.brain.program import use_cell
 
     cell = load_cell(args.cell)

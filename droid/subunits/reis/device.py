@@ -7,8 +7,8 @@ builder (:func:`droid.sim.reis.cell.build`: the whole arm, :class:`~droid.sim.re
 """
 from __future__ import annotations
 
-from droid.brain.device import HEARTBEAT_HZ
-from droid.brain.registry import DevicePackage, Driver, Program, Twin
+from droid.brain.cell.device import HEARTBEAT_HZ
+from droid.brain.cell.registry import DevicePackage, Driver, Program, Twin
 
 #: The servo loop's rate [Hz] (thesis §4.1.5): droid-servo, the servo parameters, the
 #: lockstep cell and the world's Reis read it from here.

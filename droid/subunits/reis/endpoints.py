@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from droid.brain.cellfile import Cell, Subunit
+from droid.brain.cell.cellfile import Cell, Subunit
 from droid.cli import BadInput
 
 

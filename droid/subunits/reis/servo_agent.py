@@ -48,7 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 import zmq
 
-from droid.brain.device import HEARTBEAT_HZ
+from droid.brain.cell.device import HEARTBEAT_HZ
 from droid.brain.plumbing.curve import CurveHost
 from droid.brain.db.databases import open_local
 from droid.brain.db.layouts import CMD_FAILED, CMD_OK, FAULT_BRAKING, FAULT_SERVO, HOME_MODE, HOMED, NORMAL_MODE, OFF
@@ -63,7 +63,7 @@ from droid.subunits.reis.endpoints import reis_endpoints
 from droid.subunits.reis.servo_params import Fault, Mode, ServoParams
 
 PROG = "droid-servo-agent"
-COMMAND_HZ = HEARTBEAT_HZ  # it runs on the relayed heartbeat tick (droid.brain.device)
+COMMAND_HZ = HEARTBEAT_HZ  # it runs on the relayed heartbeat tick (droid.brain.cell.device)
 STARTUP_GRACE_PERIODS = 120  # 2 s for the servo's first status message
 MY_FAULTS = FAULT_BRAKING | FAULT_SERVO  # FAULT_WATCHDOG is droid-watchdog's
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from droid.brain.device import HEARTBEAT_HZ
+from droid.brain.cell.device import HEARTBEAT_HZ
 from droid.brain.db.layouts import CmdMode
 from droid.kinematics import load_robot
 from droid.subunits.reis.device import SERVO_HZ
@@ -74,7 +74,7 @@ class ServoParams:
     """M [counts per joint degree], counts = M @ q_deg (droid.kinematics.gearing)."""
     encoder_bits: int = field(default_factory=_default("encoder_bits"))
     servo_rate_hz: float = SERVO_HZ  # droid.subunits.reis.device (the droid-servo declaration)
-    command_rate_hz: float = HEARTBEAT_HZ  # droid.brain.device (the droid-heartbeat declaration)
+    command_rate_hz: float = HEARTBEAT_HZ  # droid.brain.cell.device (the droid-heartbeat declaration)
     # thesis §4.1.4: 8 way-points per command ("500Hz/60Hz ~ 8"); DROID's ramps span
     # the exact command period (8 or 9 ticks, droid.subunits.reis.command_queue), and
     # queue_steps is the length of one braking-profile load

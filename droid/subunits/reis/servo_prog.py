@@ -42,7 +42,7 @@ from droid.subunits.reis.servo import ServoCore
 from droid.subunits.reis.robot_file import read_offsets
 from droid.subunits.reis.servo_params import ServoParams
 from droid.subunits.reis.station import ServoStation
-from droid.brain.registry import open_url
+from droid.brain.cell.registry import open_url
 from droid.subunits.reis.device import SERVO_HZ
 from droid.subunits.reis.vme import VmeOpenError
 

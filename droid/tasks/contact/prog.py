@@ -64,7 +64,7 @@ from droid.tasks.ft_sensor import BrainFt
 from droid.tasks.resume import MAX_RESUMES, summary_note
 from droid.tasks.contact import report
 from droid.tasks.contact.core import STOP_END, ArmStatus, ContactStation, FtStatus, load_gains
-from droid.brain.cell_layout import POSITION_IDS, T_W_SEAM, layout_for_cell
+from droid.brain.cell.cell_layout import POSITION_IDS, T_W_SEAM, layout_for_cell
 from droid.tasks.shell import TickLoop, check_output_dirs, ready_then_run, run_on_ticks, say_outcome
 from droid.tasks.seamtrack import move_to_start
 

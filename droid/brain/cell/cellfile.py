@@ -25,8 +25,8 @@ from typing import Any
 
 from droid.cli import BadInput, TableReader, read_toml
 from droid.numbers import NumberError, check_numbers, finite_numbers
-from droid.brain.classes import SubunitClass
-from droid.brain import registry as _registry
+from droid.brain.cell.classes import SubunitClass
+from droid.brain.cell import registry as _registry
 from droid.brain.plumbing.curve import CurveConfig, parse_curve_table
 from droid.brain.plumbing.wire import LIVENESS_TICKS
 from droid.brain.db.shmdb import check_name_part
@@ -38,7 +38,7 @@ HEARTBEAT_HZ_RANGE = (1.0, 1000.0)
 
 
 def __getattr__(name: str):
-    if name == "SUBUNIT_CLASSES":  # the class names of the device registry (droid.brain.registry)
+    if name == "SUBUNIT_CLASSES":  # the class names of the device registry (droid.brain.cell.registry)
         return tuple(_registry.classes())
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
@@ -54,7 +54,7 @@ def builtin_cell_path() -> Path:
 
 
 #: the folder of the cells (and their layouts) shipped with the package
-BUNDLED_CELLS = Path(__file__).resolve().parent.parent / "cells"
+BUNDLED_CELLS = Path(__file__).resolve().parents[2] / "cells"  # droid/cells/
 
 
 def find_file(spec: str, folder: Path, suffix: str = "") -> Path | None:
@@ -102,7 +102,7 @@ class Subunit:
     """One subunit of the cell (thesis §3.2)."""
 
     name: str
-    cls: str  # a class of the device registry (droid.brain.registry): arm6r, line_laser, joystick, ...
+    cls: str  # a class of the device registry (droid.brain.cell.registry): arm6r, line_laser, joystick, ...
     host: str
     agent: str  # ZeroMQ endpoint the agent binds
     relay: str  # ZeroMQ endpoint where the agent relays ticks to its local programs
@@ -159,7 +159,7 @@ class Cell:
     # [interpose] public endpoint -> the endpoint its owner binds instead, so that a
     # fault proxy (droid-fault) can serve the public one (docs/safety.md)
     interpose: dict[str, str] = field(default_factory=dict)
-    # [cell] layout: the cell's seam-tracking layout (droid.brain.cell_layout), a path relative
+    # [cell] layout: the cell's seam-tracking layout (droid.brain.cell.cell_layout), a path relative
     # to the cell file; None: the bundled seamtrack_layout.toml
     layout: Path | None = None
     # [brain] remotes: "each" -- one droid-remote per subunit (thesis §3.2); "one" -- one
@@ -168,7 +168,7 @@ class Cell:
     remotes: str = REMOTES_EACH
     # [cell] share: programs of which one process per host serves every subunit of that host
     # that names it (e.g. droid-agent, droid-joystick; issue 28 item 4) -- each declared
-    # ``several`` in its device package (droid.brain.registry.Program)
+    # ``several`` in its device package (droid.brain.cell.registry.Program)
     share: tuple[str, ...] = ()
     # [ros2] domain_id: droid-ros2's ROS 2 domain id when --domain is not given (None: $ROS_DOMAIN_ID, else 0)
     ros2_domain: int | None = None
@@ -408,7 +408,7 @@ def _layout_path(p: Path, layout: str | None) -> Path | None:
 
 
 def _check_programs(p: Path, subunits: dict[str, Subunit]) -> None:
-    """Every program a subunit names is registered (droid.brain.registry.validate_cell checks
+    """Every program a subunit names is registered (droid.brain.cell.registry.validate_cell checks
     more -- that it serves the subunit's class, that its module is there -- before a start)."""
     reg = _registry.registry()
     for s in subunits.values():

@@ -3,15 +3,15 @@ subunit agent, the serial-port driver, the serial-cable twin and the two classes
 itself defines -- ``arm6r`` (thesis Tables 3.1-3.2, 4.2-4.3) and ``line_laser`` (Table 3.3),
 interfaces that several device packages serve (the Reis and GMF1 program sets both serve
 ``arm6r``; the MVS serves ``line_laser``).  Registered first in
-:data:`droid.brain.registry.BUILTIN_PACKAGES`.
+:data:`droid.brain.cell.registry.BUILTIN_PACKAGES`.
 
 Rates written here once: the heartbeat's 60 Hz (§3.2) -- the default of a cell's
 ``heartbeat_hz`` and the command rate of everything that runs on the heartbeat's tick.
 """
 from __future__ import annotations
 
-from droid.brain.classes import ARM6R, LINE_LASER
-from droid.brain.registry import DevicePackage, Driver, Program, Twin
+from droid.brain.cell.classes import ARM6R, LINE_LASER
+from droid.brain.cell.registry import DevicePackage, Driver, Program, Twin
 
 #: The heartbeat's rate [Hz] (thesis §3.2): the default ``[cell] heartbeat_hz``.
 HEARTBEAT_HZ = 60.0

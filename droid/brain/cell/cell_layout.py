@@ -39,7 +39,9 @@ from droid.cli import BadInput, read_toml
 from droid.numbers import NumberError, check_numbers
 from droid.kinematics.transforms import inv_homo, pose_to_T, roty, rotx, rotz, trans
 
-BUNDLED_LAYOUT = Path(__file__).resolve().parents[2] / "cells" / "seamtrack_layout.toml"
+#: the repository's cells/ (a link to droid/cells/), as before the Brain's split (issue 43 item 5):
+#: three folders up from droid/brain/cell/, the same path as two up from droid/brain/ was
+BUNDLED_LAYOUT = Path(__file__).resolve().parents[3] / "cells" / "seamtrack_layout.toml"
 POSITION_IDS = ("i", "ii", "iii", "iv", "v", "vi", "vii")
 #: ``W T seam`` at the seam start: the tool/sensor frame convention (x = -z_W into the
 #: surface, y = +y_W lateral left, z = +x_W the travel direction; docs/mvs.md).
