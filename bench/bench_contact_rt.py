@@ -53,7 +53,7 @@ from droid.kinematics.transforms import T_to_pose  # noqa: E402
 from droid.tasks.contact.prog import ContactRun, build_parser  # noqa: E402
 
 FORCE_MAX_N = 40.0
-SAMPLER_PRIORITY = 70  # > droid.brain.rt.CEILING_PRIORITY (61)
+SAMPLER_PRIORITY = 70  # > droid.brain.runtime.rt.CEILING_PRIORITY (61)
 
 
 class Sampler(threading.Thread):
@@ -224,7 +224,7 @@ def main() -> int:
             for k in range(args.overforce):
                 print(overforce(cell_path, cell, tmp, k, args.save), flush=True)
         finally:
-            droid("droid.brain.launcher", "down", "--cell", str(cell_path), timeout=120)
+            droid("droid.brain.runtime.launcher", "down", "--cell", str(cell_path), timeout=120)
     print(cyclictest_floor(5.0), flush=True)
     return 0
 

@@ -52,7 +52,7 @@ from droid.brain.db.layouts import FAULT_DEVICE  # noqa: E402
 from droid.cli import ArgumentParser, bounded_int  # noqa: E402
 from droid.kinematics import load_robot  # noqa: E402
 
-SAMPLER_PRIORITY = 70  # > droid.brain.rt.CEILING_PRIORITY (61)
+SAMPLER_PRIORITY = 70  # > droid.brain.runtime.rt.CEILING_PRIORITY (61)
 PERIOD_NS = 4_000_000  # EGM's 4 ms
 REPLY_TIMEOUT_S = 0.020
 
@@ -110,7 +110,7 @@ def roundtrip(tmp: Path, samples: int) -> str:
     name, port = "e" + uuid.uuid4().hex[:9], free_udp_port()
     path = tmp / "rt.toml"
     path.write_text(ROUNDTRIP_CELL.format(name=name, run=tmp / "rtrun", port=port))
-    up = droid("droid.brain.launcher", "up", "--cell", str(path), timeout=180)
+    up = droid("droid.brain.runtime.launcher", "up", "--cell", str(path), timeout=180)
     try:
         if up.returncode != 0:
             return f"round trip: the cell did not come up: {up.stderr.strip()[-300:]}"
@@ -151,7 +151,7 @@ def roundtrip(tmp: Path, samples: int) -> str:
                 f"{'SCHED_FIFO 70' if got_fifo[0] else 'normal'}): p50 {np.percentile(a, 50):.0f} us, "
                 f"p99 {np.percentile(a, 99):.0f} us, max {a.max():.0f} us; no reply within 20 ms: {lost[0]}")
     finally:
-        droid("droid.brain.launcher", "down", "--cell", str(path), timeout=120)
+        droid("droid.brain.runtime.launcher", "down", "--cell", str(path), timeout=120)
 
 
 class TruthSampler(threading.Thread):
@@ -240,7 +240,7 @@ def silence(tmp: Path, runs: int) -> None:
 
     (tmp / "srun").mkdir()
     proxy = FaultProxy(cell, "abb.egm").start()  # before the cell: the twin's first datagram finds it
-    up = droid("droid.brain.launcher", "up", "--cell", str(cell_path), timeout=180)
+    up = droid("droid.brain.runtime.launcher", "up", "--cell", str(cell_path), timeout=180)
     try:
         if up.returncode != 0:
             print("silence: the cell did not come up:", up.stderr.strip()[-300:], flush=True)
@@ -262,7 +262,7 @@ def silence(tmp: Path, runs: int) -> None:
                 return
         print(f"proxy counts: {proxy.counts()}", flush=True)
     finally:
-        droid("droid.brain.launcher", "down", "--cell", str(cell_path), timeout=120)
+        droid("droid.brain.runtime.launcher", "down", "--cell", str(cell_path), timeout=120)
         proxy.stop()
 
 

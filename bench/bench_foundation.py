@@ -29,9 +29,9 @@ import zmq
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 from droid.brain.plumbing import wire  # noqa: E402
-from droid.brain.heartbeat import HeartbeatCore  # noqa: E402
+from droid.brain.runtime.heartbeat import HeartbeatCore  # noqa: E402
 from droid.brain.db.layouts import ARM_COMMAND_LAYOUT, ARM_STATUS_LAYOUT, new_record  # noqa: E402
-from droid.brain.rt import PeriodicTimer, try_sched_fifo  # noqa: E402
+from droid.brain.runtime.rt import PeriodicTimer, try_sched_fifo  # noqa: E402
 from droid.brain.db.shmdb import Database, db_name  # noqa: E402
 from droid.cli import ArgumentParser, duration_s  # noqa: E402
 

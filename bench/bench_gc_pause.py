@@ -1,5 +1,5 @@
 """How long one full pass of CPython's cyclic collector takes in each program of the default cell,
-with and without the start-up heap frozen (droid.brain.rt.freeze_heap; issue 40).
+with and without the start-up heap frozen (droid.brain.runtime.rt.freeze_heap; issue 40).
 
 The collector runs inside whatever allocation crosses its threshold, so a full (generation-2)
 pass is a stall of the loop it lands in, at the loop's priority.  For each program a child
@@ -31,8 +31,8 @@ from droid.cli import ArgumentParser, bounded_int  # noqa: E402
 #: the default cell's programs (module, as pyproject.toml's console scripts name them)
 PROGRAMS = {
     "droid-sim": "droid.sim.world",
-    "droid-heartbeat": "droid.brain.heartbeat",
-    "droid-remote": "droid.brain.remote",
+    "droid-heartbeat": "droid.brain.runtime.heartbeat",
+    "droid-remote": "droid.brain.runtime.remote",
     "droid-servo": "droid.subunits.reis.servo_prog",
     "droid-servo-agent": "droid.subunits.reis.servo_agent",
     "droid-planner": "droid.arm.planner",
@@ -46,7 +46,7 @@ CHILD = r"""
 import gc, importlib, json, sys, time
 importlib.import_module(sys.argv[1])
 n = int(sys.argv[2])
-from droid.brain.rt import freeze_heap
+from droid.brain.runtime.rt import freeze_heap
 
 class Node:
     pass

@@ -116,7 +116,7 @@ def bench_realtime(moves: int) -> None:
         return out
 
     print(f"real time (the whole sim cell: {name}, all programs as processes)")
-    run("droid.brain.launcher", "up")
+    run("droid.brain.runtime.launcher", "up")
     try:
         cell = load_cell(path)
         sub = cell.subunit("gmf1")
@@ -156,7 +156,7 @@ def bench_realtime(moves: int) -> None:
         for db in (status, command, ctrl):
             db.close()
     finally:
-        run("droid.brain.launcher", "down", check=False)
+        run("droid.brain.runtime.launcher", "down", check=False)
         shutil.rmtree(tmp, ignore_errors=True)
 
 

@@ -11,7 +11,7 @@ Three measurements, each printed as a table (``--json``: one object):
    written; Pinocchio's ``nonLinearEffects`` excluded: every candidate calls it the same way) on
    64 recorded plant states, cycled.  Start-up: the import and set-up of the candidate and its
    first call [ms] (numba: a cold cache and a warm one).  Memory: VmRSS and VmLck [MB] after
-   ``mlockall(MCL_CURRENT | MCL_FUTURE | MCL_ONFAULT)`` (droid.brain.rt.lock_memory's call, after
+   ``mlockall(MCL_CURRENT | MCL_FUTURE | MCL_ONFAULT)`` (droid.brain.runtime.rt.lock_memory's call, after
    the imports) and 20 000 steps.  Speed: CPU us per step.
 2. **cell** (always): two Reis cells in one process, the reference and ``kernel="c"`` (plant and
    servo PID), run alternately in 0.5 s chunks through homing and ``--moves`` pairs of 2 s moves:

@@ -57,7 +57,7 @@ def live(args, tmp: Path) -> None:
     own = args.cell is None
     cell_file = temp_cell(tmp, f"benchrec{os.getpid()}") if own else Path(args.cell)
     if own:
-        out = droid("droid.brain.launcher", "up", "--cell", str(cell_file))
+        out = droid("droid.brain.runtime.launcher", "up", "--cell", str(cell_file))
         if out.returncode != 0:
             sys.exit(f"bench_record: cell did not come up: {out.stderr.strip()}")
     try:
@@ -97,7 +97,7 @@ def live(args, tmp: Path) -> None:
         print(f"load average: {' '.join(f'{v:.2f}' for v in os.getloadavg())}, {os.cpu_count()} CPUs")
     finally:
         if own:
-            out = droid("droid.brain.launcher", "down", "--cell", str(cell_file))
+            out = droid("droid.brain.runtime.launcher", "down", "--cell", str(cell_file))
             if out.returncode != 0:
                 print(f"bench_record: down failed: {out.stderr.strip()}", file=sys.stderr)
 

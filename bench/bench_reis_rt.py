@@ -60,7 +60,7 @@ def main():
     print(f"# bench_reis_rt  {time.strftime('%Y-%m-%d %H:%M')}  {platform.node()}  {platform.machine()}  "
           f"{os.cpu_count()} CPUs  Python {platform.python_version()}  load {os.getloadavg()[0]:.1f}"
           f"  SCHED_FIFO {'on' if 'sched_fifo = true' in text else 'off'}")
-    run("droid.brain.launcher", "up", "--cell", str(path))
+    run("droid.brain.runtime.launcher", "up", "--cell", str(path))
     try:
         run("droid.tasks.home", "arm1", "--cell", str(path))
         cell = load_cell(path)
@@ -111,7 +111,7 @@ def main():
         proc.close()
         local.close()
     finally:
-        run("droid.brain.launcher", "down", "--cell", str(path))
+        run("droid.brain.runtime.launcher", "down", "--cell", str(path))
     log = (tmp / "run" / "logs" / "servo-arm1.log").read_text().strip().splitlines()
     print("  servo loop (its exit report):", log[-1] if log else "(none)")
 

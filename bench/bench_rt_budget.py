@@ -17,7 +17,7 @@ bench/floor.py) measured before and after the cell in the same run; at the end, 
 count of its wake-ups over the cell's life (its log: step time p50/p99/max, wake-ups 20 ms late).  Per window: the sum over the programs,
 the SCHED_FIFO part of it and that part per CPU of this process's affinity -- the figure the
 kernel's RT throttling and droid-cell up's real-time budget (RT_BUDGET_PCT_PER_CPU) are about --
-beside the programs' declared shares (droid.brain.launcher.demand).  The load average is printed
+beside the programs' declared shares (droid.brain.runtime.launcher.demand).  The load average is printed
 with each window: CPU is a timing figure.  Timing is measured here, never in tests.
 
     .venv/bin/python bench/bench_rt_budget.py [--cell FILE] [--idle-s 10] [--length 200] [--force]
@@ -40,7 +40,7 @@ from bench.bench_footprint import cpu_window, make_cell, programs  # noqa: E402
 from bench.floor import cyclictest_floor  # noqa: E402
 from bench.live_cell import droid_program as droid  # noqa: E402
 from droid.brain.cell.cellfile import builtin_cell_path, load_cell  # noqa: E402
-from droid.brain.launcher import RT_BUDGET_PCT_PER_CPU, cell_programs, demand, measured_cpu  # noqa: E402
+from droid.brain.runtime.launcher import RT_BUDGET_PCT_PER_CPU, cell_programs, demand, measured_cpu  # noqa: E402
 from droid.cli import ArgumentParser, bounded_float  # noqa: E402
 
 

@@ -73,7 +73,7 @@ def main() -> int:
                         rt.append(s)
                         print(fmt(f"  real time {i + 1}", s), flush=True)
             finally:
-                droid("droid.brain.launcher", "down", "--cell", str(cell))
+                droid("droid.brain.runtime.launcher", "down", "--cell", str(cell))
     from droid.experiments.trial import TrialConfig, run_trial
 
     ls = []

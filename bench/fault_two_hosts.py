@@ -86,8 +86,8 @@ def main() -> int:
         path.write_text(two_host_cell_text(name, str(tmp / "run"), hp.addr_a, hp.addr_b, args.stale_ticks))
         cell = load_cell(path)
         try:
-            run("droid.brain.launcher", "up", "--cell", str(path), "--host", "brain", ns="a", hp=hp)
-            run("droid.brain.launcher", "up", "--cell", str(path), "--host", "arm1", ns="b", hp=hp)
+            run("droid.brain.runtime.launcher", "up", "--cell", str(path), "--host", "brain", ns="a", hp=hp)
+            run("droid.brain.runtime.launcher", "up", "--cell", str(path), "--host", "arm1", ns="b", hp=hp)
             ctrl = open_local(cell, cell.subunit("arm1"), "ctrl_status")
             brain = open_brain(cell, cell.subunit("arm1"), "status")
             deadline = time.monotonic() + 30
@@ -146,7 +146,7 @@ def main() -> int:
             ctrl.close()
             brain.close()
         finally:
-            subprocess.run([sys.executable, "-m", "droid.brain.launcher", "down", "--cell", str(path)],
+            subprocess.run([sys.executable, "-m", "droid.brain.runtime.launcher", "down", "--cell", str(path)],
                            capture_output=True)
     keys = [k for k in rows[0] if k.startswith(("ms_", "s_", "servo_"))] if rows else []
     summary = {k: {"median": float(np.median([r[k] for r in rows if r[k] is not None])),

@@ -38,7 +38,7 @@ def droid_program(cell: Path, *args: str, timeout: float = 300) -> subprocess.Co
 def up_and_homed(cell: Path, arms=("arm1", "gmf1")) -> str | None:
     """``droid-cell up`` on ``cell``, then ``droid-home`` of each of ``arms``: None when all went
     well, else the one line that says what failed.  The caller brings the cell down either way."""
-    up = droid_module("droid.brain.launcher", "up", "--cell", str(cell), timeout=180)
+    up = droid_module("droid.brain.runtime.launcher", "up", "--cell", str(cell), timeout=180)
     if up.returncode != 0:
         return f"cell did not come up: {up.stderr.strip().splitlines()[-1:]}"
     for arm in arms:

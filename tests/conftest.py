@@ -111,7 +111,7 @@ def scheduler_leak() -> str | None:
     """What a test left of a real-time program in the pytest process itself (None: nothing).
 
     A program's ``main()`` called in-process switches the caller to SCHED_FIFO and locks its
-    memory (:func:`droid.brain.rt.try_sched_fifo`).  Left so, every later test -- and every
+    memory (:func:`droid.brain.runtime.rt.try_sched_fifo`).  Left so, every later test -- and every
     process it starts, cell programs included -- ran at FIFO priority: sixteen programs
     starting at once on two cores then set off the kernel's RT throttling and latched the
     arms' watchdogs (issue 16).  The pytest process must stay on the normal scheduler."""
@@ -119,7 +119,7 @@ def scheduler_leak() -> str | None:
     if os.sched_getscheduler(0) != os.SCHED_OTHER:
         leaks.append(f"scheduling policy {os.sched_getscheduler(0)} (SCHED_FIFO=1), "
                      f"priority {os.sched_getparam(0).sched_priority}")
-    if os.getpriority(os.PRIO_PROCESS, 0) < PYTEST_NICE:  # a "nice" program's level (droid.brain.rt.NICE_LEVEL)
+    if os.getpriority(os.PRIO_PROCESS, 0) < PYTEST_NICE:  # a "nice" program's level (droid.brain.runtime.rt.NICE_LEVEL)
         leaks.append(f"nice {os.getpriority(os.PRIO_PROCESS, 0)}")
     kib = locked_kib()
     if kib:
@@ -151,7 +151,7 @@ def log_dirs(item) -> list:
 def no_leaks(monkeypatch, request):
     """Fail a test that leaves droid shm objects, semaphores or processes behind, or the
     pytest process on a real-time scheduler or with locked memory (:func:`scheduler_leak`)."""
-    from droid.brain.rt import normal_scheduler
+    from droid.brain.runtime.rt import normal_scheduler
 
     tag = uuid.uuid4().hex
     monkeypatch.setenv(LEAK_TAG_ENV, tag)
@@ -350,7 +350,7 @@ def shared_sim_cell(tmp_path_factory):
     try:
         with brought_down(path, name):
             os.environ[LEAK_TAG_ENV] = tag
-            out = droid("droid.brain.launcher", "up", "--cell", str(path), timeout=120)
+            out = droid("droid.brain.runtime.launcher", "up", "--cell", str(path), timeout=120)
             _restore_env(LEAK_TAG_ENV, old)
             assert out.returncode == 0, out.stdout + out.stderr
             home_at_once(path, HOMED_ARMS)
@@ -382,7 +382,7 @@ def homed_sim_cell(shared_sim_cell):
     started: it runs before each of many tests)."""
     from droid.brain.cell.cellfile import load_cell
     from droid.brain.db.databases import open_brain
-    from droid.brain.launcher import status
+    from droid.brain.runtime.launcher import status
     from tests.brain.cellutil import wait_for
 
     cell = load_cell(shared_sim_cell)

@@ -44,9 +44,9 @@ import zmq
 
 from droid.brain.plumbing.curve import CurveHost
 from droid.brain.db.databases import open_local
-from droid.brain.heartbeat import TickSubscriber
-from droid.brain.rt import try_sched_fifo
-from droid.brain.program import close_all, Presence, Stop, notify_ready, presence_key, subunit_program
+from droid.brain.runtime.heartbeat import TickSubscriber
+from droid.brain.runtime.rt import try_sched_fifo
+from droid.brain.runtime.program import close_all, Presence, Stop, notify_ready, presence_key, subunit_program
 from droid.cli import run
 from droid.guard.gate import GuardGate, guard_stale_ticks
 from droid.kinematics import load_robot

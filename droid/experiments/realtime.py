@@ -118,7 +118,7 @@ def run_trial_realtime(cfg: TrialConfig, out_dir) -> TrialResult:
         cell = Path(tmp) / f"{name}.toml"
         cell.write_text(trial_cell_text(cfg, name, Path(tmp) / "run"))
         c = ["--cell", str(cell)]
-        up = _run(["droid.brain.launcher", "up", *c], UP_TIMEOUT_S, "droid-cell up")
+        up = _run(["droid.brain.runtime.launcher", "up", *c], UP_TIMEOUT_S, "droid-cell up")
         try:
             _check(up, "droid-cell up")
             _home_at_once(("arm1", "gmf1"), c)
@@ -133,7 +133,7 @@ def run_trial_realtime(cfg: TrialConfig, out_dir) -> TrialResult:
             limit = ProgressLimit().cap_s(length, cfg.speed_mm_s) + 60.0
             st = _run(args, limit, "droid-seamtrack")
         finally:
-            down = _run(["droid.brain.launcher", "down", *c], 60.0, "droid-cell down")
+            down = _run(["droid.brain.runtime.launcher", "down", *c], 60.0, "droid-cell down")
         _check(down, "droid-cell down")
         if st.returncode not in (0, 1) or not log.exists():
             _check(st, "droid-seamtrack")

@@ -45,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-from droid.brain import launcher
+from droid.brain.runtime import launcher
 from droid.brain.cell.cellfile import load_cell
 from droid.brain.db.databases import open_local
 from droid.brain.db.layouts import FAULT_WATCHDOG
@@ -354,7 +354,7 @@ class Campaign:
                 except RuntimeFailure:
                     if time.monotonic() > deadline or self.proxy.poll() is not None:
                         raise RuntimeError("the fault proxy did not start") from None
-        out = droid("droid.brain.launcher", "up", "--cell", str(self.path))
+        out = droid("droid.brain.runtime.launcher", "up", "--cell", str(self.path))
         if out.returncode != 0:
             raise RuntimeError(f"droid-cell up failed: {out.stderr.strip()}")
         for arm in ("arm1", "gmf1") if getattr(self.workload, "needs_holder", False) else ("arm1",):
@@ -366,7 +366,7 @@ class Campaign:
         """Bring the cell down; returns what leaked (shm objects, live processes)."""
         state = launcher.read_state(self.cell) or {"programs": []}
         pids = [p["pid"] for p in state["programs"]]
-        out = droid("droid.brain.launcher", "down", "--cell", str(self.path))
+        out = droid("droid.brain.runtime.launcher", "down", "--cell", str(self.path))
         if self.proxy is not None:
             self.proxy.terminate()
             try:
@@ -449,7 +449,7 @@ class Campaign:
                 or fault & FAULT_WATCHDOG:
             return self._full_restart(cleared_at)
         for name in dead:
-            out = droid("droid.brain.launcher", "restart", name, "--cell", str(self.path))
+            out = droid("droid.brain.runtime.launcher", "restart", name, "--cell", str(self.path))
             if out.returncode != 0:
                 return self._full_restart(cleared_at)
             restarted = "program"

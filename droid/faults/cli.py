@@ -30,8 +30,8 @@ import json
 import sys
 
 from droid.brain.cell.cellfile import load_cell
-from droid.brain.program import Stop
-from droid.brain.rt import try_sched_fifo
+from droid.brain.runtime.program import Stop
+from droid.brain.runtime.rt import try_sched_fifo
 from droid.cli import ArgumentParser, BadInput, DroidError, bounded_float, run, seed_int
 from droid.faults import procs
 from droid.faults.core import MAX_LINK_DELAY_MS, LinkFaults

@@ -9,7 +9,7 @@ from __future__ import annotations
 import os
 import signal
 
-from droid.brain import launcher
+from droid.brain.runtime import launcher
 from droid.brain.cell.cellfile import Cell
 from droid.brain.db.databases import brain_layouts, local_layouts
 from droid.brain.db.layouts import PROC_STATUS_LAYOUT

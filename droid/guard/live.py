@@ -25,10 +25,10 @@ import zmq
 from droid.brain.cell.cellfile import load_cell
 from droid.brain.plumbing.curve import CurveHost
 from droid.brain.db.databases import open_brain, open_local
-from droid.brain.heartbeat import TickSubscriber
+from droid.brain.runtime.heartbeat import TickSubscriber
 from droid.brain.db.layouts import GUARD_STATUS_LAYOUT
-from droid.brain.program import Presence, Stop, close_all, notify_ready, presence_key, use_cell
-from droid.brain.rt import try_sched_fifo
+from droid.brain.runtime.program import Presence, Stop, close_all, notify_ready, presence_key, use_cell
+from droid.brain.runtime.rt import try_sched_fifo
 from droid.brain.db.shmdb import Database, NoDatabase, db_name
 from droid.cli import BadInput
 from droid.guard.gate import DEFAULT_STALE_TICKS, guard_stale_ticks

@@ -672,7 +672,7 @@ def check_host(host: str, token: str | None) -> None:
 def open_source(file: str | None, args):
     if file:
         return FileFeedSource(file)
-    from droid.brain.program import open_cell
+    from droid.brain.runtime.program import open_cell
 
     return LiveFeedSource(open_cell(args))
 
@@ -739,7 +739,7 @@ def add_arguments(ap) -> None:
 
 @run
 def main(argv=None) -> int:
-    from droid.brain.program import parser
+    from droid.brain.runtime.program import parser
 
     ap = parser(PROG, "Serve the cell (or a recording) read-only to the Foxglove app / Lichtblick over "
                       "the Foxglove WebSocket protocol.")

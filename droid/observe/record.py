@@ -37,9 +37,9 @@ import time
 
 import zmq
 
-from droid.brain.heartbeat import TickSubscriber
-from droid.brain.program import Stop, open_cell, parser
-from droid.brain.rt import try_sched_fifo
+from droid.brain.runtime.heartbeat import TickSubscriber
+from droid.brain.runtime.program import Stop, open_cell, parser
+from droid.brain.runtime.rt import try_sched_fifo
 from droid.cli import BadInput, RuntimeFailure, duration_s, run
 from droid.observe import schemas
 from droid.observe.events import EventWatcher

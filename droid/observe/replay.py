@@ -34,7 +34,7 @@ import time
 
 from droid.brain.db.databases import brain_layouts, open_brain
 from droid.brain.db.layouts import HEADER_FIELDS
-from droid.brain.program import Presence, Stop, open_cell, parser
+from droid.brain.runtime.program import Presence, Stop, open_cell, parser
 from droid.cli import BadInput, RuntimeFailure, bounded_float, bounded_int, run
 from droid.observe import schemas
 from droid.observe.mcapfile import Recording, db_topic, read_recording, recover

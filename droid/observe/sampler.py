@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from droid.brain.db.databases import brain_layouts, open_brain
 from droid.brain.db.layouts import GUARD_STATUS_LAYOUT, PROC_STATUS_LAYOUT, Layout
-from droid.brain.program import presence_key
+from droid.brain.runtime.program import presence_key
 from droid.brain.db.shmdb import Database, NoDatabase, db_name
 from droid.cli import BadInput, DroidError
 
@@ -66,7 +66,7 @@ class CellSampler:
 def health(cell) -> dict:
     """Program health: ``{"programs": droid-cell status --json rows, "heartbeat": {...}}``
     (empty rows when the cell has no programs, e.g. a replay cell)."""
-    from droid.brain.launcher import status
+    from droid.brain.runtime.launcher import status
 
     try:
         rows = status(cell)

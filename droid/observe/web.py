@@ -39,7 +39,7 @@ from pathlib import Path
 
 from aiohttp import WSMsgType, web
 
-from droid.brain.program import close_all, open_cell, parser
+from droid.brain.runtime.program import close_all, open_cell, parser
 from droid.cli import BadInput, DroidError, RuntimeFailure, is_loopback, rate_hz, run, tcp_port
 from droid.observe.sources import FileSource, LiveSource
 

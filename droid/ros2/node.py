@@ -631,7 +631,7 @@ class Ros2Node:
         heartbeat heard for 1.5 periods) on our own clock at the heartbeat rate."""
         import zmq
 
-        from droid.brain.heartbeat import TickSubscriber
+        from droid.brain.runtime.heartbeat import TickSubscriber
 
         period = 1.0 / self.cell.heartbeat_hz
         ticks = TickSubscriber(zmq.Context.instance(), self.cell.heartbeat)
@@ -665,7 +665,7 @@ class Ros2Node:
 
 @run
 def main(argv=None) -> int:
-    from droid.brain.program import open_cell, parser
+    from droid.brain.runtime.program import open_cell, parser
     from droid.ros2 import env
 
     ap = parser(PROG, "The cell as a ROS 2 node: joint states, poses, wrenches, readings, diagnostics, markers "

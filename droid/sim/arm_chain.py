@@ -32,7 +32,7 @@ from droid.brain.cell.classes import ARM6R
 from droid.brain.db.layouts import (ARM_COMMAND_LAYOUT, ARM_STATUS_LAYOUT, CTRL_COMMAND_LAYOUT,
                                  CTRL_STATUS_LAYOUT)
 from droid.brain.db.databases import safe_start
-from droid.brain.remote import RemoteStation, StatusTranslator
+from droid.brain.runtime.remote import RemoteStation, StatusTranslator
 from droid.brain.db.shmdb import MemoryDatabase
 from droid.sim.lockstep import ORDER_HEARTBEAT, Scheduler
 from droid.subunits.agent import AgentStation

@@ -33,7 +33,7 @@ from typing import Any, Callable
 
 from droid.arm.protocol import Arm
 from droid.brain.db.databases import safe_start
-from droid.brain.remote import RemoteStation, StatusTranslator
+from droid.brain.runtime.remote import RemoteStation, StatusTranslator
 from droid.brain.db.shmdb import MemoryDatabase
 from droid.sim.lockstep import ORDER_HEARTBEAT, Scheduler
 from droid.subunits.agent import AgentStation, CommandCopier

@@ -25,8 +25,8 @@ import time
 from typing import Any
 
 from droid.brain.cell.registry import program, registry, twin_factory, validate_cell
-from droid.brain.program import Presence, Stop, close_all, notify_ready, open_cell, parser, presence_key
-from droid.brain.rt import PeriodicTimer, try_sched_fifo
+from droid.brain.runtime.program import Presence, Stop, close_all, notify_ready, open_cell, parser, presence_key
+from droid.brain.runtime.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import BadInput, RuntimeFailure, file_number, run, seed_int
 from droid.numbers import SEED, Range
 from droid.sim.device import Device, wake_hz_of

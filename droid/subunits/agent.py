@@ -38,9 +38,9 @@ from droid.brain.db.databases import local_layouts, open_local
 from droid.brain.cell.classes import ARM6R
 from droid.brain.db.layouts import ARM_COMMAND_LAYOUT, FAULT_LINK, Layout, LayoutError, byte_runs, check_header
 from droid.brain.plumbing.link import AgentLinkCore
-from droid.brain.names import NameClient
-from droid.brain.program import Presence, Stop, close_all, notify_ready, serving_presence, subunit_program
-from droid.brain.rt import PeriodicTimer, try_sched_fifo
+from droid.brain.runtime.names import NameClient
+from droid.brain.runtime.program import Presence, Stop, close_all, notify_ready, serving_presence, subunit_program
+from droid.brain.runtime.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import run
 
 # Brain Command (Table 3.2) -> controller Command (Table 4.3): the arm class's map

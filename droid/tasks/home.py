@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import sys
 
-from droid.brain.program import open_cell, parser
+from droid.brain.runtime.program import open_cell, parser
 from droid.brain.db.layouts import CMD_OK
 from droid.cli import run, timeout_s
 from droid.tasks.arm import BrainArm, Interrupted

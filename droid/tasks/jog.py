@@ -41,8 +41,8 @@ import time
 import numpy as np
 
 from droid.brain.db.databases import open_brain
-from droid.brain.program import open_cell, parser
-from droid.brain.rt import PeriodicTimer
+from droid.brain.runtime.program import open_cell, parser
+from droid.brain.runtime.rt import PeriodicTimer
 from droid.cli import BadInput, RuntimeFailure, bounded_float, bounded_int, duration_s, parse_finite, run
 from droid.kinematics.transforms import T_to_pose, pose_to_T
 from droid.tasks.arm import BrainArm

@@ -47,7 +47,7 @@ import sys
 
 import numpy as np
 
-from droid.brain.program import open_cell, parser
+from droid.brain.runtime.program import open_cell, parser
 from droid.cli import MAX_MOVE_S, RuntimeFailure, finite_float, run, timeout_s
 from droid.tasks.arm import MAX_CART_ANGLE_DEG, BrainArm
 from droid.tasks.guarded import refuse_colliding_move

@@ -51,9 +51,9 @@ import time
 import numpy as np
 
 from droid.brain.db.databases import open_brain
-from droid.brain.heartbeat import TickSubscriber
+from droid.brain.runtime.heartbeat import TickSubscriber
 from droid.brain.db.layouts import NO_CAPTURE_AGE
-from droid.brain.program import Stop, open_cell, parser  # noqa: F401 (Stop: tests patch seamtrack.Stop)
+from droid.brain.runtime.program import Stop, open_cell, parser  # noqa: F401 (Stop: tests patch seamtrack.Stop)
 from droid.cli import (EXIT_OK, EXIT_RUNTIME, BadInput, RuntimeFailure, bounded_float,
                        bounded_int, run)
 from droid.tasks.arm import BrainArm

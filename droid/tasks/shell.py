@@ -17,9 +17,9 @@ from pathlib import Path
 
 import zmq
 
-from droid.brain.heartbeat import TickSubscriber
-from droid.brain.program import Stop
-from droid.brain.rt import try_sched_fifo
+from droid.brain.runtime.heartbeat import TickSubscriber
+from droid.brain.runtime.program import Stop
+from droid.brain.runtime.rt import try_sched_fifo
 from droid.cli import EXIT_INTERRUPTED, EXIT_RUNTIME, BadInput
 from droid.tasks.arm import STALE_GRACE_S, Interrupted
 

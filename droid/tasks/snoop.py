@@ -27,8 +27,8 @@ import time
 
 from droid.brain.db.databases import open_brain
 from droid.brain.cell.classes import field_json
-from droid.brain.program import open_cell, parser
-from droid.brain.rt import PeriodicTimer
+from droid.brain.runtime.program import open_cell, parser
+from droid.brain.runtime.rt import PeriodicTimer
 from droid.cli import bounded_int, rate_hz, run
 
 PROG = "droid-snoop"

@@ -262,12 +262,12 @@ def test_a_controller_with_another_joint_count_is_refused_at_start(tmp_path, cel
                 db.close()
             r = run_prog("--cell", str(path), "abb")
         else:
-            r = droid("droid.brain.launcher", "up", "--cell", str(path), timeout=120)
+            r = droid("droid.brain.runtime.launcher", "up", "--cell", str(path), timeout=120)
     finally:
         stop.set()
         th.join(5)
         if how == "cell up":
-            droid("droid.brain.launcher", "down", "--cell", str(path), timeout=60)
+            droid("droid.brain.runtime.launcher", "down", "--cell", str(path), timeout=60)
         remove_cell_objects(cell.name)
     assert r.returncode == 2, r.stdout + r.stderr
     lines = r.stderr.strip().splitlines()

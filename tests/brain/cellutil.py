@@ -33,7 +33,7 @@ def brought_down(path: Path, cell_name: str):
     try:
         yield path
     finally:
-        out = droid("droid.brain.launcher", "down", "--cell", str(path))
+        out = droid("droid.brain.runtime.launcher", "down", "--cell", str(path))
         assert out.returncode == 0, out.stderr
         assert cell_objects(cell_name) == []
 
@@ -42,7 +42,7 @@ def brought_down(path: Path, cell_name: str):
 def cell_up(path: Path, cell_name: str):
     """Bring the cell file ``path`` up for the body and always down after it (:func:`brought_down`)."""
     with brought_down(path, cell_name):
-        out = droid("droid.brain.launcher", "up", "--cell", str(path), timeout=120)
+        out = droid("droid.brain.runtime.launcher", "up", "--cell", str(path), timeout=120)
         assert out.returncode == 0, out.stdout + out.stderr
         yield path
 
@@ -82,7 +82,7 @@ def in_process(main, capsys, *args: str) -> SimpleNamespace:
 
 
 def cell_status(cell_file: Path) -> list[dict]:
-    out = droid("droid.brain.launcher", "status", "--json", "--cell", str(cell_file))
+    out = droid("droid.brain.runtime.launcher", "status", "--json", "--cell", str(cell_file))
     return [json.loads(line) for line in out.stdout.splitlines() if line.strip()]
 
 

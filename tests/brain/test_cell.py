@@ -17,7 +17,7 @@ from droid.brain.db.shmdb import cell_objects
 from tests.brain.cellutil import brought_down, ROOT, cell_status, droid, free_port, make_cell_file, wait_for
 
 pytestmark = pytest.mark.integration
-CELL = "droid.brain.launcher"
+CELL = "droid.brain.runtime.launcher"
 SNOOP = "droid.tasks.snoop"
 
 
@@ -29,7 +29,7 @@ def cell(tmp_path, cell_name):
 
 def n_programs(path) -> int:
     from droid.brain.cell.cellfile import load_cell
-    from droid.brain.launcher import cell_programs
+    from droid.brain.runtime.launcher import cell_programs
 
     first, rest = cell_programs(load_cell(path))
     return len(first) + len(rest)
@@ -177,7 +177,7 @@ def test_cell_over_tcp_started_host_by_host(tmp_path, cell_name):
         assert len(rows) == n_programs(path)
         for sub in ("arm1", "gmf1", "mvs", "tool"):
             wait_for(lambda: not snoop_json(path, sub)[0]["stale"], what=f"{sub} fresh over tcp")
-        names = droid("droid.brain.names", "--list", "--json", "--cell", str(path))
+        names = droid("droid.brain.runtime.names", "--list", "--json", "--cell", str(path))
         eps = {json.loads(l)["name"]: json.loads(l)["endpoint"] for l in names.stdout.splitlines()}
         # the sensors have serial links, no agents; the joystick and the F/T sensor have the generic agent
         assert set(eps) == {"heartbeat", "arm1", "gmf1", "joy", "ft"}

@@ -4,7 +4,7 @@ import subprocess
 
 import pytest
 
-from droid.brain import cheader
+from droid.brain.runtime import cheader
 from droid.brain.db import layouts as L
 from droid.brain.db.shmdb import Database, db_name
 

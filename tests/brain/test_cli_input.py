@@ -39,7 +39,7 @@ def test_bad_cell_files(tmp_path, text, msg):
 def test_launcher_bad_args(args, msg, tmp_path, cell_name):
     if "--cell" not in args:
         args = args + ["--cell", str(make_cell_file(tmp_path, cell_name))]
-    out = droid("droid.brain.launcher", *args)
+    out = droid("droid.brain.runtime.launcher", *args)
     assert out.returncode == 2, out.stderr
     assert msg in out.stderr and len(out.stderr.strip().splitlines()) == 1
     assert cell_objects(cell_name) == []

@@ -3,9 +3,9 @@ import pytest
 from hypothesis import given, strategies as st
 
 from droid.brain.plumbing import wire
-from droid.brain.heartbeat import HeartbeatCore, TickMonitor
+from droid.brain.runtime.heartbeat import HeartbeatCore, TickMonitor
 from droid.brain.plumbing.link import AgentLinkCore, RemoteLinkCore
-from droid.brain.names import NameSpaceCore
+from droid.brain.runtime.names import NameSpaceCore
 
 P = 16_666_667
 

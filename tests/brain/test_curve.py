@@ -17,7 +17,7 @@ from zmq.utils.monitor import recv_monitor_message
 
 from droid.brain.cell.cellfile import load_cell
 from droid.brain.plumbing.curve import CurveHost, load_key_pair, secured
-from droid.brain.keys import main as keys_main
+from droid.brain.runtime.keys import main as keys_main
 from droid.cli import BadInput
 from tests.brain.cellutil import small_tcp_cell
 

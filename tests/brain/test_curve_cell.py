@@ -15,15 +15,15 @@ from droid.brain.cell.cellfile import load_cell
 from droid.brain.plumbing.curve import CurveHost
 from droid.brain.db.databases import open_local
 from droid.brain.db.layouts import ARM_COMMAND_LAYOUT, CTRL_STATUS_LAYOUT, check_header, new_record
-from droid.brain.names import NameClient
+from droid.brain.runtime.names import NameClient
 from droid.brain.db.shmdb import cell_objects
-from droid.brain.keys import main as keys_main
+from droid.brain.runtime.keys import main as keys_main
 from tests.brain.cellutil import cell_status, droid, small_tcp_cell, wait_for
 from tests.brain.test_curve import _first_handshake, stranger_client
 from tests.brain.test_cell import snoop_json
 
 pytestmark = pytest.mark.integration
-CELL = "droid.brain.launcher"
+CELL = "droid.brain.runtime.launcher"
 
 
 def command_record(cmd_id: int) -> bytes:
@@ -133,9 +133,9 @@ def test_cell_with_keys_only_its_hosts_get_through(tmp_path, cell_name):
         # no key at all: droid-names --locate of a cell file without [curve] gets no answer
         plain = path.with_name("plain.toml")
         plain.write_text(path.read_text().split("[curve]")[0])
-        out = droid("droid.brain.names", "--locate", "a1", "--cell", str(plain))
+        out = droid("droid.brain.runtime.names", "--locate", "a1", "--cell", str(plain))
         assert out.returncode == 1 and "not found" in out.stderr
-        out = droid("droid.brain.names", "--locate", "a1", "--cell", str(path))
+        out = droid("droid.brain.runtime.names", "--locate", "a1", "--cell", str(path))
         assert out.returncode == 0 and out.stdout.strip() == sub.agent
     finally:
         brain.close()

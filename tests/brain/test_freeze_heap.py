@@ -1,4 +1,4 @@
-"""A program's start-up heap is frozen before its loop (droid.brain.rt.freeze_heap, issue 40).
+"""A program's start-up heap is frozen before its loop (droid.brain.runtime.rt.freeze_heap, issue 40).
 
 A full pass of CPython's cyclic collector walks every tracked object; frozen objects (the
 permanent generation) are not walked.  Run in child processes, since freezing is process-wide.
@@ -17,8 +17,8 @@ import sys
 CHILD = r"""
 import gc, json, sys, weakref
 import numpy  # what every program imports
-import droid.brain.program as program
-from droid.brain.rt import try_sched_fifo
+import droid.brain.runtime.program as program
+from droid.brain.runtime.rt import try_sched_fifo
 
 class Node:
     pass

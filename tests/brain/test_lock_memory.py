@@ -1,4 +1,4 @@
-"""droid.brain.rt.lock_memory locks what a program touches, not every mapping (issue 28).
+"""droid.brain.runtime.rt.lock_memory locks what a program touches, not every mapping (issue 28).
 
 Run in a child process, since locking is process-wide.  The child locks, then (a) starts a
 thread -- an 8 MB stack it barely touches -- and (b) writes a fresh 16 MB buffer.  With the
@@ -13,7 +13,7 @@ import sys
 
 CHILD = r"""
 import json, threading
-from droid.brain.rt import lock_memory
+from droid.brain.runtime.rt import lock_memory
 
 def locked_kb():  # resident locked pages (VmLck would count whole locked mappings)
     for line in open("/proc/self/smaps_rollup"):

@@ -12,7 +12,7 @@ import signal
 import pytest
 
 from droid.brain.cell.cellfile import load_cell
-from droid.brain.launcher import cell_programs
+from droid.brain.runtime.launcher import cell_programs
 from droid.cli import BadInput
 from tests.brain.cellutil import brought_down, cell_status, droid, in_process, make_cell_file, wait_for
 
@@ -53,7 +53,7 @@ def test_one_remote_serves_the_agent_linked_subunits_and_serial_sensors_keep_the
 def test_the_host_warning_counts_one_remote_at_its_measured_cost(tmp_path, cell_name):
     """droid-cell up's demand (issue 28 item 4): the shared remote declares its own cost plus a
     share per further subunit, so the same cell asks for less with it, but not for nothing."""
-    from droid.brain.launcher import demand
+    from droid.brain.runtime.launcher import demand
     from droid.brain.cell.registry import program
 
     def asked(path):
@@ -85,7 +85,7 @@ def test_a_bad_remotes_value_is_refused_naming_the_key(tmp_path, cell_name, valu
     ([], "the following arguments are required"),
 ])
 def test_droid_remote_refuses_a_bad_list_of_subunits(tmp_path, cell_name, capsys, argv, reason):
-    from droid.brain import remote
+    from droid.brain.runtime import remote
 
     path = make_cell_file(tmp_path, cell_name)
     out = in_process(remote.main, capsys, "--cell", str(path), *argv)
@@ -104,7 +104,7 @@ def _status(path, sub):
 def test_one_remote_keeps_every_subunit_in_step_and_a_dead_agent_stales_only_its_own(tmp_path, cell_name):
     path = one_remote_cell(tmp_path, cell_name)
     with brought_down(path, cell_name):
-        out = droid("droid.brain.launcher", "up", "--cell", str(path), timeout=120)
+        out = droid("droid.brain.runtime.launcher", "up", "--cell", str(path), timeout=120)
         assert out.returncode == 0, out.stdout + out.stderr
         rows = cell_status(path)
         names = {r["name"] for r in rows}
@@ -127,7 +127,7 @@ def test_one_remote_keeps_every_subunit_in_step_and_a_dead_agent_stales_only_its
         assert [s for s in others if _status(path, s)["stale"]] == []
         # restarted, its link comes back through the same remote process
         remote_pid = next(r["pid"] for r in cell_status(path) if r["key"] == "remote")
-        out = droid("droid.brain.launcher", "restart", "droid-gmf1-agent gmf1", "--cell", str(path), timeout=60)
+        out = droid("droid.brain.runtime.launcher", "restart", "droid-gmf1-agent gmf1", "--cell", str(path), timeout=60)
         assert out.returncode == 0, out.stderr
         wait_for(lambda: not _status(path, "gmf1")["stale"], timeout=30, what="gmf1 fresh again")
         assert next(r["pid"] for r in cell_status(path) if r["key"] == "remote") == remote_pid

@@ -6,7 +6,7 @@ import inspect
 
 import pytest
 
-from droid.brain import rt
+from droid.brain.runtime import rt
 from droid.brain.db import layouts
 from droid.brain.plumbing import wire
 from droid.brain.plumbing.serial_line import LineSplitter

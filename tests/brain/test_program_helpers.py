@@ -1,8 +1,8 @@
-"""droid.brain.program's shell helpers: close_all (every resource closed, first error raised after) and
+"""droid.brain.runtime.program's shell helpers: close_all (every resource closed, first error raised after) and
 ErrorLine (a device error said once per change)."""
 import pytest
 
-from droid.brain.program import ErrorLine, close_all
+from droid.brain.runtime.program import ErrorLine, close_all
 
 
 class Res:

@@ -10,9 +10,9 @@ import sys
 import time
 from pathlib import Path
 
-from droid.brain import launcher
+from droid.brain.runtime import launcher
 from droid.brain.cell.cellfile import builtin_cell_path, load_cell
-from droid.brain.program import Presence, RateWatch
+from droid.brain.runtime.program import Presence, RateWatch
 from droid.brain.db.shmdb import unlink_database
 from tests.brain.cellutil import make_cell_file
 
@@ -81,7 +81,7 @@ def test_status_shows_a_lagging_program(tmp_path, cell_name, capsys, monkeypatch
     try:
         pres.ready()
         now = [time.monotonic_ns() - 2 * S - S // 2]  # the last beat half a second ago: live
-        monkeypatch.setattr("droid.brain.program.time.monotonic_ns", lambda: now[0])
+        monkeypatch.setattr("droid.brain.runtime.program.time.monotonic_ns", lambda: now[0])
         pres.rate.out = io.StringIO()
         pres.beat(1000, 0, 0)
         now[0] += 2 * S

@@ -14,7 +14,7 @@ import sys
 
 import pytest
 
-from droid.brain.rt import normal_scheduler, try_sched_fifo
+from droid.brain.runtime.rt import normal_scheduler, try_sched_fifo
 from tests.conftest import scheduler_leak
 
 needs_root = pytest.mark.skipif(os.geteuid() != 0, reason="SCHED_FIFO needs root (CI and this VM run as root)")
@@ -34,7 +34,7 @@ def test_the_leak_check_sees_fifo_and_locked_memory_and_normal_scheduler_clears_
 
 @needs_root
 def test_a_nice_program_stays_on_the_normal_scheduler_at_its_nice_level_and_the_leak_check_sees_it():
-    from droid.brain.rt import NICE_LEVEL
+    from droid.brain.runtime.rt import NICE_LEVEL
 
     assert scheduler_leak() is None
     try:
@@ -54,7 +54,7 @@ def test_launcher_starts_programs_on_the_normal_scheduler_from_a_fifo_parent(tmp
     """droid-cell's children start on SCHED_OTHER even when droid-cell itself runs at FIFO
     priority; each program asks for FIFO itself once its imports are done."""
     from droid.brain.cell.cellfile import load_cell
-    from droid.brain.launcher import Spec, _start
+    from droid.brain.runtime.launcher import Spec, _start
     from tests.brain.cellutil import make_cell_file
 
     cell = load_cell(str(make_cell_file(tmp_path, cell_name)))

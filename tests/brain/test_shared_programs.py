@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from droid.brain.cell.cellfile import load_cell
-from droid.brain.launcher import cell_programs
+from droid.brain.runtime.launcher import cell_programs
 from droid.cli import BadInput
 from tests.brain.cellutil import brought_down, cell_status, droid, in_process, make_cell_file, wait_for
 
@@ -71,7 +71,7 @@ def test_share_starts_one_process_a_host_for_its_subunits(tmp_path, cell_name):
 
 
 def test_the_host_warning_counts_a_shared_process_at_its_measured_cost(tmp_path, cell_name):
-    from droid.brain.launcher import demand
+    from droid.brain.runtime.launcher import demand
     from droid.brain.cell.registry import program
 
     def asked(path):
@@ -130,7 +130,7 @@ def _status(path, sub):
 def test_shared_agent_and_reader_keep_each_joystick_its_own(tmp_path, cell_name):
     path = shared_cell(tmp_path, cell_name)
     with brought_down(path, cell_name):
-        out = droid("droid.brain.launcher", "up", "--cell", str(path), timeout=120)
+        out = droid("droid.brain.runtime.launcher", "up", "--cell", str(path), timeout=120)
         assert out.returncode == 0, out.stdout + out.stderr
         rows = {r["key"]: r for r in cell_status(path)}
         assert rows["agents-brain"]["name"] == "droid-agent joy xjoy0 xjoy1"
@@ -149,7 +149,7 @@ def test_shared_agent_and_reader_keep_each_joystick_its_own(tmp_path, cell_name)
         for sub in held:
             wait_for(lambda: _status(path, sub)["stale"], what=f"{sub} stale after the shared agent died")
         assert not _status(path, "ft")["stale"] and not _status(path, "arm1")["stale"]
-        out = droid("droid.brain.launcher", "restart", "droid-agent joy xjoy0 xjoy1", "--cell", str(path),
+        out = droid("droid.brain.runtime.launcher", "restart", "droid-agent joy xjoy0 xjoy1", "--cell", str(path),
                     timeout=60)
         assert out.returncode == 0, out.stderr
         for sub in held:

@@ -8,12 +8,12 @@ import time
 
 import zmq
 
-from droid.brain import launcher
+from droid.brain.runtime import launcher
 from droid.brain.plumbing import wire
 from droid.brain.cell.cellfile import load_cell
-from droid.brain.heartbeat import TickSubscriber
+from droid.brain.runtime.heartbeat import TickSubscriber
 from droid.brain.db.layouts import LATENESS_NO_RECORD
-from droid.brain.program import Presence
+from droid.brain.runtime.program import Presence
 from droid.brain.db.shmdb import unlink_database
 from tests.brain.cellutil import make_cell_file
 

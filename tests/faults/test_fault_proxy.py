@@ -193,6 +193,6 @@ def test_wedged_databases_finds_a_live_holder_and_not_a_dead_one(tmp_path, cell_
 
 
 def test_droid_cell_restart_refuses_when_the_cell_is_not_up(cell):
-    from droid.brain import launcher
+    from droid.brain.runtime import launcher
 
     assert launcher.main(["restart", "droid-servo arm1", "--cell", str(cell.path)]) == 1

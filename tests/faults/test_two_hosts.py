@@ -36,13 +36,13 @@ def two_hosts(tmp_path, cell_name, host_pair):
     path = tmp_path / f"{cell_name}.toml"
     path.write_text(two_host_cell_text(cell_name, str(tmp_path / "run"), hp.addr_a, hp.addr_b))
     try:
-        out = in_ns(hp, "a", "droid.brain.launcher", "up", "--cell", str(path), "--host", "brain")
+        out = in_ns(hp, "a", "droid.brain.runtime.launcher", "up", "--cell", str(path), "--host", "brain")
         assert out.returncode == 0, out.stdout + out.stderr
-        out = in_ns(hp, "b", "droid.brain.launcher", "up", "--cell", str(path), "--host", "arm1")
+        out = in_ns(hp, "b", "droid.brain.runtime.launcher", "up", "--cell", str(path), "--host", "arm1")
         assert out.returncode == 0, out.stdout + out.stderr
         yield hp, path
     finally:
-        out = droid("droid.brain.launcher", "down", "--cell", str(path))
+        out = droid("droid.brain.runtime.launcher", "down", "--cell", str(path))
         assert out.returncode == 0, out.stderr
 
 

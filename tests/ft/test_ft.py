@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from droid.brain import cheader
+from droid.brain.runtime import cheader
 from droid.brain.cell.cellfile import load_cell
 from droid.brain.cell.registry import classes
 from droid.brain.db.layouts import FAULT_DEVICE, FT6_STATUS_LAYOUT, LAYOUTS, new_record

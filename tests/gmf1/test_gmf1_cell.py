@@ -22,7 +22,7 @@ from droid.kinematics.transforms import pose_to_T, T_to_pose
 from tests.brain.cellutil import ROOT, brought_down, cell_status, droid, make_cell_file, wait_for
 
 pytestmark = pytest.mark.integration
-CELL = "droid.brain.launcher"
+CELL = "droid.brain.runtime.launcher"
 SNOOP = "droid.tasks.snoop"
 MODEL = load_robot("fanuc_s400").with_base(pose_to_T(2000, 0, 0, 180, 0, 0))
 TARGET = [round(v, 3) for v in T_to_pose(MODEL.fk([0, 10, 10, 0, 40, 20]))]

@@ -7,7 +7,7 @@ import pytest
 
 from droid.brain.db import arm_command
 from droid.brain.db.layouts import CMD_FAILED, CMD_OK, CMD_REFUSED, FAULT_DEVICE, HOME_MODE
-from droid.brain.remote import ArmPose
+from droid.brain.runtime.remote import ArmPose
 from droid.kinematics.transforms import T_to_pose, pose_to_T
 from droid.sim.gmf1.lockstep import Gmf1Lockstep
 from droid.subunits.gmf1 import karel_wire as kw

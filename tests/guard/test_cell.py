@@ -219,7 +219,7 @@ def test_the_guard_imports_only_brain_kinematics_and_itself():
 
 
 def test_bodies_overlapping_at_home_are_refused_at_cell_up_in_one_line(tmp_path, monkeypatch):
-    from droid.brain import launcher
+    from droid.brain.runtime import launcher
     from droid.guard.cell import check_guard_homes
 
     check_guard_homes(load_cell(SIM))  # the shipped cell: clear at home

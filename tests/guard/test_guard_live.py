@@ -30,7 +30,7 @@ from tests.tasks.test_seamtrack_cell import snoop
 
 pytestmark = pytest.mark.integration
 
-SNOOP, MOVE, CELL = "droid.tasks.snoop", "droid.tasks.move", "droid.brain.launcher"
+SNOOP, MOVE, CELL = "droid.tasks.snoop", "droid.tasks.move", "droid.brain.runtime.launcher"
 
 
 def guard_status(cell_file) -> dict:

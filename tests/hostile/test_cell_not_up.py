@@ -5,7 +5,7 @@ and leave nothing of the cell in /dev/shm (the ``no_leaks`` fixture checks; sess
 droid-watchdog leaving its presence record, made before the database it then failed to open).
 droid-mvs is not here: it waits OPEN_WAIT_S for its DSP board before it gives up, and its
 failed start leaves its presence record marked failed for ``droid-cell status`` (removed by
-``droid-cell down``), by design (droid.brain.program.Presence.close).
+``droid-cell down``), by design (droid.brain.runtime.program.Presence.close).
 """
 from __future__ import annotations
 

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from droid.brain.plumbing import wire
-from droid.brain.names import NameSpaceCore
+from droid.brain.runtime.names import NameSpaceCore
 from droid.brain.plumbing.sensor_line import Garbled, LineReading, SensorClientCore, parse_line
 from droid.cli import BadInput
 from droid.subunits.gmf1 import karel_wire as kw

@@ -20,8 +20,8 @@ import zmq
 
 from droid.brain.plumbing import wire
 from droid.brain.cell.cellfile import load_cell
-from droid.brain.launcher import STATUS_KEYS
-from droid.brain.names import boot_id
+from droid.brain.runtime.launcher import STATUS_KEYS
+from droid.brain.runtime.names import boot_id
 from droid.brain.db.shmdb import cell_objects
 from droid.subunits.reis.endpoints import reis_endpoints
 from tests.brain.cellutil import cell_status, droid, make_cell_file, wait_for
@@ -44,7 +44,7 @@ def rows_by_name(path) -> dict[str, dict]:
 
 
 def all_live(path):
-    out = droid("droid.brain.launcher", "status", "--json", "--cell", str(path))
+    out = droid("droid.brain.runtime.launcher", "status", "--json", "--cell", str(path))
     rows = [json.loads(line) for line in out.stdout.splitlines() if line.strip()]
     return rows if out.returncode == 0 and rows and all(r["live"] for r in rows) else None
 
@@ -118,7 +118,7 @@ def test_random_frames_on_every_endpoint_crash_nothing(sim_cell):
             return all(moved.values()) and rows
         wait_for(counters_moved, what="bad-frame counters of the agents, names and servo moved")
         # the name space still answers; every program is still live; the arm's link works
-        out = droid("droid.brain.names", "--list", "--json", "--cell", str(path))
+        out = droid("droid.brain.runtime.names", "--list", "--json", "--cell", str(path))
         listed = {json.loads(line)["name"] for line in out.stdout.splitlines()}
         assert out.returncode == 0 and {"heartbeat", "arm1", "gmf1"} <= listed and "evil" not in listed
         rows = wait_for(lambda: all_live(path), what="every program still live")
@@ -170,7 +170,7 @@ def test_foreign_database_refused_by_a_program(tmp_path, cell_name, capsys, fiel
     from droid.tasks.snoop import main as snoop
 
     path = make_cell_file(tmp_path, cell_name)
-    out = droid("droid.brain.launcher", "init", "--cell", str(path))
+    out = droid("droid.brain.runtime.launcher", "init", "--cell", str(path))
     assert out.returncode == 0, out.stderr
     try:
         shm = f"/dev/shm/droid.{cell_name}.arm1.status"
@@ -185,5 +185,5 @@ def test_foreign_database_refused_by_a_program(tmp_path, cell_name, capsys, fiel
         assert code == 2, err
         assert reason in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err
     finally:
-        droid("droid.brain.launcher", "down", "--cell", str(path))
+        droid("droid.brain.runtime.launcher", "down", "--cell", str(path))
     assert cell_objects(cell_name) == []

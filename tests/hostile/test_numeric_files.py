@@ -40,7 +40,7 @@ def check_cell(path) -> None:
     """Everything a cell's programs read of a cell file before they start: the file, every
     subunit's own keys, its robot file, and the world (built and closed: shared memory and ptys
     under the cell's unique name, no process, nothing moves)."""
-    from droid.brain.sensor_link import link_kind, serial_link_options
+    from droid.brain.runtime.sensor_link import link_kind, serial_link_options
     from droid.sim.world import WORLD_RATE_HZ, build_world
     from droid.subunits.gmf1.config import gmf1_config
     from droid.subunits.joystick.prog import joystick_options

@@ -7,7 +7,7 @@ import struct
 import numpy as np
 import pytest
 
-from droid.brain import cheader
+from droid.brain.runtime import cheader
 from droid.brain.cell.cellfile import load_cell
 from droid.brain.cell.registry import classes
 from droid.brain.db.databases import brain_layouts, local_layouts

@@ -22,7 +22,7 @@ from droid.brain.db.shmdb import cell_objects
 from tests.brain.cellutil import ROOT, cell_status, droid, fixed_seam_cell, make_cell_file, wait_for
 
 pytestmark = pytest.mark.integration
-CELL = "droid.brain.launcher"
+CELL = "droid.brain.runtime.launcher"
 SNOOP = "droid.tasks.snoop"
 LATERAL_MM = 3.0
 #: Lateral tolerance of single readings [mm]: 0.2 mm rows, 0.5 px jitter and 2 % spurious

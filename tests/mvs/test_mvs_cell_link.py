@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 from droid.brain.cell.cellfile import parse_cell
 from droid.brain.db.layouts import FAULT_DEVICE, FAULT_LINK
-from droid.brain.sensor_link import (SensorStatusCore, SerialPortReader, link_kind, seam_status_fields,
+from droid.brain.runtime.sensor_link import (SensorStatusCore, SerialPortReader, link_kind, seam_status_fields,
                                      serial_link_options)
 from droid.brain.plumbing.sensor_line import INVALID, LineReading
 from droid.cli import BadInput

@@ -172,7 +172,7 @@ def test_stamps_from_the_future_too_old_or_out_of_order_are_dropped_and_counted(
 def test_the_sensor_status_keeps_the_capture_age():
     from droid.brain.db.layouts import NO_CAPTURE_AGE, SENSOR_STATUS_LAYOUT
     from droid.brain.plumbing.sensor_line import LineReading, format_line, stamp_ms_of
-    from droid.brain.sensor_link import SensorStatusCore
+    from droid.brain.runtime.sensor_link import SensorStatusCore
 
     assert SENSOR_STATUS_LAYOUT.version == 2 and "capture_age_us" in SENSOR_STATUS_LAYOUT.dtype.names
     core = SensorStatusCore(stale_ticks=3)

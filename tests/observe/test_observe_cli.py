@@ -43,8 +43,8 @@ BAD = [  # (module, argv, reason); rows alike in shape only: web and foxglove re
     ("droid.observe.foxglove", ["--file", "{tmp}/none.mcap"], "no such file"),
     ("droid.observe.foxglove", ["--file", "{tmp}/x.mcap"], "not an MCAP file"),
     ("droid.observe.foxglove", ["extra"], "unrecognized arguments"),
-    ("droid.brain.launcher", ["up", "--replay", "{tmp}/none.mcap"], "no such file"),
-    ("droid.brain.launcher", ["up", "--replay", "{tmp}/x.mcap", "--host", "brain"], "no --host"),
+    ("droid.brain.runtime.launcher", ["up", "--replay", "{tmp}/none.mcap"], "no such file"),
+    ("droid.brain.runtime.launcher", ["up", "--replay", "{tmp}/x.mcap", "--host", "brain"], "no --host"),
 ]
 
 
@@ -53,7 +53,7 @@ def test_bad_invocation(module, argv, reason, tmp_path, cell_name, capsys):
     (tmp_path / "x.mcap").write_bytes(b"")
     main = importlib.import_module(module).main
     argv = [a.replace("{tmp}", str(tmp_path)) for a in argv] + ["--cell", str(make_cell_file(tmp_path, cell_name))]
-    if module == "droid.brain.launcher":  # its --cell belongs after the subcommand
+    if module == "droid.brain.runtime.launcher":  # its --cell belongs after the subcommand
         argv = argv[:1] + argv[-2:] + argv[1:-2]
     try:
         code = main(argv)

@@ -39,7 +39,7 @@ def test_replay_into_a_replay_cell_then_snoop_reads_it(db_cell, tmp_path, cell_n
     c._MY_CELLS.add(other)
     (tmp_path / "o").mkdir()
     cf = make_cell_file(tmp_path / "o", other)
-    out = droid("droid.brain.launcher", "up", "--replay", str(path), "--cell", str(cf))
+    out = droid("droid.brain.runtime.launcher", "up", "--replay", str(path), "--cell", str(cf))
     try:
         assert out.returncode == 0, out.stderr
         objs = cell_objects(other)
@@ -59,7 +59,7 @@ def test_replay_into_a_replay_cell_then_snoop_reads_it(db_cell, tmp_path, cell_n
         with open_brain(cell2, cell2.subunit("arm1"), "command") as db:
             assert int(db.read()["cmd_id"]) == 3
     finally:
-        out = droid("droid.brain.launcher", "down", "--cell", str(cf))
+        out = droid("droid.brain.runtime.launcher", "down", "--cell", str(cf))
         assert out.returncode == 0, out.stderr
     assert cell_objects(other) == []
 

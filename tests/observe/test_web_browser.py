@@ -181,7 +181,7 @@ def test_live_page_shows_every_subunit_ticking(browser, tmp_path, cell_name):
     shows every subunit with its tick advancing."""
     rec = lockstep_recording(tmp_path / "trial.mcap")
     cf = make_cell_file(tmp_path, cell_name)
-    out = droid("droid.brain.launcher", "up", "--replay", rec, "--cell", str(cf))
+    out = droid("droid.brain.runtime.launcher", "up", "--replay", rec, "--cell", str(cf))
     assert out.returncode == 0, out.stderr
     player = None
     try:
@@ -210,7 +210,7 @@ def test_live_page_shows_every_subunit_ticking(browser, tmp_path, cell_name):
             player.terminate()
             player.wait(timeout=10)
             player.stderr.close()
-        out = droid("droid.brain.launcher", "down", "--cell", str(cf))
+        out = droid("droid.brain.runtime.launcher", "down", "--cell", str(cf))
         assert out.returncode == 0, out.stderr
 
 

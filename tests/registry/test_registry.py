@@ -145,7 +145,7 @@ gain = 2.0
 
 # -- the built-in table ----------------------------------------------------------------
 def test_builtin_packages_make_the_old_tables():
-    from droid.brain import rt
+    from droid.brain.runtime import rt
     from droid.brain.cell.registry import classes
     from droid.programs import PROGRAMS
     from droid.sim.world import DEVICE_TYPES
@@ -235,11 +235,11 @@ def test_open_url_names_the_known_schemes(url, kind, words):
 
 # -- a package outside the repository ------------------------------------------------------
 def test_an_external_package_brings_its_class_up(lab, tmp_path):
-    from droid.brain import cheader
+    from droid.brain.runtime import cheader
     from droid.brain.cell.classes import field_json
     from droid.brain.cell.registry import classes
     from droid.brain.cell.cellfile import load_cell
-    from droid.brain.launcher import cell_programs
+    from droid.brain.runtime.launcher import cell_programs
     from droid.brain.db.layouts import LAYOUTS, new_record
     from droid.programs import PROGRAMS
     from droid.sim.world import DEVICE_TYPES, build_world
@@ -321,7 +321,7 @@ def test_a_bad_cell_is_one_line(lab, tmp_path, case, subunits, words):
 
 
 def test_droid_cell_up_refuses_a_bad_cell_before_anything_starts(lab, tmp_path, capsys):
-    from droid.brain import launcher
+    from droid.brain.runtime import launcher
     from droid.brain.db.shmdb import cell_objects
 
     for i, subunits in enumerate(['[subunits.b1]\nclass = "labbroken"\n',
@@ -342,7 +342,7 @@ def test_droid_cell_up_cli_exit_2_for_an_unknown_class(tmp_path):
     from tests.brain.cellutil import droid
 
     path = cell_text(tmp_path, "badcli", '[subunits.x1]\nclass = "flux_capacitor"\n')
-    out = droid("droid.brain.launcher", "--cell", str(path), "up", "--timeout", "5")
+    out = droid("droid.brain.runtime.launcher", "--cell", str(path), "up", "--timeout", "5")
     assert out.returncode == 2, out.stderr
     assert len(out.stderr.strip().splitlines()) == 1 and "unknown class 'flux_capacitor'" in out.stderr
     assert "[subunits.x1]" in out.stderr and not (tmp_path / "run").exists()

@@ -20,7 +20,7 @@ PAIR = Path(__file__).resolve().parents[2] / "droid" / "cells" / "reis_pair.toml
 
 def test_both_arms_home_move_and_the_world_tells_the_truth(tmp_path, cell_name):
     path = make_cell_file(tmp_path, cell_name, source=PAIR)
-    out = droid("droid.brain.launcher", "up", "--cell", str(path), timeout=180)
+    out = droid("droid.brain.runtime.launcher", "up", "--cell", str(path), timeout=180)
     try:
         assert out.returncode == 0, out.stdout + out.stderr
         goal_deg = [20, 10, 15, 5, 30, -10]
@@ -38,7 +38,7 @@ def test_both_arms_home_move_and_the_world_tells_the_truth(tmp_path, cell_name):
         assert np.all(np.abs(err - [0.0, 0.2, -0.15, 0.1, -0.3, 0.0]) < 0.35), err
         assert len(truth["wcp_mm"]) == 3
     finally:
-        down = droid("droid.brain.launcher", "down", "--cell", str(path), timeout=120)
+        down = droid("droid.brain.runtime.launcher", "down", "--cell", str(path), timeout=120)
         assert down.returncode == 0, down.stderr
         assert cell_objects(cell_name) == []
 
@@ -49,10 +49,10 @@ def test_controller_and_world_naming_different_robot_files_is_refused_at_up(tmp_
     src = tmp_path / "bad_src.toml"
     src.write_text(text)
     path = make_cell_file(tmp_path, cell_name, source=src)
-    out = droid("droid.brain.launcher", "up", "--cell", str(path), timeout=180)
+    out = droid("droid.brain.runtime.launcher", "up", "--cell", str(path), timeout=180)
     try:
         assert out.returncode != 0
         assert "reis_v15" in out.stderr and "reis_class_b" in out.stderr, out.stderr
     finally:
-        droid("droid.brain.launcher", "down", "--cell", str(path), timeout=120)
+        droid("droid.brain.runtime.launcher", "down", "--cell", str(path), timeout=120)
         assert cell_objects(cell_name) == []

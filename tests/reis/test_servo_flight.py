@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import zmq
 
-from droid.brain.program import Stop
+from droid.brain.runtime.program import Stop
 from droid.subunits.reis import servo_prog, vme_map as vm
 from droid.subunits.reis.servo import ServoCore
 from droid.subunits.reis.servo_params import Fault, ServoParams

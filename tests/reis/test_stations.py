@@ -8,7 +8,7 @@ import numpy as np
 from droid.brain.db import arm_command
 from droid.brain.db import layouts as L
 from droid.brain.cell.classes import ARM6R
-from droid.brain.remote import RemoteStation, StatusTranslator
+from droid.brain.runtime.remote import RemoteStation, StatusTranslator
 from droid.brain.db.shmdb import MemoryDatabase
 from droid.subunits.agent import AgentStation
 from droid.subunits.reis import servo_wire as sw
@@ -285,7 +285,7 @@ def test_the_shells_and_lockstep_call_the_same_stations():
     ArmChain) builds the same ones and keeps no copy of a shell's rules (field lists, fault sets, freshness)."""
     import inspect
 
-    from droid.brain import remote
+    from droid.brain.runtime import remote
     from droid.sim import arm_chain
     from droid.sim.reis import cell
     from droid.subunits import agent

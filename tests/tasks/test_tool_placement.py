@@ -10,7 +10,7 @@ import pytest
 
 from droid.brain.db.layouts import NO_CAPTURE_AGE, SENSOR_STATUS_LAYOUT
 from droid.brain.plumbing.sensor_line import parse_line
-from droid.brain.sensor_link import SensorStatusCore
+from droid.brain.runtime.sensor_link import SensorStatusCore
 from droid.brain.db.shmdb import MemoryDatabase
 from droid.kinematics.transforms import trans
 from droid.sim.mvs.devices import ToolSensorCore

@@ -26,11 +26,11 @@ PACKAGE = DevicePackage(
     generic=True,  # droid-agent serves a subunit of any class
     programs=(
         # the Brain (started by droid-cell up for every cell)
-        Program("droid-names", "droid.brain.names", start=0, role="brain", cpu_pct=0.5, rss_mb=40),
-        Program("droid-heartbeat", "droid.brain.heartbeat", rate_hz=HEARTBEAT_HZ, sched="fifo", priority=50,
+        Program("droid-names", "droid.brain.runtime.names", start=0, role="brain", cpu_pct=0.5, rss_mb=40),
+        Program("droid-heartbeat", "droid.brain.runtime.heartbeat", rate_hz=HEARTBEAT_HZ, sched="fifo", priority=50,
                 role="brain", cpu_pct=2.0, rss_mb=45),
         # several ([brain] remotes = "one"): a further subunit 0.4-0.6 % (docs/benchmarks.md "Scale")
-        Program("droid-remote", "droid.brain.remote", sched="fifo", priority=50, role="brain",
+        Program("droid-remote", "droid.brain.runtime.remote", sched="fifo", priority=50, role="brain",
                 cpu_pct=3.5, rss_mb=47, several=True, cpu_pct_each=0.6),
         Program("droid-sim", "droid.sim.world", rate_hz=1000.0, sched="fifo", priority=52, start=0,
                 role="brain", description="the world: every twin of the cell",
@@ -40,9 +40,9 @@ PACKAGE = DevicePackage(
         Program("droid-agent", "droid.subunits.agent", sched="fifo", priority=51, cpu_pct=3.0, rss_mb=42,
                 several=True, cpu_pct_each=0.5),
         # tools and tasks (run by hand)
-        Program("droid-cell", "droid.brain.launcher", role="tool"),
-        Program("droid-cheader", "droid.brain.cheader", role="tool"),
-        Program("droid-keys", "droid.brain.keys", role="tool"),
+        Program("droid-cell", "droid.brain.runtime.launcher", role="tool"),
+        Program("droid-cheader", "droid.brain.runtime.cheader", role="tool"),
+        Program("droid-keys", "droid.brain.runtime.keys", role="tool"),
         Program("droid-kin", "droid.kinematics.cli", role="tool"),
         # the collision guard between the arms (issue 41; docs/guard.md): droid-cell up starts it on the
         # Brain's host where the cell declares [guard]; SCHED_FIFO as the remotes: a guard that misses

@@ -33,7 +33,7 @@ Every reference is a lazy ``"module:attr"`` string (python-can's
 first read, a program's, driver's or twin's module only when it is used.
 
 ``classes()`` (class name -> SubunitClass), ``droid.programs.PROGRAMS``,
-``droid.sim.world.DEVICE_TYPES``, ``droid.brain.rt.FIFO_PRIORITIES`` and
+``droid.sim.world.DEVICE_TYPES``, ``droid.brain.runtime.rt.FIFO_PRIORITIES`` and
 ``droid.brain.db.layouts.LAYOUTS`` (the layouts of packages outside the
 repository are added to it) are views of this registry.
 :func:`validate_cell` is what ``droid-cell up`` and ``droid-sim`` check before
@@ -69,7 +69,7 @@ BUILTIN_PACKAGES: dict[str, str] = {
 
 SCHED_CLASSES = ("fifo", "nice", "other")
 #: SCHED_FIFO priorities a program may declare: below the databases' priority ceiling
-#: (droid.brain.rt.CEILING_PRIORITY = 61), which must outrank every program.
+#: (droid.brain.runtime.rt.CEILING_PRIORITY = 61), which must outrank every program.
 FIFO_PRIORITY_RANGE = (1, 60)
 #: Start groups of the launcher: group 0 (name space, world) is ready before group 1 starts.
 START_GROUPS = (0, 1)
@@ -82,7 +82,7 @@ class Program:
     ``rate_hz``: its loop rate [Hz] (None: tick-driven or on request) -- the one place a
     rate like the servo's 500 Hz or the heartbeat's 60 Hz is written.  ``sched``:
     ``"fifo"`` (SCHED_FIFO at ``priority`` in a cell with ``sched_fifo = true``), ``"nice"``
-    (the normal scheduler at nice :data:`droid.brain.rt.NICE_LEVEL` in such a cell: a program
+    (the normal scheduler at nice :data:`droid.brain.runtime.rt.NICE_LEVEL` in such a cell: a program
     whose deadline is a heartbeat tick or longer and which feeds no servo, so it weighs
     ~10x a normal-priority process without drawing on the kernel's real-time budget;
     docs/architecture.md "Real time") or ``"other"``.  ``start``: the launcher's start group (0 before 1).  ``role``:
@@ -399,7 +399,7 @@ def device_types() -> dict[str, tuple[str, str]]:
 
 
 def fifo_priorities() -> dict[str, int]:
-    """program -> SCHED_FIFO priority (the view ``droid.brain.rt.FIFO_PRIORITIES``)."""
+    """program -> SCHED_FIFO priority (the view ``droid.brain.runtime.rt.FIFO_PRIORITIES``)."""
     registry()
     return FIFO_VIEW
 

@@ -3,7 +3,7 @@
 Every database is one record in its own POSIX shared-memory object.  Records
 are numpy structured dtypes with explicit offsets and little-endian fixed-width
 fields, so the byte layout is the same on every host and a C program can attach
-to it through the generated header (:mod:`droid.brain.cheader`).
+to it through the generated header (:mod:`droid.brain.runtime.cheader`).
 
 Each record starts with the same 32-byte :data:`HEADER`:
 

@@ -31,7 +31,7 @@ from typing import Iterator
 import numpy as np
 import posix_ipc
 
-from droid.brain import rt
+from droid.brain.runtime import rt
 
 from droid.cli import BadInput, RuntimeFailure
 from droid.brain.db.layouts import (
@@ -100,7 +100,7 @@ def pid_alive(pid: int) -> bool:
 #: droid-snoop at normal priority, preempted by busy processes while it holds a Status
 #: semaphore for a 1 us copy, blocked the real-time remote, servo agent or the servo's
 #: own presence record for tens of ms -- the stalls that failed homing under load.
-#: CEILING_PRIORITY (droid.brain.rt, 61) is above every program's own priority (servo 60).
+#: CEILING_PRIORITY (droid.brain.runtime.rt, 61) is above every program's own priority (servo 60).
 _ceiling: int | None = None
 CEILING_PRIORITY = rt.CEILING_PRIORITY
 

@@ -24,7 +24,7 @@ An invalid reading (a frame without a feature, a garbled line, a stale link)
 carries x = y = roll = 0, as the thesis's seamtrack expects (§6.2.5).
 
 This module lives in the Brain package because both ends speak it: the
-Brain's serial link (:mod:`droid.brain.sensor_link`) parses it, and the sensor
+Brain's serial link (:mod:`droid.brain.runtime.sensor_link`) parses it, and the sensor
 program (:mod:`droid.subunits.mvs.sensor`, through
 :mod:`droid.subunits.mvs.protocol`) and the tool-tip twin format it.  It is
 pure: nothing here blocks, reads a clock or does I/O.
@@ -90,7 +90,7 @@ class LineReading:
     one carries the capture instant in heartbeat ticks and the delay buffer's
     ``zeroed`` mark; this one the line's own ``stamp_ms`` (mod
     ``STAMP_MODULO_MS``) and its age at reception.  The Brain's Status sits
-    between them (droid.brain.sensor_link fills it, the tracker reads it).
+    between them (droid.brain.runtime.sensor_link fills it, the tracker reads it).
     """
 
     valid: bool

@@ -51,7 +51,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from droid.brain.program import close_all
+from droid.brain.runtime.program import close_all
 from droid.cli import BadInput
 from droid.numbers import finite_numbers
 from droid.kinematics import RobotModel, load_robot

@@ -60,7 +60,7 @@ from typing import Any
 
 import numpy as np
 
-from droid.brain.program import close_all
+from droid.brain.runtime.program import close_all
 from droid.sim.device import Device
 from droid.subunits.ft.rdt import (CALIBRATION_PATH, CMD_SET_BIAS, CMD_START_BUFFERED, CMD_START_REALTIME,
                                    CMD_STOP, FT_SAMPLES_PER_S, RDT_HEADER, RECORD, REQUEST, STATUS_ERROR,

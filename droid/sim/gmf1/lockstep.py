@@ -28,7 +28,7 @@ from droid.brain.db import arm_command
 from droid.brain.db.layouts import (ARM_COMMAND_LAYOUT, ARM_STATUS_LAYOUT, CTRL_COMMAND_LAYOUT, CTRL_STATUS_LAYOUT,
                                  NORMAL_MODE)
 from droid.brain.db.databases import safe_start
-from droid.brain.remote import RemoteStation, StatusTranslator
+from droid.brain.runtime.remote import RemoteStation, StatusTranslator
 from droid.brain.db.shmdb import MemoryDatabase
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T

@@ -14,7 +14,7 @@ from typing import Any, Mapping
 
 from droid.brain.db.layouts import SENSOR_STATUS_LAYOUT
 from droid.brain.plumbing.sensor_line import DEFAULT_BAUD
-from droid.brain.sensor_link import SensorStatusCore
+from droid.brain.runtime.sensor_link import SensorStatusCore
 from droid.brain.db.shmdb import MemoryDatabase
 from droid.brain.plumbing.wire import LIVENESS_TICKS
 from droid.cli import BadInput

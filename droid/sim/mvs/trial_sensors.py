@@ -97,7 +97,7 @@ class LeadSensor:
         parser reads it (droid.brain.plumbing.sensor_line.parse_line: the values rounded to the line's
         decimals; ``valid`` False for ``invalid``); None when the frame brought no line (dropped,
         inside the retrace timeout: the Status keeps its line).  The tracker's reading of it is
-        the trial's (the Brain's Status between them, as droid.brain.sensor_link fills it)."""
+        the trial's (the Brain's Status between them, as droid.brain.runtime.sensor_link fills it)."""
         self.frames += 1
         if self.model == "camera":
             rows = self.camera.frame(T_W_S, self.rng)

@@ -268,7 +268,7 @@ def calibrate_arm(arm, seed: int = 0) -> dict:
 
 @run
 def main(argv=None) -> int:
-    from droid.brain.program import open_cell, parser
+    from droid.brain.runtime.program import open_cell, parser
     from droid.sim.lockstep import Scheduler
     from droid.sim.reis.cell import arms_from_cell
 

@@ -27,9 +27,9 @@ import zmq
 
 from droid.brain.plumbing.curve import CurveHost
 from droid.brain.db.databases import open_local
-from droid.brain.heartbeat import TickSubscriber
-from droid.brain.program import Presence, Stop, close_all, notify_ready, presence_key, subunit_program
-from droid.brain.rt import try_sched_fifo
+from droid.brain.runtime.heartbeat import TickSubscriber
+from droid.brain.runtime.program import Presence, Stop, close_all, notify_ready, presence_key, subunit_program
+from droid.brain.runtime.rt import try_sched_fifo
 from droid.brain.db.shmdb import Database, db_name, unlink_database
 from droid.cli import BadInput, run
 from droid.kinematics import load_robot

@@ -38,8 +38,8 @@ import numpy as np
 
 from droid.brain.db.databases import open_local
 from droid.brain.db.layouts import FAULT_DEVICE, FAULT_FORCE
-from droid.brain.program import Presence, Stop, close_all, notify_ready, presence_key, subunit_program
-from droid.brain.rt import PeriodicTimer, try_sched_fifo
+from droid.brain.runtime.program import Presence, Stop, close_all, notify_ready, presence_key, subunit_program
+from droid.brain.runtime.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import BadInput, run
 from droid.kinematics.transforms import pose_to_T
 from droid.numbers import POSE

@@ -2,7 +2,7 @@
 
 "The Encoder program operates at 120Hz using an independent timer so as to
 isolate it from the rest of the DROID system."  Here: a
-:class:`~droid.brain.rt.PeriodicTimer` (absolute deadlines) at the subunit's
+:class:`~droid.brain.runtime.rt.PeriodicTimer` (absolute deadlines) at the subunit's
 ``encoder_hz`` (120); each cycle reads the two encoder cards (the subunit's
 ``encoders`` URLs, :mod:`droid.subunits.gmf1.quad04`), runs
 :class:`~droid.subunits.gmf1.encoder_core.EncoderCore` and writes
@@ -23,8 +23,8 @@ import sys
 import time
 
 from droid.brain.db.databases import open_local
-from droid.brain.program import ErrorLine, Presence, Stop, close_all, notify_ready, presence_key, subunit_program
-from droid.brain.rt import PeriodicTimer, now_ns, try_sched_fifo
+from droid.brain.runtime.program import ErrorLine, Presence, Stop, close_all, notify_ready, presence_key, subunit_program
+from droid.brain.runtime.rt import PeriodicTimer, now_ns, try_sched_fifo
 from droid.cli import BadInput, rate_hz, run
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T

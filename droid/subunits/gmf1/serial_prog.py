@@ -21,8 +21,8 @@ import zmq
 
 from droid.brain.plumbing.curve import CurveHost
 from droid.brain.db.databases import open_local
-from droid.brain.heartbeat import TickSubscriber
-from droid.brain.program import ErrorLine, Presence, Stop, close_all, notify_ready, presence_key, subunit_program
+from droid.brain.runtime.heartbeat import TickSubscriber
+from droid.brain.runtime.program import ErrorLine, Presence, Stop, close_all, notify_ready, presence_key, subunit_program
 from droid.cli import baud_rate, run
 from droid.kinematics import load_robot
 from droid.kinematics.transforms import pose_to_T
@@ -30,7 +30,7 @@ from droid.guard.gate import GuardGate, guard_stale_ticks
 from droid.subunits.gmf1.config import gmf1_config
 from droid.subunits.gmf1.karel_wire import MIN_BAUD
 from droid.brain.cell.registry import open_url
-from droid.brain.rt import try_sched_fifo
+from droid.brain.runtime.rt import try_sched_fifo
 from droid.subunits.gmf1.port import PortLink
 from droid.subunits.gmf1.serial_core import SerialCore, SerialParams
 from droid.subunits.gmf1.station import SerialStation

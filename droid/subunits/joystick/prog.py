@@ -34,8 +34,8 @@ import time
 
 from droid.brain.db.databases import open_local
 from droid.brain.cell.registry import open_url, program
-from droid.brain.program import Stop, close_all, notify_ready, serving_presence, subunit_program
-from droid.brain.rt import PeriodicTimer
+from droid.brain.runtime.program import Stop, close_all, notify_ready, serving_presence, subunit_program
+from droid.brain.runtime.rt import PeriodicTimer
 from droid.cli import file_number, run
 from droid.numbers import Range
 from droid.subunits.joystick.station import JoystickStation

@@ -268,7 +268,7 @@ def build_parser() -> ArgumentParser:
 def apply_cell(args):
     """Fill unset live options from the cell file's ``[subunits.NAME]``; returns (cell, subunit)."""
     from droid.brain.cell.cellfile import load_cell
-    from droid.brain.program import use_cell
+    from droid.brain.runtime.program import use_cell
 
     cell = load_cell(args.cell)
     use_cell(cell)
@@ -343,8 +343,8 @@ def main(argv=None) -> int:
 
 def live_in_cell(args, core: SensorCore, cell, sub) -> int:
     """:func:`live` with the cell's readiness handshake and presence record."""
-    from droid.brain.program import Presence, notify_ready, presence_key
-    from droid.brain.rt import try_sched_fifo
+    from droid.brain.runtime.program import Presence, notify_ready, presence_key
+    from droid.brain.runtime.rt import try_sched_fifo
 
     # In a cell that asks for SCHED_FIFO the sensor is part of the tracking loop's chain
     # (frame -> line -> Brain Status -> droid-seamtrack, §5.4): below the Brain's programs.

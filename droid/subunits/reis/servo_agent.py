@@ -52,9 +52,9 @@ from droid.brain.cell.device import HEARTBEAT_HZ
 from droid.brain.plumbing.curve import CurveHost
 from droid.brain.db.databases import open_local
 from droid.brain.db.layouts import CMD_FAILED, CMD_OK, FAULT_BRAKING, FAULT_SERVO, HOME_MODE, HOMED, NORMAL_MODE, OFF
-from droid.brain.program import close_all, Presence, Stop, notify_ready, presence_key, subunit_program
-from droid.brain.heartbeat import TickSubscriber
-from droid.brain.rt import try_sched_fifo
+from droid.brain.runtime.program import close_all, Presence, Stop, notify_ready, presence_key, subunit_program
+from droid.brain.runtime.heartbeat import TickSubscriber
+from droid.brain.runtime.rt import try_sched_fifo
 from droid.cli import BadInput, run
 from droid.kinematics import RobotFileError
 from droid.arm.pacer import TickPacer  # droid-servo-agent's and droid-egm's (the neutral arm's)

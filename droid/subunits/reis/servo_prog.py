@@ -32,8 +32,8 @@ import zmq
 
 from droid import kernel
 from droid.brain.plumbing.curve import CurveHost
-from droid.brain.program import Presence, Stop, notify_ready, presence_key, subunit_program
-from droid.brain.rt import PeriodicTimer, try_sched_fifo
+from droid.brain.runtime.program import Presence, Stop, notify_ready, presence_key, subunit_program
+from droid.brain.runtime.rt import PeriodicTimer, try_sched_fifo
 from droid.cli import BadInput, RuntimeFailure, run
 from droid.kinematics import RobotFileError
 from droid.subunits.reis.brake_log import BrakeRecorder

@@ -15,7 +15,7 @@ only open the sockets, the driver and the databases, and keep time:
   way-point, busy (§4.1.7).
 
 The agent copier (droid-reis-agent) is :class:`droid.subunits.agent.AgentStation`, the
-remote's cycle :class:`droid.brain.remote.RemoteStation`.
+remote's cycle :class:`droid.brain.runtime.remote.RemoteStation`.
 """
 from __future__ import annotations
 

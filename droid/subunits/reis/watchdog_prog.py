@@ -18,8 +18,8 @@ import zmq
 
 from droid.brain.plumbing.curve import CurveHost
 from droid.brain.db.databases import open_local
-from droid.brain.program import Stop, notify_ready
-from droid.brain.rt import PeriodicTimer
+from droid.brain.runtime.program import Stop, notify_ready
+from droid.brain.runtime.rt import PeriodicTimer
 from droid.cli import run
 from droid.subunits.reis.servo_prog import OPEN_WAIT_S, open_vme_waiting, vme_program_start
 from droid.subunits.reis.station import WatchdogStation

@@ -55,8 +55,8 @@ import time
 import numpy as np
 
 from droid.brain.db.databases import open_brain
-from droid.brain.heartbeat import TickSubscriber
-from droid.brain.program import open_cell, parser
+from droid.brain.runtime.heartbeat import TickSubscriber
+from droid.brain.runtime.program import open_cell, parser
 from droid.cli import EXIT_OK, EXIT_RUNTIME, BadInput, RuntimeFailure, bounded_float, run
 from droid.kinematics.transforms import inv_homo, trans
 from droid.tasks.arm import BrainArm

@@ -16,7 +16,7 @@ STOP_STALE = "stale"  # an arm's Status stale past the grace (droid.tasks.seam.s
 class TrackingStop:
     """Why a tracking run ended, where (tool travel [mm]) and in which cycle.
 
-    Not :class:`droid.brain.program.Stop` (the SIGTERM/SIGINT flag every program
+    Not :class:`droid.brain.runtime.program.Stop` (the SIGTERM/SIGINT flag every program
     polls): this is the tracking core's verdict, a value the report prints.
     """
 

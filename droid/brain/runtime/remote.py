@@ -10,7 +10,7 @@ current cartesian position and orientation matrix of the wrist-center point").
 A ``line_laser`` subunit with ``link = "serial"`` (the MVS sensor, the
 tool-tip sensor) has no agent: the sensor writes its lines over a serial
 cable straight to the Brain (§2.5, §5.4) and this program reads that port
-instead (:mod:`droid.brain.sensor_link`).
+instead (:mod:`droid.brain.runtime.sensor_link`).
 
 Liveness (:class:`~droid.brain.plumbing.link.RemoteLinkCore`): ``stale_ticks`` ticks
 without a reply set ``stale = 1`` in the Status record; the remote then
@@ -35,14 +35,14 @@ from droid.brain.plumbing import wire
 from droid.brain.cell.cellfile import Subunit
 from droid.brain.plumbing.curve import CurveHost
 from droid.brain.db.databases import brain_layouts, open_brain
-from droid.brain.heartbeat import TickSubscriber
+from droid.brain.runtime.heartbeat import TickSubscriber
 from droid.brain.db.layouts import (ARM_COMMAND_LAYOUT, FAULT_HEARTBEAT, FAULT_LINK, LayoutError, byte_runs,
                                  check_header)
 from droid.brain.plumbing.link import HeartbeatWatch, RemoteAction, RemoteLinkCore
-from droid.brain.names import NameClient
-from droid.brain.program import Presence, Stop, close_all, notify_ready, presence_key, subunit_program
-from droid.brain.rt import try_sched_fifo
-from droid.brain.sensor_link import LINK_SERIAL, link_kind, serve_serial
+from droid.brain.runtime.names import NameClient
+from droid.brain.runtime.program import Presence, Stop, close_all, notify_ready, presence_key, subunit_program
+from droid.brain.runtime.rt import try_sched_fifo
+from droid.brain.runtime.sensor_link import LINK_SERIAL, link_kind, serve_serial
 from droid.cli import BadInput, run
 
 PROG = "droid-remote"

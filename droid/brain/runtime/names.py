@@ -25,7 +25,7 @@ import time
 import zmq
 
 from droid.brain.plumbing.curve import CurveHost
-from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
+from droid.brain.runtime.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
 from droid.brain.db.shmdb import pid_alive
 from droid.cli import RuntimeFailure, run
 

@@ -36,7 +36,7 @@ blocks) and :class:`SensorStatusCore` turns the bytes into Status fields:
   reopened with exponential back-off in ticks (``stale_ticks`` .. 120); the
   program never stops for it.
 
-The ZeroMQ agent path of :mod:`droid.brain.remote` is unchanged; arms always
+The ZeroMQ agent path of :mod:`droid.brain.runtime.remote` is unchanged; arms always
 use it.
 """
 from __future__ import annotations
@@ -182,9 +182,9 @@ def serve_serial(cell: Cell, sub: Subunit, ready_fd: int | None, prog: str) -> i
 
     from droid.brain.plumbing.curve import CurveHost
     from droid.brain.db.databases import open_brain
-    from droid.brain.heartbeat import TickSubscriber
+    from droid.brain.runtime.heartbeat import TickSubscriber
     from droid.brain.plumbing.link import HeartbeatWatch
-    from droid.brain.program import Presence, Stop, notify_ready, presence_key
+    from droid.brain.runtime.program import Presence, Stop, notify_ready, presence_key
 
     opts = serial_link_options(cell, sub)
     Stop.install()

@@ -21,9 +21,9 @@ import zmq
 from droid.brain.plumbing import wire
 from droid.brain.plumbing.curve import CurveHost
 from droid.brain.db.layouts import LATENESS_NO_RECORD as NO_RECORD
-from droid.brain.names import NameClient
-from droid.brain.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
-from droid.brain.rt import PeriodicTimer, now_ns, try_sched_fifo
+from droid.brain.runtime.names import NameClient
+from droid.brain.runtime.program import Presence, Stop, notify_ready, open_cell, parser, presence_key
+from droid.brain.runtime.rt import PeriodicTimer, now_ns, try_sched_fifo
 from droid.brain.cell.cellfile import HEARTBEAT_HZ_RANGE
 from droid.cli import bounded_int, rate_hz, run
 
@@ -76,7 +76,7 @@ class TickSubscriber:
 
     ``lateness_max_ns``: the worst delay from a tick's stamp (``t_ns``, the publisher's
     CLOCK_MONOTONIC when it sent it) to this program reading it [ns] -- the tick follower's
-    own lateness record, as :class:`droid.brain.rt.PeriodicTimer` keeps one for a timed loop.
+    own lateness record, as :class:`droid.brain.runtime.rt.PeriodicTimer` keeps one for a timed loop.
     Kept only where publisher and reader share one clock, an ``ipc://`` endpoint (one
     machine), from the first read on (what queued before it waited for the program's start-up,
     not its loop); elsewhere it stays ``NO_RECORD``.  ``late_ticks`` counts the ticks read

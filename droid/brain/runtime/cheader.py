@@ -27,7 +27,7 @@ _CTYPES = {
     ("i", 1): "int8_t", ("i", 2): "int16_t", ("i", 4): "int32_t", ("i", 8): "int64_t",
     ("f", 4): "float", ("f", 8): "double", ("S", 1): "char",
 }
-SHIPPED = Path(__file__).resolve().parent.parent / "include" / "droid_layouts.h"
+SHIPPED = Path(__file__).resolve().parents[2] / "include" / "droid_layouts.h"  # droid/include/
 
 
 def _c_field(name: str, dt: np.dtype) -> tuple[str, str]:

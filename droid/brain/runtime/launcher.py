@@ -42,9 +42,9 @@ from dataclasses import asdict, dataclass, field
 from droid.brain.cell.cellfile import REMOTES_ONE, Cell, load_cell
 from droid.brain.db.databases import create_databases
 from droid.brain.db.layouts import LATENESS_NO_RECORD, PROC_STATE_NAMES, PROC_STATUS_LAYOUT
-from droid.brain.program import presence_key, shared_key, use_cell
-from droid.brain.rt import normal_scheduler
-from droid.brain.sensor_link import LINK_AGENT, link_kind
+from droid.brain.runtime.program import presence_key, shared_key, use_cell
+from droid.brain.runtime.rt import normal_scheduler
+from droid.brain.runtime.sensor_link import LINK_AGENT, link_kind
 from droid.brain.db.shmdb import (Database, NoDatabase, cell_objects, db_name, pid_alive,
                                remove_cell_objects, unlink_database)
 from droid.cli import ArgumentParser, BadInput, RuntimeFailure, run, timeout_s

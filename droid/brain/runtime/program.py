@@ -19,7 +19,7 @@ import time
 from droid.brain.cell.cellfile import Cell, load_cell
 from droid.brain.db.layouts import (LATENESS_NO_RECORD, PROC_FAILED, PROC_READY, PROC_STARTING, PROC_STATUS_LAYOUT,
                                  PROC_STOPPING)
-from droid.brain.rt import freeze_heap
+from droid.brain.runtime.rt import freeze_heap
 from droid.brain.db.shmdb import Database, db_name, unlink_database
 from droid.cli import ArgumentParser, bounded_int
 
@@ -57,7 +57,7 @@ def use_cell(cell: Cell) -> None:
 def notify_ready(fd: int | None) -> None:
     """Complete the readiness handshake with the launcher (if any).  Every program calls it as
     its start-up ends and its loop begins, so the heap built so far is frozen here
-    (droid.brain.rt.freeze_heap; collected first unless it was frozen once already, before the
+    (droid.brain.runtime.rt.freeze_heap; collected first unless it was frozen once already, before the
     program switched to its real-time priority)."""
     freeze_heap(collect=gc.get_freeze_count() == 0)
     if fd is None:

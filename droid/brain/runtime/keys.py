@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 
 from droid.brain.plumbing.curve import PUBLIC_SUFFIX, SECRET_SUFFIX, load_public_key
-from droid.brain.program import parser
+from droid.brain.runtime.program import parser
 from droid.brain.db.shmdb import check_name_part
 from droid.cli import BadInput, RuntimeFailure, run
 
