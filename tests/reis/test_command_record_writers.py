@@ -11,9 +11,9 @@ command falling between the planner's read and its write.
 import numpy as np
 
 from droid.arm.planner import PlannerCore, PlannerStation
-from droid.brain import arm_command
-from droid.brain import layouts as L
-from droid.brain.shmdb import MemoryDatabase
+from droid.brain.db import arm_command
+from droid.brain.db import layouts as L
+from droid.brain.db.shmdb import MemoryDatabase
 from droid.kinematics import load_robot
 from droid.subunits.agent import AgentStation
 from droid.subunits.reis import servo_wire as sw

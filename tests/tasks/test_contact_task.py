@@ -171,7 +171,7 @@ def test_both_runners_judge_the_arm_status_by_the_same_mask(bits, kept):
     """droid-contact and the lockstep contact trial read the arm's Status through one
     constructor, ``ArmStatus.of_record``: its pose and stale flag as recorded, and only the fault
     bits that end a press (FAULTS_STOP_RUN) -- the lockstep trial stopped on any bit before."""
-    from droid.brain.layouts import ARM_STATUS
+    from droid.brain.db.layouts import ARM_STATUS
 
     rec = np.zeros((), ARM_STATUS)
     rec["R"], rec["x"], rec["y"], rec["z"], rec["tick"], rec["fault"], rec["stale"] = np.eye(3), 1.0, 2.0, 3.0, 7, bits, 1
