@@ -362,7 +362,7 @@ class BrainArm:
 
         A move a protective stop cancelled (droid.tasks.resume: it failed having seen only
         FAULT_BRAKING) is re-issued toward the same target from where the arm came to rest --
-        once it is at rest with its protective stop clear, within REST_TIMEOUT_S -- at the
+        once it is at rest with the braking fault clear, within REST_TIMEOUT_S -- at the
         original move's average joint speed, after the same target checks from there; one
         stderr line each (``say``), at most MAX_RESUMES times.  ``resume`` False
         (``--no-resume``): it fails as any failed move does.  A hard fault after the stop,
@@ -411,7 +411,7 @@ class BrainArm:
         return self.command_cart(T, ticks), self.model.gearing.joints_to_counts(q_goal), q_goal
 
     def _resume(self, job: "rs.Resumer", mode: str, target, seen: int, timeout, interrupted, say):
-        """After a protective stop: wait until the arm rests with its protective stop clear, then
+        """After a protective stop: wait until the arm rests with the braking fault clear, then
         re-issue the move from there (its line said first); (cmd_id, target [counts], its
         duration [s])."""
         rec = self._wait_rest(job, interrupted)
@@ -432,7 +432,7 @@ class BrainArm:
         return cmd_id, counts, ticks / self.hb_hz
 
     def _wait_rest(self, job: "rs.Resumer", interrupted):
-        """The Status record that shows the arm at rest, the protective stop's bits clear, after a
+        """The Status record that shows the arm at rest, the braking fault clear, after a
         protective stop (droid.tasks.resume.RestWatch); RuntimeFailure naming a hard fault, an
         arm not homed, or no rest within REST_TIMEOUT_S; Interrupted on ``interrupted()``."""
         watch = rs.RestWatch()
@@ -448,8 +448,8 @@ class BrainArm:
                                      f"{f'fault {hard}' if hard else 'not homed'}: not resumed")
             return watch.at_rest(int(r["tick"]), r["encoder_pos"], int(r["fault"]))
 
-        rec = self.wait(rested, rs.REST_TIMEOUT_S, f"{self.sub.name} to come to rest with its protective stop "
-                                                   f"clear (not resumed)")
+        rec = self.wait(rested, rs.REST_TIMEOUT_S, f"{self.sub.name} to come to rest with its braking fault "
+                                                   f"clear after a protective stop (not resumed)")
         if stop():
             raise Interrupted(f"interrupted after a protective stop of {self.sub.name}: not resumed")
         return rec

@@ -1,28 +1,17 @@
 """A task's positioning move rides through a protective stop (issue 40 item 4).
 
-A protective stop, of two kinds.  **Braking**: the arm's servo ran out of way-points and braked -- the Status shows
+A protective stop: the arm's servo ran out of way-points and braked -- the Status shows
 FAULT_BRAKING, "the servo ran out of commands and braked", e.g. after a host stall starved
 the servo agent (docs/safety.md) -- and the planner cancelled the move in progress
 (``cmd_result = CMD_FAILED``; its log: "cancelled command N: faults: braking").  Nothing is
 broken: once the planner re-anchored where the arm stopped, the servo agent sends way-points
 again and the bit clears (droid/subunits/reis/servo_agent.py; on the ABB, droid-egm sets it
 for the one period it refused a way-point too far from its target; the GMF1's programs never
-set it).  **The collision guard's stop** (FAULT_COLLISION, docs/guard.md): the separation of
-two arms came near its protective distance S_p for the closing speed the guard measured, the
-planner ramped the move down and cancelled it.  The guard releases the stop once every arm has
-stood :data:`droid.guard.core.RELEASE_S` with every pair above its S_p -- ISO 10218-2's speed
-and separation monitoring restarts automatically when the separation is restored -- and the
-resumed move is judged again tick by tick: a course that really closes on the other arm is
-slowed and stopped again (and fails after the resumes below), one stopped by a speed a loaded
-host's irregular Status samples made jump (the README's main command beside two busy processes,
-2026-12-04: 210 mm/s where the passes before measured 90-163 mm/s) goes on.  A stop at rest below S_p stays latched: no rest with the
-bit clear, the move is not resumed.  So the task re-issues the move toward the same target
-from where the arm stands (thesis §3.4: a task only writes the Command record), at most
-:data:`MAX_RESUMES` times.
+set it).  So the task re-issues the move toward the same target from where the arm stands
+(thesis §3.4: a task only writes the Command record), at most :data:`MAX_RESUMES` times.
 
-Every other fault bit -- servo, watchdog, limit, force, device, link, heartbeat, the guard
-silent (FAULT_GUARD), and any bit a later layout adds -- is *hard*: a failed move that saw
-one is not resumed.
+Every other fault bit -- servo, watchdog, limit, force, device, link, heartbeat, and any bit
+a later layout adds (a collision) -- is *hard*: a failed move that saw one is not resumed.
 
 Pure: the decisions and the words, no records, no clock.  :meth:`droid.tasks.arm.BrainArm.move`
 runs them against the Brain's Status and Command records.
@@ -46,13 +35,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from droid.brain.db.layouts import CMD_FAILED, FAULT_BRAKING, FAULT_COLLISION, FAULT_NAMES, fault_names
+from droid.brain.db.layouts import CMD_FAILED, FAULT_BRAKING, FAULT_NAMES, fault_names
 
 #: At most this many resumes of one move; a further protective stop fails it.
 MAX_RESUMES = 3
-#: The fault bits a resume rides through: the two protective stops.
-RESUMABLE_FAULTS = FAULT_BRAKING | FAULT_COLLISION
-#: After a protective stop the arm must be at rest with the stop's bits clear within this [s].
+#: The one fault bit a resume rides through.
+RESUMABLE_FAULTS = FAULT_BRAKING
+#: After a protective stop the arm must be at rest with FAULT_BRAKING clear within this [s].
 REST_TIMEOUT_S = 5.0
 #: At rest: this many Status records in a row, each of a newer heartbeat tick ...
 REST_RECORDS = 3
@@ -62,16 +51,15 @@ REST_COUNTS = 2
 
 
 def hard_faults(bits: int) -> int:
-    """The fault bits of ``bits`` no resume rides through (every bit but RESUMABLE_FAULTS)."""
+    """The fault bits of ``bits`` no resume rides through (every bit but FAULT_BRAKING)."""
     return int(bits) & ~RESUMABLE_FAULTS
 
 
 def protective_stop(result: int, faults_seen: int) -> bool:
     """A move that ended with ``result`` (a CMD_* code) while the Status showed ``faults_seen``
-    (every bit seen while it ran) was cancelled by a protective stop: it failed, braking or
-    the collision guard's stop was seen, and no hard fault was."""
-    return (int(result) == CMD_FAILED and bool(int(faults_seen) & RESUMABLE_FAULTS)
-            and not hard_faults(faults_seen))
+    (every bit seen while it ran) was cancelled by a protective stop: it failed, braking
+    was seen, and no hard fault was."""
+    return int(result) == CMD_FAILED and bool(int(faults_seen) & FAULT_BRAKING) and not hard_faults(faults_seen)
 
 
 def progress(q_start_deg, q_goal_deg, q_now_deg) -> float:
@@ -132,9 +120,9 @@ def summary_note(n: int) -> str:
 
 @dataclass
 class RestWatch:
-    """Is the arm at rest with its protective stop clear?  Fed one Status record at a time
+    """Is the arm at rest with its braking fault clear?  Fed one Status record at a time
     (:meth:`at_rest`): True after :data:`REST_RECORDS` records in a row, each of a newer
-    heartbeat tick, without FAULT_BRAKING or FAULT_COLLISION, the encoders moving at most :data:`REST_COUNTS`
+    heartbeat tick, without FAULT_BRAKING, the encoders moving at most :data:`REST_COUNTS`
     from one to the next.  :meth:`hard` names a hard fault a record shows (the caller stops:
     no resume)."""
 
@@ -159,7 +147,7 @@ class RestWatch:
         if self._last_tick is not None and tick <= self._last_tick:
             return self._still >= self.records  # the same record again: no news
         pos = np.asarray(encoder_pos_counts, np.int64)
-        if int(fault_bits) & RESUMABLE_FAULTS:
+        if int(fault_bits) & FAULT_BRAKING:
             self._still = 0
         elif self._last_pos is not None and int(np.max(np.abs(pos - self._last_pos))) <= self.tol_counts:
             self._still += 1

@@ -35,12 +35,8 @@ LINE = re.compile(r"^arm1: protective stop at (\d+) % of the move \(braking\); "
 
 
 # -- the decisions ------------------------------------------------------------------------------
-def test_only_braking_or_the_guards_stop_on_a_failed_move_is_a_protective_stop():
+def test_only_braking_alone_on_a_failed_move_is_a_protective_stop():
     assert rs.protective_stop(L.CMD_FAILED, L.FAULT_BRAKING)
-    assert rs.protective_stop(L.CMD_FAILED, L.FAULT_COLLISION)  # the collision guard's stop
-    assert rs.protective_stop(L.CMD_FAILED, L.FAULT_COLLISION | L.FAULT_BRAKING)
-    assert not rs.protective_stop(L.CMD_FAILED, L.FAULT_COLLISION | L.FAULT_GUARD)  # the guard silent: hard
-    assert rs.RestWatch.hard(L.FAULT_COLLISION) is None and rs.RestWatch.hard(L.FAULT_GUARD) == "guard"
     assert not rs.protective_stop(L.CMD_OK, L.FAULT_BRAKING)  # done: nothing to resume
     assert not rs.protective_stop(L.CMD_REFUSED, L.FAULT_BRAKING)
     assert not rs.protective_stop(L.CMD_FAILED, 0)  # failed, no braking seen: not ours to judge
@@ -139,13 +135,11 @@ class FakeArm:
     ``stops``: scripted protective stops, consumed in order, each (leg tick, extra fault bits,
     braking ticks): at that tick of the command in progress the servo brakes (FAULT_BRAKING,
     with the extra bits) for so many ticks, drifting ``drift_counts`` per tick, less each
-    tick; ``guard_stops``: the collision guard's stops, each (leg tick, ticks): FAULT_COLLISION
-    for so many ticks while the arm follows the planner's way-points (its ramp down; ``ticks``
-    None: latched for good); ``hard_after``: (ticks after a stop, bits) that stay set from then (a hard fault
+    tick; ``hard_after``: (ticks after a stop, bits) that stay set from then (a hard fault
     found at the resume); ``brake_forever``: the braking fault never clears."""
 
     def __init__(self, model, clock: Clock, start_counts, stops=(), drift_counts: float = 0.0,
-                 hard_after=None, brake_forever: bool = False, guard_stops=()) -> None:
+                 hard_after=None, brake_forever: bool = False) -> None:
         self.clock, self.model = clock, model
         self.status = MemoryDatabase("arm1.status", L.ARM_STATUS_LAYOUT)
         self.command = MemoryDatabase("arm1.command", L.ARM_COMMAND_LAYOUT)
@@ -155,7 +149,6 @@ class FakeArm:
         self.planner = PlannerCore(model)
         self.pos = np.asarray(start_counts, float)
         self.stops, self.drift, self.hard_after, self.brake_forever = list(stops), drift_counts, hard_after, brake_forever
-        self.guard_stops, self.guard = list(guard_stops), 0  # the guard's stops; ticks left of the one on
         self.tick = 0
         self.leg_id, self.leg_tick = None, 0
         self.braking, self.v, self.extra, self.hard, self.since_stop = 0, 0.0, 0, 0, None
@@ -192,7 +185,7 @@ class FakeArm:
             self.taken_at.append(self.pos.copy())
         self.ctrl_command.update(brain_tick=self.tick)
         self._fault_script()
-        faults = (L.FAULT_BRAKING | self.extra if self.braking else 0) | self.hard | (L.FAULT_COLLISION if self.guard else 0)
+        faults = (L.FAULT_BRAKING | self.extra if self.braking else 0) | self.hard
         self.ctrl_status.update(encoder_pos=np.rint(self.pos).astype(np.int32), homed=L.HOMED, fault=faults)
         out = self.planner.step(self.ctrl_command.read(), self.ctrl_status.read())
         apply(out, self.ctrl_command, self.ctrl_status, self.tick)
@@ -213,12 +206,6 @@ class FakeArm:
             self.since_stop += 1
             if self.hard_after is not None and self.since_stop >= self.hard_after[0]:
                 self.hard = self.hard_after[1]
-        if self.guard:
-            self.guard -= 1  # (a latched stop counts down from a very large number)
-        elif self.guard_stops and int(st["busy"]) > 0 and self.leg_tick >= self.guard_stops[0][0]:
-            ticks = self.guard_stops.pop(0)[1]
-            self.guard = 10**9 if ticks is None else ticks
-            self.cancels.append(self.pos.copy())
         if self.stops and not self.braking and int(st["busy"]) > 0 and self.leg_tick >= self.stops[0][0]:
             _, self.extra, self.braking = self.stops.pop(0)
             direction = np.sign(np.asarray(self.ctrl_command.read()["encoder_cmd_ext"], float) - self.pos)
@@ -278,31 +265,6 @@ def test_a_protective_stop_is_resumed_once_from_where_the_arm_stopped(clock):
     assert arm.live_cmd is None
 
 
-def test_the_collision_guards_stop_is_resumed_once_released(clock):
-    """The guard's protective stop (FAULT_COLLISION): the planner ramps the move down and
-    cancels it; once the guard released it (the bit clear, the arm at rest) the move is re-issued
-    toward the same target and arrives, the line naming the stop."""
-    arm, fake = brain_arm(clock, guard_stops=[(50, 60)])
-    lines, say = said()
-    assert arm.move("joint", GOAL, 2.0, say=say) == 1
-    assert len(lines) == 1 and re.match(r"^arm1: protective stop at \d+ % of the move \(collision\); "
-                                        r"resuming from the arm's position \(1 of 3\)$", lines[0]), lines
-    first, again = fake.commands
-    assert again[0] == first[0] + 1 and again[1] == L.JSPACE
-    assert np.all(np.abs(fake.pos - GOAL) <= 1)
-
-
-def test_a_collision_stop_that_stays_latched_is_not_resumed(clock):
-    """A stop at rest below S_p stays latched (docs/guard.md): no rest with the bit clear, so the
-    move fails after REST_TIMEOUT_S and nothing is re-issued."""
-    arm, fake = brain_arm(clock, guard_stops=[(50, None)])
-    lines, say = said()
-    with pytest.raises(RuntimeFailure, match=r"^timed out after 5 s waiting for arm1 to come to rest with its "
-                                             r"protective stop clear \(not resumed\)$"):
-        arm.move("joint", GOAL, 2.0, say=say)
-    assert lines == [] and len(fake.commands) == 1
-
-
 def test_three_resumes_then_a_fourth_stop_fails_naming_it(clock):
     arm, fake = brain_arm(clock, stops=[(40, 0, 4), (10, 0, 4), (10, 0, 4), (10, 0, 4)])
     lines, say = said()
@@ -352,7 +314,7 @@ def test_an_arm_that_keeps_braking_is_not_resumed_after_five_seconds(clock):
     arm, fake = brain_arm(clock, stops=[(50, 0, 1)], brake_forever=True)
     lines, say = said()
     with pytest.raises(RuntimeFailure, match=r"^timed out after 5 s waiting for arm1 to come to rest with its "
-                                             r"protective stop clear \(not resumed\)$"):
+                                             r"braking fault clear after a protective stop \(not resumed\)$"):
         arm.move("joint", GOAL, 2.0, say=say)
     assert lines == [] and len(fake.commands) == 1
     assert 5.0 < clock.t < 2.0 + 5.0 + 0.5  # the move until its stop, then 5 s
