@@ -33,9 +33,9 @@ from dataclasses import dataclass
 import zmq
 
 from droid.brain.cell.cellfile import Cell
+from droid.brain.plumbing.udp import bind_udp, udp_address
 from droid.cli import BadInput, RuntimeFailure
 from droid.faults.core import DelayLine, LinkFaults, MessageFate
-from droid.subunits.abb.config import bind_udp, egm_config, egm_url, udp_address
 
 KINDS = ("router", "pub", "pull", "udp")
 POLL_MS = 20  # the longest the loop waits with messages held back (delay resolution ~1 ms)
@@ -57,8 +57,13 @@ class Endpoint:
 
 
 def cell_endpoints(cell: Cell) -> dict[str, Endpoint]:
-    """Every endpoint of the cell that a program binds, by label (an ABB subunit's EGM address:
-    ``<sub>.egm``, kind ``udp``; a malformed ``egm`` URL is BadInput)."""
+    """Every endpoint of the cell that a program binds, by label; after a subunit's ZeroMQ ones
+    those its device packages declare (``DevicePackage.proxy_endpoints``, every package asked of
+    every subunit in the registry's order: an ABB subunit's EGM address ``<sub>.egm``, kind
+    ``udp``; a malformed ``egm`` URL is BadInput)."""
+    from droid.brain.cell.registry import registry, resolve
+
+    declared = [resolve(p.proxy_endpoints) for p in registry().packages.values() if p.proxy_endpoints]
     out = [Endpoint("brain.names", cell.names, "router", cell.brain_host),
            Endpoint("brain.heartbeat", cell.heartbeat, "pub", cell.brain_host)]
     for sub in cell.subunits.values():
@@ -71,9 +76,8 @@ def cell_endpoints(cell: Cell) -> dict[str, Endpoint]:
                 ep = sub.options.get(key)
                 if isinstance(ep, str):
                     out.append(Endpoint(f"{sub.name}.{key}", ep, kind, sub.host))
-        if "droid-egm" in sub.programs or "egm" in sub.options:
-            egm_config(cell, sub)  # checked here: droid-fault list / interpose / proxy refuse a bad one
-            out.append(Endpoint(f"{sub.name}.egm", egm_url(sub), "udp", sub.host))
+        for endpoints in declared:  # checked there: droid-fault list / interpose / proxy refuse a bad one
+            out += [Endpoint(f"{sub.name}.{name}", url, kind, sub.host) for name, url, kind in endpoints(cell, sub)]
     return {e.label: e for e in out}
 
 

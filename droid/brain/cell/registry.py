@@ -158,6 +158,11 @@ class DevicePackage:
     # "module:function" (cell, subunit) -> bool: does this subunit need a world twin when
     # [world] is enabled?  None: the default rule (:func:`drives_the_world`).
     needs_twin: str | None = None
+    # "module:function" (cell, subunit) -> [(name, url, kind), ...]: the endpoints its programs bind
+    # for that subunit beyond the cell's ZeroMQ ones, which droid-fault's proxy may interpose as
+    # ``<subunit>.<name>`` (droid.faults.proxy: kind "udp"; the ABB's EGM address); [] for a subunit
+    # not its own.  None: none.
+    proxy_endpoints: str | None = None
     generic: bool = False  # its cell programs serve every class (droid-agent)
 
     def program(self, name: str) -> Program:

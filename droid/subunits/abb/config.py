@@ -7,19 +7,19 @@
 With an ``[interpose]`` entry ``"udp://H:P" = "udp://H:P2"`` droid-egm binds ``udp://H:P2`` and a
 fault proxy serves ``udp://H:P`` (droid-fault, docs/safety.md); the controller still sends to P.
 
-The EGM link's UDP plumbing is here too, once for every end of the link: droid-egm, the
-controller twin in droid-sim and droid-fault's proxy parse ``udp://HOST:PORT`` with
-:func:`udp_address` and open their sockets with :func:`bind_udp`.
+The EGM link's UDP plumbing is the Brain's (droid.brain.plumbing.udp), once for every end of the
+link: droid-egm, the controller twin in droid-sim and droid-fault's proxy parse ``udp://HOST:PORT``
+with :func:`udp_address` and open their sockets with :func:`bind_udp` (both named here too).
+:func:`proxy_endpoints` tells droid-fault's proxy the EGM address to interpose (the package's
+``DevicePackage.proxy_endpoints``).
 """
 from __future__ import annotations
 
-import errno
-import socket
 from dataclasses import dataclass
-from urllib.parse import urlsplit
 
 from droid.brain.cell.cellfile import Cell, Subunit
-from droid.cli import BadInput, RuntimeFailure
+from droid.brain.plumbing.udp import bind_udp, udp_address  # noqa: F401 (named here for droid-egm and its twin)
+from droid.cli import BadInput
 
 DEFAULT_EGM_PORT = 6510  # the port of ABB's EGM examples (and abb-robot-client's default)
 
@@ -34,21 +34,6 @@ class EgmConfig:
         return (self.host, self.port)
 
 
-def udp_address(url) -> tuple[str, int]:
-    """``udp://HOST:PORT`` -> (host, port); anything else is BadInput (one line naming it)."""
-    if not isinstance(url, str):
-        raise BadInput(f"{url!r}: not a string udp://HOST:PORT")
-    try:
-        parts = urlsplit(url)
-        port = parts.port
-    except ValueError:
-        raise BadInput(f"{url!r}: not udp://HOST:PORT (port 1..65535)") from None
-    if parts.scheme != "udp" or not parts.hostname or port is None or not 1 <= port <= 65535 \
-            or parts.path not in ("", "/") or parts.query or parts.fragment:
-        raise BadInput(f"{url!r}: not udp://HOST:PORT (port 1..65535)")
-    return parts.hostname, port
-
-
 def parse_egm_url(url, where: str) -> EgmConfig:
     """``udp://HOST:PORT`` -> EgmConfig; anything else is BadInput naming ``where``."""
     if not isinstance(url, str):
@@ -57,27 +42,6 @@ def parse_egm_url(url, where: str) -> EgmConfig:
         return EgmConfig(*udp_address(url))
     except BadInput as exc:
         raise BadInput(f"{where} egm {exc}") from None
-
-
-def bind_udp(address: tuple[str, int] | None, who: str = "", buffer_bytes: int | None = None) -> socket.socket:
-    """A non-blocking IPv4 UDP socket bound to ``address`` (None: left unbound, the kernel picks a
-    port at the first send); ``buffer_bytes``: its kernel receive and send buffers asked for.  A
-    socket that cannot be bound is RuntimeFailure (exit 1), one line: ``WHO: cannot bind UDP
-    HOST:PORT: in use``."""
-    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    try:
-        if buffer_bytes is not None:
-            for opt in (socket.SO_RCVBUF, socket.SO_SNDBUF):
-                sock.setsockopt(socket.SOL_SOCKET, opt, buffer_bytes)
-        if address is not None:
-            sock.bind(address)
-    except OSError as exc:
-        sock.close()
-        why = "in use" if exc.errno == errno.EADDRINUSE else (exc.strerror or str(exc))
-        where = "a UDP socket" if address is None else f"UDP {address[0]}:{address[1]}"
-        raise RuntimeFailure(f"{who + ': ' if who else ''}cannot bind {where}: {why}") from None
-    sock.setblocking(False)
-    return sock
 
 
 def egm_url(sub: Subunit):
@@ -98,3 +62,14 @@ def egm_bind_config(cell: Cell, sub: Subunit) -> EgmConfig:
     if inner == egm_url(sub):
         return public
     return parse_egm_url(inner, f"{cell.path}: [interpose] for [subunits.{sub.name}]")
+
+
+def proxy_endpoints(cell: Cell, sub: Subunit) -> list[tuple[str, str, str]]:
+    """The endpoints of ``sub`` a fault proxy may interpose beyond the cell's ZeroMQ ones
+    (``DevicePackage.proxy_endpoints``; droid.faults.proxy.cell_endpoints): an ABB subunit's EGM
+    address, ``egm``, of kind ``udp`` -- where it runs droid-egm or names an ``egm`` address; none
+    otherwise.  A malformed address is BadInput (droid-fault list / interpose / proxy refuse it)."""
+    if "droid-egm" not in sub.programs and "egm" not in sub.options:
+        return []
+    egm_config(cell, sub)
+    return [("egm", egm_url(sub), "udp")]

@@ -3,7 +3,8 @@
 Serves class ``arm6r`` like the Reis and the GMF1: an ABB subunit runs the Reis package's
 ``droid-reis-agent`` and ``droid-planner`` and this package's ``droid-egm`` in the servo
 agent's place (docs/abb.md).  Its twin ``abb_egm`` is the controller's side of EGM.  The
-``egm`` key's ``udp://HOST:PORT`` is bound by droid-egm itself (no driver to open).  Its
+``egm`` key's ``udp://HOST:PORT`` is bound by droid-egm itself (no driver to open); droid-fault's
+proxy may interpose it (``proxy_endpoints``).  Its
 lockstep builder, :func:`droid.sim.abb.lockstep.build`, puts the subunit's stations and the twin
 (:class:`~droid.sim.abb.lockstep.LockstepAbbArm`) on a lockstep scheduler from a cell file.
 """
@@ -20,4 +21,5 @@ PACKAGE = DevicePackage(
                       rss_mb=45),),
     twins=(Twin("abb_egm", "droid.sim.abb.controller:make_abb_egm", serves=("arm6r",), cpu_pct=3.0),),
     lockstep="droid.sim.abb.lockstep:build",
+    proxy_endpoints="droid.subunits.abb.config:proxy_endpoints",  # its EGM address, for droid-fault
 )
