@@ -59,7 +59,6 @@ import numpy as np
 from droid.cli import BadInput
 from droid.kinematics.transforms import inv_homo
 from droid.experiments import phases, seam_kernel
-from droid.sim.reis.fast_arm import FastArmParams
 from droid.sim.trial_cell import TrialGeometry, resolve_trial_cell, trial_geometry
 from droid.sim.mvs.trial_sensors import DEFAULT_NOISE, SENSOR_MODELS, LeadSensor, ToolTipSensor, tool_reading
 from droid.sim.lockstep import ORDER_DEVICE, ORDER_TASK, ORDER_WORLD, Scheduler
@@ -196,7 +195,7 @@ class TrialConfig:
     noise: CameraNoise = DEFAULT_NOISE
     dead_zone_cycles: int = DEAD_ZONE_CYCLES
     lost_cycles: int = LOST_CYCLES
-    fast_params: FastArmParams = FastArmParams()
+    fast_params: object = None  # the fast arm model's parameters (its package's type); None: its defaults
     title: str = ""
     panels: str = "errors"  # "errors" (Figs 6.5-6.13) or "angles" (Figs 6.17-6.35: yaw/pitch panels)
     mode: str = MODE_THESIS  # tracking mode: thesis, listing, plus (docs/seamtrack.md)

@@ -81,8 +81,9 @@ class FastArm:
     Joint vectors are kept as lists of 6 floats [deg]; the accessors return arrays.
     """
 
-    def __init__(self, model: RobotModel, q_start_deg, params: FastArmParams = FastArmParams(),
+    def __init__(self, model: RobotModel, q_start_deg, params: FastArmParams | None = None,
                  servo: ServoParams = ServoParams()) -> None:
+        params = FastArmParams() if params is None else params  # None: the calibrated defaults (a trial's)
         self.model = model
         self.p = params
         self.period_ns = int(round(1e9 / params.heartbeat_hz))
