@@ -56,8 +56,7 @@ from droid.experiments import phases
 from droid.experiments.jobs import NO_MATPLOTLIB, Job, Outcome, is_contact, json_safe, run_and_store, run_job, store
 from droid.experiments.matrix import EXP4_RUNS, POSITION_LABELS, TABLES, experiments, resolve, valid_forms, with_seed
 from droid.experiments.plan import FIELDS, TRIAL_CONTACT, Plan, PlanTrial, load_plan
-from droid.sim.mvs.trial_sensors import SENSOR_MODELS
-from droid.experiments.trial import ARM_MODELS
+from droid.experiments.trial import ARM_MODELS, SENSOR_MODELS
 from droid.tasks.seam import report
 from droid.tasks.seam.params import MAX_RUN_LENGTH_MM, MODES
 

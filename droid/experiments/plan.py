@@ -150,8 +150,7 @@ class _Checker:
     """Type and range checks of one plan's values; each failure names plan, key and value."""
 
     def __init__(self, source: str, plan_dir: Path, layout=None) -> None:
-        from droid.sim.mvs.trial_sensors import SENSOR_MODELS
-        from droid.experiments.trial import ARM_MODELS
+        from droid.experiments.trial import ARM_MODELS, SENSOR_MODELS
         from droid.brain.cell.cell_layout import load_layout
 
         self.source = source

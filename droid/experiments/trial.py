@@ -20,14 +20,16 @@ GMF1                  its own rates    ``holder="gmf1"`` (default): the Fanuc tw
                                        MOVE through KAREL at that velocity from the start.
                                        ``"fixed"``: the exact holding pose, drifting at
                                        ``holder_mm_s`` (no controller, no encoders)
-lead sensor           the tick before  the frame the next cycle reads (sim.mvs.trial_sensors.LeadSensor),
-                      each cycle       stamped with its capture tick; ``latency_cycles`` holds
+lead sensor           the tick before  the frame the next cycle reads (the ``lead`` model of the
+                      each cycle       layout's sensor's package, sim.trial_cell.TrialCell.lead_sensor:
+                                       the MVS's, sim.mvs.trial_sensors.LeadSensor),
+                                       stamped with its capture tick; ``latency_cycles`` holds
                                        every reading back that many cycles; a frame that brings
                                        no line (droid-mvs's station: dropped, inside the retrace
                                        timeout) leaves the reading the Status holds
 tool-tip sensor       the tick before  the sample the next log row shows (the lead sensor's
-                      each log row     noise model, trial_sensors.ToolTipSensor; the truth --
-                                       trial_sensors.tool_reading -- gives the seam progress)
+                      each log row     noise model, its ``tool_tip``: trial_sensors.ToolTipSensor;
+                                       the truth -- its ``truth`` -- gives the seam progress)
 tracking cycle        every tick:      droid.tasks.seam.cycle.TrackingCycle -- the same code as
                       poses; every     droid-seamtrack: pose histories, cycle counting from the
                       cycle_ticks      heartbeat, the reading placed with the poses of its
@@ -60,9 +62,7 @@ from droid.cli import BadInput
 from droid.kinematics.transforms import inv_homo
 from droid.experiments import phases, seam_kernel
 from droid.sim.trial_cell import TrialGeometry, resolve_trial_cell, trial_geometry
-from droid.sim.mvs.trial_sensors import DEFAULT_NOISE, SENSOR_MODELS, LeadSensor, ToolTipSensor, tool_reading
 from droid.sim.lockstep import ORDER_DEVICE, ORDER_TASK, ORDER_WORLD, Scheduler
-from droid.sim.mvs.camera import CameraNoise
 from droid.tasks.seam.params import (DEAD_ZONE_CYCLES, LOST_CYCLES, MODE_LISTING, MODE_THESIS, MODES, SeamParams,
                                      speed_problem)
 from droid.tasks.seam.cycle import TrackingCycle, stamped
@@ -71,6 +71,10 @@ from droid.tasks.seam.delay import INVALID_READING, Reading
 from droid.tasks.seam.report import COLUMNS, SETTLE_EXTRA_MM, log_row  # noqa: F401 (columns; settling)
 
 ARM_MODELS = ("fast", "full")
+#: The lead sensor models a trial may name: ``camera`` (the sensor's twin renders the frames its
+#: station reads) or ``ideal`` (the exact geometry with the camera chain's noise); the layout's
+#: sensor's package makes them (droid.sim.trial_cell.TrialCell.lead_sensor).
+SENSOR_MODELS = ("camera", "ideal")
 HOLDER_MODELS = ("gmf1", "fixed")  # the GMF1 through its controller and encoders, or an exact pose
 from droid.brain.cell.device import HEARTBEAT_HZ  # [Hz], the droid-heartbeat declaration
 CYCLE_TICKS = 2  # one 30 Hz seam-tracking cycle = 2 heartbeat ticks (cart_time_count; TrackingCycle.cycle_ticks)
@@ -95,7 +99,7 @@ class ProgressLimit:
     slip under Coulomb friction; docs/experiments.md), so that limit ended most slow-but-
     tracking trials.  Now two rules, either of which ends the trial as ``timeout``:
 
-    * **stall**: the tool's seam coordinate s (the truth's, ``trial_sensors.tool_reading``) has
+    * **stall**: the tool's seam coordinate s (the truth's, the tool-tip sensor's ``truth``) has
       advanced less than ``min_progress_mm(speed)`` = min(``min_mm``, ``min_fraction`` x
       speed x ``window_s``) over the last ``window_s`` seconds of simulated time.  30 s and
       2 mm: the slowest progress of a tracking trial measured on the full arm is the thesis-mode
@@ -192,7 +196,7 @@ class TrialConfig:
     seed: int = 1
     arm: str = "full"  # the Reis model: full (every core + the plant twin; homes first) or fast
     sensor: str = "camera"
-    noise: CameraNoise = DEFAULT_NOISE
+    noise: object = None  # the lead sensor's noise (its package's kind); None: its default (the trials')
     dead_zone_cycles: int = DEAD_ZONE_CYCLES
     lost_cycles: int = LOST_CYCLES
     fast_params: object = None  # the fast arm model's parameters (its package's type); None: its defaults
@@ -290,8 +294,9 @@ def run_trial(cfg: TrialConfig, layout=None, record: str | None = None,
     sched = Scheduler(HEARTBEAT_HZ)
     arm, holder = tc.build_arms(sched, geo, cfg.arm, cfg.seed, cfg.fast_params, phases.mark)
     cyc = _tracking_cycle(params, geo, cfg.trial_id)
-    lead = LeadSensor(geo.workpiece, cfg.sensor, cfg.noise, seed=cfg.seed, frames_per_read=cyc.cycle_ticks)
-    tool_sensor = ToolTipSensor(lead.crossing, cfg.noise if cfg.tool_noise else CameraNoise(), seed=cfg.seed)
+    lead = tc.lead_sensor(cfg.sensor)(geo.workpiece, cfg.sensor, cfg.noise, seed=cfg.seed,
+                                      frames_per_read=cyc.cycle_ticks)
+    tool_sensor = lead.tool_tip(cfg.tool_noise, seed=cfg.seed)
     recorder = _recorder(record, cfg.trial_id, geo) if record is not None else None
     trial = _LockstepTrial(sched, geo, arm, holder, cyc, (lead, tool_sensor), recorder,
                            latency_cycles=cfg.latency_cycles, holder_mm_s=cfg.holder_mm_s)
@@ -366,7 +371,7 @@ class _LockstepTrial:
 
     def tool_s_now(self) -> float:
         """The tool's seam progress now, from the truth [mm]; NaN off the seam."""
-        m = tool_reading(self.state["T_W_g"] @ self.arm.true_wcp() @ self.T_wcp_tool, self.lead.crossing)
+        m = self.tool_sensor.truth(self.state["T_W_g"] @ self.arm.true_wcp() @ self.T_wcp_tool)
         return self.s_of(m) if m is not None else math.nan
 
     def sensors(self, tick: int) -> None:

@@ -27,7 +27,10 @@ builder's own ``@builds``):
 through the lockstep cell builder (droid.sim.lockstep_cell.build_lockstep_cell, LockstepCell.add:
 the welder, homed, then the holder -- the trial's start order) with the trial's seed, the cell's ``stale_ticks`` and
 the trial's own world (its holder model's ``trial_world``: the holder's twin alone) instead of the
-cell's world-device tables.  :func:`trial_geometry` places the layout's position, workpiece and wrist
+cell's world-device tables.  The truth sensors -- the lead sensor and the tool-tip sensor beside
+it -- are those of the layout's ``sensor``, a subunit of the cell whose package registers a
+``lead`` lockstep model (:func:`sensor_packages`, :meth:`TrialCell.lead_sensor`: the MVS's,
+droid.sim.mvs.trial_sensors).  :func:`trial_geometry` places the layout's position, workpiece and wrist
 (:class:`TrialGeometry`: where everything is at the start); :class:`FullArm` is the ``full`` arm model over
 the welder its builder builds (homed, then moved to the start pose).  A trial
 without a cell file runs on the built-in cell (droid/cells/sim.toml, whatever $DROID_CELL says;
@@ -79,6 +82,18 @@ def holder_builders(cell: Cell, sub) -> dict:
 
     pkgs = registry().packages
     return {build: name for name, build in class_builders(cell, sub) if pkgs[name].lockstep_model("holder")}
+
+
+def sensor_packages(cell: Cell, sub) -> list[str]:
+    """The packages that can make the trial's truth sensors of ``sub``, the layout's ``sensor``, by
+    name: of the packages serving its class, those that register a ``lead`` lockstep model
+    (DevicePackage.lockstep_models: the MVS's, droid.sim.mvs.trial_sensors.LeadSensor), first
+    those whose programs the subunit runs."""
+    from droid.brain.cell.registry import registry
+
+    pkgs = [p for p in registry().package_of_class(sub.cls) if p.lockstep_model("lead")]
+    runs = set(sub.programs)
+    return [p.name for p in sorted(pkgs, key=lambda p: not runs & {q.name for q in p.programs})]
 
 
 def _model(package: str, name: str):
@@ -175,11 +190,22 @@ class TrialCell:
     world: dict
     welder_package: str = ""  # the device package whose builder builds the welder
     holder_package: str | None = None  # ... and the holder (None: a fixed holder)
+    sensor_package: str = ""  # ... and the one whose lead model makes the truth sensors (the layout's sensor)
 
     def arm_model(self, name: str):
         """The class of the welder's lockstep arm model ``name`` (its package's ``lockstep_models``:
         the Reis's ``fast``), or None when its package registers none of that name."""
         return _model(self.welder_package, name)
+
+    def lead_sensor(self, model: str):
+        """The class of the trial's lead sensor of model ``model`` (camera, ideal): the ``lead``
+        lockstep model of the layout's ``sensor``'s package (the MVS's LeadSensor, droid.sim.mvs.trial_sensors;
+        the tool-tip sensor its instances' ``tool_tip``).  BadInput when it has no such model."""
+        cls = _model(self.sensor_package, "lead")
+        if model not in cls.models:
+            raise BadInput(f"{self.cell.path}: [subunits.{self.layout.sensor}] has no {model} sensor model: "
+                           f"package {self.sensor_package!r}'s lead sensor has {', '.join(cls.models)}")
+        return cls
 
     def build_arms(self, sched, geo, arm_model: str, seed: int, fast_params, mark=None):
         """The trial's welder and holder on ``sched``, ready at the start (thesis §6.1.1-6.1.2):
@@ -285,7 +311,12 @@ def resolve_trial_cell(cell: str | os.PathLike | Cell | None = None, arm_model: 
         _subunit(cell, layout, "holder_robot")
     check_bases(layout, cell)
     check_robots(layout, cell)
-    tc = TrialCell(cell, layout, builders, world, package, holder_package)
+    sensor = _subunit(cell, layout, "sensor")
+    sensors = sensor_packages(cell, sensor)
+    if not sensors:
+        raise BadInput(f"{cell.path}: [subunits.{sensor.name}] (the layout's sensor) has no trial sensors: no "
+                       f"package serving class {sensor.cls!r} registers a lead model (DevicePackage.lockstep_models)")
+    tc = TrialCell(cell, layout, builders, world, package, holder_package, sensors[0])
     if arm_model != "full" and tc.arm_model(arm_model) is None:
         raise BadInput(f"{cell.path}: [subunits.{layout.tool_robot}] has no {arm_model} arm model: package "
                        f"{package!r} registers none (its DevicePackage.lockstep_models); use the full model (--arm full)")

@@ -149,11 +149,17 @@ class DevicePackage:
     twins: tuple[Twin, ...] = ()
     # "module:function": build(ctx, sub) -> LockstepSubunit, one subunit in lockstep (droid.sim.lockstep_build)
     lockstep: str | None = None
-    # (name, "module:class") pairs: what a lockstep seam-tracking trial may drive of its arm besides
-    # the built subunit (docs/experiments.md): a lighter model in its place, named by the trial's
-    # ``arm`` and made as ``cls(model, q_start_deg, params)`` (the Reis's "fast": its planner and one
-    # second-order loop a joint); "holder": the workpiece holder over the built subunit, made as
-    # ``cls(sched, built, q_hold_deg)``, its world ``cls.trial_world(subunit)`` (the GMF1's)
+    # (name, "module:class") pairs: the models a lockstep seam-tracking trial makes of its subunits
+    # besides the built ones (docs/experiments.md): a lighter arm in the welder's place, named by the
+    # trial's ``arm`` and made as ``cls(model, q_start_deg, params)`` (params: the trial's, None for
+    # its own defaults; the Reis's "fast": its planner and one second-order loop a joint); "holder":
+    # the workpiece holder over the built subunit, made as ``cls(sched, built, q_hold_deg)``, its
+    # world ``cls.trial_world(subunit)`` (the GMF1's); "lead": the truth sensors of the layout's
+    # ``sensor``, made as ``cls(workpiece, model, noise, seed=, frames_per_read=)`` -- ``cls.models``
+    # the sensor models it has (a trial's ``sensor``), ``noise`` its own kind or None for its default;
+    # ``read(T_W_S)`` the line the Brain's parser reads (or None: no line), ``frames``/``valid`` its
+    # counts, ``tool_tip(noisy, seed)`` the tool-tip sensor beside it (``read(T_W_tool)``, and
+    # ``truth(T_W_tool)``, exact: the trial's seam progress) (the MVS's)
     lockstep_models: tuple[tuple[str, str], ...] = ()
     # "module:function" (cell, subunit) -> bool: does this subunit need a world twin when
     # [world] is enabled?  None: the default rule (:func:`drives_the_world`).

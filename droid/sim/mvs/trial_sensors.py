@@ -67,15 +67,24 @@ class _Values:
 class LeadSensor:
     """The MVS lead sensor of one trial: its pose in W -> the Brain's reading.
 
+    The MVS package's ``lead`` lockstep model (droid.subunits.mvs.device; DevicePackage.lockstep_models):
+    a trial whose layout's ``sensor`` is an MVS subunit makes its lead sensor of this class
+    (droid.sim.trial_cell.TrialCell.lead_sensor) and its tool-tip sensor with :meth:`tool_tip`.
+    ``noise``: the camera's (None: :data:`DEFAULT_NOISE`, the trials').
     ``frames_per_read``: frame periods between two :meth:`read` calls -- the trial renders
     only the frames its cycles read (one a 30 Hz cycle: 2); to the station's timeout rule a
     dropped frame is that many frame periods without a frame."""
 
-    def __init__(self, workpiece: Workpiece, model: str = "camera", noise: CameraNoise = DEFAULT_NOISE,
+    #: the sensor models it has (a trial's ``sensor``)
+    models = SENSOR_MODELS
+
+    def __init__(self, workpiece: Workpiece, model: str = "camera", noise: CameraNoise | None = None,
                  calib: MvsCalibration = MvsCalibration(), seed: int = 0, frames_per_read: int = 1) -> None:
         if model not in SENSOR_MODELS:
             raise ValueError(f"unknown sensor model {model!r} (known: {', '.join(SENSOR_MODELS)})")
+        noise = DEFAULT_NOISE if noise is None else noise
         self.model = model
+        self.noise = noise
         self.workpiece = workpiece
         self.crossing = SeamCrossing(workpiece)
         self.rng = np.random.default_rng(seed)
@@ -110,6 +119,11 @@ class LeadSensor:
         reading = parse_line(line.rstrip(b"\n"))
         self.valid += bool(reading.valid)
         return reading
+
+    def tool_tip(self, noisy: bool = True, seed: int = 0) -> "ToolTipSensor":
+        """The trial's tool-tip sensor beside this one: the same seam, through this sensor's noise
+        model (``noisy``) or exact."""
+        return ToolTipSensor(self.crossing, self.noise if noisy else CameraNoise(), seed=seed)
 
     def _ideal(self, T_W_S: np.ndarray) -> _Values | None:
         noise = self.rng.standard_normal(3)
@@ -147,3 +161,7 @@ class ToolTipSensor:
 
     def read(self, T_W_tool: np.ndarray) -> ToolReading | None:
         return noisy(tool_reading(T_W_tool, self.crossing), self.noise, self.rng)
+
+    def truth(self, T_W_tool: np.ndarray) -> ToolReading | None:
+        """The exact reading (:func:`tool_reading`): the trial's truth -- its seam progress, the stop position."""
+        return tool_reading(T_W_tool, self.crossing)

@@ -3,7 +3,9 @@
 Serves class ``line_laser`` (Table 3.3, defined by the Brain).  Its program, the DSP
 board driver (its serial line uses the Brain's ``serial`` driver), its twins -- the
 camera and DSP board, the tool-tip measuring sensor, and the fixed arm the sensor
-rigs use -- and the lockstep builder (:func:`droid.sim.mvs.lockstep.build`).
+rigs use -- the lockstep builder (:func:`droid.sim.mvs.lockstep.build`) and a seam-tracking
+trial's truth sensors on the layout's ``sensor`` (its ``lead`` lockstep model,
+:class:`droid.sim.mvs.trial_sensors.LeadSensor`, with the tool-tip sensor beside it).
 """
 from __future__ import annotations
 
@@ -27,4 +29,5 @@ PACKAGE = DevicePackage(
         Twin("fixed_arm", "droid.sim.mvs.arm:fixed_arm", serves=("arm6r",), cpu_pct=0.5),
     ),
     lockstep="droid.sim.mvs.lockstep:build",
+    lockstep_models=(("lead", "droid.sim.mvs.trial_sensors:LeadSensor"),),  # a trial's lead and tool-tip sensors
 )
