@@ -13,18 +13,14 @@ the seam to its end.
 """
 from __future__ import annotations
 
-import ast
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from droid.brain.cell import registry as R
 from droid.brain.cell.cellfile import BUNDLED_CELLS
 from droid.experiments.trial import TrialConfig, run_trial
-from tests.registry.test_registry import install
-from tests.test_device_imports import device_of_module
+from tests.registry.test_registry import device_imports, registered
 
 ROBOTS = Path(__file__).resolve().parents[2] / "droid" / "kinematics" / "robots"
 
@@ -164,23 +160,12 @@ def lab_cell(tmp_path: Path) -> Path:
 
 @pytest.fixture
 def labarm(tmp_path, monkeypatch):
-    site = tmp_path / "site"
     files = {"device.py": LABARM_DEVICE, "prog.py": LABARM_PROG, "twin.py": LABARM_TWIN, "lockstep.py": LABARM_LOCKSTEP}
-    install(site, "labarm", files)
-    monkeypatch.syspath_prepend(str(site))
-    R.reset()
-    yield site / "labarm"
-    R.reset()
-    for mod in [m for m in sys.modules if m.split(".")[0] == "labarm"]:
-        del sys.modules[mod]
+    yield from registered(monkeypatch, tmp_path / "site", "labarm", files)
 
 
 def test_the_lab_arm_uses_no_other_arm_familys_code(labarm):
-    for path in labarm.glob("*.py"):
-        tree = ast.parse(path.read_text())
-        mods = [n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module]
-        mods += [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
-        assert [m for m in mods if device_of_module(m) is not None] == [], path.name
+    assert device_imports(labarm) == {}
 
 
 def test_a_fourth_arm_family_tracks_a_seam_in_lockstep(labarm, tmp_path):

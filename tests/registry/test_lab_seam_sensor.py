@@ -13,20 +13,17 @@ a class of its own) is no seam sensor, so it is not the one asked to be.
 """
 from __future__ import annotations
 
-import ast
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from droid.brain.cell import registry as R
 from droid.brain.cell.cellfile import BUNDLED_CELLS
 from droid.cli import BadInput
 from droid.experiments.trial import TrialConfig, run_trial
 from tests.registry.test_fourth_arm import _table
-from tests.registry.test_registry import install
-from tests.test_device_imports import device_of_module
+from tests.registry.test_registry import device_imports, registered
 
 LABSEAM_DEVICE = '''
 """labseam: a lab's line-laser seam sensor (serves line_laser) and a trial's truth sensors of it."""
@@ -112,22 +109,12 @@ def lab_cell(tmp_path: Path) -> Path:
 
 @pytest.fixture
 def labseam(tmp_path, monkeypatch):
-    site = tmp_path / "site"
-    install(site, "labseam", {"device.py": LABSEAM_DEVICE, "prog.py": LABSEAM_PROG, "trial.py": LABSEAM_TRIAL})
-    monkeypatch.syspath_prepend(str(site))
-    R.reset()
-    yield site / "labseam"
-    R.reset()
-    for mod in [m for m in sys.modules if m.split(".")[0] == "labseam"]:
-        del sys.modules[mod]
+    files = {"device.py": LABSEAM_DEVICE, "prog.py": LABSEAM_PROG, "trial.py": LABSEAM_TRIAL}
+    yield from registered(monkeypatch, tmp_path / "site", "labseam", files)
 
 
 def test_the_lab_sensor_uses_no_device_packages_code(labseam):
-    for path in labseam.glob("*.py"):
-        tree = ast.parse(path.read_text())
-        mods = [n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module]
-        mods += [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
-        assert [m for m in mods if device_of_module(m) is not None] == [], path.name
+    assert device_imports(labseam) == {}
 
 
 def test_the_layouts_sensor_role_picks_the_trial_sensors(labseam, tmp_path):

@@ -10,14 +10,12 @@ line (``labsensor``, whose slot is empty).
 """
 from __future__ import annotations
 
-import sys
-
 import pytest
 
 from droid.brain.cell import registry as R
 from droid.cli import BadInput
 from droid.sim.lockstep_cell import build_lockstep_cell
-from tests.registry.test_registry import LAB_SUBUNIT, cell_text, install, lab  # noqa: F401 (a fixture)
+from tests.registry.test_registry import LAB_SUBUNIT, cell_text, lab, registered  # noqa: F401 (a fixture)
 
 LABLOCK_DEVICE = '''
 """lablock: a lab's counter, registered through droid.devices, with its own lockstep builder."""
@@ -76,14 +74,8 @@ programs = ["droid-watchdog", "droid-servo", "droid-servo-agent", "droid-reis-ag
 
 @pytest.fixture
 def lablock(tmp_path, monkeypatch):
-    site = tmp_path / "site"
-    install(site, "lablock", {"device.py": LABLOCK_DEVICE, "prog.py": LABLOCK_PROG, "lockstep.py": LABLOCK_LOCKSTEP})
-    monkeypatch.syspath_prepend(str(site))
-    R.reset()
-    yield
-    R.reset()
-    for mod in [m for m in sys.modules if m.split(".")[0] == "lablock"]:
-        del sys.modules[mod]
+    files = {"device.py": LABLOCK_DEVICE, "prog.py": LABLOCK_PROG, "lockstep.py": LABLOCK_LOCKSTEP}
+    yield from registered(monkeypatch, tmp_path / "site", "lablock", files)
 
 
 def test_an_external_package_runs_in_lockstep_through_its_registration(lablock, tmp_path):

@@ -100,6 +100,36 @@ def install(site: Path, name: str, files: dict[str, str]) -> None:
     _dist(site, name, f"{name}.device:PACKAGE")
 
 
+def registered(monkeypatch, site: Path, name: str, files: dict[str, str]):
+    """Package ``name`` (:func:`install`) on sys.path and registered, the registry rebuilt: a
+    fixture's body (``yield from``), yielding its folder; then forgotten (the registry, its modules)."""
+    install(site, name, files)
+    monkeypatch.syspath_prepend(str(site))
+    R.reset()
+    yield site / name
+    R.reset()
+    for mod in [m for m in sys.modules if m.split(".")[0] == name]:
+        del sys.modules[mod]
+
+
+def device_imports(pkg: Path) -> dict[str, list[str]]:
+    """Module file -> the modules of a device package (tests.test_device_imports) it imports, for
+    each module of the package folder ``pkg`` that imports any."""
+    import ast
+
+    from tests.test_device_imports import device_of_module
+
+    out = {}
+    for path in sorted(pkg.glob("*.py")):
+        tree = ast.parse(path.read_text())
+        mods = [n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module]
+        mods += [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
+        found = [m for m in mods if device_of_module(m) is not None]
+        if found:
+            out[path.name] = found
+    return out
+
+
 @pytest.fixture
 def lab(tmp_path, monkeypatch):
     """``labsensor`` (and a broken ``labbroken``) installed on sys.path; the registry rebuilt."""
