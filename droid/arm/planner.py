@@ -152,7 +152,7 @@ class PlannerCore:
         # encoder_cmd_ext is the agent's: in JOG mode it is the Brain's RELATIVE jog [counts]
         # (§3.4) that the servo agent (droid-egm) adds once; writing the arm's absolute position
         # there once made a jog add the whole position (a runaway to the joint limits)
-        out.plan_ext = out.encoder_cmd_int.copy()
+        out.plan_ext = out.encoder_cmd_int  # the move ends where the arm is (apply copies both into the record)
         out.plan_time_count = 0
         return out
 
