@@ -122,6 +122,7 @@ class _Course:
 
     q: np.ndarray | None = None
     tick: int = 0
+    stamp_ns: int = 0
     q_prev: np.ndarray | None = None
     dt_s: float = 0.0
     vel: np.ndarray = field(default_factory=lambda: np.zeros(6))
@@ -179,10 +180,14 @@ class GuardCore:
 
     # -- one tick ------------------------------------------------------------------------------
     def step(self, q_meas: dict[str, np.ndarray], q_cmd: dict[str, np.ndarray] | None = None,
-             homed: dict[str, bool] | None = None, ticks: dict[str, int] | None = None) -> GuardVerdict:
+             homed: dict[str, bool] | None = None, ticks: dict[str, int] | None = None,
+             stamps_ns: dict[str, int] | None = None) -> GuardVerdict:
         """One tick: joints [deg] measured and commanded (None: the measured ones) of every arm,
         whether each is homed (None: all are) and the tick of each arm's Status sample (None, or 0:
-        every step is a fresh sample one tick after the last; the same tick again: no new sample)."""
+        every step is a fresh sample one tick after the last; the same tick again: no new sample).
+        ``stamps_ns``: each sample's CLOCK_MONOTONIC [ns] (its Status ``updated_ns``; None or 0:
+        none).  A new sample covers the ticks its Status advanced, or as many periods as its stamp
+        says passed when more (:meth:`_ticks_covered`)."""
         q_cmd = q_meas if q_cmd is None else q_cmd
         sc, dt = self.scene, self.period_s
         notes: list[str] = []
@@ -193,8 +198,10 @@ class GuardCore:
             qc = np.asarray(q_cmd[name], float)
             is_homed = True if homed is None else bool(homed[name])
             tick = 0 if ticks is None else int(ticks.get(name) or 0)
-            k = 1 if not (tick and c.tick) else max(0, tick - c.tick)  # ticks since its last sample
+            stamp = 0 if stamps_ns is None else int(stamps_ns.get(name) or 0)
+            k = self._ticks_covered(c, tick, stamp)
             c.tick = tick or c.tick
+            c.stamp_ns = stamp or c.stamp_ns
             elapsed[name] = 0
             if c.q is None:
                 new.add(name)
@@ -249,6 +256,17 @@ class GuardCore:
         v = self._closing_fall(v0, d, new, elapsed)
         self.last_d = d[0].copy()
         return self._verdict(d, v, notes, pa[0], pb[0])
+
+    def _ticks_covered(self, c: _Course, tick: int, stamp_ns: int) -> int:
+        """The heartbeat ticks a new sample covers since the arm's last (0: no new sample): its
+        Status's ticks, or the periods its stamps are apart when more -- a host stall that held
+        every program stretches the ticks themselves (the motion of three periods in a Status one
+        tick newer read as three times its speed: a false protective stop, docs/guard.md §5).  Never
+        fewer than the ticks: two replies a stalled remote wrote back to back are still a tick apart."""
+        k = 1 if not (tick and c.tick) else max(0, tick - c.tick)
+        if k > 0 and stamp_ns and c.stamp_ns:
+            k = max(k, int(round((stamp_ns - c.stamp_ns) / (self.period_s * 1e9))))
+        return k
 
     def _closing(self, d, pa, pb, poses, new: set[str], elapsed: dict[str, int]) -> np.ndarray:
         """Every pair's closing speed [mm/s] (the module docstring): ``poses`` of the rows now, the

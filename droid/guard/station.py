@@ -82,17 +82,19 @@ class GuardStation:
                 r["a_point_mm"] = r["b_point_mm"] = np.nan
                 status_db.mark_written()
 
-    def readings(self) -> tuple[dict, dict, dict, dict]:
+    def readings(self) -> tuple[dict, dict, dict, dict, dict]:
         """Every arm's measured and commanded joints [deg] (:meth:`joints`), whether its Status says
-        homed, and the tick of its Status (when it was refreshed: a speed is measured over the ticks
-        between two refreshes, docs/guard.md §5)."""
-        meas, cmd, homed, ticks = {}, {}, {}, {}
+        homed, and the tick and the time of its Status (when it was refreshed: a speed is measured
+        over the ticks between two refreshes, or the periods between their times when more,
+        docs/guard.md §5)."""
+        meas, cmd, homed, ticks, stamps = {}, {}, {}, {}, {}
         for name, (gearing, brain_status, *_rest) in self.arms.items():
             st = brain_status.read()
             meas[name], cmd[name] = self._joints_of(name, gearing, st)
             homed[name] = bool(int(st["homed"]))
             ticks[name] = int(st["tick"])
-        return meas, cmd, homed, ticks
+            stamps[name] = int(st["updated_ns"])
+        return meas, cmd, homed, ticks, stamps
 
     def _joints_of(self, name: str, gearing, st) -> tuple[np.ndarray, np.ndarray]:
         q = gearing.counts_to_joints(np.asarray(st["encoder_pos"], float))

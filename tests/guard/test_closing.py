@@ -233,3 +233,36 @@ def test_a_pass_at_rest_takes_the_tick_befores_figures_exactly():
         for f in ("distance_mm", "closing_mm_s", "separation_mm", "judged"):
             assert np.array_equal(getattr(a.pairs_now, f), getattr(b.pairs_now, f)), (t, f)
     assert a.still_passes > 60 and b.still_passes == 0
+
+
+def test_a_stall_that_stretches_the_ticks_is_measured_by_the_refresh_times():
+    """A host stall held every program for three periods: the arm's next Status is one tick newer
+    but refreshed three periods later, carrying three periods' motion.  Over the refresh times it is
+    the speed of a Status refreshed every period; over the ticks alone it reads three times as fast
+    (session 32's false protective stop).  Two replies written back to back (a stalled remote) are
+    still a tick apart: the speed is never read over less than the ticks."""
+    step = np.array([0.0, -40.0 / HZ, 0.0, 0.0, 0.0, 0.0])
+    period_ns = 1e9 / HZ
+
+    def run(stall_at: int | None, with_stamps: bool, back_to_back: bool = False) -> list[float]:
+        core = guard_core(trial_cell())
+        q = {n: np.array([0.0, 10.0, -30.0, 0.0, 0.0, 0.0]) for n in ("arm1", "arm2")}
+        tick, t_ns, out = 100, 5_000_000_000.0, []
+        for t in range(1, 14):
+            periods = 3 if t == stall_at else 1
+            q = dict(q, arm1=q["arm1"] + periods * step)
+            tick += 1
+            t_ns += (0.0 if back_to_back and t == stall_at else periods * period_ns)
+            stamps = {n: int(t_ns) for n in q} if with_stamps else None
+            core.step(q, ticks={n: tick for n in q}, stamps_ns=stamps)
+            out.append(float(np.max(core.pairs_now.closing_mm_s)))
+        return out
+
+    steady = max(run(None, True)[4:])
+    assert steady > 50.0
+    assert run(8, True)[7] == pytest.approx(steady, rel=0.05)
+    assert run(8, False)[7] == pytest.approx(3 * steady, rel=0.05)
+    assert run(None, True) == run(None, False)  # refreshed every period: the stamps change nothing
+    # a reply written 0 ns after the last (a stalled remote) still covers its tick, not 0 ticks
+    quick = run(8, True, back_to_back=True)
+    assert np.isfinite(quick[7]) and quick[7] >= 3 * steady * 0.95
